@@ -1,0 +1,66 @@
+"""Frozen hyperparameters of the SGC computation (SPEC §3).
+
+Shape-like fields (``k_seg``, ``max_tracks``, ``ransac_hypotheses``, ``kmeans_bins``,
+``gn_steps``) are static for the JAX engine: changing them recompiles. Thresholds are values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+PARTITIONS = ("depth", "grid", "depth+spatial")
+COMPATS = ("spec", "authors")
+
+
+@dataclasses.dataclass(frozen=True)
+class SGCConfig:
+    """Hyperparameters; defaults are the paper's (appendix, Table of hyperparameters)."""
+
+    k_seg: int = 10  # depth clusters per frame
+    min_region_pixels: int = 200  # clusters smaller than this are dropped
+    min_points: int = 4  # tracks a region needs for a local pose
+    inlier_px: float = 8.0  # RANSAC inlier threshold on reprojection error, pixels
+    ransac_hypotheses: int = 100  # minimal samples per region
+    confidence: float = 0.99  # RANSAC confidence (adaptive stop in OpenCV)
+    min_inlier_frac: float = 0.3  # pose accepted when inliers >= max(4, floor(frac * n))
+    min_track_conf: float = 0.5  # tracks below this confidence are unusable
+    max_tracks: int = 4096  # tracks kept per pair at load time (deterministic sub-sampling)
+    seed: int = 0  # every random draw derives from this
+    partition: str = "depth"  # "depth" | "grid" | "depth+spatial"
+    use_mos: bool = True  # False: ignore the static mask (the paper's no-MOS ablation)
+    align_scale: bool = False  # fit one scale s per clip between local and global translations
+    compat: str = "spec"  # "spec" (SPEC §3) | "authors" (SPEC §3a)
+    kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
+    gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
+
+    def __post_init__(self) -> None:
+        if self.partition not in PARTITIONS:
+            raise ValueError(f"partition must be one of {PARTITIONS}, got {self.partition!r}")
+        if self.compat not in COMPATS:
+            raise ValueError(f"compat must be one of {COMPATS}, got {self.compat!r}")
+        for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "gn_steps"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.min_points < 4:
+            raise ValueError(f"min_points must be >= 4 (PnP needs 4 points), got {self.min_points}")
+        if not 0.0 < self.confidence < 1.0:
+            raise ValueError(f"confidence must be in (0, 1), got {self.confidence}")
+        if self.inlier_px <= 0:
+            raise ValueError(f"inlier_px must be > 0, got {self.inlier_px}")
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "SGCConfig":
+        """Build a config from a mapping; unknown keys raise instead of being ignored."""
+        return cls().replace(**values)
+
+    def replace(self, **changes: Any) -> "SGCConfig":
+        """A copy with some fields changed; a misspelled field name raises ``TypeError``."""
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise TypeError(f"unknown SGCConfig field(s) {unknown}; known fields: {sorted(known)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
