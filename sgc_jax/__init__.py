@@ -1,0 +1,18 @@
+"""sgc_jax: Spatial Geometric Consistency scores for videos, from estimator outputs (SPEC §1).
+
+The public API, as explicit re-exports.
+"""
+
+from .api import ENGINES, score_batch, score_clip
+from .calibration import COMPONENTS, Calibration, calibrate, sgc_score
+from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
+from .config import SGCConfig
+from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "Clip", "ClipFormatError", "ClipResult",
+    "ENGINES", "PAIR_COLUMNS", "PairArrays", "SGCConfig", "calibrate", "clip_from_arrays", "load_clip",
+    "load_clips", "save_batch", "save_clip", "score_batch", "score_clip", "sgc_score",
+]

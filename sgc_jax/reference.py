@@ -1,0 +1,378 @@
+"""Plain NumPy + OpenCV reference scorer of SPEC §3 (the oracle and the speed baseline).
+
+Readable and faithful rather than fast: loops over pairs and regions, ``cv2.solvePnPRansac``
+with the authors' settings (SOLVEPNP_ITERATIVE, 100 iterations, 8 px, confidence 0.99) for the
+local poses. OpenCV's adaptive RANSAC stops early and now and then accepts a wrong pose on small
+or far regions; such one-pair spikes stay visible in the per-pair diagnostics on purpose.
+
+Conventions: poses map camera i-1 coordinates to camera i coordinates (x_i = R x_{i-1} + t);
+rotations in degrees in every output; depth and local translations in depth units.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .clip import Clip
+from .config import SGCConfig
+from .result import REGION_STATUS, PairArrays, empty_pair_arrays
+
+# ----------------------------------------------------------------------------- rotations
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) in radians of a rotation matrix (3, 3)."""
+    rotvec, _ = cv2.Rodrigues(np.asarray(R, np.float64))
+    return rotvec.ravel()
+
+
+def so3_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of a rotation vector (3,) in radians."""
+    R, _ = cv2.Rodrigues(np.asarray(rotvec, np.float64).reshape(3, 1))
+    return R
+
+
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    """Angle of R_a^T R_b in degrees via atan2 (stable for tiny angles, unlike arccos)."""
+    M = R_a.T @ R_b
+    sin_part = 0.5 * np.linalg.norm([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+    cos_part = 0.5 * (np.trace(M) - 1.0)
+    return float(np.degrees(np.arctan2(sin_part, cos_part)))
+
+
+def rotation_angle_deg_authors(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    """The authors' distance: arccos((trace(R_a^T R_b) - 1) / 2) in float32 (0 for tiny angles)."""
+    cos = (np.float32(np.trace((R_a.T @ R_b).astype(np.float32))) - np.float32(1)) / np.float32(2)
+    return float(np.degrees(np.arccos(np.clip(cos, np.float32(-1), np.float32(1)))))
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """Closest rotation (det +1) to a 3x3 matrix, by SVD."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def global_relative_pose(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(R_g, t_g) from camera pair-1 to camera pair (SPEC §3.7)."""
+    product = clip.R_wc[pair] @ clip.R_wc[pair - 1].T
+    R_g = nearest_rotation(product)
+    R_for_t = product if config.compat == "authors" else R_g
+    return R_g, clip.t_wc[pair] - R_for_t @ clip.t_wc[pair - 1]
+
+
+# ----------------------------------------------------------------------------- depth regions
+
+
+def valid_depth(depth: np.ndarray) -> np.ndarray:
+    return np.isfinite(depth) & (depth > 0)
+
+
+def kmeans_1d(values: np.ndarray, k: int, bins: int) -> np.ndarray:
+    """Exact 1-D k-means on a ``bins``-bin histogram by dynamic programming.
+
+    values (N,) -> labels (N,) in 0..k-1, clusters in increasing value order. Clusters are
+    unions of whole bins; among those the within-cluster sum of squares is minimal.
+    """
+    values = np.asarray(values, np.float64)
+    if values.size == 0:
+        return np.zeros(0, np.int64)
+    lo, hi = values.min(), values.max()
+    if hi - lo <= 0:
+        return np.zeros(values.size, np.int64)
+    u = (values - lo) / (hi - lo)
+    bin_of = np.clip(np.floor(u * bins), 0, bins - 1).astype(np.int64)
+    N = np.concatenate([[0.0], np.cumsum(np.bincount(bin_of, minlength=bins))])
+    S = np.concatenate([[0.0], np.cumsum(np.bincount(bin_of, weights=u, minlength=bins))])
+    Q = np.concatenate([[0.0], np.cumsum(np.bincount(bin_of, weights=u * u, minlength=bins))])
+    a = np.arange(bins + 1)[:, None]  # first bin of the last cluster (a == b + 1: empty cluster)
+    b = np.arange(bins)[None, :]  # last bin
+    n, s, q = N[b + 1] - N[a], S[b + 1] - S[a], Q[b + 1] - Q[a]
+    cost = np.maximum(q - s * s / np.maximum(n, 1.0), 0.0)
+    cost = np.where(a <= b + 1, np.where(a == b + 1, 0.0, cost), np.inf)
+    prev = np.concatenate([[0.0], np.full(bins, np.inf)])  # D_0(a - 1) for a = 0..bins
+    choices = []
+    for _ in range(k):
+        total = prev[:, None] + cost
+        choice = np.argmin(total, axis=0)
+        choices.append(choice)
+        prev = np.concatenate([[0.0], total[choice, np.arange(bins)]])
+    cluster_of_bin = np.zeros(bins, np.int64)
+    last = bins - 1
+    for j in range(k - 1, -1, -1):
+        if last < 0:
+            break
+        first = choices[j][last]
+        cluster_of_bin[first: last + 1] = j
+        last = first - 1
+    return cluster_of_bin[bin_of]
+
+
+def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
+    """Label map (H, W): 1..N_s depth clusters of the masked pixels, 0 = no region (SPEC §3.2)."""
+    labels = np.zeros(depth.shape, np.int32)
+    cluster = kmeans_1d(depth[region_mask], config.k_seg, config.kmeans_bins)
+    counts = np.bincount(cluster, minlength=config.k_seg)
+    kept = np.flatnonzero(counts >= config.min_region_pixels)
+    renumber = np.zeros(config.k_seg, np.int32)
+    renumber[kept] = np.arange(1, kept.size + 1)
+    labels[region_mask] = renumber[cluster]
+    return labels
+
+
+def pair_region_mask(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
+    """S_i: static and valid depth in frame ``pair`` (authors: invalid static depth too)."""
+    static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+    if config.compat == "authors":
+        return static
+    return static & valid_depth(clip.depth[pair])
+
+
+def partition_regions(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
+    """Region label map (H, W) of frame ``pair`` for the configured partition."""
+    region_mask = pair_region_mask(clip, pair, config)
+    depth = np.where(valid_depth(clip.depth[pair]), clip.depth[pair], 0.0)
+    if config.partition != "depth":
+        raise ValueError(f"the reference engine implements partition='depth' only, got {config.partition!r}")
+    return depth_regions(depth, region_mask, config)
+
+
+# ----------------------------------------------------------------------------- tracks
+
+
+def usable_points(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Usable tracks of a pair with valid depth: (X (n,3) in camera pair-1, uv (n,2) in frame pair,
+    n_usable) following SPEC §3.3-3.4."""
+    usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
+    prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
+    H, W = clip.image_size
+    col = np.clip(np.floor(prev[:, 0]).astype(np.int64), 0, W - 1)
+    row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
+    Z = clip.depth[pair - 1][row, col].astype(np.float64)
+    has_depth = np.isfinite(Z) & (Z > 0)
+    K = clip.K[pair - 1]
+    X = np.stack([(prev[:, 0] - K[0, 2]) * Z / K[0, 0], (prev[:, 1] - K[1, 2]) * Z / K[1, 1], Z], axis=1)
+    return X[has_depth], curr[has_depth], int(usable.sum())
+
+
+def point_regions(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Region label (n,) at floor(track_curr); 0 outside the image or outside every region."""
+    H, W = labels.shape
+    col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    out = np.zeros(len(uv), np.int32)
+    out[inside] = labels[row[inside], col[inside]]
+    return out
+
+
+# ----------------------------------------------------------------------------- local poses
+
+
+def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCConfig,
+                      seed: int) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """PnP-RANSAC with OpenCV's solver: (status, R (3,3), t (3,), mean reprojection error px).
+
+    Status codes are :data:`REGION_STATUS`. Accepted when inliers >= max(4, floor(frac * n)) and
+    R is a proper rotation (SPEC §3.6).
+    """
+    n = len(X)
+    nan_pose = np.full((3, 3), np.nan), np.full(3, np.nan)
+    if n < config.min_points:
+        return REGION_STATUS["too_few_points"], *nan_pose, float("nan")
+    cv2.setRNGSeed(seed)
+    try:
+        found, rvec, tvec, inliers = cv2.solvePnPRansac(
+            X.astype(np.float64), uv.astype(np.float64), K.astype(np.float64), None,
+            iterationsCount=config.ransac_hypotheses, reprojectionError=config.inlier_px,
+            confidence=config.confidence, flags=cv2.SOLVEPNP_ITERATIVE)
+    except cv2.error:
+        found = False
+    if not found or inliers is None or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+        return REGION_STATUS["rejected"], *nan_pose, float("nan")
+    R, t = so3_exp(rvec), tvec.ravel()
+    needed = max(4, int(np.floor(config.min_inlier_frac * n)))
+    proper = abs(np.linalg.det(R) - 1.0) < 1e-3
+    if len(inliers) < needed or not proper:
+        return REGION_STATUS["rejected"], *nan_pose, float("nan")
+    return REGION_STATUS["ok"], R, t, float(reprojection_errors(X, uv, K, R, t).mean())
+
+
+def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Pixel distance (n,) between uv and the projection of R X + t with K."""
+    cam = X @ R.T + t
+    z = np.where(np.abs(cam[:, 2]) > 1e-12, cam[:, 2], 1e-12)
+    proj = (cam[:, :2] / z[:, None]) * K[[0, 1], [0, 1]] + K[:2, 2]
+    return np.linalg.norm(proj - uv, axis=1)
+
+
+# ----------------------------------------------------------------------------- components
+
+
+def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig) -> tuple[float, float]:
+    """(local_rot_var deg^2, local_trans_var) around the mean pose; 0 with one pose, NaN with none."""
+    n = len(R_local)
+    if n == 0:
+        return float("nan"), float("nan")
+    if n == 1:
+        return 0.0, 0.0
+    R_mean = so3_exp(np.mean([so3_log(R) for R in R_local], axis=0))
+    t_mean = np.mean(t_local, axis=0)
+    angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
+    rot = np.mean([angle(R, R_mean) ** 2 for R in R_local])
+    trans = np.mean([np.sum((t - t_mean) ** 2) for t in t_local])
+    return float(rot), float(trans)
+
+
+def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
+    """Mean of v with q1 - k*IQR <= v <= p98, k = (p98 - q3)/IQR; IQR == 0 keeps all (SPEC §3.8).
+
+    Under ``compat="authors"`` IQR == 0 rejects every value (NaN).
+    """
+    values = np.asarray(values, np.float64)
+    if values.size == 0:
+        return float("nan")
+    q1, q3, p98 = np.percentile(values, [25, 75, 98])
+    iqr = q3 - q1
+    if iqr == 0:
+        return float("nan") if config.compat == "authors" else float(values.mean())
+    k = (p98 - q3) / iqr
+    kept = values[(values >= q1 - k * iqr) & (values <= p98)]
+    return float(kept.mean()) if kept.size else float("nan")
+
+
+def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,
+                     t_g: np.ndarray, config: SGCConfig) -> tuple[float, float]:
+    """(global_rot_var deg^2 trimmed, global_trans_var) of the local poses against (R_g, t_g)."""
+    if not R_local:
+        return float("nan"), float("nan")
+    angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
+    rot = trimmed_mean_iqr(np.array([angle(R, R_g) ** 2 for R in R_local]), config)
+    trans = float(np.mean([np.sum((t - t_g) ** 2) for t in t_local]))
+    return rot, trans
+
+
+def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
+               t: np.ndarray, nearest: bool = True) -> np.ndarray:
+    """Forward-warp the valid pixels of depth_prev (H, W) into frame i; 0 where nothing lands.
+
+    Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
+    nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
+    """
+    H, W = depth_prev.shape
+    rows, cols = np.nonzero(valid_depth(depth_prev))
+    d = depth_prev[rows, cols].astype(np.float64)
+    pix = np.stack([cols, rows, np.ones_like(cols)], axis=0).astype(np.float64)
+    X = (np.linalg.inv(K_prev) @ pix) * d
+    cam = R @ X + t[:, None]
+    z = cam[2]
+    front = z > 1e-5
+    proj = K_curr @ (cam[:, front] / z[front])
+    iu, iv, z = np.floor(proj[0] + 0.5).astype(np.int64), np.floor(proj[1] + 0.5).astype(np.int64), z[front]
+    inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+    iu, iv, z = iu[inside], iv[inside], z[inside]
+    if nearest:
+        buffer = np.full((H, W), np.inf)
+        np.minimum.at(buffer, (iv, iu), z)
+        return np.where(np.isfinite(buffer), buffer, 0.0)
+    buffer = np.zeros((H, W))
+    np.maximum.at(buffer, (iv, iu), z)
+    return buffer
+
+
+def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray) -> float:
+    """Mean |warped - depth_curr| where both are valid and the pixel is static; NaN if none."""
+    both = (warped > 0) & valid_depth(depth_curr) & static_curr
+    return float(np.abs(warped[both] - depth_curr[both]).mean()) if both.any() else float("nan")
+
+
+# ----------------------------------------------------------------------------- the clip
+
+
+def region_seed(config: SGCConfig, pair: int, region: int) -> int:
+    return (config.seed * 1_000_003 + pair * 1_009 + region) % (2**31 - 1)
+
+
+def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
+    """Per pair and region (k_seg slots): status, R, t, point count, reprojection error; plus
+    per pair n_tracks and n_regions (SPEC §3.1-3.6)."""
+    n_pairs, k = clip.n_pairs, config.k_seg
+    out = {
+        "R_local": np.full((n_pairs, k, 3, 3), np.nan), "t_local": np.full((n_pairs, k, 3), np.nan),
+        "region_status": np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
+        "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
+        "n_tracks": np.zeros(n_pairs, np.int32), "n_regions": np.zeros(n_pairs, np.int32),
+    }
+    for pair in range(1, clip.n_frames):
+        p = pair - 1
+        labels = partition_regions(clip, pair, config)
+        out["n_regions"][p] = labels.max()
+        X, uv, n_usable = usable_points(clip, pair, config)
+        out["n_tracks"][p] = n_usable
+        if n_usable < 4:
+            continue
+        member_of = point_regions(labels, uv)
+        for region in range(1, labels.max() + 1):
+            member = member_of == region
+            status, R, t, reproj = solve_region_pose(X[member], uv[member], clip.K[pair], config,
+                                                     region_seed(config, pair, region))
+            j = region - 1
+            out["region_status"][p, j], out["region_points"][p, j] = status, member.sum()
+            out["R_local"][p, j], out["t_local"][p, j], out["region_reproj"][p, j] = R, t, reproj
+    return out
+
+
+def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.ndarray) -> float:
+    """s = argmin sum ||t_j - s t_g||^2 over all pairs and accepted regions (1 if undefined)."""
+    tg = np.broadcast_to(t_g[:, None, :], t_local.shape)
+    num = np.sum(np.where(accepted[..., None], t_local * tg, 0.0))
+    den = np.sum(np.where(accepted[..., None], tg * tg, 0.0))
+    return float(num / den) if den > 0 else 1.0
+
+
+def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float) -> str:
+    """The first problem of a pair, in pipeline order (``ok`` when every component exists)."""
+    if n_tracks < 4:
+        return "too_few_tracks"
+    if region_mask_pixels == 0:
+        return "no_static"
+    if n_regions == 0:
+        return "no_region"
+    if n_poses == 0:
+        return "no_pose"
+    if np.isnan(depth_err):
+        return "no_depth_overlap"
+    return "ok"
+
+
+def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
+    """Every per-pair component and diagnostic of a clip (SPEC §3), as :class:`PairArrays`."""
+    config = config or SGCConfig()
+    poses = local_poses(clip, config)
+    n_pairs = clip.n_pairs
+    globals_ = [global_relative_pose(clip, pair, config) for pair in range(1, clip.n_frames)]
+    R_g = np.stack([g[0] for g in globals_])
+    t_g = np.stack([g[1] for g in globals_])
+    accepted = poses["region_status"] == REGION_STATUS["ok"]
+    scale = fit_translation_scale(poses["t_local"], accepted, t_g) if config.align_scale else 1.0
+    out = empty_pair_arrays(n_pairs, config.k_seg)
+    out.scale = scale
+    for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "n_tracks", "n_regions"):
+        setattr(out, key, poses[key])
+    for pair in range(1, clip.n_frames):
+        p = pair - 1
+        R_list = [poses["R_local"][p, j] for j in np.flatnonzero(accepted[p])]
+        t_list = [poses["t_local"][p, j] for j in np.flatnonzero(accepted[p])]
+        out.local_rot_var[p], out.local_trans_var[p] = local_variances(R_list, t_list, config)
+        out.global_rot_var[p], out.global_trans_var[p] = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config)
+        static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+        warped = warp_depth(clip.depth[pair - 1], clip.K[pair - 1], clip.K[pair], R_g[p], scale * t_g[p],
+                            nearest=config.compat != "authors")
+        out.depth_error[p] = depth_error(warped, clip.depth[pair], static)
+        out.n_poses[p] = len(R_list)
+        out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
+        out.t_g_norm[p] = np.linalg.norm(t_g[p])
+        out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
+        out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, pair, config).sum()),
+                                    int(out.n_regions[p]), len(R_list), out.depth_error[p])
+    return out

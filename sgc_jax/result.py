@@ -1,0 +1,263 @@
+"""Results: per-pair arrays of one clip, per-clip summaries, and the batch table (SPEC §6).
+
+Column names are fixed (:data:`CLIP_COLUMNS`, :data:`PAIR_COLUMNS`) so scripts can rely on them.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from .calibration import COMPONENTS, Calibration, sgc_score
+
+#: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
+PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap")
+#: Per-region status codes shared by both engines.
+REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3}
+
+CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
+                "ecd_rot", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale")
+PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
+                "n_poses", "t_g_norm", "R_g_angle_deg", "engine")
+
+
+@dataclasses.dataclass
+class PairArrays:
+    """Per-pair values of one clip; index p is pair p+1 (frames p -> p+1); k region slots.
+
+    Rotations in degrees (variances deg^2); local translations in depth units, global ones in
+    pose units (times ``scale`` when ``align_scale``); reprojection errors in pixels.
+    """
+
+    local_rot_var: np.ndarray  # (n_pairs,)
+    local_trans_var: np.ndarray
+    global_rot_var: np.ndarray
+    global_trans_var: np.ndarray
+    depth_error: np.ndarray
+    reproj_error: np.ndarray  # mean over accepted regions of their mean reprojection error
+    n_tracks: np.ndarray  # usable tracks (visible, confident)
+    n_regions: np.ndarray
+    n_poses: np.ndarray  # accepted local poses
+    t_g_norm: np.ndarray  # ||t_g||, ECD input
+    R_g_angle_deg: np.ndarray  # rotation angle of R_g, ECD input
+    reason: np.ndarray  # (n_pairs,) str, one of PAIR_REASONS
+    R_local: np.ndarray  # (n_pairs, k, 3, 3), NaN where no accepted pose
+    t_local: np.ndarray  # (n_pairs, k, 3)
+    region_status: np.ndarray  # (n_pairs, k) int, REGION_STATUS
+    region_points: np.ndarray  # (n_pairs, k) tracks per region
+    region_reproj: np.ndarray  # (n_pairs, k) mean reprojection error px
+    scale: float = 1.0  # align_scale factor applied to t_g
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.reason)
+
+    def components(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k) for k in COMPONENTS}
+
+
+def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:
+    nan = lambda *shape: np.full(shape, np.nan)  # noqa: E731
+    zeros = lambda *shape: np.zeros(shape, np.int32)  # noqa: E731
+    return PairArrays(
+        local_rot_var=nan(n_pairs), local_trans_var=nan(n_pairs), global_rot_var=nan(n_pairs),
+        global_trans_var=nan(n_pairs), depth_error=nan(n_pairs), reproj_error=nan(n_pairs),
+        n_tracks=zeros(n_pairs), n_regions=zeros(n_pairs), n_poses=zeros(n_pairs),
+        t_g_norm=nan(n_pairs), R_g_angle_deg=nan(n_pairs), reason=np.full(n_pairs, "ok", dtype=object),
+        R_local=nan(n_pairs, k, 3, 3), t_local=nan(n_pairs, k, 3),
+        region_status=np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
+        region_points=zeros(n_pairs, k), region_reproj=nan(n_pairs, k),
+    )
+
+
+def _nanmean(values: np.ndarray) -> float:
+    values = np.asarray(values, np.float64)
+    finite = ~np.isnan(values)
+    return float(values[finite].mean()) if finite.any() else float("nan")
+
+
+@dataclasses.dataclass
+class ClipResult:
+    """One clip's score, components (NaN-ignoring means over pairs), diagnostics and pairs."""
+
+    clip_id: str
+    group: str = ""
+    status: str = "error"  # "ok" | "partial" | "error"
+    reason: str = ""
+    sgc: float = float("nan")
+    components: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in COMPONENTS})
+    reproj_error: float = float("nan")
+    ecd_trans: float = float("nan")  # mean ||t_g|| over pairs (pose units)
+    ecd_rot: float = float("nan")  # mean rotation angle of R_g over pairs (deg)
+    n_pairs: int = 0
+    n_pairs_scored: int = 0
+    engine: str = ""
+    mask_source: str = ""
+    scale: float = 1.0
+    origin: str = ""
+    pairs: PairArrays | None = None
+
+    def record(self) -> dict[str, Any]:
+        row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
+               "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
+               "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "n_pairs": self.n_pairs,
+               "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
+               "mask_source": self.mask_source, "scale": self.scale}
+        return {k: row[k] for k in CLIP_COLUMNS}
+
+    def pair_records(self) -> list[dict[str, Any]]:
+        if self.pairs is None:
+            return []
+        p = self.pairs
+        return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
+                 **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, "reproj_error": float(p.reproj_error[i]),
+                 "n_tracks": int(p.n_tracks[i]), "n_regions": int(p.n_regions[i]), "n_poses": int(p.n_poses[i]),
+                 "t_g_norm": float(p.t_g_norm[i]), "R_g_angle_deg": float(p.R_g_angle_deg[i]),
+                 "engine": self.engine} for i in range(p.n_pairs)]
+
+
+def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
+                   engine: str = "", mask_source: str = "", origin: str = "") -> ClipResult:
+    """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (SPEC §3.9, §4)."""
+    components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
+    sgc = float(sgc_score(components, calibration))
+    reasons = Counter(str(r) for r in pairs.reason)
+    scored = reasons.get("ok", 0)
+    problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
+    if math.isnan(sgc):
+        status, reason = "error", f"no pair could be scored ({problems})" if problems else "no pair could be scored"
+    elif scored < pairs.n_pairs:
+        status, reason = "partial", problems
+    else:
+        status, reason = "ok", ""
+    return ClipResult(
+        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
+        reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
+        ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
+        engine=engine, mask_source=mask_source, scale=float(pairs.scale), origin=origin, pairs=pairs)
+
+
+def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "") -> ClipResult:
+    """The row of a clip that could not be loaded or scored."""
+    return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin)
+
+
+# ----------------------------------------------------------------------------- batch table
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, (float, np.floating)):
+        return None if math.isnan(value) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _write_csv(path: str | os.PathLike, rows: list[dict], columns: Sequence[str]) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
+    return path
+
+
+@dataclasses.dataclass
+class BatchResult:
+    """Scores of many clips, in input order; ``result["sgc"]`` gives a column as an array."""
+
+    clips: list[ClipResult]
+    calibration: Calibration | None = None
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    def __iter__(self) -> Iterator[ClipResult]:
+        return iter(self.clips)
+
+    def __getitem__(self, key: str | int) -> Any:
+        if isinstance(key, int):
+            return self.clips[key]
+        if key not in CLIP_COLUMNS:
+            raise KeyError(f"unknown column {key!r}; columns: {CLIP_COLUMNS}")
+        values = [r[key] for r in self.to_records()]
+        return np.array(values, dtype=np.float64 if isinstance(values[0], float) else object) if values else np.array([])
+
+    def clip(self, clip_id: str) -> ClipResult:
+        for c in self.clips:
+            if c.clip_id == clip_id:
+                return c
+        raise KeyError(f"no clip {clip_id!r} in this result")
+
+    @property
+    def clip_ids(self) -> list[str]:
+        return [c.clip_id for c in self.clips]
+
+    @property
+    def sgc(self) -> np.ndarray:
+        return self["sgc"]
+
+    def to_records(self) -> list[dict[str, Any]]:
+        """One dict per clip with :data:`CLIP_COLUMNS`."""
+        return [c.record() for c in self.clips]
+
+    def pair_records(self) -> list[dict[str, Any]]:
+        """One dict per pair with :data:`PAIR_COLUMNS`."""
+        return [row for c in self.clips for row in c.pair_records()]
+
+    def to_csv(self, path: str | os.PathLike, pairs_path: str | os.PathLike | None = None) -> Path:
+        if pairs_path is not None:
+            _write_csv(pairs_path, self.pair_records(), PAIR_COLUMNS)
+        return _write_csv(path, self.to_records(), CLIP_COLUMNS)
+
+    def to_json(self, path: str | os.PathLike | None = None, *, pairs: bool = True) -> str:
+        """JSON text ``{"clips": [...], "pairs": [...]}`` (NaN -> null); written when ``path``."""
+        payload = {"calibration": self.calibration.name if self.calibration else None,
+                   "clips": [{k: _json_value(v) for k, v in r.items()} for r in self.to_records()]}
+        if pairs:
+            payload["pairs"] = [{k: _json_value(v) for k, v in r.items()} for r in self.pair_records()]
+        text = json.dumps(payload, indent=1)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def to_pandas(self, pairs: bool = False):
+        """A DataFrame of the clips (or of the pairs); needs pandas."""
+        try:
+            import pandas as pd
+        except ImportError as exc:  # pragma: no cover - depends on the environment
+            raise ImportError("to_pandas needs pandas: pip install pandas") from exc
+        if pairs:
+            return pd.DataFrame(self.pair_records(), columns=list(PAIR_COLUMNS))
+        return pd.DataFrame(self.to_records(), columns=list(CLIP_COLUMNS))
+
+    def rescore(self, calibration: Calibration | str) -> "BatchResult":
+        """The same components under another calibration (no geometry is recomputed)."""
+        calibration = Calibration.load(calibration)
+        clips = [summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
+                                mask_source=c.mask_source, origin=c.origin) if c.pairs is not None else c
+                 for c in self.clips]
+        return BatchResult(clips, calibration)
+
+    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *COMPONENTS)) -> str:
+        """A plain-text table for terminals."""
+        rows = [[_format(r[c]) for c in columns] for r in self.to_records()]
+        widths = [max(len(c), *(len(row[i]) for row in rows)) if rows else len(c) for i, c in enumerate(columns)]
+        line = lambda cells: "  ".join(cell.ljust(w) for cell, w in zip(cells, widths))  # noqa: E731
+        return "\n".join([line(columns), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.4g}"
+    return str(value)

@@ -1,0 +1,134 @@
+"""SPEC §2: the clip file, its accepted alternatives, validation errors, batch files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sgc_jax import ClipFormatError, SGCConfig, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
+from sgc_jax.clip import clip_to_arrays, discover_clips
+
+
+def tiny_arrays(T=3, H=8, W=10, P=12, seed=0):
+    rng = np.random.default_rng(seed)
+    return {
+        "depth": rng.uniform(1, 5, (T, H, W)).astype(np.float32),
+        "K": np.array([[10.0, 0, 4.5], [0, 10.0, 3.5], [0, 0, 1]]),
+        "R_wc": np.broadcast_to(np.eye(3), (T, 3, 3)).copy(),
+        "t_wc": rng.normal(size=(T, 3)),
+        "static_mask": np.ones((T, H, W), bool),
+        "track_prev": rng.uniform(0, 7, (T - 1, P, 2)).astype(np.float32),
+        "track_curr": rng.uniform(0, 7, (T - 1, P, 2)).astype(np.float32),
+        "track_vis": np.ones((T - 1, P), bool),
+        "track_conf": rng.uniform(0, 1, (T - 1, P)).astype(np.float32),
+        "meta": np.asarray(json.dumps({"clip_id": "tiny", "group": "g1"})),
+    }
+
+
+def test_valid_clip_loads_with_its_metadata():
+    clip = clip_from_arrays(tiny_arrays())
+    assert clip.clip_id == "tiny" and clip.group == "g1"
+    assert clip.K.shape == (3, 3, 3) and clip.mask_source == "static_mask"
+
+
+@pytest.mark.parametrize("name, change, expected", [
+    ("depth", lambda a: a.pop("depth"), "no such array"),
+    ("depth", lambda a: a.update(depth=a["depth"][0]), "shape (8, 10)"),
+    ("depth", lambda a: a.update(depth=a["depth"][:1]), "T = 1"),
+    ("K", lambda a: a.update(K=np.eye(4)), "shape (4, 4)"),
+    ("K", lambda a: a.update(K=np.full((3, 3), np.nan)), "non-finite"),
+    ("R_wc", lambda a: a.update(R_wc=a["R_wc"][:2]), "shape (2, 3, 3)"),
+    ("t_wc", lambda a: a["t_wc"].__setitem__((1, 0), np.inf), "non-finite"),
+    ("static_mask", lambda a: a.update(static_mask=a["static_mask"][:, :4]), "shape (3, 4, 10)"),
+    ("track_prev", lambda a: a.update(track_prev=a["track_prev"][:1]), "shape (1, 12, 2)"),
+    ("track_curr", lambda a: a.update(track_curr=a["track_curr"][:, :5]), "shape (2, 5, 2)"),
+    ("track_vis", lambda a: a.pop("track_vis"), "no such array"),
+    ("track_conf", lambda a: a.update(track_conf=a["track_conf"][:, :3]), "shape (2, 3)"),
+])
+def test_structural_errors_name_clip_array_and_shapes(name, change, expected):
+    arrays = tiny_arrays()
+    change(arrays)
+    with pytest.raises(ClipFormatError) as info:
+        clip_from_arrays(arrays)
+    message = str(info.value)
+    assert "'tiny'" in message and f"'{name}'" in message and expected in message
+    assert info.value.array == name and info.value.clip_id == "tiny"
+
+
+def test_accepted_alternatives():
+    arrays = tiny_arrays()
+    R, t = arrays.pop("R_wc"), arrays.pop("t_wc")
+    arrays["extrinsic"] = np.concatenate([R, t[:, :, None]], axis=2)
+    dynamic = np.zeros((3, 8, 10), bool)
+    dynamic[:, :2] = True
+    arrays["dynamic_mask"] = dynamic
+    del arrays["static_mask"], arrays["track_conf"]
+    arrays["track_vis"] = np.linspace(-1, 1, 24).reshape(2, 12)  # float visibility: > 0 is visible
+    clip = clip_from_arrays(arrays)
+    np.testing.assert_array_equal(clip.t_wc, t)
+    assert clip.mask_source == "dynamic_mask" and not clip.static_mask[:, :2].any()
+    assert (clip.track_conf == 1).all() and clip.track_vis.sum() == 12
+
+
+def test_missing_mask_means_whole_frame_static_and_says_so():
+    arrays = tiny_arrays()
+    del arrays["static_mask"]
+    clip = clip_from_arrays(arrays)
+    assert clip.static_mask.all() and clip.mask_source == "none"
+
+
+def test_clip_id_defaults_to_file_name(tmp_path):
+    arrays = tiny_arrays()
+    del arrays["meta"]
+    np.savez(tmp_path / "my_clip.npz", **arrays)
+    assert load_clip(tmp_path / "my_clip.npz").clip_id == "my_clip"
+
+
+def test_subsampling_is_deterministic_and_keeps_usable_tracks_first():
+    arrays = tiny_arrays(P=50)
+    config = SGCConfig(max_tracks=8)
+    a, b = clip_from_arrays(arrays, config=config), clip_from_arrays(arrays, config=config)
+    assert a.n_tracks == 8
+    np.testing.assert_array_equal(a.track_prev, b.track_prev)
+    usable = arrays["track_conf"] >= 0.5
+    for pair in range(2):  # every pair has more than 8 usable tracks: all kept tracks are usable
+        assert usable[pair].sum() > 8
+        assert (a.track_conf[pair] >= 0.5).all()
+        kept_rows = [np.flatnonzero((arrays["track_prev"][pair] == p).all(1))[0] for p in a.track_prev[pair]]
+        assert kept_rows == sorted(kept_rows)
+
+
+def test_clip_file_round_trip(tmp_path):
+    clip = clip_from_arrays(tiny_arrays())
+    loaded = load_clip(save_clip(tmp_path / "c.npz", clip))
+    for name, value in clip_to_arrays(clip).items():
+        if name != "meta":
+            np.testing.assert_array_equal(value, clip_to_arrays(loaded)[name])
+    assert loaded.meta == clip.meta
+
+
+def test_batch_file_round_trip_with_mixed_sizes(tmp_path):
+    small = clip_from_arrays(tiny_arrays(T=3, H=8, W=10, P=12), clip_id="small")
+    arrays = tiny_arrays(T=5, H=9, W=12, P=20, seed=1)
+    del arrays["static_mask"]
+    big = clip_from_arrays(arrays, clip_id="big")
+    path = save_batch(tmp_path / "batch.npz", [small, big])
+    entries = discover_clips(path)
+    assert [e.clip_id for e in entries] == ["small", "big"]
+    loaded = list(load_clips(path))
+    for original, back in zip((small, big), loaded):
+        assert back.depth.shape == original.depth.shape and back.n_tracks == original.n_tracks
+        np.testing.assert_array_equal(back.track_curr, original.track_curr)
+        assert back.mask_source == original.mask_source
+    with np.load(path) as data:
+        assert list(data["n_frames"]) == [3, 5] and list(data["n_tracks"]) == [12, 20]
+
+
+def test_sources_directories_globs_and_mappings(tmp_path):
+    for i in range(3):
+        save_clip(tmp_path / f"c{i}.npz", clip_from_arrays(tiny_arrays(seed=i), clip_id=f"c{i}"))
+    assert len(discover_clips(tmp_path)) == 3
+    assert len(discover_clips(str(tmp_path / "c[01].npz"))) == 2
+    assert len(discover_clips([tiny_arrays(), tmp_path / "c2.npz"])) == 2
+    with pytest.raises(FileNotFoundError, match="nothing_here"):
+        discover_clips(tmp_path / "nothing_here")
