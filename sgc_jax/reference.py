@@ -227,7 +227,8 @@ def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config
 def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
     """Mean of v with q1 - k*IQR <= v <= p98, k = (p98 - q3)/IQR; IQR == 0 keeps all (SPEC §3.8).
 
-    Under ``compat="authors"`` IQR == 0 rejects every value (NaN).
+    When the bounds reject every value (two distinct values) all are kept. Under
+    ``compat="authors"`` both cases reject every value (NaN).
     """
     values = np.asarray(values, np.float64)
     if values.size == 0:
@@ -238,7 +239,9 @@ def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
         return float("nan") if config.compat == "authors" else float(values.mean())
     k = (p98 - q3) / iqr
     kept = values[(values >= q1 - k * iqr) & (values <= p98)]
-    return float(kept.mean()) if kept.size else float("nan")
+    if kept.size == 0:  # e.g. two distinct values: the bounds fall strictly between them
+        return float("nan") if config.compat == "authors" else float(values.mean())
+    return float(kept.mean())
 
 
 def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,

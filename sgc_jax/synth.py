@@ -26,7 +26,7 @@ _OCCLUSION_REL_TOL = 0.02  # a point is hidden when farther than depth[i] * (1 +
 _FAR_BEHIND = -1.0  # track_curr of points that project behind the camera (outside the image)
 
 # Independent random streams, so that e.g. changing ``noise_px`` leaves the scene and tracks alone.
-_CAMERA, _LAYERS, _OBJECTS, _DRIFT, _TEXTURE, _SAMPLES, _NOISE, _OUTLIERS, _CONF = range(9)
+_CAMERA, _LAYERS, _OBJECTS, _DRIFT, _TEXTURE, _SAMPLES, _NOISE, _OUTLIERS, _CONF, _STILL = range(10)
 
 _OBJECT_COLOURS = np.array([[230, 30, 40], [30, 210, 60], [250, 200, 10], [200, 30, 230]], np.float64)
 
@@ -41,6 +41,7 @@ class SceneSpec:
     n_tracks: int = 1024  # tracks per pair
     n_layers: int = 4  # static rectangles at clearly different depths, besides the back wall
     moving_objects: int = 0  # independently moving spheres (masked unless with_mask=False)
+    static_spheres: int = 0  # static (unmasked) spheres: non-planar structure for well-posed PnP
     noise_px: float = 0.0  # Gaussian std added to every coordinate of track_prev and track_curr
     outlier_frac: float = 0.0  # tracks per pair whose track_curr is a uniform random position
     low_conf_frac: float = 0.0  # tracks per pair with confidence drawn in [0, 0.5)
@@ -61,6 +62,7 @@ class SceneSpec:
             "1 <= n_tracks <= height * width": 1 <= self.n_tracks <= self.height * self.width,
             "n_layers >= 0": self.n_layers >= 0,
             "moving_objects >= 0": self.moving_objects >= 0,
+            "static_spheres >= 0": self.static_spheres >= 0,
             "noise_px >= 0": self.noise_px >= 0,
             "outlier_frac, low_conf_frac in [0, 1] with sum <= 1": (
                 0 <= self.outlier_frac and 0 <= self.low_conf_frac
@@ -93,7 +95,7 @@ class SceneSpec:
 @dataclasses.dataclass(frozen=True)
 class _Scene:
     """Surfaces at frame 0 and their world motion. Index 0 is the back wall, then the static
-    layers (planes), then the moving spheres (indices >= n_static)."""
+    layers (planes), then the spheres (indices >= n_planes): moving ones first, static after."""
 
     plane_centre: np.ndarray  # (L, 3) world
     plane_axes: np.ndarray  # (L, 2, 3) unit in-plane axes u, v
@@ -104,9 +106,10 @@ class _Scene:
     pattern: np.ndarray  # (L + M,) 0 checkerboard, 1 stripes
     period: np.ndarray  # (L + M,) texture period, world units
     colours: np.ndarray  # (L + M, 2, 3) RGB of the two texture phases
+    moving: np.ndarray  # (L + M,) bool: independently moving (masked) surfaces
 
     @property
-    def n_static(self) -> int:
+    def n_planes(self) -> int:
         return len(self.plane_centre)
 
 
@@ -228,6 +231,25 @@ def _moving_spheres(spec: SceneSpec, K: np.ndarray, rng: np.random.Generator
     return centres, radii, offsets
 
 
+def _static_spheres(spec: SceneSpec, K: np.ndarray, rng: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Static spheres (boulders): centres (S, 3) and radii (S,), spread over the view and depths.
+
+    Unlike the planar layers, each sphere's depth bands are curved 3D point sets, so the local
+    PnP of a region on them is well conditioned.
+    """
+    near, far = spec.depth_range
+    H, W, S = spec.height, spec.width, spec.static_spheres
+    K_inv, fx = np.linalg.inv(K), K[0, 0]
+    centres, radii = np.zeros((S, 3)), np.zeros(S)
+    for s in range(S):
+        z = near + (s + 0.5) / max(S, 1) * 0.8 * (far - near)
+        spot = np.array([rng.uniform(0.15, 0.85) * W, rng.uniform(0.2, 0.8) * H, 1.0])
+        radii[s] = rng.uniform(0.15, 0.22) * min(H, W) * z / fx
+        centres[s] = z * (K_inv @ spot) + np.array([0.0, 0.0, radii[s]])
+    return centres, radii
+
+
 def _build_scene(spec: SceneSpec, K: np.ndarray, seed: int) -> _Scene:
     """Back wall, static layers and moving spheres of a spec, in world coordinates (camera 0).
 
@@ -236,6 +258,11 @@ def _build_scene(spec: SceneSpec, K: np.ndarray, seed: int) -> _Scene:
     """
     plane_centre, plane_axes, plane_half = _static_planes(spec, K, _rng(seed, _LAYERS))
     sphere_centre, sphere_radius, sphere_offset = _moving_spheres(spec, K, _rng(seed, _OBJECTS))
+    still_centre, still_radius = _static_spheres(spec, K, _rng(seed, _STILL))
+    n_moving = len(sphere_centre)
+    sphere_centre = np.concatenate([sphere_centre, still_centre])
+    sphere_radius = np.concatenate([sphere_radius, still_radius])
+    sphere_offset = np.concatenate([sphere_offset, np.zeros((spec.n_frames, len(still_centre), 3))], axis=1)
     L, M, T = len(plane_centre), len(sphere_centre), spec.n_frames
 
     offset = np.zeros((T, L + M, 3))
@@ -249,15 +276,17 @@ def _build_scene(spec: SceneSpec, K: np.ndarray, seed: int) -> _Scene:
 
     tex_rng = _rng(seed, _TEXTURE)
     colours = tex_rng.uniform(50.0, 230.0, size=(L + M, 2, 3))
-    for m in range(M):
+    for m in range(n_moving):
         strong = _OBJECT_COLOURS[m % len(_OBJECT_COLOURS)]
         colours[L + m] = [strong, 0.55 * strong]
     fx = K[0, 0]
     period = np.concatenate([[16.0 * spec.depth_range[1] / fx], 12.0 * plane_centre[1:, 2] / fx,
                              0.6 * sphere_radius])
+    moving = np.zeros(L + M, bool)
+    moving[L:L + n_moving] = True
     return _Scene(plane_centre=plane_centre, plane_axes=plane_axes, plane_half=plane_half,
                   sphere_centre=sphere_centre, sphere_radius=sphere_radius, offset=offset,
-                  pattern=np.arange(L + M) % 2, period=period, colours=colours)
+                  pattern=np.arange(L + M) % 2, period=period, colours=colours, moving=moving)
 
 
 def _pixel_rays(K: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -274,7 +303,7 @@ def _cast_rays(scene: _Scene, rays_cam: np.ndarray, R_wc: np.ndarray, t_wc: np.n
     rays_cam: (N, 3) with z = 1, so the ray parameter of a hit is its depth. Returns depth (N,)
     (inf where nothing is hit), surface index (N,) and texture coordinates (N, 2), world units.
     """
-    L = scene.n_static
+    L = scene.n_planes
     centre = -R_wc.T @ t_wc
     rays = np.einsum("nk,kj->nj", rays_cam, R_wc)  # world directions R_wc^T d
 
@@ -407,7 +436,7 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
 
     track_prev, track_curr, track_vis, track_conf = _synth_tracks(
         spec, scene, K_t, R_wc, t_wc, depth, surface, seed)
-    static_mask = surface < scene.n_static if spec.with_mask else np.ones((T, H, W), bool)
+    static_mask = ~scene.moving[surface] if spec.with_mask else np.ones((T, H, W), bool)
     clip_id = clip_id or f"synth-seed{seed}"
     meta = {"clip_id": clip_id, "group": group, "synthetic": True, "seed": int(seed), **spec.to_dict()}
     return Clip(

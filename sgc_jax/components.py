@@ -1,0 +1,116 @@
+"""Per-pair pose components of SPEC §3 step 8: local and global rotation/translation variances.
+
+Rotations in degrees (variances in deg^2); translations in the units of the inputs. Local poses
+come as fixed-size arrays over R region slots with an ``accepted`` mask; vmap lifts to pairs/clips.
+``compat="authors"`` reproduces SPEC §3a: arccos-of-trace distances in float32, and IQR == 0
+rejecting every value of the trimmed mean.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from .geometry import rotation_angle_deg, so3_exp, so3_log
+
+COMPATS = ("spec", "authors")
+
+
+def _check_compat(compat: str) -> None:
+    if compat not in COMPATS:
+        raise ValueError(f"compat must be one of {COMPATS}, got {compat!r}")
+
+
+def rotation_angle_deg_authors(R_a, R_b):
+    """(..., 3, 3) x2 -> (...) angle of R_a^T R_b in degrees as arccos((trace - 1) / 2), float32."""
+    M = jnp.swapaxes(R_a, -1, -2).astype(jnp.float32) @ R_b.astype(jnp.float32)
+    cos = (jnp.trace(M, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return jnp.degrees(jnp.arccos(jnp.clip(cos, -1.0, 1.0)))
+
+
+def _angle_fn(compat: str):
+    return rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
+
+
+def masked_mean(values, valid):
+    """Mean over axis 0 of values (R, ...) where valid (R,); NaN where no entry is valid."""
+    values = jnp.asarray(values, jnp.float32)
+    mask = valid.reshape(valid.shape + (1,) * (values.ndim - 1))
+    n = jnp.sum(valid)
+    total = jnp.sum(jnp.where(mask, values, 0.0), axis=0)
+    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(jnp.float32), jnp.nan)
+
+
+def masked_percentile(values, valid, q: int):
+    """q-th percentile (int 0..100, NumPy's default "linear" method) of values (R,) where valid (R,).
+
+    Sorted valid values s_0..s_{n-1}; position q (n - 1) / 100 split exactly into integer and
+    fraction; interpolated as NumPy's lerp does. Returns +inf when no entry is valid.
+    """
+    s = jnp.sort(jnp.where(valid, values.astype(jnp.float32), jnp.inf))
+    n = jnp.sum(valid).astype(jnp.int32)
+    scaled = q * jnp.maximum(n - 1, 0)
+    lo = scaled // 100
+    frac = (scaled % 100).astype(jnp.float32) / 100.0
+    hi = jnp.minimum(lo + 1, jnp.maximum(n - 1, 0))
+    a, b = s[lo], s[hi]
+    diff = jnp.where(hi > lo, b - a, 0.0)  # never inf - inf
+    return jnp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
+
+
+@functools.partial(jax.jit, static_argnames=("compat",))
+def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
+    """Mean of valid v (R,) with q1 - k*IQR <= v <= p98, k = (p98 - q3) / IQR; float32, NaN if none valid.
+
+    IQR == 0 keeps every valid value ("spec") or rejects them all, NaN ("authors"). If the bounds
+    reject every value (only possible with exactly 2 distinct values), "spec" keeps all of them
+    and "authors" gives NaN.
+    """
+    _check_compat(compat)
+    values = values.astype(jnp.float32)
+    q1 = masked_percentile(values, valid, 25)
+    q3 = masked_percentile(values, valid, 75)
+    p98 = masked_percentile(values, valid, 98)
+    iqr = q3 - q1
+    iqr_safe = jnp.where(iqr > 0, iqr, 1.0)
+    k = (p98 - q3) / iqr_safe
+    kept = valid & (values >= q1 - k * iqr_safe) & (values <= p98)
+    if compat == "authors":
+        return jnp.where(iqr > 0, masked_mean(values, kept), jnp.nan)
+    keep_all = (iqr == 0) | ~jnp.any(kept)
+    return masked_mean(values, jnp.where(keep_all, valid, kept))
+
+
+@functools.partial(jax.jit, static_argnames=("compat",))
+def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
+    """Local poses (R, 3, 3), (R, 3), accepted (R,) vs global (3, 3), (3,) -> dict of float32 scalars.
+
+    Keys: local_rot_var, global_rot_var (deg^2), local_trans_var, global_trans_var (translation
+    units^2), n_poses (int32). All four variances NaN with no accepted pose; local ones 0 with one.
+    """
+    _check_compat(compat)
+    angle = _angle_fn(compat)
+    R_local = R_local.astype(jnp.float32)
+    t_local = t_local.astype(jnp.float32)
+    n = jnp.sum(accepted).astype(jnp.int32)
+    none = n == 0
+
+    R_mean = so3_exp(jnp.nan_to_num(masked_mean(so3_log(R_local), accepted)))
+    t_mean = jnp.nan_to_num(masked_mean(t_local, accepted))
+    local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted)
+    local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted)
+    single = n < 2
+    local_rot = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_rot))
+    local_trans = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_trans))
+
+    global_rot = trimmed_mean_iqr(angle(R_local, R_g.astype(jnp.float32)[None]) ** 2, accepted, compat=compat)
+    global_trans = masked_mean(jnp.sum((t_local - t_g.astype(jnp.float32)) ** 2, axis=-1), accepted)
+    return {
+        "local_rot_var": local_rot.astype(jnp.float32),
+        "local_trans_var": local_trans.astype(jnp.float32),
+        "global_rot_var": global_rot.astype(jnp.float32),
+        "global_trans_var": global_trans.astype(jnp.float32),
+        "n_poses": n,
+    }

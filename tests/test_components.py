@@ -1,0 +1,184 @@
+"""components.py: per-pair pose components (SPEC §3 step 8) and the authors' variants (§3a)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from sgc_jax.components import (
+    masked_mean,
+    pair_pose_components,
+    rotation_angle_deg_authors,
+    trimmed_mean_iqr,
+)
+
+R_SLOTS = 6  # region slots per pair in these tests (padded, masked by `accepted`)
+KEYS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var")
+# float32 kernels vs float64 NumPy on O(1) values: a few ulps, accumulated over <= R_SLOTS terms.
+RTOL = 1e-5
+
+
+def rotations(rotvecs_rad) -> np.ndarray:
+    return Rotation.from_rotvec(np.asarray(rotvecs_rad, np.float64)).as_matrix()
+
+
+def angle_deg(R_a, R_b) -> float:
+    return float(np.degrees(Rotation.from_matrix(R_a.T @ R_b).magnitude()))
+
+
+def trimmed_mean_numpy(values, compat="spec") -> float:
+    """SPEC §3.8 trimming with numpy.percentile (linear); spec falls back to all values when
+    the bounds reject every value (possible only with two distinct values)."""
+    values = np.asarray(values, np.float64)
+    if values.size == 0:
+        return float("nan")
+    q1, q3, p98 = np.percentile(values, [25, 75, 98])
+    iqr = q3 - q1
+    if iqr == 0:
+        return float("nan") if compat == "authors" else float(values.mean())
+    k = (p98 - q3) / iqr
+    kept = values[(values >= q1 - k * iqr) & (values <= p98)]
+    if kept.size == 0:
+        return float("nan") if compat == "authors" else float(values.mean())
+    return float(kept.mean())
+
+
+def components_numpy(R_local, t_local, accepted, R_g, t_g) -> dict:
+    """Float64 twin of the SPEC formulas over the accepted slots (n >= 1)."""
+    Rs, ts = R_local[accepted], t_local[accepted]
+    R_mean = Rotation.from_rotvec(Rotation.from_matrix(Rs).as_rotvec().mean(0)).as_matrix()
+    single = len(Rs) < 2
+    return {
+        "local_rot_var": 0.0 if single else np.mean([angle_deg(R, R_mean) ** 2 for R in Rs]),
+        "local_trans_var": 0.0 if single else np.mean(np.sum((ts - ts.mean(0)) ** 2, axis=1)),
+        "global_rot_var": trimmed_mean_numpy([angle_deg(R, R_g) ** 2 for R in Rs]),
+        "global_trans_var": np.mean(np.sum((ts - t_g) ** 2, axis=1)),
+    }
+
+
+def random_pair(rng, n_accepted, spread_rad=0.05):
+    R_g = rotations(rng.normal(0, 0.3, 3))
+    t_g = rng.normal(0, 1, 3)
+    R_local = R_g @ rotations(rng.normal(0, spread_rad, (R_SLOTS, 3)))
+    t_local = t_g + rng.normal(0, 0.1, (R_SLOTS, 3))
+    accepted = np.zeros(R_SLOTS, bool)
+    accepted[rng.choice(R_SLOTS, n_accepted, replace=False)] = True
+    R_local[~accepted] = 0.0  # padding slots carry garbage
+    t_local[~accepted] = 1e6
+    return R_local, t_local, accepted, R_g, t_g
+
+
+def run(R_local, t_local, accepted, R_g, t_g, compat="spec"):
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    out = pair_pose_components(f32(R_local), f32(t_local), jnp.asarray(accepted), f32(R_g), f32(t_g),
+                               compat=compat)
+    return {key: np.asarray(value) for key, value in out.items()}
+
+
+def test_rigid_poses_give_zero_components():
+    rng = np.random.default_rng(0)
+    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 4)
+    R_local[accepted], t_local[accepted] = R_g, t_g
+    out = run(R_local, t_local, accepted, R_g, t_g)
+    assert int(out["n_poses"]) == 4
+    for key in KEYS:
+        assert float(out[key]) == pytest.approx(0.0, abs=1e-8), key
+
+
+def test_single_pose_has_zero_local_and_its_distance_as_global():
+    rng = np.random.default_rng(1)
+    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 1, spread_rad=0.2)
+    (j,) = np.flatnonzero(accepted)
+    out = run(R_local, t_local, accepted, R_g, t_g)
+    assert float(out["local_rot_var"]) == 0.0 and float(out["local_trans_var"]) == 0.0
+    assert float(out["global_rot_var"]) == pytest.approx(angle_deg(R_local[j], R_g) ** 2, rel=1e-4)
+    assert float(out["global_trans_var"]) == pytest.approx(np.sum((t_local[j] - t_g) ** 2), rel=RTOL)
+
+
+@pytest.mark.parametrize("n_accepted", [2, 3, 6])
+def test_matches_float64_formulas(n_accepted):
+    rng = np.random.default_rng(n_accepted)
+    pair = random_pair(rng, n_accepted)
+    out, expected = run(*pair), components_numpy(*pair)
+    assert int(out["n_poses"]) == n_accepted
+    for key in KEYS:
+        # Rotation variances of ~3 deg spreads: float32 angles are good to ~1e-4 relative.
+        assert float(out[key]) == pytest.approx(expected[key], rel=1e-3), key
+
+
+def test_hundredth_of_a_degree_spread_is_resolved_in_float32():
+    rng = np.random.default_rng(3)
+    pair = random_pair(rng, 5, spread_rad=np.radians(0.01))
+    out, expected = run(*pair), components_numpy(*pair)
+    assert 1e-5 < expected["local_rot_var"] < 1e-3  # deg^2: ~0.01 deg deviations
+    assert float(out["local_rot_var"]) == pytest.approx(expected["local_rot_var"], rel=1e-3)
+    assert float(out["global_rot_var"]) == pytest.approx(expected["global_rot_var"], rel=1e-3)
+
+
+def test_nan_only_when_no_pose():
+    rng = np.random.default_rng(4)
+    for n_accepted in range(R_SLOTS + 1):
+        out = run(*random_pair(rng, n_accepted))
+        for key in KEYS:
+            assert np.isnan(out[key]) == (n_accepted == 0), (key, n_accepted)
+        assert out["n_poses"].dtype == np.int32 and all(out[key].dtype == np.float32 for key in KEYS)
+
+
+def test_authors_variant_uses_arccos_and_rejects_zero_iqr():
+    rng = np.random.default_rng(5)
+    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 1, spread_rad=0.2)
+    out = run(R_local, t_local, accepted, R_g, t_g, compat="authors")
+    assert np.isnan(out["global_rot_var"])  # one pose: IQR == 0 rejects every value
+    assert float(out["global_trans_var"]) == pytest.approx(run(R_local, t_local, accepted, R_g, t_g)["global_trans_var"])
+    tiny = jnp.asarray(rotations([[np.radians(1e-3), 0.0, 0.0]])[0], jnp.float32)
+    assert float(rotation_angle_deg_authors(jnp.eye(3), tiny)) == 0.0  # float32 arccos loses it
+    big = rotations([[0.0, 0.0, np.radians(30.0)]])[0]
+    assert float(rotation_angle_deg_authors(jnp.eye(3), jnp.asarray(big, jnp.float32))) == pytest.approx(30.0, rel=1e-5)
+
+
+def trimming_cases():
+    rng = np.random.default_rng(6)
+    cases = []
+    for n in range(0, R_SLOTS + 1):
+        cases.append(rng.exponential(1.0, n))  # continuous values
+        cases.append(rng.integers(0, 3, n).astype(float))  # many ties, IQR == 0 often
+    cases.append(np.array([1.0, 1.0, 1.0, 1.0, 7.0]))  # IQR == 0 with an outlier
+    cases.append(np.array([2.0, 5.0]))  # two distinct values: the bounds reject both
+    return cases
+
+
+@pytest.mark.parametrize("compat", ["spec", "authors"])
+def test_trimmed_mean_matches_numpy_percentiles(compat):
+    for values in trimming_cases():
+        padded = np.full(R_SLOTS, np.nan, np.float32)
+        padded[: values.size] = values
+        valid = np.arange(R_SLOTS) < values.size
+        got = float(trimmed_mean_iqr(jnp.asarray(padded), jnp.asarray(valid), compat=compat))
+        np.testing.assert_allclose(got, trimmed_mean_numpy(values.astype(np.float32), compat), rtol=RTOL,
+                                   err_msg=str(values))
+
+
+def test_masked_mean():
+    values = jnp.array([[1.0, 2.0], [3.0, 4.0], [np.nan, np.inf]])
+    np.testing.assert_allclose(masked_mean(values, jnp.array([True, True, False])), [2.0, 3.0])
+    assert np.isnan(float(masked_mean(jnp.array([1.0, 2.0]), jnp.array([False, False]))))
+
+
+def test_batch_of_pairs_equals_loop():
+    rng = np.random.default_rng(7)
+    pairs = [random_pair(rng, n) for n in (0, 1, 3, 6)]
+    stacked = [jnp.asarray(np.stack(arrays), jnp.bool_ if arrays[0].dtype == bool else jnp.float32)
+               for arrays in zip(*pairs)]
+    batch = jax.vmap(pair_pose_components)(*stacked)
+    for i, pair in enumerate(pairs):
+        single = run(*pair)
+        for key in single:
+            np.testing.assert_array_equal(np.asarray(batch[key][i]), single[key], err_msg=key)
+
+
+def test_unknown_compat_raises():
+    with pytest.raises(ValueError, match="compat"):
+        trimmed_mean_iqr(jnp.zeros(3), jnp.ones(3, bool), compat="paper")
