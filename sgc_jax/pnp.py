@@ -17,39 +17,47 @@ from .geometry import back_project, hat, project, so3_exp, so3_log
 # Points with z below this fraction of their distance are "behind the camera": their projection
 # uses this floor instead, so residuals stay finite (large) and never inf/NaN.
 _MIN_Z_FRAC = 1e-3
-# Cauchy termination of Gauss-Newton: steps in rad / depth units, cost in px^2 (float32-safe).
-_GN_RTOL = 1e-5
-_GN_ATOL = 1e-6
+# Gauss-Newton stops when both the step and the residual change are below ~1e-3 px.
+_GN_RTOL = 1e-6
+_GN_ATOL = 1e-3
 
 
-def _masked(weight, X, uv):
-    """Zero the coordinates of masked points so garbage padding never reaches the arithmetic."""
+def _point_columns(X, uv, weight):
+    """Masked points as columns: (x, y, z, u, v, sqrt_w), each (N,); masked points sit at (0, 0, 1)."""
     valid = weight > 0
-    X = jnp.where(valid[:, None], X, jnp.array([0.0, 0.0, 1.0], X.dtype))
-    uv = jnp.where(valid[:, None], uv, 0.0)
-    return valid, X, uv
+    x = jnp.where(valid, X[:, 0], 0.0)
+    y = jnp.where(valid, X[:, 1], 0.0)
+    z = jnp.where(valid, X[:, 2], 1.0)
+    u = jnp.where(valid, uv[:, 0], 0.0)
+    v = jnp.where(valid, uv[:, 1], 0.0)
+    sqrt_w = jnp.sqrt(jnp.where(valid, weight, 0.0))
+    return x, y, z, u, v, sqrt_w
 
 
-def _in_front(Y):
-    """(..., 3) camera-frame points -> (bool (...), guarded z (...)): z floored at 1e-3 * |Y|."""
-    norm = jnp.sqrt(jnp.sum(Y * Y, axis=-1) + 1e-30)
-    z_min = _MIN_Z_FRAC * norm
-    in_front = Y[..., 2] > z_min
-    return in_front, jnp.where(in_front, Y[..., 2], z_min)
+def project_columns(R, t, K, x, y, z):
+    """Pose (R, t) and K applied to points given as columns -> (u, v, in_front), each (..., N).
+
+    Points with z <= 1e-3 * |R X + t| are behind the camera; they are projected with that depth
+    floor instead, so the pixels stay finite for any finite input. R (..., 3, 3), t (..., 3).
+    """
+    def row(i):
+        return (
+            R[..., i, 0, None] * x + R[..., i, 1, None] * y + R[..., i, 2, None] * z + t[..., i, None]
+        )
+
+    Yx, Yy, Yz = row(0), row(1), row(2)
+    norm_sq = Yx * Yx + Yy * Yy + Yz * Yz
+    in_front = (Yz > 0) & (Yz * Yz > _MIN_Z_FRAC**2 * norm_sq)
+    inv_z = 1.0 / jnp.where(in_front, Yz, _MIN_Z_FRAC * jnp.sqrt(norm_sq) + 1e-30)
+    xn, yn = Yx * inv_z, Yy * inv_z
+    return K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2], in_front
 
 
-def project_guarded(K, Y):
-    """Camera-frame points Y (..., 3) -> (pixels (..., 2), in_front (...)), finite for any finite Y."""
-    in_front, z = _in_front(Y)
-    return project(K, jnp.concatenate([Y[..., :2], z[..., None]], axis=-1)), in_front
-
-
-def _residuals_Rt(R, t, X, uv, K, weight):
-    """(N, 2) residuals sqrt(weight) * (project(K, R X + t) - uv) in px; exactly 0 where weight == 0."""
-    valid, X, uv = _masked(weight, X, uv)
-    uv_hat, _ = project_guarded(K, X @ R.T + t)
-    scale = jnp.sqrt(jnp.where(valid, weight, 1.0))
-    return jnp.where(valid[:, None], scale[:, None] * (uv_hat - uv), 0.0)
+def _residual_columns(R, t, K, cols):
+    """(du, dv) each (N,): sqrt(weight) * (projection - uv) [px], exactly 0 for masked points."""
+    x, y, z, u, v, sqrt_w = cols
+    u_hat, v_hat, _ = project_columns(R, t, K, x, y, z)
+    return sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)
 
 
 def reprojection_residuals(pose6, X, uv, K, weight):
@@ -57,7 +65,8 @@ def reprojection_residuals(pose6, X, uv, K, weight):
 
     Scaled by sqrt(weight) (cost = sum weight * |error|^2); exactly 0 where weight == 0.
     """
-    return _residuals_Rt(so3_exp(pose6[:3]), pose6[3:], X, uv, K, weight)
+    du, dv = _residual_columns(so3_exp(pose6[:3]), pose6[3:], K, _point_columns(X, uv, weight))
+    return jnp.stack([du, dv], axis=-1)
 
 
 def initial_pose(X, uv, weight, K, n_iter=3):
@@ -68,12 +77,11 @@ def initial_pose(X, uv, weight, K, n_iter=3):
     divided by the current point distance, so the error is roughly angular. Converges from the
     identity for rotations up to ~30 deg; needs >= 3 points with weight > 0 (4 for uniqueness).
     """
-    valid, X, uv = _masked(weight, X, uv)
-    w = jnp.where(valid, weight, 0.0)
+    x, y, z, u, v, sqrt_w = _point_columns(X, uv, weight)
+    X, uv, w = jnp.stack([x, y, z], -1), jnp.stack([u, v], -1), sqrt_w**2
     b = back_project(K, uv, jnp.ones_like(uv[:, 0]))
     b = b / jnp.linalg.norm(b, axis=-1, keepdims=True)
     B = hat(b)  # (N, 3, 3): B @ x = b x x
-    eye6 = jnp.eye(6, dtype=X.dtype)
 
     def step(_, Rt):
         R, t = Rt
@@ -84,8 +92,7 @@ def initial_pose(X, uv, weight, K, n_iter=3):
         rhs = -jnp.cross(b, Y)  # (N, 3)
         H = jnp.einsum("n,nij,nik->jk", s, A, A)
         g = jnp.einsum("n,nij,ni->j", s, A, rhs)
-        H = H + (1e-9 * jnp.trace(H) + 1e-30) * eye6
-        x = jnp.linalg.solve(H, g)
+        x = solve_spd(H, g)
         return so3_exp(x[:3]) @ R, x[3:]
 
     R0 = jnp.eye(3, dtype=X.dtype)
@@ -93,31 +100,96 @@ def initial_pose(X, uv, weight, K, n_iter=3):
     return jnp.concatenate([so3_log(R), t])
 
 
+def solve_spd(A, b):
+    """Solve A x = b for a small symmetric positive (semi)definite A (n, n), b (n,) -> x (n,).
+
+    Unrolled Cholesky (n static): plain elementwise ops, so it vectorises across ``vmap``
+    (LAPACK's batched 6x6 calls cost more than the arithmetic). Pivots are floored at
+    1e-7 * trace(A), which turns a singular direction into a zero step instead of NaN.
+    """
+    n = A.shape[-1]
+    floor = 1e-7 * jnp.trace(A) / n + jnp.finfo(A.dtype).tiny
+    L = [[None] * n for _ in range(n)]
+    for j in range(n):
+        d = jnp.sqrt(jnp.maximum(A[j, j] - sum(L[j][k] ** 2 for k in range(j)), floor))
+        L[j][j] = d
+        for i in range(j + 1, n):
+            L[i][j] = (A[i, j] - sum(L[i][k] * L[j][k] for k in range(j))) / d
+    y = [None] * n
+    for i in range(n):
+        y[i] = (b[i] - sum(L[i][k] * y[k] for k in range(i))) / L[i][i]
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - sum(L[k][i] * x[k] for k in range(i + 1, n))) / L[i][i]
+    return jnp.stack(x)
+
+
+class NormalCholesky(lx.AbstractLinearSolver):
+    """Least-squares solve of a tall operator via J^T J x = J^T b with ``solve_spd``.
+
+    For small parameter vectors (here 6) inside ``vmap``; the operator's input must be one array.
+    Not differentiable through (no transpose), which solve_pnp never needs.
+    """
+
+    def init(self, operator, options):
+        del options
+        return operator.as_matrix(), operator.in_structure()
+
+    def compute(self, state, vector, options):
+        del options
+        J, in_structure = state
+        b = jnp.concatenate([leaf.reshape(-1) for leaf in jax.tree_util.tree_leaves(vector)])
+        x = solve_spd(J.T @ J, J.T @ b)
+        return x.reshape(in_structure.shape).astype(in_structure.dtype), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options):
+        raise NotImplementedError("NormalCholesky does not support transposition")
+
+    def conj(self, state, options):
+        raise NotImplementedError("NormalCholesky does not support conjugation")
+
+    def assume_full_rank(self):
+        return True
+
+
 def _gauss_newton():
-    """Gauss-Newton with normal-equation Cholesky solves (6x6); see ``solve_pnp``."""
-    return optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, linear_solver=lx.Normal(lx.Cholesky()))
+    """Gauss-Newton with 6x6 normal equations solved by ``NormalCholesky``; see ``solve_pnp``."""
+    return optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, linear_solver=NormalCholesky())
 
 
 def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     """Minimise sum weight * |project(K, R X + t) - uv|^2 -> (pose6 (6,), ok () bool).
 
     Starts from ``pose0`` when given, else from ``initial_pose``. Gauss-Newton
-    (``optimistix.GaussNewton``, at most ``steps`` steps) on a local rotation increment
-    R = exp([w]) R0, so the parametrisation is never near its pi singularity. Plain Gauss-Newton
-    is enough here: the algebraic start lands inside its basin, and a diverging minimal sample
-    just scores no inliers in RANSAC. ``ok``: finite and converged before ``steps``.
-    Jittable and vmappable; needs >= 3 weighted points.
+    (``optimistix.GaussNewton``, at most ``steps`` steps) on an increment y = (w, dt) with
+    R = exp([w]) R0, t = t0 + dt, both scaled to ~px of image motion (w by fx, dt by fx / mean
+    point distance) so one tolerance fits parameters and residuals and the 6x6 normal equations
+    are well conditioned in float32. Plain Gauss-Newton (no damping) is enough: the algebraic
+    start lands inside its basin, and a diverging minimal sample just scores no inliers in RANSAC.
+    ``ok``: finite and converged (steps < 1e-3 px) within ``steps``. Jittable and vmappable;
+    needs >= 3 weighted points.
     """
     if pose0 is None:
         pose0 = initial_pose(X, uv, weight, K)
-    R0 = so3_exp(pose0[:3])
+    R0, t0 = so3_exp(pose0[:3]), pose0[3:]
+    cols = _point_columns(X, uv, weight)
+    x, y, z, _, _, sqrt_w = cols
+    valid = sqrt_w > 0
+    dist = jnp.sqrt(x * x + y * y + z * z)
+    mean_dist = jnp.sum(jnp.where(valid, dist, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+    scale_rot = K[0, 0]
+    scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+
+    def pose_of(y):
+        return so3_exp(y[:3] / scale_rot) @ R0, t0 + y[3:] / scale_t
 
     def residuals(y, args):
-        return _residuals_Rt(so3_exp(y[:3]) @ R0, y[3:], X, uv, K, weight)
+        R, t = pose_of(y)
+        return _residual_columns(R, t, K, cols)
 
-    y0 = jnp.concatenate([jnp.zeros(3, pose0.dtype), pose0[3:]])
+    y0 = jnp.zeros(6, pose0.dtype)
     sol = optx.least_squares(residuals, _gauss_newton(), y0, max_steps=steps, throw=False)
-    R = so3_exp(sol.value[:3]) @ R0
-    pose6 = jnp.concatenate([so3_log(R), sol.value[3:]])
+    R, t = pose_of(sol.value)
+    pose6 = jnp.concatenate([so3_log(R), t])
     ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6))
     return pose6, ok

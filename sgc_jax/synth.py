@@ -17,6 +17,7 @@ import os
 import pathlib
 from typing import Any
 
+import cv2
 import numpy as np
 
 from .clip import Clip, save_clip
@@ -52,6 +53,7 @@ class SceneSpec:
     fov_deg: float = 60.0  # horizontal field of view; fx = fy, principal point at the centre
     with_frames: bool = True  # render uint8 RGB frames
     with_mask: bool = True  # False: mask_source "none" and static_mask all True
+    mask_margin_px: int = 2  # the dynamic mask covers moving objects plus this margin, as MOS masks do
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "depth_range", tuple(float(d) for d in self.depth_range))
@@ -414,7 +416,7 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
     """A synthetic :class:`Clip` with exact geometry; ``overrides`` are :class:`SceneSpec` fields.
 
     Same ``seed`` and spec give bit-identical arrays. Surfaces hit at each pixel centre give the
-    depth; static_mask is False exactly where a moving sphere is the nearest surface.
+    depth; static_mask is False where a moving sphere is the nearest surface, plus a margin.
     """
     spec = (spec or SceneSpec()).replace(**overrides)
     T, H, W = spec.n_frames, spec.height, spec.width
@@ -436,7 +438,7 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
 
     track_prev, track_curr, track_vis, track_conf = _synth_tracks(
         spec, scene, K_t, R_wc, t_wc, depth, surface, seed)
-    static_mask = ~scene.moving[surface] if spec.with_mask else np.ones((T, H, W), bool)
+    static_mask = _static_mask(scene.moving[surface], spec.mask_margin_px) if spec.with_mask else np.ones((T, H, W), bool)
     clip_id = clip_id or f"synth-seed{seed}"
     meta = {"clip_id": clip_id, "group": group, "synthetic": True, "seed": int(seed), **spec.to_dict()}
     return Clip(
@@ -444,6 +446,14 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
         static_mask=static_mask, track_prev=track_prev, track_curr=track_curr,
         track_vis=track_vis, track_conf=track_conf,
         mask_source="static_mask" if spec.with_mask else "none", frames=frames, meta=meta)
+
+
+def _static_mask(moving: np.ndarray, margin_px: int) -> np.ndarray:
+    """(T, H, W) bool static mask: not a moving object nor within ``margin_px`` of one."""
+    if margin_px <= 0:
+        return ~moving
+    kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
+    return np.stack([cv2.dilate(m.astype(np.uint8), kernel) == 0 for m in moving])
 
 
 def relative_poses(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
@@ -454,8 +464,9 @@ def relative_poses(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
 
 
 def demo_corpus(seed: int = 0) -> list[Clip]:
-    """About eight 8-frame 96x128 clips with 1024 tracks: rigid, noisy, moving (masked and
-    unmasked) and non-rigid drift at two strengths; the group is in ``meta["group"]``."""
+    """Eight 8-frame 96x128 clips with 1024 tracks (2 planar layers, 4 static spheres): rigid,
+    noisy, moving (masked and unmasked) and non-rigid drift at two strengths; the group is in
+    ``meta["group"]``."""
     recipes = [
         ("rigid-a", "rigid", 0, {}),
         ("rigid-b", "rigid", 1, {"rot_deg_per_frame": 2.5, "trans_per_frame": 0.1}),
@@ -466,7 +477,8 @@ def demo_corpus(seed: int = 0) -> list[Clip]:
         ("drift-0.05", "drift", 5, {"layer_drift": 0.05}),
         ("drift-0.20", "drift", 5, {"layer_drift": 0.2}),
     ]
-    return [synth_clip(seed=seed + offset, clip_id=name, group=group, **changes)
+    scene = {"n_layers": 2, "static_spheres": 4, "height": 96, "width": 128, "n_tracks": 1024}
+    return [synth_clip(seed=seed + offset, clip_id=name, group=group, **{**scene, **changes})
             for name, group, offset, changes in recipes]
 
 

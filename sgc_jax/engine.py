@@ -1,0 +1,262 @@
+"""The JAX engine: clips padded to bucketed shapes, one jitted function per bucket (SPEC §3, §7).
+
+A kernel handles one pair with static shapes and validity masks; ``vmap`` lifts it over the pairs
+of a clip and over the clips of a bucket. Padding (extra frames, tracks, pixels) is marked
+invalid and never changes a clip's numbers. This is the one place that vmaps over clips.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .clip import Clip
+from .components import pair_pose_components
+from .config import SGCConfig
+from .geometry import back_project, nearest_rotation, rotation_angle_deg
+from .kmeans import depth_regions, grid_regions
+from .ransac import ransac_pnp
+from .result import PAIR_REASONS, PairArrays
+from .warp import depth_error, warp_depth
+
+REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
+FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
+PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
+MIN_TRACK_BUCKET = 64
+
+
+# ----------------------------------------------------------------------------- buckets
+
+
+@dataclasses.dataclass(frozen=True, order=True)
+class Bucket:
+    """Padded (T frames, H x W pixels, P tracks); one compile per bucket and config."""
+
+    T: int
+    H: int
+    W: int
+    P: int
+
+
+def _round_up(value: int, multiple: int) -> int:
+    return -(-value // multiple) * multiple
+
+
+def bucket_for(clip: Clip) -> Bucket:
+    """The bucket a clip is padded to: T to the next of FRAME_BUCKETS, H and W to a multiple of
+    64, P to the next power of two (at least 64)."""
+    T = next((b for b in FRAME_BUCKETS if b >= clip.n_frames), _round_up(clip.n_frames, 64))
+    H, W = (_round_up(s, PIXEL_MULTIPLE) for s in clip.image_size)
+    P = max(MIN_TRACK_BUCKET, 1 << max(clip.n_tracks - 1, 0).bit_length())
+    return Bucket(T, H, W, P)
+
+
+class PaddedClips(NamedTuple):
+    """A bucket's clips stacked on a leading axis B; pairs index p = frames p -> p+1."""
+
+    depth: np.ndarray  # (B, T, H, W) float32, 0 = invalid (and in padding)
+    static: np.ndarray  # (B, T, H, W) bool, False in padding
+    K: np.ndarray  # (B, T, 3, 3) float32
+    R_wc: np.ndarray  # (B, T, 3, 3) float32
+    t_wc: np.ndarray  # (B, T, 3) float32
+    track_prev: np.ndarray  # (B, T-1, P, 2) float32
+    track_curr: np.ndarray  # (B, T-1, P, 2) float32
+    usable: np.ndarray  # (B, T-1, P) bool: visible, confident, finite; False in padding
+    pair_valid: np.ndarray  # (B, T-1) bool
+    image_hw: np.ndarray  # (B, 2) int32 true image size
+
+
+def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig) -> PaddedClips:
+    """One clip padded to ``bucket`` (leading axis B = 1)."""
+    T, H, W, P = clip.n_frames, *clip.image_size, clip.n_tracks
+    if (T > bucket.T) or (H > bucket.H) or (W > bucket.W) or (P > bucket.P):
+        raise ValueError(f"clip {clip.clip_id!r} of shape {(T, H, W, P)} does not fit bucket {bucket}")
+    depth = np.zeros((bucket.T, bucket.H, bucket.W), np.float32)
+    finite = np.isfinite(clip.depth) & (clip.depth > 0)
+    depth[:T, :H, :W] = np.where(finite, clip.depth, 0.0)
+    static = np.zeros((bucket.T, bucket.H, bucket.W), bool)
+    static[:T, :H, :W] = clip.static_mask if config.use_mos else True
+    K = np.broadcast_to(clip.K[-1], (bucket.T, 3, 3)).astype(np.float32)
+    K[:T] = clip.K
+    R_wc = np.broadcast_to(np.eye(3), (bucket.T, 3, 3)).astype(np.float32)
+    R_wc[:T] = clip.R_wc
+    t_wc = np.zeros((bucket.T, 3), np.float32)
+    t_wc[:T] = clip.t_wc
+    track_prev = np.zeros((bucket.T - 1, bucket.P, 2), np.float32)
+    track_curr = np.zeros((bucket.T - 1, bucket.P, 2), np.float32)
+    usable = np.zeros((bucket.T - 1, bucket.P), bool)
+    usable[: T - 1, :P] = clip.usable_tracks(config.min_track_conf)
+    track_prev[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_prev, 0.0)
+    track_curr[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_curr, 0.0)
+    pair_valid = np.arange(bucket.T - 1) < T - 1
+    return PaddedClips(depth[None], static[None], K[None], R_wc[None], t_wc[None], track_prev[None],
+                       track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32))
+
+
+def stack_padded(parts: list[PaddedClips]) -> PaddedClips:
+    return PaddedClips(*(np.concatenate(fields) for fields in zip(*parts)))
+
+
+# ----------------------------------------------------------------------------- per pair
+
+
+class LocalPoses(NamedTuple):
+    """Stage A of a pair: regions and their PnP-RANSAC poses (k region slots)."""
+
+    R_local: jax.Array  # (k, 3, 3)
+    t_local: jax.Array  # (k, 3)
+    region_status: jax.Array  # (k,) int32, REGION_STATUS
+    region_points: jax.Array  # (k,) int32
+    region_reproj: jax.Array  # (k,) px
+    n_tracks: jax.Array  # () usable tracks
+    n_regions: jax.Array  # ()
+    region_pixels: jax.Array  # () pixels of S_i
+
+
+def _pair_regions(depth_curr, region_mask, config: SGCConfig):
+    if config.partition == "grid":
+        return grid_regions(region_mask, k=config.k_seg, min_region_pixels=config.min_region_pixels)
+    if config.partition == "depth":
+        return depth_regions(depth_curr, region_mask, k=config.k_seg, bins=config.kmeans_bins,
+                             min_region_pixels=config.min_region_pixels)
+    raise ValueError(f"the JAX engine does not implement partition={config.partition!r} yet")
+
+
+def local_poses_pair(depth_prev, depth_curr, static_curr, K_prev, K_curr, track_prev, track_curr, usable,
+                     image_hw, key, config: SGCConfig) -> LocalPoses:
+    """SPEC §3 steps 1-6 for one pair (frames i-1 -> i)."""
+    H, W = image_hw[0], image_hw[1]
+    valid_curr = depth_curr > 0
+    region_mask = static_curr if config.compat == "authors" else static_curr & valid_curr
+    labels, n_regions = _pair_regions(depth_curr, region_mask, config)
+
+    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
+    Z = depth_prev[row, col]
+    X = back_project(K_prev, track_prev, Z)
+    has_depth = usable & (Z > 0)
+
+    col_c = jnp.floor(track_curr[:, 0]).astype(jnp.int32)
+    row_c = jnp.floor(track_curr[:, 1]).astype(jnp.int32)
+    inside = (col_c >= 0) & (col_c < W) & (row_c >= 0) & (row_c < H)
+    point_region = jnp.where(inside & has_depth,
+                             labels[jnp.clip(row_c, 0, labels.shape[0] - 1), jnp.clip(col_c, 0, labels.shape[1] - 1)], 0)
+    n_tracks = jnp.sum(usable)
+    enough_tracks = n_tracks >= 4
+    regions = jnp.arange(1, config.k_seg + 1)
+    member = (point_region[None, :] == regions[:, None]) & (regions[:, None] <= n_regions) & enough_tracks
+
+    keys = jax.vmap(lambda r: jax.random.fold_in(key, r))(regions)
+    solve = functools.partial(ransac_pnp, hypotheses=config.ransac_hypotheses, inlier_px=config.inlier_px,
+                              min_inlier_frac=config.min_inlier_frac, min_points=config.min_points,
+                              steps=config.gn_steps)
+    fit = jax.vmap(lambda m, k: solve(X, track_curr, m, K_curr, k))(member, keys)
+    exists = regions <= n_regions
+    status = jnp.where(exists & enough_tracks, fit.status, 3)
+    return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), jnp.sum(member, axis=1).astype(jnp.int32),
+                      fit.reproj_px, n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32),
+                      jnp.sum(region_mask).astype(jnp.int32))
+
+
+def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
+    """(R_g, t_g) from camera i-1 to camera i (SPEC §3.7); authors: t from the raw product."""
+    product = R_curr @ R_prev.T
+    R_g = nearest_rotation(product)
+    R_for_t = product if config.compat == "authors" else R_g
+    return R_g, t_curr - R_for_t @ t_prev
+
+
+def pair_components(poses: LocalPoses, R_g, t_g, depth_prev, depth_curr, static_curr, K_prev, K_curr,
+                    config: SGCConfig):
+    """SPEC §3 step 8 for one pair: pose variances, depth error, diagnostics, reason code."""
+    accepted = poses.region_status == 0
+    comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
+    warped, hit = warp_depth(depth_prev, depth_prev > 0, K_prev, K_curr, R_g, t_g,
+                             nearest=config.compat != "authors")
+    err, _ = depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr)
+    n_poses = jnp.sum(accepted)
+    reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
+    reason = jnp.select(
+        [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, n_poses == 0, jnp.isnan(err)],
+        [REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap")],
+        REASON_CODE["ok"])
+    return dict(
+        local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"],
+        global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"],
+        depth_error=err, reproj_error=jnp.where(n_poses > 0, reproj, jnp.nan), n_poses=n_poses.astype(jnp.int32),
+        t_g_norm=jnp.linalg.norm(t_g), R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
+        reason=reason.astype(jnp.int32))
+
+
+# ----------------------------------------------------------------------------- per clip
+
+
+def fit_translation_scale(t_local, accepted, t_g, pair_valid):
+    """s = argmin sum ||t_j - s t_g||^2 over valid pairs and accepted regions (1 if undefined)."""
+    use = accepted & pair_valid[:, None]
+    tg = jnp.broadcast_to(t_g[:, None, :], t_local.shape)
+    num = jnp.sum(jnp.where(use[..., None], t_local * tg, 0.0))
+    den = jnp.sum(jnp.where(use[..., None], tg * tg, 0.0))
+    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
+
+
+def score_clip_padded(clip: PaddedClips, key, config: SGCConfig):
+    """All pairs of one padded clip (no leading B axis) -> dict of per-pair / per-region arrays."""
+    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(clip.pair_valid.shape[0]) + 1)
+    prev, curr = slice(None, -1), slice(1, None)
+    poses = jax.vmap(functools.partial(local_poses_pair, config=config), in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
+        clip.depth[prev], clip.depth[curr], clip.static[curr], clip.K[prev], clip.K[curr],
+        clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
+    R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
+        clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
+    scale = (fit_translation_scale(poses.t_local, poses.region_status == 0, t_g, clip.pair_valid)
+             if config.align_scale else jnp.float32(1.0))
+    comps = jax.vmap(functools.partial(pair_components, config=config))(
+        poses, R_g, scale * t_g, clip.depth[prev], clip.depth[curr], clip.static[curr], clip.K[prev], clip.K[curr])
+    comps["t_g_norm"] = jnp.linalg.norm(t_g, axis=-1)
+    return dict(comps, **poses._asdict(), scale=scale)
+
+
+@functools.lru_cache(maxsize=None)
+def compiled_scorer(config: SGCConfig):
+    """The jitted, clip-vmapped scorer for a config (jit caches one executable per bucket)."""
+    key = jax.random.PRNGKey(config.seed)
+    return jax.jit(jax.vmap(lambda clip: score_clip_padded(clip, key, config)))
+
+
+def _pair_arrays(out: dict, b: int, n_pairs: int) -> PairArrays:
+    take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
+    status = take("region_status")
+    accepted = status == 0
+    R_local = np.where(accepted[..., None, None], take("R_local"), np.nan).astype(np.float64)
+    t_local = np.where(accepted[..., None], take("t_local"), np.nan).astype(np.float64)
+    return PairArrays(
+        **{name: take(name).astype(np.float64) for name in (
+            "local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error",
+            "reproj_error", "t_g_norm", "R_g_angle_deg")},
+        n_tracks=take("n_tracks"), n_regions=take("n_regions"), n_poses=take("n_poses"),
+        reason=np.array([PAIR_REASONS[c] for c in take("reason")], dtype=object),
+        R_local=R_local, t_local=t_local, region_status=status, region_points=take("region_points"),
+        region_reproj=np.where(accepted, take("region_reproj"), np.nan).astype(np.float64),
+        scale=float(np.asarray(out["scale"][b])))
+
+
+def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
+    """Per-pair arrays of every clip, computed bucket by bucket on the default JAX device."""
+    config = config or SGCConfig()
+    scorer = compiled_scorer(config)
+    results: list[PairArrays | None] = [None] * len(clips)
+    by_bucket: dict[Bucket, list[int]] = {}
+    for i, clip in enumerate(clips):
+        by_bucket.setdefault(bucket_for(clip), []).append(i)
+    for bucket, members in sorted(by_bucket.items()):
+        batch = stack_padded([pad_clip(clips[i], bucket, config) for i in members])
+        out = jax.device_get(scorer(batch))
+        for b, i in enumerate(members):
+            results[i] = _pair_arrays(out, b, clips[i].n_pairs)
+    return results
