@@ -1,0 +1,61 @@
+"""Clips per second of the JAX engine (cold and warm) and of the reference, in one run (SPEC §7).
+
+    python bench/throughput.py [--clips 8] [--frames 16] [--height 288] [--width 512] [--tracks 4096]
+
+Generates the standard corpus (T=16, 288x512, 4096 tracks per pair, ~10 regions), then times:
+reference (NumPy + OpenCV) per clip; JAX cold (first call, compile included) and warm (a second
+batch of the same bucket). Peak memory is the process's maximum resident set size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import resource
+import time
+
+import jax
+
+from sgc_jax import engine, reference
+from sgc_jax.synth import synth_clip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--clips", type=int, default=8)
+    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--height", type=int, default=288)
+    parser.add_argument("--width", type=int, default=512)
+    parser.add_argument("--tracks", type=int, default=4096)
+    args = parser.parse_args()
+
+    scene = dict(n_frames=args.frames, height=args.height, width=args.width, n_tracks=args.tracks,
+                 n_layers=4, static_spheres=3, noise_px=0.5, outlier_frac=0.1)
+    clips = [synth_clip(seed=s, **scene) for s in range(args.clips)]
+
+    start = time.perf_counter()
+    for clip in clips:
+        reference.score_pairs(clip)
+    ref_s = time.perf_counter() - start
+
+    start = time.perf_counter()
+    engine.score_pairs_batch(clips)
+    cold_s = time.perf_counter() - start
+    start = time.perf_counter()
+    engine.score_pairs_batch(clips)
+    warm_s = time.perf_counter() - start
+
+    n = len(clips)
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"machine: {platform.processor() or platform.machine()}, jax {jax.__version__} on {jax.default_backend()}")
+    print(f"corpus: {n} clips of T={args.frames}, {args.height}x{args.width}, {args.tracks} tracks")
+    print("| engine | seconds | clips/s | ratio to reference |")
+    print("|---|---|---|---|")
+    print(f"| reference | {ref_s:.2f} | {n / ref_s:.2f} | 1.00 |")
+    print(f"| jax cold (compile included) | {cold_s:.2f} | {n / cold_s:.2f} | {ref_s / cold_s:.2f} |")
+    print(f"| jax warm | {warm_s:.2f} | {n / warm_s:.2f} | {ref_s / warm_s:.2f} |")
+    print(f"peak resident memory: {peak_mib:.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()
