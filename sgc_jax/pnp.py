@@ -125,28 +125,33 @@ def solve_spd(A, b):
 
 
 class NormalCholesky(lx.AbstractLinearSolver):
-    """Least-squares solve of a tall operator via J^T J x = J^T b with ``solve_spd``.
+    """Least-squares solve of a tall real operator J via J^T J x = J^T b with ``solve_spd``.
 
     For small parameter vectors (here 6) inside ``vmap``; the operator's input must be one array.
-    Not differentiable through (no transpose), which solve_pnp never needs.
+    The transposed solve (pinv(J)^T = pinv(J^T), a minimum-norm solve J (J^T J)^-1 b) is
+    provided so lineax can differentiate through it; real operators are their own conjugate.
     """
 
     def init(self, operator, options):
         del options
-        return operator.as_matrix(), operator.in_structure()
+        return operator.as_matrix(), operator.in_structure(), operator.out_structure(), False
 
     def compute(self, state, vector, options):
         del options
-        J, in_structure = state
+        J, in_structure, out_structure, transposed = state
         b = jnp.concatenate([leaf.reshape(-1) for leaf in jax.tree_util.tree_leaves(vector)])
-        x = solve_spd(J.T @ J, J.T @ b)
-        return x.reshape(in_structure.shape).astype(in_structure.dtype), lx.RESULTS.successful, {}
+        if transposed:
+            x, structure = J @ solve_spd(J.T @ J, b), out_structure
+        else:
+            x, structure = solve_spd(J.T @ J, J.T @ b), in_structure
+        return x.reshape(structure.shape).astype(structure.dtype), lx.RESULTS.successful, {}
 
     def transpose(self, state, options):
-        raise NotImplementedError("NormalCholesky does not support transposition")
+        J, in_structure, out_structure, transposed = state
+        return (J, in_structure, out_structure, not transposed), options
 
     def conj(self, state, options):
-        raise NotImplementedError("NormalCholesky does not support conjugation")
+        return state, options
 
     def assume_full_rank(self):
         return True
