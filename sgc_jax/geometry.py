@@ -27,6 +27,12 @@ def hat(v):
     )
 
 
+def small_matmul(A, B):
+    """A (..., m, k) @ B (..., k, n) unrolled over k into elementwise products: fuses on CPU, where
+    XLA's batched dot of tiny matrices is slow. For 3x3 work inside ``vmap``."""
+    return sum(A[..., :, k, None] * B[..., None, k, :] for k in range(A.shape[-1]))
+
+
 def _vee_asym(M):
     """(..., 3, 3) -> (..., 3): vee(M - M^T), i.e. 2 sin(angle) * axis for a rotation."""
     return jnp.stack(
@@ -44,9 +50,14 @@ def so3_exp(rotvec):
     a = jnp.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, jnp.sin(theta) / theta)
     # (1 - cos t) / t^2 written as 2 sin^2(t/2) / t^2: no cancellation in float32.
     b = jnp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, 2.0 * half_sin**2 / theta_sq_safe)
-    W = hat(rotvec)
+    # hat(w)^2 = w w^T - |w|^2 I, so R = (1 - b |w|^2) I + a hat(w) + b w w^T.
     eye = jnp.eye(3, dtype=rotvec.dtype)
-    return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
+    outer = rotvec[..., :, None] * rotvec[..., None, :]
+    return (
+        (1.0 - b * theta_sq)[..., None, None] * eye
+        + a[..., None, None] * hat(rotvec)
+        + b[..., None, None] * outer
+    )
 
 
 def _quaternion_wxyz(R):

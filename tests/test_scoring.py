@@ -41,7 +41,9 @@ def test_rigid_depth_error_is_bounded_by_splat_rounding(engine):
 
 
 def test_rigid_clip_scores_lowest_in_a_corpus(rigid_clip, drift_clip):
-    unmasked = synth_clip(seed=2, clip_id="unmasked", moving_objects=2, with_mask=False, **SCENE)
+    # Same static scene (seed 1) in every clip, so only the inconsistency differs: the rigid
+    # clip's SGC is mostly its splat-rounding depth error, which depends on the scene.
+    unmasked = synth_clip(seed=1, clip_id="unmasked", moving_objects=2, with_mask=False, **SCENE)
     strong_drift = synth_clip(seed=1, clip_id="strong-drift", layer_drift=0.4, **SCENE)
     result = score_batch([rigid_clip, drift_clip, unmasked, strong_drift], engine="jax", progress=False)
     sgc = dict(zip(result.clip_ids, result.sgc))

@@ -1,0 +1,207 @@
+"""sgc_jax.pnp and sgc_jax.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
+
+Compiled functions are built once at module level and shared across tests (few compiles).
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from sgc_jax.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.pnp import initial_pose, reprojection_residuals, solve_pnp
+from sgc_jax.ransac import STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, ransac_pnp
+
+W, H = 512, 288
+F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
+K = np.array([[F, 0.0, (W - 1) / 2], [0.0, F, (H - 1) / 2], [0.0, 0.0, 1.0]])
+N_PAD = 192  # padded point count of the RANSAC tests; every scene has 3 regions (one compile)
+
+# Tolerances (float32): noise-free recovery is limited by float32 rounding (~1e-5 deg seen);
+# with 1 px noise and 30% outliers on 45 inliers the typical error is 0.02-0.10 deg
+# (PoseLib / OpenCV reach the same on these problems), so 0.2 deg leaves room without hiding
+# a wrong inlier set (those are off by degrees).
+EXACT_ROT_DEG = 1e-2
+EXACT_T_REL = 1e-3
+NOISY_ROT_DEG = 0.2
+
+CFG = dict(hypotheses=100, inlier_px=8.0, min_inlier_frac=0.3, min_points=4, steps=10)
+
+solve_batch = jax.jit(jax.vmap(lambda X, uv, w, K: solve_pnp(X, uv, w, K, steps=10), in_axes=(0, 0, 0, None)))
+init_batch = jax.jit(jax.vmap(initial_pose, in_axes=(0, 0, 0, None)))
+ransac_one = jax.jit(functools.partial(ransac_pnp, **CFG))
+ransac_regions = jax.jit(jax.vmap(functools.partial(ransac_pnp, **CFG), in_axes=(None, None, 0, None, 0)))
+
+
+def rodrigues(w):
+    theta = np.linalg.norm(w)
+    k = w / max(theta, 1e-300)
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
+
+
+def random_pose(rng, max_deg):
+    axis = rng.normal(size=3)
+    R = rodrigues(axis / np.linalg.norm(axis) * np.radians(rng.uniform(0.5, 1.0) * max_deg))
+    return R, rng.normal(size=3) * 0.2 / np.sqrt(3)
+
+
+def correspondences(rng, n, R, t, noise_px=0.0, outlier_frac=0.0):
+    """n points seen in both frames: X in camera 1 (depth 2-12), uv their pixels in camera 2."""
+    X_all, uv_all = [], []
+    while sum(len(x) for x in X_all) < n:
+        pix = rng.uniform([0, 0], [W - 1, H - 1], size=(4 * n, 2))
+        z = rng.uniform(2.0, 12.0, 4 * n)
+        X = np.stack([(pix[:, 0] - K[0, 2]) * z / F, (pix[:, 1] - K[1, 2]) * z / F, z], -1)
+        Y = X @ R.T + t
+        uv = Y[:, :2] / Y[:, 2:] * F + K[:2, 2]
+        keep = (Y[:, 2] > 0) & np.all((uv >= 0) & (uv <= [W - 1, H - 1]), axis=1)
+        X_all.append(X[keep])
+        uv_all.append(uv[keep])
+    X, uv = np.concatenate(X_all)[:n], np.concatenate(uv_all)[:n]
+    uv = uv + rng.normal(size=uv.shape) * noise_px
+    out = rng.permutation(n)[: int(round(outlier_frac * n))]
+    uv[out] = rng.uniform([0, 0], [W - 1, H - 1], size=(len(out), 2))
+    return X, uv
+
+
+def rotation_error_deg(R_est, R_true):
+    return np.asarray(rotation_angle_deg(jnp.asarray(R_est, jnp.float32), jnp.asarray(R_true, jnp.float32)))
+
+
+def f32(*arrays):
+    return [jnp.asarray(a, jnp.float32) for a in arrays]
+
+
+# ----------------------------------------------------------------------------- solve_pnp
+
+
+@pytest.mark.parametrize("n_points", [4, 200])
+def test_solve_pnp_recovers_exact_pose(n_points):
+    rng = np.random.default_rng(n_points)
+    poses = [random_pose(rng, 30.0) for _ in range(16)]
+    data = [correspondences(rng, n_points, R, t) for R, t in poses]
+    X, uv, w = f32(np.stack([d[0] for d in data]), np.stack([d[1] for d in data]), np.ones((16, n_points)))
+    pose6, ok = solve_batch(X, uv, w, jnp.asarray(K, jnp.float32))
+    assert bool(jnp.all(ok))
+    rot_err = rotation_error_deg(so3_exp(pose6[:, :3]), np.stack([R for R, _ in poses]))
+    t_true = np.stack([t for _, t in poses])
+    t_rel = np.linalg.norm(np.asarray(pose6[:, 3:]) - t_true, axis=1) / np.linalg.norm(t_true, axis=1)
+    assert rot_err.max() < EXACT_ROT_DEG
+    assert t_rel.max() < EXACT_T_REL
+
+
+def test_initial_pose_alone_converges_from_30_degrees():
+    rng = np.random.default_rng(7)
+    poses = [random_pose(rng, 30.0) for _ in range(16)]
+    data = [correspondences(rng, 200, R, t) for R, t in poses]
+    X, uv, w = f32(np.stack([d[0] for d in data]), np.stack([d[1] for d in data]), np.ones((16, 200)))
+    pose6 = init_batch(X, uv, w, jnp.asarray(K, jnp.float32))
+    assert rotation_error_deg(so3_exp(pose6[:, :3]), np.stack([R for R, _ in poses])).max() < 0.05
+
+
+def test_residuals_are_zero_on_masked_points_and_finite_behind_camera():
+    X = jnp.asarray([[0.0, 0.0, 5.0], [1.0, 0.0, -3.0], [np.nan, np.inf, 1.0], [0.0, 1.0, 0.0]], jnp.float32)
+    uv = jnp.asarray([[255.5, 143.5], [10.0, 10.0], [np.nan, 0.0], [0.0, 0.0]], jnp.float32)
+    weight = jnp.asarray([1.0, 1.0, 0.0, 1.0], jnp.float32)
+    r = reprojection_residuals(jnp.zeros(6, jnp.float32), X, uv, jnp.asarray(K, jnp.float32), weight)
+    assert r.shape == (4, 2)
+    assert np.all(np.isfinite(np.asarray(r)))
+    np.testing.assert_array_equal(np.asarray(r[2]), 0.0)
+    np.testing.assert_allclose(np.asarray(r[0]), 0.0, atol=1e-4)
+    jac = jax.jacfwd(reprojection_residuals)(jnp.zeros(6, jnp.float32), X, uv, jnp.asarray(K, jnp.float32), weight)
+    assert np.all(np.isfinite(np.asarray(jac)))
+
+
+# ----------------------------------------------------------------------------- ransac_pnp
+
+
+def scene_with_regions(seed, sizes, noise_px=1.0, outlier_frac=0.3, outlier_region=None):
+    """One rigid pose, regions of the given sizes packed into N_PAD points (rest is padding).
+
+    -> X, uv (N_PAD, ...), member masks (R, N_PAD), R_true, t_true. Padding holds garbage.
+    """
+    rng = np.random.default_rng(seed)
+    R, t = random_pose(rng, 10.0)
+    X = np.full((N_PAD, 3), np.nan)
+    uv = np.full((N_PAD, 2), 1e9)
+    member = np.zeros((len(sizes), N_PAD), bool)
+    start = 0
+    for r, size in enumerate(sizes):
+        frac = 1.0 if r == outlier_region else outlier_frac
+        X[start : start + size], uv[start : start + size] = correspondences(rng, size, R, t, noise_px, frac)
+        member[r, start : start + size] = True
+        start += size
+    return X, uv, member, R, t
+
+
+def run_regions(X, uv, member, seed=0):
+    keys = jax.random.split(jax.random.key(seed), member.shape[0])
+    X, uv, Kj = f32(X, uv, K)
+    return ransac_regions(X, uv, jnp.asarray(member), Kj, keys), keys
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ransac_is_accurate_with_noise_and_outliers(seed):
+    X, uv, member, R, _ = scene_with_regions(seed, sizes=[64, 64, 64])
+    res, _ = run_regions(X, uv, member, seed)
+    assert np.all(np.asarray(res.status) == STATUS_OK)
+    rot_err = rotation_error_deg(res.R, np.broadcast_to(R, (3, 3, 3)))
+    assert rot_err.max() < NOISY_ROT_DEG, rot_err
+    # ~70% of the members are inliers; no outlier survives far from the truth.
+    n_inliers = np.asarray(res.n_inliers)
+    assert np.all(n_inliers >= 0.6 * 64) and np.all(n_inliers <= 0.8 * 64)
+    assert np.all(np.asarray(res.reproj_px) > 0)
+
+
+def test_status_codes():
+    X, uv, member, _, _ = scene_with_regions(3, sizes=[3, 60, 60], outlier_region=1)
+    res, _ = run_regions(X, uv, member)
+    np.testing.assert_array_equal(np.asarray(res.status), [STATUS_TOO_FEW_POINTS, STATUS_REJECTED, STATUS_OK])
+    np.testing.assert_array_equal(np.asarray(res.n_members), [3, 60, 60])
+    inliers = np.asarray(res.inliers)
+    assert not np.any(inliers & ~member)  # inliers are always members
+
+
+def test_padding_does_not_change_the_result():
+    """Same members at other slots among garbage padding, and at a smaller padded size."""
+    X, uv, member, _, _ = scene_with_regions(4, sizes=[80])
+    X, uv, member = X[:80], uv[:80], member[0, :80]
+    key = jax.random.key(5)
+    slots = np.sort(np.random.default_rng(0).permutation(N_PAD)[:80])
+    X_pad = np.full((N_PAD, 3), 7.0)
+    uv_pad = np.full((N_PAD, 2), np.nan)
+    X_pad[slots], uv_pad[slots] = X, uv
+    member_pad = np.zeros(N_PAD, bool)
+    member_pad[slots] = True
+    small = ransac_one(*f32(X, uv), jnp.asarray(member), jnp.asarray(K, jnp.float32), key)
+    padded = ransac_one(*f32(X_pad, uv_pad), jnp.asarray(member_pad), jnp.asarray(K, jnp.float32), key)
+    assert int(small.status) == int(padded.status) == STATUS_OK
+    assert int(small.n_inliers) == int(padded.n_inliers)
+    np.testing.assert_array_equal(np.asarray(padded.inliers)[slots], np.asarray(small.inliers))
+    assert not np.any(np.asarray(padded.inliers)[~member_pad])
+    np.testing.assert_allclose(np.asarray(padded.R), np.asarray(small.R), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(padded.t), np.asarray(small.t), atol=1e-5)
+    np.testing.assert_allclose(float(padded.reproj_px), float(small.reproj_px), rtol=1e-5)
+
+
+def test_fixed_key_is_deterministic():
+    X, uv, member, _, _ = scene_with_regions(5, sizes=[70])
+    args = (*f32(X, uv), jnp.asarray(member[0]), jnp.asarray(K, jnp.float32), jax.random.key(11))
+    first, second = ransac_one(*args), ransac_one(*args)
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_vmap_over_regions_equals_per_region_calls():
+    X, uv, member, _, _ = scene_with_regions(6, sizes=[40, 3, 50])
+    batched, keys = run_regions(X, uv, member)
+    for r in range(member.shape[0]):
+        single = ransac_one(*f32(X, uv), jnp.asarray(member[r]), jnp.asarray(K, jnp.float32), keys[r])
+        assert int(single.status) == int(batched.status[r])
+        assert int(single.n_inliers) == int(batched.n_inliers[r])
+        np.testing.assert_array_equal(np.asarray(single.inliers), np.asarray(batched.inliers[r]))
+        np.testing.assert_allclose(np.asarray(single.R), np.asarray(batched.R[r]), atol=1e-5)
+        np.testing.assert_allclose(np.asarray(single.t), np.asarray(batched.t[r]), atol=1e-5)
