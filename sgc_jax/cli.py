@@ -83,10 +83,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if all(c.status != "error" for c in result.clips) else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sgc-jax", description="Spatial Geometric Consistency scores")
-    sub = parser.add_subparsers(dest="command", required=True)
-
+def _register_score(sub) -> None:
     score = sub.add_parser("score", help="score clip / batch .npz files, directories or globs")
     score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
     output = score.add_argument_group("output")
@@ -96,6 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no table when --out")
     score.set_defaults(func=cmd_score)
 
+
+def _register_demo(sub) -> None:
     demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table")
     demo.add_argument("--out", help="keep the demo clips in this directory")
     demo.add_argument("--engine", choices=("jax", "reference"), default="jax")
@@ -103,10 +102,27 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("-q", "--quiet", action="store_true")
     demo.set_defaults(func=cmd_demo)
 
+
+def _register_synth(sub) -> None:
     synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files")
     synth.add_argument("--out", required=True, help="output directory")
     synth.add_argument("--seed", type=int, default=0)
     synth.set_defaults(func=cmd_synth)
+
+
+# One registrar per subcommand, in the order ``sgc-jax --help`` lists them.
+SUBCOMMANDS = (
+    _register_score,
+    _register_demo,
+    _register_synth,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sgc-jax", description="Spatial Geometric Consistency scores")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for register in SUBCOMMANDS:
+        register(sub)
     return parser
 
 
