@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sgc_jax import COMPONENTS, Calibration, calibrate, sgc_score
+from sgc_jax.calibration import kfold_stability
 
 GROUPS_CSV = Path(__file__).parent / "data" / "sgc-paper-2026-groups.csv"
 
@@ -96,3 +97,91 @@ def test_degenerate_sigma_and_span_give_zero_not_nan():
 def test_unknown_calibration_name_is_a_clear_error():
     with pytest.raises(FileNotFoundError, match="sgc-paper-2026"):
         Calibration.load("no-such-calibration")
+
+
+# ----------------------------------------------------------------------------- fitting inputs
+
+
+def test_dataframe_rows_and_failed_clips():
+    pd = pytest.importorskip("pandas")
+    rows, matrix, _ = paper_groups()
+    frame = pd.DataFrame(rows)
+    assert calibrate(frame).weight == pytest.approx(calibrate(rows).weight, abs=1e-12)
+    failed = {"clip_id": "broken", "group": "x", "status": "error", **{k: float("nan") for k in COMPONENTS}}
+    with_failed = calibrate([*rows, failed])
+    assert with_failed.extra["n_rows"] == 13  # the failed clip is left out, not filled in
+    assert with_failed.mu == pytest.approx(calibrate(rows).mu, abs=1e-12)
+
+
+def test_calibration_reports_pc1_explained_variance():
+    _, matrix, _ = paper_groups()
+    fitted = calibrate(matrix)
+    ratio = fitted.extra["pc1_explained_variance_ratio"]
+    assert 0.2 < ratio <= 1.0  # five components: PC1 explains at least a fifth
+    rank_one = np.outer(np.linspace(0.1, 2.0, 8), np.ones(5)) * np.array([1.0, 2.0, 3.0, 4.0, 0.01])
+    # without log1p every column is linear in one variable: the M'' matrix has rank one
+    assert calibrate(rank_one, log1p=()).extra["pc1_explained_variance_ratio"] == pytest.approx(1.0, abs=1e-9)
+    assert calibrate(rank_one).extra["pc1_explained_variance_ratio"] < 1.0 - 1e-6
+
+
+def test_grouping_needs_groups_and_calibration_needs_every_component():
+    _, matrix, _ = paper_groups()
+    with pytest.raises(ValueError, match="group"):
+        calibrate(matrix, by="group")
+    no_depth = matrix.copy()
+    no_depth[:, 4] = np.nan
+    with pytest.raises(ValueError, match="depth_error"):
+        calibrate(no_depth)
+
+
+# ----------------------------------------------------------------------------- k-fold stability
+
+
+def test_kfold_on_published_groups_is_stable_like_the_paper():
+    rows, _, _ = paper_groups()
+    stability = kfold_stability(rows, k=5, seed=0)
+    assert stability.fold_weights.shape == (5, 5)
+    np.testing.assert_allclose(stability.fold_weights.sum(axis=1), 1.0, atol=1e-12)
+    paper = Calibration.load("sgc-paper-2026").weight
+    for k in COMPONENTS:
+        assert stability.full_weights[k] == pytest.approx(paper[k], abs=1e-4)
+        # appendix C.1 on 1296 clips: |fold mean - full| <= 0.014, fold std <= 0.0354
+        assert abs(stability.weight_mean[k] - paper[k]) < 0.03
+        assert 0.0 < stability.weight_std[k] < 0.06
+    # the hierarchy holds on average: translations and depth above rotations
+    mean = stability.weight_mean
+    assert min(mean["global_trans_var"], mean["local_trans_var"], mean["depth_error"]) > mean["global_rot_var"] > mean["local_rot_var"]
+    assert 0.95 < stability.spearman_mean <= 1.0 and stability.spearman.shape == (5,)
+    assert "Spearman" in stability.table() and stability.to_dict()["k"] == 5
+
+
+def test_leave_one_out_folds_are_calibrations_without_one_row():
+    rows, _, _ = paper_groups()
+    stability = kfold_stability(rows, k=len(rows), seed=3)
+    expected = np.array([[calibrate(rows[:i] + rows[i + 1:]).weight[k] for k in COMPONENTS] for i in range(len(rows))])
+    for fold in stability.fold_weights:  # fold order follows the shuffle: match each to its row
+        assert np.min(np.abs(expected - fold).max(axis=1)) < 1e-12
+    # with the whole dataset behind every fold the scores barely move
+    assert stability.spearman.min() > 0.95
+
+
+def test_kfold_by_group_splits_clips_then_averages_groups():
+    rows, matrix, _ = paper_groups()
+    clips = [{"group": r["group"], **{k: m[j] * (1 + s * 0.1) for j, k in enumerate(COMPONENTS)}}
+             for r, m in zip(rows, matrix) for s in (-1, 1)]
+    stability = kfold_stability(clips, k=len(clips), by="group", seed=0)
+    expected = np.array([[calibrate(clips[:i] + clips[i + 1:], by="group").weight[k] for k in COMPONENTS]
+                         for i in range(len(clips))])
+    for fold in stability.fold_weights:
+        assert np.min(np.abs(expected - fold).max(axis=1)) < 1e-12
+    assert stability.full_weights == pytest.approx(calibrate(rows).weight, abs=1e-9)
+
+
+def test_kfold_is_reproducible_and_checks_k():
+    rows, _, _ = paper_groups()
+    a, b = kfold_stability(rows, k=4, seed=7), kfold_stability(rows, k=4, seed=7)
+    np.testing.assert_array_equal(a.fold_weights, b.fold_weights)
+    assert not np.array_equal(a.fold_weights, kfold_stability(rows, k=4, seed=8).fold_weights)
+    for k in (1, 14):
+        with pytest.raises(ValueError, match="k must be"):
+            kfold_stability(rows, k=k)
