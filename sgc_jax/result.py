@@ -1,6 +1,8 @@
 """Results: per-pair arrays of one clip, per-clip summaries, and the batch table (SPEC §6).
 
 Column names are fixed (:data:`CLIP_COLUMNS`, :data:`PAIR_COLUMNS`) so scripts can rely on them.
+``ecd`` (SPEC §5) is a corpus column: each clip's ``ecd_trans`` and ``ecd_rot`` min-max normalised
+over the clips of the table, then the larger of the two.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from .calibration import COMPONENTS, Calibration, sgc_score
+from .stats import min_max
 
 #: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
 PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap")
@@ -24,7 +27,7 @@ PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no
 REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3}
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
-                "ecd_rot", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale")
+                "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
                 "n_poses", "t_g_norm", "R_g_angle_deg", "engine")
 
@@ -105,10 +108,11 @@ class ClipResult:
     origin: str = ""
     pairs: PairArrays | None = None
 
-    def record(self) -> dict[str, Any]:
+    def record(self, ecd: float = float("nan")) -> dict[str, Any]:
+        """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
         row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
                "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
-               "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "n_pairs": self.n_pairs,
+               "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
                "mask_source": self.mask_source, "scale": self.scale}
         return {k: row[k] for k in CLIP_COLUMNS}
@@ -145,6 +149,17 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), origin=origin, pairs=pairs)
 
 
+def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
+    """ECD (SPEC §5) per clip: max of min-max(mean ||t_g||) and min-max(mean angle of R_g) over the corpus.
+
+    (n,) x2 -> (n,) in [0, 1]; NaN inputs are ignored by the scaling; a clip with one NaN input
+    takes the other; a constant column scales to 0.
+    """
+    trans, rot = min_max(ecd_trans), min_max(ecd_rot)
+    both = np.stack([trans, rot])
+    return np.where(np.isnan(both).all(axis=0), np.nan, np.nanmax(np.where(np.isnan(both), -np.inf, both), axis=0))
+
+
 def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "") -> ClipResult:
     """The row of a clip that could not be loaded or scored."""
     return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin)
@@ -170,6 +185,89 @@ def _write_csv(path: str | os.PathLike, rows: list[dict], columns: Sequence[str]
         for row in rows:
             writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
     return path
+
+
+_INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses")
+_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind")
+
+
+def _parse_column(name: str, values: list[str]) -> list[Any]:
+    if name in _TEXT_COLUMNS:
+        return values
+    if name in _INT_COLUMNS:
+        return [int(v) if v != "" else 0 for v in values]
+    try:  # a numeric column: every non-empty cell parses (as int when every cell is an integer)
+        return [int(v) for v in values]
+    except ValueError:
+        pass
+    try:
+        return [float(v) if v != "" else float("nan") for v in values]
+    except ValueError:
+        return values
+
+
+def read_scores(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[dict[str, Any]]:
+    """Per-clip rows of one or more CSVs written by ``to_csv`` / ``sgc-jax score --out``.
+
+    Numeric columns come back as float (empty cell -> NaN) or int, text columns as str; extra
+    columns (e.g. a study's ``base``, ``kind``, ``severity``) are kept. Each row gets ``source``,
+    the file it came from; a file without ``clip_id`` (e.g. one row per group) gets ``row<i>``.
+    Missing component columns raise ``ValueError`` naming the file.
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    records: list[dict[str, Any]] = []
+    for path in paths:
+        with Path(path).open(newline="") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            header = reader.fieldnames or []
+        missing = [k for k in COMPONENTS if k not in header]
+        if missing:
+            raise ValueError(f"{path}: not a per-clip scores CSV, columns {missing} are missing (found {header})")
+        columns = {name: _parse_column(name, [r[name] or "" for r in rows]) for name in header}
+        for i in range(len(rows)):
+            record = {name: columns[name][i] for name in header}
+            record.setdefault("clip_id", f"row{i}")
+            records.append({**record, "source": os.fspath(path)})
+    return records
+
+
+def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration | str) -> list[dict[str, Any]]:
+    """Copies of per-clip rows with ``sgc`` recomputed from their stored components under
+    ``calibration`` (no geometry: the per-clip components are all the score needs) and ``ecd``
+    recomputed over these rows."""
+    calibration = Calibration.load(calibration)
+    components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
+    sgc = sgc_score(components, calibration) if records else np.array([])
+    out = [{**r, "sgc": float(v)} for r, v in zip(records, sgc)]
+    return add_ecd(out) if any("ecd_trans" in r for r in out) else out
+
+
+def add_ecd(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Copies of per-clip rows with ``ecd`` (SPEC §5) normalised over these rows; rows without
+    ``ecd_trans`` / ``ecd_rot`` get NaN."""
+    nan = float("nan")
+    ecd = camera_dynamics([r.get("ecd_trans", nan) for r in records], [r.get("ecd_rot", nan) for r in records])
+    return [{**r, "ecd": float(e)} for r, e in zip(records, ecd)]
+
+
+def write_scores(path: str | os.PathLike, records: Sequence[dict[str, Any]]) -> Path:
+    """Write per-clip rows as CSV: :data:`CLIP_COLUMNS` present in the rows first, then any extra
+    columns in their order of appearance (``source`` is not written)."""
+    seen: list[str] = []
+    for r in records:
+        seen.extend(k for k in r if k not in seen and k != "source")
+    columns = [c for c in CLIP_COLUMNS if c in seen] + [c for c in seen if c not in CLIP_COLUMNS]
+    return _write_csv(path, list(records), columns)
+
+
+def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    """A plain-text table for terminals (floats to 4 significant digits)."""
+    rows = [[_format(r.get(c, "")) for c in columns] for r in records]
+    widths = [max(len(c), *(len(row[i]) for row in rows)) if rows else len(c) for i, c in enumerate(columns)]
+    line = lambda cells: "  ".join(cell.ljust(w) for cell, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(columns), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 
 
 @dataclasses.dataclass
@@ -207,9 +305,14 @@ class BatchResult:
     def sgc(self) -> np.ndarray:
         return self["sgc"]
 
+    @property
+    def ecd(self) -> np.ndarray:
+        """Estimated camera dynamics (SPEC §5) of each clip, normalised over this batch."""
+        return camera_dynamics([c.ecd_trans for c in self.clips], [c.ecd_rot for c in self.clips])
+
     def to_records(self) -> list[dict[str, Any]]:
-        """One dict per clip with :data:`CLIP_COLUMNS`."""
-        return [c.record() for c in self.clips]
+        """One dict per clip with :data:`CLIP_COLUMNS` (``ecd`` normalised over this batch)."""
+        return [c.record(float(e)) for c, e in zip(self.clips, self.ecd)]
 
     def pair_records(self) -> list[dict[str, Any]]:
         """One dict per pair with :data:`PAIR_COLUMNS`."""
@@ -242,7 +345,8 @@ class BatchResult:
         return pd.DataFrame(self.to_records(), columns=list(CLIP_COLUMNS))
 
     def rescore(self, calibration: Calibration | str) -> "BatchResult":
-        """The same components under another calibration (no geometry is recomputed)."""
+        """The same components under another calibration (no geometry is recomputed: the score
+        is a function of the stored per-pair components)."""
         calibration = Calibration.load(calibration)
         clips = [summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
                                 mask_source=c.mask_source, origin=c.origin) if c.pairs is not None else c
@@ -251,10 +355,7 @@ class BatchResult:
 
     def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *COMPONENTS)) -> str:
         """A plain-text table for terminals."""
-        rows = [[_format(r[c]) for c in columns] for r in self.to_records()]
-        widths = [max(len(c), *(len(row[i]) for row in rows)) if rows else len(c) for i, c in enumerate(columns)]
-        line = lambda cells: "  ".join(cell.ljust(w) for cell, w in zip(cells, widths))  # noqa: E731
-        return "\n".join([line(columns), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+        return format_table(self.to_records(), columns)
 
 
 def _format(value: Any) -> str:

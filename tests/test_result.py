@@ -1,0 +1,104 @@
+"""result.py: the corpus ECD column (SPEC §5), reading scores CSVs back, re-scoring without geometry."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+import sgc_jax.api
+import sgc_jax.reference
+from sgc_jax import COMPONENTS, BatchResult, Calibration, ClipResult, calibrate, score_batch, sgc_score
+from sgc_jax.result import camera_dynamics, read_scores, rescore_records, write_scores
+from sgc_jax.synth import synth_clip
+
+TINY = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
+
+
+def clip_result(clip_id, ecd_trans, ecd_rot, group="g", status="ok", components=None):
+    comps = components or dict(zip(COMPONENTS, (1.0, 0.1, 2.0, 0.2, 0.05)))
+    return ClipResult(clip_id=clip_id, group=group, status=status, components=comps, ecd_trans=ecd_trans,
+                      ecd_rot=ecd_rot, sgc=0.5)
+
+
+@pytest.fixture(scope="module")
+def scored():
+    """Four tiny clips in two groups, scored by the reference engine (about a second)."""
+    clips = [synth_clip(seed=s, clip_id=f"c{s}", group=f"g{s % 2}", **TINY) for s in range(4)]
+    return score_batch(clips, engine="reference")
+
+
+def forbid_geometry(monkeypatch):
+    def refuse(*_args, **_kwargs):
+        raise AssertionError("geometry was re-run")
+
+    monkeypatch.setattr(sgc_jax.api, "_engine", refuse)
+    monkeypatch.setattr(sgc_jax.reference, "score_pairs", refuse)
+
+
+def test_ecd_is_the_larger_of_the_min_max_normalised_inputs():
+    batch = BatchResult([clip_result("a", 0.0, 4.0), clip_result("b", 1.0, 2.0), clip_result("c", 2.0, 0.0),
+                         clip_result("d", 0.5, 1.0)])
+    # trans scaled: 0, .5, 1, .25; rot scaled: 1, .5, 0, .25
+    np.testing.assert_allclose(batch.ecd, [1.0, 0.5, 1.0, 0.25])
+    records = batch.to_records()
+    assert [r["ecd"] for r in records] == pytest.approx([1.0, 0.5, 1.0, 0.25])
+    assert [r["ecd_trans"] for r in records] == [0.0, 1.0, 2.0, 0.5]  # raw inputs kept
+    np.testing.assert_allclose(batch["ecd"], batch.ecd)
+    frame = batch.to_pandas()
+    assert list(frame["ecd"]) == pytest.approx([1.0, 0.5, 1.0, 0.25])
+
+
+def test_failed_clip_has_no_ecd_and_does_not_shift_the_others():
+    ok = [clip_result("a", 1.0, 1.0), clip_result("b", 3.0, 2.0)]
+    failed = clip_result("x", math.nan, math.nan, status="error")
+    np.testing.assert_allclose(BatchResult([*ok, failed]).ecd, [0.0, 1.0, np.nan])
+    assert camera_dynamics([], []).shape == (0,)
+    assert BatchResult([clip_result("solo", 0.3, 2.0)]).ecd[0] == 0.0  # one clip: zero span
+
+
+def test_scores_csv_reads_back_with_types_and_extra_columns(scored, tmp_path):
+    path = scored.to_csv(tmp_path / "scores.csv")
+    rows = read_scores(path)
+    assert [r["clip_id"] for r in rows] == scored.clip_ids
+    for row, clip in zip(rows, scored.clips):
+        assert row["status"] == clip.status and row["n_pairs"] == clip.n_pairs == 2
+        for k in COMPONENTS:
+            assert row[k] == pytest.approx(clip.components[k], rel=1e-12, nan_ok=True)
+        assert row["sgc"] == pytest.approx(clip.sgc, rel=1e-12) and row["source"] == str(path)
+    study = tmp_path / "study.csv"
+    write_scores(study, [{**r, "base": "c0", "kind": "warp", "severity": 0.25} for r in rows])
+    header = next(csv.reader(study.open()))
+    assert header[:3] == ["clip_id", "group", "status"] and header[-3:] == ["base", "kind", "severity"]
+    back = read_scores(study)
+    assert back[0]["kind"] == "warp" and back[0]["severity"] == 0.25 and back[0]["base"] == "c0"
+
+
+def test_reading_a_file_without_components_names_it(tmp_path):
+    bad = tmp_path / "other.csv"
+    bad.write_text("clip_id,sgc\na,0.1\n")
+    with pytest.raises(ValueError, match="other.csv.*depth_error"):
+        read_scores(bad)
+
+
+def test_rescoring_uses_stored_components_not_geometry(scored, tmp_path, monkeypatch):
+    new = calibrate(scored, name="tiny")  # any calibration different from the paper's
+    forbid_geometry(monkeypatch)
+    rescored = scored.rescore(new)
+    assert rescored.calibration is new
+    expected = sgc_score({k: scored[k] for k in COMPONENTS}, new)
+    np.testing.assert_allclose(rescored.sgc, expected, rtol=1e-12)
+    assert not np.allclose(rescored.sgc, scored.sgc)  # the calibration did change the scores
+    for a, b in zip(rescored.clips, scored.clips):
+        assert a.components == b.components and a.pairs is b.pairs
+    # the same from the CSV alone, with only per-clip components
+    rows = rescore_records(read_scores(scored.to_csv(tmp_path / "s.csv")), new)
+    np.testing.assert_allclose([r["sgc"] for r in rows], expected, rtol=1e-12)
+    np.testing.assert_allclose([r["ecd"] for r in rows], scored.ecd, rtol=1e-12)
+
+
+def test_rescore_by_name_restores_the_paper_scores(scored, monkeypatch):
+    forbid_geometry(monkeypatch)
+    there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-paper-2026")
+    np.testing.assert_allclose(there_and_back.sgc, scored.sgc, rtol=1e-12)
+    assert there_and_back.calibration == Calibration.load("sgc-paper-2026")
