@@ -1,0 +1,95 @@
+"""Corpus tables (SPEC §5, paper §4.2-4.4): per-group summaries with bootstrap CIs and ranks,
+agreement between two score files, and how much a score follows camera dynamics (ECD).
+
+Inputs are per-clip rows (dicts with SPEC §6 columns), e.g. ``BatchResult.to_records()`` or
+``sgc_jax.result.read_scores(...)``. Rows with status ``error`` or a NaN value are left out of
+every statistic. Ranks: 1 = lowest mean (lower SGC is better), ties share their average rank.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .result import add_ecd
+from .stats import agreement, bootstrap_ci, pearson, rankdata, spearman
+
+GROUP_COLUMNS = ("group", "n", "mean", "median", "ci_low", "ci_high", "rank", "ecd_mean", "r_ecd")
+CLIP_TABLE_COLUMNS = ("clip_id", "group", "value", "ecd", "rank")
+
+
+def _scored(records: Sequence[dict[str, Any]], column: str) -> list[dict[str, Any]]:
+    if records and column not in records[0]:
+        raise KeyError(f"no column {column!r} in the rows; columns: {list(records[0])}")
+    return [r for r in records if r.get("status", "ok") != "error" and not np.isnan(float(r[column]))]
+
+
+def group_table(records: Sequence[dict[str, Any]], column: str = "sgc", *, n_boot: int = 2000,
+                level: float = 0.95, seed: int = 0) -> list[dict[str, Any]]:
+    """One row per group (sorted by rank): n, mean, median, percentile-bootstrap CI of the mean,
+    rank of the mean, mean ECD (normalised over all ``records``) and Pearson r of ``column`` vs
+    ECD within the group (the paper's motion-robustness check)."""
+    rows = _scored(add_ecd(records), column)
+    groups = sorted({str(r.get("group", "")) for r in rows})
+    table = []
+    for g in groups:
+        values = np.array([float(r[column]) for r in rows if str(r.get("group", "")) == g])
+        ecd = np.array([float(r["ecd"]) for r in rows if str(r.get("group", "")) == g])
+        lo, hi = bootstrap_ci(values, np.mean, n_boot=n_boot, level=level, seed=seed)
+        table.append({"group": g, "n": int(values.size), "mean": float(values.mean()),
+                      "median": float(np.median(values)), "ci_low": lo, "ci_high": hi,
+                      "ecd_mean": float(np.nanmean(ecd)) if not np.isnan(ecd).all() else float("nan"),
+                      "r_ecd": pearson(values, ecd)})
+    ranks = rankdata([t["mean"] for t in table])
+    for t, rank in zip(table, ranks):
+        t["rank"] = float(rank)
+    return [{k: t[k] for k in GROUP_COLUMNS} for t in sorted(table, key=lambda t: t["rank"])]
+
+
+def clip_table(records: Sequence[dict[str, Any]], column: str = "sgc") -> list[dict[str, Any]]:
+    """One row per scored clip (sorted by rank): clip_id, group, value of ``column``, ECD, rank."""
+    rows = _scored(add_ecd(records), column)
+    ranks = rankdata([float(r[column]) for r in rows])
+    table = [{"clip_id": r["clip_id"], "group": r.get("group", ""), "value": float(r[column]),
+              "ecd": float(r["ecd"]), "rank": float(rank)} for r, rank in zip(rows, ranks)]
+    return sorted(table, key=lambda t: t["rank"])
+
+
+def _keyed(records: Sequence[dict[str, Any]], column: str, by: str) -> dict[str, float]:
+    rows = _scored(records, column)
+    if by == "group":
+        values: dict[str, list[float]] = {}
+        for r in rows:
+            values.setdefault(str(r.get("group", "")), []).append(float(r[column]))
+        return {g: float(np.mean(v)) for g, v in values.items()}
+    if by != "clip":
+        raise ValueError(f"by must be 'clip' or 'group', got {by!r}")
+    out: dict[str, float] = {}
+    for r in rows:
+        if r["clip_id"] in out:
+            raise ValueError(f"clip_id {r['clip_id']!r} appears twice; agreement by clip needs unique ids")
+        out[r["clip_id"]] = float(r[column])
+    return out
+
+
+def agreement_between(records_a: Sequence[dict[str, Any]], records_b: Sequence[dict[str, Any]],
+                      column: str = "sgc", *, by: str = "clip") -> dict[str, Any]:
+    """Spearman rho, Kendall tau-b and Pearson r between two score tables, matched by clip_id
+    (``by="clip"``) or by group of the per-group means (``by="group"``); ``n`` matched keys and
+    ``unmatched`` (keys present in only one table)."""
+    a, b = _keyed(records_a, column, by), _keyed(records_b, column, by)
+    keys = sorted(set(a) & set(b))
+    out = agreement([a[k] for k in keys], [b[k] for k in keys])
+    return {**out, "by": by, "unmatched": sorted(set(a) ^ set(b))}
+
+
+def motion_dependence(records: Sequence[dict[str, Any]], column: str = "sgc") -> dict[str, Any]:
+    """How much ``column`` follows camera motion over the scored clips: Pearson r (and r^2, the
+    share of variance motion explains) and Spearman rho against ECD (paper §4.3); ``n_ecd``:
+    clips with both values."""
+    rows = _scored(add_ecd(records), column)
+    values, ecd = [float(r[column]) for r in rows], [float(r["ecd"]) for r in rows]
+    r = pearson(values, ecd)
+    return {"n": len(rows), "n_ecd": int(np.sum(~np.isnan(ecd))) if ecd else 0, "pearson": r, "r2": r * r,
+            "spearman": spearman(values, ecd)}

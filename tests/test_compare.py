@@ -1,0 +1,84 @@
+"""compare.py: per-group tables, per-clip ranks, agreement of two score files, dependence on ECD."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats as scipy_stats
+
+from sgc_jax.compare import GROUP_COLUMNS, agreement_between, clip_table, group_table, motion_dependence
+
+NAN = math.nan
+
+
+def row(clip_id, group, sgc, ecd_trans=1.0, ecd_rot=1.0, status="ok"):
+    return {"clip_id": clip_id, "group": group, "status": status, "sgc": sgc, "ecd_trans": ecd_trans,
+            "ecd_rot": ecd_rot}
+
+
+def corpus():
+    """Group "good" scores low, "bad" high, "mid" ties "good"'s mean (binary-exact values)."""
+    return [row("g1", "good", 0.125, 0.0, 0.0), row("g2", "good", 0.375, 1.0, 0.5), row("g3", "good", 0.25, 2.0, 1.0),
+            row("b1", "bad", 0.9, 4.0, 2.0), row("b2", "bad", 0.7, 3.0, 1.5),
+            row("m1", "mid", 0.25), row("m2", "mid", 0.25),
+            row("x1", "bad", NAN, NAN, NAN, status="error"), row("x2", "mid", 5.0, status="error")]
+
+
+def test_group_table_statistics_and_ranks():
+    table = group_table(corpus(), n_boot=500, seed=0)
+    assert [t["group"] for t in table][-1] == "bad"
+    by = {t["group"]: t for t in table}
+    assert set(table[0]) == set(GROUP_COLUMNS)
+    assert by["good"]["n"] == 3 and by["bad"]["n"] == 2 and by["mid"]["n"] == 2  # error rows left out
+    assert by["good"]["mean"] == 0.25 and by["good"]["median"] == 0.25
+    assert by["bad"]["mean"] == pytest.approx(0.8)
+    assert by["good"]["rank"] == by["mid"]["rank"] == 1.5 and by["bad"]["rank"] == 3.0  # tie: average rank
+    assert by["good"]["ci_low"] < 0.25 < by["good"]["ci_high"]
+    assert 0.125 <= by["good"]["ci_low"] and by["good"]["ci_high"] <= 0.375  # a mean's CI stays in the data range
+    assert by["mid"]["ci_low"] == by["mid"]["ci_high"] == 0.25  # constant group
+    # ECD over every row with inputs (trans 0..4 -> /4, rot 0..2 -> /2): "good" gets 0, 1/4, 1/2
+    ecd_good = np.array([0.0, 0.25, 0.5])
+    assert by["good"]["r_ecd"] == pytest.approx(scipy_stats.pearsonr([0.125, 0.375, 0.25], ecd_good).statistic)
+    assert by["good"]["ecd_mean"] == pytest.approx(ecd_good.mean())
+
+
+def test_group_table_of_another_column():
+    rows = [{**r, "depth_error": i * 1.0} for i, r in enumerate(corpus())]
+    by = {t["group"]: t for t in group_table(rows, "depth_error", n_boot=10)}
+    assert by["good"]["mean"] == pytest.approx(1.0)  # rows 0, 1, 2
+    with pytest.raises(KeyError, match="no_such"):
+        group_table(rows, "no_such")
+
+
+def test_clip_table_ranks_scored_clips():
+    table = clip_table(corpus())
+    assert [t["clip_id"] for t in table][:1] == ["g1"] and table[-1]["clip_id"] == "b1"
+    assert len(table) == 7 and {t["rank"] for t in table if t["value"] == 0.25} == {3.0}  # three tied: ranks 2-4
+
+
+def test_agreement_by_clip_and_by_group_matches_scipy():
+    a = corpus()
+    rng = np.random.default_rng(0)
+    b = [{**r, "sgc": r["sgc"] + rng.normal(scale=0.15)} for r in a] + [row("only_b", "new", 0.5)]
+    ok = [r for r in a if r["status"] == "ok"]
+    b_by_id = {r["clip_id"]: r["sgc"] for r in b}
+    expected = scipy_stats.kendalltau([r["sgc"] for r in ok], [b_by_id[r["clip_id"]] for r in ok]).statistic
+    agree = agreement_between(a, b, by="clip")
+    assert agree["n"] == 7 and agree["kendall_tau"] == pytest.approx(expected, abs=1e-12)
+    assert agree["unmatched"] == ["only_b"]  # error rows count as absent in both
+    by_group = agreement_between(a, b, by="group")
+    assert by_group["n"] == 3 and by_group["unmatched"] == ["new"]
+    assert agreement_between(a, a, by="group")["spearman"] == pytest.approx(1.0)
+
+
+def test_agreement_by_clip_needs_unique_ids():
+    with pytest.raises(ValueError, match="twice"):
+        agreement_between(corpus() + [row("g1", "good", 0.4)], corpus())
+
+
+def test_motion_dependence_of_a_score_driven_by_camera_motion():
+    rows = [row(f"c{i}", "g", 0.1 + 0.05 * i, ecd_trans=float(i), ecd_rot=0.0) for i in range(6)]
+    motion = motion_dependence(rows)
+    assert motion["n_ecd"] == 6 and motion["pearson"] == pytest.approx(1.0) and motion["r2"] == pytest.approx(1.0)
+    flat = motion_dependence([{**r, "sgc": 0.3 + 0.01 * (-1) ** i} for i, r in enumerate(rows)])
+    assert abs(flat["spearman"]) < 0.5
