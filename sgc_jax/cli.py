@@ -110,11 +110,160 @@ def _register_synth(sub) -> None:
     synth.set_defaults(func=cmd_synth)
 
 
+def _read_scores_or_exit(paths, command: str):
+    from .result import read_scores
+
+    try:
+        return read_scores(paths)
+    except (OSError, ValueError) as exc:
+        print(f"sgc-jax {command}: {exc}", file=sys.stderr)
+        return None
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from .calibration import calibrate, kfold_stability
+    from .result import rescore_records, write_scores
+
+    records = _read_scores_or_exit(args.scores, "calibrate")
+    if records is None:
+        return 2
+    try:
+        calibration = calibrate(records, by=args.by, name=args.name)
+    except ValueError as exc:
+        print(f"sgc-jax calibrate: {exc}", file=sys.stderr)
+        return 2
+    print(f"calibration {calibration.name!r}: {calibration.description}")
+    print(f"{'component':<18}{'log1p':>6}{'mu':>10}{'sigma':>10}{'z_min':>9}{'z_max':>9}{'weight':>9}")
+    for k in COMPONENTS:
+        print(f"{k:<18}{'yes' if calibration.log1p[k] else 'no':>6}{calibration.mu[k]:>10.4f}"
+              f"{calibration.sigma[k]:>10.4f}{calibration.z_min[k]:>9.4f}{calibration.z_max[k]:>9.4f}"
+              f"{calibration.weight[k]:>9.4f}")
+    print(f"PC1 explained variance ratio: {calibration.extra['pc1_explained_variance_ratio']:.4f}")
+    if args.folds:
+        try:
+            stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
+        except ValueError as exc:
+            print(f"k-fold stability not computed: {exc}", file=sys.stderr)
+        else:
+            print(f"\n{args.folds}-fold stability of the weights:")
+            print(stability.table())
+            calibration = dataclasses.replace(
+                calibration, extra={**calibration.extra, "kfold_stability": stability.to_dict()})
+    if args.out:
+        calibration.save(args.out)
+        print(f"wrote {args.out}", file=sys.stderr)
+    if args.rescored:
+        write_scores(args.rescored, rescore_records(records, calibration))
+        print(f"wrote {args.rescored} (sgc under the new calibration, from the stored components)", file=sys.stderr)
+    return 0
+
+
+def cmd_rescore(args: argparse.Namespace) -> int:
+    from .result import format_table, rescore_records, write_scores
+
+    records = _read_scores_or_exit(args.scores, "rescore")
+    if records is None:
+        return 2
+    try:
+        rescored = rescore_records(records, args.calibration)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"sgc-jax rescore: {exc}", file=sys.stderr)
+        return 2
+    if args.out:
+        write_scores(args.out, rescored)
+        print(f"wrote {args.out}", file=sys.stderr)
+    else:
+        print(format_table(rescored, ("clip_id", "group", "status", "sgc", *COMPONENTS, "ecd")))
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, group_table,
+                          motion_dependence)
+    from .result import write_csv, format_table
+
+    records = _read_scores_or_exit(args.scores, "compare")
+    if records is None:
+        return 2
+    try:
+        if args.by == "group":
+            table, columns = group_table(records, args.column, n_boot=args.boot, seed=args.seed), GROUP_COLUMNS
+        else:
+            table, columns = clip_table(records, args.column), CLIP_TABLE_COLUMNS
+        motion = motion_dependence(records, args.column)
+    except KeyError as exc:
+        print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
+        return 2
+    print(format_table(table, columns))
+    if motion["n_ecd"]:
+        print(f"\n{args.column} vs ECD over {motion['n_ecd']} clips: Pearson r = {motion['pearson']:.3f} "
+              f"(r^2 = {motion['r2']:.3f}), Spearman rho = {motion['spearman']:.3f}")
+    if args.out:
+        write_csv(args.out, table, columns)
+        print(f"wrote {args.out}", file=sys.stderr)
+    if args.against:
+        other = _read_scores_or_exit(args.against, "compare")
+        if other is None:
+            return 2
+        try:
+            agree = agreement_between(records, other, args.column, by=args.by)
+        except (KeyError, ValueError) as exc:
+            print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
+            return 2
+        print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched "
+              f"{'groups' if args.by == 'group' else 'clips'}: Spearman rho = {agree['spearman']:.4f}, "
+              f"Kendall tau-b = {agree['kendall_tau']:.4f}, Pearson r = {agree['pearson']:.4f}")
+        if agree["unmatched"]:
+            print(f"{len(agree['unmatched'])} unmatched: {', '.join(agree['unmatched'][:10])}"
+                  + (" ..." if len(agree["unmatched"]) > 10 else ""), file=sys.stderr)
+    return 0
+
+
+def _register_calibrate(sub) -> None:
+    cal = sub.add_parser("calibrate", help="fit a calibration (mu, sigma, z bounds, PC1 weights) on scores CSVs")
+    cal.add_argument("scores", nargs="+", help="per-clip CSVs from `sgc-jax score --out`")
+    algorithm = cal.add_argument_group("algorithm")
+    algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
+                           help="fit on clips, or on per-group means (the paper's way)")
+    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip)")
+    algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed")
+    output = cal.add_argument_group("output")
+    output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`)")
+    output.add_argument("--name", default="custom", help="name stored in the calibration")
+    output.add_argument("--rescored", help="also write the input rows re-scored with the new calibration")
+    cal.set_defaults(func=cmd_calibrate)
+
+
+def _register_rescore(sub) -> None:
+    res = sub.add_parser("rescore", help="recompute sgc of scores CSVs under another calibration (no geometry)")
+    res.add_argument("scores", nargs="+", help="per-clip CSVs from `sgc-jax score --out`")
+    res.add_argument("--calibration", required=True, help="shipped calibration name or a calibration JSON file")
+    res.add_argument("--out", help="re-scored CSV (default: print the table)")
+    res.set_defaults(func=cmd_rescore)
+
+
+def _register_compare(sub) -> None:
+    cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files")
+    cmp_.add_argument("scores", nargs="+", help="per-clip CSVs (read together as one corpus)")
+    cmp_.add_argument("--by", choices=("group", "clip"), default="group")
+    cmp_.add_argument("--column", default="sgc", help="score column to summarise (default: sgc)")
+    cmp_.add_argument("--against", nargs="+", help="other per-clip CSVs: rank agreement per clip or group mean")
+    cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI")
+    cmp_.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    cmp_.add_argument("--out", help="write the table as CSV")
+    cmp_.set_defaults(func=cmd_compare)
+
+
 # One registrar per subcommand, in the order ``sgc-jax --help`` lists them.
 SUBCOMMANDS = (
     _register_score,
     _register_demo,
     _register_synth,
+    _register_calibrate,
+    _register_rescore,
+    _register_compare,
 )
 
 

@@ -176,7 +176,8 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-def _write_csv(path: str | os.PathLike, rows: list[dict], columns: Sequence[str]) -> Path:
+def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[str]) -> Path:
+    """Rows as CSV with these columns (others ignored), NaN as an empty cell; parent dirs made."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
@@ -259,7 +260,7 @@ def write_scores(path: str | os.PathLike, records: Sequence[dict[str, Any]]) -> 
     for r in records:
         seen.extend(k for k in r if k not in seen and k != "source")
     columns = [c for c in CLIP_COLUMNS if c in seen] + [c for c in seen if c not in CLIP_COLUMNS]
-    return _write_csv(path, list(records), columns)
+    return write_csv(path, list(records), columns)
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
@@ -320,8 +321,8 @@ class BatchResult:
 
     def to_csv(self, path: str | os.PathLike, pairs_path: str | os.PathLike | None = None) -> Path:
         if pairs_path is not None:
-            _write_csv(pairs_path, self.pair_records(), PAIR_COLUMNS)
-        return _write_csv(path, self.to_records(), CLIP_COLUMNS)
+            write_csv(pairs_path, self.pair_records(), PAIR_COLUMNS)
+        return write_csv(path, self.to_records(), CLIP_COLUMNS)
 
     def to_json(self, path: str | os.PathLike | None = None, *, pairs: bool = True) -> str:
         """JSON text ``{"clips": [...], "pairs": [...]}`` (NaN -> null); written when ``path``."""
