@@ -4,15 +4,16 @@ The public API, as explicit re-exports.
 """
 
 from .api import ENGINES, score_batch, score_clip
-from .calibration import COMPONENTS, Calibration, calibrate, sgc_score
+from .calibration import COMPONENTS, Calibration, KFoldStability, calibrate, kfold_stability, sgc_score
 from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
 from .config import SGCConfig
-from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays
+from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays, read_scores, rescore_records
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "Clip", "ClipFormatError", "ClipResult",
-    "ENGINES", "PAIR_COLUMNS", "PairArrays", "SGCConfig", "calibrate", "clip_from_arrays", "load_clip",
-    "load_clips", "save_batch", "save_clip", "score_batch", "score_clip", "sgc_score",
+    "ENGINES", "KFoldStability", "PAIR_COLUMNS", "PairArrays", "SGCConfig", "calibrate", "clip_from_arrays",
+    "kfold_stability", "load_clip", "load_clips", "read_scores", "rescore_records", "save_batch", "save_clip",
+    "score_batch", "score_clip", "sgc_score",
 ]
