@@ -23,7 +23,7 @@ class ClipFormatError(ValueError):
     """A structural problem with a clip: missing array, wrong rank or shape, non-finite camera."""
 
     def __init__(self, clip_id: str, array: str, expected: str, found: str, detail: str = ""):
-        self.clip_id, self.array, self.expected, self.found = clip_id, array, expected, found
+        self.clip_id, self.array, self.expected, self.found, self.detail = clip_id, array, expected, found, detail
         message = f"clip {clip_id!r}: array {array!r}: expected {expected}, found {found}"
         super().__init__(message + (f" ({detail})" if detail else ""))
 
@@ -121,11 +121,13 @@ def _parse_meta(raw: Any) -> dict:
 
 
 def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
-                     config: SGCConfig | None = None) -> Clip:
+                     config: SGCConfig | None = None, validate: bool = True) -> Clip:
     """Validate a mapping of SPEC §2 arrays and return a :class:`Clip`.
 
-    Raises :class:`ClipFormatError` for structural problems. Tracks beyond ``config.max_tracks``
-    are sub-sampled deterministically (see :func:`subsample_tracks`).
+    Raises :class:`ClipFormatError` for structural problems. ``validate``: also run the content
+    checks of :mod:`sgc_jax.validate` (K against the grid, rotations, tracks on the grid, depth vs
+    disparity): errors raise ``ClipValidationError``, warnings are issued as ``ClipWarning``.
+    Tracks beyond ``config.max_tracks`` are sub-sampled deterministically (see :func:`subsample_tracks`).
     """
     config = config or SGCConfig()
     meta = _parse_meta(arrays.get("meta"))
@@ -206,6 +208,10 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
         frames=frames,
         meta=meta,
     )
+    if validate:
+        from .validate import enforce  # the checks use Clip; imported here to keep the modules acyclic
+
+        enforce(clip, config)
     return subsample_tracks(clip, config)
 
 

@@ -1,0 +1,394 @@
+"""Plausibility checks of a clip's content, shared by the loader and ``sgc-jax validate``.
+
+Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.clip`. The
+checks here look for inputs whose units or resolutions do not fit together: intrinsics made for
+another image size, depth that is really disparity, poses that are not rotations, tracks on another
+pixel grid, masks that look inverted. Each problem is one actionable line. ``error`` problems make
+the loader raise :class:`ClipValidationError`; ``warning`` problems are issued as
+:class:`ClipWarning`; ``info`` lines (what the clip holds, deliberate reference-compat choices)
+are only shown by ``sgc-jax validate``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from .clip import Clip, ClipFormatError, _batch_member, _meta_id, clip_from_arrays, is_batch
+from .config import SGCConfig
+from .stats import spearman
+
+SEVERITIES = ("error", "warning", "info")
+
+# Thresholds, each with where it comes from.
+FOCAL_RATIO_MAX = 3.0  # issue 5: focal length off by more than 3x from the image size is an error
+PRINCIPAL_OFFSET_WARN = 0.25  # principal point this far from the centre (fraction of the side) is suspicious
+ROTATION_ERROR_TOL = 1e-2  # max |R R^T - I| beyond which R is not a rotation (float32 VGGT R: ~1e-7)
+ROTATION_WARN_TOL = 1e-4  # ... and beyond which it is used as is but reported
+TRACK_MARGIN_PX = 1.0  # tracker positions this far outside the image still count as inside
+TRACKS_OUTSIDE_ERROR = 0.25  # fraction of visible track positions outside: another pixel grid
+TRACKS_OUTSIDE_WARN = 0.05
+TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: computed on a smaller grid
+STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
+DISPARITY_RHO_WARN = 0.3  # Spearman(depth, parallax) above this: larger "depth" moves faster = disparity
+MIN_PARALLAX_PX = 0.5  # pairs whose median parallax is below this say nothing about depth vs disparity
+MIN_POINTS_FOR_STATS = 30
+RHO_PAIRS, RHO_POINTS = 6, 256  # pairs and points per pair the depth/disparity test looks at (cost cap)
+PARALLAX_OUTLIER = 4.0  # parallax above this multiple of the pair's median: a wrong track, ignored
+# Content problems that the scorer already reports per pair with a reason code (SPEC §2): shown by
+# ``sgc-jax validate``, not repeated as loader warnings.
+SCORER_REPORTED = ("too_few_tracks", "no_valid_depth")
+
+
+class ClipValidationError(ClipFormatError):
+    """A clip whose content cannot be right (units or resolutions that do not fit)."""
+
+
+class ClipWarning(UserWarning):
+    """A clip that loads but looks wrong in a way that changes its score."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """One finding: ``array`` is the clip array concerned; ``message`` says what and how to fix it."""
+
+    severity: str  # "error" | "warning" | "info"
+    code: str
+    array: str
+    expected: str
+    found: str
+    fix: str = ""
+
+    @property
+    def message(self) -> str:
+        text = f"expected {self.expected}, found {self.found}" if self.expected else self.found
+        return text + (f"; {self.fix}" if self.fix else "")
+
+    def line(self) -> str:
+        return f"{self.severity}: {self.array}: {self.message}"
+
+
+def _frames_list(index: np.ndarray, total: int) -> str:
+    shown = ", ".join(str(int(i)) for i in index[:5])
+    return f"{len(index)}/{total} ({shown}{', ...' if len(index) > 5 else ''})"
+
+
+def _is_reference_compat(clip: Clip) -> bool:
+    record = clip.meta.get("import")
+    return isinstance(record, dict) and bool(record.get("reference_compat"))
+
+
+def _k_hint(cx: float, cy: float, H: int, W: int) -> str:
+    implied_w, implied_h = 2.0 * cx + 1.0, 2.0 * cy + 1.0
+    hint = (f"K looks made for a ~{implied_h:.0f}x{implied_w:.0f} image (principal point at its centre), "
+            f"not this {H}x{W} grid: rescale K to the grid")
+    if 500 <= max(implied_w, implied_h) <= 540:
+        hint += " (VGGT intrinsics are on its 518-px preprocessed grid: `sgc-jax import --cameras` rescales them)"
+    return hint
+
+
+def check_intrinsics(clip: Clip) -> list[Problem]:
+    """Focal lengths and principal points against the H x W grid."""
+    H, W = clip.image_size
+    T = clip.n_frames
+    fx, fy, cx, cy = clip.K[:, 0, 0], clip.K[:, 1, 1], clip.K[:, 0, 2], clip.K[:, 1, 2]
+    compat = _is_reference_compat(clip)
+    severe = "info" if compat else "error"
+    note = " (deliberate: reference-compat keeps VGGT's 518-px intrinsics)" if compat else ""
+    problems = []
+    bad = np.flatnonzero((fx <= 0) | (fy <= 0))
+    if bad.size:
+        t = bad[0]
+        problems.append(Problem("error", "focal_not_positive", "K", "positive focal lengths fx, fy",
+                                f"fx={fx[t]:.4g}, fy={fy[t]:.4g} in frames {_frames_list(bad, T)}",
+                                "K must be a pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"))
+        return problems
+    outside = np.flatnonzero((cx < -0.5) | (cx > W - 0.5) | (cy < -0.5) | (cy > H - 0.5))
+    if outside.size:
+        t = outside[0]
+        problems.append(Problem(severe, "principal_point_outside", "K", f"principal point inside the {H}x{W} image",
+                                f"cx={cx[t]:.1f}, cy={cy[t]:.1f} in frames {_frames_list(outside, T)}",
+                                _k_hint(cx[t], cy[t], H, W) + note))
+    side = max(H, W)
+    ratio = np.maximum(fx, fy) / side
+    ratio_low = np.minimum(fx, fy) / side
+    off = np.flatnonzero((ratio > FOCAL_RATIO_MAX) | (ratio_low < 1.0 / FOCAL_RATIO_MAX))
+    if off.size:
+        t = off[0]
+        problems.append(Problem(
+            severe, "focal_implausible", "K",
+            f"focal lengths within {FOCAL_RATIO_MAX:g}x of the image size {side} px "
+            f"({side / FOCAL_RATIO_MAX:.0f}..{side * FOCAL_RATIO_MAX:.0f})",
+            f"fx={fx[t]:.1f}, fy={fy[t]:.1f} in frames {_frames_list(off, T)}",
+            "K is probably for another resolution (or in normalised units): scale fx, cx by W'/W and fy, cy by "
+            "H'/H" + note))
+    if not outside.size:
+        offset = np.maximum(np.abs(cx - (W - 1) / 2) / W, np.abs(cy - (H - 1) / 2) / H)
+        far = np.flatnonzero(offset > PRINCIPAL_OFFSET_WARN)
+        if far.size:
+            t = far[0]
+            problems.append(Problem(
+                "info" if compat else "warning", "principal_point_off_centre", "K",
+                f"principal point near the centre ({(W - 1) / 2:.1f}, {(H - 1) / 2:.1f})",
+                f"cx={cx[t]:.1f}, cy={cy[t]:.1f} in frames {_frames_list(far, T)}",
+                _k_hint(cx[t], cy[t], H, W) + note))
+    return problems
+
+
+def check_poses(clip: Clip) -> list[Problem]:
+    """R_wc must be rotations: orthonormal with determinant +1."""
+    R = clip.R_wc
+    deviation = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((deviation > ROTATION_ERROR_TOL) | (det < 0))
+    T = clip.n_frames
+    if bad.size:
+        t = bad[0]
+        return [Problem("error", "not_rotation", "R_wc", "rotation matrices (R R^T = I, det = +1)",
+                        f"max |R R^T - I| = {deviation[t]:.3g}, det = {det[t]:.3g} in frames {_frames_list(bad, T)}",
+                        "give world->camera rotations (OpenCV); a scaled or reflected matrix, or a camera->world "
+                        "pose with scale, gives this")]
+    mild = np.flatnonzero(deviation > ROTATION_WARN_TOL)
+    if mild.size:
+        t = mild[0]
+        return [Problem("warning", "rotation_not_orthonormal", "R_wc", "orthonormal rotations",
+                        f"max |R R^T - I| = {deviation[t]:.3g} in frames {_frames_list(mild, T)}",
+                        "used as given; re-orthonormalise (nearest rotation by SVD) if they come from a fit")]
+    return []
+
+
+def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """Visible track positions against the grid, their extent, and usable tracks per pair."""
+    H, W = clip.image_size
+    problems = []
+    visible = _usable(clip, dataclasses.replace(config, min_track_conf=-np.inf))
+    n_points = 2 * int(visible.sum())
+    if n_points:
+        n_out, x_max, y_max = 0, -np.inf, -np.inf
+        for track in (clip.track_prev, clip.track_curr):
+            x, y = track[..., 0], track[..., 1]
+            out = (x < -TRACK_MARGIN_PX) | (x > W - 1 + TRACK_MARGIN_PX) | (y < -TRACK_MARGIN_PX) | (y > H - 1 + TRACK_MARGIN_PX)
+            n_out += int((out & visible).sum())
+            x_max = max(x_max, float(np.max(x, where=visible, initial=-np.inf)))
+            y_max = max(y_max, float(np.max(y, where=visible, initial=-np.inf)))
+        frac = n_out / n_points
+        if frac > TRACKS_OUTSIDE_WARN:
+            severity = "error" if frac > TRACKS_OUTSIDE_ERROR else "warning"
+            fix = (f"tracks computed on a grid of at least {np.ceil(y_max + 1):.0f}x{np.ceil(x_max + 1):.0f}? rescale them to "
+                   f"{H}x{W} (`sgc-jax import --track-size HxW`)" if severity == "error" else
+                   "positions outside the image are usually tracks marked visible after leaving the frame: "
+                   "check the visibility threshold")
+            if severity == "warning" and _is_reference_compat(clip):
+                severity, fix = "info", "deliberate: reference-compat does not threshold DELTA visibility"
+            problems.append(Problem(severity, "tracks_outside", "track_prev/track_curr",
+                                    f"visible positions inside the {H}x{W} image",
+                                    f"{100 * frac:.0f}% outside (x up to {x_max:.1f}, y up to {y_max:.1f})", fix))
+        elif n_points >= MIN_POINTS_FOR_STATS:
+            if x_max < TRACK_EXTENT_WARN * (W - 1) and y_max < TRACK_EXTENT_WARN * (H - 1):
+                problems.append(Problem("warning", "tracks_small_extent", "track_prev/track_curr",
+                                        f"visible tracks spread over the {H}x{W} image",
+                                        f"all within x <= {x_max:.1f}, y <= {y_max:.1f}",
+                                        f"tracks computed on a smaller grid? rescale them to {H}x{W} "
+                                        "(`sgc-jax import --track-size HxW`)"))
+    usable = np.count_nonzero(_usable(clip, config), axis=1)
+    few = np.flatnonzero(usable < 4)
+    if few.size:
+        problems.append(Problem("warning", "too_few_tracks", "track_vis/track_conf",
+                                "at least 4 usable tracks (visible, confidence >= "
+                                f"{config.min_track_conf:g}) per pair",
+                                f"fewer in pairs {_frames_list(few + 1, clip.n_pairs)}",
+                                "those pairs will score NaN (reason too_few_tracks)"))
+    return problems
+
+
+def _usable(clip: Clip, config: SGCConfig) -> np.ndarray:
+    """(T-1, P) usable tracks, as :meth:`Clip.usable_tracks` (written without small-axis reductions)."""
+    finite = np.ones(clip.track_vis.shape, bool)
+    for track in (clip.track_prev, clip.track_curr):
+        finite &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
+    return clip.track_vis & (clip.track_conf >= config.min_track_conf) & finite
+
+
+def depth_parallax_rho(clip: Clip, config: SGCConfig) -> float:
+    """Median over pairs of Spearman(depth at the track, rotation-compensated track motion).
+
+    With true depth, nearer points move more (rho < 0); with disparity the larger values move more
+    (rho > 0). NaN when no pair has enough parallax to tell.
+    """
+    H, W = clip.image_size
+    usable = _usable(clip, config)
+    rhos = []
+    pairs = np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
+    for pair in pairs:
+        index = np.flatnonzero(usable[pair - 1])
+        if index.size > 4 * RHO_POINTS:  # a deterministic spread-out subset keeps the cost flat
+            index = index[np.linspace(0, index.size - 1, 4 * RHO_POINTS).astype(np.int64)]
+        prev, curr = clip.track_prev[pair - 1][index], clip.track_curr[pair - 1][index]
+        col = np.clip(np.floor(prev[:, 0]).astype(np.int64), 0, W - 1)
+        row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
+        z = clip.depth[pair - 1][row, col]
+        keep = np.flatnonzero(np.isfinite(z) & (z > 0) & clip.static_mask[pair - 1][row, col])
+        if keep.size < MIN_POINTS_FOR_STATS:
+            continue
+        keep = keep[np.linspace(0, keep.size - 1, min(keep.size, RHO_POINTS)).astype(np.int64)]
+        prev, curr, z = prev[keep].astype(np.float64), curr[keep].astype(np.float64), z[keep]
+        R_rel = clip.R_wc[pair] @ clip.R_wc[pair - 1].T
+        homography = clip.K[pair] @ R_rel @ np.linalg.inv(clip.K[pair - 1])
+        rotated = np.c_[prev, np.ones(len(prev))] @ homography.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rotated = rotated[:, :2] / rotated[:, 2:3]
+        parallax = np.linalg.norm(curr - rotated, axis=1)
+        if not np.isfinite(parallax).all():
+            continue
+        median = np.median(parallax)
+        inlier = parallax <= PARALLAX_OUTLIER * median
+        if median < MIN_PARALLAX_PX or inlier.sum() < MIN_POINTS_FOR_STATS:
+            continue
+        rho = spearman(z[inlier], parallax[inlier])
+        if np.isfinite(rho):
+            rhos.append(rho)
+    return float(np.median(rhos)) if rhos else float("nan")
+
+
+def check_depth(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """Valid depth per frame, its range, and whether it behaves like depth or like disparity."""
+    problems = []
+    T = clip.n_frames
+    sample = clip.depth[:, ::4, ::4]  # depth statistics on a strided sample keep loading fast
+    valid_count = np.count_nonzero(((sample > 0) & (sample < np.inf)).reshape(T, -1), axis=1)
+    empty = np.flatnonzero(valid_count == 0)
+    if empty.size:
+        problems.append(Problem("warning", "no_valid_depth", "depth", "some depth > 0 in every frame",
+                                f"no valid depth in frames {_frames_list(empty, clip.n_frames)}",
+                                "pairs touching these frames will score NaN"))
+    values = sample[(sample > 0) & (sample < np.inf)]
+    if values.size:
+        lo, mid, hi = np.percentile(values, [2, 50, 98])
+        problems.append(Problem("info", "depth_range", "depth", "",
+                                f"median {mid:.4g}, 2-98% range [{lo:.4g}, {hi:.4g}], "
+                                f"{100 * valid_count.sum() / sample.size:.0f}% of pixels valid"))
+    rho = depth_parallax_rho(clip, config)
+    if np.isfinite(rho) and rho > DISPARITY_RHO_WARN:
+        compat = _is_reference_compat(clip)
+        problems.append(Problem(
+            "info" if compat else "warning", "depth_like_disparity", "depth",
+            "depth (nearer points, smaller values, move more between frames)",
+            f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax)",
+            "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
+            "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
+    return problems
+
+
+def check_mask(clip: Clip) -> list[Problem]:
+    """Static-mask coverage per frame (an inverted mask leaves almost nothing static)."""
+    if clip.mask_source == "none":
+        return [Problem("info", "no_mask", "static_mask", "",
+                        "no static_mask or dynamic_mask: the whole frame counts as static (nothing moves)")]
+    coverage = np.count_nonzero(clip.static_mask.reshape(clip.n_frames, -1), axis=1) / clip.static_mask[0].size
+    low = np.flatnonzero(coverage < STATIC_COVERAGE_WARN)
+    problems = []
+    if low.size:
+        problems.append(Problem("warning", "static_mask_tiny", clip.mask_source,
+                                f"static background on at least {100 * STATIC_COVERAGE_WARN:.0f}% of each frame",
+                                f"{100 * coverage[low[0]]:.1f}% static in frames {_frames_list(low, clip.n_frames)}",
+                                "an inverted mask? static_mask is true on the static background; "
+                                "moving-object masks go in dynamic_mask"))
+    problems.append(Problem("info", "mask_coverage", clip.mask_source, "",
+                            f"static on {100 * coverage.mean():.0f}% of pixels (min {100 * coverage.min():.0f}% "
+                            "in one frame)"))
+    return problems
+
+
+def check_clip(clip: Clip, config: SGCConfig | None = None) -> list[Problem]:
+    """Every content check of one clip, errors first."""
+    config = config or SGCConfig()
+    problems = (check_intrinsics(clip) + check_poses(clip) + check_tracks(clip, config)
+                + check_depth(clip, config) + check_mask(clip))
+    return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
+
+
+def enforce(clip: Clip, config: SGCConfig | None = None, problems: list[Problem] | None = None) -> None:
+    """Raise :class:`ClipValidationError` on the first error; warn (:class:`ClipWarning`) on warnings."""
+    problems = check_clip(clip, config) if problems is None else problems
+    for problem in problems:
+        if problem.severity == "error":
+            raise ClipValidationError(clip.clip_id, problem.array, problem.expected, problem.found, problem.fix)
+    for problem in problems:
+        if problem.severity == "warning" and problem.code not in SCORER_REPORTED:
+            warnings.warn(ClipWarning(f"clip {clip.clip_id!r}: {problem.line()}"), stacklevel=3)
+
+
+# ----------------------------------------------------------------------------- sgc-jax validate
+
+
+@dataclasses.dataclass
+class Report:
+    """The findings for one clip of a source."""
+
+    origin: str
+    clip_id: str
+    problems: list[Problem]
+
+    @property
+    def ok(self) -> bool:
+        return not any(p.severity == "error" for p in self.problems)
+
+    def lines(self, *, show_info: bool = False) -> list[str]:
+        return [f"{self.origin}: {p.line()}" for p in self.problems if show_info or p.severity != "info"]
+
+
+def _expand(source: Any) -> list[Path]:
+    text = os.fspath(source)
+    path = Path(text)
+    if path.is_dir():
+        return sorted(path.glob("*.npz"))
+    if path.is_file():
+        return [path]
+    matches = sorted(glob.glob(text))
+    if not matches:
+        raise FileNotFoundError(f"no clip file, directory or glob match for {text!r}")
+    return [Path(m) for m in matches]
+
+
+def _members(path: Path) -> Iterator[tuple[str, str, dict[str, Any] | Exception]]:
+    """(origin, clip_id, arrays or the error that prevented reading them) for each clip of a file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except Exception as exc:  # noqa: BLE001 - reported as a problem of this file
+        yield str(path), path.stem, exc
+        return
+    if not is_batch(arrays):
+        yield str(path), _meta_id(arrays) or path.stem, arrays
+        return
+    for b in range(len(np.asarray(arrays["n_frames"]))):
+        clip_id, member = _batch_member(arrays, b)
+        yield f"{path}[{b}]", clip_id, member
+
+
+def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[Report]:
+    """Check every clip of clip / batch ``.npz`` files, directories or globs, without raising."""
+    config = config or SGCConfig()
+    reports = []
+    for source in sources:
+        for path in _expand(source):
+            for origin, clip_id, arrays in _members(path):
+                if isinstance(arrays, Exception):
+                    problem = Problem("error", "unreadable", "<file>", "a readable .npz",
+                                      f"{type(arrays).__name__}: {arrays}")
+                    reports.append(Report(origin, clip_id, [problem]))
+                    continue
+                try:
+                    clip = clip_from_arrays(arrays, clip_id=clip_id, config=config, validate=False)
+                except ClipFormatError as exc:
+                    problem = Problem("error", "structure", exc.array, exc.expected, exc.found, exc.detail)
+                    reports.append(Report(origin, clip_id, [problem]))
+                    continue
+                reports.append(Report(origin, clip.clip_id, check_clip(clip, config)))
+    return reports

@@ -1,0 +1,158 @@
+"""Write a synthetic clip as the four estimators write their outputs, each at its own resolution.
+
+These writers follow the estimators' code, not sgc_jax.adapters, so that the adapters are tested
+against an independent statement of each format:
+- VGGT (facebookresearch/vggt, load_fn.load_and_preprocess_images + demo predictions.npz):
+  ``extrinsic`` (S, 3, 4) world->camera, ``intrinsic`` (S, 3, 3) on the preprocessed grid,
+  ``images`` (S, 3, h, w); crop mode: width 518, height round(H * 518 / W / 14) * 14, centre crop
+  to 518; pad mode: longer side 518, padded to 518 x 518. Resizing is PIL's (pixel centres).
+- Video Depth Anything (run.py --save_npz): ``depths`` (T, h, w) float32 in ``*_depths.npz``;
+  relative models give inverse depth.
+- DELTA as in the SGC authors' pipeline (gen_data.py): ``{a}_{a}.npy`` / ``{a}_{b}.npy`` float32
+  (N, 4) = x, y, vis, conf; dense: ``coords`` (T, N, 2), ``vis`` (T, N), ``conf`` (T, N).
+- SegAnyMo / SAM2: DAVIS-style palette PNGs, index 0 = background, k = object k.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image
+
+from sgc_jax.clip import Clip
+
+# DAVIS 2017 palette, first entries (index 0 black, then the usual object colours).
+DAVIS_PALETTE = [0, 0, 0, 128, 0, 0, 0, 128, 0, 128, 128, 0, 0, 0, 128, 128, 0, 128, 0, 128, 128]
+
+
+def frame_names(clip: Clip) -> list[str]:
+    return [f"{t:05d}" for t in range(clip.n_frames)]
+
+
+def vggt_preprocess(height: int, width: int, mode: str) -> tuple[int, int, float, float, float, float]:
+    """(h_pre, w_pre, s_x, s_y, off_x, off_y) of VGGT's load_and_preprocess_images, restated."""
+    target = 518
+    if mode == "pad" and height > width:
+        new_h, new_w = target, round(width * (target / height) / 14) * 14
+    else:
+        new_w, new_h = target, round(height * (target / width) / 14) * 14
+    if mode == "crop":
+        start_y = (new_h - target) // 2 if new_h > target else 0
+        return min(new_h, target), new_w, new_w / width, new_h / height, 0.0, -float(start_y)
+    pad_top, pad_left = (target - new_h) // 2, (target - new_w) // 2
+    return target, target, new_w / width, new_h / height, float(pad_left), float(pad_top)
+
+
+def vggt_intrinsics(K: np.ndarray, height: int, width: int, mode: str) -> tuple[np.ndarray, tuple[int, int]]:
+    """K of an H x W frame as VGGT reports it on its preprocessed grid (pixel centres move by
+    u_pre = (u + 0.5) * s - 0.5 + offset)."""
+    h_pre, w_pre, s_x, s_y, off_x, off_y = vggt_preprocess(height, width, mode)
+    A = np.array([[s_x, 0, 0.5 * s_x - 0.5 + off_x], [0, s_y, 0.5 * s_y - 0.5 + off_y], [0, 0, 1]])
+    return A @ K, (h_pre, w_pre)
+
+
+def write_vggt(path: Path, clip: Clip, mode: str = "crop", with_images: bool = True) -> Path:
+    H, W = clip.image_size
+    intrinsic, (h_pre, w_pre) = vggt_intrinsics(clip.K, H, W, mode)
+    extrinsic = np.concatenate([clip.R_wc, clip.t_wc[:, :, None]], axis=2)
+    arrays = {"extrinsic": extrinsic.astype(np.float32), "intrinsic": intrinsic.astype(np.float32)}
+    if with_images:
+        arrays["images"] = np.zeros((clip.n_frames, 3, h_pre, w_pre), np.float32)
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def upsample_nearest(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(T, h, w) -> (T, H, W) with H, W >= h, w, each output pixel taking the source pixel under its centre."""
+    T, h, w = maps.shape
+    rows = np.floor((np.arange(size[0]) + 0.5) * h / size[0]).astype(int)
+    cols = np.floor((np.arange(size[1]) + 0.5) * w / size[1]).astype(int)
+    return maps[:, rows[:, None], cols[None, :]]
+
+
+def write_vda(path: Path, clip: Clip, size: tuple[int, int], kind: str = "disparity", scale: float = 1.0) -> Path:
+    """VDA output at its own resolution ``size`` (here: the exact depth, nearest-upsampled)."""
+    depth = upsample_nearest(clip.depth.astype(np.float64), size)
+    valid = np.isfinite(depth) & (depth > 0)
+    if kind == "disparity":
+        values = np.where(valid, scale / np.where(valid, depth, 1.0), 0.0)
+    else:
+        values = np.where(valid, depth / scale, 0.0)
+    np.savez_compressed(path, depths=values.astype(np.float32))
+    return path
+
+
+def delta_vis(visible: np.ndarray) -> np.ndarray:
+    """DELTA-like visibility probabilities: high for visible points, low otherwise."""
+    return np.where(visible, 0.97, 0.03).astype(np.float32)
+
+
+def write_delta_pairs(directory: Path, clip: Clip, names: list[str] | None = None) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    names = names or frame_names(clip)
+    for i in range(1, clip.n_frames):
+        a, b = names[i - 1], names[i]
+        P = clip.n_tracks
+        query = np.c_[clip.track_prev[i - 1], np.full(P, 0.99), np.ones(P)].astype(np.float32)
+        target = np.c_[clip.track_curr[i - 1], delta_vis(clip.track_vis[i - 1]), clip.track_conf[i - 1]]
+        np.save(directory / f"{a}_{a}.npy", query)
+        np.save(directory / f"{a}_{b}.npy", target.astype(np.float32))
+    return directory
+
+
+def write_delta_dense(path: Path, coords: np.ndarray, vis: np.ndarray, conf: np.ndarray) -> Path:
+    """DELTA demo_2d.py's dense_2d_track.pkl (a pickled dict of arrays)."""
+    with open(path, "wb") as handle:
+        pickle.dump({"coords": coords, "vis": vis, "conf": conf}, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    return path
+
+
+def object_labels(static_mask: np.ndarray) -> np.ndarray:
+    """(T, H, W) uint8 ids: 0 static, k = k-th connected moving region (as SegAnyMo numbers objects)."""
+    labels = np.zeros(static_mask.shape, np.uint8)
+    for t, static in enumerate(static_mask):
+        _, components = cv2.connectedComponents((~static).astype(np.uint8), connectivity=8)
+        labels[t] = np.minimum(components, 255)
+    return labels
+
+
+def write_palette_png(path: Path, labels: np.ndarray, palette: list[int] | None = None) -> Path:
+    image = Image.fromarray(labels.astype(np.uint8), mode="P")
+    image.putpalette(palette or DAVIS_PALETTE)
+    image.save(path)
+    return path
+
+
+def write_seganymo(directory: Path, clip: Clip, size: tuple[int, int], names: list[str] | None = None,
+                   palette: list[int] | None = None) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    names = names or frame_names(clip)
+    labels = upsample_nearest(object_labels(clip.static_mask), size)
+    for name, frame in zip(names, labels):
+        write_palette_png(directory / f"{name}.png", frame, palette)
+    return directory
+
+
+def write_frames(directory: Path, clip: Clip, names: list[str] | None = None) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    names = names or frame_names(clip)
+    for name, frame in zip(names, clip.frames):
+        cv2.imwrite(str(directory / f"{name}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    return directory
+
+
+def write_all(root: Path, clip: Clip, *, vggt_mode: str = "crop", depth_size: tuple[int, int] | None = None,
+              mask_size: tuple[int, int] | None = None, depth_scale: float = 1.0) -> dict[str, Path]:
+    """Every estimator's output for ``clip`` under ``root``; returns the paths by input name."""
+    H, W = clip.image_size
+    root.mkdir(parents=True, exist_ok=True)
+    return {
+        "cameras": write_vggt(root / "predictions.npz", clip, vggt_mode),
+        "depth": write_vda(root / "clip_depths.npz", clip, depth_size or (H, W), scale=depth_scale),
+        "tracks": write_delta_pairs(root / "delta", clip),
+        "masks": write_seganymo(root / "seganymo", clip, mask_size or (H, W)),
+        "frames": write_frames(root / "frames", clip),
+    }

@@ -1,0 +1,154 @@
+"""Issue 5: content checks shared by the loader and `sgc-jax validate`; one actionable line each."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from estimator_fixtures import vggt_intrinsics
+
+from sgc_jax import ClipFormatError, clip_from_arrays, load_clip, save_batch, save_clip, score_batch
+from sgc_jax.clip import clip_to_arrays
+from sgc_jax.synth import synth_clip
+from sgc_jax.validate import ClipValidationError, ClipWarning, check_clip, validate_paths
+
+SMALL = dict(n_layers=2, static_spheres=2, height=96, width=128, n_tracks=512, n_frames=4, with_frames=False)
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return synth_clip(seed=4, clip_id="good", **SMALL)
+
+
+def arrays_of(clip, **changes):
+    arrays = clip_to_arrays(clip)
+    arrays.update(changes)
+    return arrays
+
+
+def problems_of(arrays):
+    return check_clip(clip_from_arrays(arrays, validate=False))
+
+
+def codes(problems, severity):
+    return sorted(p.code for p in problems if p.severity == severity)
+
+
+def test_a_consistent_clip_has_no_problem(clip):
+    problems = problems_of(arrays_of(clip))
+    assert codes(problems, "error") == [] and codes(problems, "warning") == []
+    assert codes(problems, "info") == ["depth_range", "mask_coverage"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        clip_from_arrays(arrays_of(clip))
+
+
+def vggt_K(clip):
+    return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
+
+
+# (changes to the clip, severity, code, array, words the line must contain)
+CASES = {
+    "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
+                                 ["inside the 96x128 image", "cx=258.5", "518-px preprocessed grid"]),
+    "focal off by more than 3x": (lambda c: {"K": np.array([[20.0, 0, 63.5], [0, 20.0, 47.5], [0, 0, 1]])},
+                                  "error", "focal_implausible", "K", ["within 3x", "fx=20.0"]),
+    "principal point off centre": (lambda c: {"K": np.array([[110.0, 0, 110.0], [0, 110.0, 47.5], [0, 0, 1]])},
+                                   "warning", "principal_point_off_centre", "K", ["cx=110.0", "rescale K"]),
+    "poses that are not rotations": (lambda c: {"R_wc": 2.0 * c.R_wc}, "error", "not_rotation", "R_wc",
+                                     ["det = 8", "world->camera rotations"]),
+    "tracks at twice the resolution": (lambda c: {"track_prev": 2 * c.track_prev, "track_curr": 2 * c.track_curr},
+                                       "error", "tracks_outside", "track_prev/track_curr",
+                                       ["74% outside", "at least 191x255", "--track-size"]),
+    "tracks at half the resolution": (lambda c: {"track_prev": c.track_prev / 2, "track_curr": c.track_curr / 2},
+                                      "warning", "tracks_small_extent", "track_prev/track_curr",
+                                      ["smaller grid", "--track-size"]),
+    "disparity stored as depth": (lambda c: {"depth": np.where(c.depth > 0, 1.0 / c.depth, 0.0).astype(np.float32)},
+                                  "warning", "depth_like_disparity", "depth",
+                                  ["larger values move more", "--depth-kind disparity"]),
+    "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
+                             "static_mask", ["0.0% static", "inverted mask"]),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_each_problem_gives_one_actionable_line(clip, name):
+    change, severity, code, array, words = CASES[name]
+    problems = problems_of(arrays_of(clip, **change(clip)))
+    found = [p for p in problems if p.code == code]
+    assert len(found) == 1 and found[0].severity == severity and found[0].array == array, problems
+    line = found[0].line()
+    assert "\n" not in line and line.startswith(f"{severity}: {array}: ")
+    for word in words:
+        assert word in line, line
+    others = [p.code for p in problems if p.severity in ("error", "warning") and p.code != code]
+    assert others in ([], ["focal_implausible"]), others  # VGGT-scale K is also 3.5x the image size
+
+
+@pytest.mark.parametrize("name", [n for n in CASES if CASES[n][1] == "error"])
+def test_the_loader_refuses_errors_naming_clip_and_array(clip, name):
+    change, _, _, array, _ = CASES[name]
+    with pytest.raises(ClipValidationError) as info:
+        clip_from_arrays(arrays_of(clip, **change(clip)))
+    assert isinstance(info.value, ClipFormatError) and info.value.array == array
+    assert str(info.value).startswith(f"clip 'good': array '{array}': expected ")
+
+
+@pytest.mark.parametrize("name", [n for n in CASES if CASES[n][1] == "warning"])
+def test_the_loader_warns_on_warnings(clip, name):
+    change, _, code, array, words = CASES[name]
+    with pytest.warns(ClipWarning, match=rf"clip 'good': warning: {array}: ") as record:
+        clip_from_arrays(arrays_of(clip, **change(clip)))
+    assert any(words[-1] in str(w.message) for w in record)
+
+
+def test_content_problems_the_scorer_reports_are_not_loader_warnings(clip):
+    vis = clip.track_vis.copy()
+    vis[1] = False
+    assert codes(problems_of(arrays_of(clip, track_vis=vis)), "warning") == ["too_few_tracks"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        clip_from_arrays(arrays_of(clip, track_vis=vis))  # the pair is reported as too_few_tracks when scored
+
+
+def test_reference_compat_choices_are_info_not_errors(clip):
+    meta = {"clip_id": "compat", "import": {"reference_compat": True}}
+    depth = np.where(clip.depth > 0, 1.0 / clip.depth, 0.0).astype(np.float32)
+    arrays = arrays_of(clip, K=vggt_K(clip), depth=depth, meta=np.asarray(json.dumps(meta)))
+    problems = problems_of(arrays)
+    assert codes(problems, "error") == [] and codes(problems, "warning") == []
+    assert {"principal_point_outside", "focal_implausible", "depth_like_disparity"} <= set(codes(problems, "info"))
+    assert all("reference-compat" in p.line() for p in problems if p.code != "depth_range" and p.code != "mask_coverage")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert clip_from_arrays(arrays).clip_id == "compat"
+
+
+def test_validate_paths_reports_every_clip_of_files_directories_and_batches(tmp_path, clip):
+    good = save_clip(tmp_path / "good.npz", clip)
+    bad = clip_from_arrays(arrays_of(clip, K=vggt_K(clip)), validate=False)
+    save_clip(tmp_path / "bad_k.npz", bad)
+    broken = arrays_of(clip)
+    broken.pop("track_vis")
+    np.savez(tmp_path / "broken.npz", **broken)
+    (tmp_path / "junk.npz").write_bytes(b"not an npz")
+    batch = save_batch(tmp_path / "sub" / "batch.npz", [clip, bad])
+    reports = validate_paths([tmp_path, batch])
+    by_origin = {r.origin: r for r in reports}
+    assert by_origin[str(good)].ok and by_origin[f"{batch}[0]"].ok
+    for origin, code in ((str(tmp_path / "bad_k.npz"), "principal_point_outside"), (f"{batch}[1]", "principal_point_outside"),
+                         (str(tmp_path / "broken.npz"), "structure"), (str(tmp_path / "junk.npz"), "unreadable")):
+        report = by_origin[origin]
+        assert not report.ok and report.problems[0].code == code, report
+        assert all(line.startswith(f"{origin}: ") for line in report.lines())
+    assert "track_vis: expected shape (3, 512), found no such array" in by_origin[str(tmp_path / "broken.npz")].lines()[0]
+
+
+def test_a_clip_failing_validation_is_one_error_in_a_scored_batch(tmp_path, clip):
+    save_clip(tmp_path / "a_good.npz", clip)
+    save_clip(tmp_path / "b_bad.npz", clip_from_arrays(arrays_of(clip, R_wc=2.0 * clip.R_wc), validate=False))
+    with pytest.raises(ClipValidationError):
+        load_clip(tmp_path / "b_bad.npz")
+    result = score_batch(tmp_path, engine="reference")
+    assert [c.status for c in result.clips] == ["ok", "error"]
+    assert "'R_wc'" in result.clips[1].reason and "rotation" in result.clips[1].reason
