@@ -1,0 +1,100 @@
+"""Build one clip from the four estimators' outputs (and optional frames), on one pixel grid.
+
+The clip grid is ``size`` when given, else the frames' size, else the masks' size, else the depth
+maps' size. Every piece is brought to that grid by its estimator's own rule (see each module);
+tracks are assumed to be on it unless ``track_size`` says where DELTA ran.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from ..clip import Clip, clip_from_arrays
+from ..config import SGCConfig
+from .common import parse_size, resize_frames, resize_points
+from .delta import DELTA_VIS_THRESHOLD, read_delta
+from .frames import read_frames
+from .seganymo import read_mask_hw, read_seganymo
+from .video_depth_anything import read_depth_hw, read_video_depth
+from .vggt import read_vggt
+
+
+def _label(source: Any) -> str:
+    return os.fspath(source) if isinstance(source, (str, os.PathLike)) else "<arrays>"
+
+
+def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, frames: Any = None,
+                depth_kind: str | None = None, depth_scale: float | None = None, depth_key: str = "depths",
+                size: tuple[int, int] | str | None = None, vggt_mode: str = "crop",
+                vggt_source_size: tuple[int, int] | str | None = None,
+                track_size: tuple[int, int] | str | None = None, vis_threshold: float = DELTA_VIS_THRESHOLD,
+                reference_compat: bool = False, clip_id: str | None = None, group: str = "",
+                meta: dict | None = None) -> Clip:
+    """VGGT ``cameras``, Video Depth Anything ``depth``, DELTA ``tracks``, SegAnyMo ``masks`` -> a Clip.
+
+    Paths or mappings of arrays (see :mod:`sgc_jax.adapters`). ``reference_compat`` reproduces the SGC
+    authors' pipeline (K on VGGT's 518-px grid, depth = VDA output / 1000, DELTA visibility not
+    thresholded) so that the paper calibration applies; the choices are recorded in
+    ``meta["import"]``. The clip is validated like a loaded one (problems raise or warn).
+    """
+    size, vggt_source_size, track_size = parse_size(size), parse_size(vggt_source_size), parse_size(track_size)
+    loaded_frames = read_frames(frames) if frames is not None else None
+    names = loaded_frames.names if loaded_frames is not None else None
+    if size is None:
+        if loaded_frames is not None:
+            size = loaded_frames.frames.shape[1:3]
+        else:
+            size = read_mask_hw(masks) or read_depth_hw(depth, depth_key)
+    H, W = int(size[0]), int(size[1])
+
+    track_data = read_delta(tracks, frame_names=names, vis_threshold=vis_threshold,
+                            reference_compat=reference_compat)
+    names = names or track_data.frame_names
+    cams = read_vggt(cameras, height=H, width=W, mode=vggt_mode, source_size=vggt_source_size,
+                     reference_compat=reference_compat)
+    depth_data = read_video_depth(depth, height=H, width=W, kind=depth_kind, depth_scale=depth_scale,
+                                  key=depth_key, reference_compat=reference_compat)
+    T = depth_data.depth.shape[0]
+    mask_data = read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T)
+
+    counts = {f"cameras ({_label(cameras)})": len(cams.K), f"depth ({_label(depth)})": T,
+              f"tracks ({_label(tracks)})": track_data.n_frames}
+    if mask_data.static_mask is not None:
+        counts[f"masks ({_label(masks)})"] = len(mask_data.static_mask)
+    if loaded_frames is not None:
+        counts[f"frames ({_label(frames)})"] = len(loaded_frames.frames)
+    if len(set(counts.values())) != 1:
+        listing = ", ".join(f"{k}: {v}" for k, v in counts.items())
+        raise ValueError(f"the estimator outputs disagree on the number of frames ({listing}); "
+                         "run every estimator on the same frames (e.g. the same --target_fps / --max_len)")
+
+    track_prev, track_curr = track_data.track_prev, track_data.track_curr
+    if track_size is not None:
+        track_prev = resize_points(track_prev, track_size, (H, W))
+        track_curr = resize_points(track_curr, track_size, (H, W))
+    arrays: dict[str, Any] = dict(depth=depth_data.depth, K=cams.K, R_wc=cams.R_wc, t_wc=cams.t_wc,
+                                  track_prev=track_prev, track_curr=track_curr,
+                                  track_vis=track_data.track_vis, track_conf=track_data.track_conf)
+    if mask_data.static_mask is not None:
+        arrays["static_mask"] = mask_data.static_mask
+    if loaded_frames is not None:
+        arrays["frames"] = resize_frames(loaded_frames.frames, (H, W))
+
+    record = {"reference_compat": bool(reference_compat), "grid": [H, W],
+              "sources": {"cameras": _label(cameras), "depth": _label(depth), "tracks": _label(tracks),
+                          "masks": None if masks is None else _label(masks),
+                          "frames": None if frames is None else _label(frames)},
+              **cams.notes, **depth_data.notes, **track_data.notes, **mask_data.notes}
+    if track_size is not None:
+        record["track_size"] = list(track_size)
+    clip_meta = {**(meta or {}), "import": record}
+    if group:
+        clip_meta["group"] = group
+    clip_id = clip_id or clip_meta.get("clip_id") or "clip"
+    clip_meta["clip_id"] = clip_id
+    arrays["meta"] = clip_meta
+    keep_all = SGCConfig(max_tracks=max(track_prev.shape[1], 1))
+    return clip_from_arrays(arrays, clip_id=clip_id, config=keep_all)

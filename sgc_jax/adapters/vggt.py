@@ -1,0 +1,160 @@
+"""VGGT cameras: ``extrinsic`` (S, 3, 4) world->camera and ``intrinsic`` (S, 3, 3) -> clip K, R_wc, t_wc.
+
+VGGT's ``load_and_preprocess_images`` resizes every frame before the model sees it, so its
+intrinsics live on that preprocessed grid, not on the video's:
+- ``mode="crop"`` (VGGT's default): width 518, height round(H * 518 / W / 14) * 14, then the height is
+  centre-cropped to 518 when larger (portrait videos);
+- ``mode="pad"``: the longer side 518, the other round(. / 14) * 14, then padded to 518 x 518 (centred).
+VGGT puts the principal point at the centre of that grid (W/2, H/2). :func:`read_vggt` maps K back
+to the clip grid through the resize (pixel centres) and the crop or pad offset. The extrinsics are
+OpenCV world->camera, as the clip format wants, and are used unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from .common import EstimatorFormatError, load_arrays, map_intrinsics, resize_factors, shape_str, squeeze_batch
+
+VGGT_SIZE = 518  # VGGT's target width (crop) or longer side (pad)
+PATCH = 14  # VGGT's patch size: preprocessed sides are multiples of it
+MODES = ("crop", "pad")
+_PRINCIPAL_POINT_TOL_PX = 2.0  # VGGT writes cx = W/2, cy = H/2 exactly; float32 noise is far below this
+
+
+@dataclasses.dataclass(frozen=True)
+class VGGTGrid:
+    """Where ``load_and_preprocess_images`` puts an H x W frame: preprocessed size and the map
+    u_pre = (u + 0.5) * scale_x - 0.5 + offset_x (likewise v) from frame to preprocessed pixels."""
+
+    height: int  # preprocessed grid
+    width: int
+    scale_x: float
+    scale_y: float
+    offset_x: int  # pad (> 0) or crop (< 0) offset in preprocessed pixels
+    offset_y: int
+    mode: str
+
+    def to_frame(self) -> tuple[float, float, float, float]:
+        """(a_x, b_x, a_y, b_y): u_frame = a_x u_pre + b_x, the inverse of the preprocessing."""
+        a_x, a_y = 1.0 / self.scale_x, 1.0 / self.scale_y
+        return a_x, (0.5 - self.offset_x) * a_x - 0.5, a_y, (0.5 - self.offset_y) * a_y - 0.5
+
+
+def vggt_grid(height: int, width: int, mode: str = "crop") -> VGGTGrid:
+    """The preprocessed grid of an H x W frame, following VGGT's ``load_and_preprocess_images``."""
+    if mode not in MODES:
+        raise ValueError(f"VGGT mode must be one of {MODES}, got {mode!r}")
+    if mode == "crop" or width >= height:
+        new_w = VGGT_SIZE
+        new_h = round(height * (new_w / width) / PATCH) * PATCH
+    else:
+        new_h = VGGT_SIZE
+        new_w = round(width * (new_h / height) / PATCH) * PATCH
+    if mode == "crop":
+        crop = (new_h - VGGT_SIZE) // 2 if new_h > VGGT_SIZE else 0
+        return VGGTGrid(min(new_h, VGGT_SIZE), new_w, new_w / width, new_h / height, 0, -crop, mode)
+    pad_top, pad_left = (VGGT_SIZE - new_h) // 2, (VGGT_SIZE - new_w) // 2
+    return VGGTGrid(VGGT_SIZE, VGGT_SIZE, new_w / width, new_h / height, pad_left, pad_top, mode)
+
+
+@dataclasses.dataclass
+class Cameras:
+    """Per-frame K (T, 3, 3) on the clip grid, world->camera R_wc (T, 3, 3), t_wc (T, 3)."""
+
+    K: np.ndarray
+    R_wc: np.ndarray
+    t_wc: np.ndarray
+    notes: dict[str, Any]
+
+
+def _images_hw(images: np.ndarray) -> tuple[int, int] | None:
+    """(h, w) of VGGT's preprocessed ``images`` array ((S, 3, h, w), (S, h, w, 3), optional B=1)."""
+    images = squeeze_batch(images, 4)
+    if images.ndim != 4:
+        return None
+    if images.shape[1] == 3:
+        return int(images.shape[2]), int(images.shape[3])
+    if images.shape[3] == 3:
+        return int(images.shape[1]), int(images.shape[2])
+    return None
+
+
+def read_vggt(source: Any, *, height: int, width: int, mode: str = "crop",
+              source_size: tuple[int, int] | None = None, reference_compat: bool = False) -> Cameras:
+    """VGGT ``predictions.npz`` (or a mapping with ``extrinsic``/``intrinsic``) -> clip cameras.
+
+    ``height, width``: the clip grid. ``source_size``: (H, W) of the frames given to VGGT, when they
+    differ from the clip grid. ``reference_compat``: keep K on VGGT's 518-px grid, unscaled, as the
+    SGC authors' pipeline did (the paper calibration assumes it).
+    """
+    label, arrays = load_arrays(source, "<vggt arrays>")
+    for name, expected in (("extrinsic", "(S, 3, 4) world-to-camera [R | t]"),
+                           ("intrinsic", "(S, 3, 3) on VGGT's preprocessed grid")):
+        if name not in arrays:
+            fix = "save VGGT's predictions['extrinsic'] and ['intrinsic'] (demo_gradio's predictions.npz has both)"
+            if "pose_enc" in arrays:
+                fix = ("convert with vggt.utils.pose_enc.pose_encoding_to_extri_intri(pose_enc, images.shape[-2:]) "
+                       "and save 'extrinsic' and 'intrinsic'")
+            raise EstimatorFormatError(label, name, expected, f"no such array (found {sorted(arrays)})", fix)
+    extrinsic = squeeze_batch(np.asarray(arrays["extrinsic"], np.float64), 3)
+    intrinsic = squeeze_batch(np.asarray(arrays["intrinsic"], np.float64), 3)
+    if extrinsic.ndim != 3 or extrinsic.shape[1:] not in ((3, 4), (4, 4)):
+        raise EstimatorFormatError(label, "extrinsic", "shape (S, 3, 4)", f"shape {shape_str(extrinsic.shape)}")
+    S = extrinsic.shape[0]
+    if intrinsic.shape != (S, 3, 3):
+        raise EstimatorFormatError(label, "intrinsic", f"shape ({S}, 3, 3), one per extrinsic",
+                                   f"shape {shape_str(intrinsic.shape)}")
+    for name, array in (("extrinsic", extrinsic), ("intrinsic", intrinsic)):
+        if not np.isfinite(array).all():
+            raise EstimatorFormatError(label, name, "finite values", f"{int((~np.isfinite(array)).sum())} non-finite")
+
+    frame_hw = tuple(source_size) if source_size else (height, width)
+    grid = vggt_grid(frame_hw[0], frame_hw[1], mode)
+    if "images" in arrays:
+        found = _images_hw(np.asarray(arrays["images"]))
+        if found is not None and found != (grid.height, grid.width):
+            raise EstimatorFormatError(
+                label, "images", f"{grid.height}x{grid.width} (VGGT {mode} mode of {frame_hw[0]}x{frame_hw[1]} frames)",
+                f"{found[0]}x{found[1]}", _grid_fix(found, frame_hw, mode))
+    principal = intrinsic[:, :2, 2].mean(0)
+    centre = np.array([grid.width / 2.0, grid.height / 2.0])
+    if np.abs(principal - centre).max() > _PRINCIPAL_POINT_TOL_PX:
+        implied = (int(round(2 * principal[1])), int(round(2 * principal[0])))
+        raise EstimatorFormatError(
+            label, "intrinsic",
+            f"principal point ({centre[0]:.1f}, {centre[1]:.1f}), the centre of VGGT's {grid.height}x{grid.width} grid "
+            f"({mode} mode of {frame_hw[0]}x{frame_hw[1]} frames)",
+            f"({principal[0]:.1f}, {principal[1]:.1f}), the centre of a {implied[0]}x{implied[1]} grid",
+            _grid_fix(implied, frame_hw, mode))
+
+    notes: dict[str, Any] = {"vggt_mode": mode, "vggt_grid": [grid.height, grid.width],
+                             "vggt_frames": list(frame_hw)}
+    if reference_compat:
+        K = intrinsic.copy()
+        notes["intrinsics"] = "VGGT 518-px grid, not rescaled (reference-compat)"
+    else:
+        a_x, b_x, a_y, b_y = grid.to_frame()
+        K = map_intrinsics(intrinsic, a_x, b_x, a_y, b_y)
+        if frame_hw != (height, width):
+            K = map_intrinsics(K, *resize_factors(frame_hw, (height, width)))
+        notes["intrinsics"] = f"rescaled from VGGT's {grid.height}x{grid.width} grid to {height}x{width}"
+    return Cameras(K=K, R_wc=extrinsic[:, :3, :3].copy(), t_wc=extrinsic[:, :3, 3].copy(), notes=notes)
+
+
+def _grid_fix(found_hw: tuple[int, int], frame_hw: tuple[int, int], mode: str) -> str:
+    """Which mode or frame size explains a preprocessed grid of ``found_hw`` (sizes implied by a
+    principal point are only known to a pixel or two)."""
+    tol = 2 * _PRINCIPAL_POINT_TOL_PX
+    other = "pad" if mode == "crop" else "crop"
+    alt = vggt_grid(frame_hw[0], frame_hw[1], other)
+    if abs(alt.height - found_hw[0]) <= tol and abs(alt.width - found_hw[1]) <= tol:
+        return f"VGGT ran in {other!r} mode: pass mode={other!r} (CLI: --vggt-mode {other})"
+    if abs(max(found_hw) - VGGT_SIZE) <= tol:
+        return ("VGGT saw frames of another size or aspect ratio: pass their size as source_size=(H, W) "
+                "(CLI: --vggt-source-size HxW)")
+    return (f"these intrinsics are not on a VGGT preprocessed grid (one side {VGGT_SIZE}): if K is already on "
+            "the clip grid, store it as the clip's K instead of importing it as VGGT output")
