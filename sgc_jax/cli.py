@@ -256,6 +256,135 @@ def _register_compare(sub) -> None:
     cmp_.set_defaults(func=cmd_compare)
 
 
+def cmd_import(args: argparse.Namespace) -> int:
+    import warnings
+
+    from .adapters import import_clip
+    from .clip import save_clip
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            clip = import_clip(
+                cameras=args.cameras, depth=args.depth, tracks=args.tracks, masks=args.masks, frames=args.frames,
+                depth_kind=args.depth_kind, depth_scale=args.depth_scale, depth_key=args.depth_key, size=args.size,
+                vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
+                vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
+                clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+        except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
+            print(f"sgc-jax import: error: {exc}", file=sys.stderr)
+            return 2
+    for warning in caught:
+        print(f"sgc-jax import: warning: {warning.message}", file=sys.stderr)
+    path = save_clip(args.out, clip)
+    record = clip.meta["import"]
+    for key in ("intrinsics", "depth_rule", "track_visibility", "masks"):
+        print(f"sgc-jax import: {key.replace('_', ' ')}: {record[key]}", file=sys.stderr)
+    H, W = clip.image_size
+    print(f"wrote {path}: {clip.n_frames} frames, {H}x{W}, {clip.n_tracks} tracks per pair"
+          + (" (reference-compat)" if args.reference_compat else ""), file=sys.stderr)
+    return 0
+
+
+def cmd_pack(args: argparse.Namespace) -> int:
+    import warnings
+
+    from .clip import discover_clips, save_batch
+    from .config import SGCConfig
+
+    keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
+    try:
+        entries = discover_clips(list(args.clips), keep_all)
+    except (OSError, ValueError) as exc:
+        print(f"sgc-jax pack: error: {exc}", file=sys.stderr)
+        return 2
+    clips, failed = [], 0
+    for entry in entries:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                clips.append(entry.load())
+            except (OSError, ValueError, KeyError) as exc:
+                failed += 1
+                print(f"sgc-jax pack: error: {entry.origin}: {exc}", file=sys.stderr)
+        for warning in caught:
+            print(f"sgc-jax pack: warning: {entry.origin}: {warning.message}", file=sys.stderr)
+    if failed and not args.skip_errors:
+        print(f"sgc-jax pack: {failed} clip(s) failed to load; nothing written (--skip-errors packs the rest)",
+              file=sys.stderr)
+        return 1
+    if not clips:
+        print("sgc-jax pack: no clip to pack", file=sys.stderr)
+        return 1
+    path = save_batch(args.out, clips)
+    print(f"packed {len(clips)} clip(s) into {path}" + (f"; {failed} skipped" if failed else ""), file=sys.stderr)
+    return 1 if failed else 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from .validate import validate_paths
+
+    try:
+        reports = validate_paths(list(args.paths))
+    except (OSError, ValueError) as exc:
+        print(f"sgc-jax validate: error: {exc}", file=sys.stderr)
+        return 2
+    for report in reports:
+        for line in report.lines(show_info=args.verbose):
+            print(line)
+    errors = sum(not r.ok for r in reports)
+    warned = sum(any(p.severity == "warning" for p in r.problems) for r in reports)
+    print(f"{len(reports)} clip(s) checked: {errors} with errors, {warned} with warnings", file=sys.stderr)
+    return 1 if errors or (args.strict and warned) else 0
+
+
+def _register_import(sub) -> None:
+    imp = sub.add_parser("import", help="estimator outputs (VGGT, Video Depth Anything, DELTA, SegAnyMo) -> clip .npz")
+    inputs = imp.add_argument_group("inputs")
+    inputs.add_argument("--cameras", required=True, help="VGGT predictions .npz with extrinsic (S,3,4), intrinsic (S,3,3)")
+    inputs.add_argument("--depth", required=True, help="Video Depth Anything *_depths.npz (array 'depths')")
+    inputs.add_argument("--tracks", required=True,
+                        help="DELTA folder of per-pair {a}_{a}.npy/{a}_{b}.npy, or dense coords/vis/conf .pkl/.npz")
+    inputs.add_argument("--masks", help="SegAnyMo folder of palette PNGs (absent: nothing moves)")
+    inputs.add_argument("--frames", help="frames folder or video file (names frames; optional RGB for plots)")
+    conversion = imp.add_argument_group("conversion")
+    conversion.add_argument("--depth-kind", choices=("disparity", "metric"),
+                            help="disparity: VDA relative models (depth = scale / disparity); metric: metric models")
+    conversion.add_argument("--depth-scale", type=float, help="depth = scale / disparity, or scale * metric (default 1)")
+    conversion.add_argument("--depth-key", default="depths", help="array name in the depth file (default: depths)")
+    conversion.add_argument("--size", help="clip grid HxW (default: frames, else masks, else depth size)")
+    conversion.add_argument("--vggt-mode", choices=("crop", "pad"), default="crop",
+                            help="VGGT load_and_preprocess_images mode (default: crop)")
+    conversion.add_argument("--vggt-source-size", help="HxW of the frames VGGT saw, when not the clip grid")
+    conversion.add_argument("--track-size", help="HxW of the frames DELTA saw, when not the clip grid")
+    conversion.add_argument("--vis-threshold", type=float, default=0.8,
+                            help="DELTA visibility above this is visible (default 0.8, DELTA's own)")
+    conversion.add_argument("--reference-compat", action="store_true",
+                            help="the SGC authors' choices (README): K at VGGT's 518-px scale, depth = VDA / 1000, "
+                                 "visibility not thresholded; the paper calibration assumes them")
+    output = imp.add_argument_group("output")
+    output.add_argument("--out", required=True, help="clip .npz to write")
+    output.add_argument("--clip-id", help="clip id (default: the output file name)")
+    output.add_argument("--group", default="", help="group stored in meta (e.g. the generator's name)")
+    imp.set_defaults(func=cmd_import)
+
+
+def _register_pack(sub) -> None:
+    pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (SPEC §2)")
+    pack.add_argument("clips", nargs="+", help="clip .npz files, directories, globs")
+    pack.add_argument("--out", required=True, help="batch .npz to write")
+    pack.add_argument("--skip-errors", action="store_true", help="pack the loadable clips when some fail")
+    pack.set_defaults(func=cmd_pack)
+
+
+def _register_validate(sub) -> None:
+    val = sub.add_parser("validate", help="dry run: check clip / batch files, one line per problem")
+    val.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
+    val.add_argument("-v", "--verbose", action="store_true", help="also print info lines (depth range, mask coverage)")
+    val.add_argument("--strict", action="store_true", help="exit non-zero on warnings too")
+    val.set_defaults(func=cmd_validate)
+
+
 # One registrar per subcommand, in the order ``sgc-jax --help`` lists them.
 SUBCOMMANDS = (
     _register_score,
@@ -264,6 +393,9 @@ SUBCOMMANDS = (
     _register_calibrate,
     _register_rescore,
     _register_compare,
+    _register_import,
+    _register_pack,
+    _register_validate,
 )
 
 
