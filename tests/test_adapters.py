@@ -1,6 +1,7 @@
 """Issue 5: estimator outputs -> clips. Fixtures are written in each estimator's own format and
 resolution by tests/estimator_fixtures.py (an independent restatement of the formats)."""
 
+import dataclasses
 import pickle
 import warnings
 
@@ -196,6 +197,22 @@ def test_delta_pairs_follow_frame_names_with_underscores(tmp_path, scene_clip):
     names = [f"frame_{t:03d}" for t in range(scene_clip.n_frames)]
     directory = write_delta_pairs(tmp_path / "delta", scene_clip, names)
     assert read_delta(directory).frame_names == names
+    renamed = read_delta(directory, frame_names=[f"{t:05d}" for t in range(4)])  # frames named otherwise
+    assert renamed.frame_names == names and "matched in order" in renamed.notes["tracks_layout"]
+    np.testing.assert_array_equal(renamed.track_curr, scene_clip.track_curr)
+
+
+def test_tracks_from_another_resolution_are_rescaled_with_track_size(tmp_path, scene_clip):
+    H, W = scene_clip.image_size
+    paths = write_all(tmp_path, scene_clip)
+    # the same tracks on a grid twice as large (pixel centres: u' = 2 u + 0.5)
+    doubled = dataclasses.replace(scene_clip, track_prev=2 * scene_clip.track_prev + 0.5,
+                                  track_curr=2 * scene_clip.track_curr + 0.5)
+    paths["tracks"] = write_delta_pairs(tmp_path / "delta2x", doubled)
+    clip = import_clip(**paths, depth_kind="disparity", track_size=f"{2 * H}x{2 * W}")
+    np.testing.assert_allclose(clip.track_prev, scene_clip.track_prev, atol=1e-4)
+    np.testing.assert_allclose(clip.track_curr, scene_clip.track_curr, atol=1e-4)
+    assert clip.meta["import"]["track_size"] == [2 * H, 2 * W]
 
 
 @pytest.mark.parametrize("damage, words", [
@@ -226,6 +243,7 @@ def test_delta_dense_arrays_become_consecutive_pairs(tmp_path):
         np.testing.assert_array_equal(tracks.track_curr, coords[1:])
         np.testing.assert_array_equal(tracks.track_vis, (vis[:-1] > 0.8) & (vis[1:] > 0.8))
         np.testing.assert_array_equal(tracks.track_conf, conf[1:])
+        np.testing.assert_array_equal(read_delta(path, reference_compat=True).track_vis, vis[1:])  # raw
     with open(tmp_path / "bad.pkl", "wb") as handle:
         pickle.dump({"coords": coords, "vis": vis[:, :10]}, handle)
     with pytest.raises(EstimatorFormatError, match=r"'vis'.*shape \(4, 50\)"):

@@ -89,6 +89,10 @@ def read_delta_pairs(directory: Any, *, frame_names: Sequence[str] | None = None
     if not directory.is_dir():
         raise FileNotFoundError(f"{directory}: no such tracks folder")
     names = list(frame_names) if frame_names is not None else frame_stems(directory)
+    own = frame_stems(directory)
+    renamed = frame_names is not None and not any((directory / f"{a}_{a}.npy").is_file() for a in names)
+    if renamed and len(own) == len(names):  # the files use other frame names: pair them up in order
+        names = own
     if len(names) < 2:
         raise EstimatorFormatError(directory, "{a}_{a}.npy", "query files of at least 2 frames",
                                    f"{len(names)} ({sorted(p.name for p in directory.glob('*.npy'))[:4]}...)",
@@ -117,7 +121,8 @@ def read_delta_pairs(directory: Any, *, frame_names: Sequence[str] | None = None
             out[i, :len(row)] = row
         return out
 
-    notes = {"tracks_layout": "delta per-pair {a}_{a}.npy / {a}_{b}.npy",
+    notes = {"tracks_layout": "delta per-pair {a}_{a}.npy / {a}_{b}.npy"
+             + (" (file names differ from the frame names: matched in order)" if renamed else ""),
              "track_visibility": "raw DELTA vis, vis > 0 (reference-compat)" if reference_compat
              else f"DELTA vis > {vis_threshold:g}"}
     return Tracks(stack(prev, 0.0), stack(curr, 0.0), stack(vis, False if not reference_compat else 0.0),
