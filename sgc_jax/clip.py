@@ -211,7 +211,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     if validate:
         from .validate import enforce  # the checks use Clip; imported here to keep the modules acyclic
 
-        enforce(clip, config)
+        enforce(clip, config, arrays)
     return subsample_tracks(clip, config)
 
 

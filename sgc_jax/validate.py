@@ -204,6 +204,36 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                                 f"{config.min_track_conf:g}) per pair",
                                 f"fewer in pairs {_frames_list(few + 1, clip.n_pairs)}",
                                 "those pairs will score NaN (reason too_few_tracks)"))
+    problems.append(Problem("info", "track_coverage", "track_vis/track_conf", "",
+                            f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
+                            f"median {int(np.median(usable))}"))
+    return problems
+
+
+def check_dtypes(arrays: Any) -> list[Problem]:
+    """Stored dtypes and value sets that load fine but usually mean a unit or format mix-up."""
+    problems = []
+    depth = np.asarray(arrays["depth"]) if "depth" in arrays else None
+    if depth is not None and not np.issubdtype(depth.dtype, np.floating):
+        problems.append(Problem("warning", "depth_dtype", "depth", "float depth in the units of t_wc",
+                                f"dtype {depth.dtype}",
+                                "integer depth is often a 16-bit PNG in millimetres: convert to float (e.g. / 1000)"))
+    frames = arrays.get("frames") if hasattr(arrays, "get") else None
+    if frames is not None and np.asarray(frames).dtype != np.uint8:
+        problems.append(Problem("warning", "frames_dtype", "frames", "uint8 RGB in 0..255",
+                                f"dtype {np.asarray(frames).dtype}",
+                                "frames are for plots only: store (frames * 255).astype(np.uint8)"))
+    for name in ("static_mask", "dynamic_mask"):
+        if name in arrays:
+            mask = np.asarray(arrays[name])
+            if mask.dtype != bool:
+                values = np.unique(mask[:, ::4, ::4]) if mask.ndim == 3 else np.unique(mask)
+                if values.size > 2:
+                    shown = ", ".join(str(v) for v in values[:6]) + (", ..." if values.size > 6 else "")
+                    problems.append(Problem(
+                        "warning", "mask_labels", name, "a boolean mask", f"{values.size} distinct values ({shown})",
+                        f"every non-zero value counts as {'static' if name == 'static_mask' else 'moving'}; "
+                        "object ids (0 = background) belong in dynamic_mask"))
     return problems
 
 
@@ -305,17 +335,19 @@ def check_mask(clip: Clip) -> list[Problem]:
     return problems
 
 
-def check_clip(clip: Clip, config: SGCConfig | None = None) -> list[Problem]:
-    """Every content check of one clip, errors first."""
+def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> list[Problem]:
+    """Every content check of one clip, errors first; ``arrays``: the stored arrays, for dtype checks."""
     config = config or SGCConfig()
     problems = (check_intrinsics(clip) + check_poses(clip) + check_tracks(clip, config)
                 + check_depth(clip, config) + check_mask(clip))
+    if arrays is not None:
+        problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
 
 
-def enforce(clip: Clip, config: SGCConfig | None = None, problems: list[Problem] | None = None) -> None:
+def enforce(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> None:
     """Raise :class:`ClipValidationError` on the first error; warn (:class:`ClipWarning`) on warnings."""
-    problems = check_clip(clip, config) if problems is None else problems
+    problems = check_clip(clip, config, arrays)
     for problem in problems:
         if problem.severity == "error":
             raise ClipValidationError(clip.clip_id, problem.array, problem.expected, problem.found, problem.fix)
@@ -390,5 +422,5 @@ def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[
                     problem = Problem("error", "structure", exc.array, exc.expected, exc.found, exc.detail)
                     reports.append(Report(origin, clip_id, [problem]))
                     continue
-                reports.append(Report(origin, clip.clip_id, check_clip(clip, config)))
+                reports.append(Report(origin, clip.clip_id, check_clip(clip, config, arrays)))
     return reports

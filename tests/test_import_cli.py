@@ -110,7 +110,7 @@ def test_validate_prints_one_line_per_problem_and_fails_on_errors(tmp_path, clip
                                                           validate=False))
     proc = run("validate", good)
     assert proc.returncode == 0 and proc.stdout == "" and "1 clip(s) checked: 0 with errors" in proc.stderr
-    assert run("validate", good, "-v").stdout.count("info:") == 2
+    assert run("validate", good, "-v").stdout.count("info:") == 3  # depth range, track and mask coverage
     proc = run("validate", good, bad)
     assert proc.returncode == 1, proc.stdout
     lines = proc.stdout.splitlines()

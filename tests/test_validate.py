@@ -37,7 +37,7 @@ def codes(problems, severity):
 def test_a_consistent_clip_has_no_problem(clip):
     problems = problems_of(arrays_of(clip))
     assert codes(problems, "error") == [] and codes(problems, "warning") == []
-    assert codes(problems, "info") == ["depth_range", "mask_coverage"]
+    assert codes(problems, "info") == ["depth_range", "mask_coverage", "track_coverage"]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         clip_from_arrays(arrays_of(clip))
@@ -102,6 +102,22 @@ def test_the_loader_warns_on_warnings(clip, name):
     assert any(words[-1] in str(w.message) for w in record)
 
 
+@pytest.mark.parametrize("change, code, array, words", [
+    (lambda c: {"depth": (1000 * c.depth).astype(np.uint16)}, "depth_dtype", "depth", ["uint16", "millimetres"]),
+    (lambda c: {"frames": np.zeros((4, 96, 128, 3), np.float32)}, "frames_dtype", "frames", ["uint8", "float32"]),
+    (lambda c: {"static_mask": np.broadcast_to((np.arange(128) // 43).astype(np.uint8), (4, 96, 128)).copy()},
+     "mask_labels", "static_mask", ["3 distinct values (0, 1, 2)", "dynamic_mask"]),
+])
+def test_stored_dtypes_that_suggest_a_mix_up_warn(clip, change, code, array, words):
+    arrays = arrays_of(clip, **change(clip))
+    problems = check_clip(clip_from_arrays(arrays, validate=False), arrays=arrays)
+    found = [p for p in problems if p.code == code]
+    assert len(found) == 1 and found[0].severity == "warning" and found[0].array == array
+    assert all(word in found[0].line() for word in words), found[0].line()
+    with pytest.warns(ClipWarning, match=code.split("_")[0]):
+        clip_from_arrays(arrays)
+
+
 def test_content_problems_the_scorer_reports_are_not_loader_warnings(clip):
     vis = clip.track_vis.copy()
     vis[1] = False
@@ -118,7 +134,8 @@ def test_reference_compat_choices_are_info_not_errors(clip):
     problems = problems_of(arrays)
     assert codes(problems, "error") == [] and codes(problems, "warning") == []
     assert {"principal_point_outside", "focal_implausible", "depth_like_disparity"} <= set(codes(problems, "info"))
-    assert all("reference-compat" in p.line() for p in problems if p.code != "depth_range" and p.code != "mask_coverage")
+    summaries = ("depth_range", "mask_coverage", "track_coverage")
+    assert all("reference-compat" in p.line() for p in problems if p.code not in summaries)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert clip_from_arrays(arrays).clip_id == "compat"
