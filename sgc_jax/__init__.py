@@ -8,14 +8,18 @@ from .api import ENGINES, score_batch, score_clip
 from .calibration import COMPONENTS, Calibration, KFoldStability, calibrate, kfold_stability, sgc_score
 from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
 from .config import SGCConfig
+from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip
 from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays, read_scores, rescore_records
+from .study import StudyResult, sensitivity_study
 from .validate import ClipValidationError, ClipWarning, check_clip
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "Clip", "ClipFormatError", "ClipResult",
-    "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "PAIR_COLUMNS", "PairArrays", "SGCConfig",
+    "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
+    "PERTURBATIONS", "PairArrays", "SGCConfig", "StudyResult",
     "calibrate", "check_clip", "clip_from_arrays", "import_clip", "kfold_stability", "load_clip", "load_clips",
-    "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip", "sgc_score",
+    "perturb_clip", "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip",
+    "sensitivity_study", "sgc_score",
 ]

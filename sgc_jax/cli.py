@@ -385,6 +385,71 @@ def _register_validate(sub) -> None:
     val.set_defaults(func=cmd_validate)
 
 
+def _csv_list(text: str, convert=str) -> list:
+    try:
+        return [convert(item.strip()) for item in text.split(",") if item.strip()]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list: {text!r} ({exc})") from exc
+
+
+def cmd_perturb(args: argparse.Namespace) -> int:
+    from .study import sensitivity_study
+
+    if args.plot:  # fail before the (long) study when matplotlib is missing
+        try:
+            from .plot import _pyplot
+            _pyplot()
+        except ImportError as exc:
+            print(f"sgc-jax perturb: --plot: {exc}", file=sys.stderr)
+            return 2
+    try:
+        study = sensitivity_study(list(args.paths), args.kinds, args.severities, calibration=args.calibration,
+                                  engine=args.engine, perturb_seed=args.perturb_seed, progress=not args.quiet,
+                                  chunk_size=args.chunk_size, **_config_overrides(args))
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"sgc-jax perturb: {exc}", file=sys.stderr)
+        return 2
+    failed = sorted({r["base"] for r in study.rows if r["status"] == "error" and r["severity"] == 0})
+    for base in failed:
+        print(f"sgc-jax perturb: {base}: not scored", file=sys.stderr)
+    if args.out:
+        study.to_csv(args.out, summary_path=args.summary)
+        print(f"wrote {args.out}" + (f" and {args.summary}" if args.summary else ""), file=sys.stderr)
+    if args.plot:
+        from .plot import _pyplot, plot_sensitivity
+
+        fig = plot_sensitivity(study)
+        fig.savefig(args.plot, dpi=120)
+        _pyplot().close(fig)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    print(study.table())
+    return 0 if any(r["status"] != "error" for r in study.rows) else 1
+
+
+def _register_perturb(sub) -> None:
+    from .perturb import MASK_CORRUPTIONS, PERTURBATIONS
+
+    p = sub.add_parser("perturb", help="sensitivity study: score clips under perturbations of growing severity",
+                       description="Score every clip under every perturbation kind and severity; print the mean "
+                                   "SGC and components per kind and severity and Spearman rho vs severity.")
+    p.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
+    study = p.add_argument_group("study")
+    study.add_argument("--kinds", type=_csv_list, default=list(PERTURBATIONS),
+                       help=f"comma-separated, from {','.join(PERTURBATIONS + MASK_CORRUPTIONS)} "
+                            f"(default: {','.join(PERTURBATIONS)})")
+    study.add_argument("--severities", type=lambda s: _csv_list(s, float), default=[0.0, 0.25, 0.5, 0.75, 1.0],
+                       help="comma-separated values in [0, 1] (default: 0,0.25,0.5,0.75,1)")
+    study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
+    study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call")
+    output = p.add_argument_group("output")
+    output.add_argument("--out", help="one row per clip, kind and severity (SPEC §6 columns + base, kind, severity)")
+    output.add_argument("--summary", help="per kind and severity means (CSV)")
+    output.add_argument("--plot", help="figure of SGC and components vs severity (PNG/PDF; needs matplotlib)")
+    _add_algorithm_flags(p)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_perturb)
+
+
 # One registrar per subcommand, in the order ``sgc-jax --help`` lists them.
 SUBCOMMANDS = (
     _register_score,
@@ -396,6 +461,7 @@ SUBCOMMANDS = (
     _register_import,
     _register_pack,
     _register_validate,
+    _register_perturb,
 )
 
 
