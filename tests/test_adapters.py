@@ -248,6 +248,9 @@ def test_delta_dense_arrays_become_consecutive_pairs(tmp_path):
         pickle.dump({"coords": coords, "vis": vis[:, :10]}, handle)
     with pytest.raises(EstimatorFormatError, match=r"'vis'.*shape \(4, 50\)"):
         read_delta(tmp_path / "bad.pkl")
+    np.savez(tmp_path / "renamed.npz", trajs_uv=coords, vis=vis)
+    with pytest.raises(EstimatorFormatError, match=r"renamed\.npz: array 'coords'.*found \['trajs_uv', 'vis'\]"):
+        read_delta(tmp_path / "renamed.npz")
 
 
 # ----------------------------------------------------------------------------- SegAnyMo
