@@ -10,6 +10,7 @@ from sgc_jax import load_clip, save_clip
 from sgc_jax.perturb import (
     MASK_CORRUPTIONS,
     PERTURBATIONS,
+    WARP_AMPLITUDE_FRAC,
     dilate,
     erode,
     false_negative,
@@ -110,6 +111,8 @@ def test_invalid_arguments_raise(clip):
         perturb_clip(clip, "warp", 0.5, amplitude=3)  # misspelled magnitude keyword
     with pytest.raises(ValueError, match="seed"):
         perturb_clip(clip, "warp", 0.5, seed=-1)
+    with pytest.raises(ValueError, match="folds"):
+        perturb_clip(clip, "depth_warp", 0.5, amplitude_frac=0.2, wavelength_frac=1.0)
 
 
 # ----------------------------------------------------------------------------- geometric
@@ -133,7 +136,7 @@ def test_warp_moves_tracks_and_frames_but_not_depth_or_masks(clip):
     assert changed(clip, out) == {"track_prev", "track_curr", "frames"}
     np.testing.assert_array_equal(out.frames[0], clip.frames[0])
     diag = np.hypot(*clip.image_size)
-    assert 0 < np.abs(out.track_curr - clip.track_curr).max() <= 0.035 * diag + 1e-3  # peak amplitude
+    assert 0 < np.abs(out.track_curr - clip.track_curr).max() <= WARP_AMPLITUDE_FRAC * diag + 1e-3  # peak
 
 
 def test_squeeze_compresses_rows_towards_the_principal_point(clip):

@@ -190,3 +190,16 @@ def test_perturb_command_writes_rows_summary_and_plot(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "sgc_jax.cli", "perturb", str(tmp_path / "clips"), "--kinds", "bend"],
                          capture_output=True, text=True, timeout=600)
     assert bad.returncode == 2 and "bend" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
+    from sgc_jax import cli
+    from sgc_jax.plot import _pyplot
+
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)  # import fails as if not installed
+    with pytest.raises(ImportError, match=r"sgc-jax\[viz\]"):
+        _pyplot()
+    # the command refuses before scoring anything, naming the option and the fix
+    assert cli.main(["perturb", str(tmp_path / "none.npz"), "--plot", str(tmp_path / "p.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--plot" in err and "pip install" in err
