@@ -1,0 +1,211 @@
+"""Per-pair diagnostics for plots and notebooks: what one frame pair's score is made of.
+
+``pair`` is the SPEC §3 index i of frames i-1 -> i (1..T-1), the ``pair`` column of
+``to_pandas(pairs=True)``; region label j (1..N_s) is slot j-1 of the per-region arrays of
+:class:`~sgc_jax.result.PairArrays`. Every quantity is recomputed with the reference
+implementation (NumPy + OpenCV) from the clip and the config that scored it; the poses come from
+the scored :class:`~sgc_jax.result.PairArrays`, so the diagnostics show what either engine found.
+Pixels: x = column, y = row; depth and local translations in depth units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from . import reference
+from .clip import Clip, load_clip
+from .config import SGCConfig
+from .result import REGION_STATUS, ClipResult, PairArrays
+
+#: Region status names by code (inverse of :data:`~sgc_jax.result.REGION_STATUS`).
+REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
+
+
+def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:
+    config = config or SGCConfig()
+    clip = load_clip(clip, config)  # the same track sub-sampling as scoring
+    if not 1 <= pair <= clip.n_pairs:
+        raise ValueError(f"pair must be in 1..{clip.n_pairs} (frames pair-1 -> pair) for clip "
+                         f"{clip.clip_id!r}, got {pair}")
+    return clip, config
+
+
+def _pair_arrays(scored: ClipResult | PairArrays) -> PairArrays:
+    pairs = scored.pairs if isinstance(scored, ClipResult) else scored
+    if pairs is None:
+        raise ValueError(f"clip {getattr(scored, 'clip_id', '?')!r} has no per-pair arrays (it failed to score)")
+    return pairs
+
+
+def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> np.ndarray:
+    """(H, W) int32 region label map of frame ``pair``: 0 = no region, 1..N_s = depth layers,
+    nearest first (SPEC §3.1-3.2)."""
+    clip, config = _prepare(clip, pair, config)
+    return reference.partition_regions(clip, pair, config)
+
+
+@dataclasses.dataclass(frozen=True)
+class RegionTracks:
+    """The usable tracks of a pair with depth: X (n, 3) in camera pair-1, uv (n, 2) px in frame
+    pair, region (n,) label at uv (0 = none), uv_prev (n, 2) px in frame pair-1."""
+
+    X: np.ndarray
+    uv: np.ndarray
+    uv_prev: np.ndarray
+    region: np.ndarray
+    labels: np.ndarray  # (H, W) region label map of frame pair
+
+
+def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> RegionTracks:
+    """The points PnP sees per region (SPEC §3.3-3.5)."""
+    clip, config = _prepare(clip, pair, config)
+    labels = reference.partition_regions(clip, pair, config)
+    X, uv, _ = reference.usable_points(clip, pair, config)
+    K = clip.K[pair - 1]
+    uv_prev = X[:, :2] / X[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+    return RegionTracks(X=X, uv=uv, uv_prev=uv_prev, region=reference.point_regions(labels, uv), labels=labels)
+
+
+def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
+                scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(R_g (3, 3), scale * t_g (3,)): the camera's relative pose from frame pair-1 to pair (SPEC §3.7)."""
+    clip, config = _prepare(clip, pair, config)
+    R_g, t_g = reference.global_relative_pose(clip, pair, config)
+    return R_g, scale * t_g
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseFlow:
+    """Image motion each relative pose predicts for each region (paper Figure 4).
+
+    Per region slot (k): ``anchor`` (k, 3) the centroid of the region's points in camera pair-1
+    (depth units); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
+    (k, 2) the displacement in pixels of that point under the region's local pose / the global
+    pose; ``status`` (k,) :data:`~sgc_jax.result.REGION_STATUS` codes; ``n_points`` (k,).
+    Rows of regions without an accepted pose (or without points) are NaN.
+    """
+
+    pair: int
+    anchor: np.ndarray
+    start_px: np.ndarray
+    local_px: np.ndarray
+    global_px: np.ndarray
+    status: np.ndarray
+    n_points: np.ndarray
+    labels: np.ndarray
+
+    @property
+    def accepted(self) -> np.ndarray:
+        return self.status == REGION_STATUS["ok"]
+
+    @property
+    def disagreement_px(self) -> np.ndarray:
+        """(k,) pixel distance between the local and the global displacement."""
+        return np.linalg.norm(self.local_px - self.global_px, axis=1)
+
+
+def _project(K: np.ndarray, X: np.ndarray) -> np.ndarray:
+    return X[..., :2] / X[..., 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+
+
+def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
+              config: SGCConfig | None = None) -> PoseFlow:
+    """Where each region's centroid moves under its local pose and under the global pose.
+
+    ``scored``: the clip's :class:`~sgc_jax.result.ClipResult` (or its ``pairs``), scored with
+    ``config``. Each arrow is the optical flow the pose predicts at the region's anchor:
+    project(K[pair], R X + t) - project(K[pair-1], X); a rigid scene gives equal arrows.
+    """
+    pairs = _pair_arrays(scored)
+    clip, config = _prepare(clip, pair, config)
+    tracks = region_tracks(clip, pair, config)
+    p = pair - 1
+    k = pairs.region_status.shape[1]
+    anchor = np.full((k, 3), np.nan)
+    for j in range(k):
+        member = tracks.region == j + 1
+        if member.any():
+            anchor[j] = tracks.X[member].mean(axis=0)
+    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
+    start = _project(clip.K[pair - 1], anchor)
+    moved_local = np.einsum("kij,kj->ki", pairs.R_local[p], anchor) + pairs.t_local[p]
+    moved_global = anchor @ R_g.T + t_g
+    local_px = _project(clip.K[pair], moved_local) - start
+    global_px = _project(clip.K[pair], moved_global) - start
+    accepted = pairs.region_status[p] == REGION_STATUS["ok"]
+    local_px[~accepted] = np.nan
+    return PoseFlow(pair=pair, anchor=anchor, start_px=start, local_px=local_px, global_px=global_px,
+                    status=pairs.region_status[p].copy(), n_points=pairs.region_points[p].copy(),
+                    labels=tracks.labels)
+
+
+@dataclasses.dataclass(frozen=True)
+class RegionReprojection:
+    """Per region slot j (label j+1): reprojection errors in pixels of the region's points under
+    its own local pose (``local_px[j]``, empty without an accepted pose) and under the global pose
+    (``global_px[j]``); ``status`` (k,) and ``mean_local_px`` (k,) as scored."""
+
+    pair: int
+    local_px: list[np.ndarray]
+    global_px: list[np.ndarray]
+    status: np.ndarray
+    mean_local_px: np.ndarray
+    inlier_px: float
+
+
+def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
+                        config: SGCConfig | None = None) -> RegionReprojection:
+    """Reprojection error of every point of every region, under the local and the global pose."""
+    pairs = _pair_arrays(scored)
+    clip, config = _prepare(clip, pair, config)
+    tracks = region_tracks(clip, pair, config)
+    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
+    p, K = pair - 1, clip.K[pair]
+    local, global_ = [], []
+    for j in range(pairs.region_status.shape[1]):
+        member = tracks.region == j + 1
+        X, uv = tracks.X[member], tracks.uv[member]
+        global_.append(reference.reprojection_errors(X, uv, K, R_g, t_g))
+        if pairs.region_status[p, j] == REGION_STATUS["ok"]:
+            local.append(reference.reprojection_errors(X, uv, K, pairs.R_local[p, j], pairs.t_local[p, j]))
+        else:
+            local.append(np.zeros(0))
+    return RegionReprojection(pair=pair, local_px=local, global_px=global_, status=pairs.region_status[p].copy(),
+                              mean_local_px=pairs.region_reproj[p].copy(), inlier_px=config.inlier_px)
+
+
+@dataclasses.dataclass(frozen=True)
+class DepthWarpError:
+    """The depth check of one pair (SPEC §3.8): ``warped`` (H, W) depth of frame pair-1 forward-
+    warped into frame pair with the global pose (0 where nothing lands), ``error`` (H, W)
+    |warped - depth[pair]| in depth units where compared (NaN elsewhere), ``mean`` its mean
+    (the pair's ``depth_error``)."""
+
+    pair: int
+    warped: np.ndarray
+    error: np.ndarray
+    mean: float
+
+    @property
+    def compared(self) -> np.ndarray:
+        """(H, W) bool: pixels that enter the mean (both depths valid, static in frame pair)."""
+        return ~np.isnan(self.error)
+
+
+def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
+                     scale: float = 1.0) -> DepthWarpError:
+    """Per-pixel depth-warp error of a pair; ``scale`` multiplies t_g (a result's ``pairs.scale``
+    when scored with ``align_scale=True``)."""
+    clip, config = _prepare(clip, pair, config)
+    R_g, t_g = global_pose(clip, pair, config, scale=scale)
+    warped = reference.warp_depth(clip.depth[pair - 1], clip.K[pair - 1], clip.K[pair], R_g, t_g,
+                                  nearest=config.compat != "authors")
+    static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+    depth = clip.depth[pair]
+    compared = (warped > 0) & reference.valid_depth(depth) & static
+    error = np.where(compared, np.abs(warped - np.where(compared, depth, 0.0)), np.nan)
+    mean = reference.depth_error(warped, depth, static)
+    return DepthWarpError(pair=pair, warped=warped, error=error, mean=mean)
