@@ -43,7 +43,7 @@ class SceneSpec:
     n_layers: int = 4  # static rectangles at clearly different depths, besides the back wall
     moving_objects: int = 0  # independently moving spheres (masked unless with_mask=False)
     static_spheres: int = 0  # static (unmasked) spheres: non-planar structure for well-posed PnP
-    noise_px: float = 0.0  # Gaussian std added to every coordinate of track_prev and track_curr
+    noise_px: float = 0.0  # Gaussian std added to every coordinate of track_curr (tracker error)
     outlier_frac: float = 0.0  # tracks per pair whose track_curr is a uniform random position
     low_conf_frac: float = 0.0  # tracks per pair with confidence drawn in [0, 0.5)
     rot_deg_per_frame: float = 1.5  # typical camera rotation between frames
@@ -384,8 +384,9 @@ def _synth_tracks(spec: SceneSpec, scene: _Scene, K: np.ndarray, R_wc: np.ndarra
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Tracks of every pair: (T-1, P, 2) prev, (T-1, P, 2) curr float32; (T-1, P) vis, conf.
 
-    Start points are distinct integer pixels of frame i-1, uniformly sampled; then pixel noise,
-    outliers (uniform track_curr, visible, conf 1) and low-confidence tracks, each from its own
+    Start points are distinct integer pixels of frame i-1, uniformly sampled and exact (they are
+    the tracker's query points, as in DELTA's per-pair files); pixel noise is tracker error on
+    ``track_curr`` only. Then outliers (uniform track_curr, visible, conf 1) and low-confidence tracks, each from its own
     random stream and on disjoint track sets.
     """
     T, H, W = depth.shape
@@ -400,9 +401,7 @@ def _synth_tracks(spec: SceneSpec, scene: _Scene, K: np.ndarray, R_wc: np.ndarra
         prev[pair - 1], curr[pair - 1], vis[pair - 1] = _track_pair(
             scene, K, R_wc, t_wc, depth, surface, pair, index)
         if spec.noise_px > 0:
-            jitter = noise.normal(0.0, spec.noise_px, size=(2, P, 2))
-            prev[pair - 1] += jitter[0]
-            curr[pair - 1] += jitter[1]
+            curr[pair - 1] += noise.normal(0.0, spec.noise_px, size=(P, 2))
         order = outliers.permutation(P)
         bad = order[:n_out]
         curr[pair - 1, bad] = outliers.uniform([0.0, 0.0], [W - 1, H - 1], size=(n_out, 2))
