@@ -123,15 +123,19 @@ def sample_candidates(X, uv, K, sample_idx, *, sample_steps):
     return jax.vmap(one_sample)(Xs, uvs).reshape(H * (k + 1), 6)
 
 
-def _rank_key(count, trunc, n_points, inlier_px):
-    """Float key ordering candidates by more inliers, then lower truncated error (for top_k)."""
-    trunc_norm = trunc / (n_points * jnp.asarray(inlier_px, trunc.dtype) ** 2 + 1e-30)
-    return count.astype(trunc.dtype) + 0.5 * (1.0 - jnp.clip(trunc_norm, 0.0, 1.0))
+def _rank_key(finite, trunc):
+    """Float key for top_k: higher is better. MSAC: the lowest summed truncated squared error
+    (inliers contribute e^2, everything else inlier_px^2), not the most inliers. On a weakly
+    conditioned region (narrow, far) a pose slid along the rotation/translation valley keeps
+    every true inlier under inlier_px and picks up a few outliers, so it wins an inlier count
+    while its residuals on the true inliers are several times larger; the truncated error
+    prefers the pose that fits the inliers tightly."""
+    return jnp.where(finite, -trunc, -jnp.inf)
 
 
-def _best(count, trunc):
-    """Index of the most inliers, ties -> lowest truncated error, then lowest index."""
-    return jnp.argmin(jnp.where(count == jnp.max(count), trunc, jnp.inf))
+def _best(trunc):
+    """Index of the lowest summed truncated squared error (MSAC), ties -> lowest index."""
+    return jnp.argmin(trunc)
 
 
 # Final refinement pass: inliers re-selected at NOISE_CUT * (estimated pixel noise sigma), never
@@ -207,7 +211,7 @@ def ransac_pnp(
        ``sample_steps`` steps, and its leave-one-out fits).
     2. All candidates are scored in one vmapped pass on the members (at most ``score_points`` of
        them: all when they fit, else a stratified random subset). The ``lo_candidates`` best
-       (most inliers, then lowest summed truncated squared error, then lowest index) get one
+       (lowest summed truncated squared error, MSAC, then lowest index) get one
        least-squares fit on their inliers (local optimisation); the best of these goes on.
     3. ``refine_pose``: ``refine_passes`` least-squares fits (``steps`` Gauss-Newton steps each)
        on the current inliers; inliers and n_inliers are those of the final pose.
@@ -235,8 +239,8 @@ def ransac_pnp(
     n_scored = min(score_points, N)
     scored_idx, scored_valid = scoring_subset(key_subset, member, n_scored)
     X_s, uv_s = X[scored_idx], uv[scored_idx]
-    _, count, trunc = _score(R_c, t_c, X_s, uv_s, K, scored_valid, inlier_px)
-    rank = _rank_key(jnp.where(finite, count, -1), trunc, n_scored, inlier_px)
+    _, _, trunc = _score(R_c, t_c, X_s, uv_s, K, scored_valid, inlier_px)
+    rank = _rank_key(finite, trunc)
     _, top = jax.lax.top_k(rank, min(lo_candidates, poses.shape[0]))
 
     # Local optimisation of the leading candidates on the scored points: one least-squares fit
@@ -247,8 +251,8 @@ def ransac_pnp(
     )
     fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, poses[top])
     contenders = jnp.concatenate([poses[top], fits])
-    _, count, trunc = _score(so3_exp(contenders[:, :3]), contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    best_pose = contenders[_best(count, trunc)]
+    _, _, trunc = _score(so3_exp(contenders[:, :3]), contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+    best_pose = contenders[_best(trunc)]
 
     pose, inliers, n_inliers = refine_pose(
         X, uv, member, K, best_pose, inlier_px=inlier_px, steps=steps, passes=refine_passes

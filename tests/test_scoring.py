@@ -91,8 +91,10 @@ def test_batch_equals_single_calls_and_padding_does_not_change_scores(rigid_clip
     for clip, row in zip((rigid_clip, fewer_tracks), batch.clips):
         single = score_clip(clip, engine="jax")
         assert list(row.pairs.n_poses) == list(single.pairs.n_poses)
-        for k in COMPONENTS:  # same samples and poses; float32 sums reorder with the batch size
-            np.testing.assert_allclose(getattr(row.pairs, k), getattr(single.pairs, k), rtol=1e-3, atol=1e-9)
+        # Same samples and poses; float32 sums reorder with the batch size. atol: float32 resolves
+        # rotation angles to ~1e-4 deg, so variances of a rigid clip are float noise below 1e-7.
+        for k in COMPONENTS:
+            np.testing.assert_allclose(getattr(row.pairs, k), getattr(single.pairs, k), rtol=1e-3, atol=1e-7)
 
 
 def test_results_load_into_pandas_and_json(rigid_clip, tmp_path):
