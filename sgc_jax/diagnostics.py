@@ -11,6 +11,7 @@ Pixels: x = column, y = row; depth and local translations in depth units.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,15 @@ def _pair_arrays(scored: ClipResult | PairArrays) -> PairArrays:
     if pairs is None:
         raise ValueError(f"clip {getattr(scored, 'clip_id', '?')!r} has no per-pair arrays (it failed to score)")
     return pairs
+
+
+def _check_regions(labels: np.ndarray, pairs: PairArrays, pair: int, clip_id: str) -> None:
+    """Warn when the label map recomputed here does not have the scored number of regions (the
+    JAX engine clusters in float32: a cluster at the pixel threshold can fall either side)."""
+    scored = int(pairs.n_regions[pair - 1])
+    if int(labels.max()) != scored:
+        warnings.warn(f"{clip_id!r} pair {pair}: the recomputed label map has {int(labels.max())} regions, the "
+                      f"scored result {scored}; region slots may not line up", RuntimeWarning, stacklevel=3)
 
 
 def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> np.ndarray:
@@ -122,6 +132,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
     pairs = _pair_arrays(scored)
     clip, config = _prepare(clip, pair, config)
     tracks = region_tracks(clip, pair, config)
+    _check_regions(tracks.labels, pairs, pair, clip.clip_id)
     p = pair - 1
     k = pairs.region_status.shape[1]
     anchor = np.full((k, 3), np.nan)
@@ -162,6 +173,7 @@ def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair:
     pairs = _pair_arrays(scored)
     clip, config = _prepare(clip, pair, config)
     tracks = region_tracks(clip, pair, config)
+    _check_regions(tracks.labels, pairs, pair, clip.clip_id)
     R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     p, K = pair - 1, clip.K[pair]
     local, global_ = [], []
