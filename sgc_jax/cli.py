@@ -179,11 +179,24 @@ def cmd_rescore(args: argparse.Namespace) -> int:
     return 0
 
 
+def _matplotlib_or_report(command: str) -> bool:
+    """True when matplotlib imports; otherwise print why ``--plot`` cannot work."""
+    try:
+        from .plot import _pyplot
+        _pyplot()
+    except ImportError as exc:
+        print(f"sgc-jax {command}: --plot: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, group_table,
                           motion_dependence)
     from .result import write_csv, format_table
 
+    if args.plot and not _matplotlib_or_report("compare"):
+        return 2
     records = _read_scores_or_exit(args.scores, "compare")
     if records is None:
         return 2
@@ -203,6 +216,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.out:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
+    if args.plot:
+        from .plot import _pyplot, plot_group_violins
+
+        fig = plot_group_violins(records, args.column)
+        fig.savefig(args.plot, dpi=120)
+        _pyplot().close(fig)
+        print(f"wrote {args.plot}", file=sys.stderr)
     if args.against:
         other = _read_scores_or_exit(args.against, "compare")
         if other is None:
@@ -253,6 +273,7 @@ def _register_compare(sub) -> None:
     cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI")
     cmp_.add_argument("--seed", type=int, default=0, help="bootstrap seed")
     cmp_.add_argument("--out", help="write the table as CSV")
+    cmp_.add_argument("--plot", help="violins of the column per group, clips coloured by ECD (PNG/PDF; needs matplotlib)")
     cmp_.set_defaults(func=cmd_compare)
 
 

@@ -251,11 +251,15 @@ def plot_pose_arrows(clip: "Clip", scored: "ClipResult", pair: int, *, config: "
 
 
 def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None" = None, scale: float = 1.0,
-                          vmax: float | None = None) -> "Figure":
+                          vmax: float | None = None, log: bool = True) -> "Figure":
     """Frame pair-1's depth warped into frame ``pair`` with the global pose, frame ``pair``'s depth,
-    and their absolute difference where compared (SPEC §3.8); grey = not compared. ``vmax`` of
-    the error colour scale defaults to its 99th percentile (occlusion edges would saturate it)."""
+    and their absolute difference where compared (SPEC §3.8); grey = not compared.
+
+    The error colour scale runs to ``vmax`` (default: the largest error); ``log``: a log scale over
+    three decades below it, so small errors over whole surfaces show next to occlusion edges.
+    """
     from . import diagnostics  # noqa: PLC0415
+    from matplotlib.colors import LogNorm, Normalize  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
     plt = _pyplot()
@@ -272,11 +276,13 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
     fig.colorbar(shown, ax=axes[:2].tolist(), label="depth [depth units]", shrink=0.85)
     error = result.error
     if vmax is None:
-        vmax = float(np.nanpercentile(error, 99)) if result.compared.any() else 1.0
+        vmax = float(np.nanmax(error)) if result.compared.any() else 1.0
+    vmax = max(vmax, 1e-12)
+    norm = LogNorm(vmin=vmax * 1e-3, vmax=vmax, clip=True) if log else Normalize(vmin=0.0, vmax=vmax)
     ax = axes[2]
     ax.set_facecolor("0.5")
-    shown = ax.imshow(error, cmap="magma", vmin=0.0, vmax=max(vmax, 1e-12))
-    fig.colorbar(shown, ax=ax, label="|warped − depth| [depth units]", shrink=0.85, extend="max")
+    shown = ax.imshow(error, cmap="magma", norm=norm)
+    fig.colorbar(shown, ax=ax, label="|warped − depth| [depth units]" + (", log scale" if log else ""), shrink=0.85)
     ax.legend(handles=[Patch(color="0.5", label="not compared (dynamic, invalid or no warp)")],
               fontsize="x-small", loc="lower right")
     _image_axes(ax, f"depth-warp error, mean {result.mean:.3g} depth units")
@@ -411,7 +417,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ax.set_ylabel("SGC (lower is better)" if column == "sgc" else f"{column} [{unit}]" if unit else column)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize="small", loc="upper left")
-    ax.set_title(f"{column} per group, clips coloured by ECD")
+    ax.set_title(f"{'SGC' if column == 'sgc' else column} per group, clips coloured by ECD")
     return fig
 
 
