@@ -51,8 +51,8 @@ def _check_regions(labels: np.ndarray, pairs: PairArrays, pair: int, clip_id: st
 
 
 def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> np.ndarray:
-    """(H, W) int32 region label map of frame ``pair``: 0 = no region, 1..N_s = depth layers,
-    nearest first (SPEC §3.1-3.2)."""
+    """(H, W) int32 region label map of frame ``pair`` for ``config.partition``: 0 = no region,
+    1..N_s = regions (with the default ``"depth"``: depth layers, nearest first; SPEC §3.1-3.2)."""
     clip, config = _prepare(clip, pair, config)
     return reference.partition_regions(clip, pair, config)
 
