@@ -19,8 +19,9 @@ from .clip import Clip
 from .components import pair_pose_components
 from .config import SGCConfig
 from .geometry import back_project, nearest_rotation, rotation_angle_deg
-from .kmeans import depth_regions, grid_regions
-from .ransac import ransac_pnp
+from .kmeans import depth_regions, grid_regions, kmeans_1d
+from .partition import spatial_regions
+from .ransac import ransac_pnp_regions
 from .result import PAIR_REASONS, PairArrays
 from .warp import depth_error, warp_depth
 
@@ -124,7 +125,9 @@ def _pair_regions(depth_curr, region_mask, config: SGCConfig):
     if config.partition == "depth":
         return depth_regions(depth_curr, region_mask, k=config.k_seg, bins=config.kmeans_bins,
                              min_region_pixels=config.min_region_pixels)
-    raise ValueError(f"the JAX engine does not implement partition={config.partition!r} yet")
+    cluster = kmeans_1d(depth_curr.reshape(-1), region_mask.reshape(-1), k=config.k_seg, bins=config.kmeans_bins)
+    return spatial_regions(cluster.reshape(depth_curr.shape), k=config.k_seg,
+                           min_region_pixels=config.min_region_pixels)
 
 
 def local_poses_pair(depth_prev, depth_curr, static_curr, K_prev, K_curr, track_prev, track_curr, usable,
@@ -149,18 +152,16 @@ def local_poses_pair(depth_prev, depth_curr, static_curr, K_prev, K_curr, track_
     n_tracks = jnp.sum(usable)
     enough_tracks = n_tracks >= 4
     regions = jnp.arange(1, config.k_seg + 1)
-    member = (point_region[None, :] == regions[:, None]) & (regions[:, None] <= n_regions) & enough_tracks
+    point_region = jnp.where((point_region <= n_regions) & enough_tracks, point_region, 0)
 
     keys = jax.vmap(lambda r: jax.random.fold_in(key, r))(regions)
-    solve = functools.partial(ransac_pnp, hypotheses=config.ransac_hypotheses, inlier_px=config.inlier_px,
-                              min_inlier_frac=config.min_inlier_frac, min_points=config.min_points,
-                              steps=config.gn_steps)
-    fit = jax.vmap(lambda m, k: solve(X, track_curr, m, K_curr, k))(member, keys)
+    fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, hypotheses=config.ransac_hypotheses,
+                             inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
+                             min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence)
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, 3)
-    return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), jnp.sum(member, axis=1).astype(jnp.int32),
-                      fit.reproj_px, n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32),
-                      jnp.sum(region_mask).astype(jnp.int32))
+    return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
+                      n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32), jnp.sum(region_mask).astype(jnp.int32))
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):

@@ -133,9 +133,55 @@ def partition_regions(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
     """Region label map (H, W) of frame ``pair`` for the configured partition."""
     region_mask = pair_region_mask(clip, pair, config)
     depth = np.where(valid_depth(clip.depth[pair]), clip.depth[pair], 0.0)
-    if config.partition != "depth":
-        raise ValueError(f"the reference engine implements partition='depth' only, got {config.partition!r}")
+    if config.partition == "grid":
+        return grid_regions(region_mask, config)
+    if config.partition == "depth+spatial":
+        return spatial_regions(depth, region_mask, config)
     return depth_regions(depth, region_mask, config)
+
+
+def grid_regions(region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
+    """Label map (H, W): a rows x cols = k_seg grid over the mask's bounding box (h x w pixels),
+    the factorisation with the squarest cells (ties: fewer rows); cells numbered row-major,
+    cells under min_region_pixels dropped (the paper's "Grid depth" ablation)."""
+    labels = np.zeros(region_mask.shape, np.int32)
+    if not region_mask.any():
+        return labels
+    rows_any, cols_any = np.flatnonzero(region_mask.any(1)), np.flatnonzero(region_mask.any(0))
+    y0, x0 = rows_any[0], cols_any[0]
+    h, w = rows_any[-1] - y0 + 1, cols_any[-1] - x0 + 1
+    shapes = [(r, config.k_seg // r) for r in range(1, config.k_seg + 1) if config.k_seg % r == 0]
+    rows, cols = min(shapes, key=lambda s: max(s[1] * h, s[0] * w) / min(s[1] * h, s[0] * w))
+    y, x = np.mgrid[: region_mask.shape[0], : region_mask.shape[1]]
+    cell = np.clip((y - y0) * rows // h, 0, rows - 1) * cols + np.clip((x - x0) * cols // w, 0, cols - 1)
+    counts = np.bincount(cell[region_mask], minlength=config.k_seg)
+    kept = np.flatnonzero(counts >= max(config.min_region_pixels, 1))
+    renumber = np.zeros(config.k_seg, np.int32)
+    renumber[kept] = np.arange(1, kept.size + 1)
+    labels[region_mask] = renumber[cell[region_mask]]
+    return labels
+
+
+def spatial_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
+    """Label map (H, W): depth clusters split into 4-connected components; components under
+    min_region_pixels dropped; the k_seg largest kept, numbered by decreasing size (ties: first
+    pixel in raster order)."""
+    labels = np.zeros(depth.shape, np.int32)
+    if not region_mask.any():
+        return labels
+    cluster = np.full(depth.shape, -1, np.int64)
+    cluster[region_mask] = kmeans_1d(depth[region_mask], config.k_seg, config.kmeans_bins)
+    components = []  # (size, first raster index, pixel mask)
+    for c in np.unique(cluster[region_mask]):
+        n, comp = cv2.connectedComponents((cluster == c).astype(np.uint8), connectivity=4)
+        for i in range(1, n):
+            pixels = comp == i
+            components.append((int(pixels.sum()), int(np.flatnonzero(pixels.ravel())[0]), pixels))
+    components = [c for c in components if c[0] >= max(config.min_region_pixels, 1)]
+    components.sort(key=lambda c: (-c[0], c[1]))
+    for new_id, (_, _, pixels) in enumerate(components[: config.k_seg], start=1):
+        labels[pixels] = new_id
+    return labels
 
 
 # ----------------------------------------------------------------------------- tracks
