@@ -3,7 +3,10 @@
 ``kmeans_1d`` is an exact dynamic programme over ``bins`` equal-width histogram bins: clusters
 are unions of whole bins, and among those partitions the within-cluster sum of squares is
 minimal (exact k-means whenever distinct values fall in distinct bins). Deterministic; ties go
-to the smallest first bin of the last cluster (``jnp.argmin`` semantics).
+to the smallest first bin of the last cluster (``jnp.argmin`` semantics). Each of the k DP layers
+is a row-minima search that divide and conquer solves in O(bins log bins) cost evaluations (the
+SSE cost is Monge), with costs from double-float prefix sums: same partition as the dense
+O(bins^2) layer in float64 (``reference.kmeans_1d``), up to float rounding at exact ties.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 
@@ -29,27 +33,160 @@ def _normalise(values, valid):
     return u, valid, has_span
 
 
-def _cost_matrix(u, bin_of, valid, bins):
-    """Cost C[a, b] (bins + 1, bins): SSE of bins a..b (a <= b), 0 if a == b + 1, +inf if a > b + 1.
+# The DP's cluster cost (within-cluster SSE of bins a..b) comes from prefix sums over bins held
+# as float32 pairs (hi, lo): "double-float" arithmetic with error-free transformations (Dekker,
+# Knuth) carries ~44 significant bits, so Q - S^2/n keeps the spread of a tight cluster far from
+# the origin, where plain float32 prefix sums would cancel it away. Positions are in bin units
+# about the histogram's middle.
 
-    Sums are taken about the centre of bin a rather than 0, so the Q - S^2/N cancellation only
-    costs relative float32 precision of the cluster's own spread (not of its absolute position).
+
+def _two_sum(a, b):
+    """a + b = s + e exactly (Knuth)."""
+    s = a + b
+    v = s - a
+    return s, (a - (s - v)) + (b - v)
+
+
+def _split(a):
+    """a = hi + lo exactly, each with at most 12 significant bits. Masking the low mantissa bits,
+    unlike Veltkamp's 4097 * a trick, is immune to the compiler forming multiply-adds (FMA)."""
+    hi = jax.lax.bitcast_convert_type(
+        jax.lax.bitcast_convert_type(a, jnp.int32) & jnp.int32(-4096), jnp.float32)
+    return hi, a - hi
+
+
+def _two_prod(a, b):
+    """a * b as a double-float (p, e), to ~2^-48 relative. Built only from the exact products of
+    12-bit halves: the usual e = fma-like(a * b - p) form breaks when the compiler recomputes
+    p = a * b inside an FMA, which XLA CPU does."""
+    a_hi, a_lo = _split(a)
+    b_hi, b_lo = _split(b)
+    cross, cross_err = _two_sum(a_hi * b_lo, a_lo * b_hi)
+    p, e = _two_sum(a_hi * b_hi, cross)
+    return _quick_two_sum(p, e + cross_err + a_lo * b_lo)
+
+
+def _quick_two_sum(s, e):
+    t = s + e
+    return t, e - (t - s)
+
+
+def _df_add(x, y):
+    s, e = _two_sum(x[0], y[0])
+    return _quick_two_sum(s, e + x[1] + y[1])
+
+
+def _df_sub(x, y):
+    return _df_add(x, (-y[0], -y[1]))
+
+
+def _df_mul(x, y):
+    p, e = _two_prod(x[0], y[0])
+    return _quick_two_sum(p, e + x[0] * y[1] + x[1] * y[0])
+
+
+def _df_div(x, n):
+    """Double-float x divided by a float32 n > 0."""
+    q = x[0] / n
+    p, e = _two_prod(q, n)
+    return _quick_two_sum(q, ((x[0] - p) - e + x[1]) / n)
+
+
+def _prefix_sums(y, bin_of, valid, bins):
+    """Prefix sums over bins 0..c-1, c = 0..bins: counts (bins + 1,) int32, and double-float
+    sums of positions and squared positions ((bins + 1,) hi, (bins + 1,) lo) each.
+
+    y (N,) positions in bin units [0, bins]; each bin's sums are split into an exact part at the
+    bin centre and float32 sums of the offsets d (|d| <= 0.5) from it.
     """
-    w = valid.astype(jnp.float32)
-    centre = (bin_of.astype(jnp.float32) + 0.5) / bins
-    d = jnp.where(valid, u - centre, 0.0)  # offset from the bin centre, |d| <= 0.5 / bins
-    n_b = jax.ops.segment_sum(w, bin_of, num_segments=bins)
-    s_b = jax.ops.segment_sum(d, bin_of, num_segments=bins)
-    q_b = jax.ops.segment_sum(d * d, bin_of, num_segments=bins)
-    a = jnp.arange(bins + 1)[:, None]
-    b = jnp.arange(bins)[None, :]
-    upper = b >= a
-    off = (b - a).astype(jnp.float32) / bins  # centre of bin b minus centre of bin a
-    n_ab = jnp.cumsum(jnp.where(upper, n_b, 0.0), axis=1)
-    s_ab = jnp.cumsum(jnp.where(upper, s_b + n_b * off, 0.0), axis=1)
-    q_ab = jnp.cumsum(jnp.where(upper, q_b + 2.0 * off * s_b + n_b * off * off, 0.0), axis=1)
-    sse = jnp.maximum(q_ab - s_ab * s_ab / jnp.maximum(n_ab, 1.0), 0.0)
-    return jnp.where(upper, sse, jnp.where(a == b + 1, 0.0, jnp.inf))
+    d = jnp.where(valid, y - (bin_of.astype(jnp.float32) + 0.5), 0.0)
+    per_bin = jax.ops.segment_sum(jnp.stack([valid.astype(jnp.float32), d, d * d], -1), bin_of,
+                                  num_segments=bins)
+    n_c, d_c, e_c = per_bin[:, 0], per_bin[:, 1], per_bin[:, 2]
+    centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
+    zero = jnp.zeros(bins, jnp.float32)
+    s_c = _df_add(_two_prod(n_c, centre), (d_c, zero))  # sum of (centre + d)
+    q_c = _df_add(_df_add(_two_prod(n_c, centre * centre), _two_prod(2.0 * centre, d_c)), (e_c, zero))
+
+    def prefix(x):
+        hi, lo = jax.lax.associative_scan(_df_add, x)
+        return jnp.concatenate([jnp.zeros(1, jnp.float32), hi]), jnp.concatenate([jnp.zeros(1, jnp.float32), lo])
+
+    count = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(jnp.round(n_c).astype(jnp.int32))])
+    return count, prefix(s_c), prefix(q_c)
+
+
+def _range_cost(first, last):
+    """SSE of the values in bins first..last - 1 (first <= last) from the prefix entries
+    (count, s, q) at the boundaries ``first`` and ``last`` (tuples of arrays); 0 when empty."""
+    n = (last[0] - first[0]).astype(jnp.float32)
+    s_ab = _df_sub(last[1], first[1])
+    q_ab = _df_sub(last[2], first[2])
+    sse = _df_sub(q_ab, _df_div(_df_mul(s_ab, s_ab), jnp.maximum(n, 1.0)))
+    return jnp.where(n > 0, jnp.maximum(sse[0] + sse[1], 0.0), 0.0)
+
+
+def _search_plan(bins: int):
+    """Static plan of the divide-and-conquer row-minima search over the DP's columns 0..bins-1.
+
+    Per level: the columns solved there (ascending); for each, the already solved columns whose
+    optima bound its search from below / above (-1: none); and the indices of its left / right
+    child in the next level (-1: none). Optimal first bins are nondecreasing in the last bin (the
+    SSE cost is Monge), so a column's search lies between its neighbours' optima.
+    """
+    levels, frontier = [], [(0, bins - 1, -1, -1)]
+    while frontier:
+        mids, lefts, rights, children, nxt = [], [], [], [], []
+        for lo, hi, left, right in frontier:
+            m = (lo + hi) // 2
+            mids.append(m), lefts.append(left), rights.append(right)
+            kids = [-1, -1]
+            if lo <= m - 1:
+                kids[0] = len(nxt)
+                nxt.append((lo, m - 1, left, m))
+            if m + 1 <= hi:
+                kids[1] = len(nxt)
+                nxt.append((m + 1, hi, m, right))
+            children.append(kids)
+        levels.append(tuple(np.array(v, np.int32) for v in (mids, lefts, rights, children)))
+        frontier = nxt
+    return levels
+
+
+def _dp_step(prev, sums, plan, bins):
+    """One k-means DP layer: for every last bin b, min over a of prev[a] + cost(a, b).
+
+    prev (bins + 1,) = D_{j-1}(a - 1) for a = 0..bins; cost(a, b) = SSE of bins a..b, 0 when
+    a == b + 1 (empty cluster), +inf when a > b + 1. -> (best (bins,), first (bins,) int32), ties
+    to the smallest a. Divide and conquer over b: a level solves its columns over the rows of
+    their search ranges, which tile the rows (neighbours share at most an end point, evaluated
+    separately), so every level costs O(bins) and the step O(bins log bins), not bins^2.
+    """
+    rows = jnp.arange(bins + 1, dtype=jnp.int32)
+    take = lambda idx: jax.tree.map(lambda x: x[idx], sums)  # noqa: E731  prefix entries at idx
+    first = jnp.zeros(bins, jnp.int32)
+    best = jnp.zeros(bins, jnp.float32)
+    seg = jnp.zeros(bins + 1, jnp.int32)  # index of the column whose range a row lies in (-1: none)
+    for mids, lefts, rights, children in plan:
+        m = mids.shape[0]
+        lo = jnp.where(lefts >= 0, first[np.maximum(lefts, 0)], 0)
+        hi = jnp.minimum(jnp.where(rights >= 0, first[np.maximum(rights, 0)], bins), mids + 1)
+        last = take(mids + 1)  # prefix entries after each column's last bin
+        seg_c = jnp.maximum(seg, 0)
+        inside = (seg >= 0) & (rows >= lo[seg_c]) & (rows <= hi[seg_c])
+        tot = jnp.where(inside, prev + _range_cost(sums, jax.tree.map(lambda x: x[seg_c], last)), jnp.inf)
+        seg_id = jnp.where(inside, seg_c, m)
+        # A range's last row may lie in the next range too (which then owns it): evaluate it here.
+        end = prev[hi] + _range_cost(take(hi), last)
+        low = jnp.minimum(jax.ops.segment_min(tot, seg_id, num_segments=m + 1)[:m], end)
+        arg = jax.ops.segment_min(jnp.where(tot == low[seg_c], rows, bins + 1), seg_id, num_segments=m + 1)[:m]
+        arg = jnp.minimum(jnp.minimum(arg, jnp.where(end == low, hi, bins + 1)), hi).astype(jnp.int32)
+        first = first.at[mids].set(arg)
+        best = best.at[mids].set(low)
+        # Rows before a column's optimum are searched for its left child, the others for its right.
+        kids = jnp.asarray(children)[seg_c]
+        seg = jnp.where(seg >= 0, jnp.where(rows < arg[seg_c], kids[:, 0], kids[:, 1]), -1)
+    return best, first
 
 
 @functools.partial(jax.jit, static_argnames=("k", "bins"))
@@ -57,13 +194,12 @@ def kmeans_1d(values, valid, *, k: int, bins: int):
     """(N,) float values, (N,) bool valid -> (N,) int32 cluster 0..k-1 by increasing value, -1 invalid."""
     u, valid, has_span = _normalise(values, valid)
     bin_of = jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
-    cost = _cost_matrix(u, bin_of, valid, bins)
+    sums = _prefix_sums(u * bins, bin_of, valid, bins)
+    plan = _search_plan(bins)
 
     def forward(prev, _):
         # prev[a] = D_{j-1}(a - 1) for a = 0..bins, with D(-1) = 0.
-        total = prev[:, None] + cost
-        first = jnp.argmin(total, axis=0).astype(jnp.int32)
-        best = jnp.min(total, axis=0)
+        best, first = _dp_step(prev, sums, plan, bins)
         return jnp.concatenate([jnp.zeros(1, jnp.float32), best]), first
 
     prev0 = jnp.concatenate([jnp.zeros(1, jnp.float32), jnp.full(bins, jnp.inf, jnp.float32)])
