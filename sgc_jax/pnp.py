@@ -46,7 +46,19 @@ def project_columns(R, t, K, x, y, z):
             R[..., i, 0, None] * x + R[..., i, 1, None] * y + R[..., i, 2, None] * z + t[..., i, None]
         )
 
-    Yx, Yy, Yz = row(0), row(1), row(2)
+    return _pinhole(K, row(0), row(1), row(2))
+
+
+def project_pointwise(R, t, K, x, y, z):
+    """``project_columns`` with one pose per point: R (N, 3, 3), t (N, 3), columns (N,)."""
+    def row(i):
+        return R[:, i, 0] * x + R[:, i, 1] * y + R[:, i, 2] * z + t[:, i]
+
+    return _pinhole(K, row(0), row(1), row(2))
+
+
+def _pinhole(K, Yx, Yy, Yz):
+    """Camera-frame columns -> (u, v, in_front) with the depth floor of ``project_columns``."""
     norm_sq = Yx * Yx + Yy * Yy + Yz * Yz
     in_front = (Yz > 0) & (Yz * Yz > _MIN_Z_FRAC**2 * norm_sq)
     inv_z = 1.0 / jnp.where(in_front, Yz, _MIN_Z_FRAC * jnp.sqrt(norm_sq) + 1e-30)
@@ -128,6 +140,9 @@ def solve_spd(A, b):
     return jnp.stack(x)
 
 
+_DOT_MIN_ROWS = 64  # Jacobian rows from which NormalCholesky forms J^T J with a matmul
+
+
 class NormalCholesky(lx.AbstractLinearSolver):
     """Least-squares solve of a tall real operator J via J^T J x = J^T b with ``solve_spd``.
 
@@ -144,11 +159,16 @@ class NormalCholesky(lx.AbstractLinearSolver):
         del options
         J, in_structure, out_structure, transposed = state
         b = jnp.concatenate([leaf.reshape(-1) for leaf in jax.tree_util.tree_leaves(vector)])
-        normal = jnp.sum(J[:, :, None] * J[:, None, :], axis=0)  # J^T J without a tiny-matmul call
+        if J.shape[0] > _DOT_MIN_ROWS:  # one (batched) matmul; XLA CPU's reduce of J_i J_i^T is slow
+            normal = jnp.einsum("ni,nj->ij", J, J, precision=jax.lax.Precision.HIGHEST)
+            J_t_b = lambda v: jnp.einsum("ni,n->i", J, v, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+        else:  # a few rows (minimal samples): fused elementwise sums beat a tiny-matmul call
+            normal = jnp.sum(J[:, :, None] * J[:, None, :], axis=0)
+            J_t_b = lambda v: jnp.sum(J * v[:, None], axis=0)  # noqa: E731
         if transposed:
             x, structure = J @ solve_spd(normal, b), out_structure
         else:
-            x, structure = solve_spd(normal, jnp.sum(J * b[:, None], axis=0)), in_structure
+            x, structure = solve_spd(normal, J_t_b(b)), in_structure
         return x.reshape(structure.shape).astype(structure.dtype), lx.RESULTS.successful, {}
 
     def transpose(self, state, options):
@@ -202,4 +222,114 @@ def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     R, t = pose_of(sol.value)
     pose6 = jnp.concatenate([so3_log(R), t])
     ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6))
+    return pose6, ok
+
+
+def materialise(tree):
+    """``tree`` unchanged, but computed once into memory: XLA CPU otherwise fuses an expensive
+    elementwise producer into each of its consumers and recomputes it per output element
+    (``optimization_barrier`` is dropped before fusion there). A loop XLA cannot unroll or
+    hoist, run once (an identity: it multiplies by 1), is the fence."""
+    leaves = jax.tree_util.tree_leaves(tree)
+    first = leaves[0].reshape(-1)[0]
+    trips = (first != first).astype(jnp.int32) + 1  # 1 (2 for a NaN), which XLA cannot bound to 1
+    unit = 1.0 + 0.0 * first  # 1 (NaN for a NaN), which XLA cannot fold
+
+    def body(carry):
+        i, scale, value = carry
+        return i + 1, scale, jax.tree.map(lambda x: x * scale.astype(x.dtype), value)
+
+    _, _, out = jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.int32(0), unit, tree))
+    return out
+
+
+class BlockNormalCholesky(lx.AbstractLinearSolver):
+    """Least-squares solve of a block-diagonal Jacobian: k independent 6-parameter blocks (one
+    pose per region), each residual depending on its own block only; operator: (k, 6) -> a pair
+    of (N,) residual columns.
+
+    With e_d the unit direction d in every block at once, J e_d holds every residual's
+    derivative along its own block's parameter d, so six operator products give every nonzero
+    Jacobian entry. Each block's 6x6 normal equations are summed over its own residuals
+    (``onehot`` (k, N) marks them) and solved with ``solve_spd``: O(N) work, where materialising
+    the full J costs O(k N).
+    """
+
+    onehot: jax.Array
+
+    def init(self, operator, options):
+        del options
+        k = self.onehot.shape[0]
+        directions = jnp.zeros((6, k, 6), self.onehot.dtype).at[jnp.arange(6), :, jnp.arange(6)].set(1.0)
+        J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, N) each
+        products = J_u[:, None, :] * J_u[None, :, :] + J_v[:, None, :] * J_v[None, :, :]
+        normal = _block_sums(self.onehot, products.reshape(36, -1)).reshape(k, 6, 6)
+        return J_u, J_v, normal, False
+
+    def compute(self, state, vector, options):
+        del options
+        J_u, J_v, normal, transposed = state
+        if transposed:  # minimum-norm solve: J (J^T J)^-1 b, block by block
+            y_point = _block_sums(self.onehot.T, jax.vmap(solve_spd)(normal, vector).T)  # (N, 6)
+            return (jnp.sum(J_u * y_point.T, axis=0), jnp.sum(J_v * y_point.T, axis=0)), lx.RESULTS.successful, {}
+        r_u, r_v = vector
+        rhs = _block_sums(self.onehot, J_u * r_u + J_v * r_v)  # (k, 6)
+        return jax.vmap(solve_spd)(normal, rhs), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options):
+        J_u, J_v, normal, transposed = state
+        return (J_u, J_v, normal, not transposed), options
+
+    def conj(self, state, options):
+        return state, options
+
+    def assume_full_rank(self):
+        return True
+
+
+def _block_sums(onehot, values):
+    """(k, N) block membership, (m, N) per-point values -> (k, m) sums over each block's points.
+    With onehot (N, k) and values (m, k): each point's own block's values (N, m)."""
+    return jnp.dot(onehot, values.T, precision=jax.lax.Precision.HIGHEST)
+
+
+def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps):
+    """``solve_pnp`` for k regions at once: each point fits its own region's pose.
+
+    X (N, 3), uv (N, 2), weight (N,), region (N,) int in 1..k (0: no region), pose0 (k, 6) starts
+    -> (pose6 (k, 6), ok (k,) bool). One ``optimistix.least_squares`` Gauss-Newton solve of the
+    (separable) sum of all regions' costs with ``BlockNormalCholesky``: the same steps as k
+    separate solves, at the cost of one pass over the N points. Scaling and tolerances as in
+    ``solve_pnp``; iteration stops when every region has converged (or after ``steps``).
+    """
+    k = pose0.shape[0]
+    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
+    R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
+    cols = _point_columns(X, uv, jnp.where(region >= 1, weight, 0.0))
+    x, y, z, u, v, sqrt_w = cols
+    valid = (sqrt_w > 0).astype(X.dtype)
+    dist = jnp.sqrt(x * x + y * y + z * z)
+    sums = _block_sums(onehot, jnp.stack([valid * dist, valid]))
+    mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
+    scale_rot = K[0, 0]
+    scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+
+    no_region = 1.0 - jnp.sum(onehot, axis=0)
+    identity = jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
+
+    def pose_of(inc):
+        return small_matmul(so3_exp(inc[:, :3] / scale_rot), R0), t0 + inc[:, 3:] / scale_t[:, None]
+
+    def residuals(inc, args):
+        R, t = pose_of(inc)
+        per_point = _block_sums(onehot.T, jnp.concatenate([R.reshape(k, 9), t], axis=-1).T)  # (N, 12)
+        per_point = per_point + no_region[:, None] * identity  # finite projections (and tangents) there
+        u_hat, v_hat, _ = project_pointwise(per_point[:, :9].reshape(-1, 3, 3), per_point[:, 9:], K, x, y, z)
+        return sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)
+
+    solver = optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, linear_solver=BlockNormalCholesky(onehot))
+    sol = optx.least_squares(residuals, solver, jnp.zeros((k, 6), pose0.dtype), max_steps=steps, throw=False)
+    R, t = pose_of(sol.value)
+    pose6 = jnp.concatenate([so3_log(R), t], axis=-1)
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6), axis=-1)
     return pose6, ok

@@ -1,8 +1,11 @@
-"""PnP-RANSAC for one region (SPEC §3.6): vmapped minimal-sample solves -> score -> select -> refine.
+"""PnP-RANSAC (SPEC §3.6): vmapped minimal-sample solves -> score -> select -> refine.
 
-Fixed shapes throughout: N is the padded point count and ``member`` (N,) masks the region, so
-``ransac_pnp`` vmaps over regions (different masks, same points) and over pairs. Poses map camera
-i-1 coordinates to camera i (x_i = R x_{i-1} + t); errors are in pixels of frame i.
+``ransac_pnp_regions`` handles every region of a pair at once. Fixed shapes throughout: N padded
+points, each tagged with its region 1..k (0: none). One stable argsort groups the points by
+region, so each region draws its samples and scores its candidates on its own members only, and
+the final refinement solves all regions jointly (each point against its own region's pose): a
+pair costs O(N) per Gauss-Newton step, not O(k N). ``ransac_pnp`` is the one-region form. Poses
+map camera i-1 coordinates to camera i (x_i = R x_{i-1} + t); errors are in pixels of frame i.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import so3_exp
-from .pnp import initial_pose, project_columns, solve_pnp
+from .pnp import initial_pose, project_columns, project_pointwise, solve_pnp, solve_pnp_regions
 
 STATUS_OK = 0
 STATUS_TOO_FEW_POINTS = 1  # members < min_points
@@ -25,7 +28,8 @@ class PnPResult(NamedTuple):
 
     status: int32 (0 ok, 1 too few points, 2 rejected); n_members, n_inliers: int32;
     inliers (N,) bool for the final pose; reproj_px: mean reprojection error [px] of the final
-    pose over all region members.
+    pose over all region members. From ``ransac_pnp_regions`` every field but ``inliers`` has a
+    leading region axis (k,), and ``inliers`` (N,) marks each point an inlier of its own region.
     """
 
     R: jax.Array
@@ -86,21 +90,28 @@ def _score(R, t, X, uv, K, member, inlier_px):
     return inliers, jnp.sum(inliers, axis=-1, dtype=jnp.int32), jnp.sum(trunc, axis=-1)
 
 
-def scoring_subset(key, member, score_points):
+def scoring_subset(key, order, start, n_members, score_points):
     """Indices (S,) into the N points and validity (S,) of the members that candidates are scored on.
 
-    All members when they fit in S = score_points (members first, in index order); otherwise one
-    random member per stratum of n_members / S consecutive members (distinct, spread evenly).
+    ``order`` (N,) lists the points grouped by region, each region's members in index order from
+    ``start``. All members when they fit in S = score_points (members first, in index order);
+    otherwise one random member per stratum of n_members / S consecutive members (distinct,
+    spread evenly).
     """
-    N = member.shape[0]
-    n_members = jnp.sum(member, dtype=jnp.int32)
-    member_idx = jnp.nonzero(member, size=N, fill_value=0)[0]
+    N = order.shape[0]
     i = jnp.arange(score_points)
     u = jax.random.uniform(key, (score_points,))
     stratum = jnp.floor((i + u) * (n_members / score_points)).astype(jnp.int32)
     pos = jnp.where(n_members <= score_points, i, jnp.minimum(stratum, n_members - 1))
-    pos = jnp.minimum(pos, N - 1)
-    return member_idx[pos], i < n_members
+    return order[jnp.clip(start + pos, 0, N - 1)], i < n_members
+
+
+def group_by_region(region, k):
+    """(N,) region ids 1..k (0: none) -> (order (N,): point indices grouped by region, members of
+    a region in index order, then the points of no region; start (k,); count (k,) int32)."""
+    order = jnp.argsort(jnp.where(region >= 1, region, k + 1), stable=True).astype(jnp.int32)
+    count = jnp.sum(region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None], axis=1, dtype=jnp.int32)
+    return order, jnp.cumsum(count) - count, count
 
 
 def sample_candidates(X, uv, K, sample_idx, *, sample_steps):
@@ -144,50 +155,135 @@ NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
 
 
-def _pose_errors_sq(pose, X, uv, K):
-    """Squared reprojection errors (N,) [px^2] of pose6; +inf for points behind the camera."""
-    u_hat, v_hat, in_front = project_columns(so3_exp(pose[:3]), pose[3:], K, X[:, 0], X[:, 1], X[:, 2])
+def _pose_errors_sq(poses, X, uv, K, onehot):
+    """Squared reprojection errors (N,) [px^2] of each point under its own region's pose6
+    (poses (k, 6), onehot (k, N)); +inf behind the camera and for points of no region."""
+    k = poses.shape[0]
+    Rt = jnp.concatenate([so3_exp(poses[:, :3]).reshape(k, 9), poses[:, 3:]], axis=-1)
+    own = jnp.dot(onehot.T, Rt, precision=jax.lax.Precision.HIGHEST)  # (N, 12); 0 for no region
+    u_hat, v_hat, in_front = project_pointwise(own[:, :9].reshape(-1, 3, 3), own[:, 9:], K, X[:, 0], X[:, 1], X[:, 2])
     err_sq = (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
-    return jnp.where(in_front, err_sq, jnp.inf)
+    return jnp.where(in_front & (jnp.sum(onehot, axis=0) > 0), err_sq, jnp.inf)
 
 
-def refine_pose(X, uv, member, K, pose, *, inlier_px, steps, passes):
-    """Local optimisation of pose6: ``passes`` least-squares ``solve_pnp`` fits on the inliers.
+def _region_sums(onehot, values):
+    """(k, N) region membership, (N,) values -> (k,) sums over each region's points (0 for inf * 0)."""
+    return jnp.dot(onehot, values, precision=jax.lax.Precision.HIGHEST)
 
-    Each pass fits the members with error < tau and is kept when the truncated cost
+
+def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
+    """Local optimisation of every region's pose6 (poses (k, 6)): ``passes`` least-squares fits
+    (``solve_pnp_regions``, all regions at once) on the current inliers.
+
+    Per region, each pass fits the members with error < tau and is kept when the truncated cost
     sum(min(e^2, tau^2)) over the members does not increase (LO-RANSAC / MSAC; it cannot, up to
     the solver's accuracy). tau = inlier_px, except in the last pass: clip(NOISE_CUT * sigma,
     MIN_CUT_PX, inlier_px) with sigma^2 = mean e^2 / 2 over the inliers, which drops stray
-    outliers that sit just inside inlier_px when the noise is small. -> (pose6, inliers, n_inliers)
-    with the inliers of the final pose at inlier_px.
+    outliers that sit just inside inlier_px when the noise is small. -> (poses (k, 6), inliers
+    (N,) at inlier_px under each point's own final pose, n_inliers (k,) int32)
     """
-    thr_sq = jnp.asarray(inlier_px, X.dtype) ** 2
-    min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, X.dtype)
+    k = poses.shape[0]
+    dtype = X.dtype
+    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
+    member = region >= 1
+    thr_sq = jnp.asarray(inlier_px, dtype) ** 2
+    min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, dtype)
+    own_tau = lambda tau_sq: jnp.dot(onehot.T, tau_sq, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
 
     def one_pass(p, state):
-        pose, err_sq = state
+        poses, err_sq = state
         inl = member & (err_sq < thr_sq)
-        sigma_sq = jnp.sum(jnp.where(inl, err_sq, 0.0)) / (2.0 * jnp.maximum(jnp.sum(inl), 1))
+        inl_sq = jnp.where(inl, err_sq, 0.0)
+        sigma_sq = _region_sums(onehot, inl_sq) / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(dtype)), 1.0))
         tau_sq = jnp.where(p < passes - 1, thr_sq, jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq))
-        fit = member & (err_sq < tau_sq)
-        refined, _ = solve_pnp(X, uv, fit.astype(X.dtype), K, steps=steps, pose0=pose)
-        new_err_sq = _pose_errors_sq(refined, X, uv, K)
-        cost = jnp.sum(jnp.where(member, jnp.minimum(err_sq, tau_sq), 0.0))
-        new_cost = jnp.sum(jnp.where(member, jnp.minimum(new_err_sq, tau_sq), 0.0))
-        better = jnp.all(jnp.isfinite(refined)) & (new_cost <= cost)
-        return jnp.where(better, refined, pose), jnp.where(better, new_err_sq, err_sq)
+        tau_point = own_tau(tau_sq)
+        fit = member & (err_sq < tau_point)
+        refined, _ = solve_pnp_regions(X, uv, fit.astype(dtype), region, K, poses, steps=steps)
+        new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
+        cost = _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
+        new_cost = _region_sums(onehot, jnp.where(member, jnp.minimum(new_err_sq, tau_point), 0.0))
+        better = jnp.all(jnp.isfinite(refined), axis=-1) & (new_cost <= cost)
+        better_point = own_tau(better.astype(dtype)) > 0
+        return jnp.where(better[:, None], refined, poses), jnp.where(better_point, new_err_sq, err_sq)
 
-    pose, err_sq = jax.lax.fori_loop(0, passes, one_pass, (pose, _pose_errors_sq(pose, X, uv, K)))
+    poses, err_sq = jax.lax.fori_loop(0, passes, one_pass, (poses, _pose_errors_sq(poses, X, uv, K, onehot)))
     inliers = member & (err_sq < thr_sq)
-    return pose, inliers, jnp.sum(inliers, dtype=jnp.int32)
+    return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
-def ransac_pnp(
+def samples_needed(inlier_frac, sample_size, confidence):
+    """RANSAC's adaptive stopping rule: samples after which an all-inlier sample has been drawn
+    with probability ``confidence``, log(1 - confidence) / log(1 - w^s) (inf when w = 0)."""
+    p_good = jnp.clip(inlier_frac, 0.0, 1.0) ** sample_size
+    return jnp.where(p_good >= 1.0, 1.0, jnp.log1p(-confidence) / jnp.log1p(-jnp.minimum(p_good, 1.0 - 1e-7)))
+
+
+def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
+                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence):
+    """Best pose6 (6,) of one region from minimal samples, scoring and local optimisation.
+
+    Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
+    gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
+    subset; the ``lo_candidates`` best so far are kept (lowest summed truncated squared error,
+    MSAC, then draw order). Drawing stops once ``samples_needed`` for the best inlier fraction
+    and ``confidence`` are done (confidence 1: all of them). Each kept candidate then gets one
+    least-squares fit (``lo_steps`` Gauss-Newton steps) on its inliers, and the best of
+    candidates and fits is returned.
+    """
+    N = X.shape[0]
+    dtype = X.dtype
+    key_sample, key_subset = jax.random.split(key)
+    n_scored = min(score_points, N)
+    scored_idx, scored_valid = scoring_subset(key_subset, order, start, n_members, n_scored)
+    X_s, uv_s = X[scored_idx], uv[scored_idx]
+
+    n_chunks = -(-hypotheses // chunk)
+    positions = sample_distinct(key_sample, n_members, n_chunks * chunk, sample_size)
+    sample_idx = order[jnp.clip(start + positions, 0, N - 1)]
+    per_sample = sample_size + 1
+    drawn = (jnp.arange(n_chunks * chunk) < hypotheses).reshape(n_chunks, chunk)
+    n_keep = min(lo_candidates, hypotheses * per_sample)
+    n_valid_scored = jnp.minimum(n_members, n_scored)
+    need_factor = jnp.asarray(confidence, dtype)
+
+    def draw(state):
+        c, top_pose, top_rank, best_count = state
+        idx = jax.lax.dynamic_slice_in_dim(sample_idx, c * chunk, chunk)
+        poses = sample_candidates(X, uv, K, idx, sample_steps=sample_steps)
+        ok = jnp.all(jnp.isfinite(poses), axis=-1) & jnp.repeat(drawn[c], per_sample)
+        poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
+        _, count, trunc = _score(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+        rank = _rank_key(ok, trunc)
+        all_rank = jnp.concatenate([top_rank, rank])
+        _, keep = jax.lax.top_k(all_rank, n_keep)
+        best_count = jnp.maximum(best_count, jnp.max(jnp.where(ok, count, 0)))
+        return c + 1, jnp.concatenate([top_pose, poses])[keep], all_rank[keep], best_count
+
+    def more(state):
+        c, _, _, best_count = state
+        inlier_frac = best_count / jnp.maximum(n_valid_scored, 1).astype(dtype)
+        return (c < n_chunks) & (n_members >= sample_size) & (
+            (c * chunk).astype(dtype) < samples_needed(inlier_frac, sample_size, need_factor))
+
+    init = (jnp.int32(0), jnp.zeros((n_keep, 6), dtype), jnp.full(n_keep, -jnp.inf, dtype), jnp.int32(0))
+    _, top_pose, _, _ = jax.lax.while_loop(more, draw, init)
+
+    # Local optimisation of the leading candidates on the scored points: one least-squares fit
+    # on each one's inliers; the best of candidates and fits goes on to the full refinement.
+    inl_top, _, _ = _score(so3_exp(top_pose[:, :3]), top_pose[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+    fits, _ = jax.vmap(lambda p, w: solve_pnp(X_s, uv_s, w, K, steps=lo_steps, pose0=p))(top_pose, inl_top.astype(dtype))
+    fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, top_pose)
+    contenders = jnp.concatenate([top_pose, fits])
+    _, _, trunc = _score(so3_exp(contenders[:, :3]), contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+    return contenders[_best(trunc)]
+
+
+def ransac_pnp_regions(
     X,
     uv,
-    member,
+    region,
     K,
-    key,
+    keys,
     *,
     hypotheses,
     sample_size=4,
@@ -195,79 +291,90 @@ def ransac_pnp(
     min_inlier_frac,
     min_points,
     steps,
+    confidence=0.99,
     sample_steps=3,
+    lo_steps=3,
     score_points=512,
     lo_candidates=4,
     refine_passes=2,
+    chunk=10,
 ):
-    """Robust pose of one region -> PnPResult.
+    """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
-    X (N, 3) points in camera i-1, uv (N, 2) their pixels in frame i, member (N,) bool region mask,
-    K (3, 3) intrinsics of frame i, key: PRNG key (same key, same result). Inlier: in front of the
-    camera and reprojection error < inlier_px [px].
+    X (N, 3) points in camera i-1, uv (N, 2) their pixels in frame i, region (N,) int region of
+    each point (1..k, 0: none), K (3, 3) intrinsics of frame i, keys (k,): one PRNG key per
+    region (same keys, same result). Inlier: in front of the camera and reprojection error <
+    inlier_px [px]. Per region (vmapped):
 
-    1. ``hypotheses`` samples of ``sample_size`` distinct members; each gives sample_size + 1
-       candidate poses (``sample_candidates``: the Gauss-Newton fit of the sample with
-       ``sample_steps`` steps, and its leave-one-out fits).
-    2. All candidates are scored in one vmapped pass on the members (at most ``score_points`` of
-       them: all when they fit, else a stratified random subset). The ``lo_candidates`` best
-       (lowest summed truncated squared error, MSAC, then lowest index) get one
-       least-squares fit on their inliers (local optimisation); the best of these goes on.
-    3. ``refine_pose``: ``refine_passes`` least-squares fits (``steps`` Gauss-Newton steps each)
-       on the current inliers; inliers and n_inliers are those of the final pose.
+    1. Samples of ``sample_size`` distinct members, ``chunk`` at a time, each giving sample_size
+       + 1 candidate poses (``sample_candidates``: the Gauss-Newton fit of the sample with
+       ``sample_steps`` steps, and its leave-one-out fits), scored on the members (at most
+       ``score_points`` of them: all when they fit, else a stratified random subset); drawing
+       stops after ``hypotheses`` samples, or earlier once RANSAC's adaptive rule
+       (``samples_needed``) is met at ``confidence`` for the best inlier fraction seen.
+    2. The ``lo_candidates`` best (lowest summed truncated squared error, MSAC, then draw order)
+       get one least-squares fit on their inliers (local optimisation, ``lo_steps`` Gauss-Newton
+       steps: it only has to pick the inlier set); the best of these goes on.
+    3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
+       Gauss-Newton steps each) on the current inliers; inliers and n_inliers are those of the
+       final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
-    members)), the pose is finite and det(R) ~ 1; else 2. Static shapes: vmaps over regions
-    (member masks, keys) and pairs. Shape-like arguments (hypotheses, sample_size, steps,
-    sample_steps, score_points, lo_candidates, refine_passes) must be static under jit.
+    members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
+    sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk)
+    must be static under jit.
     """
     N = X.shape[0]
+    k = keys.shape[0]
     dtype = X.dtype
-    member = member.astype(bool)
+    region = jnp.where(jnp.isfinite(X).all(-1) & jnp.isfinite(uv).all(-1), region, 0).astype(jnp.int32)
+    member = region >= 1
     X = jnp.where(member[:, None], X, jnp.array([0.0, 0.0, 1.0], dtype))  # padding never leaks in
     uv = jnp.where(member[:, None], uv, 0.0).astype(dtype)
     K = jnp.asarray(K, dtype)
-    n_members = jnp.sum(member, dtype=jnp.int32)
-    key_sample, key_subset = jax.random.split(key)
+    order, start, n_members = group_by_region(region, k)
 
-    member_idx = jnp.nonzero(member, size=N, fill_value=0)[0]
-    sample_idx = member_idx[sample_distinct(key_sample, n_members, hypotheses, sample_size)]
-    poses = sample_candidates(X, uv, K, sample_idx, sample_steps=sample_steps)
-    finite = jnp.all(jnp.isfinite(poses), axis=-1)
-    poses = jnp.where(finite[:, None], poses, jnp.zeros(6, dtype))
-    R_c, t_c = so3_exp(poses[:, :3]), poses[:, 3:]
+    best = jax.vmap(
+        lambda s, n, key: _region_candidates(
+            X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
+            sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
+            chunk=chunk, confidence=confidence)
+    )(start, n_members, keys)
 
-    n_scored = min(score_points, N)
-    scored_idx, scored_valid = scoring_subset(key_subset, member, n_scored)
-    X_s, uv_s = X[scored_idx], uv[scored_idx]
-    _, _, trunc = _score(R_c, t_c, X_s, uv_s, K, scored_valid, inlier_px)
-    rank = _rank_key(finite, trunc)
-    _, top = jax.lax.top_k(rank, min(lo_candidates, poses.shape[0]))
-
-    # Local optimisation of the leading candidates on the scored points: one least-squares fit
-    # on each one's inliers; the best of candidates and fits goes on to the full refinement.
-    inl_top, _, _ = _score(R_c[top], t_c[top], X_s, uv_s, K, scored_valid, inlier_px)
-    fits, _ = jax.vmap(lambda p, w: solve_pnp(X_s, uv_s, w, K, steps=steps, pose0=p))(
-        poses[top], inl_top.astype(dtype)
-    )
-    fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, poses[top])
-    contenders = jnp.concatenate([poses[top], fits])
-    _, _, trunc = _score(so3_exp(contenders[:, :3]), contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    best_pose = contenders[_best(trunc)]
-
-    pose, inliers, n_inliers = refine_pose(
-        X, uv, member, K, best_pose, inlier_px=inlier_px, steps=steps, passes=refine_passes
-    )
-
-    R, t = so3_exp(pose[:3]), pose[3:]
-    err, _ = reprojection_error_px(R, t, X, uv, K)
-    reproj_px = jnp.sum(jnp.where(member, err, 0.0)) / jnp.maximum(n_members, 1)
+    poses, inliers, n_inliers = refine_poses(X, uv, region, K, best, inlier_px=inlier_px, steps=steps,
+                                             passes=refine_passes)
+    R, t = so3_exp(poses[:, :3]), poses[:, 3:]
+    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
+    err = jnp.sqrt(jnp.where(member, _pose_errors_sq_floor(poses, X, uv, K, onehot), 0.0))
+    reproj_px = _region_sums(onehot, err) / jnp.maximum(n_members, 1).astype(dtype)
 
     need = jnp.maximum(4, jnp.floor(min_inlier_frac * n_members).astype(jnp.int32))
     proper = jnp.abs(jnp.linalg.det(R) - 1.0) < 1e-3
-    good = (n_inliers >= need) & jnp.all(jnp.isfinite(pose)) & proper & jnp.isfinite(reproj_px)
+    good = (n_inliers >= need) & jnp.all(jnp.isfinite(poses), axis=-1) & proper & jnp.isfinite(reproj_px)
     status = jnp.where(
         n_members < min_points,
         STATUS_TOO_FEW_POINTS,
         jnp.where(good, STATUS_OK, STATUS_REJECTED),
     ).astype(jnp.int32)
-    return PnPResult(R, t, status, n_members, n_inliers.astype(jnp.int32), inliers, reproj_px)
+    return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px)
+
+
+def _pose_errors_sq_floor(poses, X, uv, K, onehot):
+    """Like ``_pose_errors_sq`` but finite behind the camera (the depth-floor projection), as
+    ``reprojection_error_px`` measures the mean error of a pose."""
+    k = poses.shape[0]
+    Rt = jnp.concatenate([so3_exp(poses[:, :3]).reshape(k, 9), poses[:, 3:]], axis=-1)
+    own = jnp.dot(onehot.T, Rt, precision=jax.lax.Precision.HIGHEST)
+    own = own + (1.0 - jnp.sum(onehot, axis=0))[:, None] * jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
+    u_hat, v_hat, _ = project_pointwise(own[:, :9].reshape(-1, 3, 3), own[:, 9:], K, X[:, 0], X[:, 1], X[:, 2])
+    return (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
+
+
+def ransac_pnp(X, uv, member, K, key, **options):
+    """Robust pose of one region -> PnPResult (no region axis); ``member`` (N,) bool masks it.
+
+    ``ransac_pnp_regions`` with k = 1; same options. Vmaps over regions (member masks, keys) and
+    pairs, but scoring every region on all N points: prefer ``ransac_pnp_regions`` for the
+    regions of one pair.
+    """
+    res = ransac_pnp_regions(X, uv, jnp.asarray(member).astype(jnp.int32), K, key[None], **options)
+    return PnPResult(*(field[0] for field in res[:5]), res.inliers, res.reproj_px[0])
