@@ -60,6 +60,20 @@ def so3_exp(rotvec):
     )
 
 
+def so3_left_jacobian(rotvec):
+    """(..., 3) -> (..., 3, 3) J with exp(rotvec + d) ~ exp([J d]) exp(rotvec) for small d:
+    I + (1 - cos t) / t^2 [w] + (t - sin t) / t^3 [w]^2, Taylor series near the identity."""
+    theta_sq = jnp.sum(rotvec * rotvec, axis=-1)
+    small = theta_sq < _SMALL_ANGLE_SQ
+    theta_sq_safe = jnp.where(small, 1.0, theta_sq)
+    theta = jnp.sqrt(theta_sq_safe)
+    half_sin = jnp.sin(0.5 * theta)
+    a = jnp.where(small, 0.5 - theta_sq / 24.0, 2.0 * half_sin**2 / theta_sq_safe)
+    b = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (theta - jnp.sin(theta)) / (theta_sq_safe * theta))
+    W = hat(rotvec)
+    return jnp.eye(3, dtype=rotvec.dtype) + a[..., None, None] * W + b[..., None, None] * (W @ W)
+
+
 def _quaternion_wxyz(R):
     """(..., 3, 3) -> (..., 4) unit quaternion (w, x, y, z) with w >= 0 (Shepperd's method)."""
     r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
@@ -130,15 +144,23 @@ def nearest_rotation(M):
 
 def project(K, X):
     """Camera-frame points X (..., 3) -> pixels (..., 2) with intrinsics K (3, 3). No depth guard."""
-    x = X[..., 0] / X[..., 2]
-    y = X[..., 1] / X[..., 2]
-    u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
-    v = K[1, 1] * y + K[1, 2]
-    return jnp.stack([u, v], -1)
+    return jnp.stack(project_xyz(K, X[..., 0], X[..., 1], X[..., 2]), -1)
+
+
+def project_xyz(K, X, Y, Z):
+    """``project`` on coordinate arrays: (X, Y, Z) (...) each -> (u, v) (...) each."""
+    x = X / Z
+    y = Y / Z
+    return K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]
 
 
 def back_project(K, uv, z):
     """Pixels uv (..., 2) at depth z (...) along the optical axis -> camera-frame points (..., 3)."""
-    y = (uv[..., 1] - K[1, 2]) / K[1, 1]
-    x = (uv[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    return jnp.stack([x * z, y * z, z], -1)
+    return jnp.stack(back_project_xyz(K, uv[..., 0], uv[..., 1], z), -1)
+
+
+def back_project_xyz(K, u, v, z):
+    """``back_project`` on coordinate arrays: (u, v, z) (...) each, broadcasting -> (X, Y, Z)."""
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return x * z, y * z, z

@@ -11,7 +11,8 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .geometry import back_project, project
+from .geometry import back_project_xyz, project_xyz
+
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
 
@@ -32,16 +33,18 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     H, W = depth_prev.shape
     depth_prev = depth_prev.astype(jnp.float32)
     valid = _valid_depth(depth_prev, valid_prev)
-    v, u = jnp.meshgrid(jnp.arange(H, dtype=jnp.float32), jnp.arange(W, dtype=jnp.float32), indexing="ij")
-    z_prev = jnp.where(valid, depth_prev, 1.0)
-    X = back_project(K_prev.astype(jnp.float32), jnp.stack([u, v], -1), z_prev)
-    X = X @ R.astype(jnp.float32).T + t.astype(jnp.float32)
-    z = X[..., 2]
+    K_prev, K_curr, R, t = (a.astype(jnp.float32) for a in (K_prev, K_curr, R, t))
+    # Coordinate arrays, not (H, W, 3) stacks: back-project, R X + t and project fuse into one
+    # elementwise pass over the pixels (a (H W, 3) @ (3, 3) matmul and stacks cost more on CPU).
+    v = jnp.arange(H, dtype=jnp.float32)[:, None]
+    u = jnp.arange(W, dtype=jnp.float32)[None, :]
+    X, Y, Z = back_project_xyz(K_prev, u, v, jnp.where(valid, depth_prev, 1.0))
+    Xc = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]
+    Yc = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]
+    z = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
     front = valid & (z > MIN_WARP_Z)
-    X = X.at[..., 2].set(jnp.where(front, z, 1.0))
-    uv = project(K_curr.astype(jnp.float32), X)
-    iu = jnp.floor(uv[..., 0] + 0.5)
-    iv = jnp.floor(uv[..., 1] + 0.5)
+    u_c, v_c = project_xyz(K_curr, Xc, Yc, jnp.where(front, z, 1.0))
+    iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
     keep = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
     target = jnp.where(keep, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W).reshape(-1)
     z = z.reshape(-1)
