@@ -10,9 +10,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
 
-from .geometry import back_project, hat, small_matmul, so3_exp, so3_log
+from .geometry import back_project, hat, small_matmul, so3_exp, so3_left_jacobian, so3_log
 
 # Points with z below this fraction of their distance are "behind the camera": their projection
 # uses this floor instead, so residuals stay finite (large) and never inf/NaN.
@@ -262,8 +263,11 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
         k = self.onehot.shape[0]
         directions = jnp.zeros((6, k, 6), self.onehot.dtype).at[jnp.arange(6), :, jnp.arange(6)].set(1.0)
         J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, N) each
-        products = J_u[:, None, :] * J_u[None, :, :] + J_v[:, None, :] * J_v[None, :, :]
-        normal = _block_sums(self.onehot, products.reshape(36, -1)).reshape(k, 6, 6)
+        upper = np.triu_indices(6)  # the 21 distinct entries of a symmetric 6x6 matrix
+        products = J_u[upper[0]] * J_u[upper[1]] + J_v[upper[0]] * J_v[upper[1]]  # (21, N)
+        sums = _block_sums(self.onehot, products)  # (k, 21)
+        normal = jnp.zeros((k, 6, 6), sums.dtype).at[:, upper[0], upper[1]].set(sums)
+        normal = normal + jnp.swapaxes(jnp.triu(normal, 1), -1, -2)
         return J_u, J_v, normal, False
 
     def compute(self, state, vector, options):
@@ -288,9 +292,32 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
 
 
 def _block_sums(onehot, values):
-    """(k, N) block membership, (m, N) per-point values -> (k, m) sums over each block's points.
-    With onehot (N, k) and values (m, k): each point's own block's values (N, m)."""
-    return jnp.dot(onehot, values.T, precision=jax.lax.Precision.HIGHEST)
+    """(k, N) block membership, (m, N) per-point values -> (k, m) sums over each block's points."""
+    return jnp.einsum("kn,mn->km", onehot, values, precision=jax.lax.Precision.HIGHEST)
+
+
+def _pointwise_residuals(R, t, own, K, cols):
+    """Residuals of each point under its own region's pose (R (k, 3, 3), t (k, 3), own (N,)
+    region index) -> ((du, dv), (R X, d du / dY, d dv / dY)), each of the last three a triple of
+    (N,) coordinates, Y = R X + t, with the behind-camera depth floor of ``project_columns``."""
+    x, y, z, u, v, sqrt_w = cols
+    R_pt, t_pt = R[own], t[own]
+    RX = tuple(R_pt[:, i, 0] * x + R_pt[:, i, 1] * y + R_pt[:, i, 2] * z for i in range(3))
+    Yx, Yy, Yz = (RX[i] + t_pt[:, i] for i in range(3))
+    norm = jnp.sqrt(Yx * Yx + Yy * Yy + Yz * Yz)
+    in_front = (Yz > 0) & (Yz > _MIN_Z_FRAC * norm)
+    inv_z = 1.0 / jnp.where(in_front, Yz, _MIN_Z_FRAC * norm + 1e-30)
+    xn, yn = Yx * inv_z, Yy * inv_z
+    u_hat = K[0, 0] * xn + K[0, 1] * yn + K[0, 2]
+    v_hat = K[1, 1] * yn + K[1, 2]
+    # d depth / dY: e_z in front of the camera, else the floor's _MIN_Z_FRAC * Y / |Y|.
+    floor = _MIN_Z_FRAC / jnp.maximum(norm, 1e-30)
+    d_depth = tuple(jnp.where(in_front, e, floor * c) for e, c in ((0.0, Yx), (0.0, Yy), (1.0, Yz)))
+    d_xn = tuple((float(i == 0) - xn * d_depth[i]) * inv_z for i in range(3))
+    d_yn = tuple((float(i == 1) - yn * d_depth[i]) * inv_z for i in range(3))
+    grad_u = tuple(sqrt_w * (K[0, 0] * d_xn[i] + K[0, 1] * d_yn[i]) for i in range(3))
+    grad_v = tuple(sqrt_w * K[1, 1] * d_yn[i] for i in range(3))
+    return (sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)), (RX, grad_u, grad_v)
 
 
 def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps):
@@ -300,10 +327,13 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps):
     -> (pose6 (k, 6), ok (k,) bool). One ``optimistix.least_squares`` Gauss-Newton solve of the
     (separable) sum of all regions' costs with ``BlockNormalCholesky``: the same steps as k
     separate solves, at the cost of one pass over the N points. Scaling and tolerances as in
-    ``solve_pnp``; iteration stops when every region has converged (or after ``steps``).
+    ``solve_pnp``, but measured as root-mean-square changes over all regions' parameters and
+    residuals: the maximum over thousands of float32 residuals never settles below 1e-4 px.
+    Stops after ``steps`` at most.
     """
     k = pose0.shape[0]
     onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
+    own = jnp.clip(region - 1, 0, k - 1)  # points of no region have weight 0
     R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
     cols = _point_columns(X, uv, jnp.where(region >= 1, weight, 0.0))
     x, y, z, u, v, sqrt_w = cols
@@ -314,20 +344,33 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps):
     scale_rot = K[0, 0]
     scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
 
-    no_region = 1.0 - jnp.sum(onehot, axis=0)
-    identity = jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
-
     def pose_of(inc):
         return small_matmul(so3_exp(inc[:, :3] / scale_rot), R0), t0 + inc[:, 3:] / scale_t[:, None]
 
-    def residuals(inc, args):
-        R, t = pose_of(inc)
-        per_point = _block_sums(onehot.T, jnp.concatenate([R.reshape(k, 9), t], axis=-1).T)  # (N, 12)
-        per_point = per_point + no_region[:, None] * identity  # finite projections (and tangents) there
-        u_hat, v_hat, _ = project_pointwise(per_point[:, :9].reshape(-1, 3, 3), per_point[:, 9:], K, x, y, z)
-        return sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)
+    @jax.custom_jvp
+    def residuals_of(inc):
+        return _pointwise_residuals(*pose_of(inc), own, K, cols)[0]
 
-    solver = optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, linear_solver=BlockNormalCholesky(onehot))
+    @residuals_of.defjvp
+    def residuals_jvp(primals, tangents):
+        # Analytic: d(exp(phi) R0 X) = (J_l(phi) d phi) x (R X); the per-point factors are
+        # computed once, and a tangent costs a gather and a few products per point.
+        (inc,), (d_inc,) = primals, tangents
+        R, t = pose_of(inc)
+        out, (RX, grad_u, grad_v) = _pointwise_residuals(R, t, own, K, cols)
+        d_rot = jnp.einsum("kij,kj->ki", so3_left_jacobian(inc[:, :3] / scale_rot), d_inc[:, :3]) / scale_rot
+        w, dt = d_rot[own], (d_inc[:, 3:] / scale_t[:, None])[own]  # (N, 3) each
+        X_r, Y_r, Z_r = RX
+        dY = (w[:, 1] * Z_r - w[:, 2] * Y_r + dt[:, 0],  # w x (R X) + dt, by coordinate
+              w[:, 2] * X_r - w[:, 0] * Z_r + dt[:, 1],
+              w[:, 0] * Y_r - w[:, 1] * X_r + dt[:, 2])
+        return out, tuple(sum(g[i] * dY[i] for i in range(3)) for g in (grad_u, grad_v))
+
+    def residuals(inc, args):
+        return residuals_of(inc)
+
+    solver = optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, norm=optx.rms_norm,
+                              linear_solver=BlockNormalCholesky(onehot))
     sol = optx.least_squares(residuals, solver, jnp.zeros((k, 6), pose0.dtype), max_steps=steps, throw=False)
     R, t = pose_of(sol.value)
     pose6 = jnp.concatenate([so3_log(R), t], axis=-1)

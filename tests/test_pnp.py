@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sgc_jax.geometry import rotation_angle_deg, so3_exp
-from sgc_jax.pnp import initial_pose, reprojection_residuals, solve_pnp
+from sgc_jax.pnp import initial_pose, reprojection_residuals, solve_pnp, solve_pnp_regions
 from sgc_jax.ransac import STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, ransac_pnp
 
 W, H = 512, 288
@@ -91,6 +91,26 @@ def test_solve_pnp_recovers_exact_pose(n_points):
     t_rel = np.linalg.norm(np.asarray(pose6[:, 3:]) - t_true, axis=1) / np.linalg.norm(t_true, axis=1)
     assert rot_err.max() < EXACT_ROT_DEG
     assert t_rel.max() < EXACT_T_REL
+
+
+def test_joint_region_solve_equals_separate_solves():
+    """solve_pnp_regions: each point fits its own region's pose, as k separate solve_pnp calls do."""
+    rng = np.random.default_rng(11)
+    sizes = [50, 4, 120]  # a minimal region among larger ones
+    poses = [random_pose(rng, 10.0) for _ in sizes]
+    data = [correspondences(rng, n, R, t, noise_px=0.5) for n, (R, t) in zip(sizes, poses)]
+    X = np.concatenate([d[0] for d in data] + [np.full((6, 3), np.nan)])  # + 6 points of no region
+    uv = np.concatenate([d[1] for d in data] + [np.zeros((6, 2))])
+    region = np.concatenate([np.full(n, r + 1) for r, n in enumerate(sizes)] + [np.zeros(6, int)])
+    X, uv, Kj = f32(X, uv, K)
+    starts = jnp.asarray([initial_pose(X, uv, jnp.asarray(region == r + 1, jnp.float32), Kj) for r in range(3)])
+    weight = jnp.ones(len(region), jnp.float32)
+    joint, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, jnp.asarray(region), Kj, starts)
+    assert bool(jnp.all(ok))
+    for r in range(3):
+        member = jnp.asarray(region == r + 1, jnp.float32)
+        single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
+        np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
 
 
 def test_initial_pose_alone_converges_from_30_degrees():
