@@ -130,13 +130,25 @@ def _pair_regions(depth_curr, region_mask, config: SGCConfig):
                            min_region_pixels=config.min_region_pixels)
 
 
-def local_poses_pair(depth_prev, depth_curr, static_curr, K_prev, K_curr, track_prev, track_curr, usable,
-                     image_hw, key, config: SGCConfig) -> LocalPoses:
-    """SPEC §3 steps 1-6 for one pair (frames i-1 -> i)."""
+def frame_regions(depth_curr, static_curr, config: SGCConfig):
+    """SPEC §3 steps 1-2 for frames (F, H, W) -> (labels (F, H, W) int32, N_s (F,), |S_i| (F,)).
+
+    One frame at a time (``lax.map``): the histogram and label scatters then run unbatched, several
+    times faster on CPU than as one batched scatter over all frames.
+    """
+    def one(frame):
+        depth, static = frame
+        region_mask = static if config.compat == "authors" else static & (depth > 0)
+        labels, n_regions = _pair_regions(depth, region_mask, config)
+        return labels, n_regions.astype(jnp.int32), jnp.sum(region_mask).astype(jnp.int32)
+
+    return jax.lax.map(one, (depth_curr, static_curr))
+
+
+def local_poses_pair(depth_prev, labels, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
+                     usable, image_hw, key, config: SGCConfig) -> LocalPoses:
+    """SPEC §3 steps 3-6 for one pair (frames i-1 -> i), given frame i's regions (``frame_regions``)."""
     H, W = image_hw[0], image_hw[1]
-    valid_curr = depth_curr > 0
-    region_mask = static_curr if config.compat == "authors" else static_curr & valid_curr
-    labels, n_regions = _pair_regions(depth_curr, region_mask, config)
 
     col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
     row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
@@ -161,7 +173,7 @@ def local_poses_pair(depth_prev, depth_curr, static_curr, K_prev, K_curr, track_
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, 3)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
-                      n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32), jnp.sum(region_mask).astype(jnp.int32))
+                      n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32), region_pixels)
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
@@ -172,14 +184,23 @@ def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
     return R_g, t_curr - R_for_t @ t_prev
 
 
-def pair_components(poses: LocalPoses, R_g, t_g, depth_prev, depth_curr, static_curr, K_prev, K_curr,
-                    config: SGCConfig):
-    """SPEC §3 step 8 for one pair: pose variances, depth error, diagnostics, reason code."""
+def pair_depth_errors(depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, config: SGCConfig):
+    """SPEC §3 step 8's depth error for pairs (F, ...) -> (F,), one pair at a time (``lax.map``,
+    for the unbatched z-buffer scatter, as in ``frame_regions``)."""
+    def one(pair):
+        depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
+        warped, hit = warp_depth(depth_prev, depth_prev > 0, K_prev, K_curr, R_g, t_g,
+                                 nearest=config.compat != "authors")
+        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr)[0]
+
+    return jax.lax.map(one, (depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
+
+
+def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
+    """SPEC §3 step 8 for one pair: pose variances, diagnostics, reason code; ``err`` is its depth
+    error (``pair_depth_errors``)."""
     accepted = poses.region_status == 0
     comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
-    warped, hit = warp_depth(depth_prev, depth_prev > 0, K_prev, K_curr, R_g, t_g,
-                             nearest=config.compat != "authors")
-    err, _ = depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr)
     n_poses = jnp.sum(accepted)
     reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
     reason = jnp.select(
@@ -206,28 +227,48 @@ def fit_translation_scale(t_local, accepted, t_g, pair_valid):
     return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
 
 
-def score_clip_padded(clip: PaddedClips, key, config: SGCConfig):
-    """All pairs of one padded clip (no leading B axis) -> dict of per-pair / per-region arrays."""
+def clip_poses(clip: PaddedClips, labels, n_regions, region_pixels, key, config: SGCConfig):
+    """Local poses of all pairs of one padded clip (no leading B axis), the global relative poses
+    and the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale)."""
     pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(clip.pair_valid.shape[0]) + 1)
     prev, curr = slice(None, -1), slice(1, None)
-    poses = jax.vmap(functools.partial(local_poses_pair, config=config), in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
-        clip.depth[prev], clip.depth[curr], clip.static[curr], clip.K[prev], clip.K[curr],
+    poses = jax.vmap(functools.partial(local_poses_pair, config=config),
+                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
+        clip.depth[prev], labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
         clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
     R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
         clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
     scale = (fit_translation_scale(poses.t_local, poses.region_status == 0, t_g, clip.pair_valid)
              if config.align_scale else jnp.float32(1.0))
-    comps = jax.vmap(functools.partial(pair_components, config=config))(
-        poses, R_g, scale * t_g, clip.depth[prev], clip.depth[curr], clip.static[curr], clip.K[prev], clip.K[curr])
+    return poses, R_g, t_g, scale
+
+
+def score_padded(batch: PaddedClips, key, config: SGCConfig):
+    """All pairs of the clips of a bucket (leading axis B) -> dict of per-clip, per-pair and
+    per-region arrays (leading axes B, T-1). Frame and pair pixel work (regions, depth warp) runs
+    over the flattened B (T-1) frames one at a time; the pose work is vmapped over clips and pairs.
+    """
+    B, T, H, W = batch.depth.shape
+    flat = lambda x: x.reshape((B * (T - 1),) + x.shape[2:])  # noqa: E731
+    unflat = lambda x: x.reshape((B, T - 1) + x.shape[1:])  # noqa: E731
+    prev, curr = (slice(None), slice(None, -1)), (slice(None), slice(1, None))
+    labels, n_regions, region_pixels = map(unflat, frame_regions(flat(batch.depth[curr]), flat(batch.static[curr]),
+                                                                 config))
+    poses, R_g, t_g, scale = jax.vmap(lambda c, l, n, p: clip_poses(c, l, n, p, key, config))(
+        batch, labels, n_regions, region_pixels)
+    t_g_scaled = scale[:, None, None] * t_g
+    err = unflat(pair_depth_errors(flat(batch.depth[prev]), flat(batch.depth[curr]), flat(batch.static[curr]),
+                                   flat(batch.K[prev]), flat(batch.K[curr]), flat(R_g), flat(t_g_scaled), config))
+    comps = jax.vmap(jax.vmap(functools.partial(pair_components, config=config)))(poses, R_g, t_g_scaled, err)
     comps["t_g_norm"] = jnp.linalg.norm(t_g, axis=-1)
     return dict(comps, **poses._asdict(), scale=scale)
 
 
 @functools.lru_cache(maxsize=None)
 def compiled_scorer(config: SGCConfig):
-    """The jitted, clip-vmapped scorer for a config (jit caches one executable per bucket)."""
+    """The jitted scorer of a bucket's clips for a config (jit caches one executable per bucket)."""
     key = jax.random.PRNGKey(config.seed)
-    return jax.jit(jax.vmap(lambda clip: score_clip_padded(clip, key, config)))
+    return jax.jit(lambda batch: score_padded(batch, key, config))
 
 
 def _pair_arrays(out: dict, b: int, n_pairs: int) -> PairArrays:
