@@ -1,8 +1,10 @@
 """The JAX engine: clips padded to bucketed shapes, one jitted function per bucket (SPEC §3, §7).
 
-A kernel handles one pair with static shapes and validity masks; ``vmap`` lifts it over the pairs
-of a clip and over the clips of a bucket. Padding (extra frames, tracks, pixels) is marked
-invalid and never changes a clip's numbers. This is the one place that vmaps over clips.
+A kernel handles one pair (or frame) with static shapes and validity masks; ``vmap`` lifts the
+pose kernels over the pairs of a clip, ``lax.map`` runs clips, and the pixel kernels (regions,
+depth warp) over all frames of a bucket, one at a time, where batching costs more on CPU than it
+saves. Padding (extra frames, tracks, pixels) is marked invalid and never changes a clip's
+numbers. This is the one place that maps over clips.
 """
 
 from __future__ import annotations
@@ -130,24 +132,31 @@ def _pair_regions(depth_curr, region_mask, config: SGCConfig):
                            min_region_pixels=config.min_region_pixels)
 
 
-def frame_regions(depth_curr, static_curr, config: SGCConfig):
-    """SPEC §3 steps 1-2 for frames (F, H, W) -> (labels (F, H, W) int32, N_s (F,), |S_i| (F,)).
+def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConfig):
+    """SPEC §3 steps 1-2 and 5 for frames i (F, H, W), their pairs' points in them (F, P, 2) and
+    true image sizes (F, 2) -> (region at each point's floor pixel (F, P) int32, 0 = none or
+    outside the image; N_s (F,); |S_i| (F,)).
 
     One frame at a time (``lax.map``): the histogram and label scatters then run unbatched, several
     times faster on CPU than as one batched scatter over all frames.
     """
     def one(frame):
-        depth, static = frame
+        depth, static, uv, (H, W) = frame
         region_mask = static if config.compat == "authors" else static & (depth > 0)
         labels, n_regions = _pair_regions(depth, region_mask, config)
-        return labels, n_regions.astype(jnp.int32), jnp.sum(region_mask).astype(jnp.int32)
+        col, row = jnp.floor(uv[:, 0]).astype(jnp.int32), jnp.floor(uv[:, 1]).astype(jnp.int32)
+        inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        at_points = labels[jnp.clip(row, 0, labels.shape[0] - 1), jnp.clip(col, 0, labels.shape[1] - 1)]
+        return (jnp.where(inside, at_points, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
+                jnp.sum(region_mask).astype(jnp.int32))
 
-    return jax.lax.map(one, (depth_curr, static_curr))
+    return jax.lax.map(one, (depth_curr, static_curr, track_curr, image_hw))
 
 
-def local_poses_pair(depth_prev, labels, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
+def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
                      usable, image_hw, key, config: SGCConfig) -> LocalPoses:
-    """SPEC §3 steps 3-6 for one pair (frames i-1 -> i), given frame i's regions (``frame_regions``)."""
+    """SPEC §3 steps 3-6 for one pair (frames i-1 -> i), given frame i's regions at the points
+    (``frame_regions``)."""
     H, W = image_hw[0], image_hw[1]
 
     col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
@@ -156,11 +165,7 @@ def local_poses_pair(depth_prev, labels, n_regions, region_pixels, K_prev, K_cur
     X = back_project(K_prev, track_prev, Z)
     has_depth = usable & (Z > 0)
 
-    col_c = jnp.floor(track_curr[:, 0]).astype(jnp.int32)
-    row_c = jnp.floor(track_curr[:, 1]).astype(jnp.int32)
-    inside = (col_c >= 0) & (col_c < W) & (row_c >= 0) & (row_c < H)
-    point_region = jnp.where(inside & has_depth,
-                             labels[jnp.clip(row_c, 0, labels.shape[0] - 1), jnp.clip(col_c, 0, labels.shape[1] - 1)], 0)
+    point_region = jnp.where(has_depth, track_label, 0)
     n_tracks = jnp.sum(usable)
     enough_tracks = n_tracks >= 4
     regions = jnp.arange(1, config.k_seg + 1)
@@ -227,14 +232,14 @@ def fit_translation_scale(t_local, accepted, t_g, pair_valid):
     return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
 
 
-def clip_poses(clip: PaddedClips, labels, n_regions, region_pixels, key, config: SGCConfig):
+def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, config: SGCConfig):
     """Local poses of all pairs of one padded clip (no leading B axis), the global relative poses
     and the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale)."""
     pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(clip.pair_valid.shape[0]) + 1)
     prev, curr = slice(None, -1), slice(1, None)
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
                      in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
-        clip.depth[prev], labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
+        clip.depth[prev], track_labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
         clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
     R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
         clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
@@ -246,16 +251,19 @@ def clip_poses(clip: PaddedClips, labels, n_regions, region_pixels, key, config:
 def score_padded(batch: PaddedClips, key, config: SGCConfig):
     """All pairs of the clips of a bucket (leading axis B) -> dict of per-clip, per-pair and
     per-region arrays (leading axes B, T-1). Frame and pair pixel work (regions, depth warp) runs
-    over the flattened B (T-1) frames one at a time; the pose work is vmapped over clips and pairs.
+    over the flattened B (T-1) frames one at a time; the pose work clip by clip, vmapped over pairs.
     """
     B, T, H, W = batch.depth.shape
     flat = lambda x: x.reshape((B * (T - 1),) + x.shape[2:])  # noqa: E731
     unflat = lambda x: x.reshape((B, T - 1) + x.shape[1:])  # noqa: E731
     prev, curr = (slice(None), slice(None, -1)), (slice(None), slice(1, None))
-    labels, n_regions, region_pixels = map(unflat, frame_regions(flat(batch.depth[curr]), flat(batch.static[curr]),
-                                                                 config))
-    poses, R_g, t_g, scale = jax.vmap(lambda c, l, n, p: clip_poses(c, l, n, p, key, config))(
-        batch, labels, n_regions, region_pixels)
+    image_hw = jnp.broadcast_to(batch.image_hw[:, None], (B, T - 1, 2))
+    track_labels, n_regions, region_pixels = map(unflat, frame_regions(
+        flat(batch.depth[curr]), flat(batch.static[curr]), flat(batch.track_curr), flat(image_hw), config))
+    # Clips one at a time, pairs vmapped: RANSAC's loops run until their slowest lane is done, so
+    # vmapping every pair of a large bucket at once costs more than it saves.
+    poses, R_g, t_g, scale = jax.lax.map(lambda a: clip_poses(*a, key, config),
+                                         (batch, track_labels, n_regions, region_pixels))
     t_g_scaled = scale[:, None, None] * t_g
     err = unflat(pair_depth_errors(flat(batch.depth[prev]), flat(batch.depth[curr]), flat(batch.static[curr]),
                                    flat(batch.K[prev]), flat(batch.K[curr]), flat(R_g), flat(t_g_scaled), config))
