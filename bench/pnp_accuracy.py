@@ -6,7 +6,8 @@ Prints a markdown table: median / 95th-percentile rotation error [deg] and succe
 outliers are uniform random pixels. The JAX column runs ``ransac_pnp`` with min_inlier_frac=0
 (like the others, it only has to return its best pose); a pose that is not returned counts as
 180 deg. Timings: JAX is warm and batched over the trials (vmap), the others loop in C++.
-Also prints the warm / compile time of one SGC pair: 10 regions x 100 hypotheses x 4096 points.
+Also prints the warm / compile time of one SGC pair (``ransac_pnp_regions``, as the engine calls
+it): 10 regions x 100 hypotheses x 4096 points.
 Run: ``python bench/pnp_accuracy.py [--trials 100] [--no-pair-timing]``.
 """
 
@@ -20,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from sgc_jax.ransac import ransac_pnp
+from sgc_jax.ransac import ransac_pnp, ransac_pnp_regions
 
 W, H = 512, 288
 FOV_DEG = 60.0
@@ -132,33 +133,31 @@ def summary(errs):
 
 
 def time_pair(args, regions=10, n_points=4096, repeats=20):
-    """Warm and compile time of ransac_pnp vmapped over the regions of one SGC pair."""
+    """Warm and compile time of ransac_pnp_regions on one SGC pair (the engine's call)."""
     K = intrinsics()
     rng = np.random.default_rng(args.seed)
     X, uv, _, _ = make_problem(rng, n_points, 0.3, 1.0, K)
     order = np.argsort(X[:, 2])  # regions = depth slabs, as the depth clustering makes them
-    member = np.zeros((regions, n_points), bool)
+    region = np.zeros(n_points, np.int32)
     for r, idx in enumerate(np.array_split(order, regions)):
-        member[r, idx] = True
+        region[idx] = r + 1
     solve = jax.jit(
-        jax.vmap(
-            lambda m, key: ransac_pnp(
-                X, uv, m, K, key, hypotheses=args.hypotheses, inlier_px=args.inlier_px,
-                min_inlier_frac=0.3, min_points=4, steps=args.steps,
-            )
+        lambda region, keys: ransac_pnp_regions(
+            X, uv, region, K, keys, hypotheses=args.hypotheses, inlier_px=args.inlier_px,
+            min_inlier_frac=0.3, min_points=4, steps=args.steps,
         )
     )
     X, uv, K = (jnp.asarray(a, jnp.float32) for a in (X, uv, K))
-    member, keys = jnp.asarray(member), jax.random.split(jax.random.key(args.seed), regions)
+    region, keys = jnp.asarray(region), jax.random.split(jax.random.key(args.seed), regions)
     t0 = time.perf_counter()
-    jax.block_until_ready(solve(member, keys))
+    jax.block_until_ready(solve(region, keys))
     cold_s = time.perf_counter() - t0
     warm = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(solve(member, keys))
+        jax.block_until_ready(solve(region, keys))
         warm.append(1e3 * (time.perf_counter() - t0))
-    print(f"\none pair, {regions} regions x {args.hypotheses} hypotheses x {n_points} points "
+    print(f"\none pair, {regions} regions x {args.hypotheses} hypotheses x {n_points} points, 30% outliers "
           f"({jax.devices()[0].platform}): warm {np.min(warm):.1f} ms (median {np.median(warm):.1f} ms), "
           f"first call incl. compile {cold_s:.1f} s")
 
