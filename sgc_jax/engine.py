@@ -21,7 +21,7 @@ from .clip import Clip
 from .components import pair_pose_components
 from .config import SGCConfig
 from .geometry import back_project, nearest_rotation, rotation_angle_deg
-from .kmeans import depth_regions, grid_regions, kmeans_1d
+from .kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
 from .partition import spatial_regions
 from .ransac import ransac_pnp_regions
 from .result import PAIR_REASONS, PairArrays
@@ -137,20 +137,26 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
     true image sizes (F, 2) -> (region at each point's floor pixel (F, P) int32, 0 = none or
     outside the image; N_s (F,); |S_i| (F,)).
 
-    One frame at a time (``lax.map``): the histogram and label scatters then run unbatched, several
-    times faster on CPU than as one batched scatter over all frames.
+    Scatter-heavy pixel work one frame at a time (``lax.map``): unbatched scatters run several
+    times faster on CPU than one batched scatter over all frames. The depth partition labels only
+    the points, from its per-bin regions, never whole label maps.
     """
-    def one(frame):
-        depth, static, uv, (H, W) = frame
-        region_mask = static if config.compat == "authors" else static & (depth > 0)
-        labels, n_regions = _pair_regions(depth, region_mask, config)
-        col, row = jnp.floor(uv[:, 0]).astype(jnp.int32), jnp.floor(uv[:, 1]).astype(jnp.int32)
-        inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
-        at_points = labels[jnp.clip(row, 0, labels.shape[0] - 1), jnp.clip(col, 0, labels.shape[1] - 1)]
-        return (jnp.where(inside, at_points, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
-                jnp.sum(region_mask).astype(jnp.int32))
-
-    return jax.lax.map(one, (depth_curr, static_curr, track_curr, image_hw))
+    region_mask = static_curr if config.compat == "authors" else static_curr & (depth_curr > 0)
+    H_pad, W_pad = depth_curr.shape[1:]
+    col, row = jnp.floor(track_curr[..., 0]).astype(jnp.int32), jnp.floor(track_curr[..., 1]).astype(jnp.int32)
+    inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
+    pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
+    at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
+    if config.partition == "depth":
+        partition = depth_partition(depth_curr, region_mask, k=config.k_seg, bins=config.kmeans_bins,
+                                    min_region_pixels=config.min_region_pixels)
+        labels = jax.vmap(region_of_depth)(partition, at_points(depth_curr, pixel), at_points(region_mask, pixel))
+        n_regions = partition.n_regions
+    else:
+        labels, n_regions = jax.lax.map(lambda frame: _pair_regions(*frame, config), (depth_curr, region_mask))
+        labels = at_points(labels, pixel)
+    return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
+            jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
 
 
 def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,

@@ -12,6 +12,7 @@ O(bins^2) layer in float64 (``reference.kmeans_1d``), up to float rounding at ex
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,17 +21,29 @@ from jax import lax
 
 
 def _normalise(values, valid):
-    """(N,) values, (N,) valid -> (u in [0, 1], bin-ready mask, has_span); u = (v - lo) / span."""
+    """(N,) values, (N,) valid -> (u in [0, 1], bin-ready mask, has_span, (lo, span));
+    u = (v - lo) / span (lo = 0, span = 1 when the values span no range)."""
     v = values.astype(jnp.float32)
     valid = valid & jnp.isfinite(v)
     lo = jnp.min(jnp.where(valid, v, jnp.inf))
     hi = jnp.max(jnp.where(valid, v, -jnp.inf))
     span = hi - lo
     has_span = span > 0  # False with no valid value (-inf) and with a single distinct value
-    lo_safe = jnp.where(has_span, lo, 0.0)
-    span_safe = jnp.where(has_span, span, 1.0)
-    u = (jnp.where(valid, v, lo_safe) - lo_safe) / span_safe
-    return u, valid, has_span
+    scale = (jnp.where(has_span, lo, 0.0), jnp.where(has_span, span, 1.0))
+    u, valid = _unit_values(values, valid, scale)
+    return u, valid, has_span, scale
+
+
+def _unit_values(values, valid, scale):
+    """Values mapped to [0, 1] with a frame's (lo, span), and the mask of finite valid ones."""
+    v = values.astype(jnp.float32)
+    valid = valid & jnp.isfinite(v)
+    lo, span = scale
+    return (jnp.where(valid, v, lo) - lo) / span, valid
+
+
+def _bin_of(u, bins):
+    return jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
 
 
 # The DP's cluster cost (within-cluster SSE of bins a..b) comes from prefix sums over bins held
@@ -198,9 +211,14 @@ def kmeans_1d(values, valid, *, k: int, bins: int):
 def _kmeans_bins(values, valid, k, bins):
     """The DP of ``kmeans_1d`` -> (bin (N,), valid (N,), cluster of each bin (bins,), valid entries
     per bin (bins,) int32); every bin is in cluster 0 when the values span no range."""
-    u, valid, has_span = _normalise(values, valid)
-    bin_of = jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
+    u, valid, has_span, _ = _normalise(values, valid)
+    bin_of = _bin_of(u, bins)
     sums, n_bin = _prefix_sums(u * bins, bin_of, valid, bins)
+    return bin_of, valid, _cluster_of_bins(sums, has_span, k, bins), n_bin
+
+
+def _cluster_of_bins(sums, has_span, k, bins):
+    """The k-layer DP over prefix sums, then the backtrack -> cluster 0..k-1 of each bin (bins,)."""
     plan = _search_plan(bins)
 
     def forward(prev, _):
@@ -221,7 +239,7 @@ def _kmeans_bins(values, valid, k, bins):
 
     init = (jnp.int32(bins - 1), jnp.zeros(bins, jnp.int32))
     (_, cluster_of_bin), _ = lax.scan(backward, init, jnp.arange(k - 1, -1, -1, dtype=jnp.int32))
-    return bin_of, valid, jnp.where(has_span, cluster_of_bin, 0), n_bin
+    return jnp.where(has_span, cluster_of_bin, 0)
 
 
 def cluster_counts(labels, *, k: int):
@@ -232,20 +250,58 @@ def cluster_counts(labels, *, k: int):
 
 
 def _renumber_kept(cluster, counts, min_region_pixels):
-    """Drop clusters with < min_region_pixels (or 0) entries; kept ones -> 1..N_s in index order."""
+    """Drop clusters with < min_region_pixels (or 0) entries; kept ones -> 1..N_s in index order.
+    cluster (..., N), counts (..., k): leading axes are frames."""
     kept = (counts >= min_region_pixels) & (counts > 0)
-    new_id = jnp.where(kept, jnp.cumsum(kept.astype(jnp.int32)), 0)
-    region = jnp.where(cluster >= 0, new_id[jnp.maximum(cluster, 0)], 0)
-    return region.astype(jnp.int32), jnp.sum(kept).astype(jnp.int32)
+    new_id = jnp.where(kept, jnp.cumsum(kept.astype(jnp.int32), axis=-1), 0)
+    region = jnp.where(cluster >= 0, jnp.take_along_axis(new_id, jnp.maximum(cluster, 0), axis=-1), 0)
+    return region.astype(jnp.int32), jnp.sum(kept, axis=-1).astype(jnp.int32)
 
 
 @functools.partial(jax.jit, static_argnames=("k", "bins"))
 def depth_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels):
     """(H, W) depth, (H, W) bool mask -> ((H, W) int32 region 1..N_s by increasing depth, 0 = none; N_s)."""
-    bin_of, valid, cluster_of_bin, n_bin = _kmeans_bins(depth.reshape(-1), region_mask.reshape(-1), k, bins)
-    counts = jax.ops.segment_sum(n_bin, cluster_of_bin, num_segments=k)  # per cluster, from the histogram
+    partition = depth_partition(depth[None], region_mask[None], k=k, bins=bins, min_region_pixels=min_region_pixels)
+    frame = jax.tree.map(lambda x: x[0], partition)
+    return region_of_depth(frame, depth, region_mask), frame.n_regions
+
+
+class DepthPartition(NamedTuple):
+    """Depth regions of frames (leading axis F): region 1..N_s of each histogram bin, 0 = none."""
+
+    lo: jax.Array  # (F,) depth at the histogram's start
+    span: jax.Array  # (F,) depth range the bins cover
+    region_of_bin: jax.Array  # (F, bins) int32
+    n_regions: jax.Array  # (F,) int32
+
+
+@functools.partial(jax.jit, static_argnames=("k", "bins"))
+def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels):
+    """SPEC §3 step 2 for frames (F, H, W) -> DepthPartition; ``region_of_depth`` labels pixels.
+
+    Histograms frame by frame (``lax.map``: unbatched scatters are several times faster on CPU);
+    the DP, whose many small steps gain from batching, vmapped over the frames.
+    """
+    F = depth.shape[0]
+
+    def histogram(frame):
+        u, valid, has_span, (lo, span) = _normalise(*frame)
+        sums, n_bin = _prefix_sums(u * bins, _bin_of(u, bins), valid, bins)
+        return sums, n_bin, has_span, lo, span
+
+    sums, n_bin, has_span, lo, span = lax.map(histogram, (depth.reshape(F, -1), region_mask.reshape(F, -1)))
+    cluster_of_bin = jax.vmap(lambda s, h: _cluster_of_bins(s, h, k, bins))(sums, has_span)
+    counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster_of_bin)
     region_of_bin, n_regions = _renumber_kept(cluster_of_bin, counts, min_region_pixels)
-    return jnp.where(valid, region_of_bin[bin_of], 0).reshape(depth.shape).astype(jnp.int32), n_regions
+    return DepthPartition(lo, span, region_of_bin, n_regions)
+
+
+def region_of_depth(partition: DepthPartition, depth, region_mask):
+    """Region (...) int32 of depths (...) in one frame's partition (no leading F axis); 0 where
+    ``region_mask`` is False or the depth is not finite."""
+    u, valid = _unit_values(depth, region_mask, (partition.lo, partition.span))
+    bins = partition.region_of_bin.shape[-1]
+    return jnp.where(valid, partition.region_of_bin[_bin_of(u, bins)], 0).astype(jnp.int32)
 
 
 def grid_shape(k: int) -> tuple[tuple[int, int], ...]:
