@@ -22,7 +22,7 @@ class SGCConfig:
     min_points: int = 4  # tracks a region needs for a local pose
     inlier_px: float = 8.0  # RANSAC inlier threshold on reprojection error, pixels
     ransac_hypotheses: int = 100  # minimal samples per region
-    confidence: float = 0.99  # RANSAC confidence (adaptive stop in OpenCV)
+    confidence: float = 0.99  # RANSAC confidence: adaptive stop in both engines (OpenCV and JAX)
     min_inlier_frac: float = 0.3  # pose accepted when inliers >= max(4, floor(frac * n))
     min_track_conf: float = 0.5  # tracks below this confidence are unusable
     max_tracks: int = 4096  # tracks kept per pair at load time (deterministic sub-sampling)
