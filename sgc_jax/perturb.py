@@ -192,14 +192,7 @@ def warp(clip: Clip, severity: float, seed: int = 0, *, amplitude_frac: float = 
 
     Peak displacement of frame t: ``a_t * amplitude_frac * diagonal`` pixels (a_t: :func:`time_ramp`).
     """
-    severity = _check_severity(severity)
-    if severity == 0:
-        return _copy(clip)
-    field = SineField.random(clip, _rng(seed, "warp"), amplitude_frac, wavelength_frac, phase_per_frame)
-    ramp = time_ramp(clip.n_frames, severity)
-    prev, curr = _move_tracks(clip, ramp, _field_mover(field))
-    return dataclasses.replace(_copy(clip), track_prev=prev.astype(np.float32), track_curr=curr.astype(np.float32),
-                               **_remap_frames(clip, field, ramp, depth=False))
+    return _sine_remap(clip, severity, seed, "warp", amplitude_frac, wavelength_frac, phase_per_frame, depth=False)
 
 
 def squeeze(clip: Clip, severity: float, seed: int = 0, *, max_compression: float = SQUEEZE_MAX) -> Clip:
@@ -230,14 +223,22 @@ def depth_warp(clip: Clip, severity: float, seed: int = 0, *, amplitude_frac: fl
 
     Peak displacement of frame t: ``a_t * amplitude_frac * diagonal`` pixels.
     """
+    return _sine_remap(clip, severity, seed, "depth_warp", amplitude_frac, wavelength_frac, phase_per_frame,
+                       depth=True)
+
+
+def _sine_remap(clip: Clip, severity: float, seed: int, stream: str, amplitude_frac: float,
+                wavelength_frac: float, phase_per_frame: float, *, depth: bool) -> Clip:
+    """Tracks and frames moved by a random sine field ramped over time; depth and masks too when
+    ``depth`` (the shared body of ``warp`` and ``depth_warp``; ``stream`` names the seed stream)."""
     severity = _check_severity(severity)
     if severity == 0:
         return _copy(clip)
-    field = SineField.random(clip, _rng(seed, "depth_warp"), amplitude_frac, wavelength_frac, phase_per_frame)
+    field = SineField.random(clip, _rng(seed, stream), amplitude_frac, wavelength_frac, phase_per_frame)
     ramp = time_ramp(clip.n_frames, severity)
     prev, curr = _move_tracks(clip, ramp, _field_mover(field))
     return dataclasses.replace(_copy(clip), track_prev=prev.astype(np.float32), track_curr=curr.astype(np.float32),
-                               **_remap_frames(clip, field, ramp, depth=True))
+                               **_remap_frames(clip, field, ramp, depth=depth))
 
 
 # ----------------------------------------------------------------------------- masks

@@ -337,13 +337,9 @@ class BatchResult:
 
     def to_pandas(self, pairs: bool = False):
         """A DataFrame of the clips (or of the pairs); needs pandas."""
-        try:
-            import pandas as pd
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ImportError("to_pandas needs pandas: pip install pandas") from exc
         if pairs:
-            return pd.DataFrame(self.pair_records(), columns=list(PAIR_COLUMNS))
-        return pd.DataFrame(self.to_records(), columns=list(CLIP_COLUMNS))
+            return records_frame(self.pair_records(), PAIR_COLUMNS)
+        return records_frame(self.to_records(), CLIP_COLUMNS)
 
     def rescore(self, calibration: Calibration | str) -> "BatchResult":
         """The same components under another calibration (no geometry is recomputed: the score
@@ -363,3 +359,12 @@ def _format(value: Any) -> str:
     if isinstance(value, float):
         return "nan" if math.isnan(value) else f"{value:.4g}"
     return str(value)
+
+
+def records_frame(records, columns):
+    """A pandas DataFrame of row dicts with the given column order; needs pandas."""
+    try:
+        import pandas as pd
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError("to_pandas needs pandas: pip install pandas") from exc
+    return pd.DataFrame(list(records), columns=list(columns))

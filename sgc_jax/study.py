@@ -24,7 +24,7 @@ from .calibration import COMPONENTS, Calibration
 from .clip import Clip, ClipFormatError, discover_clips
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
-from .result import CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_table, write_csv
+from .result import CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_table, records_frame, write_csv
 from .stats import spearman
 
 #: Columns of a study row: the SPEC §6 per-clip columns, the study keys, and the relative change
@@ -134,13 +134,9 @@ class StudyResult:
 
     def to_pandas(self, summary: bool = False):
         """A DataFrame of the rows (or of the summary); needs pandas."""
-        try:
-            import pandas as pd
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ImportError("to_pandas needs pandas: pip install pandas") from exc
         if summary:
-            return pd.DataFrame(self.summary(), columns=list(SUMMARY_COLUMNS))
-        return pd.DataFrame(self.rows, columns=list(STUDY_COLUMNS))
+            return records_frame(self.summary(), SUMMARY_COLUMNS)
+        return records_frame(self.rows, STUDY_COLUMNS)
 
     def table(self) -> str:
         """The summary and the correlations as plain text."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sgc_jax import SGCConfig, reference
 from sgc_jax.components import (
     masked_mean,
     pair_pose_components,
@@ -30,20 +31,8 @@ def angle_deg(R_a, R_b) -> float:
 
 
 def trimmed_mean_numpy(values, compat="spec") -> float:
-    """SPEC §3.8 trimming with numpy.percentile (linear); spec falls back to all values when
-    the bounds reject every value (possible only with two distinct values)."""
-    values = np.asarray(values, np.float64)
-    if values.size == 0:
-        return float("nan")
-    q1, q3, p98 = np.percentile(values, [25, 75, 98])
-    iqr = q3 - q1
-    if iqr == 0:
-        return float("nan") if compat == "authors" else float(values.mean())
-    k = (p98 - q3) / iqr
-    kept = values[(values >= q1 - k * iqr) & (values <= p98)]
-    if kept.size == 0:
-        return float("nan") if compat == "authors" else float(values.mean())
-    return float(kept.mean())
+    """SPEC §3.8 trimming in float64 NumPy: the reference engine's own function (the oracle)."""
+    return reference.trimmed_mean_iqr(values, SGCConfig(compat=compat))
 
 
 def components_numpy(R_local, t_local, accepted, R_g, t_g) -> dict:
