@@ -31,6 +31,7 @@ REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
 MIN_TRACK_BUCKET = 64
+MAX_CLIP_BATCH = 8  # clips per jitted call; B in {1, 2, 4, 8} (see clip_groups)
 
 
 # ----------------------------------------------------------------------------- buckets
@@ -311,8 +312,24 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
     for i, clip in enumerate(clips):
         by_bucket.setdefault(bucket_for(clip), []).append(i)
     for bucket, members in sorted(by_bucket.items()):
-        batch = stack_padded([pad_clip(clips[i], bucket, config) for i in members])
-        out = jax.device_get(scorer(batch))
-        for b, i in enumerate(members):
-            results[i] = _pair_arrays(out, b, clips[i].n_pairs)
+        for group in clip_groups(members):
+            batch = stack_padded([pad_clip(clips[i], bucket, config) for i in group])
+            out = jax.device_get(scorer(batch))
+            for b, i in enumerate(group):
+                results[i] = _pair_arrays(out, b, clips[i].n_pairs)
     return results
+
+
+def clip_groups(members: list[int]) -> list[list[int]]:
+    """Split a bucket's clips into calls of MAX_CLIP_BATCH clips, then the rest by its binary
+    digits (13 -> 8, 4, 1): the clip axis B takes only the sizes 1, 2, 4, ..., MAX_CLIP_BATCH, so
+    a bucket compiles at most log2(MAX_CLIP_BATCH) + 1 times whatever the corpus size, with no
+    padded clips. Clips run one after another inside a call (``lax.map``), so splitting is free."""
+    groups, start = [], 0
+    size = MAX_CLIP_BATCH
+    while start < len(members):
+        while size > len(members) - start:
+            size //= 2
+        groups.append(members[start:start + size])
+        start += size
+    return groups

@@ -34,3 +34,12 @@ def test_a_second_batch_of_the_same_bucket_does_not_recompile(rigid_clip, drift_
     assert compiled >= 1
     engine.score_pairs_batch([other, rigid_clip], config)
     assert scorer._cache_size() == compiled
+
+
+def test_clip_batches_take_few_sizes_and_keep_every_clip_once():
+    sizes = set()
+    for n in range(1, 40):
+        groups = engine.clip_groups(list(range(n)))
+        assert [i for g in groups for i in g] == list(range(n))
+        sizes.update(len(g) for g in groups)
+    assert sizes == {1, 2, 4, engine.MAX_CLIP_BATCH}
