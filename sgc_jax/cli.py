@@ -23,12 +23,15 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
                        help="fit one scale per clip between local (depth) and global (pose) translations")
     group.add_argument("--compat", choices=("spec", "authors"), default="spec",
                        help="authors: reproduce the paper code's choices (SPEC §3a)")
+    group.add_argument("--no-quality-rule", action="store_true",
+                       help="keep every accepted local pose, ill-conditioned or ambiguous ones too (the paper's "
+                            "semantics; always so with --compat authors)")
     group.add_argument("--seed", type=int, default=0, help="RANSAC seed")
 
 
 def _config_overrides(args: argparse.Namespace) -> dict:
     return dict(partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
-                compat=args.compat, seed=args.seed)
+                compat=args.compat, seed=args.seed, quality_rule=not args.no_quality_rule)
 
 
 def _summary_line(result) -> str:

@@ -33,6 +33,16 @@ class SGCConfig:
     compat: str = "spec"  # "spec" (SPEC §3) | "authors" (SPEC §3a)
     kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
     gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
+    # Region-quality rule (issue 7, sgc_jax.uncertainty): accepted local poses that the data do not
+    # pin down are left out of the variances with status ill_conditioned / ambiguous. Never applied
+    # under compat="authors" (the authors keep every accepted pose).
+    quality_rule: bool = True
+    min_region_points: int = 10  # inliers an accepted pose needs
+    max_rot_std_deg: float = 1.0  # largest RMS rotation uncertainty (Gauss-Newton covariance), deg
+    quality_noise_px: float = 1.0  # ... at the residual sigma, capped here: misfit beyond is inconsistency
+    min_region_extent: float = 0.02  # smallest RMS radius of the inlier pixels, x image diagonal
+    ambiguous_rot_deg: float = 3.0  # a rival fit this far away in rotation ...
+    ambiguous_inlier_frac: float = 0.05  # ... losing at most this fraction of inliers: ambiguous (JAX)
 
     def __post_init__(self) -> None:
         if self.partition not in PARTITIONS:
@@ -48,6 +58,17 @@ class SGCConfig:
             raise ValueError(f"confidence must be in (0, 1), got {self.confidence}")
         if self.inlier_px <= 0:
             raise ValueError(f"inlier_px must be > 0, got {self.inlier_px}")
+        for name in ("max_rot_std_deg", "quality_noise_px", "ambiguous_rot_deg"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("min_region_extent", "ambiguous_inlier_frac"):
+            if not 0.0 <= float(getattr(self, name)) < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
+
+    @property
+    def applies_quality_rule(self) -> bool:
+        """The region-quality rule is on: ``quality_rule`` and not ``compat="authors"``."""
+        return bool(self.quality_rule) and self.compat != "authors"
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "SGCConfig":

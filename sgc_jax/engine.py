@@ -24,7 +24,8 @@ from .geometry import back_project, nearest_rotation, rotation_angle_deg
 from .kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
 from .partition import spatial_regions
 from .ransac import ransac_pnp_regions
-from .result import PAIR_REASONS, PairArrays
+from .result import PAIR_REASONS, REGION_STATUS, PairArrays
+from .uncertainty import region_quality
 from .warp import depth_error, warp_depth
 
 REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
@@ -117,6 +118,8 @@ class LocalPoses(NamedTuple):
     region_status: jax.Array  # (k,) int32, REGION_STATUS
     region_points: jax.Array  # (k,) int32
     region_reproj: jax.Array  # (k,) px
+    region_rot_std: jax.Array  # (k,) deg, RMS rotation uncertainty of the pose
+    region_trans_std: jax.Array  # (k,) depth units
     n_tracks: jax.Array  # () usable tracks
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # () pixels of S_i
@@ -163,7 +166,8 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
 def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
                      usable, image_hw, key, config: SGCConfig) -> LocalPoses:
     """SPEC §3 steps 3-6 for one pair (frames i-1 -> i), given frame i's regions at the points
-    (``frame_regions``)."""
+    (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
+    config applies it."""
     H, W = image_hw[0], image_hw[1]
 
     col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
@@ -181,10 +185,20 @@ def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, 
     keys = jax.vmap(lambda r: jax.random.fold_in(key, r))(regions)
     fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, hypotheses=config.ransac_hypotheses,
                              inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
-                             min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence)
+                             min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence,
+                             ambiguous_rot_deg=config.ambiguous_rot_deg,
+                             ambiguous_inlier_frac=config.ambiguous_inlier_frac)
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, 3)
+    if config.applies_quality_rule:
+        diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
+        status = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal,
+                                min_region_points=config.min_region_points,
+                                max_rot_std_deg=config.max_rot_std_deg,
+                                min_region_extent=config.min_region_extent,
+                                quality_noise_px=config.quality_noise_px)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
+                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std,
                       n_tracks.astype(jnp.int32), n_regions.astype(jnp.int32), region_pixels)
 
 
@@ -208,21 +222,30 @@ def pair_depth_errors(depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, 
     return jax.lax.map(one, (depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
 
 
+def _excluded(status):
+    """Regions whose pose the quality rule left out (ill_conditioned or ambiguous)."""
+    return (status == REGION_STATUS["ill_conditioned"]) | (status == REGION_STATUS["ambiguous"])
+
+
 def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
     """SPEC §3 step 8 for one pair: pose variances, diagnostics, reason code; ``err`` is its depth
     error (``pair_depth_errors``)."""
     accepted = poses.region_status == 0
     comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
     n_poses = jnp.sum(accepted)
+    n_excluded = jnp.sum(_excluded(poses.region_status))
     reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
     reason = jnp.select(
-        [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, n_poses == 0, jnp.isnan(err)],
-        [REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap")],
+        [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, (n_poses == 0) & (n_excluded > 0),
+         n_poses == 0, jnp.isnan(err)],
+        [REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "ill_conditioned", "no_pose",
+                                  "no_depth_overlap")],
         REASON_CODE["ok"])
     return dict(
         local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"],
         global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"],
         depth_error=err, reproj_error=jnp.where(n_poses > 0, reproj, jnp.nan), n_poses=n_poses.astype(jnp.int32),
+        n_ill_conditioned=n_excluded.astype(jnp.int32),
         t_g_norm=jnp.linalg.norm(t_g), R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
         reason=reason.astype(jnp.int32))
 
@@ -289,17 +312,20 @@ def compiled_scorer(config: SGCConfig):
 def _pair_arrays(out: dict, b: int, n_pairs: int) -> PairArrays:
     take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
     status = take("region_status")
-    accepted = status == 0
-    R_local = np.where(accepted[..., None, None], take("R_local"), np.nan).astype(np.float64)
-    t_local = np.where(accepted[..., None], take("t_local"), np.nan).astype(np.float64)
+    posed = (status == REGION_STATUS["ok"]) | np.asarray(_excluded(status))
+    R_local = np.where(posed[..., None, None], take("R_local"), np.nan).astype(np.float64)
+    t_local = np.where(posed[..., None], take("t_local"), np.nan).astype(np.float64)
+    per_region = lambda name: np.where(posed, take(name), np.nan).astype(np.float64)  # noqa: E731
     return PairArrays(
         **{name: take(name).astype(np.float64) for name in (
             "local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error",
             "reproj_error", "t_g_norm", "R_g_angle_deg")},
         n_tracks=take("n_tracks"), n_regions=take("n_regions"), n_poses=take("n_poses"),
+        n_ill_conditioned=take("n_ill_conditioned"),
         reason=np.array([PAIR_REASONS[c] for c in take("reason")], dtype=object),
         R_local=R_local, t_local=t_local, region_status=status, region_points=take("region_points"),
-        region_reproj=np.where(accepted, take("region_reproj"), np.nan).astype(np.float64),
+        region_reproj=per_region("region_reproj"), region_rot_std=per_region("region_rot_std"),
+        region_trans_std=per_region("region_trans_std"),
         scale=float(np.asarray(out["scale"][b])))
 
 

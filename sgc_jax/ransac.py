@@ -15,8 +15,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .geometry import so3_exp
+from .geometry import rotation_angle_deg, so3_exp
 from .pnp import initial_pose, project_columns, project_pointwise, solve_pnp, solve_pnp_regions
+from .uncertainty import PoseUncertainty, pose_uncertainty
 
 STATUS_OK = 0
 STATUS_TOO_FEW_POINTS = 1  # members < min_points
@@ -39,6 +40,8 @@ class PnPResult(NamedTuple):
     n_inliers: jax.Array
     inliers: jax.Array
     reproj_px: jax.Array
+    ambiguous: jax.Array
+    uncertainty: PoseUncertainty
 
 
 def sample_distinct(key, n, hypotheses, sample_size):
@@ -219,8 +222,10 @@ def samples_needed(inlier_frac, sample_size, confidence):
 
 
 def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
-                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence):
-    """Best pose6 (6,) of one region from minimal samples, scoring and local optimisation.
+                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence,
+                       ambiguous_rot_deg, ambiguous_inlier_frac):
+    """Best pose6 (6,) of one region from minimal samples, scoring and local optimisation, and
+    whether it is ambiguous (bool).
 
     Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
     gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
@@ -228,7 +233,13 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     MSAC, then draw order). Drawing stops once ``samples_needed`` for the best inlier fraction
     and ``confidence`` are done (confidence 1: all of them). Each kept candidate then gets one
     least-squares fit (``lo_steps`` Gauss-Newton steps) on its inliers, and the best of
-    candidates and fits is returned.
+    candidates and fits is returned. Ambiguous: another fit (a local least-squares optimum) with
+    a rotation more than ``ambiguous_rot_deg`` away explains nearly all the same inliers at the
+    best fit's noise level (misses at most max(1, ambiguous_inlier_frac x best count) of those
+    within clip(3.5 sigma, 1 px, inlier_px), sigma from the best fit): the same points admit two
+    motions (the planar two-fold ambiguity, or rotation traded against translation). A rival
+    that explains other points instead (a moving object inside the region) is not ambiguity
+    but inconsistency, and does not count.
     """
     N = X.shape[0]
     dtype = X.dtype
@@ -266,7 +277,7 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
             (c * chunk).astype(dtype) < samples_needed(inlier_frac, sample_size, need_factor))
 
     init = (jnp.int32(0), jnp.zeros((n_keep, 6), dtype), jnp.full(n_keep, -jnp.inf, dtype), jnp.int32(0))
-    _, top_pose, _, _ = jax.lax.while_loop(more, draw, init)
+    _, top_pose, top_rank, _ = jax.lax.while_loop(more, draw, init)
 
     # Local optimisation of the leading candidates on the scored points: one least-squares fit
     # on each one's inliers; the best of candidates and fits goes on to the full refinement.
@@ -274,8 +285,21 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     fits, _ = jax.vmap(lambda p, w: solve_pnp(X_s, uv_s, w, K, steps=lo_steps, pose0=p))(top_pose, inl_top.astype(dtype))
     fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, top_pose)
     contenders = jnp.concatenate([top_pose, fits])
-    _, _, trunc = _score(so3_exp(contenders[:, :3]), contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    return contenders[_best(trunc)]
+    R_c = so3_exp(contenders[:, :3])
+    inl, count, trunc = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+    best = _best(trunc)
+    # Rivals are judged at the best fit's noise level (the final refinement's cut): with 8 px
+    # inliers, any pose along an ill-conditioned valley keeps every point of a slightly
+    # non-rigid region, which is misfit, not ambiguity.
+    err_sq = (trunc[best] - (jnp.sum(scored_valid) - count[best]) * inlier_px**2) / jnp.maximum(count[best], 1)
+    cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), min(MIN_CUT_PX, inlier_px), inlier_px)
+    inl, count, _ = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
+    drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
+    margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))
+    shared = jnp.sum(inl & inl[best][None], axis=-1, dtype=jnp.int32)
+    apart = rotation_angle_deg(R_c[best][None], R_c) > ambiguous_rot_deg
+    ambiguous = jnp.any(drawn_fit & apart & (shared >= count[best] - margin))
+    return contenders[best], ambiguous
 
 
 def ransac_pnp_regions(
@@ -298,6 +322,8 @@ def ransac_pnp_regions(
     lo_candidates=4,
     refine_passes=2,
     chunk=10,
+    ambiguous_rot_deg=3.0,
+    ambiguous_inlier_frac=0.05,
 ):
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
@@ -333,11 +359,12 @@ def ransac_pnp_regions(
     K = jnp.asarray(K, dtype)
     order, start, n_members = group_by_region(region, k)
 
-    best = jax.vmap(
+    best, ambiguous = jax.vmap(
         lambda s, n, key: _region_candidates(
             X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
             sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
-            chunk=chunk, confidence=confidence)
+            chunk=chunk, confidence=confidence, ambiguous_rot_deg=ambiguous_rot_deg,
+            ambiguous_inlier_frac=ambiguous_inlier_frac)
     )(start, n_members, keys)
 
     poses, inliers, n_inliers = refine_poses(X, uv, region, K, best, inlier_px=inlier_px, steps=steps,
@@ -355,7 +382,8 @@ def ransac_pnp_regions(
         STATUS_TOO_FEW_POINTS,
         jnp.where(good, STATUS_OK, STATUS_REJECTED),
     ).astype(jnp.int32)
-    return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px)
+    uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers)
+    return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px, ambiguous, uncertainty)
 
 
 def _pose_errors_sq_floor(poses, X, uv, K, onehot):
@@ -377,4 +405,4 @@ def ransac_pnp(X, uv, member, K, key, **options):
     regions of one pair.
     """
     res = ransac_pnp_regions(X, uv, jnp.asarray(member).astype(jnp.int32), K, key[None], **options)
-    return PnPResult(*(field[0] for field in res[:5]), res.inliers, res.reproj_px[0])
+    return jax.tree.map(lambda field: field[0], res)._replace(inliers=res.inliers)

@@ -244,6 +244,56 @@ def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCC
     return REGION_STATUS["ok"], R, t, float(reprojection_errors(X, uv, K, R, t).mean())
 
 
+def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray,
+                     t: np.ndarray) -> tuple[float, float, float]:
+    """(RMS rotation error deg, RMS translation error, sigma px) of a pose fitted to X (n, 3),
+    uv (n, 2).
+
+    Cov = sigma^2 (J^T J)^-1 with J (2n, 6) the Jacobian of the reprojection residuals in the
+    left perturbation (w, dt): exp([w]) R X + t + dt, and sigma^2 = sum e^2 / (2n - 6);
+    the figures are sqrt(trace) of the rotation and translation blocks. NaN under 4 points.
+    """
+    n = len(X)
+    if n < 4:
+        return float("nan"), float("nan"), float("nan")
+    RX = X @ R.T
+    Y = RX + t
+    z = Y[:, 2]
+    grad_u = np.stack([K[0, 0] / z, K[0, 1] / z, -(K[0, 0] * Y[:, 0] + K[0, 1] * Y[:, 1]) / z**2], axis=1)
+    grad_v = np.stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2], axis=1)
+    # d residual = grad . (w x RX + dt) = w . (RX x grad) + dt . grad
+    J = np.concatenate([np.concatenate([np.cross(RX, g), g], axis=1) for g in (grad_u, grad_v)])
+    sigma_sq = np.sum(reprojection_errors(X, uv, K, R, t) ** 2) / max(2 * n - 6, 1)
+    covariance = sigma_sq * np.linalg.pinv(J.T @ J)
+    return (float(np.degrees(np.sqrt(max(np.trace(covariance[:3, :3]), 0.0)))),
+            float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
+
+
+def pixel_extent(uv: np.ndarray) -> float:
+    """RMS distance [px] of pixels uv (n, 2) from their centroid."""
+    return float(np.sqrt(np.mean(np.sum((uv - uv.mean(axis=0)) ** 2, axis=1)))) if len(uv) else float("nan")
+
+
+def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                   image_size: tuple[int, int], config: SGCConfig) -> tuple[bool, float, float]:
+    """The region-quality rule on an accepted pose: (well_conditioned, rot std deg, trans std).
+
+    On the inliers of the pose (error < inlier_px, in front of the camera): at least
+    ``min_region_points`` of them, rotation uncertainty <= ``max_rot_std_deg`` with sigma capped
+    at ``quality_noise_px`` (larger residuals are misfit, not noise), RMS radius >=
+    ``min_region_extent`` x the image diagonal. (The JAX engine also marks ambiguous fits;
+    OpenCV's RANSAC returns one pose, so the reference has no rival to compare with.)
+    """
+    in_front = (X @ R.T + t)[:, 2] > 0
+    inliers = in_front & (reprojection_errors(X, uv, K, R, t) < config.inlier_px)
+    rot_std, trans_std, sigma = pose_uncertainty(X[inliers], uv[inliers], K, R, t)
+    judged_rot_std = rot_std * min(1.0, config.quality_noise_px / max(sigma, 1e-12))
+    diagonal = float(np.hypot(*image_size))
+    good = (inliers.sum() >= config.min_region_points and judged_rot_std <= config.max_rot_std_deg
+            and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
+    return good, rot_std, trans_std
+
+
 def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Pixel distance (n,) between uv and the projection of R X + t with K."""
     cam = X @ R.T + t
@@ -350,6 +400,7 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
         "R_local": np.full((n_pairs, k, 3, 3), np.nan), "t_local": np.full((n_pairs, k, 3), np.nan),
         "region_status": np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
+        "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
         "n_tracks": np.zeros(n_pairs, np.int32), "n_regions": np.zeros(n_pairs, np.int32),
     }
     for pair in range(1, clip.n_frames):
@@ -366,6 +417,11 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
             status, R, t, reproj = solve_region_pose(X[member], uv[member], clip.K[pair], config,
                                                      region_seed(config, pair, region))
             j = region - 1
+            if status == REGION_STATUS["ok"]:
+                good, out["region_rot_std"][p, j], out["region_trans_std"][p, j] = region_quality(
+                    X[member], uv[member], clip.K[pair], R, t, clip.image_size, config)
+                if config.applies_quality_rule and not good:
+                    status = REGION_STATUS["ill_conditioned"]
             out["region_status"][p, j], out["region_points"][p, j] = status, member.sum()
             out["R_local"][p, j], out["t_local"][p, j], out["region_reproj"][p, j] = R, t, reproj
     return out
@@ -379,7 +435,8 @@ def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.nda
     return float(num / den) if den > 0 else 1.0
 
 
-def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float) -> str:
+def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
+                n_ill_conditioned: int = 0) -> str:
     """The first problem of a pair, in pipeline order (``ok`` when every component exists)."""
     if n_tracks < 4:
         return "too_few_tracks"
@@ -387,6 +444,8 @@ def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses:
         return "no_static"
     if n_regions == 0:
         return "no_region"
+    if n_poses == 0 and n_ill_conditioned > 0:
+        return "ill_conditioned"
     if n_poses == 0:
         return "no_pose"
     if np.isnan(depth_err):
@@ -406,7 +465,8 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     scale = fit_translation_scale(poses["t_local"], accepted, t_g) if config.align_scale else 1.0
     out = empty_pair_arrays(n_pairs, config.k_seg)
     out.scale = scale
-    for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "n_tracks", "n_regions"):
+    for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "region_rot_std",
+                "region_trans_std", "n_tracks", "n_regions"):
         setattr(out, key, poses[key])
     for pair in range(1, clip.n_frames):
         p = pair - 1
@@ -419,9 +479,11 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
                             nearest=config.compat != "authors")
         out.depth_error[p] = depth_error(warped, clip.depth[pair], static)
         out.n_poses[p] = len(R_list)
+        out.n_ill_conditioned[p] = int(np.sum(poses["region_status"][p] == REGION_STATUS["ill_conditioned"]))
         out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
         out.t_g_norm[p] = np.linalg.norm(t_g[p])
         out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, pair, config).sum()),
-                                    int(out.n_regions[p]), len(R_list), out.depth_error[p])
+                                    int(out.n_regions[p]), len(R_list), out.depth_error[p],
+                                    int(out.n_ill_conditioned[p]))
     return out

@@ -22,14 +22,17 @@ from .calibration import COMPONENTS, Calibration, sgc_score
 from .stats import min_max
 
 #: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
-PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap")
+PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap", "ill_conditioned")
 #: Per-region status codes shared by both engines.
-REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3}
+#: ill_conditioned / ambiguous: a pose was found but the region-quality rule (SGCConfig.quality_rule)
+#: leaves it out of the variances (see sgc_jax.uncertainty).
+REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3, "ill_conditioned": 4, "ambiguous": 5}
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
-                "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale")
+                "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
+                "n_ill_conditioned")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
-                "n_poses", "t_g_norm", "R_g_angle_deg", "engine")
+                "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
 
 
 @dataclasses.dataclass
@@ -49,14 +52,17 @@ class PairArrays:
     n_tracks: np.ndarray  # usable tracks (visible, confident)
     n_regions: np.ndarray
     n_poses: np.ndarray  # accepted local poses
+    n_ill_conditioned: np.ndarray  # poses left out by the region-quality rule (ill_conditioned, ambiguous)
     t_g_norm: np.ndarray  # ||t_g||, ECD input
     R_g_angle_deg: np.ndarray  # rotation angle of R_g, ECD input
     reason: np.ndarray  # (n_pairs,) str, one of PAIR_REASONS
-    R_local: np.ndarray  # (n_pairs, k, 3, 3), NaN where no accepted pose
+    R_local: np.ndarray  # (n_pairs, k, 3, 3), NaN where no pose (ok, ill_conditioned, ambiguous)
     t_local: np.ndarray  # (n_pairs, k, 3)
     region_status: np.ndarray  # (n_pairs, k) int, REGION_STATUS
     region_points: np.ndarray  # (n_pairs, k) tracks per region
     region_reproj: np.ndarray  # (n_pairs, k) mean reprojection error px
+    region_rot_std: np.ndarray  # (n_pairs, k) RMS rotation uncertainty of the pose, deg (NaN: no pose)
+    region_trans_std: np.ndarray  # (n_pairs, k) RMS translation uncertainty, depth units
     scale: float = 1.0  # align_scale factor applied to t_g
 
     @property
@@ -73,11 +79,12 @@ def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:
     return PairArrays(
         local_rot_var=nan(n_pairs), local_trans_var=nan(n_pairs), global_rot_var=nan(n_pairs),
         global_trans_var=nan(n_pairs), depth_error=nan(n_pairs), reproj_error=nan(n_pairs),
-        n_tracks=zeros(n_pairs), n_regions=zeros(n_pairs), n_poses=zeros(n_pairs),
+        n_tracks=zeros(n_pairs), n_regions=zeros(n_pairs), n_poses=zeros(n_pairs), n_ill_conditioned=zeros(n_pairs),
         t_g_norm=nan(n_pairs), R_g_angle_deg=nan(n_pairs), reason=np.full(n_pairs, "ok", dtype=object),
         R_local=nan(n_pairs, k, 3, 3), t_local=nan(n_pairs, k, 3),
         region_status=np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
-        region_points=zeros(n_pairs, k), region_reproj=nan(n_pairs, k),
+        region_points=zeros(n_pairs, k), region_reproj=nan(n_pairs, k), region_rot_std=nan(n_pairs, k),
+        region_trans_std=nan(n_pairs, k),
     )
 
 
@@ -105,6 +112,7 @@ class ClipResult:
     engine: str = ""
     mask_source: str = ""
     scale: float = 1.0
+    n_ill_conditioned: int = 0  # local poses left out by the region-quality rule, all pairs
     origin: str = ""
     pairs: PairArrays | None = None
 
@@ -114,7 +122,7 @@ class ClipResult:
                "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
-               "mask_source": self.mask_source, "scale": self.scale}
+               "mask_source": self.mask_source, "scale": self.scale, "n_ill_conditioned": self.n_ill_conditioned}
         return {k: row[k] for k in CLIP_COLUMNS}
 
     def pair_records(self) -> list[dict[str, Any]]:
@@ -124,6 +132,7 @@ class ClipResult:
         return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
                  **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, "reproj_error": float(p.reproj_error[i]),
                  "n_tracks": int(p.n_tracks[i]), "n_regions": int(p.n_regions[i]), "n_poses": int(p.n_poses[i]),
+                 "n_ill_conditioned": int(p.n_ill_conditioned[i]),
                  "t_g_norm": float(p.t_g_norm[i]), "R_g_angle_deg": float(p.R_g_angle_deg[i]),
                  "engine": self.engine} for i in range(p.n_pairs)]
 
@@ -146,7 +155,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
-        engine=engine, mask_source=mask_source, scale=float(pairs.scale), origin=origin, pairs=pairs)
+        engine=engine, mask_source=mask_source, scale=float(pairs.scale),
+        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), origin=origin, pairs=pairs)
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
@@ -188,7 +198,7 @@ def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[s
     return path
 
 
-_INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses")
+_INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
 _TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind")
 
 

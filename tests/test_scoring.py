@@ -51,8 +51,12 @@ def test_rigid_clip_scores_lowest_in_a_corpus(rigid_clip, drift_clip):
 
 
 def test_masked_moving_object_stays_near_zero_and_no_mos_rises(moving_clip):
-    masked = pairs_of(moving_clip, "jax")
-    unmasked = pairs_of(moving_clip, "jax", use_mos=False)
+    # The paper's semantics (no region-quality rule): at this test size (fx = 139 px) the regions
+    # that mix a moving sphere with the background are ill-conditioned (2-3 deg of rotation per px
+    # of misfit), so the rule leaves them out; tests/test_region_quality.py shows the rise with
+    # the rule on at 240 x 320.
+    masked = pairs_of(moving_clip, "jax", quality_rule=False)
+    unmasked = pairs_of(moving_clip, "jax", use_mos=False, quality_rule=False)
     assert masked.components["local_rot_var"] < 1e-3 and masked.components["global_rot_var"] < 1e-3
     for k in ("local_rot_var", "global_rot_var", "local_trans_var", "global_trans_var"):
         assert unmasked.components[k] > 100 * max(masked.components[k], 1e-6), k
