@@ -302,9 +302,13 @@ def score_padded(batch: PaddedClips, key, config: SGCConfig):
     return dict(comps, **poses._asdict(), scale=scale)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.lru_cache(maxsize=8)
 def compiled_scorer(config: SGCConfig):
-    """The jitted scorer of a bucket's clips for a config (jit caches one executable per bucket)."""
+    """The jitted scorer of a bucket's clips for a config (jit caches one executable per bucket).
+
+    Bounded: every executable holds its machine code in memory mappings, so a long-lived process
+    that cycles through many configs keeps only the most recent few compiled.
+    """
     key = jax.random.PRNGKey(config.seed)
     return jax.jit(lambda batch: score_padded(batch, key, config))
 

@@ -1,7 +1,10 @@
 """Shared fixtures: small synthetic scenes reused across test files (built once per session)."""
 
+import gc
 import os
+from pathlib import Path
 
+import jax
 import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
@@ -32,3 +35,31 @@ def noisy_clip():
 @pytest.fixture(scope="session")
 def drift_clip():
     return synth_clip(seed=1, clip_id="drift", group="drift", layer_drift=0.15, **SCENE)
+
+
+# Each XLA:CPU executable maps its machine code into a few dozen memory regions, and the suite
+# compiles hundreds of programs (one scorer per config and bucket). Past the kernel's
+# vm.max_map_count (65530 by default) the next compile segfaults inside XLA, which is how the
+# full suite used to die at ~75% on the 2-core CI. Release the compiled programs between test
+# modules once the process holds more than half that many mappings.
+_MAPS = Path("/proc/self/maps")
+_MAX_MAP_COUNT = Path("/proc/sys/vm/max_map_count")
+
+
+def _memory_mappings() -> int:
+    with _MAPS.open() as maps:
+        return sum(1 for _ in maps)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def release_compiled_programs_when_mappings_run_high():
+    yield
+    if not _MAPS.exists():
+        return
+    limit = int(_MAX_MAP_COUNT.read_text()) if _MAX_MAP_COUNT.exists() else 65530
+    if _memory_mappings() > limit // 2:
+        from sgc_jax.engine import compiled_scorer
+
+        compiled_scorer.cache_clear()
+        jax.clear_caches()
+        gc.collect()
