@@ -38,7 +38,8 @@ class SGCConfig:
     # under compat="authors" (the authors keep every accepted pose).
     quality_rule: bool = True
     min_region_points: int = 10  # inliers an accepted pose needs
-    max_rot_std_deg: float = 1.0  # largest RMS rotation uncertainty (Gauss-Newton covariance), deg
+    max_rot_std_deg: float = 1.0  # largest RMS rotation uncertainty (Gauss-Newton covariance), deg,
+    max_rot_std_px: float = 4.0  # ... or the angle this many pixels subtend at the focal length, if larger
     quality_noise_px: float = 1.0  # ... at the residual sigma, capped here: misfit beyond is inconsistency
     min_region_extent: float = 0.02  # smallest RMS radius of the inlier pixels, x image diagonal
     ambiguous_rot_deg: float = 3.0  # a rival fit this far away in rotation ...
@@ -58,7 +59,7 @@ class SGCConfig:
             raise ValueError(f"confidence must be in (0, 1), got {self.confidence}")
         if self.inlier_px <= 0:
             raise ValueError(f"inlier_px must be > 0, got {self.inlier_px}")
-        for name in ("max_rot_std_deg", "quality_noise_px", "ambiguous_rot_deg"):
+        for name in ("max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "ambiguous_rot_deg"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("min_region_extent", "ambiguous_inlier_frac"):

@@ -192,9 +192,11 @@ def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, 
     status = jnp.where(exists & enough_tracks, fit.status, 3)
     if config.applies_quality_rule:
         diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
-        status = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal,
+        focal = 0.5 * (K_curr[0, 0] + K_curr[1, 1])
+        status = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
                                 min_region_points=config.min_region_points,
                                 max_rot_std_deg=config.max_rot_std_deg,
+                                max_rot_std_px=config.max_rot_std_px,
                                 min_region_extent=config.min_region_extent,
                                 quality_noise_px=config.quality_noise_px)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,

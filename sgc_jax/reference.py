@@ -274,12 +274,19 @@ def pixel_extent(uv: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((uv - uv.mean(axis=0)) ** 2, axis=1)))) if len(uv) else float("nan")
 
 
+def rot_std_limit_deg(K: np.ndarray, config: SGCConfig) -> float:
+    """Largest accepted rotation uncertainty [deg]: ``max_rot_std_deg``, or the angle
+    ``max_rot_std_px`` pixels subtend at the focal length (mean of fx, fy) when larger."""
+    focal = 0.5 * (K[0, 0] + K[1, 1])
+    return max(config.max_rot_std_deg, float(np.degrees(config.max_rot_std_px / focal)))
+
+
 def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                    image_size: tuple[int, int], config: SGCConfig) -> tuple[bool, float, float]:
     """The region-quality rule on an accepted pose: (well_conditioned, rot std deg, trans std).
 
     On the inliers of the pose (error < inlier_px, in front of the camera): at least
-    ``min_region_points`` of them, rotation uncertainty <= ``max_rot_std_deg`` with sigma capped
+    ``min_region_points`` of them, rotation uncertainty <= ``rot_std_limit_deg`` with sigma capped
     at ``quality_noise_px`` (larger residuals are misfit, not noise), RMS radius >=
     ``min_region_extent`` x the image diagonal. (The JAX engine also marks ambiguous fits;
     OpenCV's RANSAC returns one pose, so the reference has no rival to compare with.)
@@ -289,7 +296,7 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     rot_std, trans_std, sigma = pose_uncertainty(X[inliers], uv[inliers], K, R, t)
     judged_rot_std = rot_std * min(1.0, config.quality_noise_px / max(sigma, 1e-12))
     diagonal = float(np.hypot(*image_size))
-    good = (inliers.sum() >= config.min_region_points and judged_rot_std <= config.max_rot_std_deg
+    good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
     return good, rot_std, trans_std
 

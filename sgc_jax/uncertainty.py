@@ -98,15 +98,26 @@ def rule_rot_std_deg(uncertainty: PoseUncertainty, quality_noise_px):
     return uncertainty.rot_std_deg * cap
 
 
-def region_quality(status, n_inliers, uncertainty: PoseUncertainty, ambiguous, image_diagonal_px, *,
-                   min_region_points, max_rot_std_deg, min_region_extent, quality_noise_px):
+def rot_std_limit_deg(focal_px, max_rot_std_deg, max_rot_std_px):
+    """The largest rotation uncertainty the rule accepts [deg]: ``max_rot_std_deg``, or the angle
+    ``max_rot_std_px`` pixels subtend at ``focal_px`` when that is larger. A coarse image cannot
+    pin a rotation down to less than its pixels subtend (at fx = 111 px one pixel is 0.5 deg);
+    without the pixel term the rule would leave out most regions of a small clip, and with them
+    part of the real inconsistency the perturbation ladders measure."""
+    return jnp.maximum(max_rot_std_deg, jnp.degrees(max_rot_std_px / focal_px))
+
+
+def region_quality(status, n_inliers, uncertainty: PoseUncertainty, ambiguous, image_diagonal_px, focal_px, *,
+                   min_region_points, max_rot_std_deg, max_rot_std_px, min_region_extent, quality_noise_px):
     """Region statuses (k,) after the quality rule: an accepted pose (status 0) becomes
     ``ambiguous`` (5) when RANSAC found a rival pose for the same inliers and the residual sigma
     is within ``quality_noise_px``, else
     ``ill_conditioned`` (4) when it has fewer than ``min_region_points`` inliers, a rotation std
-    (``rule_rot_std_deg``) above ``max_rot_std_deg``, or inliers spread less than
-    ``min_region_extent`` x the image diagonal (RMS radius)."""
-    weak = ((n_inliers < min_region_points) | ~(rule_rot_std_deg(uncertainty, quality_noise_px) <= max_rot_std_deg)
+    (``rule_rot_std_deg``) above ``rot_std_limit_deg``, or inliers spread less than
+    ``min_region_extent`` x the image diagonal (RMS radius). ``focal_px``: mean of fx and fy of the
+    frame the region is projected into."""
+    limit_deg = rot_std_limit_deg(focal_px, max_rot_std_deg, max_rot_std_px)
+    weak = ((n_inliers < min_region_points) | ~(rule_rot_std_deg(uncertainty, quality_noise_px) <= limit_deg)
             | ~(uncertainty.extent_px >= min_region_extent * image_diagonal_px))
     checked = jnp.where(weak, STATUS_ILL_CONDITIONED, status)
     # Ambiguity is two motions fitting the same points to noise level; with residuals beyond

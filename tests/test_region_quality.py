@@ -19,7 +19,11 @@ from sgc_jax.geometry import rotation_angle_deg, so3_exp
 from sgc_jax.ransac import STATUS_OK, ransac_pnp
 from sgc_jax.result import PAIR_COLUMNS, REGION_STATUS
 from sgc_jax.synth import synth_clip
-from sgc_jax.uncertainty import STATUS_AMBIGUOUS, STATUS_ILL_CONDITIONED, PoseUncertainty, region_quality
+from sgc_jax.uncertainty import (STATUS_AMBIGUOUS, STATUS_ILL_CONDITIONED, PoseUncertainty, region_quality,
+                                 rot_std_limit_deg)
+
+RULE = dict(min_region_points=10, max_rot_std_deg=1.0, max_rot_std_px=4.0, min_region_extent=0.02,
+            quality_noise_px=1.0)
 
 K = np.array([[300.0, 0.0, 200.0], [0.0, 300.0, 150.0], [0.0, 0.0, 1.0]], np.float32)
 R_TRUE = np.asarray(so3_exp(jnp.array([0.01, 0.02, -0.005])), np.float64)  # 1.3 deg
@@ -101,11 +105,22 @@ def test_region_quality_statuses():
     status = jnp.array([0, 0, 0, 0, 0, 2, 0, 0])
     n_inliers = jnp.array([100, 5, 100, 100, 100, 100, 100, 100])
     ambiguous = jnp.array([False, False, False, False, True, True, False, True])
-    out = region_quality(status, n_inliers, unc, ambiguous, 500.0, min_region_points=10, max_rot_std_deg=1.0,
-                         min_region_extent=0.02, quality_noise_px=1.0)
+    out = region_quality(status, n_inliers, unc, ambiguous, 500.0, 400.0, **RULE)
     I, A = STATUS_ILL_CONDITIONED, STATUS_AMBIGUOUS
     assert out.tolist() == [0, I, I, I, A, 2, 0, 0]
     assert (I, A) == (REGION_STATUS["ill_conditioned"], REGION_STATUS["ambiguous"])
+
+
+def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
+    # 4 px at fx 400 subtend 0.57 deg (the 1 deg floor holds); at fx 100, 2.29 deg.
+    assert float(rot_std_limit_deg(400.0, 1.0, 4.0)) == pytest.approx(1.0)
+    assert float(rot_std_limit_deg(100.0, 1.0, 4.0)) == pytest.approx(np.degrees(0.04))
+    unc = PoseUncertainty(rot_std_deg=jnp.array([0.8, 1.5, 3.0]), trans_std=jnp.zeros(3),
+                          extent_px=jnp.full(3, 50.0), sigma_px=jnp.ones(3))
+    args = (jnp.zeros(3, jnp.int32), jnp.full(3, 100), unc, jnp.zeros(3, bool), 500.0)
+    I = STATUS_ILL_CONDITIONED
+    assert region_quality(*args, 400.0, **RULE).tolist() == [0, I, I]
+    assert region_quality(*args, 100.0, **RULE).tolist() == [0, 0, I]
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -175,9 +190,10 @@ def test_rule_off_under_authors_compat(sparse_clips):
 
 
 def test_pair_reason_when_every_pose_is_excluded(sparse_clips):
-    """An impossible bar (rotation std <= 1e-6 deg) excludes every pose: the pair is unscored with
-    the reason ``ill_conditioned``, not silently NaN."""
-    result = score_batch(sparse_clips[:1], engine="reference", config=dict(max_rot_std_deg=1e-6), progress=False)
+    """An impossible bar (rotation std <= 1e-6 deg, or 1e-6 px) excludes every pose: the pair is
+    unscored with the reason ``ill_conditioned``, not silently NaN."""
+    impossible = dict(max_rot_std_deg=1e-6, max_rot_std_px=1e-6)
+    result = score_batch(sparse_clips[:1], engine="reference", config=impossible, progress=False)
     pairs = result[0].pairs
     assert set(pairs.reason) == {"ill_conditioned"}
     assert result[0].status != "ok" and "ill_conditioned" in result[0].reason
