@@ -158,14 +158,23 @@ NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
 
 
-def _pose_errors_sq(poses, X, uv, K, onehot):
+def _own_pose_errors_sq(poses, X, uv, K, onehot):
     """Squared reprojection errors (N,) [px^2] of each point under its own region's pose6
-    (poses (k, 6), onehot (k, N)); +inf behind the camera and for points of no region."""
+    (poses (k, 6), onehot (k, N)), finite behind the camera (the depth-floor projection; points
+    of no region use the identity pose), and in_front (N,) bool."""
     k = poses.shape[0]
     Rt = jnp.concatenate([so3_exp(poses[:, :3]).reshape(k, 9), poses[:, 3:]], axis=-1)
     own = jnp.dot(onehot.T, Rt, precision=jax.lax.Precision.HIGHEST)  # (N, 12); 0 for no region
+    identity = jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
+    own = own + (1.0 - jnp.sum(onehot, axis=0))[:, None] * identity
     u_hat, v_hat, in_front = project_pointwise(own[:, :9].reshape(-1, 3, 3), own[:, 9:], K, X[:, 0], X[:, 1], X[:, 2])
-    err_sq = (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
+    return (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2, in_front
+
+
+def _pose_errors_sq(poses, X, uv, K, onehot):
+    """``_own_pose_errors_sq``, +inf behind the camera and for points of no region (RANSAC's
+    inlier test)."""
+    err_sq, in_front = _own_pose_errors_sq(poses, X, uv, K, onehot)
     return jnp.where(in_front & (jnp.sum(onehot, axis=0) > 0), err_sq, jnp.inf)
 
 
@@ -371,7 +380,7 @@ def ransac_pnp_regions(
                                              passes=refine_passes)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
-    err = jnp.sqrt(jnp.where(member, _pose_errors_sq_floor(poses, X, uv, K, onehot), 0.0))
+    err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
     reproj_px = _region_sums(onehot, err) / jnp.maximum(n_members, 1).astype(dtype)
 
     need = jnp.maximum(4, jnp.floor(min_inlier_frac * n_members).astype(jnp.int32))
@@ -384,17 +393,6 @@ def ransac_pnp_regions(
     ).astype(jnp.int32)
     uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers)
     return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px, ambiguous, uncertainty)
-
-
-def _pose_errors_sq_floor(poses, X, uv, K, onehot):
-    """Like ``_pose_errors_sq`` but finite behind the camera (the depth-floor projection), as
-    ``reprojection_error_px`` measures the mean error of a pose."""
-    k = poses.shape[0]
-    Rt = jnp.concatenate([so3_exp(poses[:, :3]).reshape(k, 9), poses[:, 3:]], axis=-1)
-    own = jnp.dot(onehot.T, Rt, precision=jax.lax.Precision.HIGHEST)
-    own = own + (1.0 - jnp.sum(onehot, axis=0))[:, None] * jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
-    u_hat, v_hat, _ = project_pointwise(own[:, :9].reshape(-1, 3, 3), own[:, 9:], K, X[:, 0], X[:, 1], X[:, 2])
-    return (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
 
 
 def ransac_pnp(X, uv, member, K, key, **options):
