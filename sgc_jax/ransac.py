@@ -17,7 +17,7 @@ import jax.numpy as jnp
 
 from .geometry import rotation_angle_deg, so3_exp
 from .pnp import initial_pose, project_columns, project_pointwise, solve_pnp, solve_pnp_regions
-from .uncertainty import PoseUncertainty, pose_uncertainty
+from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
 STATUS_OK = 0
 STATUS_TOO_FEW_POINTS = 1  # members < min_points
@@ -156,6 +156,16 @@ def _best(trunc):
 # tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
+# Re-admission after the final pass: members outside the noise cut whose residual the pose's
+# uncertainty explains at chi-square(2) < each threshold (6.0: p = 0.05) join a refit. A looser
+# threshold (13.8) admits stray outliers with the pinning points, which hold the refit back.
+ADMIT_CHI2 = (6.0,)
+# Leverage check after it: a point carrying more than half of its region's pose information in
+# some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
+LEVERAGE_MAX = 0.5
+LEVERAGE_RATIO = 3.0
+# Gauss-Newton steps of the checks' refits: they start next to their optimum.
+CHECK_STEPS = 5
 
 
 def _own_pose_errors_sq(poses, X, uv, K, onehot):
@@ -185,14 +195,26 @@ def _region_sums(onehot, values):
 
 def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     """Local optimisation of every region's pose6 (poses (k, 6)): ``passes`` least-squares fits
-    (``solve_pnp_regions``, all regions at once) on the current inliers.
+    (``solve_pnp_regions``, all regions at once) on the current inliers, then two checks.
 
     Per region, each pass fits the members with error < tau and is kept when the truncated cost
     sum(min(e^2, tau^2)) over the members does not increase (LO-RANSAC / MSAC; it cannot, up to
-    the solver's accuracy). tau = inlier_px, except in the last pass: clip(NOISE_CUT * sigma,
-    MIN_CUT_PX, inlier_px) with sigma^2 = mean e^2 / 2 over the inliers, which drops stray
-    outliers that sit just inside inlier_px when the noise is small. -> (poses (k, 6), inliers
-    (N,) at inlier_px under each point's own final pose, n_inliers (k,) int32)
+    the solver's accuracy). tau = inlier_px, except in the last pass: the noise cut
+    clip(NOISE_CUT * sigma, MIN_CUT_PX, inlier_px) with sigma^2 = mean e^2 / 2 over the inliers,
+    which drops stray outliers that sit just inside inlier_px when the noise is small.
+
+    On a weakly conditioned region (a narrow depth band) the fit can slide along the valley where
+    rotation trades against translation, leaving out the few clean points that pin it (tens of
+    px off) or resting on one gross outlier. Each check proposes a refit, kept per region when its
+    truncated cost at the noise cut is no higher:
+    - re-admission, once per threshold of ADMIT_CHI2: members outside the cut whose residual the
+      pose's own uncertainty explains (``predicted_residual_chi2``) join a fit, then the cut is
+      applied again and the fit repeated;
+    - leverage: members of the fit whose ``leverage`` exceeds max(LEVERAGE_MAX, LEVERAGE_RATIO x
+      the mean 6 / n) decide the pose alone, so their residuals cannot show whether they are
+      outliers; the region is refitted without them.
+    -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose, points dropped
+    by the leverage check excluded, n_inliers (k,) int32)
     """
     k = poses.shape[0]
     dtype = X.dtype
@@ -200,26 +222,63 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, dtype)
-    own_tau = lambda tau_sq: jnp.dot(onehot.T, tau_sq, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+    own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+
+    def noise_sigma_sq(err_sq):
+        """(k,) pixel noise variance per coordinate: mean e^2 / 2 over the inliers at inlier_px."""
+        inl = member & (err_sq < thr_sq)
+        return (_region_sums(onehot, jnp.where(inl, err_sq, 0.0))
+                / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(dtype)), 1.0)))
+
+    def noise_cut_sq(err_sq):
+        """(k,) squared cut: NOISE_CUT * sigma, within [MIN_CUT_PX, inlier_px]."""
+        return jnp.clip(NOISE_CUT**2 * noise_sigma_sq(err_sq), min_cut_sq, thr_sq)
+
+    def truncated_cost(err_sq, tau_point):
+        return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
 
     def one_pass(p, state):
         poses, err_sq = state
-        inl = member & (err_sq < thr_sq)
-        inl_sq = jnp.where(inl, err_sq, 0.0)
-        sigma_sq = _region_sums(onehot, inl_sq) / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(dtype)), 1.0))
-        tau_sq = jnp.where(p < passes - 1, thr_sq, jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq))
-        tau_point = own_tau(tau_sq)
+        tau_point = own(jnp.where(p < passes - 1, thr_sq, noise_cut_sq(err_sq)))
         fit = member & (err_sq < tau_point)
         refined, _ = solve_pnp_regions(X, uv, fit.astype(dtype), region, K, poses, steps=steps)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
-        cost = _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
-        new_cost = _region_sums(onehot, jnp.where(member, jnp.minimum(new_err_sq, tau_point), 0.0))
-        better = jnp.all(jnp.isfinite(refined), axis=-1) & (new_cost <= cost)
-        better_point = own_tau(better.astype(dtype)) > 0
-        return jnp.where(better[:, None], refined, poses), jnp.where(better_point, new_err_sq, err_sq)
+        better = jnp.all(jnp.isfinite(refined), axis=-1) & (
+            truncated_cost(new_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
+        return jnp.where(better[:, None], refined, poses), jnp.where(own(better.astype(dtype)) > 0, new_err_sq, err_sq)
 
     poses, err_sq = jax.lax.fori_loop(0, passes, one_pass, (poses, _pose_errors_sq(poses, X, uv, K, onehot)))
-    inliers = member & (err_sq < thr_sq)
+    check_steps = min(steps, CHECK_STEPS)
+    sigma_sq = noise_sigma_sq(err_sq)
+    tau_point = own(jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq))
+
+    def keep_if_better(poses, err_sq, candidate, tried):
+        """Each region's candidate pose replaces its pose where tried (k,), finite and of no higher
+        truncated cost at the noise cut -> (poses, err_sq, used (N,) per point)."""
+        cand_err_sq = _pose_errors_sq(candidate, X, uv, K, onehot)
+        use = tried & jnp.all(jnp.isfinite(candidate), axis=-1) & (
+            truncated_cost(cand_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
+        used = own(use.astype(dtype)) > 0
+        return jnp.where(use[:, None], candidate, poses), jnp.where(used, cand_err_sq, err_sq), used
+
+    # Re-admission: members outside the cut that the pose's own uncertainty explains (they sit
+    # along the region's weak direction) join one fit, then the cut is applied again.
+    for admit_chi2 in ADMIT_CHI2:
+        fit = member & (err_sq < tau_point)
+        admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < admit_chi2)
+        candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=check_steps)
+        recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
+        candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=check_steps)
+        poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
+
+    # Leverage check: points that decide the pose alone are dropped and the region refitted.
+    fit = member & (err_sq < tau_point)
+    n_fit = _region_sums(onehot, fit.astype(dtype))
+    limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
+    dropped = fit & (leverage(X, uv, region, K, poses, fit) > own(limit))
+    candidate, _ = solve_pnp_regions(X, uv, (fit & ~dropped).astype(dtype), region, K, poses, steps=check_steps)
+    poses, err_sq, used = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, dropped.astype(dtype)) > 0)
+    inliers = member & (err_sq < thr_sq) & ~(dropped & used)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 

@@ -37,23 +37,39 @@ class PoseUncertainty(NamedTuple):
     sigma_px: jax.Array
 
 
-def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
-    """Covariance of each region's pose6 (k, 6) from its inliers' Gauss-Newton normal matrix.
+class InlierJacobians(NamedTuple):
+    """Each point's residual and its Jacobian rows at its own region's pose, for the inlier fit.
+
+    du, dv (N,) residuals [px] (0 for points of no region); J_u, J_v (N, 6) d residual / d(w fx,
+    dt fx / mean depth), the pixel-scaled parameters of ``solve_pnp`` with the left-perturbed
+    pose exp([w]) R, t + dt; onehot (k, N) inlier membership; normal (k, 6, 6) J^T J and
+    covariance (k, 6, 6) its inverse, per region; mean_depth (k,) mean inlier distance; fx.
+    """
+
+    du: jax.Array
+    dv: jax.Array
+    J_u: jax.Array
+    J_v: jax.Array
+    onehot: jax.Array
+    normal: jax.Array
+    covariance: jax.Array
+    mean_depth: jax.Array
+    fx: jax.Array
+
+
+def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
+    """Residuals, Jacobians and normal matrices of every region's inliers at poses (k, 6).
 
     X (N, 3) points in camera i-1, uv (N, 2) pixels in frame i, region (N,) in 1..k (0: none),
-    inliers (N,) bool (each point an inlier of its own region's pose). With the left-perturbed
-    pose exp([w]) R, t + dt, the Jacobian J (2 n, 6) of the inlier residuals and
-    sigma^2 = sum e^2 / (2 n - 6): Cov(w, dt) = sigma^2 (J^T J)^-1. The normal matrix is formed
-    in the pixel-scaled parameters of ``solve_pnp`` (w fx, dt fx / mean depth), where float32
-    solves it accurately.
+    inliers (N,) bool (each point an inlier of its own region's pose). The normal matrix is
+    formed in the pixel-scaled parameters, where float32 solves it accurately.
     """
     k = poses.shape[0]
     dtype = X.dtype
     onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]) & inliers[None, :]
     onehot = onehot.astype(dtype)
-    weight = jnp.sum(onehot, axis=0)
     own = jnp.clip(region - 1, 0, k - 1)
-    cols = _point_columns(X, uv, weight)
+    cols = _point_columns(X, uv, (region >= 1).astype(dtype))
     (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3]), poses[:, 3:], own, K, cols)
 
     n = jnp.sum(onehot, axis=1)
@@ -71,8 +87,19 @@ def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
     normal = jnp.einsum("kn,ni,nj->kij", onehot, J_u, J_u, precision=jax.lax.Precision.HIGHEST)
     normal = normal + jnp.einsum("kn,ni,nj->kij", onehot, J_v, J_v, precision=jax.lax.Precision.HIGHEST)
     covariance = jax.vmap(lambda A: jax.vmap(lambda e: solve_spd(A, e))(jnp.eye(6, dtype=dtype)))(normal)
+    return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_depth, fx)
 
-    sq = onehot @ (du * du + dv * dv)
+
+def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
+    """Covariance of each region's pose6 (k, 6) from its inliers' Gauss-Newton normal matrix.
+
+    Arguments as ``inlier_jacobians``. With the Jacobian J (2 n, 6) of the inlier residuals and
+    sigma^2 = sum e^2 / (2 n - 6): Cov(w, dt) = sigma^2 (J^T J)^-1.
+    """
+    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
+    onehot, covariance, mean_depth, fx = jac.onehot, jac.covariance, jac.mean_depth, jac.fx
+    n = jnp.sum(onehot, axis=1)
+    sq = onehot @ (jac.du * jac.du + jac.dv * jac.dv)
     sigma_sq = sq / jnp.maximum(2.0 * n - 6.0, 1.0)
     rot_var = sigma_sq * jnp.trace(covariance[:, :3, :3], axis1=-2, axis2=-1) / fx**2
     trans_var = sigma_sq * jnp.trace(covariance[:, 3:, 3:], axis1=-2, axis2=-1) * (mean_depth / fx) ** 2
@@ -80,13 +107,53 @@ def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
     spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
     enough = n >= 4
-    nan = jnp.asarray(jnp.nan, dtype)
+    nan = jnp.asarray(jnp.nan, X.dtype)
     return PoseUncertainty(
         rot_std_deg=jnp.where(enough, jnp.degrees(jnp.sqrt(jnp.maximum(rot_var, 0.0))), nan),
         trans_std=jnp.where(enough, jnp.sqrt(jnp.maximum(trans_var, 0.0)), nan),
         extent_px=jnp.where(enough, jnp.sqrt(jnp.maximum(spread, 0.0)), nan),
         sigma_px=jnp.where(enough, jnp.sqrt(sigma_sq), nan),
     )
+
+
+def _hat_blocks(jac: InlierJacobians, region):
+    """The 2x2 blocks J_n C J_n^T (h_uu, h_uv, h_vv, each (N,)) of every point against its own
+    region's inlier covariance C = (J^T J)^-1 (0 for points of no region)."""
+    k = jac.covariance.shape[0]
+    C = jac.covariance[jnp.clip(region - 1, 0, k - 1)]  # (N, 6, 6)
+    quad = lambda a, b: jnp.einsum("ni,nij,nj->n", a, C, b, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+    return quad(jac.J_u, jac.J_u), quad(jac.J_u, jac.J_v), quad(jac.J_v, jac.J_v)
+
+
+def leverage(X, uv, region, K, poses, inliers):
+    """Each inlier's leverage (N,) in [0, 1]: the largest eigenvalue of its 2x2 hat-matrix block
+    J_n (J^T J)^-1 J_n^T, the share of its region's pose information that rests on that one
+    point in its most telling direction (0 for non-inliers). Arguments as ``inlier_jacobians``.
+
+    The blocks of a region sum to 6 (the pose's degrees of freedom) over its inliers. A point
+    near 1 decides the pose alone: its own residual is ~0 whatever its pixel says, so an outlier
+    there is invisible to the residuals and pulls the pose along the region's weak direction.
+    """
+    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
+    h_uu, h_uv, h_vv = _hat_blocks(jac, region)
+    largest = 0.5 * (h_uu + h_vv) + jnp.sqrt(0.25 * (h_uu - h_vv) ** 2 + h_uv**2)
+    return jnp.where(jnp.sum(jac.onehot, axis=0) > 0, jnp.clip(largest, 0.0, 1.0), 0.0)
+
+
+def predicted_residual_chi2(X, uv, region, K, poses, inliers, sigma_sq):
+    """How well each point (N,) fits its region's pose within that pose's uncertainty:
+    r^T (sigma^2 (I + J_n C J_n^T))^-1 r, chi-square with 2 degrees of freedom for a point that
+    moves with the inliers. r: its residual [px]; C = (J^T J)^-1 of the inliers (``inlier_jacobians``
+    arguments); sigma_sq (k,) the inliers' pixel noise variance. Large residuals along a region's
+    weak direction (rotation traded against translation) score low: the inliers do not pin the
+    pose there, so such a point may be the one that does.
+    """
+    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
+    h_uu, h_uv, h_vv = _hat_blocks(jac, region)
+    s = sigma_sq[jnp.clip(region - 1, 0, poses.shape[0] - 1)]
+    a, b, d = s * (1.0 + h_uu), s * h_uv, s * (1.0 + h_vv)
+    det = jnp.maximum(a * d - b * b, 1e-30)
+    return (d * jac.du**2 - 2.0 * b * jac.du * jac.dv + a * jac.dv**2) / det
 
 
 def rule_rot_std_deg(uncertainty: PoseUncertainty, quality_noise_px):
