@@ -164,8 +164,6 @@ ADMIT_CHI2 = (6.0,)
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
 LEVERAGE_RATIO = 3.0
-# Gauss-Newton steps of the checks' refits: they start next to their optimum.
-CHECK_STEPS = 5
 
 
 def _own_pose_errors_sq(poses, X, uv, K, onehot):
@@ -248,7 +246,6 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
         return jnp.where(better[:, None], refined, poses), jnp.where(own(better.astype(dtype)) > 0, new_err_sq, err_sq)
 
     poses, err_sq = jax.lax.fori_loop(0, passes, one_pass, (poses, _pose_errors_sq(poses, X, uv, K, onehot)))
-    check_steps = min(steps, CHECK_STEPS)
     sigma_sq = noise_sigma_sq(err_sq)
     tau_point = own(jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq))
 
@@ -266,9 +263,9 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     for admit_chi2 in ADMIT_CHI2:
         fit = member & (err_sq < tau_point)
         admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < admit_chi2)
-        candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=check_steps)
+        candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=steps)
         recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
-        candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=check_steps)
+        candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=steps)
         poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
 
     # Leverage check: points that decide the pose alone are dropped and the region refitted.
@@ -276,7 +273,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     n_fit = _region_sums(onehot, fit.astype(dtype))
     limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
     dropped = fit & (leverage(X, uv, region, K, poses, fit) > own(limit))
-    candidate, _ = solve_pnp_regions(X, uv, (fit & ~dropped).astype(dtype), region, K, poses, steps=check_steps)
+    candidate, _ = solve_pnp_regions(X, uv, (fit & ~dropped).astype(dtype), region, K, poses, steps=steps)
     poses, err_sq, used = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, dropped.astype(dtype)) > 0)
     inliers = member & (err_sq < thr_sq) & ~(dropped & used)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
