@@ -157,9 +157,9 @@ def _best(trunc):
 NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
 # Re-admission after the final pass: members outside the noise cut whose residual the pose's
-# uncertainty explains at chi-square(2) < each threshold (6.0: p = 0.05) join a refit. A looser
-# threshold (13.8) admits stray outliers with the pinning points, which hold the refit back.
-ADMIT_CHI2 = (6.0,)
+# uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
+# (13.8) admits stray outliers with the pinning points, which hold the refit back.
+ADMIT_CHI2 = 6.0
 # Leverage check after it: a point carrying more than half of its region's pose information in
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
@@ -205,9 +205,9 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     rotation trades against translation, leaving out the few clean points that pin it (tens of
     px off) or resting on one gross outlier. Each check proposes a refit, kept per region when its
     truncated cost at the noise cut is no higher:
-    - re-admission, once per threshold of ADMIT_CHI2: members outside the cut whose residual the
-      pose's own uncertainty explains (``predicted_residual_chi2``) join a fit, then the cut is
-      applied again and the fit repeated;
+    - re-admission: members outside the cut whose residual the pose's own uncertainty explains
+      (``predicted_residual_chi2`` < ADMIT_CHI2) join a fit, then the cut is applied again and
+      the fit repeated;
     - leverage: members of the fit whose ``leverage`` exceeds max(LEVERAGE_MAX, LEVERAGE_RATIO x
       the mean 6 / n) decide the pose alone, so their residuals cannot show whether they are
       outliers; the region is refitted without them.
@@ -228,16 +228,16 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
         return (_region_sums(onehot, jnp.where(inl, err_sq, 0.0))
                 / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(dtype)), 1.0)))
 
-    def noise_cut_sq(err_sq):
+    def noise_cut_sq(sigma_sq):
         """(k,) squared cut: NOISE_CUT * sigma, within [MIN_CUT_PX, inlier_px]."""
-        return jnp.clip(NOISE_CUT**2 * noise_sigma_sq(err_sq), min_cut_sq, thr_sq)
+        return jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq)
 
     def truncated_cost(err_sq, tau_point):
         return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
 
     def one_pass(p, state):
         poses, err_sq = state
-        tau_point = own(jnp.where(p < passes - 1, thr_sq, noise_cut_sq(err_sq)))
+        tau_point = own(jnp.where(p < passes - 1, thr_sq, noise_cut_sq(noise_sigma_sq(err_sq))))
         fit = member & (err_sq < tau_point)
         refined, _ = solve_pnp_regions(X, uv, fit.astype(dtype), region, K, poses, steps=steps)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
@@ -247,7 +247,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
 
     poses, err_sq = jax.lax.fori_loop(0, passes, one_pass, (poses, _pose_errors_sq(poses, X, uv, K, onehot)))
     sigma_sq = noise_sigma_sq(err_sq)
-    tau_point = own(jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq))
+    tau_point = own(noise_cut_sq(sigma_sq))
 
     def keep_if_better(poses, err_sq, candidate, tried):
         """Each region's candidate pose replaces its pose where tried (k,), finite and of no higher
@@ -260,13 +260,12 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
 
     # Re-admission: members outside the cut that the pose's own uncertainty explains (they sit
     # along the region's weak direction) join one fit, then the cut is applied again.
-    for admit_chi2 in ADMIT_CHI2:
-        fit = member & (err_sq < tau_point)
-        admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < admit_chi2)
-        candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=steps)
-        recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
-        candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=steps)
-        poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
+    fit = member & (err_sq < tau_point)
+    admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < ADMIT_CHI2)
+    candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=steps)
+    recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
+    candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=steps)
+    poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
 
     # Leverage check: points that decide the pose alone are dropped and the region refitted.
     fit = member & (err_sq < tau_point)

@@ -120,21 +120,21 @@ def test_on_rigid_scenes_jax_local_poses_are_closer_to_the_truth(scored):
     assert np.percentile(jax_errors, 95) < np.percentile(ref_errors, 95)
 
 
-def _clean_fit(clip, pair, X, uv, R_g, t_g):
-    """The best any estimator can do on a region's points X (n, 3), uv (n, 2): the least-squares
-    pose of its truly clean members (error < 4 px = 4 sigma under the true motion), started at the
-    truth -> (its rotation error [deg], its predicted rotation std [deg])."""
+def _clean_fit_rot_std(clip, pair, X, uv, R_g, t_g):
+    """The best any estimator can do on a region's points X (n, 3), uv (n, 2): the predicted
+    rotation std [deg] of the least-squares pose of its truly clean members (error < 4 px = 4 sigma
+    under the true motion), started at the truth."""
     K = clip.K[pair].astype(np.float64)
     clean = reference.reprojection_errors(X, uv, K, R_g, t_g) < 4.0
     _, rvec, tvec = cv2.solvePnP(X[clean], uv[clean], K, None, cv2.Rodrigues(R_g)[0], t_g.reshape(3, 1).copy(),
                                  True, cv2.SOLVEPNP_ITERATIVE)
     R = cv2.Rodrigues(rvec)[0]
     rot_std, _, _ = reference.pose_uncertainty(X[clean], uv[clean], K, R, tvec.ravel())
-    return _angle_deg(R, R_g), rot_std
+    return rot_std
 
 
 def _truth_errors(clips, result):
-    """Rotation error [deg] against the true motion and sigma_clean [deg] (``_clean_fit``) of every
+    """Rotation error [deg] against the true motion and sigma_clean [deg] (``_clean_fit_rot_std``) of every
     accepted region with >= 50 points on the 1 px + 30% outlier clips."""
     errors, limits = [], []
     for clip, scored_clip in zip(clips, result.clips):
@@ -149,7 +149,7 @@ def _truth_errors(clips, result):
             for slot in np.flatnonzero((pairs.region_status[p] == 0) & (pairs.region_points[p] >= 50)):
                 in_region = member_of == slot + 1
                 assert in_region.sum() == pairs.region_points[p, slot]  # the same region in both engines
-                _, sigma_clean = _clean_fit(clip, pair, X[in_region], uv[in_region], R_g, t_g)
+                sigma_clean = _clean_fit_rot_std(clip, pair, X[in_region], uv[in_region], R_g, t_g)
                 errors.append(_angle_deg(pairs.R_local[p, slot], R_g))
                 limits.append(sigma_clean)
     return np.array(errors), np.array(limits)
