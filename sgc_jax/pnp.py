@@ -7,6 +7,8 @@ Point sets have a static size N; ``weight`` (N,) masks them (0 = padded / ignore
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -253,7 +255,9 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
     derivative along its own block's parameter d, so six operator products give every nonzero
     Jacobian entry. Each block's 6x6 normal equations are summed over its own residuals
     (``onehot`` (k, N) marks them) and solved with ``solve_spd``: O(N) work, where materialising
-    the full J costs O(k N).
+    the full J costs O(k N). Residuals may be laid out in ``RegionSlots`` chunks (each (n_chunks,
+    SLOT_CHUNK), ``onehot`` (k, n_chunks) marking each chunk's block), where a block sum is a sum
+    over each chunk's slots followed by a (k, n_chunks) product.
     """
 
     onehot: jax.Array
@@ -262,9 +266,9 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
         del options
         k = self.onehot.shape[0]
         directions = jnp.zeros((6, k, 6), self.onehot.dtype).at[jnp.arange(6), :, jnp.arange(6)].set(1.0)
-        J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, N) each
+        J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, *points) each
         upper = np.triu_indices(6)  # the 21 distinct entries of a symmetric 6x6 matrix
-        products = J_u[upper[0]] * J_u[upper[1]] + J_v[upper[0]] * J_v[upper[1]]  # (21, N)
+        products = J_u[upper[0]] * J_u[upper[1]] + J_v[upper[0]] * J_v[upper[1]]  # (21, *points)
         sums = _block_sums(self.onehot, products)  # (k, 21)
         normal = jnp.zeros((k, 6, 6), sums.dtype).at[:, upper[0], upper[1]].set(sums)
         normal = normal + jnp.swapaxes(jnp.triu(normal, 1), -1, -2)
@@ -274,8 +278,10 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
         del options
         J_u, J_v, normal, transposed = state
         if transposed:  # minimum-norm solve: J (J^T J)^-1 b, block by block
-            y_point = _block_sums(self.onehot.T, jax.vmap(solve_spd)(normal, vector).T)  # (N, 6)
-            return (jnp.sum(J_u * y_point.T, axis=0), jnp.sum(J_v * y_point.T, axis=0)), lx.RESULTS.successful, {}
+            y_block = jax.vmap(solve_spd)(normal, vector)  # (k, 6)
+            y_point = jnp.einsum("kb,kd->db", self.onehot, y_block, precision=jax.lax.Precision.HIGHEST)
+            y_point = y_point.reshape(y_point.shape + (1,) * (J_u.ndim - y_point.ndim))  # per point or chunk
+            return (jnp.sum(J_u * y_point, axis=0), jnp.sum(J_v * y_point, axis=0)), lx.RESULTS.successful, {}
         r_u, r_v = vector
         rhs = _block_sums(self.onehot, J_u * r_u + J_v * r_v)  # (k, 6)
         return jax.vmap(solve_spd)(normal, rhs), lx.RESULTS.successful, {}
@@ -292,16 +298,93 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
 
 
 def _block_sums(onehot, values):
-    """(k, N) block membership, (m, N) per-point values -> (k, m) sums over each block's points."""
+    """(k, N) block membership, (m, N) per-point values -> (k, m) sums over each block's points.
+
+    Slot layout: onehot (k, n_chunks) over chunks and values (m, n_chunks, SLOT_CHUNK): each
+    chunk is summed first, so the product is over chunks, not points.
+    """
+    if values.ndim == 3:
+        values = jnp.sum(values, axis=-1)
     return jnp.einsum("kn,mn->km", onehot, values, precision=jax.lax.Precision.HIGHEST)
 
 
-def _pointwise_residuals(R, t, own, K, cols):
-    """Residuals of each point under its own region's pose (R (k, 3, 3), t (k, 3), own (N,)
-    region index) -> ((du, dv), (R X, d du / dY, d dv / dY)), each of the last three a triple of
-    (N,) coordinates, Y = R X + t, with the behind-camera depth floor of ``project_columns``."""
+# Joint solves lay the points out region by region in chunks of SLOT_CHUNK slots, every chunk
+# holding one region's points (padded with empty slots): a per-region sum is then a sum within
+# chunks plus a small (k, n_chunks) product, and a point's pose is its chunk's, broadcast, where
+# the point-by-region layout costs O(k N) per sum and a gather per point.
+SLOT_CHUNK = 32
+
+
+class RegionSlots(NamedTuple):
+    """Points grouped by region into chunks of SLOT_CHUNK slots (S slots, S / SLOT_CHUNK chunks).
+
+    point (S,) int32: the point index in each slot, N (one past the last point) for an empty
+    slot; chunk_region (n_chunks,) int32: the region index 0..k-1 of each chunk (0 for chunks of
+    empty slots only); chunk_onehot (k, n_chunks): 1 where a chunk holds that region's points.
+    """
+
+    point: jax.Array
+    chunk_region: jax.Array
+    chunk_onehot: jax.Array
+
+
+def label_ranks(label, n_labels: int):
+    """Counting sort's ranks, without a sort: label (N,) int in 0..n_labels-1 (others: none) ->
+    (rank (N,) int32, each point's position among the points of its label in index order (0 for
+    points of no label); count (n_labels,) int32).
+
+    Prefix counts by blocks of 64 points: a product with a triangular matrix within blocks, and
+    one across the block totals. Several times faster on CPU than ``argsort`` (XLA's sort), and
+    exact (counts < 2^24 in float32).
+    """
+    N = label.shape[0]
+    B = 64
+    n_blocks = -(-N // B)
+    label = jnp.concatenate([label, jnp.full(n_blocks * B - N, -1, label.dtype)])
+    onehot = (label[None, :] == jnp.arange(n_labels, dtype=label.dtype)[:, None]).astype(jnp.float32)
+    onehot = onehot.reshape(n_labels, n_blocks, B)
+    inclusive = jnp.triu(jnp.ones((B, B), jnp.float32))
+    within = jnp.einsum("lbi,ij->lbj", onehot, inclusive, precision=jax.lax.Precision.HIGHEST)
+    block_count = jnp.sum(onehot, axis=-1)  # (n_labels, n_blocks)
+    before = jnp.einsum("lb,bc->lc", block_count, jnp.triu(jnp.ones((n_blocks, n_blocks), jnp.float32), 1),
+                        precision=jax.lax.Precision.HIGHEST)
+    rank = jnp.sum((within + before[..., None] - 1.0) * onehot, axis=0).reshape(-1)[:N]
+    return jnp.maximum(rank, 0.0).astype(jnp.int32), jnp.sum(block_count, axis=-1).astype(jnp.int32)
+
+
+def region_slots(region, k: int, dtype=jnp.float32) -> RegionSlots:
+    """The slot layout of N points with region (N,) int in 1..k (0 or > k: none, left out).
+
+    S = N + k (SLOT_CHUNK - 1) rounded up to a multiple of SLOT_CHUNK, enough for any split of
+    the N points into k regions. Within a region, points keep their index order.
+    """
+    N = region.shape[0]
+    C = SLOT_CHUNK
+    S = -(-(N + k * (C - 1)) // C) * C
+    member = (region >= 1) & (region <= k)
+    rank, count = label_ranks(jnp.where(member, region - 1, -1), k)
+    padded = -(-count // C) * C
+    slot_start = jnp.cumsum(padded) - padded
+    slot = jnp.where(member, slot_start[jnp.clip(region - 1, 0, k - 1)] + rank, S)
+    point = jnp.full(S, N, jnp.int32).at[slot].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
+    chunk_first = jnp.arange(S // C, dtype=jnp.int32) * C
+    holds = (chunk_first[None, :] >= slot_start[:, None]) & (chunk_first[None, :] < (slot_start + count)[:, None])
+    return RegionSlots(point, jnp.argmax(holds, axis=0).astype(jnp.int32), holds.astype(dtype))
+
+
+def to_slots(slots: RegionSlots, values, fill):
+    """Per-point values (N, ...) -> (n_chunks, SLOT_CHUNK, ...) in the slot layout; empty slots
+    hold ``fill``."""
+    padded = jnp.concatenate([values, jnp.broadcast_to(jnp.asarray(fill, values.dtype), (1,) + values.shape[1:])])
+    return padded[slots.point].reshape((-1, SLOT_CHUNK) + values.shape[1:])
+
+
+def _pointwise_residuals(R_pt, t_pt, K, cols):
+    """Residuals of each point under its own pose (R_pt (*points, 3, 3) and t_pt (*points, 3)
+    with the point axes first, or broadcastable to them: (n_chunks, 3, 3, 1) per chunk of slots)
+    -> ((du, dv), (R X, d du / dY, d dv / dY)), each of the last three a triple of per-point
+    coordinates, Y = R X + t, with the behind-camera depth floor of ``project_columns``."""
     x, y, z, u, v, sqrt_w = cols
-    R_pt, t_pt = R[own], t[own]
     RX = tuple(R_pt[:, i, 0] * x + R_pt[:, i, 1] * y + R_pt[:, i, 2] * z for i in range(3))
     Yx, Yy, Yz = (RX[i] + t_pt[:, i] for i in range(3))
     norm = jnp.sqrt(Yx * Yx + Yy * Yy + Yz * Yz)
@@ -320,46 +403,55 @@ def _pointwise_residuals(R, t, own, K, cols):
     return (sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)), (RX, grad_u, grad_v)
 
 
-def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps):
+def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSlots | None = None):
     """``solve_pnp`` for k regions at once: each point fits its own region's pose.
 
     X (N, 3), uv (N, 2), weight (N,), region (N,) int in 1..k (0: no region), pose0 (k, 6) starts
     -> (pose6 (k, 6), ok (k,) bool). One ``optimistix.least_squares`` Gauss-Newton solve of the
     (separable) sum of all regions' costs with ``BlockNormalCholesky``: the same steps as k
-    separate solves, at the cost of one pass over the N points. Scaling and tolerances as in
-    ``solve_pnp``, but measured as root-mean-square changes over all regions' parameters and
-    residuals: the maximum over thousands of float32 residuals never settles below 1e-4 px.
-    Stops after ``steps`` at most.
+    separate solves, at the cost of one pass over the N points, laid out in ``RegionSlots``
+    (``slots``: ``region_slots(region, k)``, computed here when not given; pass it to reuse the
+    layout across solves of the same regions). Scaling and tolerances as in ``solve_pnp``, but
+    measured as root-mean-square changes over all regions' parameters and residuals: the maximum
+    over thousands of float32 residuals never settles below 1e-4 px. Stops after ``steps`` at
+    most.
     """
     k = pose0.shape[0]
-    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
-    own = jnp.clip(region - 1, 0, k - 1)  # points of no region have weight 0
+    dtype = X.dtype
+    if slots is None:
+        slots = region_slots(region, k, dtype)
+    onehot = slots.chunk_onehot
     R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
-    cols = _point_columns(X, uv, jnp.where(region >= 1, weight, 0.0))
+    weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
+    cols = _point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)).reshape(-1, 3),
+                          to_slots(slots, uv, 0.0).reshape(-1, 2), to_slots(slots, weight, 0.0).reshape(-1))
+    cols = tuple(c.reshape(-1, SLOT_CHUNK) for c in cols)  # (n_chunks, SLOT_CHUNK) each
     x, y, z, u, v, sqrt_w = cols
-    valid = (sqrt_w > 0).astype(X.dtype)
+    valid = (sqrt_w > 0).astype(dtype)
     dist = jnp.sqrt(x * x + y * y + z * z)
     sums = _block_sums(onehot, jnp.stack([valid * dist, valid]))
     mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
     scale_rot = K[0, 0]
     scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
 
     def pose_of(inc):
         return small_matmul(so3_exp(inc[:, :3] / scale_rot), R0), t0 + inc[:, 3:] / scale_t[:, None]
 
     @jax.custom_jvp
     def residuals_of(inc):
-        return _pointwise_residuals(*pose_of(inc), own, K, cols)[0]
+        R, t = pose_of(inc)
+        return _pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)[0]
 
     @residuals_of.defjvp
     def residuals_jvp(primals, tangents):
         # Analytic: d(exp(phi) R0 X) = (J_l(phi) d phi) x (R X); the per-point factors are
-        # computed once, and a tangent costs a gather and a few products per point.
+        # computed once, and a tangent costs a broadcast and a few products per point.
         (inc,), (d_inc,) = primals, tangents
         R, t = pose_of(inc)
-        out, (RX, grad_u, grad_v) = _pointwise_residuals(R, t, own, K, cols)
+        out, (RX, grad_u, grad_v) = _pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
         d_rot = jnp.einsum("kij,kj->ki", so3_left_jacobian(inc[:, :3] / scale_rot), d_inc[:, :3]) / scale_rot
-        w, dt = d_rot[own], (d_inc[:, 3:] / scale_t[:, None])[own]  # (N, 3) each
+        w, dt = per_chunk(d_rot), per_chunk(d_inc[:, 3:] / scale_t[:, None])  # (n_chunks, 3, 1) each
         X_r, Y_r, Z_r = RX
         dY = (w[:, 1] * Z_r - w[:, 2] * Y_r + dt[:, 0],  # w x (R X) + dt, by coordinate
               w[:, 2] * X_r - w[:, 0] * Z_r + dt[:, 1],

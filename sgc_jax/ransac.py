@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import rotation_angle_deg, so3_exp
-from .pnp import initial_pose, project_columns, project_pointwise, solve_pnp, solve_pnp_regions
+from .pnp import initial_pose, label_ranks, project_columns, project_pointwise, region_slots, solve_pnp, solve_pnp_regions
 from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
 STATUS_OK = 0
@@ -112,9 +112,12 @@ def scoring_subset(key, order, start, n_members, score_points):
 def group_by_region(region, k):
     """(N,) region ids 1..k (0: none) -> (order (N,): point indices grouped by region, members of
     a region in index order, then the points of no region; start (k,); count (k,) int32)."""
-    order = jnp.argsort(jnp.where(region >= 1, region, k + 1), stable=True).astype(jnp.int32)
-    count = jnp.sum(region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None], axis=1, dtype=jnp.int32)
-    return order, jnp.cumsum(count) - count, count
+    N = region.shape[0]
+    label = jnp.where((region >= 1) & (region <= k), region - 1, k)  # k: no region, last
+    rank, count = label_ranks(label, k + 1)
+    start = jnp.cumsum(count) - count
+    order = jnp.zeros(N, jnp.int32).at[start[label] + rank].set(jnp.arange(N, dtype=jnp.int32))
+    return order, start[:k], count[:k]
 
 
 def sample_candidates(X, uv, K, sample_idx, *, sample_steps):
@@ -221,6 +224,9 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, dtype)
     own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+    slots = region_slots(region, k, dtype)  # one layout for all the joint solves below
+    fit_regions = lambda weight, start: solve_pnp_regions(X, uv, weight.astype(dtype), region, K, start,  # noqa: E731
+                                                          steps=steps, slots=slots)[0]
 
     def noise_sigma_sq(err_sq):
         """(k,) pixel noise variance per coordinate: mean e^2 / 2 over the inliers at inlier_px."""
@@ -239,7 +245,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
         poses, err_sq = state
         tau_point = own(jnp.where(p < passes - 1, thr_sq, noise_cut_sq(noise_sigma_sq(err_sq))))
         fit = member & (err_sq < tau_point)
-        refined, _ = solve_pnp_regions(X, uv, fit.astype(dtype), region, K, poses, steps=steps)
+        refined = fit_regions(fit, poses)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
         better = jnp.all(jnp.isfinite(refined), axis=-1) & (
             truncated_cost(new_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
@@ -262,9 +268,9 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     # along the region's weak direction) join one fit, then the cut is applied again.
     fit = member & (err_sq < tau_point)
     admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < ADMIT_CHI2)
-    candidate, _ = solve_pnp_regions(X, uv, (fit | admit).astype(dtype), region, K, poses, steps=steps)
+    candidate = fit_regions(fit | admit, poses)
     recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
-    candidate, _ = solve_pnp_regions(X, uv, recut.astype(dtype), region, K, candidate, steps=steps)
+    candidate = fit_regions(recut, candidate)
     poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
 
     # Leverage check: points that decide the pose alone are dropped and the region refitted.
@@ -272,7 +278,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     n_fit = _region_sums(onehot, fit.astype(dtype))
     limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
     dropped = fit & (leverage(X, uv, region, K, poses, fit) > own(limit))
-    candidate, _ = solve_pnp_regions(X, uv, (fit & ~dropped).astype(dtype), region, K, poses, steps=steps)
+    candidate = fit_regions(fit & ~dropped, poses)
     poses, err_sq, used = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, dropped.astype(dtype)) > 0)
     inliers = member & (err_sq < thr_sq) & ~(dropped & used)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)

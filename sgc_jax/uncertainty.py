@@ -70,7 +70,7 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     onehot = onehot.astype(dtype)
     own = jnp.clip(region - 1, 0, k - 1)
     cols = _point_columns(X, uv, (region >= 1).astype(dtype))
-    (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3]), poses[:, 3:], own, K, cols)
+    (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
 
     n = jnp.sum(onehot, axis=1)
     mean_depth = (onehot @ jnp.linalg.norm(X, axis=-1)) / jnp.maximum(n, 1.0)

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from sgc_jax.geometry import rotation_angle_deg, so3_exp
-from sgc_jax.pnp import initial_pose, reprojection_residuals, solve_pnp, solve_pnp_regions
-from sgc_jax.ransac import STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, ransac_pnp
+from sgc_jax.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals, solve_pnp,
+                         solve_pnp_regions)
+from sgc_jax.ransac import STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, group_by_region, ransac_pnp
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
@@ -111,6 +112,45 @@ def test_joint_region_solve_equals_separate_solves():
         member = jnp.asarray(region == r + 1, jnp.float32)
         single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
         np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
+
+
+def test_label_ranks_are_a_stable_counting_sort():
+    """Each point's rank among its label's points in index order, as a stable argsort gives it."""
+    rng = np.random.default_rng(5)
+    label = rng.integers(-1, 4, size=300)  # not a multiple of the 64-point blocks; -1: no label
+    rank, count = jax.jit(label_ranks, static_argnums=1)(jnp.asarray(label), 4)
+    for lab in range(4):
+        np.testing.assert_array_equal(np.asarray(rank)[label == lab], np.arange(np.sum(label == lab)))
+    np.testing.assert_array_equal(np.asarray(rank)[label < 0], 0)
+    np.testing.assert_array_equal(np.asarray(count), np.bincount(label[label >= 0], minlength=4))
+
+
+def test_group_by_region_matches_a_stable_argsort():
+    rng = np.random.default_rng(6)
+    region = rng.integers(0, 5, size=200)  # 0: no region
+    order, start, count = jax.jit(group_by_region, static_argnums=1)(jnp.asarray(region), 4)
+    np.testing.assert_array_equal(np.asarray(order), np.argsort(np.where(region >= 1, region, 5), kind="stable"))
+    np.testing.assert_array_equal(np.asarray(count), np.bincount(region, minlength=5)[1:])
+    np.testing.assert_array_equal(np.asarray(start), np.cumsum(np.asarray(count)) - np.asarray(count))
+
+
+def test_region_slots_put_each_member_once_in_chunks_of_its_own_region():
+    rng = np.random.default_rng(8)
+    k, N = 5, 256
+    region = rng.choice([0, 1, 2, 3, 5, 6], size=N, p=[0.1, 0.5, 0.02, 0.18, 0.1, 0.1])  # 4 empty, 6 > k
+    slots = jax.jit(region_slots, static_argnums=1)(jnp.asarray(region), k)
+    point = np.asarray(slots.point).reshape(-1, SLOT_CHUNK)
+    members = np.flatnonzero((region >= 1) & (region <= k))
+    np.testing.assert_array_equal(np.sort(point[point < N]), members)  # each member once, nothing else
+    assert point.size <= N + k * SLOT_CHUNK
+    for c, chunk in enumerate(point):
+        held = chunk[chunk < N]
+        np.testing.assert_array_equal(held, np.sort(held))  # index order within a region
+        if held.size:
+            np.testing.assert_array_equal(region[held], slots.chunk_region[c] + 1)
+            np.testing.assert_array_equal(np.asarray(slots.chunk_onehot[:, c]), np.eye(k)[slots.chunk_region[c]])
+        else:
+            np.testing.assert_array_equal(np.asarray(slots.chunk_onehot[:, c]), 0.0)
 
 
 def test_initial_pose_alone_converges_from_30_degrees():
