@@ -1,10 +1,11 @@
 """PnP-RANSAC (SPEC §3.6): vmapped minimal-sample solves -> score -> select -> refine.
 
 ``ransac_pnp_regions`` handles every region of a pair at once. Fixed shapes throughout: N padded
-points, each tagged with its region 1..k (0: none). One stable argsort groups the points by
-region, so each region draws its samples and scores its candidates on its own members only, and
-the final refinement solves all regions jointly (each point against its own region's pose): a
-pair costs O(N) per Gauss-Newton step, not O(k N). ``ransac_pnp`` is the one-region form. Poses
+points, each tagged with its region 1..k (0: none). A counting sort (``pnp.label_ranks``) groups
+the points by region, so each region draws its samples and scores its candidates on its own
+members only, and the final refinement solves all regions jointly (each point against its own
+region's pose, in ``pnp.RegionSlots`` chunks): a pair costs O(N) per Gauss-Newton step, not
+O(k N). ``ransac_pnp`` is the one-region form. Poses
 map camera i-1 coordinates to camera i (x_i = R x_{i-1} + t); errors are in pixels of frame i.
 """
 
