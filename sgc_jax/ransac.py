@@ -5,8 +5,8 @@ points, each tagged with its region 1..k (0: none). A counting sort (``pnp.label
 the points by region, so each region draws its samples and scores its candidates on its own
 members only, and the final refinement solves all regions jointly (each point against its own
 region's pose, in ``pnp.RegionSlots`` chunks): a pair costs O(N) per Gauss-Newton step, not
-O(k N). ``ransac_pnp`` is the one-region form. Poses
-map camera i-1 coordinates to camera i (x_i = R x_{i-1} + t); errors are in pixels of frame i.
+O(k N). ``ransac_pnp`` is the one-region form. Poses map camera i-1 coordinates to camera i
+(x_i = R x_{i-1} + t); errors are in pixels of frame i.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import rotation_angle_deg, so3_exp
-from .pnp import initial_pose, label_ranks, project_columns, project_pointwise, region_slots, solve_pnp, solve_pnp_regions
+from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_slots, solve_pnp,
+                  solve_pnp_regions)
 from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
 STATUS_OK = 0
