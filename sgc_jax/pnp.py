@@ -267,12 +267,7 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
         k = self.onehot.shape[0]
         directions = jnp.zeros((6, k, 6), self.onehot.dtype).at[jnp.arange(6), :, jnp.arange(6)].set(1.0)
         J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, *points) each
-        upper = np.triu_indices(6)  # the 21 distinct entries of a symmetric 6x6 matrix
-        products = J_u[upper[0]] * J_u[upper[1]] + J_v[upper[0]] * J_v[upper[1]]  # (21, *points)
-        sums = _block_sums(self.onehot, products)  # (k, 21)
-        normal = jnp.zeros((k, 6, 6), sums.dtype).at[:, upper[0], upper[1]].set(sums)
-        normal = normal + jnp.swapaxes(jnp.triu(normal, 1), -1, -2)
-        return J_u, J_v, normal, False
+        return J_u, J_v, block_normals(self.onehot, J_u, J_v), False
 
     def compute(self, state, vector, options):
         del options
@@ -295,6 +290,19 @@ class BlockNormalCholesky(lx.AbstractLinearSolver):
 
     def assume_full_rank(self):
         return True
+
+
+def block_normals(onehot, J_u, J_v):
+    """Normal matrices (k, 6, 6) J^T J of each block from Jacobian rows J_u, J_v (6, *points)
+    (d residual / d parameter, parameter axis first), summed over the block's points (``onehot``
+    as in ``_block_sums``). Only the 21 distinct entries are summed, with one product over the
+    points: several times faster on CPU than an einsum over (k, points, 6, 6)."""
+    k = onehot.shape[0]
+    upper = np.triu_indices(6)
+    products = J_u[upper[0]] * J_u[upper[1]] + J_v[upper[0]] * J_v[upper[1]]  # (21, *points)
+    sums = _block_sums(onehot, products)  # (k, 21)
+    normal = jnp.zeros((k, 6, 6), sums.dtype).at[:, upper[0], upper[1]].set(sums)
+    return normal + jnp.swapaxes(jnp.triu(normal, 1), -1, -2)
 
 
 def _block_sums(onehot, values):

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import so3_exp
-from .pnp import _point_columns, _pointwise_residuals, solve_spd
+from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, solve_spd
 
 STATUS_ILL_CONDITIONED = 4
 STATUS_AMBIGUOUS = 5
@@ -84,9 +84,10 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
         return jnp.concatenate([jnp.cross(rx, g) / fx, g * scale_t[:, None]], axis=-1)
 
     J_u, J_v = jacobian_rows(grad_u), jacobian_rows(grad_v)
-    normal = jnp.einsum("kn,ni,nj->kij", onehot, J_u, J_u, precision=jax.lax.Precision.HIGHEST)
-    normal = normal + jnp.einsum("kn,ni,nj->kij", onehot, J_v, J_v, precision=jax.lax.Precision.HIGHEST)
-    covariance = jax.vmap(lambda A: jax.vmap(lambda e: solve_spd(A, e))(jnp.eye(6, dtype=dtype)))(normal)
+    normal = block_normals(onehot, J_u.T, J_v.T)
+    # Materialised: gathered per point (``_hat_blocks``), the unrolled solves would otherwise be
+    # fused into the gather and recomputed for every point (3x the cost of the whole check).
+    covariance = materialise(jax.vmap(lambda A: jax.vmap(lambda e: solve_spd(A, e))(jnp.eye(6, dtype=dtype)))(normal))
     return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_depth, fx)
 
 
