@@ -27,13 +27,14 @@ _GN_ATOL = 1e-4
 
 
 def _point_columns(X, uv, weight):
-    """Masked points as columns: (x, y, z, u, v, sqrt_w), each (N,); masked points sit at (0, 0, 1)."""
+    """Masked points (X (*points, 3), uv (*points, 2), weight (*points,)) as columns: (x, y, z, u,
+    v, sqrt_w), each (*points,); masked points sit at (0, 0, 1)."""
     valid = weight > 0
-    x = jnp.where(valid, X[:, 0], 0.0)
-    y = jnp.where(valid, X[:, 1], 0.0)
-    z = jnp.where(valid, X[:, 2], 1.0)
-    u = jnp.where(valid, uv[:, 0], 0.0)
-    v = jnp.where(valid, uv[:, 1], 0.0)
+    x = jnp.where(valid, X[..., 0], 0.0)
+    y = jnp.where(valid, X[..., 1], 0.0)
+    z = jnp.where(valid, X[..., 2], 1.0)
+    u = jnp.where(valid, uv[..., 0], 0.0)
+    v = jnp.where(valid, uv[..., 1], 0.0)
     sqrt_w = jnp.sqrt(jnp.where(valid, weight, 0.0))
     return x, y, z, u, v, sqrt_w
 
@@ -431,9 +432,8 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     onehot = slots.chunk_onehot
     R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
     weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
-    cols = _point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)).reshape(-1, 3),
-                          to_slots(slots, uv, 0.0).reshape(-1, 2), to_slots(slots, weight, 0.0).reshape(-1))
-    cols = tuple(c.reshape(-1, SLOT_CHUNK) for c in cols)  # (n_chunks, SLOT_CHUNK) each
+    cols = _point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
+                          to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
     x, y, z, u, v, sqrt_w = cols
     valid = (sqrt_w > 0).astype(dtype)
     dist = jnp.sqrt(x * x + y * y + z * z)

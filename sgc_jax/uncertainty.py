@@ -86,7 +86,7 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     J_u, J_v = jacobian_rows(grad_u), jacobian_rows(grad_v)
     normal = block_normals(onehot, J_u.T, J_v.T)
     # Materialised: gathered per point (``_hat_blocks``), the unrolled solves would otherwise be
-    # fused into the gather and recomputed for every point (3x the cost of the whole check).
+    # fused into the gather and recomputed for every point (it tripled the time of the checks).
     covariance = materialise(jax.vmap(lambda A: jax.vmap(lambda e: solve_spd(A, e))(jnp.eye(6, dtype=dtype)))(normal))
     return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_depth, fx)
 
