@@ -44,6 +44,9 @@ class SGCConfig:
     min_region_extent: float = 0.02  # smallest RMS radius of the inlier pixels, x image diagonal
     ambiguous_rot_deg: float = 3.0  # a rival fit this far away in rotation ...
     ambiguous_inlier_frac: float = 0.05  # ... losing at most this fraction of inliers: ambiguous (JAX)
+    # JAX engine: each region also tries the other regions' poses of its pair as RANSAC hypotheses
+    # (sgc_jax.ransac.borrow_region_poses), kept only where they fit its own points better.
+    borrow_region_poses: bool = True
 
     def __post_init__(self) -> None:
         if self.partition not in PARTITIONS:

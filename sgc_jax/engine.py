@@ -187,7 +187,8 @@ def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, 
                              inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
                              min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence,
                              ambiguous_rot_deg=config.ambiguous_rot_deg,
-                             ambiguous_inlier_frac=config.ambiguous_inlier_frac)
+                             ambiguous_inlier_frac=config.ambiguous_inlier_frac,
+                             borrow=config.borrow_region_poses)
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, 3)
     if config.applies_quality_rule:

@@ -71,8 +71,8 @@ def reprojection_error_px(R, t, X, uv, K):
     return jnp.hypot(u_hat - uv[:, 0], v_hat - uv[:, 1]), in_front
 
 
-def _score(R, t, X, uv, K, member, inlier_px):
-    """Inlier masks (..., N), inlier counts (...) and summed truncated squared errors (...).
+def _truncated_errors_sq(R, t, X, uv, K, member, inlier_px):
+    """Inlier masks (..., N) and squared errors [px^2] truncated at inlier_px^2 (..., N), 0 off member.
 
     Inlier: member, in front of the camera (z > 0) and error < inlier_px (strict). Evaluated
     homogeneously (|p_uv - uv p_z|^2 < inlier_px^2 p_z^2), the hot loop of RANSAC: no sqrt, and
@@ -91,7 +91,13 @@ def _score(R, t, X, uv, K, member, inlier_px):
     in_front = pz > 0
     inliers = member & in_front & (num < thr_sq * den)
     err_sq = jnp.where(inliers, num / jnp.where(in_front, den, 1.0), thr_sq)
-    trunc = jnp.where(member, err_sq, 0.0)
+    return inliers, jnp.where(member, err_sq, 0.0)
+
+
+def _score(R, t, X, uv, K, member, inlier_px):
+    """Inlier masks (..., N), inlier counts (...) and summed truncated squared errors (...)
+    (``_truncated_errors_sq``)."""
+    inliers, trunc = _truncated_errors_sq(R, t, X, uv, K, member, inlier_px)
     return inliers, jnp.sum(inliers, axis=-1, dtype=jnp.int32), jnp.sum(trunc, axis=-1)
 
 
@@ -286,6 +292,30 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
+def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
+    """Each region tries the other regions' poses (k, 6) as hypotheses -> poses (k, 6).
+
+    In a static scene every region moves with the camera, so a well-conditioned region's pose is
+    a good hypothesis for a weak one (a narrow, far depth band), whose own minimal samples can
+    settle in the wrong basin of the valley where rotation trades against translation. Per
+    region, the other regions' poses are scored on its members like its own candidates (summed
+    truncated squared error at inlier_px, MSAC), and the best replaces its pose only where it
+    scores strictly lower; the refinement (``refine_poses``) then fits it to the region's own
+    inliers. A region whose points move otherwise (an unmasked object, a warped layer) keeps
+    its own pose: the borrowed ones do not explain them.
+    """
+    k = poses.shape[0]
+    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
+    finite = jnp.all(jnp.isfinite(poses), axis=-1)
+    safe = jnp.where(finite[:, None], poses, 0.0)
+    _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, region >= 1, inlier_px)
+    cost = jnp.where(finite[None, :], _region_sums(onehot, trunc.T), jnp.inf)  # (k regions, k poses)
+    own_cost = jnp.diagonal(cost)
+    lender = jnp.argmin(jnp.where(jnp.eye(k, dtype=bool), jnp.inf, cost), axis=1)
+    borrow = cost[jnp.arange(k), lender] < own_cost
+    return jnp.where(borrow[:, None], safe[lender], poses)
+
+
 def samples_needed(inlier_frac, sample_size, confidence):
     """RANSAC's adaptive stopping rule: samples after which an all-inlier sample has been drawn
     with probability ``confidence``, log(1 - confidence) / log(1 - w^s) (inf when w = 0)."""
@@ -396,6 +426,7 @@ def ransac_pnp_regions(
     chunk=10,
     ambiguous_rot_deg=3.0,
     ambiguous_inlier_frac=0.05,
+    borrow=True,
 ):
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
@@ -413,13 +444,15 @@ def ransac_pnp_regions(
     2. The ``lo_candidates`` best (lowest summed truncated squared error, MSAC, then draw order)
        get one least-squares fit on their inliers (local optimisation, ``lo_steps`` Gauss-Newton
        steps: it only has to pick the inlier set); the best of these goes on.
+    2b. With ``borrow`` (and k > 1), ``borrow_region_poses``: each region also scores the other
+       regions' poses from step 2 on its members and takes the best one where it scores lower.
     3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
        Gauss-Newton steps each) on the current inliers; inliers and n_inliers are those of the
        final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
     members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
-    sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk)
-    must be static under jit.
+    sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
+    borrow) must be static under jit.
     """
     N = X.shape[0]
     k = keys.shape[0]
@@ -439,6 +472,8 @@ def ransac_pnp_regions(
             ambiguous_inlier_frac=ambiguous_inlier_frac)
     )(start, n_members, keys)
 
+    if borrow and k > 1:
+        best = borrow_region_poses(X, uv, region, K, best, inlier_px=inlier_px)
     poses, inliers, n_inliers = refine_poses(X, uv, region, K, best, inlier_px=inlier_px, steps=steps,
                                              passes=refine_passes)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]

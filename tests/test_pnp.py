@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.geometry import rotation_angle_deg, so3_exp, so3_log
 from sgc_jax.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals, solve_pnp,
                          solve_pnp_regions)
-from sgc_jax.ransac import STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, group_by_region, ransac_pnp
+from sgc_jax.ransac import (STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, borrow_region_poses, group_by_region,
+                            ransac_pnp)
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
@@ -265,3 +266,26 @@ def test_vmap_over_regions_equals_per_region_calls():
         np.testing.assert_array_equal(np.asarray(single.inliers), np.asarray(batched.inliers[r]))
         np.testing.assert_allclose(np.asarray(single.R), np.asarray(batched.R[r]), atol=1e-5)
         np.testing.assert_allclose(np.asarray(single.t), np.asarray(batched.t[r]), atol=1e-5)
+
+
+def test_regions_borrow_a_better_pose_only_where_it_fits_their_own_points_better():
+    """``borrow_region_poses``: a region with a wrong pose (5 deg off) or none takes the other
+    region's pose that fits its points best; a region moving otherwise, a region already right
+    and a region with no members keep their own."""
+    rng = np.random.default_rng(7)
+    R, t = random_pose(rng, 10.0)
+    R_other, t_other = rodrigues(np.radians([0.0, 8.0, 0.0])) @ R, t + [0.1, 0.0, 0.0]
+    motions = [(R, t), (R, t), (R_other, t_other), (R, t)]  # regions 1-4; region 5 has no members
+    X, uv = zip(*(correspondences(rng, 60, *motion, noise_px=1.0, outlier_frac=0.2) for motion in motions))
+    region = np.repeat(np.arange(1, 5), 60)
+
+    def pose6(R, t):
+        return np.concatenate([np.asarray(so3_log(jnp.asarray(R, jnp.float32))), t])
+
+    poses = np.stack([pose6(R, t), pose6(rodrigues(np.radians([5.0, 0.0, 0.0])) @ R, t),
+                      pose6(R_other, t_other), np.full(6, np.nan), [0.1, 0.0, 0.0, 0.0, 0.0, 1.0]])
+    out = np.asarray(borrow_region_poses(*f32(np.concatenate(X), np.concatenate(uv)), jnp.asarray(region),
+                                         jnp.asarray(K, jnp.float32), jnp.asarray(poses, jnp.float32),
+                                         inlier_px=8.0))
+    np.testing.assert_array_equal(out[[0, 1, 3]], np.float32(poses[[0, 0, 0]]))  # 2 and 4 borrow 1's
+    np.testing.assert_array_equal(out[[2, 4]], np.float32(poses[[2, 4]]))
