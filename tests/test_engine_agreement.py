@@ -167,10 +167,13 @@ def test_on_outlier_clips_jax_local_poses_are_near_the_information_limit(scored)
     translation: the least-squares pose of its truly clean points, started at the truth, has a
     predicted std sigma_clean of 0.1-0.5 deg on these 120 x 160 / 96 x 128 clips (fx 139 / 111
     px, where 1 px is 0.4-0.5 deg), so the issue's flat 0.2 deg is below what the data hold for
-    every region here. The bar is max(0.2 deg, 3 sigma_clean). Measured (2026-11-21): JAX 35/44
-    regions (80%), median error 0.55 deg (before the re-admission and leverage checks of
-    ``ransac.refine_poses``: 71% on 8 such clips, median 0.79 deg); reference (OpenCV) 12/48
-    (25%), median 4.2 deg. At 288 x 512 the JAX engine meets it on 95-97% of accepted regions.
+    every region here. The bar is max(0.2 deg, 3 sigma_clean). Measured (2026-11-21): JAX 39/42
+    regions (93%), median error 0.44 deg; without ``borrow_region_poses`` 35/44 (80%), median
+    0.55 deg, and before the re-admission and leverage checks of ``ransac.refine_poses`` 71% on 8
+    such clips, median 0.79 deg; reference (OpenCV) 12/48 (25%), median 4.2 deg. Of the three
+    JAX misses, one region's sigma_clean is 1.7 deg (the data hardly pin it). At 288 x 512 the
+    JAX engine meets the bar on all 66 accepted regions of the same scenes (seeds 40-43, 4096
+    tracks).
     """
     clips, ref, jx = scored
     jax_errors, jax_limits = _truth_errors(clips, jx)
@@ -178,6 +181,6 @@ def test_on_outlier_clips_jax_local_poses_are_near_the_information_limit(scored)
     assert len(jax_errors) >= 20
     jax_within = np.mean(jax_errors <= np.maximum(0.2, 3.0 * jax_limits))
     ref_within = np.mean(ref_errors <= np.maximum(0.2, 3.0 * ref_limits))
-    assert jax_within >= 0.7, (jax_within, ref_within)
+    assert jax_within >= 0.85, (jax_within, ref_within)
     assert jax_within > ref_within + 0.3
     assert np.median(jax_errors) < 0.5 * np.median(ref_errors)
