@@ -13,10 +13,10 @@ the PnP-RANSAC. Where they differ, the scene's known geometry says which one is 
   error truncated at inlier_px, summed over the region's points) in nearly every region.
 
 Measured on this corpus (2026-11-21, default config with the region-quality rule, after the
-re-admission and leverage checks below): within tolerance 88/150 (clip, component) cases overall
-(rule off: 89/150; before the checks 93 and 89), 20/20 on the rigid and 20/20 on the masked
-moving clips, 4/20 on the 1 px + 30% outlier clips; Spearman rho of SGC 0.92 (rule off 0.91;
-before the checks 0.94 and 0.91). The checks lowered the JAX rotation variances of the
+re-admission and leverage checks below and with region-pose borrowing): within tolerance 88/150
+(clip, component) cases overall (rule off: 89/150; before the checks 93 and 89), 20/20 on the
+rigid and 20/20 on the masked moving clips, 4/20 on the 1 px + 30% outlier clips; Spearman rho of
+SGC 0.91 (rule off 0.91; before borrowing 0.92 and 0.91; before the checks 0.94 and 0.91). The checks lowered the JAX rotation variances of the
 low-confidence clip lowconf1 (a rigid scene, truth ~0) from within tolerance to 11-19% below
 OpenCV's, and moved some perturbed clips (no true value to compare with). The issue's >= 95% /
 rho >= 0.98 is not met because cv2.solvePnPRansac (100 iterations, adaptive stop, inlier-count
