@@ -198,7 +198,7 @@ def _pose_errors_sq(poses, X, uv, K, onehot):
 
 
 def _region_sums(onehot, values):
-    """(k, N) region membership, (N,) values -> (k,) sums over each region's points (0 for inf * 0)."""
+    """(k, N) region membership, (N, ...) values -> (k, ...) sums over each region's points (0 for inf * 0)."""
     return jnp.dot(onehot, values, precision=jax.lax.Precision.HIGHEST)
 
 
@@ -302,7 +302,8 @@ def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     truncated squared error at inlier_px, MSAC), and the best replaces its pose only where it
     scores strictly lower; the refinement (``refine_poses``) then fits it to the region's own
     inliers. A region whose points move otherwise (an unmasked object, a warped layer) keeps
-    its own pose: the borrowed ones do not explain them.
+    its own pose: the borrowed ones do not explain them. The ambiguity flag stays that of the
+    region's own candidates.
     """
     k = poses.shape[0]
     onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
