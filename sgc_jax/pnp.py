@@ -337,6 +337,11 @@ class RegionSlots(NamedTuple):
     chunk_onehot: jax.Array
 
 
+def region_onehot(region, k: int, dtype):
+    """(N,) int region 1..k (0: none) -> (k, N) indicator of each region's points, as dtype."""
+    return (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
+
+
 def label_ranks(label, n_labels: int):
     """Counting sort's ranks, without a sort: label (N,) int in 0..n_labels-1 (others: none) ->
     (rank (N,) int32, each point's position among the points of its label in index order (0 for

@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import rotation_angle_deg, so3_exp
-from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_slots, solve_pnp,
-                  solve_pnp_regions)
+from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
+                  solve_pnp, solve_pnp_regions)
 from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
 STATUS_OK = 0
@@ -227,7 +227,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     """
     k = poses.shape[0]
     dtype = X.dtype
-    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
+    onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, dtype)
@@ -306,7 +306,7 @@ def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     region's own candidates.
     """
     k = poses.shape[0]
-    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(X.dtype)
+    onehot = region_onehot(region, k, X.dtype)
     finite = jnp.all(jnp.isfinite(poses), axis=-1)
     safe = jnp.where(finite[:, None], poses, 0.0)
     _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, region >= 1, inlier_px)
@@ -478,7 +478,7 @@ def ransac_pnp_regions(
     poses, inliers, n_inliers = refine_poses(X, uv, region, K, best, inlier_px=inlier_px, steps=steps,
                                              passes=refine_passes)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
-    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]).astype(dtype)
+    onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
     reproj_px = _region_sums(onehot, err) / jnp.maximum(n_members, 1).astype(dtype)
 

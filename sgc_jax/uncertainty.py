@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from .geometry import so3_exp
-from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, solve_spd
+from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, region_onehot, solve_spd
 
 STATUS_ILL_CONDITIONED = 4
 STATUS_AMBIGUOUS = 5
@@ -66,8 +66,7 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     """
     k = poses.shape[0]
     dtype = X.dtype
-    onehot = (region[None, :] == jnp.arange(1, k + 1, dtype=region.dtype)[:, None]) & inliers[None, :]
-    onehot = onehot.astype(dtype)
+    onehot = region_onehot(region, k, dtype) * inliers[None, :].astype(dtype)
     own = jnp.clip(region - 1, 0, k - 1)
     cols = _point_columns(X, uv, (region >= 1).astype(dtype))
     (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
