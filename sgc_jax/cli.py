@@ -29,6 +29,15 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--seed", type=int, default=0, help="RANSAC seed")
 
 
+def _use_compilation_cache(engine: str) -> None:
+    """The JAX engine's compiled programs persist between runs (``compile_cache``; off with
+    ``SGC_JAX_COMPILATION_CACHE=off``)."""
+    if engine == "jax":
+        from .compile_cache import enable_compilation_cache
+
+        enable_compilation_cache()
+
+
 def _config_overrides(args: argparse.Namespace) -> dict:
     return dict(partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
                 compat=args.compat, seed=args.seed, quality_rule=not args.no_quality_rule)
@@ -42,6 +51,7 @@ def _summary_line(result) -> str:
 def cmd_score(args: argparse.Namespace) -> int:
     from .api import score_batch
 
+    _use_compilation_cache(args.engine)
     try:
         result = score_batch(list(args.paths), calibration=args.calibration, engine=args.engine,
                              progress=not args.quiet, **_config_overrides(args))
@@ -75,6 +85,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .api import score_batch
     from .synth import write_demo_corpus
 
+    _use_compilation_cache(args.engine)
     with tempfile.TemporaryDirectory() as tmp:
         out_dir = Path(args.out) if args.out else Path(tmp)
         paths = write_demo_corpus(out_dir, seed=args.seed)
@@ -426,6 +437,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         except ImportError as exc:
             print(f"sgc-jax perturb: --plot: {exc}", file=sys.stderr)
             return 2
+    _use_compilation_cache(args.engine)
     try:
         study = sensitivity_study(list(args.paths), args.kinds, args.severities, calibration=args.calibration,
                                   engine=args.engine, perturb_seed=args.perturb_seed, progress=not args.quiet,

@@ -8,6 +8,9 @@ import jax
 import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+# The CLI tests run in this process: keep its compiled programs out of the user's cache
+# (tests/test_compile_cache.py exercises the cache in subprocesses).
+os.environ.setdefault("SGC_JAX_COMPILATION_CACHE", "off")
 
 from sgc_jax.synth import synth_clip  # noqa: E402
 

@@ -1,0 +1,44 @@
+"""sgc_jax.compile_cache: the CLI's compiled programs persist between runs, per machine."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from sgc_jax import compile_cache, save_clip
+from sgc_jax.synth import synth_clip
+
+
+def test_cache_directory_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(compile_cache.ENV_VAR, "off")
+    assert compile_cache.default_cache_dir() is None
+    monkeypatch.setenv(compile_cache.ENV_VAR, str(tmp_path / "mine"))
+    assert compile_cache.default_cache_dir() == tmp_path / "mine"
+    monkeypatch.delenv(compile_cache.ENV_VAR)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    default = compile_cache.default_cache_dir()
+    assert default.parent == tmp_path / "sgc_jax" / "xla"
+    assert default.name == compile_cache.host_key()  # one cache per kind of CPU
+
+
+def _score_in_a_fresh_process(clip_path, out_csv, cache_dir):
+    # Every program is cached (no 1 s minimum), so a second run must compile nothing new.
+    env = dict(os.environ, SGC_JAX_COMPILATION_CACHE=str(cache_dir), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    done = subprocess.run([sys.executable, "-m", "sgc_jax.cli", "score", str(clip_path), "--out", str(out_csv), "-q"],
+                          env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    return {p.name: p.stat().st_mtime_ns for p in cache_dir.iterdir()}
+
+
+@pytest.mark.slow
+def test_a_second_cli_run_loads_every_program_from_the_cache(tmp_path):
+    clip_path = save_clip(tmp_path / "tiny.npz", synth_clip(seed=5, clip_id="tiny", height=48, width=64, n_tracks=256,
+                                                            n_frames=3, n_layers=2, static_spheres=2))
+    cache_dir = tmp_path / "cache"
+    first = _score_in_a_fresh_process(clip_path, tmp_path / "first.csv", cache_dir)
+    assert any(name.startswith("jit_") for name in first)
+    second = _score_in_a_fresh_process(clip_path, tmp_path / "second.csv", cache_dir)
+    assert second == first  # nothing compiled anew, nothing rewritten
+    assert (tmp_path / "second.csv").read_text() == (tmp_path / "first.csv").read_text()
