@@ -6,8 +6,8 @@ The public API, as explicit re-exports.
 from .adapters import import_clip
 from .api import ENGINES, score_batch, score_clip
 from .calibration import COMPONENTS, Calibration, KFoldStability, calibrate, kfold_stability, sgc_score
-from .compile_cache import enable_compilation_cache
 from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
+from .compile_cache import enable_compilation_cache
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip
 from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays, read_scores, rescore_records
@@ -20,7 +20,8 @@ __all__ = [
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "Clip", "ClipFormatError", "ClipResult",
     "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
     "PERTURBATIONS", "PairArrays", "SGCConfig", "StudyResult",
-    "calibrate", "check_clip", "clip_from_arrays", "enable_compilation_cache", "import_clip", "kfold_stability", "load_clip", "load_clips",
+    "calibrate", "check_clip", "clip_from_arrays", "enable_compilation_cache", "import_clip", "kfold_stability",
+    "load_clip", "load_clips",
     "perturb_clip", "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip",
     "sensitivity_study", "sgc_score",
 ]
