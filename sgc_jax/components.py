@@ -83,6 +83,13 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
     return masked_mean(values, jnp.where(keep_all, valid, kept))
 
 
+def mean_pose(R_local, t_local, accepted):
+    """Accepted poses (R, 3, 3), (R, 3), (R,) -> (exp of the mean rotation vector (3, 3), mean
+    translation (3,)), float32; NaN with no accepted pose."""
+    R_mean = so3_exp(masked_mean(so3_log(R_local.astype(jnp.float32)), accepted))
+    return R_mean, masked_mean(t_local.astype(jnp.float32), accepted)
+
+
 @functools.partial(jax.jit, static_argnames=("compat",))
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
     """Local poses (R, 3, 3), (R, 3), accepted (R,) vs global (3, 3), (3,) -> dict of float32 scalars.
@@ -97,8 +104,8 @@ def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = 
     n = jnp.sum(accepted).astype(jnp.int32)
     none = n == 0
 
-    R_mean = so3_exp(jnp.nan_to_num(masked_mean(so3_log(R_local), accepted)))
-    t_mean = jnp.nan_to_num(masked_mean(t_local, accepted))
+    R_mean, t_mean = mean_pose(R_local, t_local, accepted)
+    R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=jnp.float32), R_mean), jnp.nan_to_num(t_mean)
     local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted)
     local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted)
     single = n < 2

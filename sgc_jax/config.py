@@ -29,7 +29,10 @@ class SGCConfig:
     seed: int = 0  # every random draw derives from this
     partition: str = "depth"  # "depth" | "grid" | "depth+spatial"
     use_mos: bool = True  # False: ignore the static mask (the paper's no-MOS ablation)
-    align_scale: bool = False  # fit one scale s per clip between local and global translations
+    # One scale s per clip between local (depth-unit) and global (pose-unit) translations:
+    # None = on under compat="spec" (docs/semantics.md §4), off under compat="authors".
+    align_scale: bool | None = None
+    global_pose: bool = True  # False: the "w/o VGGT" variant, the mean local pose stands in for the global one
     compat: str = "spec"  # "spec" (SPEC §3) | "authors" (SPEC §3a)
     kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
     gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
@@ -68,6 +71,17 @@ class SGCConfig:
         for name in ("min_region_extent", "ambiguous_inlier_frac"):
             if not 0.0 <= float(getattr(self, name)) < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
+
+    @property
+    def fits_translation_scale(self) -> bool:
+        """The per-clip translation scale is fitted: ``align_scale``, or by default in spec mode."""
+        return self.compat == "spec" if self.align_scale is None else bool(self.align_scale)
+
+    @property
+    def scale_free(self) -> bool:
+        """Depth in units of the clip's median static depth, translations and depth error in
+        percent of it (``compat="spec"``); raw units under ``compat="authors"``."""
+        return self.compat == "spec"
 
     @property
     def applies_quality_rule(self) -> bool:

@@ -20,18 +20,26 @@ from . import reference
 from .clip import Clip, load_clip
 from .config import SGCConfig
 from .result import REGION_STATUS, ClipResult, PairArrays
+from .units import PERCENT, in_depth_units
 
 #: Region status names by code (inverse of :data:`~sgc_jax.result.REGION_STATUS`).
 REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:
+    """The clip as the engines score it: the same track sub-sampling, depth in units of D."""
+    clip, config, _ = _prepare_with_unit(clip, pair, config)
+    return clip, config
+
+
+def _prepare_with_unit(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig, float]:
     config = config or SGCConfig()
-    clip = load_clip(clip, config)  # the same track sub-sampling as scoring
+    clip = load_clip(clip, config)
     if not 1 <= pair <= clip.n_pairs:
         raise ValueError(f"pair must be in 1..{clip.n_pairs} (frames pair-1 -> pair) for clip "
                          f"{clip.clip_id!r}, got {pair}")
-    return clip, config
+    clip, unit = in_depth_units(clip, config)
+    return clip, config, unit
 
 
 def _pair_arrays(scored: ClipResult | PairArrays) -> PairArrays:
@@ -81,10 +89,12 @@ def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) 
 
 def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
                 scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """(R_g (3, 3), scale * t_g (3,)): the camera's relative pose from frame pair-1 to pair (SPEC §3.7)."""
-    clip, config = _prepare(clip, pair, config)
+    """(R_g (3, 3), scale * t_g / D (3,)): the camera's relative pose from frame pair-1 to pair
+    (docs/semantics.md §3.4), its translation in the units the engines use (D = 1 under authors);
+    ``scale``: a result's ``pairs.scale`` (depth units per pose unit)."""
+    clip, config, unit = _prepare_with_unit(clip, pair, config)
     R_g, t_g = reference.global_relative_pose(clip, pair, config)
-    return R_g, scale * t_g
+    return R_g, scale * t_g / unit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,6 +140,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
     project(K[pair], R X + t) - project(K[pair-1], X); a rigid scene gives equal arrows.
     """
     pairs = _pair_arrays(scored)
+    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     clip, config = _prepare(clip, pair, config)
     tracks = region_tracks(clip, pair, config)
     _check_regions(tracks.labels, pairs, pair, clip.clip_id)
@@ -140,7 +151,6 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
         member = tracks.region == j + 1
         if member.any():
             anchor[j] = tracks.X[member].mean(axis=0)
-    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     start = _project(clip.K[pair - 1], anchor)
     moved_local = np.einsum("kij,kj->ki", pairs.R_local[p], anchor) + pairs.t_local[p]
     moved_global = anchor @ R_g.T + t_g
@@ -171,10 +181,10 @@ def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair:
                         config: SGCConfig | None = None) -> RegionReprojection:
     """Reprojection error of every point of every region, under the local and the global pose."""
     pairs = _pair_arrays(scored)
+    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     clip, config = _prepare(clip, pair, config)
     tracks = region_tracks(clip, pair, config)
     _check_regions(tracks.labels, pairs, pair, clip.clip_id)
-    R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     p, K = pair - 1, clip.K[pair]
     local, global_ = [], []
     for j in range(pairs.region_status.shape[1]):
@@ -209,15 +219,18 @@ class DepthWarpError:
 
 def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
                      scale: float = 1.0) -> DepthWarpError:
-    """Per-pixel depth-warp error of a pair; ``scale`` multiplies t_g (a result's ``pairs.scale``
-    when scored with ``align_scale=True``)."""
+    """Per-pixel depth-warp error of a pair with the global pose; ``scale``: the result's
+    ``pairs.scale`` (depth units per pose unit). Under compat="spec" depths are in units of D and
+    the error in percent of depth; under "authors" both in depth units."""
+    original = clip
     clip, config = _prepare(clip, pair, config)
-    R_g, t_g = global_pose(clip, pair, config, scale=scale)
-    warped = reference.warp_depth(clip.depth[pair - 1], clip.K[pair - 1], clip.K[pair], R_g, t_g,
-                                  nearest=config.compat != "authors")
+    R_g, t_g = global_pose(original, pair, config, scale=scale)
+    warped, mean = reference.pair_depth_error(clip, pair, R_g, t_g, config)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
     depth = clip.depth[pair]
     compared = (warped > 0) & reference.valid_depth(depth) & static
-    error = np.where(compared, np.abs(warped - np.where(compared, depth, 0.0)), np.nan)
-    mean = reference.depth_error(warped, depth, static)
+    difference = np.abs(warped - np.where(compared, depth, 1.0))
+    if config.scale_free:
+        difference = PERCENT * difference / np.where(compared, depth, 1.0)
+    error = np.where(compared, difference, np.nan)
     return DepthWarpError(pair=pair, warped=warped, error=error, mean=mean)

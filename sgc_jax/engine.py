@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .clip import Clip
-from .components import pair_pose_components
+from .components import mean_pose, pair_pose_components
 from .config import SGCConfig
 from .geometry import back_project, nearest_rotation, rotation_angle_deg
 from .kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
@@ -26,6 +26,7 @@ from .partition import spatial_regions
 from .ransac import ransac_pnp_regions
 from .result import PAIR_REASONS, REGION_STATUS, PairArrays
 from .uncertainty import region_quality
+from .units import PERCENT, in_depth_units, translation_factor
 from .warp import depth_error, warp_depth
 
 REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
@@ -74,10 +75,12 @@ class PaddedClips(NamedTuple):
     usable: np.ndarray  # (B, T-1, P) bool: visible, confident, finite; False in padding
     pair_valid: np.ndarray  # (B, T-1) bool
     image_hw: np.ndarray  # (B, 2) int32 true image size
+    depth_unit: np.ndarray  # (B,) float32 D in input depth units (depth above is depth / D)
 
 
-def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig) -> PaddedClips:
-    """One clip padded to ``bucket`` (leading axis B = 1)."""
+def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 1.0) -> PaddedClips:
+    """One clip padded to ``bucket`` (leading axis B = 1); ``depth_unit``: the D its depth was
+    divided by (``units.in_depth_units``)."""
     T, H, W, P = clip.n_frames, *clip.image_size, clip.n_tracks
     if (T > bucket.T) or (H > bucket.H) or (W > bucket.W) or (P > bucket.P):
         raise ValueError(f"clip {clip.clip_id!r} of shape {(T, H, W, P)} does not fit bucket {bucket}")
@@ -100,7 +103,8 @@ def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig) -> PaddedClips:
     track_curr[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_curr, 0.0)
     pair_valid = np.arange(bucket.T - 1) < T - 1
     return PaddedClips(depth[None], static[None], K[None], R_wc[None], t_wc[None], track_prev[None],
-                       track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32))
+                       track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32),
+                       np.array([depth_unit], np.float32))
 
 
 def stack_padded(parts: list[PaddedClips]) -> PaddedClips:
@@ -213,16 +217,21 @@ def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
     return R_g, t_curr - R_for_t @ t_prev
 
 
-def pair_depth_errors(depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, config: SGCConfig):
-    """SPEC §3 step 8's depth error for pairs (F, ...) -> (F,), one pair at a time (``lax.map``,
-    for the unbatched z-buffer scatter, as in ``frame_regions``)."""
-    def one(pair):
-        depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
-        warped, hit = warp_depth(depth_prev, depth_prev > 0, K_prev, K_curr, R_g, t_g,
-                                 nearest=config.compat != "authors")
-        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr)[0]
+def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
+                      config: SGCConfig):
+    """The depth error of pairs (F, ...) -> (F,) (docs/semantics.md §3): under spec the static,
+    valid pixels of frame i-1 warped (AbsRel in percent), under authors every valid one (depth
+    units). One pair at a time (``lax.map``), for the unbatched z-buffer scatter."""
+    authors = config.compat == "authors"
 
-    return jax.lax.map(one, (depth_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
+    def one(pair):
+        depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
+        source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
+        warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors)
+        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=config.scale_free)[0]
+
+    errors = jax.lax.map(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
+    return errors * (PERCENT if config.scale_free else 1.0)
 
 
 def _excluded(status):
@@ -235,6 +244,9 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
     error (``pair_depth_errors``)."""
     accepted = poses.region_status == 0
     comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
+    f2 = translation_factor(config) ** 2
+    if not config.global_pose:  # the mean local pose is no independent reference
+        comps["global_rot_var"] = comps["global_trans_var"] = jnp.float32(jnp.nan)
     n_poses = jnp.sum(accepted)
     n_excluded = jnp.sum(_excluded(poses.region_status))
     reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
@@ -245,8 +257,8 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
                                   "no_depth_overlap")],
         REASON_CODE["ok"])
     return dict(
-        local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"],
-        global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"],
+        local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * f2,
+        global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * f2,
         depth_error=err, reproj_error=jnp.where(n_poses > 0, reproj, jnp.nan), n_poses=n_poses.astype(jnp.int32),
         n_ill_conditioned=n_excluded.astype(jnp.int32),
         t_g_norm=jnp.linalg.norm(t_g), R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
@@ -256,28 +268,37 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
 # ----------------------------------------------------------------------------- per clip
 
 
-def fit_translation_scale(t_local, accepted, t_g, pair_valid):
-    """s = argmin sum ||t_j - s t_g||^2 over valid pairs and accepted regions (1 if undefined)."""
+def fit_translation_scale(t_local, accepted, t_g, pair_valid, fallback=1.0):
+    """s = argmin sum ||t_j - s t_g||^2 over valid pairs and accepted regions (``fallback`` if
+    undefined: no accepted pose, or t_g = 0)."""
     use = accepted & pair_valid[:, None]
     tg = jnp.broadcast_to(t_g[:, None, :], t_local.shape)
     num = jnp.sum(jnp.where(use[..., None], t_local * tg, 0.0))
     den = jnp.sum(jnp.where(use[..., None], tg * tg, 0.0))
-    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
+    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), fallback)
 
 
 def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, config: SGCConfig):
-    """Local poses of all pairs of one padded clip (no leading B axis), the global relative poses
-    and the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale)."""
+    """Local poses of all pairs of one padded clip (no leading B axis), the reference poses and
+    the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale). The
+    reference pose is the global relative pose, or each pair's mean local pose (NaN without one)
+    when ``config.global_pose`` is off."""
     pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(clip.pair_valid.shape[0]) + 1)
     prev, curr = slice(None, -1), slice(1, None)
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
                      in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
         clip.depth[prev], track_labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
         clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
+    accepted = poses.region_status == 0
+    if not config.global_pose:
+        R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
+        return poses, R_g, t_g, jnp.float32(1.0)
     R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
         clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
-    scale = (fit_translation_scale(poses.t_local, poses.region_status == 0, t_g, clip.pair_valid)
-             if config.align_scale else jnp.float32(1.0))
+    # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
+    shared = 1.0 / clip.depth_unit
+    scale = (fit_translation_scale(poses.t_local, accepted, t_g, clip.pair_valid, fallback=shared)
+             if config.fits_translation_scale else shared)
     return poses, R_g, t_g, scale
 
 
@@ -298,10 +319,13 @@ def score_padded(batch: PaddedClips, key, config: SGCConfig):
     poses, R_g, t_g, scale = jax.lax.map(lambda a: clip_poses(*a, key, config),
                                          (batch, track_labels, n_regions, region_pixels))
     t_g_scaled = scale[:, None, None] * t_g
-    err = unflat(pair_depth_errors(flat(batch.depth[prev]), flat(batch.depth[curr]), flat(batch.static[curr]),
-                                   flat(batch.K[prev]), flat(batch.K[curr]), flat(R_g), flat(t_g_scaled), config))
+    err = unflat(pair_depth_errors(flat(batch.depth[prev]), flat(batch.static[prev]), flat(batch.depth[curr]),
+                                   flat(batch.static[curr]), flat(batch.K[prev]), flat(batch.K[curr]), flat(R_g),
+                                   flat(t_g_scaled), config))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, config=config)))(poses, R_g, t_g_scaled, err)
-    comps["t_g_norm"] = jnp.linalg.norm(t_g, axis=-1)
+    # ECD input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
+    t_g_ecd = t_g_scaled if config.scale_free else t_g
+    comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(config)
     return dict(comps, **poses._asdict(), scale=scale)
 
 
@@ -316,7 +340,8 @@ def compiled_scorer(config: SGCConfig):
     return jax.jit(lambda batch: score_padded(batch, key, config))
 
 
-def _pair_arrays(out: dict, b: int, n_pairs: int) -> PairArrays:
+def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale_unit: float) -> PairArrays:
+    """Clip b's arrays; the reported scale is the fitted one times ``scale_unit`` (0: reported as 1)."""
     take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
     status = take("region_status")
     posed = (status == REGION_STATUS["ok"]) | np.asarray(_excluded(status))
@@ -333,23 +358,25 @@ def _pair_arrays(out: dict, b: int, n_pairs: int) -> PairArrays:
         R_local=R_local, t_local=t_local, region_status=status, region_points=take("region_points"),
         region_reproj=per_region("region_reproj"), region_rot_std=per_region("region_rot_std"),
         region_trans_std=per_region("region_trans_std"),
-        scale=float(np.asarray(out["scale"][b])))
+        scale=float(np.asarray(out["scale"][b])) * scale_unit if scale_unit else 1.0, depth_unit=depth_unit)
 
 
 def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
     """Per-pair arrays of every clip, computed bucket by bucket on the default JAX device."""
     config = config or SGCConfig()
     scorer = compiled_scorer(config)
+    clips, units = zip(*(in_depth_units(clip, config) for clip in clips)) if clips else ((), ())
     results: list[PairArrays | None] = [None] * len(clips)
     by_bucket: dict[Bucket, list[int]] = {}
     for i, clip in enumerate(clips):
         by_bucket.setdefault(bucket_for(clip), []).append(i)
     for bucket, members in sorted(by_bucket.items()):
         for group in clip_groups(members):
-            batch = stack_padded([pad_clip(clips[i], bucket, config) for i in group])
+            batch = stack_padded([pad_clip(clips[i], bucket, config, units[i]) for i in group])
             out = jax.device_get(scorer(batch))
             for b, i in enumerate(group):
-                results[i] = _pair_arrays(out, b, clips[i].n_pairs)
+                # s is reported in depth units per pose unit (1 when no global translation is scaled)
+                results[i] = _pair_arrays(out, b, clips[i].n_pairs, units[i], units[i] if config.global_pose else 0.0)
     return results
 
 

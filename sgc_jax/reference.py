@@ -17,6 +17,7 @@ import numpy as np
 from .clip import Clip
 from .config import SGCConfig
 from .result import REGION_STATUS, PairArrays, empty_pair_arrays
+from .units import PERCENT, in_depth_units, translation_factor
 
 # ----------------------------------------------------------------------------- rotations
 
@@ -312,6 +313,11 @@ def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndar
 # ----------------------------------------------------------------------------- components
 
 
+def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(R_mean (3, 3), t_mean (3,)): exp of the mean rotation vector and the mean translation."""
+    return so3_exp(np.mean([so3_log(R) for R in R_local], axis=0)), np.mean(t_local, axis=0)
+
+
 def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig) -> tuple[float, float]:
     """(local_rot_var deg^2, local_trans_var) around the mean pose; 0 with one pose, NaN with none."""
     n = len(R_local)
@@ -319,8 +325,7 @@ def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config
         return float("nan"), float("nan")
     if n == 1:
         return 0.0, 0.0
-    R_mean = so3_exp(np.mean([so3_log(R) for R in R_local], axis=0))
-    t_mean = np.mean(t_local, axis=0)
+    R_mean, t_mean = mean_pose(R_local, t_local)
     angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
     rot = np.mean([angle(R, R_mean) ** 2 for R in R_local])
     trans = np.mean([np.sum((t - t_mean) ** 2) for t in t_local])
@@ -386,10 +391,33 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     return buffer
 
 
-def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray) -> float:
-    """Mean |warped - depth_curr| where both are valid and the pixel is static; NaN if none."""
+def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False) -> float:
+    """Mean |warped - depth_curr| where both are valid and the pixel is static, divided by
+    depth_curr pixel by pixel when ``relative`` (AbsRel); NaN if no pixel is compared."""
     both = (warped > 0) & valid_depth(depth_curr) & static_curr
-    return float(np.abs(warped[both] - depth_curr[both]).mean()) if both.any() else float("nan")
+    if not both.any():
+        return float("nan")
+    error = np.abs(warped[both] - depth_curr[both])
+    return float(np.mean(error / depth_curr[both] if relative else error))
+
+
+def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
+    """Depth of frame pair-1 that the depth check warps: its static, valid pixels under spec (a
+    masked moving object must not cover static pixels of frame pair), every valid one (authors)."""
+    depth = clip.depth[pair - 1]
+    if config.compat == "authors" or not config.use_mos:
+        return depth
+    return np.where(clip.static_mask[pair - 1], depth, 0.0)
+
+
+def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:
+    """(warped depth (H, W), the pair's depth error): frame pair-1 warped into frame pair with
+    (R, t), compared on the static, valid pixels of frame pair; percent of depth under spec."""
+    warped = warp_depth(warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
+                        nearest=config.compat != "authors")
+    static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free)
+    return warped, error * (PERCENT if config.scale_free else 1.0)
 
 
 # ----------------------------------------------------------------------------- the clip
@@ -434,12 +462,12 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
     return out
 
 
-def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.ndarray) -> float:
-    """s = argmin sum ||t_j - s t_g||^2 over all pairs and accepted regions (1 if undefined)."""
+def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.ndarray, fallback: float = 1.0) -> float:
+    """s = argmin sum ||t_j - s t_g||^2 over all pairs and accepted regions (``fallback`` if undefined)."""
     tg = np.broadcast_to(t_g[:, None, :], t_local.shape)
     num = np.sum(np.where(accepted[..., None], t_local * tg, 0.0))
     den = np.sum(np.where(accepted[..., None], tg * tg, 0.0))
-    return float(num / den) if den > 0 else 1.0
+    return float(num / den) if den > 0 else fallback
 
 
 def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
@@ -461,35 +489,48 @@ def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses:
 
 
 def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
-    """Every per-pair component and diagnostic of a clip (SPEC §3), as :class:`PairArrays`."""
+    """Every per-pair component and diagnostic of a clip (docs/semantics.md §3), as :class:`PairArrays`."""
     config = config or SGCConfig()
+    clip, unit = in_depth_units(clip, config)
     poses = local_poses(clip, config)
     n_pairs = clip.n_pairs
-    globals_ = [global_relative_pose(clip, pair, config) for pair in range(1, clip.n_frames)]
-    R_g = np.stack([g[0] for g in globals_])
-    t_g = np.stack([g[1] for g in globals_])
     accepted = poses["region_status"] == REGION_STATUS["ok"]
-    scale = fit_translation_scale(poses["t_local"], accepted, t_g) if config.align_scale else 1.0
+    posed = [(list(poses["R_local"][p][accepted[p]]), list(poses["t_local"][p][accepted[p]])) for p in range(n_pairs)]
+    if config.global_pose:
+        globals_ = [global_relative_pose(clip, pair, config) for pair in range(1, clip.n_frames)]
+        R_g = np.stack([g[0] for g in globals_])
+        t_g = np.stack([g[1] for g in globals_])
+        # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
+        fitted = config.fits_translation_scale
+        scale = fit_translation_scale(poses["t_local"], accepted, t_g, 1.0 / unit) if fitted else 1.0 / unit
+    else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one
+        means = [mean_pose(R, t) if R else (np.full((3, 3), np.nan), np.full(3, np.nan)) for R, t in posed]
+        R_g = np.stack([m[0] for m in means])
+        t_g = np.stack([m[1] for m in means])
+        scale = 1.0
+    f = translation_factor(config)
     out = empty_pair_arrays(n_pairs, config.k_seg)
-    out.scale = scale
+    # reported in depth units per pose unit (1 when no global translation is scaled)
+    out.scale, out.depth_unit = scale * unit if config.global_pose else 1.0, unit
     for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "region_rot_std",
                 "region_trans_std", "n_tracks", "n_regions"):
         setattr(out, key, poses[key])
     for pair in range(1, clip.n_frames):
         p = pair - 1
-        R_list = [poses["R_local"][p, j] for j in np.flatnonzero(accepted[p])]
-        t_list = [poses["t_local"][p, j] for j in np.flatnonzero(accepted[p])]
-        out.local_rot_var[p], out.local_trans_var[p] = local_variances(R_list, t_list, config)
-        out.global_rot_var[p], out.global_trans_var[p] = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config)
-        static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
-        warped = warp_depth(clip.depth[pair - 1], clip.K[pair - 1], clip.K[pair], R_g[p], scale * t_g[p],
-                            nearest=config.compat != "authors")
-        out.depth_error[p] = depth_error(warped, clip.depth[pair], static)
+        R_list, t_list = posed[p]
+        local_rot, local_trans = local_variances(R_list, t_list, config)
+        global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config)
+        if not config.global_pose:
+            global_rot = global_trans = float("nan")
+        out.local_rot_var[p], out.local_trans_var[p] = local_rot, local_trans * f**2
+        out.global_rot_var[p], out.global_trans_var[p] = global_rot, global_trans * f**2
+        if np.isfinite(R_g[p]).all():
+            out.depth_error[p] = pair_depth_error(clip, pair, R_g[p], scale * t_g[p], config)[1]
+            out.t_g_norm[p] = np.linalg.norm(scale * t_g[p] if config.scale_free else t_g[p]) * f
+            out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.n_poses[p] = len(R_list)
         out.n_ill_conditioned[p] = int(np.sum(poses["region_status"][p] == REGION_STATUS["ill_conditioned"]))
         out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
-        out.t_g_norm[p] = np.linalg.norm(t_g[p])
-        out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, pair, config).sum()),
                                     int(out.n_regions[p]), len(R_list), out.depth_error[p],
                                     int(out.n_ill_conditioned[p]))

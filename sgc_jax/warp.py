@@ -58,14 +58,18 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     return warped.reshape(H, W), hit.reshape(H, W)
 
 
-@jax.jit
-def depth_error(warped, hit, depth_curr, valid_curr, static_curr):
-    """Mean |warped - depth_curr| (depth units) over hit & valid & static (H, W) -> (float32, int32 count).
+@functools.partial(jax.jit, static_argnames=("relative",))
+def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
+    """Mean |warped - depth_curr| over hit & valid & static (H, W) -> (float32, int32 count): in
+    depth units, or divided by depth_curr pixel by pixel when ``relative`` (AbsRel, a fraction).
 
     NaN when the count is 0 (no overlap). valid_curr is further restricted to depth > 0 and finite.
     """
     both = hit & _valid_depth(depth_curr, valid_curr) & static_curr
     n = jnp.sum(both).astype(jnp.int32)
-    total = jnp.sum(jnp.where(both, jnp.abs(warped - depth_curr), 0.0).astype(jnp.float32))
+    error = jnp.abs(warped - depth_curr)
+    if relative:
+        error = error / jnp.where(both, depth_curr, 1.0)
+    total = jnp.sum(jnp.where(both, error, 0.0).astype(jnp.float32))
     mean = jnp.where(n > 0, total / jnp.maximum(n, 1).astype(jnp.float32), jnp.nan)
     return mean.astype(jnp.float32), n

@@ -1,0 +1,47 @@
+"""The scale-free units of ``compat="spec"`` (docs/semantics.md §4), shared by both engines.
+
+Depth estimators and camera estimators each use units of their own (Video Depth Anything's
+relative models are known up to scale, VGGT normalises its scene). Under ``compat="spec"`` both
+engines therefore see depth in units of the clip's depth unit D, the median depth of its static,
+valid pixels, and report translations and the depth error in percent of D; the global
+translations are brought to the same units by a per-clip scale fit. ``compat="authors"`` keeps
+the raw units (D = 1, factors 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .clip import Clip
+from .config import SGCConfig
+
+PERCENT = 100.0
+
+
+def depth_unit(clip: Clip, config: SGCConfig) -> float:
+    """D, in the clip's depth units: the median depth over the static (all pixels with
+    ``use_mos=False``), valid pixels of every frame; over all valid pixels when none is static;
+    1 when the clip has no valid depth, and always 1 under ``compat="authors"``."""
+    if not config.scale_free:
+        return 1.0
+    valid = np.isfinite(clip.depth) & (clip.depth > 0)
+    static = valid & clip.static_mask if config.use_mos else valid
+    values = clip.depth[static] if static.any() else clip.depth[valid]
+    return float(np.median(values.astype(np.float64))) if values.size else 1.0
+
+
+def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
+    """(the clip with depth / D, D): what both engines score. Float64 division, then float32, so
+    that scaling a clip's depth by s gives the same normalised depth up to one rounding."""
+    unit = depth_unit(clip, config)
+    if unit == 1.0:
+        return clip, unit
+    depth = (clip.depth.astype(np.float64) / unit).astype(np.float32)
+    return dataclasses.replace(clip, depth=depth), unit
+
+
+def translation_factor(config: SGCConfig) -> float:
+    """Multiplies translations in units of D to give the reported unit (percent of D in spec)."""
+    return PERCENT if config.scale_free else 1.0
