@@ -5,7 +5,8 @@ The public API, as explicit re-exports.
 
 from .adapters import import_clip
 from .api import ENGINES, score_batch, score_clip
-from .calibration import COMPONENTS, Calibration, KFoldStability, calibrate, kfold_stability, sgc_score
+from .calibration import (COMPONENTS, Calibration, CalibrationMismatchError, KFoldStability, calibrate,
+                          default_calibration, kfold_stability, sgc_score)
 from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
 from .compile_cache import enable_compilation_cache
 from .config import SGCConfig
@@ -17,10 +18,10 @@ from .validate import ClipValidationError, ClipWarning, check_clip
 __version__ = "0.1.0"
 
 __all__ = [
-    "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "Clip", "ClipFormatError", "ClipResult",
+    "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "CalibrationMismatchError", "Clip", "ClipFormatError", "ClipResult",
     "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
     "PERTURBATIONS", "PairArrays", "SGCConfig", "StudyResult",
-    "calibrate", "check_clip", "clip_from_arrays", "enable_compilation_cache", "import_clip", "kfold_stability",
+    "calibrate", "check_clip", "clip_from_arrays", "default_calibration", "enable_compilation_cache", "import_clip", "kfold_stability",
     "load_clip", "load_clips",
     "perturb_clip", "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip",
     "sensitivity_study", "sgc_score",

@@ -7,7 +7,7 @@ from typing import Any, Callable, Iterable
 
 from tqdm.auto import tqdm
 
-from .calibration import Calibration
+from .calibration import Calibration, default_calibration
 from .clip import Clip, ClipEntry, ClipFormatError, discover_clips
 from .config import SGCConfig
 from .result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
@@ -43,17 +43,27 @@ def _resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) 
     return config.replace(**overrides) if overrides else config
 
 
+def resolve_calibration(calibration: Calibration | str | None, config: SGCConfig) -> Calibration:
+    """The calibration to score with: the semantics' default when None (``sgc-spec-2026`` for
+    compat="spec", ``sgc-paper-2026`` for compat="authors"); one fitted for the other semantics
+    raises :class:`~sgc_jax.calibration.CalibrationMismatchError`."""
+    calibration = Calibration.load(default_calibration(config.compat) if calibration is None else calibration)
+    calibration.check_compat(config.compat, "the scores")
+    return calibration
+
+
 def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
-                calibration: Calibration | str = "sgc-paper-2026", engine: str = "jax",
+                calibration: Calibration | str | None = None, engine: str = "jax",
                 progress: bool | None = None, chunk_size: int = 16, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
     A clip that fails to load or score is reported with status ``error`` and its message; the
     others are scored. ``overrides`` are :class:`SGCConfig` fields (``use_mos=False``, ...).
+    ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
     """
     config = _resolve_config(config, overrides)
-    calibration = Calibration.load(calibration)
+    calibration = resolve_calibration(calibration, config)
     run = _engine(engine)
     entries = discover_clips(source, config)
     show = sys.stderr.isatty() if progress is None else progress
@@ -74,7 +84,8 @@ def _score_chunk(entries: list[ClipEntry], run: Callable, config: SGCConfig, cal
         try:
             loaded[i] = entry.load()
         except (ClipFormatError, OSError, ValueError, KeyError) as exc:
-            results[i] = failed_clip(entry.clip_id, str(exc), engine=engine, origin=entry.origin)
+            results[i] = failed_clip(entry.clip_id, str(exc), engine=engine, origin=entry.origin,
+                                     compat=config.compat)
     order = sorted(loaded)
     try:
         pair_arrays = run([loaded[i] for i in order], config)
@@ -89,22 +100,24 @@ def _score_chunk(entries: list[ClipEntry], run: Callable, config: SGCConfig, cal
         clip = loaded[i]
         if isinstance(pairs, Exception):
             results[i] = failed_clip(clip.clip_id, f"{type(pairs).__name__}: {pairs}", engine=engine,
-                                     origin=entries[i].origin)
+                                     origin=entries[i].origin, compat=config.compat)
         else:
             results[i] = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
-                                        mask_source=clip.mask_source, origin=entries[i].origin)
+                                        mask_source=clip.mask_source, origin=entries[i].origin,
+                                        compat=config.compat)
     return [results[i] for i in range(len(entries))]
 
 
 def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
-               calibration: Calibration | str = "sgc-paper-2026", engine: str = "jax",
+               calibration: Calibration | str | None = None, engine: str = "jax",
                **overrides: Any) -> ClipResult:
     """Score one clip; raises :class:`ClipFormatError` on a structural problem."""
     config = _resolve_config(config, overrides)
+    calibration = resolve_calibration(calibration, config)
     entries = discover_clips(source, config)
     if len(entries) != 1:
         raise ValueError(f"score_clip expects one clip, the source holds {len(entries)}; use score_batch")
     clip = entries[0].load()
     pairs = _engine(engine)([clip], config)[0]
-    return summarize_clip(clip.clip_id, pairs, Calibration.load(calibration), group=clip.group, engine=engine,
-                          mask_source=clip.mask_source, origin=entries[0].origin)
+    return summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
+                          mask_source=clip.mask_source, origin=entries[0].origin, compat=config.compat)

@@ -17,7 +17,28 @@ import numpy as np
 
 COMPONENTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error")
 LOG1P_COMPONENTS = COMPONENTS[:4]  # variances are log1p-transformed, depth error is used raw
-BUILTIN = ("sgc-paper-2026",)
+BUILTIN = ("sgc-spec-2026", "sgc-paper-2026")
+#: The shipped calibration each semantics uses by default (docs/semantics.md §6).
+DEFAULT_CALIBRATION = {"spec": "sgc-spec-2026", "authors": "sgc-paper-2026"}
+#: What each component's number means under each semantics; recorded in calibration JSON.
+UNITS = {
+    "spec": {"local_rot_var": "deg^2", "global_rot_var": "deg^2", "local_trans_var": "(% of D)^2",
+             "global_trans_var": "(% of D)^2", "depth_error": "% (mean |warped - depth| / depth)",
+             "D": "the clip's median static depth"},
+    "authors": {"local_rot_var": "deg^2", "global_rot_var": "deg^2", "local_trans_var": "depth units^2",
+                "global_trans_var": "pose units^2", "depth_error": "depth units"},
+}
+
+
+class CalibrationMismatchError(ValueError):
+    """A calibration applied to components of another semantics (``compat``) than it was fitted for."""
+
+
+def default_calibration(compat: str) -> str:
+    """The shipped calibration name for a semantics (``"spec"`` or ``"authors"``)."""
+    if compat not in DEFAULT_CALIBRATION:
+        raise ValueError(f"compat must be one of {tuple(DEFAULT_CALIBRATION)}, got {compat!r}")
+    return DEFAULT_CALIBRATION[compat]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +54,18 @@ class Calibration:
     log1p: dict[str, bool]
     description: str = ""
     rows: str = ""
+    compat: str = ""  # semantics of the components it was fitted on: "spec" | "authors" ("" = unknown)
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def check_compat(self, compat: str, what: str = "these scores") -> None:
+        """Raise :class:`CalibrationMismatchError` when ``compat`` is known and differs from the
+        semantics this calibration was fitted for."""
+        if self.compat and compat and compat != self.compat:
+            raise CalibrationMismatchError(
+                f"calibration {self.name!r} was fitted on compat={self.compat!r} components "
+                f"({_units_text(self.compat)}); {what} are compat={compat!r} "
+                f"({_units_text(compat)}): use --calibration {default_calibration(compat)} "
+                f"(or a calibration fitted on compat={compat!r} scores); see docs/semantics.md §6")
 
     # --------------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:
@@ -42,8 +74,10 @@ class Calibration:
                 "z_min": self.z_min[k], "z_max": self.z_max[k], "weight": self.weight[k]}
             for k in COMPONENTS
         }
-        out = {"name": self.name, "description": self.description, "rows": self.rows,
-               "components": components}
+        out = {"name": self.name, "description": self.description, "rows": self.rows}
+        if self.compat:
+            out.update(compat=self.compat, units=UNITS[self.compat])
+        out["components"] = components
         out.update(self.extra)
         return out
 
@@ -58,8 +92,12 @@ class Calibration:
             missing = [f for f in fields if f not in comps[k]]
             if missing:
                 raise ValueError(f"calibration component {k!r} lacks {missing}")
-        known = {"name", "description", "rows", "components"}
+        known = {"name", "description", "rows", "components", "compat", "units"}
+        compat = str(data.get("compat", ""))
+        if compat and compat not in UNITS:
+            raise ValueError(f"calibration compat must be one of {tuple(UNITS)}, got {compat!r}")
         return cls(
+            compat=compat,
             name=str(data.get("name", "custom")),
             description=str(data.get("description", "")),
             rows=str(data.get("rows", "")),
@@ -87,6 +125,11 @@ class Calibration:
                 raise FileNotFoundError(f"calibration {text!r} is neither a shipped name {BUILTIN} nor a file")
             raw = path.read_text()
         return cls.from_dict(json.loads(raw))
+
+
+def _units_text(compat: str) -> str:
+    units = UNITS[compat]
+    return f"translation variances in {units['local_trans_var']}, depth error in {units['depth_error']}"
 
 
 # ----------------------------------------------------------------------------- score formula
@@ -194,16 +237,32 @@ def _as_dict(values: np.ndarray) -> dict[str, float]:
     return {k: float(values[j]) for j, k in enumerate(COMPONENTS)}
 
 
+def rows_compat(rows: Any) -> str:
+    """The one ``compat`` of per-clip rows ("" when no row says); mixed semantics raise."""
+    if hasattr(rows, "clips") and hasattr(rows, "to_records"):
+        rows = rows.to_records()
+    elif hasattr(rows, "columns") and hasattr(rows, "to_dict"):
+        rows = rows.to_dict("records")
+    if isinstance(rows, np.ndarray):
+        return ""
+    found = sorted({str(r.get("compat") or "") for r in rows} - {"", "nan"})
+    if len(found) > 1:
+        raise CalibrationMismatchError(f"the rows mix semantics compat={found}; score them with one compat")
+    return found[0] if found else ""
+
+
 def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
-              log1p: Sequence[str] = LOG1P_COMPONENTS) -> Calibration:
+              log1p: Sequence[str] = LOG1P_COMPONENTS, compat: str | None = None) -> Calibration:
     """Fit (mu, sigma, z_min, z_max, w) on a corpus (SPEC §4).
 
     ``rows``: per-clip records (dicts with the component keys and ``group``), a ``BatchResult``,
     a DataFrame, or an (n, 5) array. ``by="group"`` first averages the clips of each group (the
     paper's way). mu, sigma with ddof 0; weights = |PC1 loadings| of the M'' matrix (NaN -> column
     mean), sum 1. Failed clips (every component NaN) are left out. ``extra`` records PC1's
-    explained-variance ratio and the number of rows fitted.
+    explained-variance ratio and the number of rows fitted. ``compat``: the semantics of the rows,
+    recorded in the calibration (default: the rows' ``compat`` column).
     """
+    compat = rows_compat(rows) if compat is None else compat
     matrix, groups = component_rows(rows)
     if by == "group" and isinstance(rows, np.ndarray):
         raise ValueError("by='group' needs rows with a 'group' field, not a bare array")
@@ -212,7 +271,7 @@ def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
     fitted, explained = _fit(matrix, flags)
     return Calibration(
         name=name, log1p=flags, **{f: _as_dict(v) for f, v in fitted.items()},
-        rows="dataset-group means" if by == "group" else "clips",
+        rows="dataset-group means" if by == "group" else "clips", compat=compat,
         description=f"fitted by sgc_jax.calibrate on {matrix.shape[0]} rows (by={by})",
         extra={"pc1_explained_variance_ratio": explained, "n_rows": int(matrix.shape[0])},
     )

@@ -15,12 +15,17 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("algorithm")
     group.add_argument("--engine", choices=("jax", "reference"), default="jax",
                        help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
-    group.add_argument("--calibration", default="sgc-paper-2026",
-                       help="shipped calibration name or a calibration JSON file (default: sgc-paper-2026)")
+    group.add_argument("--calibration", default=None,
+                       help="shipped calibration name or a calibration JSON file (default: sgc-spec-2026, or "
+                            "sgc-paper-2026 with --compat authors; docs/semantics.md §5)")
     group.add_argument("--partition", choices=("depth", "grid", "depth+spatial"), default="depth")
     group.add_argument("--no-mos", action="store_true", help="ignore the static masks (paper's no-MOS ablation)")
-    group.add_argument("--align-scale", action="store_true",
-                       help="fit one scale per clip between local (depth) and global (pose) translations")
+    group.add_argument("--align-scale", action=argparse.BooleanOptionalAction, default=None,
+                       help="fit one scale per clip between local (depth) and global (pose) translations "
+                            "(default: on, off with --compat authors)")
+    group.add_argument("--no-global-pose", action="store_true",
+                       help="the paper's 'w/o VGGT' variant: each pair's mean local pose stands in for the "
+                            "global camera pose; the global variances drop out (docs/semantics.md §6)")
     group.add_argument("--compat", choices=("spec", "authors"), default="spec",
                        help="authors: reproduce the paper code's choices (SPEC §3a)")
     group.add_argument("--no-quality-rule", action="store_true",
@@ -40,7 +45,8 @@ def _use_compilation_cache(engine: str) -> None:
 
 def _config_overrides(args: argparse.Namespace) -> dict:
     return dict(partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
-                compat=args.compat, seed=args.seed, quality_rule=not args.no_quality_rule)
+                global_pose=not args.no_global_pose, compat=args.compat, seed=args.seed,
+                quality_rule=not args.no_quality_rule)
 
 
 def _summary_line(result) -> str:

@@ -18,7 +18,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS, Calibration, sgc_score
+from .calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from .stats import min_max
 
 #: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
@@ -30,7 +30,7 @@ REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3, "ill_c
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
-                "n_ill_conditioned")
+                "depth_unit", "n_ill_conditioned", "compat")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
                 "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
 
@@ -39,8 +39,10 @@ PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error
 class PairArrays:
     """Per-pair values of one clip; index p is pair p+1 (frames p -> p+1); k region slots.
 
-    Rotations in degrees (variances deg^2); local translations in depth units, global ones in
-    pose units (times ``scale`` when ``align_scale``); reprojection errors in pixels.
+    Units (docs/semantics.md §4): rotations in degrees (variances deg^2); under compat="spec"
+    translation variances in (% of D)^2, ``depth_error`` in % and ``t_g_norm`` in % of D per frame,
+    while R_local / t_local / region_trans_std are the raw poses in units of D; under
+    compat="authors" raw depth and pose units. Reprojection errors in pixels.
     """
 
     local_rot_var: np.ndarray  # (n_pairs,)
@@ -63,7 +65,8 @@ class PairArrays:
     region_reproj: np.ndarray  # (n_pairs, k) mean reprojection error px
     region_rot_std: np.ndarray  # (n_pairs, k) RMS rotation uncertainty of the pose, deg (NaN: no pose)
     region_trans_std: np.ndarray  # (n_pairs, k) RMS translation uncertainty, depth units
-    scale: float = 1.0  # align_scale factor applied to t_g
+    scale: float = 1.0  # translation scale s applied to t_g (1 when not fitted)
+    depth_unit: float = 1.0  # D: the clip's median static depth, input depth units (1 under compat="authors")
 
     @property
     def n_pairs(self) -> int:
@@ -105,14 +108,16 @@ class ClipResult:
     sgc: float = float("nan")
     components: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in COMPONENTS})
     reproj_error: float = float("nan")
-    ecd_trans: float = float("nan")  # mean ||t_g|| over pairs (pose units)
+    ecd_trans: float = float("nan")  # mean ||s t_g|| over pairs (% of D under spec, pose units under authors)
     ecd_rot: float = float("nan")  # mean rotation angle of R_g over pairs (deg)
     n_pairs: int = 0
     n_pairs_scored: int = 0
     engine: str = ""
     mask_source: str = ""
-    scale: float = 1.0
+    scale: float = 1.0  # translation scale s (docs/semantics.md §4)
+    depth_unit: float = float("nan")  # D, input depth units
     n_ill_conditioned: int = 0  # local poses left out by the region-quality rule, all pairs
+    compat: str = ""  # the semantics the components were computed with: "spec" | "authors"
     origin: str = ""
     pairs: PairArrays | None = None
 
@@ -122,7 +127,8 @@ class ClipResult:
                "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
-               "mask_source": self.mask_source, "scale": self.scale, "n_ill_conditioned": self.n_ill_conditioned}
+               "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
+               "n_ill_conditioned": self.n_ill_conditioned, "compat": self.compat}
         return {k: row[k] for k in CLIP_COLUMNS}
 
     def pair_records(self) -> list[dict[str, Any]]:
@@ -138,7 +144,7 @@ class ClipResult:
 
 
 def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
-                   engine: str = "", mask_source: str = "", origin: str = "") -> ClipResult:
+                   engine: str = "", mask_source: str = "", origin: str = "", compat: str = "") -> ClipResult:
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (SPEC §3.9, §4)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
@@ -155,8 +161,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
-        engine=engine, mask_source=mask_source, scale=float(pairs.scale),
-        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), origin=origin, pairs=pairs)
+        engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
+        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs)
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
@@ -170,9 +176,9 @@ def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
     return np.where(np.isnan(both).all(axis=0), np.nan, np.nanmax(np.where(np.isnan(both), -np.inf, both), axis=0))
 
 
-def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "") -> ClipResult:
+def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "", compat: str = "") -> ClipResult:
     """The row of a clip that could not be loaded or scored."""
-    return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin)
+    return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin, compat=compat)
 
 
 # ----------------------------------------------------------------------------- batch table
@@ -199,7 +205,7 @@ def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[s
 
 
 _INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
-_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind")
+_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat")
 
 
 def _parse_column(name: str, values: list[str]) -> list[Any]:
@@ -249,6 +255,7 @@ def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration 
     ``calibration`` (no geometry: the per-clip components are all the score needs) and ``ecd``
     recomputed over these rows."""
     calibration = Calibration.load(calibration)
+    calibration.check_compat(rows_compat(records), "the rows")
     components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
     sgc = sgc_score(components, calibration) if records else np.array([])
     out = [{**r, "sgc": float(v)} for r, v in zip(records, sgc)]
@@ -355,8 +362,11 @@ class BatchResult:
         """The same components under another calibration (no geometry is recomputed: the score
         is a function of the stored per-pair components)."""
         calibration = Calibration.load(calibration)
+        for c in self.clips:
+            calibration.check_compat(c.compat, f"the scores of clip {c.clip_id!r}")
         clips = [summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
-                                mask_source=c.mask_source, origin=c.origin) if c.pairs is not None else c
+                                mask_source=c.mask_source, origin=c.origin, compat=c.compat)
+                 if c.pairs is not None else c
                  for c in self.clips]
         return BatchResult(clips, calibration)
 

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from .api import _resolve_config, score_batch
+from .api import _resolve_config, resolve_calibration, score_batch
 from .calibration import COMPONENTS, Calibration
 from .clip import Clip, ClipFormatError, discover_clips
 from .config import SGCConfig
@@ -176,7 +176,7 @@ def _check_severities(severities: Sequence[float]) -> tuple[float, ...]:
 
 def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
                       severities: Sequence[float] = DEFAULT_SEVERITIES, *,
-                      config: SGCConfig | dict | None = None, calibration: Calibration | str = "sgc-paper-2026",
+                      config: SGCConfig | dict | None = None, calibration: Calibration | str | None = None,
                       engine: str = "jax", perturb_seed: int = 0, params: Mapping[str, Mapping[str, Any]] | None = None,
                       progress: bool | None = None, chunk_size: int = 256, **overrides: Any) -> StudyResult:
     """Score every clip of ``clips`` under every kind (:data:`~sgc_jax.perturb.PERTURBATIONS`,
@@ -197,7 +197,7 @@ def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
     config = _resolve_config(config, overrides)
-    calibration = Calibration.load(calibration)
+    calibration = resolve_calibration(calibration, config)
     bases = _load_bases(clips, config, engine)
 
     # The jobs: each loaded base clean, then each (base, kind, severity > 0).
