@@ -1,4 +1,4 @@
-"""sgc_jax: Spatial Geometric Consistency scores for videos, from estimator outputs (SPEC §1).
+"""sgc_jax: Spatial Geometric Consistency scores for videos, from estimator outputs (docs/semantics.md).
 
 The public API, as explicit re-exports.
 """

@@ -1,4 +1,4 @@
-"""Scoring entry points: ``score_clip`` and ``score_batch`` over any clip source (SPEC §6)."""
+"""Scoring entry points: ``score_clip`` and ``score_batch`` over any clip source (docs/semantics.md §4)."""
 
 from __future__ import annotations
 

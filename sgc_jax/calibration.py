@@ -1,4 +1,4 @@
-"""From components to the SGC score (SPEC §4): normalisation, PCA weights, calibration JSON.
+"""From components to the SGC score (docs/semantics.md §5): normalisation, PCA weights, calibration JSON.
 
 This file holds the only copy of the score formula; both engines call :func:`sgc_score`.
 """

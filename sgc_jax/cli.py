@@ -27,7 +27,7 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
                        help="the paper's 'w/o VGGT' variant: each pair's mean local pose stands in for the "
                             "global camera pose; the global variances drop out (docs/semantics.md §6)")
     group.add_argument("--compat", choices=("spec", "authors"), default="spec",
-                       help="authors: reproduce the paper code's choices (SPEC §3a)")
+                       help="authors: reproduce the paper code's choices (docs/semantics.md §3.9)")
     group.add_argument("--no-quality-rule", action="store_true",
                        help="keep every accepted local pose, ill-conditioned or ambiguous ones too (the paper's "
                             "semantics; always so with --compat authors)")
@@ -107,7 +107,7 @@ def _register_score(sub) -> None:
     score = sub.add_parser("score", help="score clip / batch .npz files, directories or globs")
     score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
     output = score.add_argument_group("output")
-    output.add_argument("--out", help="per-clip CSV (columns as in SPEC §6)")
+    output.add_argument("--out", help="per-clip CSV (columns: docs/semantics.md §4)")
     output.add_argument("--pairs", help="per-pair CSV")
     _add_algorithm_flags(score)
     score.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no table when --out")
@@ -411,7 +411,7 @@ def _register_import(sub) -> None:
 
 
 def _register_pack(sub) -> None:
-    pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (SPEC §2)")
+    pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (docs/semantics.md §1.3)")
     pack.add_argument("clips", nargs="+", help="clip .npz files, directories, globs")
     pack.add_argument("--out", required=True, help="batch .npz to write")
     pack.add_argument("--skip-errors", action="store_true", help="pack the loadable clips when some fail")
@@ -484,7 +484,7 @@ def _register_perturb(sub) -> None:
     study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
     study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call")
     output = p.add_argument_group("output")
-    output.add_argument("--out", help="one row per clip, kind and severity (SPEC §6 columns + base, kind, severity)")
+    output.add_argument("--out", help="one row per clip, kind and severity (docs/semantics.md §4 columns + base, kind, severity)")
     output.add_argument("--summary", help="per kind and severity means (CSV)")
     output.add_argument("--plot", help="figure of SGC and components vs severity (PNG/PDF; needs matplotlib)")
     _add_algorithm_flags(p)

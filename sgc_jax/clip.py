@@ -1,4 +1,4 @@
-"""The clip schema (SPEC §2): load, validate, sub-sample, save; single-clip and batch files.
+"""The clip schema (docs/semantics.md §1): load, validate, sub-sample, save; single-clip and batch files.
 
 Pixel grid: x = column, y = row, pixel centres at integer coordinates. Poses are world->camera
 (OpenCV): x_cam = R_wc @ X_world + t_wc. Pair i (i = 1..T-1) goes from frame i-1 to frame i and
@@ -68,7 +68,7 @@ class Clip:
         return str(self.meta.get("group", ""))
 
     def usable_tracks(self, min_track_conf: float) -> np.ndarray:
-        """(T-1, P) bool: visible, confident and finite (SPEC §3.3)."""
+        """(T-1, P) bool: visible, confident and finite (docs/semantics.md §1.2)."""
         finite = np.isfinite(self.track_prev).all(-1) & np.isfinite(self.track_curr).all(-1)
         return self.track_vis & (self.track_conf >= min_track_conf) & finite
 
@@ -122,7 +122,7 @@ def _parse_meta(raw: Any) -> dict:
 
 def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
                      config: SGCConfig | None = None, validate: bool = True) -> Clip:
-    """Validate a mapping of SPEC §2 arrays and return a :class:`Clip`.
+    """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
 
     Raises :class:`ClipFormatError` for structural problems. ``validate``: also run the content
     checks of :mod:`sgc_jax.validate` (K against the grid, rotations, tracks on the grid, depth vs
@@ -218,7 +218,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
 def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
     """Keep at most ``config.max_tracks`` tracks per pair, deterministically.
 
-    Per pair, usable tracks (SPEC §3.3) come first in their original order; when there are more
+    Per pair, usable tracks (docs/semantics.md §1.2) come first in their original order; when there are more
     than ``max_tracks`` of them, evenly spaced ones are kept. Clips within the limit are unchanged.
     """
     P, limit = clip.n_tracks, config.max_tracks
@@ -247,7 +247,7 @@ def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
 
 
 def clip_to_arrays(clip: Clip) -> dict[str, np.ndarray]:
-    """The SPEC §2 arrays of a clip (inverse of :func:`clip_from_arrays`)."""
+    """The clip arrays (docs/semantics.md §1.2) of a clip (inverse of :func:`clip_from_arrays`)."""
     arrays = dict(
         depth=clip.depth, K=clip.K, R_wc=clip.R_wc, t_wc=clip.t_wc,
         track_prev=clip.track_prev, track_curr=clip.track_curr,
@@ -276,7 +276,7 @@ def _pad_to(array: np.ndarray, shape: tuple[int, ...], fill: Any = 0) -> np.ndar
 
 
 def save_batch(path: str | os.PathLike, clips: list[Clip]) -> Path:
-    """Stack clips into one batch file padded to common (T, H, W, P) (SPEC §2)."""
+    """Stack clips into one batch file padded to common (T, H, W, P) (docs/semantics.md §1.3)."""
     if not clips:
         raise ValueError("save_batch needs at least one clip")
     T = max(c.n_frames for c in clips)

@@ -1,7 +1,7 @@
-"""Corpus tables (SPEC §5, paper §4.2-4.4): per-group summaries with bootstrap CIs and ranks,
+"""Corpus tables (docs/semantics.md §6.5, paper §4.2-4.4): per-group summaries with bootstrap CIs and ranks,
 agreement between two score files, and how much a score follows camera dynamics (ECD).
 
-Inputs are per-clip rows (dicts with SPEC §6 columns), e.g. ``BatchResult.to_records()`` or
+Inputs are per-clip rows (columns of docs/semantics.md §4), e.g. ``BatchResult.to_records()`` or
 ``sgc_jax.result.read_scores(...)``. Rows with status ``error`` or a NaN value are left out of
 every statistic. Ranks: 1 = lowest mean (lower SGC is better), ties share their average rank.
 """

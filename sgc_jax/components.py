@@ -1,9 +1,9 @@
-"""Per-pair pose components of SPEC §3 step 8: local and global rotation/translation variances.
+"""Per-pair pose components (docs/semantics.md §3.5): local and global rotation/translation variances.
 
 Rotations in degrees (variances in deg^2); translations in the units of the inputs. Local poses
 come as fixed-size arrays over R region slots with an ``accepted`` mask; vmap lifts to pairs/clips.
-``compat="authors"`` reproduces SPEC §3a: arccos-of-trace distances in float32, and IQR == 0
-rejecting every value of the trimmed mean.
+``compat="authors"`` reproduces the authors' code (docs/semantics.md §3.9): arccos-of-trace
+distances in float32, and IQR == 0 rejecting every value of the trimmed mean.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Frozen hyperparameters of the SGC computation (SPEC §3).
+"""Frozen hyperparameters of the SGC computation (docs/semantics.md §2).
 
 Shape-like fields (``k_seg``, ``max_tracks``, ``ransac_hypotheses``, ``kmeans_bins``,
 ``gn_steps``) are static for the JAX engine: changing them recompiles. Thresholds are values.

@@ -1,6 +1,6 @@
 """Per-pair diagnostics for plots and notebooks: what one frame pair's score is made of.
 
-``pair`` is the SPEC §3 index i of frames i-1 -> i (1..T-1), the ``pair`` column of
+``pair`` is the index i (docs/semantics.md §3) of frames i-1 -> i (1..T-1), the ``pair`` column of
 ``to_pandas(pairs=True)``; region label j (1..N_s) is slot j-1 of the per-region arrays of
 :class:`~sgc_jax.result.PairArrays`. Every quantity is recomputed with the reference
 implementation (NumPy + OpenCV) from the clip and the config that scored it; the poses come from

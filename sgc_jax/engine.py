@@ -1,4 +1,5 @@
-"""The JAX engine: clips padded to bucketed shapes, one jitted function per bucket (SPEC §3, §7).
+"""The JAX engine (docs/semantics.md §3, §7.1): clips padded to bucketed shapes, one jitted
+function per bucket.
 
 A kernel handles one pair (or frame) with static shapes and validity masks; ``vmap`` lifts the
 pose kernels over the pairs of a clip, ``lax.map`` runs clips, and the pixel kernels (regions,

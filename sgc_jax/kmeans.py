@@ -1,4 +1,5 @@
-"""Depth partitions of SPEC §3 step 2: exact 1-D k-means on a histogram, and the grid ablation.
+"""Depth partitions (docs/semantics.md §3.2 step 2, §6.1): exact 1-D k-means on a histogram, and
+the grid ablation.
 
 ``kmeans_1d`` is an exact dynamic programme over ``bins`` equal-width histogram bins: clusters
 are unions of whole bins, and among those partitions the within-cluster sum of squares is
@@ -277,7 +278,8 @@ class DepthPartition(NamedTuple):
 
 @functools.partial(jax.jit, static_argnames=("k", "bins"))
 def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels):
-    """SPEC §3 step 2 for frames (F, H, W) -> DepthPartition; ``region_of_depth`` labels pixels.
+    """docs/semantics.md §3.2 step 2 for frames (F, H, W) -> DepthPartition; ``region_of_depth``
+    labels pixels.
 
     Histograms frame by frame (``lax.map``: unbatched scatters are several times faster on CPU);
     the DP, whose many small steps gain from batching, vmapped over the frames.

@@ -1,4 +1,4 @@
-"""The ``depth+spatial`` partition of SPEC §3.2 in JAX: depth clusters split into 4-connected
+"""The ``depth+spatial`` partition of docs/semantics.md §6.1 in JAX: depth clusters split into 4-connected
 components, the largest ``k`` kept.
 
 Rule (shared with ``sgc_jax.reference.spatial_regions``): pixels of the same depth cluster that

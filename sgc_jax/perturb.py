@@ -1,4 +1,5 @@
-"""Controlled corruptions of a clip for sensitivity studies (SPEC §5, paper §4.3 and appendix C).
+"""Controlled corruptions of a clip for sensitivity studies (docs/semantics.md §6.4; paper §4.3
+and appendix C).
 
 Geometric perturbations grow linearly in time: frame t (0-based, T frames) gets the amplitude
 ``a_t = severity * t / (T - 1)``, so frame 0 is untouched and the last frame gets the full

@@ -144,7 +144,7 @@ def _image_axes(ax, title: str) -> None:
 
 def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = None,
                     scored: "ClipResult | None" = None, show_tracks: bool = False) -> "Figure":
-    """The depth layers of frame ``pair`` (SPEC §3.2) over the frame, next to its depth map.
+    """The depth layers of frame ``pair`` (docs/semantics.md §3.2) over the frame, next to its depth map.
 
     Each region is labelled with its depth range and, with ``scored`` (the clip's result), its
     point count and pose status; ``show_tracks`` dots the usable tracks by region.
@@ -253,7 +253,7 @@ def plot_pose_arrows(clip: "Clip", scored: "ClipResult", pair: int, *, config: "
 def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None" = None, scale: float = 1.0,
                           vmax: float | None = None, log: bool = True) -> "Figure":
     """Frame pair-1's depth warped into frame ``pair`` with the global pose, frame ``pair``'s depth,
-    and their absolute difference where compared (SPEC §3.8); grey = not compared.
+    and their absolute difference where compared (docs/semantics.md §3.6); grey = not compared.
 
     The error colour scale runs to ``vmax`` (default: the largest error); ``log``: a log scale over
     three decades below it, so small errors over whole surfaces show next to occlusion edges.
@@ -452,7 +452,7 @@ def plot_calibration_weights(calibrations: Mapping[str, "Calibration | str"],
 
 def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
     """Pearson correlation matrix of the five components over the scored clips (paper Figure 8a);
-    ``log1p``: of the values the score uses (log1p of the variances, SPEC §4), so one outlier
+    ``log1p``: of the values the score uses (log1p of the variances, docs/semantics.md §5.1), so one outlier
     clip does not decide every entry."""
     from .calibration import LOG1P_COMPONENTS  # noqa: PLC0415
     from .stats import pearson  # noqa: PLC0415

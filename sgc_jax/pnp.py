@@ -1,4 +1,5 @@
-"""Perspective-n-point: reprojection residuals and an optimistix Gauss-Newton pose solve (SPEC §3.6).
+"""Perspective-n-point: reprojection residuals and an optimistix Gauss-Newton pose solve
+(docs/semantics.md §7.1).
 
 A pose is a 6-vector ``pose6 = (rotvec [rad], t)`` mapping camera i-1 coordinates X to camera i
 coordinates ``R X + t`` with ``R = so3_exp(rotvec)``; pixels follow ``geometry.project``.

@@ -1,4 +1,5 @@
-"""PnP-RANSAC (SPEC §3.6): vmapped minimal-sample solves -> score -> select -> refine.
+"""PnP-RANSAC: vmapped minimal-sample solves -> score -> select -> refine (docs/semantics.md
+§3.2 step 6, §7.1).
 
 ``ransac_pnp_regions`` handles every region of a pair at once. Fixed shapes throughout: N padded
 points, each tagged with its region 1..k (0: none). A counting sort (``pnp.label_ranks``) groups

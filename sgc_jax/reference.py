@@ -1,4 +1,4 @@
-"""Plain NumPy + OpenCV reference scorer of SPEC §3 (the oracle and the speed baseline).
+"""Plain NumPy + OpenCV reference scorer of docs/semantics.md §3 (§7.2; the oracle and the speed baseline).
 
 Readable and faithful rather than fast: loops over pairs and regions, ``cv2.solvePnPRansac``
 with the authors' settings (SOLVEPNP_ITERATIVE, 100 iterations, 8 px, confidence 0.99) for the

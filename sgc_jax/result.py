@@ -1,8 +1,9 @@
-"""Results: per-pair arrays of one clip, per-clip summaries, and the batch table (SPEC §6).
+"""Results: per-pair arrays of one clip, per-clip summaries, and the batch table
+(docs/semantics.md §3.7, §4).
 
 Column names are fixed (:data:`CLIP_COLUMNS`, :data:`PAIR_COLUMNS`) so scripts can rely on them.
-``ecd`` (SPEC §5) is a corpus column: each clip's ``ecd_trans`` and ``ecd_rot`` min-max normalised
-over the clips of the table, then the larger of the two.
+``ecd`` (docs/semantics.md §4) is a corpus column: each clip's ``ecd_trans`` and ``ecd_rot``
+min-max normalised over the clips of the table, then the larger of the two.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Agreement statistics for score lists (SPEC §5): rank correlations, bootstrap CIs, min-max scaling.
+"""Agreement statistics for score lists (docs/semantics.md §6.5): rank correlations, bootstrap CIs,
+min-max scaling.
 
 Pure NumPy. Every paired function drops the pairs where either value is NaN (or missing, ``None``)
 before computing, and returns NaN when fewer than two pairs remain or a list is constant, as

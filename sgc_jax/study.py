@@ -1,5 +1,5 @@
-"""Sensitivity studies (SPEC §5, paper §4.3 and appendix C): score every clip under every
-perturbation kind and severity, and summarise how the SGC and its components respond.
+"""Sensitivity studies (docs/semantics.md §6.4; paper §4.3 and appendix C): score every clip
+under every perturbation kind and severity, and summarise how the SGC and its components respond.
 
 Each base clip is scored once clean; a severity-0 row of any kind reuses that score (every
 perturbation is exactly the identity at severity 0). All perturbed clips go through
@@ -27,8 +27,9 @@ from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_cl
 from .result import CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_table, records_frame, write_csv
 from .stats import spearman
 
-#: Columns of a study row: the SPEC §6 per-clip columns, the study keys, and the relative change
-#: of the SGC with respect to the same base clip scored clean, (sgc - sgc_clean) / sgc_clean.
+#: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
+#: relative change of the SGC with respect to the same base clip scored clean,
+#: (sgc - sgc_clean) / sgc_clean.
 STUDY_COLUMNS = ("base", "kind", "severity", *CLIP_COLUMNS, "rel_change")
 #: Columns of the summary: per kind and severity, means over the scored base clips.
 SUMMARY_COLUMNS = ("kind", "severity", "n", "sgc", "sgc_std", *COMPONENTS, "rel_change")

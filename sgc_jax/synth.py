@@ -1,4 +1,4 @@
-"""Synthetic scenes with known geometry (SPEC §6): exact depth, poses, masks and tracks.
+"""Synthetic scenes with known geometry (docs/semantics.md §7.3): exact depth, poses, masks and tracks.
 
 A scene is a far back wall (an unbounded plane), ``n_layers`` bounded rectangles at depths spread
 over ``depth_range`` and optional moving spheres, seen by a smoothly moving pinhole camera. Every

@@ -1,4 +1,4 @@
-"""Forward depth warp with a z-buffer and the depth error of SPEC §3 step 8.
+"""Forward depth warp with a z-buffer and the depth error of docs/semantics.md §3.6.
 
 Pixels are (u, v) = (column, row) with centres at integer coordinates; (R, t) maps camera i-1
 coordinates to camera i coordinates (x_i = R x_{i-1} + t); depth is along the optical axis.
