@@ -311,7 +311,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 depth_kind=args.depth_kind, depth_scale=args.depth_scale, depth_key=args.depth_key, size=args.size,
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
-                clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+                align_depth=not args.no_align_depth, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             print(f"sgc-jax import: error: {exc}", file=sys.stderr)
             return 2
@@ -391,13 +391,21 @@ def _register_import(sub) -> None:
     conversion = imp.add_argument_group("conversion")
     conversion.add_argument("--depth-kind", choices=("disparity", "metric"),
                             help="disparity: VDA relative models (depth = scale / disparity); metric: metric models")
-    conversion.add_argument("--depth-scale", type=float, help="depth = scale / disparity, or scale * metric (default 1)")
+    conversion.add_argument("--depth-scale", type=float,
+                            help="depth = scale / disparity, or scale * metric (default 1; unused when the disparity "
+                                 "is aligned to VGGT's depth)")
     conversion.add_argument("--depth-key", default="depths", help="array name in the depth file (default: depths)")
     conversion.add_argument("--size", help="clip grid HxW (default: frames, else masks, else depth size)")
     conversion.add_argument("--vggt-mode", choices=("crop", "pad"), default="crop",
                             help="VGGT load_and_preprocess_images mode (default: crop)")
     conversion.add_argument("--vggt-source-size", help="HxW of the frames VGGT saw, when not the clip grid")
     conversion.add_argument("--track-size", help="HxW of the frames DELTA saw, when not the clip grid")
+    conversion.add_argument("--no-align-depth", action="store_true",
+                            help="keep depth = scale / disparity with shift 0. By default, with --depth-kind disparity "
+                                 "and a 'depth' map in --cameras, the disparity's scale and shift are fitted (robustly, "
+                                 "over static pixels of above-median VGGT confidence) to VGGT's depth, so depth and "
+                                 "camera translations share units; meta['import']['depth_alignment'] records the fit "
+                                 "or what was assumed")
     conversion.add_argument("--vis-threshold", type=float, default=0.8,
                             help="DELTA visibility above this is visible (default 0.8, DELTA's own)")
     conversion.add_argument("--reference-compat", action="store_true",

@@ -6,8 +6,10 @@ against an independent statement of each format:
   ``extrinsic`` (S, 3, 4) world->camera, ``intrinsic`` (S, 3, 3) on the preprocessed grid,
   ``images`` (S, 3, h, w); crop mode: width 518, height round(H * 518 / W / 14) * 14, centre crop
   to 518; pad mode: longer side 518, padded to 518 x 518. Resizing is PIL's (pixel centres).
+  Optionally ``depth`` (S, h, w, 1) and ``depth_conf`` (S, h, w) (= 1 + exp(.)) on the same grid, in
+  the units of the translations (VGGT's normalised scene scale: here the scene times a factor).
 - Video Depth Anything (run.py --save_npz): ``depths`` (T, h, w) float32 in ``*_depths.npz``;
-  relative models give inverse depth.
+  relative models give affine-invariant inverse depth (here gain / depth + shift).
 - DELTA as in the SGC authors' pipeline (gen_data.py): ``{a}_{a}.npy`` / ``{a}_{b}.npy`` float32
   (N, 4) = x, y, vis, conf; dense: ``coords`` (T, N, 2), ``vis`` (T, N), ``conf`` (T, N).
 - SegAnyMo / SAM2: DAVIS-style palette PNGs, index 0 = background, k = object k.
@@ -54,15 +56,58 @@ def vggt_intrinsics(K: np.ndarray, height: int, width: int, mode: str) -> tuple[
     return A @ K, (h_pre, w_pre)
 
 
-def write_vggt(path: Path, clip: Clip, mode: str = "crop", with_images: bool = True) -> Path:
+def write_vggt(path: Path, clip: Clip, mode: str = "crop", with_images: bool = True,
+               depth: tuple[np.ndarray, np.ndarray | None] | None = None, units: float = 1.0) -> Path:
+    """``depth``: (depth, depth_conf) on the preprocessed grid (see :func:`vggt_depth_maps`);
+    ``units``: VGGT's scene scale, applied to the translations (the depth maps carry their own)."""
     H, W = clip.image_size
     intrinsic, (h_pre, w_pre) = vggt_intrinsics(clip.K, H, W, mode)
-    extrinsic = np.concatenate([clip.R_wc, clip.t_wc[:, :, None]], axis=2)
+    extrinsic = np.concatenate([clip.R_wc, units * clip.t_wc[:, :, None]], axis=2)
     arrays = {"extrinsic": extrinsic.astype(np.float32), "intrinsic": intrinsic.astype(np.float32)}
     if with_images:
         arrays["images"] = np.zeros((clip.n_frames, 3, h_pre, w_pre), np.float32)
+    if depth is not None:
+        arrays["depth"] = depth[0].astype(np.float32)
+        if depth[1] is not None:
+            arrays["depth_conf"] = depth[1].astype(np.float32)
     np.savez_compressed(path, **arrays)
     return path
+
+
+def to_vggt_grid(maps: np.ndarray, height: int, width: int, mode: str, fill: np.ndarray | float = 0.0) -> np.ndarray:
+    """(T, H, W) maps of an H x W frame -> (T, h_pre, w_pre) as VGGT sees them: nearest resize to the
+    resized size, then the centre crop or the padding (``fill``: the padding's values)."""
+    h_pre, w_pre, s_x, s_y, off_x, off_y = vggt_preprocess(height, width, mode)
+    resized = upsample_nearest(maps, (round(s_y * height), round(s_x * width)))
+    out = np.broadcast_to(np.asarray(fill, maps.dtype), (len(maps), h_pre, w_pre)).copy()
+    top, left = int(off_y), int(off_x)
+    if top < 0:  # crop
+        out[:] = resized[:, -top:-top + h_pre]
+    else:
+        out[:, top:top + resized.shape[1], left:left + resized.shape[2]] = resized
+    return out
+
+
+def vggt_depth_maps(clip: Clip, mode: str = "crop", *, units: float = 1.0, noise: float = 0.0,
+                    outlier_frac: float = 0.0, moving_factor: float = 1.0, low_conf_frac: float = 0.0,
+                    seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """VGGT-like (depth (S, h, w, 1), depth_conf (S, h, w)) of ``clip`` on the preprocessed grid:
+    true depth times ``units``, times exp(N(0, noise)); ``outlier_frac`` of the pixels times a
+    log-uniform factor in [1/3, 3] (half of them low-confidence); moving pixels (not static_mask)
+    times ``moving_factor``; ``low_conf_frac`` of the others low-confidence. The padding (pad mode)
+    holds confident garbage depth, as VGGT predicts some depth on the white border."""
+    rng = np.random.default_rng(seed)
+    H, W = clip.image_size
+    depth = units * clip.depth.astype(np.float64) * np.exp(noise * rng.standard_normal(clip.depth.shape))
+    depth = np.where(clip.static_mask, depth, moving_factor * depth)
+    outlier = rng.random(depth.shape) < outlier_frac
+    depth = np.where(outlier, depth * np.exp(rng.uniform(-np.log(3), np.log(3), depth.shape)), depth)
+    low = np.where(outlier, rng.random(depth.shape) < 0.5, rng.random(depth.shape) < low_conf_frac)
+    conf = 1.0 + np.exp(np.where(low, rng.normal(-2.0, 0.5, depth.shape), rng.normal(1.5, 0.5, depth.shape)))
+    shape = (clip.n_frames,) + vggt_preprocess(H, W, mode)[:2]
+    pad_depth = units * rng.uniform(0.5, 50.0, shape)
+    return (to_vggt_grid(depth, H, W, mode, pad_depth)[..., None],
+            to_vggt_grid(conf, H, W, mode, np.full(shape, 5.0)))
 
 
 def upsample_nearest(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -73,12 +118,14 @@ def upsample_nearest(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return maps[:, rows[:, None], cols[None, :]]
 
 
-def write_vda(path: Path, clip: Clip, size: tuple[int, int], kind: str = "disparity", scale: float = 1.0) -> Path:
-    """VDA output at its own resolution ``size`` (here: the exact depth, nearest-upsampled)."""
+def write_vda(path: Path, clip: Clip, size: tuple[int, int], kind: str = "disparity", scale: float = 1.0,
+              shift: float = 0.0) -> Path:
+    """VDA output at its own resolution ``size`` (here: the exact depth, nearest-upsampled); relative
+    models: disparity = scale / depth + shift."""
     depth = upsample_nearest(clip.depth.astype(np.float64), size)
     valid = np.isfinite(depth) & (depth > 0)
     if kind == "disparity":
-        values = np.where(valid, scale / np.where(valid, depth, 1.0), 0.0)
+        values = np.where(valid, scale / np.where(valid, depth, 1.0) + shift, 0.0)
     else:
         values = np.where(valid, depth / scale, 0.0)
     np.savez_compressed(path, depths=values.astype(np.float32))

@@ -128,6 +128,20 @@ def test_vggt_intrinsics_at_the_wrong_resolution_are_refused(tmp_path, scene_cli
     assert "principal point (259.0, 196.0)" in message and "store it as the clip's K" in message
 
 
+@pytest.mark.parametrize("batch", [False, True])
+def test_vggt_depth_and_confidence_are_read_on_the_preprocessed_grid(tmp_path, scene_clip, batch):
+    """demo_gradio's predictions.npz drops the batch axis; a raw model output keeps B = 1."""
+    path = write_vggt(tmp_path / "p.npz", scene_clip)
+    depth = np.random.default_rng(0).uniform(1, 5, (4, 392, 518, 1)).astype(np.float32)
+    conf = 1 + depth[..., 0]
+    arrays = {**np.load(path), "depth": depth[None] if batch else depth, "depth_conf": conf[None] if batch else conf}
+    cams = read_vggt(arrays, height=120, width=160, with_depth=True)
+    np.testing.assert_array_equal(cams.depth.depth, depth[..., 0])
+    np.testing.assert_array_equal(cams.depth.conf, conf)
+    assert cams.depth.grid == vggt_grid(120, 160) and cams.depth.frame_hw == (120, 160)
+    assert read_vggt(arrays, height=120, width=160).depth is None  # only read when asked for
+
+
 # ----------------------------------------------------------------------------- Video Depth Anything
 
 

@@ -2,7 +2,8 @@
 
 The clip grid is ``size`` when given, else the frames' size, else the masks' size, else the depth
 maps' size. Every piece is brought to that grid by its estimator's own rule (see each module);
-tracks are assumed to be on it unless ``track_size`` says where DELTA ran.
+tracks are assumed to be on it unless ``track_size`` says where DELTA ran. Relative (disparity)
+depth is fitted to VGGT's depth map when the cameras file has one (:mod:`.depth_alignment`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from ..clip import Clip, clip_from_arrays
 from ..config import SGCConfig
 from .common import parse_size, resize_frames, resize_points
 from .delta import DELTA_VIS_THRESHOLD, read_delta
+from .depth_alignment import align_depth_to_vggt
 from .frames import read_frames
 from .seganymo import read_mask_hw, read_seganymo
 from .video_depth_anything import read_depth_hw, read_video_depth
@@ -31,14 +33,17 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
                 size: tuple[int, int] | str | None = None, vggt_mode: str = "crop",
                 vggt_source_size: tuple[int, int] | str | None = None,
                 track_size: tuple[int, int] | str | None = None, vis_threshold: float = DELTA_VIS_THRESHOLD,
-                reference_compat: bool = False, clip_id: str | None = None, group: str = "",
-                meta: dict | None = None) -> Clip:
+                reference_compat: bool = False, align_depth: bool = True, clip_id: str | None = None,
+                group: str = "", meta: dict | None = None) -> Clip:
     """VGGT ``cameras``, Video Depth Anything ``depth``, DELTA ``tracks``, SegAnyMo ``masks`` -> a Clip.
 
     Paths or mappings of arrays (see :mod:`sgc_jax.adapters`). ``reference_compat`` reproduces the SGC
     authors' pipeline (K on VGGT's 518-px grid, depth = VDA output / 1000, DELTA visibility not
     thresholded) so that the paper calibration applies; the choices are recorded in
-    ``meta["import"]``. The clip is validated like a loaded one (problems raise or warn).
+    ``meta["import"]``. ``align_depth``: with ``depth_kind="disparity"`` and a ``depth`` map in the
+    VGGT file, fit the disparity's scale and shift to it so that depth and cameras share units
+    (``depth_scale`` then goes unused); the fit, or what was assumed instead, is
+    ``meta["import"]["depth_alignment"]``. The clip is validated like a loaded one (problems raise or warn).
     """
     size, vggt_source_size, track_size = parse_size(size), parse_size(vggt_source_size), parse_size(track_size)
     loaded_frames = read_frames(frames) if frames is not None else None
@@ -54,7 +59,8 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
                             reference_compat=reference_compat)
     names = names or track_data.frame_names
     cams = read_vggt(cameras, height=H, width=W, mode=vggt_mode, source_size=vggt_source_size,
-                     reference_compat=reference_compat)
+                     reference_compat=reference_compat,
+                     with_depth=align_depth and depth_kind == "disparity" and not reference_compat)
     depth_data = read_video_depth(depth, height=H, width=W, kind=depth_kind, depth_scale=depth_scale,
                                   key=depth_key, reference_compat=reference_compat)
     T = depth_data.depth.shape[0]
@@ -70,6 +76,7 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
         listing = ", ".join(f"{k}: {v}" for k, v in counts.items())
         raise ValueError(f"the estimator outputs disagree on the number of frames ({listing}); "
                          "run every estimator on the same frames (e.g. the same --target_fps / --max_len)")
+    depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask, enabled=align_depth)
 
     track_prev, track_curr = track_data.track_prev, track_data.track_curr
     if track_size is not None:

@@ -7,7 +7,9 @@ intrinsics live on that preprocessed grid, not on the video's:
 - ``mode="pad"``: the longer side 518, the other round(. / 14) * 14, then padded to 518 x 518 (centred).
 VGGT puts the principal point at the centre of that grid (W/2, H/2). :func:`read_vggt` maps K back
 to the clip grid through the resize (pixel centres) and the crop or pad offset. The extrinsics are
-OpenCV world->camera, as the clip format wants, and are used unchanged.
+OpenCV world->camera, as the clip format wants, and are used unchanged. VGGT's ``depth`` map (S, h, w, 1)
+and ``depth_conf`` (S, h, w), when present, are kept on the preprocessed grid (:class:`VGGTDepth`) for
+:mod:`.depth_alignment`; they share the units of the extrinsics' translations.
 """
 
 from __future__ import annotations
@@ -62,13 +64,26 @@ def vggt_grid(height: int, width: int, mode: str = "crop") -> VGGTGrid:
 
 
 @dataclasses.dataclass
+class VGGTDepth:
+    """VGGT's depth (S, h, w) float32 on its preprocessed ``grid`` (<= 0 or non-finite: none), in the
+    units of its camera translations, and ``conf`` (S, h, w) or None; ``frame_hw``: the frames VGGT saw."""
+
+    depth: np.ndarray
+    conf: np.ndarray | None
+    grid: VGGTGrid
+    frame_hw: tuple[int, int]
+
+
+@dataclasses.dataclass
 class Cameras:
-    """Per-frame K (T, 3, 3) on the clip grid, world->camera R_wc (T, 3, 3), t_wc (T, 3)."""
+    """Per-frame K (T, 3, 3) on the clip grid, world->camera R_wc (T, 3, 3), t_wc (T, 3), and VGGT's
+    depth when it was asked for and the file has one."""
 
     K: np.ndarray
     R_wc: np.ndarray
     t_wc: np.ndarray
     notes: dict[str, Any]
+    depth: VGGTDepth | None = None
 
 
 def _images_hw(images: np.ndarray) -> tuple[int, int] | None:
@@ -84,12 +99,14 @@ def _images_hw(images: np.ndarray) -> tuple[int, int] | None:
 
 
 def read_vggt(source: Any, *, height: int, width: int, mode: str = "crop",
-              source_size: tuple[int, int] | None = None, reference_compat: bool = False) -> Cameras:
+              source_size: tuple[int, int] | None = None, reference_compat: bool = False,
+              with_depth: bool = False) -> Cameras:
     """VGGT ``predictions.npz`` (or a mapping with ``extrinsic``/``intrinsic``) -> clip cameras.
 
     ``height, width``: the clip grid. ``source_size``: (H, W) of the frames given to VGGT, when they
     differ from the clip grid. ``reference_compat``: keep K on VGGT's 518-px grid, unscaled, as the
-    SGC authors' pipeline did (the paper calibration assumes it).
+    SGC authors' pipeline did (the paper calibration assumes it). ``with_depth``: also read ``depth``
+    and ``depth_conf`` when the file has them (``Cameras.depth``; None otherwise).
     """
     label, arrays = load_arrays(source, "<vggt arrays>")
     for name, expected in (("extrinsic", "(S, 3, 4) world-to-camera [R | t]"),
@@ -142,7 +159,30 @@ def read_vggt(source: Any, *, height: int, width: int, mode: str = "crop",
         if frame_hw != (height, width):
             K = map_intrinsics(K, *resize_factors(frame_hw, (height, width)))
         notes["intrinsics"] = f"rescaled from VGGT's {grid.height}x{grid.width} grid to {height}x{width}"
-    return Cameras(K=K, R_wc=extrinsic[:, :3, :3].copy(), t_wc=extrinsic[:, :3, 3].copy(), notes=notes)
+    depth = _read_depth(label, arrays, grid, frame_hw, S) if with_depth and "depth" in arrays else None
+    return Cameras(K=K, R_wc=extrinsic[:, :3, :3].copy(), t_wc=extrinsic[:, :3, 3].copy(), notes=notes, depth=depth)
+
+
+def _read_depth(label: str, arrays: dict[str, np.ndarray], grid: VGGTGrid, frame_hw: tuple[int, int],
+                n_frames: int) -> VGGTDepth:
+    """``depth`` (S, h, w, 1) or (S, h, w) and optional ``depth_conf`` (S, h, w), batch axis of 1 allowed."""
+    expected = f"({n_frames}, {grid.height}, {grid.width}[, 1]) on VGGT's {grid.mode}-mode grid, one map per extrinsic"
+    found = {}
+    for name in ("depth", "depth_conf"):
+        if name not in arrays:
+            continue
+        maps = np.asarray(arrays[name])
+        if maps.ndim == 5 or (maps.ndim == 4 and maps.shape[-1] != 1):  # (1, S, h, w[, 1])
+            maps = squeeze_batch(maps, maps.ndim - 1)
+        maps = maps[..., 0] if maps.ndim == 4 and maps.shape[-1] == 1 else maps
+        if maps.shape != (n_frames, grid.height, grid.width):
+            same_count = maps.ndim == 3 and maps.shape[0] == n_frames
+            fix = _grid_fix(maps.shape[1:3], frame_hw, grid.mode) if same_count else ""
+            raise EstimatorFormatError(label, name, expected, f"shape {shape_str(np.shape(arrays[name]))}", fix)
+        if not np.issubdtype(maps.dtype, np.number):
+            raise EstimatorFormatError(label, name, "numeric maps", f"dtype {maps.dtype}")
+        found[name] = maps.astype(np.float32, copy=False)
+    return VGGTDepth(depth=found["depth"], conf=found.get("depth_conf"), grid=grid, frame_hw=tuple(frame_hw))
 
 
 def _grid_fix(found_hw: tuple[int, int], frame_hw: tuple[int, int], mode: str) -> str:

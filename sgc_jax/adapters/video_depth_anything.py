@@ -4,7 +4,8 @@ Which model wrote the file decides what the numbers mean, so the caller must say
 - ``kind="disparity"``: the relative models (``video_depth_anything_vit*.pth``) predict
   affine-invariant inverse depth. Rule: depth = depth_scale / disparity where disparity > 0, invalid
   (0) elsewhere. The unknown shift of the affine ambiguity is taken as zero, so the result is depth
-  up to one global scale (``depth_scale``, default 1).
+  up to one global scale (``depth_scale``, default 1). :func:`import_clip` replaces this by a fitted
+  scale and shift when VGGT's depth is available (:mod:`.depth_alignment`).
 - ``kind="metric"``: the metric models (``metric_video_depth_anything_*``) predict depth in metres.
   Rule: depth = depth_scale * value, invalid where value <= 0.
 VDA writes depth at its input frame size (``--max_res`` may have shrunk it); maps of another size are
@@ -26,10 +27,12 @@ AUTHORS_DIVISOR = 1000.0  # the SGC authors' pipeline: depth = VDA output / 1000
 
 @dataclasses.dataclass
 class Depth:
-    """(T, H, W) float32 depth on the clip grid (0 = invalid) and how it was made."""
+    """(T, H, W) float32 depth on the clip grid (0 = invalid) and how it was made; for
+    ``kind="disparity"`` also the model's raw disparity (T, H, W) float32 on the clip grid."""
 
     depth: np.ndarray
     notes: dict[str, Any]
+    disparity: np.ndarray | None = None
 
 
 def read_depth_hw(source: Any, key: str = "depths") -> tuple[int, int]:
@@ -86,5 +89,8 @@ def read_video_depth(source: Any, *, height: int, width: int, kind: str | None =
             depth = np.where(maps > 0, maps * scale, 0.0)
             rule = f"depth = {scale:g} * metric depth"
     depth = resize_nearest(depth.astype(np.float32), (height, width))
+    disparity = None
+    if kind == "disparity" and not reference_compat:
+        disparity = resize_nearest(maps.astype(np.float32), (height, width))
     notes = {"depth_kind": "authors" if reference_compat else kind, "depth_rule": rule, "depth_native_hw": native}
-    return Depth(depth=depth, notes=notes)
+    return Depth(depth=depth, notes=notes, disparity=disparity)
