@@ -89,7 +89,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .api import score_batch
-    from .synth import write_demo_corpus
+    from .synth import demo_claims, write_demo_corpus
 
     _use_compilation_cache(args.engine)
     with tempfile.TemporaryDirectory() as tmp:
@@ -99,7 +99,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         result = score_batch(out_dir, engine=args.engine, progress=not args.quiet)
     print(result.table(("clip_id", "group", "status", "sgc", *COMPONENTS, "n_pairs_scored")))
     print(_summary_line(result), file=sys.stderr)
-    print("lower SGC = more consistent; rigid clips should score lowest", file=sys.stderr)
+    print("lower SGC = more consistent (units and calibration: docs/semantics.md §4-5); in this corpus:",
+          file=sys.stderr)
+    for claim, holds in demo_claims({c.clip_id: c.sgc for c in result.clips}):
+        print(f"  {'yes' if holds else 'NOT SO in this run'}: {claim}", file=sys.stderr)
     return 0 if all(c.status != "error" for c in result.clips) else 1
 
 
@@ -211,8 +214,8 @@ def _matplotlib_or_report(command: str) -> bool:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, group_table,
-                          motion_dependence)
+    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, format_ranking,
+                          group_table, motion_dependence, ranking_table)
     from .result import write_csv, format_table
 
     if args.plot and not _matplotlib_or_report("compare"):
@@ -255,6 +258,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched "
               f"{'groups' if args.by == 'group' else 'clips'}: Spearman rho = {agree['spearman']:.4f}, "
               f"Kendall tau-b = {agree['kendall_tau']:.4f}, Pearson r = {agree['pearson']:.4f}")
+        if args.by == "group":  # the paper's Table 3: each variant's group values and ranks
+            ranking = ranking_table({" ".join(args.scores): records, " ".join(args.against): other}, args.column)
+            print(f"\nranking by group mean of {args.column} (rank 1 = lowest):\n{format_ranking(ranking)}")
         if agree["unmatched"]:
             print(f"{len(agree['unmatched'])} unmatched: {', '.join(agree['unmatched'][:10])}"
                   + (" ..." if len(agree["unmatched"]) > 10 else ""), file=sys.stderr)

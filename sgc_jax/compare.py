@@ -16,6 +16,7 @@ from .result import add_ecd
 from .stats import agreement, bootstrap_ci, pearson, rankdata, spearman
 
 GROUP_COLUMNS = ("group", "n", "mean", "median", "ci_low", "ci_high", "rank", "ecd_mean", "r_ecd")
+RANKING_COLUMNS = ("variant", "key", "value", "rank", "spearman_vs_first")
 CLIP_TABLE_COLUMNS = ("clip_id", "group", "value", "ecd", "rank")
 
 
@@ -82,6 +83,40 @@ def agreement_between(records_a: Sequence[dict[str, Any]], records_b: Sequence[d
     keys = sorted(set(a) & set(b))
     out = agreement([a[k] for k in keys], [b[k] for k in keys])
     return {**out, "by": by, "unmatched": sorted(set(a) ^ set(b))}
+
+
+def ranking_table(variants: dict[str, Sequence[dict[str, Any]]], column: str = "sgc", *,
+                  by: str = "group") -> list[dict[str, Any]]:
+    """Paper Table 3 ("ranking consistency across estimators"): for each variant (e.g. the full
+    score and the "w/o VGGT" one, docs/semantics.md §6.3), each key's value (group mean, or clip
+    value with ``by="clip"``) and rank over the keys every variant shares, and Spearman rho of the
+    variant's values against the first variant's. Long rows of :data:`RANKING_COLUMNS`."""
+    keyed = {name: _keyed(records, column, by) for name, records in variants.items()}
+    shared = sorted(set.intersection(*(set(k) for k in keyed.values()))) if keyed else []
+    first = next(iter(keyed.values()), {})
+    rows = []
+    for name, values in keyed.items():
+        vector = [values[k] for k in shared]
+        rho = spearman(vector, [first[k] for k in shared]) if len(shared) > 1 else float("nan")
+        rows += [{"variant": name, "key": k, "value": v, "rank": float(r), "spearman_vs_first": rho}
+                 for k, v, r in zip(shared, vector, rankdata(np.array(vector)))]
+    return rows
+
+
+def format_ranking(rows: Sequence[dict[str, Any]]) -> str:
+    """The ranking table as text: one line per variant, keys ordered by the first variant's rank,
+    cells "value (rank)", then rho against the first variant."""
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    if not variants:
+        return "(no key shared by every variant)"
+    first = sorted((r for r in rows if r["variant"] == variants[0]), key=lambda r: r["rank"])
+    keys = [r["key"] for r in first]
+    cell = {(r["variant"], r["key"]): f"{r['value']:.3f} ({r['rank']:g})" for r in rows}
+    rho = {r["variant"]: r["spearman_vs_first"] for r in rows}
+    table = [["variant", *keys, "rho vs first"]]
+    table += [[v, *(cell[(v, k)] for k in keys), f"{rho[v]:.3f}"] for v in variants]
+    widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in table)
 
 
 def motion_dependence(records: Sequence[dict[str, Any]], column: str = "sgc") -> dict[str, Any]:

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from sgc_jax.compare import GROUP_COLUMNS, agreement_between, clip_table, group_table, motion_dependence
+from sgc_jax.compare import (GROUP_COLUMNS, agreement_between, clip_table, format_ranking, group_table,
+                             motion_dependence, ranking_table)
 
 NAN = math.nan
 
@@ -82,3 +83,17 @@ def test_motion_dependence_of_a_score_driven_by_camera_motion():
     assert motion["n_ecd"] == 6 and motion["pearson"] == pytest.approx(1.0) and motion["r2"] == pytest.approx(1.0)
     flat = motion_dependence([{**r, "sgc": 0.3 + 0.01 * (-1) ** i} for i, r in enumerate(rows)])
     assert abs(flat["spearman"]) < 0.5
+
+
+def test_ranking_table_between_variants_like_the_papers_table_3():
+    full = corpus()
+    ablated = [{**r, "sgc": r["sgc"] * 2 if r["group"] != "mid" else 2.0} for r in full]  # "mid" moves to last
+    rows = ranking_table({"full": full, "w/o global pose": ablated})
+    ranks = {(r["variant"], r["key"]): r["rank"] for r in rows}
+    assert ranks[("full", "good")] == ranks[("full", "mid")] == 1.5 and ranks[("full", "bad")] == 3
+    assert ranks[("w/o global pose", "mid")] == 3 and ranks[("w/o global pose", "good")] == 1
+    rho = {r["variant"]: r["spearman_vs_first"] for r in rows}
+    assert rho["full"] == pytest.approx(1.0)
+    assert rho["w/o global pose"] == pytest.approx(scipy_stats.spearmanr([0.25, 0.8, 0.25], [0.5, 1.6, 2.0])[0])
+    text = format_ranking(rows)
+    assert text.splitlines()[0].split()[:4] == ["variant", "good", "mid", "bad"] and "w/o global pose" in text
