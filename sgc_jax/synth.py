@@ -481,6 +481,23 @@ def demo_corpus(seed: int = 0) -> list[Clip]:
             for name, group, offset, changes in recipes]
 
 
+#: What ``sgc-jax demo`` says about its corpus: (claim, test on {clip_id: sgc}). Each holds in
+#: both engines under the default config and calibration (tests/test_demo.py).
+DEMO_CLAIMS = (
+    ("clean rigid clips and masked moving objects score 0: one consistent static world",
+     lambda sgc: max(sgc["rigid-a"], sgc["rigid-b"], sgc["moving-masked"]) == 0.0),
+    ("a drifting layer raises the score, and more drift raises it more (drift-0.20 > drift-0.05 > 0)",
+     lambda sgc: sgc["drift-0.20"] > sgc["drift-0.05"] > 0.0),
+    ("strong tracker noise and outliers (noisy-strong) score above every clean clip",
+     lambda sgc: sgc["noisy-strong"] > max(sgc["rigid-a"], sgc["rigid-b"], sgc["moving-masked"])),
+)
+
+
+def demo_claims(sgc_by_clip: dict[str, float]) -> list[tuple[str, bool]]:
+    """Each of :data:`DEMO_CLAIMS` with whether it holds for these scores of the demo corpus."""
+    return [(claim, bool(holds(sgc_by_clip))) for claim, holds in DEMO_CLAIMS]
+
+
 def write_demo_corpus(out_dir: str | os.PathLike, seed: int = 0) -> list[pathlib.Path]:
     """Save every clip of :func:`demo_corpus` as ``out_dir/<clip_id>.npz``; returns the paths."""
     out = pathlib.Path(out_dir)
