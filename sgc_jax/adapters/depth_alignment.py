@@ -153,8 +153,8 @@ def align_depth_to_vggt(depth: Depth, vggt: VGGTDepth | None, *, static_mask: np
     failed fit warns (:class:`DepthAlignmentWarning`) and keeps the shift-0 depth."""
     kind = depth.notes.get("depth_kind")
     rule = depth.notes.get("depth_rule", "")
-    units = ("units of depth and camera translations may differ (score with align_scale=True, "
-             "CLI --align-scale, to fit one translation scale per clip)")
+    units = ("units of depth and camera translations may differ (the default compat='spec' scorer fits one "
+             "translation scale per clip; under compat='authors' pass align_scale=True, CLI --align-scale)")
     reason = None
     if kind == "authors":
         reason = "none: reference-compat (the authors' depth = VDA output / 1000, used as is)"
