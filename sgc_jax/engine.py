@@ -270,13 +270,20 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
 
 
 def fit_translation_scale(t_local, accepted, t_g, pair_valid, fallback=1.0):
-    """s = argmin sum ||t_j - s t_g||^2 over valid pairs and accepted regions (``fallback`` if
-    undefined: no accepted pose, or t_g = 0)."""
+    """Robust s with t_j ~ s t_g: the median of r_j = <t_j, t_g> / |t_g|^2 over valid pairs and
+    accepted regions, weighted by |t_g|^2 (the first r whose cumulative weight reaches half the
+    total); ``fallback`` when no weight (no accepted pose, or t_g = 0). docs/semantics.md §3.4."""
     use = accepted & pair_valid[:, None]
     tg = jnp.broadcast_to(t_g[:, None, :], t_local.shape)
-    num = jnp.sum(jnp.where(use[..., None], t_local * tg, 0.0))
-    den = jnp.sum(jnp.where(use[..., None], tg * tg, 0.0))
-    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), fallback)
+    tg_sq = jnp.sum(tg * tg, axis=-1)
+    weight = jnp.where(use & (tg_sq > 0), tg_sq, 0.0).reshape(-1)
+    ratio = (jnp.sum(t_local * tg, axis=-1) / jnp.where(tg_sq > 0, tg_sq, 1.0)).reshape(-1)
+    ratio = jnp.where(weight > 0, ratio, jnp.inf)
+    order = jnp.argsort(ratio)
+    cumulative = jnp.cumsum(weight[order])
+    total = cumulative[-1]
+    median = ratio[order][jnp.argmax(cumulative >= 0.5 * total)]
+    return jnp.where(total > 0, median, fallback)
 
 
 def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, config: SGCConfig):

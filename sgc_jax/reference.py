@@ -463,11 +463,22 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
 
 
 def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.ndarray, fallback: float = 1.0) -> float:
-    """s = argmin sum ||t_j - s t_g||^2 over all pairs and accepted regions (``fallback`` if undefined)."""
-    tg = np.broadcast_to(t_g[:, None, :], t_local.shape)
-    num = np.sum(np.where(accepted[..., None], t_local * tg, 0.0))
-    den = np.sum(np.where(accepted[..., None], tg * tg, 0.0))
-    return float(num / den) if den > 0 else fallback
+    """Robust s with t_j ~ s t_g (docs/semantics.md §3.4): the weighted median of the projections
+    r_j = <t_j, t_g> / |t_g|^2, weight |t_g|^2, over all pairs (T-1, k, 3) and accepted regions;
+    ``fallback`` when there is no weight."""
+    ratios, weights = [], []
+    for p in range(t_local.shape[0]):
+        norm_sq = float(t_g[p] @ t_g[p])
+        if norm_sq == 0:
+            continue
+        for j in np.flatnonzero(accepted[p]):
+            ratios.append(float(t_local[p, j] @ t_g[p]) / norm_sq)
+            weights.append(norm_sq)
+    if not ratios:
+        return fallback
+    order = np.argsort(ratios, kind="stable")
+    cumulative = np.cumsum(np.asarray(weights)[order])
+    return float(np.asarray(ratios)[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
