@@ -65,7 +65,7 @@ class Calibration:
                 f"calibration {self.name!r} was fitted on compat={self.compat!r} components "
                 f"({_units_text(self.compat)}); {what} are compat={compat!r} "
                 f"({_units_text(compat)}): use --calibration {default_calibration(compat)} "
-                f"(or a calibration fitted on compat={compat!r} scores); see docs/semantics.md §6")
+                f"(or a calibration fitted on compat={compat!r} scores); see docs/semantics.md §5.2")
 
     # --------------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:

@@ -33,7 +33,7 @@ def column(path, name):
 
 @pytest.fixture(scope="module")
 def scores_csv(tmp_path_factory):
-    """Six tiny clips in three groups scored by `sgc-jax score --engine reference` (paper calibration)."""
+    """Six tiny clips in three groups scored by `sgc-jax score --engine reference` (default calibration)."""
     root = tmp_path_factory.mktemp("corpus")
     for seed in range(6):
         save_clip(root / "clips" / f"c{seed}.npz",
@@ -85,7 +85,7 @@ def test_rescore_reads_components_and_never_runs_geometry(scores_csv, tmp_path, 
 
     monkeypatch.setattr(sgc_jax.api, "_engine", refuse)
     monkeypatch.setattr(sgc_jax.reference, "score_pairs", refuse)
-    assert main(["rescore", str(scores_csv), "--calibration", "sgc-paper-2026", "--out", str(tmp_path / "r.csv")]) == 0
+    assert main(["rescore", str(scores_csv), "--calibration", "sgc-spec-2026", "--out", str(tmp_path / "r.csv")]) == 0
     np.testing.assert_allclose(column(tmp_path / "r.csv", "sgc"), column(scores_csv, "sgc"), rtol=1e-12)
     assert main(["calibrate", str(scores_csv), "--folds", "0", "--rescored", str(tmp_path / "c.csv")]) == 0
     assert "PC1 explained variance" in capsys.readouterr().out
@@ -109,7 +109,7 @@ def test_compare_by_group_with_agreement(scores_csv, tmp_path):
 def test_research_commands_report_bad_input_without_traceback(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("clip_id,sgc\na,0.1\n")
-    for args in (("calibrate", bad), ("rescore", bad, "--calibration", "sgc-paper-2026"), ("compare", bad),
+    for args in (("calibrate", bad), ("rescore", bad, "--calibration", "sgc-spec-2026"), ("compare", bad),
                  ("compare", tmp_path / "missing.csv")):
         proc = run(*args)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stderr.startswith("sgc-jax")

@@ -1,4 +1,4 @@
-"""compat="authors" (SPEC §3a): each documented difference from the spec, on a scene built to show it.
+"""compat="authors" (docs/semantics.md §3.9): each documented difference from the spec, on a scene built to show it.
 
 The reference engine implements every difference; the JAX engine all but the OpenCV PnP (its own
 RANSAC serves both modes), checked together in one test on a scene that triggers them all.
@@ -62,10 +62,23 @@ def test_authors_clustering_makes_invalid_static_depth_a_region_with_a_pose(hole
     assert authors.region_status[1, j] == 0 and authors.region_points[1, j] >= SPEC.min_points
 
 
+def farthest_and_nearest_warp_errors(clip):
+    """Per pair: the depth error (depth units, every valid pixel warped with the true pose) with
+    farthest-depth collisions (the authors') and with a z-buffer."""
+    errors = []
+    for pair in range(1, clip.n_frames):
+        R, t = reference.global_relative_pose(clip, pair, SPEC)
+        errors.append([reference.depth_error(reference.warp_depth(clip.depth[pair - 1], clip.K[pair - 1], clip.K[pair],
+                                                                  R, t, nearest=nearest), clip.depth[pair],
+                                             clip.static_mask[pair]) for nearest in (False, True)])
+    return np.array(errors).T
+
+
 def test_authors_warp_keeps_the_farthest_depth_and_inflates_a_rigid_scene_error(rigid_clip):
-    spec, authors = reference.score_pairs(rigid_clip, SPEC), reference.score_pairs(rigid_clip, AUTHORS)
-    # SPEC §3a: about 4x on real clips; here occlusions by the spheres make it 6-9x
-    assert (authors.depth_error > 3.0 * spec.depth_error).all()
+    farthest, nearest = farthest_and_nearest_warp_errors(rigid_clip)
+    # docs/semantics.md §3.9: about 4x on real clips; here occlusions by the spheres make it 6-9x
+    assert (farthest > 3.0 * nearest).all()
+    np.testing.assert_allclose(reference.score_pairs(rigid_clip, AUTHORS).depth_error, farthest, rtol=1e-9)
     # one collision: a near pixel and a far one land on the same target pixel
     depth = np.array([[1.0, 2.0, 0.0]])
     K = np.eye(3)
@@ -99,7 +112,7 @@ def test_authors_iqr_trimming_rejects_a_single_pose():
 
 
 def test_authors_nan_component_lets_a_clean_clip_score_worse_than_a_drifting_one(rigid_clip):
-    drift = synth_clip(seed=1, clip_id="drift", layer_drift=0.02, **SCENE)
+    drift = synth_clip(seed=1, clip_id="drift", layer_drift=0.1, **SCENE)
     spec = score_batch([rigid_clip, drift], engine="reference")
     authors = score_batch([rigid_clip, drift], engine="reference", compat="authors")
     clean, drifting = authors.clips
@@ -120,10 +133,21 @@ def test_authors_global_translation_uses_the_rotation_product_before_orthogonali
         np.testing.assert_allclose(R_auth, R_spec, atol=1e-12)
         np.testing.assert_allclose(t_auth, skewed_clip.t_wc[pair] - product @ skewed_clip.t_wc[pair - 1], atol=1e-12)
         np.testing.assert_allclose(t_spec, skewed_clip.t_wc[pair] - R_spec @ skewed_clip.t_wc[pair - 1], atol=1e-12)
-    spec, authors = reference.score_pairs(skewed_clip, SPEC), reference.score_pairs(skewed_clip, AUTHORS)
+    authors = reference.score_pairs(skewed_clip, AUTHORS)
+    orthogonalised = global_trans_var_with_orthogonalised_t_g(skewed_clip, authors)
     # t_wc[0] = 0, so pair 1 is unaffected; later pairs move t_g by (P - R_g) t_prev ~ 1e-3
-    assert authors.global_trans_var[0] == pytest.approx(spec.global_trans_var[0], rel=1e-9)
-    assert (authors.global_trans_var[1:] > 100 * spec.global_trans_var[1:]).all()
+    assert authors.global_trans_var[0] == pytest.approx(orthogonalised[0], rel=1e-9)
+    assert (authors.global_trans_var[1:] > 100 * orthogonalised[1:]).all()
+
+
+def global_trans_var_with_orthogonalised_t_g(clip, pairs):
+    """Per pair: mean |t_j - t_g|^2 over the accepted poses of ``pairs`` (raw units) with spec's t_g."""
+    out = []
+    for pair in range(1, clip.n_frames):
+        t_g = reference.global_relative_pose(clip, pair, SPEC)[1]
+        accepted = pairs.region_status[pair - 1] == 0
+        out.append(np.mean(np.sum((pairs.t_local[pair - 1][accepted] - t_g) ** 2, axis=-1)))
+    return np.array(out)
 
 
 def test_reference_local_poses_are_opencv_ransac_with_the_authors_settings(monkeypatch):
@@ -149,6 +173,8 @@ def test_jax_engine_reproduces_the_authors_differences(rigid_clip):
     spec = score_batch([clip], engine="jax").clips[0].pairs
     authors = score_batch([clip], engine="jax", compat="authors").clips[0].pairs
     np.testing.assert_array_equal(authors.n_regions - spec.n_regions, [0, 1, 0])  # invalid depth region
-    assert (authors.depth_error > 3.0 * spec.depth_error).all()  # farthest-depth collisions
+    # farthest-depth collisions of every valid pixel, in depth units: the reference's number
+    np.testing.assert_allclose(authors.depth_error, reference.score_pairs(clip, AUTHORS).depth_error, rtol=1e-3)
     assert np.isfinite(spec.global_rot_var).all() and np.isnan(authors.global_rot_var).all()  # arccos + IQR
-    assert (authors.global_trans_var[1:] > 100 * spec.global_trans_var[1:]).all()  # unorthogonalised t_g
+    orthogonalised = global_trans_var_with_orthogonalised_t_g(clip, authors)
+    assert (authors.global_trans_var[1:] > 100 * orthogonalised[1:]).all()  # unorthogonalised t_g

@@ -97,8 +97,8 @@ def test_rescoring_uses_stored_components_not_geometry(scored, tmp_path, monkeyp
     np.testing.assert_allclose([r["ecd"] for r in rows], scored.ecd, rtol=1e-12)
 
 
-def test_rescore_by_name_restores_the_paper_scores(scored, monkeypatch):
+def test_rescore_by_name_restores_the_shipped_scores(scored, monkeypatch):
     forbid_geometry(monkeypatch)
-    there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-paper-2026")
+    there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-spec-2026")
     np.testing.assert_allclose(there_and_back.sgc, scored.sgc, rtol=1e-12)
-    assert there_and_back.calibration == Calibration.load("sgc-paper-2026")
+    assert there_and_back.calibration == Calibration.load("sgc-spec-2026")
