@@ -43,7 +43,7 @@ def default_calibration(compat: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Calibration:
-    """Per component: log1p flag, mean ``mu``, std ``sigma``, z bounds and weight (SPEC §4)."""
+    """Per component: log1p flag, mean ``mu``, std ``sigma``, z bounds and weight (docs/semantics.md §5)."""
 
     name: str
     mu: dict[str, float]
@@ -253,7 +253,7 @@ def rows_compat(rows: Any) -> str:
 
 def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
               log1p: Sequence[str] = LOG1P_COMPONENTS, compat: str | None = None) -> Calibration:
-    """Fit (mu, sigma, z_min, z_max, w) on a corpus (SPEC §4).
+    """Fit (mu, sigma, z_min, z_max, w) on a corpus (docs/semantics.md §5).
 
     ``rows``: per-clip records (dicts with the component keys and ``group``), a ``BatchResult``,
     a DataFrame, or an (n, 5) array. ``by="group"`` first averages the clips of each group (the

@@ -33,7 +33,7 @@ class SGCConfig:
     # None = on under compat="spec" (docs/semantics.md §4), off under compat="authors".
     align_scale: bool | None = None
     global_pose: bool = True  # False: the "w/o VGGT" variant, the mean local pose stands in for the global one
-    compat: str = "spec"  # "spec" (SPEC §3) | "authors" (SPEC §3a)
+    compat: str = "spec"  # "spec" | "authors" (docs/semantics.md §3.9)
     kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
     gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
     # Region-quality rule (issue 7, sgc_jax.uncertainty): accepted local poses that the data do not

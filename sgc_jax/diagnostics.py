@@ -60,7 +60,7 @@ def _check_regions(labels: np.ndarray, pairs: PairArrays, pair: int, clip_id: st
 
 def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> np.ndarray:
     """(H, W) int32 region label map of frame ``pair`` for ``config.partition``: 0 = no region,
-    1..N_s = regions (with the default ``"depth"``: depth layers, nearest first; SPEC §3.1-3.2)."""
+    1..N_s = regions (with the default ``"depth"``: depth layers, nearest first; docs/semantics.md §3.2)."""
     clip, config = _prepare(clip, pair, config)
     return reference.partition_regions(clip, pair, config)
 
@@ -78,7 +78,7 @@ class RegionTracks:
 
 
 def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> RegionTracks:
-    """The points PnP sees per region (SPEC §3.3-3.5)."""
+    """The points PnP sees per region (docs/semantics.md §3.2 steps 3-5)."""
     clip, config = _prepare(clip, pair, config)
     labels = reference.partition_regions(clip, pair, config)
     X, uv, _ = reference.usable_points(clip, pair, config)
@@ -201,7 +201,7 @@ def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair:
 
 @dataclasses.dataclass(frozen=True)
 class DepthWarpError:
-    """The depth check of one pair (SPEC §3.8): ``warped`` (H, W) depth of frame pair-1 forward-
+    """The depth check of one pair (docs/semantics.md §3.6): ``warped`` (H, W) depth of frame pair-1 forward-
     warped into frame pair with the global pose (0 where nothing lands), ``error`` (H, W)
     |warped - depth[pair]| in depth units where compared (NaN elsewhere), ``mean`` its mean
     (the pair's ``depth_error``)."""

@@ -142,7 +142,7 @@ def _pair_regions(depth_curr, region_mask, config: SGCConfig):
 
 
 def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConfig):
-    """SPEC §3 steps 1-2 and 5 for frames i (F, H, W), their pairs' points in them (F, P, 2) and
+    """docs/semantics.md §3.2 steps 1-2 and 5 for frames i (F, H, W), their pairs' points in them (F, P, 2) and
     true image sizes (F, 2) -> (region at each point's floor pixel (F, P) int32, 0 = none or
     outside the image; N_s (F,); |S_i| (F,)).
 
@@ -170,7 +170,7 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
 
 def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
                      usable, image_hw, key, config: SGCConfig) -> LocalPoses:
-    """SPEC §3 steps 3-6 for one pair (frames i-1 -> i), given frame i's regions at the points
+    """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
     config applies it."""
     H, W = image_hw[0], image_hw[1]
@@ -211,7 +211,7 @@ def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, 
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
-    """(R_g, t_g) from camera i-1 to camera i (SPEC §3.7); authors: t from the raw product."""
+    """(R_g, t_g) from camera i-1 to camera i (docs/semantics.md §3.4); authors: t from the raw product."""
     product = R_curr @ R_prev.T
     R_g = nearest_rotation(product)
     R_for_t = product if config.compat == "authors" else R_g
@@ -241,7 +241,7 @@ def _excluded(status):
 
 
 def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
-    """SPEC §3 step 8 for one pair: pose variances, diagnostics, reason code; ``err`` is its depth
+    """docs/semantics.md §3.5-3.7 for one pair: pose variances, diagnostics, reason code; ``err`` is its depth
     error (``pair_depth_errors``)."""
     accepted = poses.region_status == 0
     comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)

@@ -56,7 +56,7 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
 
 
 def global_relative_pose(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(R_g, t_g) from camera pair-1 to camera pair (SPEC §3.7)."""
+    """(R_g, t_g) from camera pair-1 to camera pair (docs/semantics.md §3.4)."""
     product = clip.R_wc[pair] @ clip.R_wc[pair - 1].T
     R_g = nearest_rotation(product)
     R_for_t = product if config.compat == "authors" else R_g
@@ -111,7 +111,7 @@ def kmeans_1d(values: np.ndarray, k: int, bins: int) -> np.ndarray:
 
 
 def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
-    """Label map (H, W): 1..N_s depth clusters of the masked pixels, 0 = no region (SPEC §3.2)."""
+    """Label map (H, W): 1..N_s depth clusters of the masked pixels, 0 = no region (docs/semantics.md §3.2)."""
     labels = np.zeros(depth.shape, np.int32)
     cluster = kmeans_1d(depth[region_mask], config.k_seg, config.kmeans_bins)
     counts = np.bincount(cluster, minlength=config.k_seg)
@@ -190,7 +190,7 @@ def spatial_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfi
 
 def usable_points(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Usable tracks of a pair with valid depth: (X (n,3) in camera pair-1, uv (n,2) in frame pair,
-    n_usable) following SPEC §3.3-3.4."""
+    n_usable) following docs/semantics.md §3.2 steps 3-4."""
     usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
     prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
     H, W = clip.image_size
@@ -221,7 +221,7 @@ def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCC
     """PnP-RANSAC with OpenCV's solver: (status, R (3,3), t (3,), mean reprojection error px).
 
     Status codes are :data:`REGION_STATUS`. Accepted when inliers >= max(4, floor(frac * n)) and
-    R is a proper rotation (SPEC §3.6).
+    R is a proper rotation (docs/semantics.md §3.2 step 6).
     """
     n = len(X)
     nan_pose = np.full((3, 3), np.nan), np.full(3, np.nan)
@@ -333,7 +333,7 @@ def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config
 
 
 def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
-    """Mean of v with q1 - k*IQR <= v <= p98, k = (p98 - q3)/IQR; IQR == 0 keeps all (SPEC §3.8).
+    """Mean of v with q1 - k*IQR <= v <= p98, k = (p98 - q3)/IQR; IQR == 0 keeps all (docs/semantics.md §3.5).
 
     When the bounds reject every value (two distinct values) all are kept. Under
     ``compat="authors"`` both cases reject every value (NaN).
@@ -429,7 +429,7 @@ def region_seed(config: SGCConfig, pair: int, region: int) -> int:
 
 def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
     """Per pair and region (k_seg slots): status, R, t, point count, reprojection error; plus
-    per pair n_tracks and n_regions (SPEC §3.1-3.6)."""
+    per pair n_tracks and n_regions (docs/semantics.md §3.2-3.3)."""
     n_pairs, k = clip.n_pairs, config.k_seg
     out = {
         "R_local": np.full((n_pairs, k, 3, 3), np.nan), "t_local": np.full((n_pairs, k, 3), np.nan),

@@ -146,7 +146,7 @@ class ClipResult:
 
 def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
                    engine: str = "", mask_source: str = "", origin: str = "", compat: str = "") -> ClipResult:
-    """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (SPEC §3.9, §4)."""
+    """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
     reasons = Counter(str(r) for r in pairs.reason)
@@ -167,7 +167,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
-    """ECD (SPEC §5) per clip: max of min-max(mean ||t_g||) and min-max(mean angle of R_g) over the corpus.
+    """ECD (docs/semantics.md §4) per clip: max of min-max(mean ||t_g||) and min-max(mean angle of R_g) over the corpus.
 
     (n,) x2 -> (n,) in [0, 1]; NaN inputs are ignored by the scaling; a clip with one NaN input
     takes the other; a constant column scales to 0.
@@ -264,7 +264,7 @@ def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration 
 
 
 def add_ecd(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Copies of per-clip rows with ``ecd`` (SPEC §5) normalised over these rows; rows without
+    """Copies of per-clip rows with ``ecd`` (docs/semantics.md §4) normalised over these rows; rows without
     ``ecd_trans`` / ``ecd_rot`` get NaN."""
     nan = float("nan")
     ecd = camera_dynamics([r.get("ecd_trans", nan) for r in records], [r.get("ecd_rot", nan) for r in records])
@@ -326,7 +326,7 @@ class BatchResult:
 
     @property
     def ecd(self) -> np.ndarray:
-        """Estimated camera dynamics (SPEC §5) of each clip, normalised over this batch."""
+        """Estimated camera dynamics (docs/semantics.md §4) of each clip, normalised over this batch."""
         return camera_dynamics([c.ecd_trans for c in self.clips], [c.ecd_rot for c in self.clips])
 
     def to_records(self) -> list[dict[str, Any]]:

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS, LOG1P_COMPONENTS, UNITS, Calibration, _as_dict, _fit
+from .calibration import COMPONENTS, LOG1P_COMPONENTS, Calibration
 from .clip import Clip
 from .perturb import PERTURBATIONS, perturb_clip
 from .synth import synth_clip
@@ -70,10 +70,9 @@ def fit_spec_calibration(matrix: np.ndarray, kinds: Sequence[str], severities: S
     row's perturbation kind ("" = clean) and severity, by the rule in the module docstring."""
     kinds, severities = np.asarray(kinds), np.asarray(severities, np.float64)
     flags = {k: k in LOG1P_COMPONENTS for k in COMPONENTS}
-    fitted, explained = _fit(matrix, flags)
-    mu, sigma = fitted["mu"], fitted["sigma"]
     p = np.column_stack([np.log1p(np.maximum(matrix[:, j], 0.0)) if flags[k] else matrix[:, j]
                          for j, k in enumerate(COMPONENTS)])
+    mu, sigma = np.nanmean(p, axis=0), np.nanstd(p, axis=0, ddof=0)
     z = (p - mu) / np.where(sigma > 0, sigma, 1.0)
     clean = kinds == ""
     if not clean.any():
@@ -89,8 +88,9 @@ def fit_spec_calibration(matrix: np.ndarray, kinds: Sequence[str], severities: S
     _, singular, vt = np.linalg.svd(filled - filled.mean(axis=0), full_matrices=False)
     weights = np.abs(vt[0]) / np.abs(vt[0]).sum()
     return Calibration(
-        name=name, log1p=flags, mu=_as_dict(mu), sigma=_as_dict(sigma), z_min=_as_dict(z_min),
-        z_max=_as_dict(z_max), weight=_as_dict(weights), compat="spec", rows="clips",
+        name=name, log1p=flags, **{field: dict(zip(COMPONENTS, map(float, values))) for field, values in (
+            ("mu", mu), ("sigma", sigma), ("z_min", z_min), ("z_max", z_max), ("weight", weights))},
+        compat="spec", rows="clips",
         description=(
             "sgc_jax's calibration for compat='spec' (scale-free units: rotation variances deg^2, translation "
             "variances (% of the clip's median static depth)^2, depth error %). Fitted by "

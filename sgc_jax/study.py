@@ -51,9 +51,12 @@ def _nanstd(values: Sequence[float]) -> float:
 
 
 def _relative_change(value: float, clean: float) -> float:
-    if not (math.isfinite(value) and math.isfinite(clean)) or clean == 0:
+    """(value - clean) / clean; 0 when equal (a clean score of 0 included), NaN when undefined."""
+    if not (math.isfinite(value) and math.isfinite(clean)):
         return float("nan")
-    return (value - clean) / clean
+    if value == clean:
+        return 0.0
+    return (value - clean) / clean if clean != 0 else float("nan")
 
 
 @dataclasses.dataclass

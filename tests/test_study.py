@@ -1,4 +1,4 @@
-"""Sensitivity studies (SPEC §5, issue 4 must-show): on synthetic scenes the mean SGC and each
+"""Sensitivity studies (docs/semantics.md §6.4, issue 4 must-show): on synthetic scenes the mean SGC and each
 perturbation's targeted component rise strictly with severity, scored with the default JAX engine
 in one batched call; rows, summaries, plot and the ``sgc-jax perturb`` command."""
 
@@ -9,12 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, save_clip
-from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT
+from sgc_jax import SGCConfig, reference, save_clip
+from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_clip
 from sgc_jax.result import CLIP_COLUMNS
 from sgc_jax import study as study_module
 from sgc_jax.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study
 from sgc_jax.synth import synth_clip
+from sgc_jax.units import in_depth_units
 
 # Four rigid base scenes like conftest.SCENE (two planar layers and four static spheres: curved
 # regions, so PnP is well posed), smaller so that the 4 + 4 x 3 x 4 = 52 clips of the study are
@@ -68,10 +69,20 @@ def test_quality_rule_keeps_most_of_the_signal_at_half_severity(ladder):
 
 
 @pytest.mark.parametrize("kind", ("warp", "squeeze"))
-def test_track_perturbations_leave_depth_error_unchanged(ladder, kind):
-    # depth, masks and poses are untouched: the depth error cannot see a track perturbation
-    curve = ladder.curve(kind, "depth_error")
-    np.testing.assert_allclose(curve, curve[0], rtol=1e-6)
+def test_track_perturbations_reach_the_depth_error_only_through_the_translation_scale(ladder, kind):
+    # depth, masks and poses are untouched: warped with the clean clip's scale s, every perturbed
+    # clip's depth check is the clean one (the scored one moves with s, docs/semantics.md §3.4).
+    # rtol: the JAX engine's float32 warp against the reference's float64 one.
+    config = SGCConfig()
+    base = ladder_bases()[0]
+    clean = ladder.batch.clip(base.clip_id)
+    for severity in DEFAULT_SEVERITIES[1:]:
+        normalised, unit = in_depth_units(perturb_clip(base, kind, severity), config)
+        errors = []
+        for pair in range(1, normalised.n_frames):
+            R_g, t_g = reference.global_relative_pose(normalised, pair, config)
+            errors.append(reference.pair_depth_error(normalised, pair, R_g, clean.scale / unit * t_g, config)[1])
+        np.testing.assert_allclose(errors, clean.pairs.depth_error, rtol=1e-3)
 
 
 def test_every_scene_scores_and_clean_rows_are_shared(ladder):
@@ -84,8 +95,10 @@ def test_every_scene_scores_and_clean_rows_are_shared(ladder):
         clean = [r for r in rows if r["base"] == base and r["severity"] == 0]
         assert len({r["sgc"] for r in clean}) == 1 and all(r["rel_change"] == 0 for r in clean)
         for r in rows:
-            if r["base"] == base:
+            if r["base"] == base and clean[0]["sgc"] != 0:
                 np.testing.assert_allclose(r["rel_change"], (r["sgc"] - clean[0]["sgc"]) / clean[0]["sgc"])
+            elif r["base"] == base:  # relative to a clean score of 0: undefined unless unchanged
+                assert r["rel_change"] == 0 if r["sgc"] == 0 else np.isnan(r["rel_change"])
 
 
 def test_summary_correlations_and_tables(ladder, tmp_path):
@@ -139,9 +152,11 @@ def test_mask_study_reports_relative_change_and_under_segmentation_hurts():
                               progress=False)
     summary = {(s["kind"], s["severity"]): s for s in study.summary()}
     assert all(summary[kind, 0.0]["rel_change"] == 0 for kind in study.kinds)
-    # eroding the dynamic mask lets the moving spheres' tracks into the static regions
-    assert summary["erode", 1.0]["rel_change"] > 0.2
-    assert summary["erode", 1.0]["sgc"] > summary["erode", 0.0]["sgc"]
+    # eroding the dynamic mask lets the moving spheres' tracks into the static regions: the local
+    # poses part (at this size the score may stay inside sgc-spec-2026's clean floor, 0)
+    for k in ("local_rot_var", "local_trans_var"):
+        assert summary["erode", 1.0][k] > 10 * summary["erode", 0.0][k], k
+    assert summary["erode", 1.0]["sgc"] >= summary["erode", 0.0]["sgc"]
 
 
 # ----------------------------------------------------------------------------- batching and errors

@@ -1,4 +1,4 @@
-"""Estimator outputs -> clip files (SPEC §2): one reader per estimator, and :func:`import_clip`.
+"""Estimator outputs -> clip files (docs/semantics.md §1): one reader per estimator, and :func:`import_clip`.
 
 - :func:`read_vggt`: VGGT ``extrinsic`` / ``intrinsic`` (``predictions.npz``), K mapped from VGGT's
   preprocessed 518-px grid (crop or pad mode) to the clip grid.
