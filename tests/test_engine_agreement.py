@@ -107,7 +107,8 @@ def test_depth_error_agrees_wherever_the_translation_scales_agree(scored):
     clips, ref, jx = scored
     for clip, r, j in zip(clips, ref.clips, jx.clips):
         same_scale = abs(r.scale - j.scale) <= 5e-3 * abs(r.scale)
-        assert same_scale or clip.group not in ("rigid", "moving"), (clip.clip_id, r.scale, j.scale)
+        noise_free = clip.group in ("rigid", "moving") and "perturbation" not in clip.meta  # perturbed keep the group
+        assert same_scale or not noise_free, (clip.clip_id, r.scale, j.scale)
         if same_scale:
             assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error")
 
