@@ -11,6 +11,10 @@ from typing import Any, Mapping
 
 PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
+# The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
+# nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
+# depth edge, not the slope of one surface).
+HOLE_DEPTH_MARGIN = 0.05
 
 
 @dataclasses.dataclass(frozen=True)

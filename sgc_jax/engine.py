@@ -168,18 +168,23 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
 
 
+def points_prev(depth_prev, K_prev, track_prev, usable, image_hw):
+    """Tracks (P, 2) of frame i-1 back-projected at the depth of their pixel (floor, clamped to
+    the image) -> (X (P, 3) in camera i-1, (P,) bool usable with depth > 0). docs/semantics.md §3.2."""
+    H, W = image_hw[0], image_hw[1]
+    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
+    Z = depth_prev[row, col]
+    return back_project(K_prev, track_prev, Z), usable & (Z > 0)
+
+
 def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
                      usable, image_hw, key, config: SGCConfig) -> LocalPoses:
     """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
     config applies it."""
     H, W = image_hw[0], image_hw[1]
-
-    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
-    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
-    Z = depth_prev[row, col]
-    X = back_project(K_prev, track_prev, Z)
-    has_depth = usable & (Z > 0)
+    X, has_depth = points_prev(depth_prev, K_prev, track_prev, usable, image_hw)
 
     point_region = jnp.where(has_depth, track_label, 0)
     n_tracks = jnp.sum(usable)
@@ -228,7 +233,8 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
     def one(pair):
         depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
         source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
-        warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors)
+        warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors,
+                                 mask_holes=not authors)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=config.scale_free)[0]
 
     errors = jax.lax.map(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
@@ -269,20 +275,32 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
 # ----------------------------------------------------------------------------- per clip
 
 
-def fit_translation_scale(t_local, accepted, t_g, pair_valid, fallback=1.0):
-    """Robust s with t_j ~ s t_g: the median of r_j = <t_j, t_g> / |t_g|^2 over valid pairs and
-    accepted regions, weighted by |t_g|^2 (the first r whose cumulative weight reaches half the
-    total); ``fallback`` when no weight (no accepted pose, or t_g = 0). docs/semantics.md §3.4."""
-    use = accepted & pair_valid[:, None]
-    tg = jnp.broadcast_to(t_g[:, None, :], t_local.shape)
-    tg_sq = jnp.sum(tg * tg, axis=-1)
-    weight = jnp.where(use & (tg_sq > 0), tg_sq, 0.0).reshape(-1)
-    ratio = (jnp.sum(t_local * tg, axis=-1) / jnp.where(tg_sq > 0, tg_sq, 1.0)).reshape(-1)
-    ratio = jnp.where(weight > 0, ratio, jnp.inf)
-    order = jnp.argsort(ratio)
-    cumulative = jnp.cumsum(weight[order])
+def scale_equations(depth_prev, track_label, K_prev, K_curr, track_prev, track_curr, usable, image_hw, R_g, t_g):
+    """One pair's equations for the translation scale s (docs/semantics.md §3.4): a static point
+    X of camera i-1 seen at normalised n in frame i gives, per image axis k, a_k s = b_k with
+    a_k = n_k t_3 - t_k and b_k = Y_k - n_k Y_3 (Y = R_g X) -> (ratios b / a, weights |a| f_k / Y_3),
+    each (P, 2); the weight is the reprojection change in pixels per unit of s, 0 for an unused point."""
+    X, has_depth = points_prev(depth_prev, K_prev, track_prev, usable, image_hw)
+    use = has_depth & (track_label > 0)
+    Y = X @ R_g.T
+    n = back_project(K_curr, track_curr, jnp.ones_like(track_curr[:, 0]))  # (P, 3), n_3 = 1
+    a = n[:, :2] * t_g[2] - t_g[:2]
+    b = Y[:, :2] - n[:, :2] * Y[:, 2:3]
+    focal = jnp.stack([K_curr[0, 0], K_curr[1, 1]])
+    ok = use[:, None] & (Y[:, 2:3] > 0) & (a != 0)
+    weight = jnp.where(ok, jnp.abs(a) * focal / jnp.where(ok, Y[:, 2:3], 1.0), 0.0)
+    return jnp.where(ok, b / jnp.where(ok, a, 1.0), 0.0), weight
+
+
+def weighted_median(values, weights, fallback):
+    """The first value (sorted) whose cumulative weight reaches half the total; ``fallback`` when
+    the total is 0. Any shape, flattened; weight 0 marks an unused entry."""
+    values, weights = values.reshape(-1), weights.reshape(-1)
+    values = jnp.where(weights > 0, values, jnp.inf)
+    order = jnp.argsort(values)
+    cumulative = jnp.cumsum(weights[order])
     total = cumulative[-1]
-    median = ratio[order][jnp.argmax(cumulative >= 0.5 * total)]
+    median = values[order][jnp.argmax(cumulative >= 0.5 * total)]
     return jnp.where(total > 0, median, fallback)
 
 
@@ -305,9 +323,12 @@ def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, c
         clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
     # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
     shared = 1.0 / clip.depth_unit
-    scale = (fit_translation_scale(poses.t_local, accepted, t_g, clip.pair_valid, fallback=shared)
-             if config.fits_translation_scale else shared)
-    return poses, R_g, t_g, scale
+    if not config.fits_translation_scale:
+        return poses, R_g, t_g, shared
+    ratios, weights = jax.vmap(scale_equations, in_axes=(0, 0, 0, 0, 0, 0, 0, None, 0, 0))(
+        clip.depth[prev], track_labels, clip.K[prev], clip.K[curr], clip.track_prev, clip.track_curr,
+        clip.usable & clip.pair_valid[:, None], clip.image_hw, R_g, t_g)
+    return poses, R_g, t_g, weighted_median(ratios, weights, fallback=shared)
 
 
 def score_padded(batch: PaddedClips, key, config: SGCConfig):

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from .clip import Clip
-from .config import SGCConfig
+from .config import HOLE_DEPTH_MARGIN, SGCConfig
 from .result import REGION_STATUS, PairArrays, empty_pair_arrays
 from .units import PERCENT, in_depth_units, translation_factor
 
@@ -364,11 +364,13 @@ def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: 
 
 
 def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
-               t: np.ndarray, nearest: bool = True) -> np.ndarray:
+               t: np.ndarray, nearest: bool = True, mask_holes: bool = False) -> np.ndarray:
     """Forward-warp the valid pixels of depth_prev (H, W) into frame i; 0 where nothing lands.
 
     Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
     nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
+    ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN`` lands among
+    the 2x2 pixels around its exact position (the splat is seen through a hole in that surface).
     """
     H, W = depth_prev.shape
     rows, cols = np.nonzero(valid_depth(depth_prev))
@@ -379,16 +381,31 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     z = cam[2]
     front = z > 1e-5
     proj = K_curr @ (cam[:, front] / z[front])
-    iu, iv, z = np.floor(proj[0] + 0.5).astype(np.int64), np.floor(proj[1] + 0.5).astype(np.int64), z[front]
+    z_front = z[front]
+    iu, iv, z = np.floor(proj[0] + 0.5).astype(np.int64), np.floor(proj[1] + 0.5).astype(np.int64), z_front
     inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
     iu, iv, z = iu[inside], iv[inside], z[inside]
     if nearest:
         buffer = np.full((H, W), np.inf)
         np.minimum.at(buffer, (iv, iu), z)
+        if mask_holes:
+            buffer[buffer > (1.0 + HOLE_DEPTH_MARGIN) * _footprint_cover(proj, z_front, H, W)] = np.inf
         return np.where(np.isfinite(buffer), buffer, 0.0)
     buffer = np.zeros((H, W))
     np.maximum.at(buffer, (iv, iu), z)
     return buffer
+
+
+def _footprint_cover(proj: np.ndarray, z: np.ndarray, H: int, W: int) -> np.ndarray:
+    """(H, W) nearest z among the points (projections (2+, n), depths (n,)) whose four pixels
+    floor(u) + {0, 1}, floor(v) + {0, 1} include the pixel; inf where none."""
+    cover = np.full((H, W), np.inf)
+    for du in (0, 1):
+        for dv in (0, 1):
+            iu, iv = np.floor(proj[0]) + du, np.floor(proj[1]) + dv
+            inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+            np.minimum.at(cover, (iv[inside].astype(np.int64), iu[inside].astype(np.int64)), z[inside])
+    return cover
 
 
 def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False) -> float:
@@ -413,8 +430,9 @@ def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
 def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:
     """(warped depth (H, W), the pair's depth error): frame pair-1 warped into frame pair with
     (R, t), compared on the static, valid pixels of frame pair; percent of depth under spec."""
+    spec = config.compat != "authors"
     warped = warp_depth(warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
-                        nearest=config.compat != "authors")
+                        nearest=spec, mask_holes=spec)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
     error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free)
     return warped, error * (PERCENT if config.scale_free else 1.0)
@@ -437,6 +455,7 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
         "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
         "n_tracks": np.zeros(n_pairs, np.int32), "n_regions": np.zeros(n_pairs, np.int32),
+        "region_members": [(np.zeros((0, 3)), np.zeros((0, 2)))] * n_pairs,  # (X, uv) of the pair's region points
     }
     for pair in range(1, clip.n_frames):
         p = pair - 1
@@ -447,6 +466,7 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
         if n_usable < 4:
             continue
         member_of = point_regions(labels, uv)
+        out["region_members"][p] = (X[member_of > 0], uv[member_of > 0])
         for region in range(1, labels.max() + 1):
             member = member_of == region
             status, R, t, reproj = solve_region_pose(X[member], uv[member], clip.K[pair], config,
@@ -462,23 +482,33 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
     return out
 
 
-def fit_translation_scale(t_local: np.ndarray, accepted: np.ndarray, t_g: np.ndarray, fallback: float = 1.0) -> float:
-    """Robust s with t_j ~ s t_g (docs/semantics.md §3.4): the weighted median of the projections
-    r_j = <t_j, t_g> / |t_g|^2, weight |t_g|^2, over all pairs (T-1, k, 3) and accepted regions;
-    ``fallback`` when there is no weight."""
-    ratios, weights = [], []
-    for p in range(t_local.shape[0]):
-        norm_sq = float(t_g[p] @ t_g[p])
-        if norm_sq == 0:
+def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, R_g: np.ndarray,
+                          t_g: np.ndarray, fallback: float = 1.0) -> float:
+    """Robust s with which (R_g, s t_g) best explains the static tracks (docs/semantics.md §3.4).
+
+    Each region point X (camera pair-1) observed at uv in frame pair, with n = K^-1 (u, v, 1)
+    and Y = R_g X, must satisfy n_k (Y_3 + s t_3) = Y_k + s t_k on both image axes k: a line in s
+    whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. s is the slope-weighted median of the
+    lines' roots over every pair (the L1 fit of the reprojection residuals, linearised), or
+    ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
+    roots, slopes = [], []
+    for p, (X, uv) in enumerate(members):
+        if len(X) == 0:
             continue
-        for j in np.flatnonzero(accepted[p]):
-            ratios.append(float(t_local[p, j] @ t_g[p]) / norm_sq)
-            weights.append(norm_sq)
-    if not ratios:
+        Y = X @ R_g[p].T
+        n = (np.linalg.inv(K[p + 1].astype(np.float64)) @ np.column_stack([uv, np.ones(len(uv))]).T).T
+        for k, focal in ((0, K[p + 1][0, 0]), (1, K[p + 1][1, 1])):
+            a = n[:, k] * t_g[p][2] - t_g[p][k]
+            b = Y[:, k] - n[:, k] * Y[:, 2]
+            ok = (Y[:, 2] > 0) & (a != 0)
+            roots.append(b[ok] / a[ok])
+            slopes.append(np.abs(a[ok]) * focal / Y[ok, 2])
+    roots, slopes = (np.concatenate(x) if x else np.zeros(0) for x in (roots, slopes))
+    if not slopes.sum() > 0:
         return fallback
-    order = np.argsort(ratios, kind="stable")
-    cumulative = np.cumsum(np.asarray(weights)[order])
-    return float(np.asarray(ratios)[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    order = np.argsort(roots, kind="stable")
+    cumulative = np.cumsum(slopes[order])
+    return float(roots[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
@@ -513,7 +543,8 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         t_g = np.stack([g[1] for g in globals_])
         # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
         fitted = config.fits_translation_scale
-        scale = fit_translation_scale(poses["t_local"], accepted, t_g, 1.0 / unit) if fitted else 1.0 / unit
+        scale = (fit_translation_scale(poses["region_members"], clip.K, R_g, t_g, 1.0 / unit) if fitted
+                 else 1.0 / unit)
     else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one
         means = [mean_pose(R, t) if R else (np.full((3, 3), np.nan), np.full(3, np.nan)) for R, t in posed]
         R_g = np.stack([m[0] for m in means])

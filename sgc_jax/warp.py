@@ -11,6 +11,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from .config import HOLE_DEPTH_MARGIN
 from .geometry import back_project_xyz, project_xyz
 
 
@@ -22,13 +23,16 @@ def _valid_depth(depth, valid):
     return valid & (depth > 0) & jnp.isfinite(depth)
 
 
-@functools.partial(jax.jit, static_argnames=("nearest",))
-def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True):
+@functools.partial(jax.jit, static_argnames=("nearest", "mask_holes"))
+def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
     """(H, W) depth of frame i-1 -> ((H, W) float32 z in frame i, 0 where nothing lands; (H, W) bool hit).
 
     Every valid pixel is back-projected with K_prev, moved by (R, t), projected with K_curr and
     rounded half up to a pixel; z > 1e-5 inside the image is kept. Collisions keep the nearest z
     (``nearest=True``, a true z-buffer) or the farthest (``nearest=False``, the authors' code).
+    ``mask_holes`` (spec): a pixel is no hit when a point nearer by more than HOLE_DEPTH_MARGIN
+    lands within one pixel of it (on any of the 2x2 pixels around its exact position): what
+    reached it is seen through a gap that a magnified nearer surface leaves between its splats.
     """
     H, W = depth_prev.shape
     depth_prev = depth_prev.astype(jnp.float32)
@@ -51,11 +55,28 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     if nearest:
         buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[target].min(z, mode="drop")
         hit = buffer < jnp.inf
+        if mask_holes:
+            hit = hit & (buffer <= (1.0 + HOLE_DEPTH_MARGIN) * _footprint_cover(u_c, v_c, z, front, H, W))
     else:
         buffer = jnp.full(H * W, -jnp.inf, jnp.float32).at[target].max(z, mode="drop")
         hit = buffer > -jnp.inf
     warped = jnp.where(hit, buffer, 0.0)
     return warped.reshape(H, W), hit.reshape(H, W)
+
+
+def _footprint_cover(u_c, v_c, z, front, H, W):
+    """(H W,) nearest z of the points whose 2x2 footprint (floor(u) + {0, 1}, floor(v) + {0, 1})
+    covers each pixel; inf where none does. Holes up to a magnification of 2 are covered."""
+    u0, v0 = jnp.floor(u_c), jnp.floor(v_c)
+    z = z.reshape(-1)
+    cover = jnp.full(H * W, jnp.inf, jnp.float32)
+    for du in (0, 1):  # four scatters of (H W,) points, not a loop over pixels
+        for dv in (0, 1):
+            iu, iv = u0 + du, v0 + dv
+            inside = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # in float: no int overflow
+            index = jnp.where(inside, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W)
+            cover = cover.at[index.reshape(-1)].min(z, mode="drop")
+    return cover
 
 
 @functools.partial(jax.jit, static_argnames=("relative",))

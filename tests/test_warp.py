@@ -1,4 +1,4 @@
-"""warp.py: forward depth warp with a z-buffer and the depth error (SPEC §3 step 8)."""
+"""warp.py: forward depth warp with a z-buffer and the depth error (docs/semantics.md §3.6)."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 
+from sgc_jax import reference
 from sgc_jax.geometry import so3_exp
 from sgc_jax.warp import depth_error, warp_depth
 
@@ -142,3 +143,42 @@ def test_batch_of_pairs_equals_loop():
         single = warp_depth(depth[i], depth[i] > 0, K, K, rot[i], t[i])
         np.testing.assert_array_equal(np.asarray(batch[0][i]), np.asarray(single[0]))
         np.testing.assert_array_equal(np.asarray(batch[1][i]), np.asarray(single[1]))
+
+
+def near_square_over_background():
+    """A fronto-parallel square at depth 2 in front of a wall at depth 8, and a forward motion of
+    1 (the square is magnified 2x, the wall 8/7x) -> (depth0, t, square_interior, wall): the last
+    two are frame-1 masks at least 1.5 px from the square's edge there (half-width 9 px)."""
+    v, u = np.mgrid[:H, :W]
+    square = lambda half: (np.abs(u - K[0, 2]) <= half) & (np.abs(v - K[1, 2]) <= half)  # noqa: E731
+    depth0 = np.where(square(4.5), 2.0, 8.0).astype(np.float32)
+    return depth0, np.array([0.0, 0.0, -1.0], np.float32), square(7.5), ~square(10.5)
+
+
+def test_a_magnified_surface_leaves_holes_through_which_the_background_shows():
+    depth0, t, interior, _ = near_square_over_background()
+    warped, hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K, K, I3, t))
+    assert np.any(warped[interior & hit] == 7.0)  # wall points in the square's holes: errors of 600%
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_hole_rule_discards_what_is_seen_through_a_nearer_surface(engine):
+    depth0, t, interior, wall = near_square_over_background()
+    if engine == "jax":
+        warped, hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K, K, I3, t, mask_holes=True))
+    else:
+        warped = reference.warp_depth(depth0, K, K, np.eye(3), t.astype(np.float64), mask_holes=True)
+        hit = warped > 0
+    assert hit[interior].any() and hit[wall].any()
+    np.testing.assert_allclose(warped[interior & hit], 1.0, rtol=Z_RTOL)
+    np.testing.assert_allclose(warped[wall & hit], 7.0, rtol=Z_RTOL)
+
+
+def test_hole_rule_keeps_every_pixel_of_a_smooth_surface():
+    normal = np.array([0.1, -0.3, 1.0]) / np.linalg.norm([0.1, -0.3, 1.0])
+    depth0 = plane_depth(K, normal, 5.0).astype(np.float32)
+    R = np.asarray(so3_exp(np.radians(np.array([0.5, -1.0, 0.3], np.float32))))
+    t = np.array([0.05, -0.02, -0.4], np.float32)
+    plain = np.asarray(warp_depth(depth0, depth0 > 0, K, K, R, t)[1])
+    masked = np.asarray(warp_depth(depth0, depth0 > 0, K, K, R, t, mask_holes=True)[1])
+    np.testing.assert_array_equal(masked, plain)
