@@ -6,8 +6,11 @@
 2. Masked moving objects: three rigid scenes scored with and without moving objects (masked):
    the depth error's ratio with the spec warp (static source) and the authors' warp (every pixel).
 3. The demo corpus: SGC per clip and engine under the defaults, and whether each demo claim holds.
+4. The calibration corpus (with ``--scores``, the CSV that ``python -m sgc_jax.spec_calibration
+   --scores`` writes): medians per perturbation kind and severity, and how each perturbed clip
+   orders against its clean scene.
 
-    python bench/scale_free.py [--only units|objects|demo]
+    python bench/scale_free.py [--only units|objects|demo|corpus] [--scores corpus.csv]
 """
 
 from __future__ import annotations
@@ -78,13 +81,39 @@ def demo_table() -> None:
             print(f"- {engine}: {'holds' if holds else 'FAILS'}: {claim}")
 
 
+def corpus_table(scores_csv: str) -> None:
+    import pandas as pd
+
+    rows = pd.read_csv(scores_csv, keep_default_na=False, na_values=[""])
+    rows["kind"] = rows["kind"].fillna("")
+    rows["scene"] = rows["clip_id"].str.split("~").str[0]
+    print("| kind | severity | SGC median (min-max) | " + " | ".join(COMPONENTS) + " |")
+    print("|---|---|---|" + "---|" * len(COMPONENTS))
+    for (kind, severity), part in rows.groupby(["kind", "severity"]):
+        print(f"| {kind or 'clean'} | {severity:g} | {part.sgc.median():.3f} ({part.sgc.min():.3f}-"
+              f"{part.sgc.max():.3f}) | " + " | ".join(f"{part[k].median():.3g}" for k in COMPONENTS) + " |")
+    clean = rows[rows.kind == ""].set_index("scene").sgc
+    perturbed = rows[rows.kind != ""]
+    above = perturbed.sgc.to_numpy() > clean.loc[perturbed.scene].to_numpy()
+    print(f"\nclean SGC: max {clean.max():.3f}, {int((clean == 0).sum())} of {len(clean)} exactly 0; perturbed "
+          f"strictly above their clean scene: {int(above.sum())} of {len(perturbed)}")
+    for clip_id in perturbed.clip_id[~above]:
+        print(f"- not above: {clip_id}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--only", choices=("units", "objects", "demo"))
+    parser.add_argument("--only", choices=("units", "objects", "demo", "corpus"))
+    parser.add_argument("--scores", help="the calibration corpus's scores (python -m sgc_jax.spec_calibration --scores)")
     args = parser.parse_args()
     sgc_jax.enable_compilation_cache()
     print(f"calibration: {Calibration.load('sgc-spec-2026').name} (spec), sgc-paper-2026 (authors)\n")
-    for name, table in (("units", units_table), ("objects", objects_table), ("demo", demo_table)):
+    tables = [("units", units_table), ("objects", objects_table), ("demo", demo_table)]
+    if args.scores:
+        tables.append(("corpus", lambda: corpus_table(args.scores)))
+    elif args.only == "corpus":
+        parser.error("--only corpus needs --scores")
+    for name, table in tables:
         if args.only in (None, name):
             print(f"### {name}\n")
             table()

@@ -100,17 +100,19 @@ def test_noise_free_rigid_clips_agree_on_every_component(scored):
     assert checked == 4 * len(COMPONENTS)
 
 
-def test_depth_error_agrees_wherever_the_translation_scales_agree(scored):
-    # The depth warp involves PnP only through the clip's translation scale s (docs/semantics.md
-    # §3.4): on noise-free clips both engines find the same s and must agree on the depth error;
-    # on every clip where their s agree within 0.5%, so must the depth error.
+# The translation scale is a weighted median of ~10^4 per-track roots (docs/semantics.md §3.4):
+# float32 (JAX) against float64 (reference) roots move it by far less than this.
+SCALE_REL_TOL = 1e-3
+
+
+def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
+    # Neither involves a local pose (docs/semantics.md §3.4, §3.6): the engines see the same
+    # tracks and depth, so they agree on every clip, noisy, outlier and perturbed ones included.
     clips, ref, jx = scored
     for clip, r, j in zip(clips, ref.clips, jx.clips):
-        same_scale = abs(r.scale - j.scale) <= 5e-3 * abs(r.scale)
-        noise_free = clip.group in ("rigid", "moving") and "perturbation" not in clip.meta  # perturbed keep the group
-        assert same_scale or not noise_free, (clip.clip_id, r.scale, j.scale)
-        if same_scale:
-            assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error")
+        assert abs(r.scale - j.scale) <= SCALE_REL_TOL * abs(r.scale), (clip.clip_id, r.scale, j.scale)
+        assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error"), (
+            clip.clip_id, r.components["depth_error"], j.components["depth_error"])
 
 
 def test_on_rigid_scenes_jax_local_poses_are_closer_to_the_truth(scored):
