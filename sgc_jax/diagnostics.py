@@ -79,7 +79,11 @@ class RegionTracks:
 
 def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> RegionTracks:
     """The points PnP sees per region (docs/semantics.md §3.2 steps 3-5)."""
-    clip, config = _prepare(clip, pair, config)
+    return _region_tracks(*_prepare(clip, pair, config), pair)
+
+
+def _region_tracks(clip: Clip, config: SGCConfig, pair: int) -> RegionTracks:
+    """``region_tracks`` of a clip already in the engines' units (``_prepare``)."""
     labels = reference.partition_regions(clip, pair, config)
     X, uv, _ = reference.usable_points(clip, pair, config)
     K = clip.K[pair - 1]
@@ -142,7 +146,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
     pairs = _pair_arrays(scored)
     R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     clip, config = _prepare(clip, pair, config)
-    tracks = region_tracks(clip, pair, config)
+    tracks = _region_tracks(clip, config, pair)
     _check_regions(tracks.labels, pairs, pair, clip.clip_id)
     p = pair - 1
     k = pairs.region_status.shape[1]
@@ -183,7 +187,7 @@ def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair:
     pairs = _pair_arrays(scored)
     R_g, t_g = global_pose(clip, pair, config, scale=pairs.scale)
     clip, config = _prepare(clip, pair, config)
-    tracks = region_tracks(clip, pair, config)
+    tracks = _region_tracks(clip, config, pair)
     _check_regions(tracks.labels, pairs, pair, clip.clip_id)
     p, K = pair - 1, clip.K[pair]
     local, global_ = [], []

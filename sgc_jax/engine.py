@@ -369,8 +369,8 @@ def compiled_scorer(config: SGCConfig):
     return jax.jit(lambda batch: score_padded(batch, key, config))
 
 
-def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale_unit: float) -> PairArrays:
-    """Clip b's arrays; the reported scale is the fitted one times ``scale_unit`` (0: reported as 1)."""
+def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float) -> PairArrays:
+    """Clip b's arrays, with its depth unit D and the scale to report (depth units per pose unit)."""
     take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
     status = take("region_status")
     posed = (status == REGION_STATUS["ok"]) | np.asarray(_excluded(status))
@@ -387,7 +387,7 @@ def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale_unit:
         R_local=R_local, t_local=t_local, region_status=status, region_points=take("region_points"),
         region_reproj=per_region("region_reproj"), region_rot_std=per_region("region_rot_std"),
         region_trans_std=per_region("region_trans_std"),
-        scale=float(np.asarray(out["scale"][b])) * scale_unit if scale_unit else 1.0, depth_unit=depth_unit)
+        scale=scale, depth_unit=depth_unit)
 
 
 def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
@@ -404,8 +404,10 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
             batch = stack_padded([pad_clip(clips[i], bucket, config, units[i]) for i in group])
             out = jax.device_get(scorer(batch))
             for b, i in enumerate(group):
-                # s is reported in depth units per pose unit (1 when no global translation is scaled)
-                results[i] = _pair_arrays(out, b, clips[i].n_pairs, units[i], units[i] if config.global_pose else 0.0)
+                # s (per unit of D inside) is reported in depth units per pose unit; 1 when no
+                # global translation is scaled (the w/o-VGGT variant)
+                scale = float(np.asarray(out["scale"][b])) * units[i] if config.global_pose else 1.0
+                results[i] = _pair_arrays(out, b, clips[i].n_pairs, units[i], scale)
     return results
 
 

@@ -463,10 +463,10 @@ def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
         out["n_regions"][p] = labels.max()
         X, uv, n_usable = usable_points(clip, pair, config)
         out["n_tracks"][p] = n_usable
+        member_of = point_regions(labels, uv)
+        out["region_members"][p] = (X[member_of > 0], uv[member_of > 0])  # the scale fit uses them all
         if n_usable < 4:
             continue
-        member_of = point_regions(labels, uv)
-        out["region_members"][p] = (X[member_of > 0], uv[member_of > 0])
         for region in range(1, labels.max() + 1):
             member = member_of == region
             status, R, t, reproj = solve_region_pose(X[member], uv[member], clip.K[pair], config,
