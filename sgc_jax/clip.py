@@ -449,15 +449,16 @@ class BatchLayout:
         return len(self.ids)
 
 
-def _bookkeeping(book: Mapping[str, np.ndarray], name: str, label: str, count: int | None,
+def _bookkeeping(book: Mapping[str, np.ndarray], name: str, label: str, count: int, source: str,
                  kinds: str = "iu") -> np.ndarray | None:
+    """Bookkeeping array ``name``: (count,) integers (or text); None when absent."""
     if name not in book:
         return None
-    array = _as_array(label, name, book[name], "a (B,) array")
     what = "integers" if kinds == "iu" else "text"
-    want = f"a (B,) array of {what}" + (f" with B = {count} (the length of n_frames)" if count is not None else "")
-    if array.ndim != 1 or array.dtype.kind not in kinds or (count is not None and len(array) != count):
-        raise ClipFormatError(label, name, want, f"shape {_shape_str(array.shape)}, dtype {array.dtype}")
+    array = _as_array(label, name, book[name], f"a ({count},) array of {what}")
+    if array.ndim != 1 or array.dtype.kind not in kinds or len(array) != count:
+        raise ClipFormatError(label, name, f"a ({count},) array of {what}, one per member ({source})",
+                              f"shape {_shape_str(array.shape)}, dtype {array.dtype}")
     return array
 
 
@@ -465,25 +466,37 @@ def batch_layout(shapes: Mapping[str, tuple[int, ...]], book: Mapping[str, Any],
     """Check a batch's bookkeeping arrays (``book``) against the stored arrays' ``shapes``.
 
     Raises :class:`ClipFormatError` (clip ``label``, usually the file name) when the file as a whole is
-    inconsistent: bookkeeping of another length than ``n_frames`` or of the wrong dtype, a stored
-    array whose leading axis is not B. A member whose own T, P, H or W do not fit the stored arrays
-    gets its error in :attr:`BatchLayout.problems`; the other members stay loadable.
+    inconsistent: stored arrays that disagree on B, bookkeeping arrays of another length than B or
+    of the wrong dtype. A member whose own T, P, H or W do not fit the stored arrays gets its error in
+    :attr:`BatchLayout.problems`; the other members stay loadable.
     """
-    n_frames = _bookkeeping(book, "n_frames", label, None)
-    if n_frames is None or len(n_frames) == 0:
-        raise ClipFormatError(label, "n_frames", "a (B,) array of integers with B >= 1",
-                              "no such array" if n_frames is None else "no member")
-    count = len(n_frames)
+    if "n_frames" not in book:
+        raise ClipFormatError(label, "n_frames", "a (B,) array of integers", "no such array")
+    # B is what most stored arrays hold; absent any, n_frames says it
+    stacked = [name for name in _PER_FRAME + _PER_PAIR if name in shapes]
+    for name in stacked:
+        if len(shapes[name]) == 0:
+            raise ClipFormatError(label, name, "a leading axis of B members", "a 0-d array")
+    leading = [(name, shapes[name][0]) for name in stacked]
+    if leading:
+        count, agree = _settle(leading, lambda tied: tied[0])
+        source = f"as {', '.join(agree)} hold"
+        for name, size in leading:
+            if size != count:
+                raise ClipFormatError(label, name, f"a leading axis of B = {count} members, {source}",
+                                      f"shape {_shape_str(shapes[name])}")
+    else:
+        count, source = int(np.size(book["n_frames"])), "as n_frames lists"
+    n_frames = _bookkeeping(book, "n_frames", label, count, source)
+    if count < 1:
+        raise ClipFormatError(label, "n_frames", "at least one member", "B = 0")
     if "n_tracks" not in book:
         raise ClipFormatError(label, "n_tracks", f"a ({count},) array of integers", "no such array")
-    n_tracks = _bookkeeping(book, "n_tracks", label, count)
-    heights = _bookkeeping(book, "heights", label, count)
-    widths = _bookkeeping(book, "widths", label, count)
-    texts = {name: _bookkeeping(book, name, label, count, kinds="US") for name in ("clip_id", "mask_source", "meta")}
-    for name in _PER_FRAME + _PER_PAIR:
-        if name in shapes and (len(shapes[name]) == 0 or shapes[name][0] != count):
-            raise ClipFormatError(label, name, f"a leading axis of B = {count} members (the length of n_frames)",
-                                  f"shape {_shape_str(shapes[name])}")
+    n_tracks = _bookkeeping(book, "n_tracks", label, count, source)
+    heights = _bookkeeping(book, "heights", label, count, source)
+    widths = _bookkeeping(book, "widths", label, count, source)
+    texts = {name: _bookkeeping(book, name, label, count, source, kinds="US")
+             for name in ("clip_id", "mask_source", "meta")}
 
     def stored(names: Iterable[str], axis: int, min_ndim: int, plus: int = 0) -> list[tuple[int, str]]:
         return [(shapes[n][axis] + plus, n) for n in names if n in shapes and len(shapes[n]) >= min_ndim]

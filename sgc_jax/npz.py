@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import os
 import struct
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -22,9 +23,10 @@ import numpy as np
 # size exceeds that is lying; checking the npy header against it bounds what loading allocates.
 DEFLATE_MAX_RATIO = 1032
 # What reading a broken archive raises: zip structure and CRC (BadZipFile, struct.error), zlib
-# streams, truncation (EOFError, ValueError from numpy), encryption (RuntimeError), unknown compression.
-_READ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error, struct.error, NotImplementedError,
-                RuntimeError, OverflowError, MemoryError)
+# streams, truncation (EOFError, ValueError from numpy), a garbled npy header (numpy tokenizes and
+# literal_evals it), encryption (RuntimeError), unknown compression (NotImplementedError).
+_READ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error, struct.error, tokenize.TokenError,
+                SyntaxError, NotImplementedError, RuntimeError, OverflowError, MemoryError)
 FILE = "<file>"  # the array name given to problems of the archive as a whole
 
 
