@@ -140,7 +140,8 @@ def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
 
 def _check_invertible(clip_id: str, K: np.ndarray) -> None:
     """K (T, 3, 3), finite: each frame's K must be invertible (pixels are back-projected through K^-1)."""
-    condition = np.linalg.cond(K)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a singular K has an infinite condition number
+        condition = np.linalg.cond(K)
     bad = np.flatnonzero(~(condition < K_CONDITION_MAX))
     if bad.size:
         frames = ", ".join(str(int(t)) for t in bad[:5]) + (", ..." if bad.size > 5 else "")
