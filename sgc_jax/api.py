@@ -57,8 +57,9 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 progress: bool | None = None, chunk_size: int = 16, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
-    A clip that fails to load or score is reported with status ``error`` and its message; the
-    others are scored. ``overrides`` are :class:`SGCConfig` fields (``use_mos=False``, ...).
+    A clip that fails to load (:class:`ClipFormatError`: a bad input) is reported with status
+    ``error`` and its message; the others are scored; an exception from an engine propagates.
+    ``overrides`` are :class:`SGCConfig` fields (``use_mos=False``, ...).
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
     """
@@ -77,34 +78,25 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
 
 def _score_chunk(entries: list[ClipEntry], run: Callable, config: SGCConfig, calibration: Calibration,
                  engine: str) -> list[ClipResult]:
-    """Load a chunk, score the loadable clips together, keep input order and per-clip errors."""
+    """Load a chunk, score the loadable clips together, keep input order and per-clip errors.
+
+    Only :class:`ClipFormatError` (a bad input, docs/semantics.md §1.4) becomes an error row; any
+    other exception, from the loader or an engine, is a bug and propagates.
+    """
     loaded: dict[int, Clip] = {}
     results: dict[int, ClipResult] = {}
     for i, entry in enumerate(entries):
         try:
             loaded[i] = entry.load()
-        except (ClipFormatError, OSError, ValueError, KeyError) as exc:
+        except ClipFormatError as exc:
             results[i] = failed_clip(entry.clip_id, str(exc), engine=engine, origin=entry.origin,
                                      compat=config.compat)
     order = sorted(loaded)
-    try:
-        pair_arrays = run([loaded[i] for i in order], config)
-    except Exception:  # one bad clip must not stop the others: retry one by one
-        pair_arrays = []
-        for i in order:
-            try:
-                pair_arrays.extend(run([loaded[i]], config))
-            except Exception as exc:  # noqa: BLE001 - reported per clip
-                pair_arrays.append(exc)
+    pair_arrays = run([loaded[i] for i in order], config) if order else []
     for i, pairs in zip(order, pair_arrays):
         clip = loaded[i]
-        if isinstance(pairs, Exception):
-            results[i] = failed_clip(clip.clip_id, f"{type(pairs).__name__}: {pairs}", engine=engine,
-                                     origin=entries[i].origin, compat=config.compat)
-        else:
-            results[i] = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
-                                        mask_source=clip.mask_source, origin=entries[i].origin,
-                                        compat=config.compat)
+        results[i] = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
+                                    mask_source=clip.mask_source, origin=entries[i].origin, compat=config.compat)
     return [results[i] for i in range(len(entries))]
 
 

@@ -157,7 +157,7 @@ def _load_bases(clips: Any, config: SGCConfig, engine: str) -> list[Clip | ClipR
     for entry in discover_clips(list(clips), config):
         try:
             bases.append(entry.load())
-        except (ClipFormatError, OSError, ValueError, KeyError) as exc:
+        except ClipFormatError as exc:
             bases.append(failed_clip(entry.clip_id, str(exc), engine=engine, origin=entry.origin))
     return bases
 

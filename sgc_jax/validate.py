@@ -12,15 +12,12 @@ are only shown by ``sgc-jax validate``.
 from __future__ import annotations
 
 import dataclasses
-import glob
-import os
 import warnings
-from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
-from .clip import Clip, ClipFormatError, _batch_member, _meta_id, clip_from_arrays, is_batch
+from .clip import Clip, ClipFormatError, clip_from_arrays, entries_from_file, guard_duplicate_ids, list_clip_files
 from .config import SGCConfig
 from .stats import spearman
 
@@ -375,52 +372,33 @@ class Report:
         return [f"{self.origin}: {p.line()}" for p in self.problems if show_info or p.severity != "info"]
 
 
-def _expand(source: Any) -> list[Path]:
-    text = os.fspath(source)
-    path = Path(text)
-    if path.is_dir():
-        return sorted(path.glob("*.npz"))
-    if path.is_file():
-        return [path]
-    matches = sorted(glob.glob(text))
-    if not matches:
-        raise FileNotFoundError(f"no clip file, directory or glob match for {text!r}")
-    return [Path(m) for m in matches]
-
-
-def _members(path: Path) -> Iterator[tuple[str, str, dict[str, Any] | Exception]]:
-    """(origin, clip_id, arrays or the error that prevented reading them) for each clip of a file."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except Exception as exc:  # noqa: BLE001 - reported as a problem of this file
-        yield str(path), path.stem, exc
-        return
-    if not is_batch(arrays):
-        yield str(path), _meta_id(arrays) or path.stem, arrays
-        return
-    for b in range(len(np.asarray(arrays["n_frames"]))):
-        clip_id, member = _batch_member(arrays, b)
-        yield f"{path}[{b}]", clip_id, member
-
-
 def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[Report]:
-    """Check every clip of clip / batch ``.npz`` files, directories or globs, without raising."""
+    """Check every clip of clip / batch ``.npz`` files, directories or globs.
+
+    A broken file or member is a report, never an exception; raises FileNotFoundError only for a
+    path or glob that names nothing. Of clips with one id, the first without errors keeps it; later ones get a
+    ``duplicate_clip_id`` error (docs/semantics.md §1.4).
+    """
     config = config or SGCConfig()
+    entries = [e for source in sources for path in list_clip_files(source, allow_empty=True)
+               for e in entries_from_file(path, config)]
+    guard_duplicate_ids(entries)
     reports = []
-    for source in sources:
-        for path in _expand(source):
-            for origin, clip_id, arrays in _members(path):
-                if isinstance(arrays, Exception):
-                    problem = Problem("error", "unreadable", "<file>", "a readable .npz",
-                                      f"{type(arrays).__name__}: {arrays}")
-                    reports.append(Report(origin, clip_id, [problem]))
-                    continue
-                try:
-                    clip = clip_from_arrays(arrays, clip_id=clip_id, config=config, validate=False)
-                except ClipFormatError as exc:
-                    problem = Problem("error", "structure", exc.array, exc.expected, exc.found, exc.detail)
-                    reports.append(Report(origin, clip_id, [problem]))
-                    continue
-                reports.append(Report(origin, clip.clip_id, check_clip(clip, config, arrays)))
+    for entry in entries:
+        try:
+            arrays = entry.read()
+            clip = clip_from_arrays(arrays, clip_id=entry.clip_id, config=config, validate=False)
+        except ClipFormatError as exc:
+            code = "unreadable" if exc.array == "<file>" else "structure"
+            reports.append(Report(entry.origin, entry.clip_id,
+                                  [Problem("error", code, exc.array, exc.expected, exc.found, exc.detail)]))
+            continue
+        problems = check_clip(clip, config, arrays)
+        if not any(p.severity == "error" for p in problems):  # as when scoring: the first clip that loads owns its id
+            try:
+                entry.claim_id()
+            except ClipFormatError as exc:
+                problems.insert(0, Problem("error", "duplicate_clip_id", exc.array, exc.expected, exc.found,
+                                           exc.detail))
+        reports.append(Report(entry.origin, clip.clip_id, problems))
     return reports

@@ -1,5 +1,6 @@
 """Issue 5: content checks shared by the loader and `sgc-jax validate`; one actionable line each."""
 
+import dataclasses
 import json
 import warnings
 
@@ -149,7 +150,8 @@ def test_validate_paths_reports_every_clip_of_files_directories_and_batches(tmp_
     broken.pop("track_vis")
     np.savez(tmp_path / "broken.npz", **broken)
     (tmp_path / "junk.npz").write_bytes(b"not an npz")
-    batch = save_batch(tmp_path / "sub" / "batch.npz", [clip, bad])
+    # the batch's good clip has its own id: one id for two clip files is a duplicate (docs/semantics.md §1.4)
+    batch = save_batch(tmp_path / "sub" / "batch.npz", [dataclasses.replace(clip, clip_id="good_packed"), bad])
     reports = validate_paths([tmp_path, batch])
     by_origin = {r.origin: r for r in reports}
     assert by_origin[str(good)].ok and by_origin[f"{batch}[0]"].ok

@@ -1,0 +1,137 @@
+"""Reading ``.npz`` archives of untrusted origin: nothing unpickled, nothing allocated unchecked.
+
+Every ``.npy`` header is read first (``numpy.lib.format``) and checked against the bytes the
+archive can hold for it, so a header claiming petabytes is refused before any allocation; object
+arrays are refused (only pickle reads them). Every way a broken archive fails (zip structure, CRC,
+zlib stream, truncation, encryption) becomes one :class:`NpzError` naming the array and the path.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+import tokenize
+import zipfile
+import zlib
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+# Deflate expands data by at most 1032:1 (zlib's technical details), so a member whose recorded
+# size exceeds that is lying; checking the npy header against it bounds what loading allocates.
+DEFLATE_MAX_RATIO = 1032
+# What reading a broken archive raises: zip structure and CRC (BadZipFile, struct.error), zlib
+# streams, truncation (EOFError, ValueError from numpy), a garbled npy header (numpy tokenizes and
+# literal_evals it), encryption (RuntimeError), unknown compression (NotImplementedError).
+_READ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error, struct.error, tokenize.TokenError,
+                SyntaxError, NotImplementedError, RuntimeError, OverflowError, MemoryError)
+FILE = "<file>"  # the array name given to problems of the archive as a whole
+
+
+class NpzError(ValueError):
+    """An archive, or one array of it, that cannot be read: ``array`` (or ``<file>``), what was expected and found."""
+
+    def __init__(self, path: str | os.PathLike, array: str, expected: str, found: str):
+        self.path, self.array, self.expected, self.found = str(path), array, expected, found
+        super().__init__(f"{self.path}: array {array!r}: expected {expected}, found {found}")
+
+
+def _shape_str(shape: Iterable[Any]) -> str:
+    return "(" + ", ".join(str(s) for s in shape) + ")"
+
+
+def _describe(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _npy_header(fp: Any, path: Path, name: str) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) from the npy header at ``fp``; formats 1.0 and 2.0, what np.save writes for plain dtypes."""
+    version = np.lib.format.read_magic(fp)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(fp)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(fp)
+    else:
+        raise NpzError(path, name, "an .npy array of format 1.0 or 2.0", f"format {version}")
+    return tuple(shape), dtype
+
+
+def _check_header(path: Path, name: str, shape: tuple[int, ...], dtype: np.dtype, room: int) -> None:
+    """Refuse Python objects (only pickle reads them), structured dtypes, and shapes whose bytes
+    exceed ``room``, the bytes the member can hold after its header."""
+    if dtype.hasobject:
+        raise NpzError(path, name, "numbers or text (nothing is unpickled)", f"dtype {dtype} (Python objects)")
+    if dtype.names is not None or dtype.subdtype is not None or dtype.kind == "V":
+        raise NpzError(path, name, "a plain array of numbers or text", f"structured dtype {dtype}")
+    if any(s < 0 for s in shape):
+        raise NpzError(path, name, "sizes >= 0", f"shape {_shape_str(shape)}")
+    claimed = math.prod(shape) * max(dtype.itemsize, 1)
+    if claimed > room:
+        raise NpzError(path, name, f"at most the {room} bytes the archive holds for it",
+                       f"a header claiming shape {_shape_str(shape)} of {dtype} ({claimed} bytes)")
+
+
+def _member_room(info: zipfile.ZipInfo, archive_bytes: int, path: Path, name: str) -> int:
+    """The most bytes member ``info`` can expand to, from the sizes of the archive itself."""
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+        raise NpzError(path, name, "a stored or deflated member (as np.savez writes)",
+                       f"compression method {info.compress_type}")
+    if info.header_offset + info.compress_size > archive_bytes:
+        raise NpzError(path, name, f"{info.compress_size} compressed bytes", "a truncated member")
+    most = info.compress_size * (DEFLATE_MAX_RATIO if info.compress_type == zipfile.ZIP_DEFLATED else 1)
+    if info.file_size > most:
+        raise NpzError(path, name, f"at most {most} bytes from {info.compress_size} compressed",
+                       f"a member recorded as {info.file_size} bytes")
+    return info.file_size
+
+
+def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, archive_bytes: int, path: Path, name: str,
+                 headers_only: bool) -> Any:
+    try:
+        room = _member_room(info, archive_bytes, path, name)
+        with archive.open(info) as fp:
+            shape, dtype = _npy_header(fp, path, name)
+            _check_header(path, name, shape, dtype, room - fp.tell())
+        if headers_only:
+            return shape, dtype
+        with archive.open(info) as fp:
+            array = np.lib.format.read_array(fp, allow_pickle=False)
+            fp.read()  # on to the member's end: zipfile checks the CRC only there
+        return array
+    except NpzError:
+        raise
+    except _READ_ERRORS as exc:
+        raise NpzError(path, name, "an array readable from the archive", _describe(exc)) from None
+
+
+def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bool) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        archive_bytes = os.path.getsize(path)
+        with zipfile.ZipFile(path) as archive:
+            members = {info.filename[:-4]: info for info in archive.infolist() if info.filename.endswith(".npy")}
+            wanted = list(members) if names is None else [n for n in names if n in members]
+            return {n: _read_member(archive, members[n], archive_bytes, path, n, headers_only) for n in wanted}
+    except NpzError:
+        raise
+    except _READ_ERRORS as exc:
+        if os.path.islink(path) and not os.path.exists(path):
+            found = "a link that leads nowhere (dangling, or a loop of links)"
+        else:
+            found = _describe(exc)
+        raise NpzError(path, FILE, "a readable .npz archive of .npy arrays", found) from None
+
+
+def read_npz(path: str | os.PathLike, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` by name (only ``names`` when given; absent names are skipped).
+
+    Raises :class:`NpzError` for anything that cannot be read as plain arrays.
+    """
+    return _read(path, names, headers_only=False)
+
+
+def npz_headers(path: str | os.PathLike) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """(shape, dtype) of every array of an ``.npz``, from the headers only; errors as :func:`read_npz`."""
+    return _read(path, None, headers_only=True)
