@@ -8,6 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Sequence
 
+from . import __version__
 from .calibration import COMPONENTS
 
 
@@ -18,7 +19,10 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--calibration", default=None,
                        help="shipped calibration name or a calibration JSON file (default: sgc-spec-2026, or "
                             "sgc-paper-2026 with --compat authors; docs/semantics.md §5)")
-    group.add_argument("--partition", choices=("depth", "grid", "depth+spatial"), default="depth")
+    group.add_argument("--partition", choices=("depth", "grid", "depth+spatial"), default="depth",
+                       help="how the static background is split into regions: depth layers (default), a "
+                            "k_seg grid over its bounding box, or depth layers split into connected "
+                            "parts (docs/semantics.md §3.2, §6.1)")
     group.add_argument("--no-mos", action="store_true", help="ignore the static masks (paper's no-MOS ablation)")
     group.add_argument("--align-scale", action=argparse.BooleanOptionalAction, default=None,
                        help="fit one scale per clip between local (depth) and global (pose) translations "
@@ -120,16 +124,17 @@ def _register_score(sub) -> None:
 def _register_demo(sub) -> None:
     demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table")
     demo.add_argument("--out", help="keep the demo clips in this directory")
-    demo.add_argument("--engine", choices=("jax", "reference"), default="jax")
-    demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("-q", "--quiet", action="store_true")
+    demo.add_argument("--engine", choices=("jax", "reference"), default="jax",
+                      help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
+    demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=cmd_demo)
 
 
 def _register_synth(sub) -> None:
     synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files")
     synth.add_argument("--out", required=True, help="output directory")
-    synth.add_argument("--seed", type=int, default=0)
+    synth.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
     synth.set_defaults(func=cmd_synth)
 
 
@@ -293,7 +298,8 @@ def _register_rescore(sub) -> None:
 def _register_compare(sub) -> None:
     cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files")
     cmp_.add_argument("scores", nargs="+", help="per-clip CSVs (read together as one corpus)")
-    cmp_.add_argument("--by", choices=("group", "clip"), default="group")
+    cmp_.add_argument("--by", choices=("group", "clip"), default="group",
+                      help="one row per group (default) or per clip")
     cmp_.add_argument("--column", default="sgc", help="score column to summarise (default: sgc)")
     cmp_.add_argument("--against", nargs="+", help="other per-clip CSVs: rank agreement per clip or group mean")
     cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI")
@@ -375,6 +381,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         reports = validate_paths(list(args.paths))
     except (OSError, ValueError) as exc:
         print(f"sgc-jax validate: error: {exc}", file=sys.stderr)
+        return 2
+    if not reports:  # as `score` does: nothing to check is a usage error
+        print(f"sgc-jax validate: error: no clip files found in {' '.join(args.paths)}", file=sys.stderr)
         return 2
     for report in reports:
         for line in report.lines(show_info=args.verbose):
@@ -523,6 +532,7 @@ SUBCOMMANDS = (
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sgc-jax", description="Spatial Geometric Consistency scores")
+    parser.add_argument("--version", action="version", version=f"sgc-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for register in SUBCOMMANDS:
         register(sub)

@@ -45,3 +45,28 @@ def test_synth_and_demo(tmp_path):
     demo = run("demo", "--engine", "reference", "-q")
     assert demo.returncode == 0, demo.stderr
     assert "rigid-a" in demo.stdout and "sgc" in demo.stdout
+
+
+def test_version_names_the_package_version():
+    from sgc_jax import __version__
+
+    proc = run("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"sgc-jax {__version__}"
+
+
+def test_every_option_of_every_command_has_help_text():
+    import argparse
+
+    from sgc_jax.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    missing = [f"{name} {'/'.join(action.option_strings)}" for name, command in commands.items()
+               for action in command._actions
+               if action.option_strings and not isinstance(action, argparse._HelpAction) and not action.help]
+    assert missing == []
+
+
+def test_validate_and_score_treat_an_empty_folder_alike(tmp_path):
+    codes = {command: run(command, tmp_path).returncode for command in ("validate", "score")}
+    assert codes == {"validate": 2, "score": 2}
