@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 import numpy as np
 
 from .config import SGCConfig
-from .npz import NpzError, npz_headers, read_npz
+from .npz import NpzError, npz_headers, read_npz, shape_text
 
 
 class ClipFormatError(ValueError):
@@ -92,10 +92,6 @@ _KINDS = {"depth": _REAL, "K": _REAL, "R_wc": _REAL, "t_wc": _REAL, "extrinsic":
 K_CONDITION_MAX = 1e12
 
 
-def _shape_str(shape: Iterable[Any]) -> str:
-    return "(" + ", ".join(str(s) for s in shape) + ")"
-
-
 def _as_array(clip_id: str, name: str, value: Any, expected: str) -> np.ndarray:
     """``value`` as an ndarray; a value NumPy cannot make one of (ragged lists, ...) raises ClipFormatError."""
     try:
@@ -128,8 +124,8 @@ def _check_shape(clip_id: str, name: str, array: np.ndarray, expected: tuple) ->
     """``expected`` holds ints or None (any size); raise naming both shapes on mismatch."""
     ok = array.ndim == len(expected) and all(e is None or e == s for e, s in zip(expected, array.shape))
     if not ok:
-        want = _shape_str("*" if e is None else e for e in expected)
-        raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {_shape_str(array.shape)}")
+        want = shape_text("*" if e is None else e for e in expected)
+        raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {shape_text(array.shape)}")
 
 
 def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
@@ -232,12 +228,12 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
 
     depth = _require(typed, "depth", clip_id, "shape (T, H, W)")
     if depth.ndim != 3:
-        raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {_shape_str(depth.shape)}")
+        raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {shape_text(depth.shape)}")
     if depth.shape[0] < 2:
         raise ClipFormatError(clip_id, "depth", "T >= 2 frames", f"T = {depth.shape[0]}")
     if min(depth.shape[1:]) < 1:
         raise ClipFormatError(clip_id, "depth", "an image of H >= 1 by W >= 1 pixels",
-                              f"shape {_shape_str(depth.shape)}")
+                              f"shape {shape_text(depth.shape)}")
     # The sizes most arrays agree on: an array of another size is the one blamed, depth included.
     T, agree_T = _frame_count(typed, depth.shape[0])
     (H, W), agree_HW = _image_size(typed, depth.shape[1:])
@@ -245,7 +241,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
         raise ClipFormatError(clip_id, "depth", "T >= 2 frames", f"T = {T} in {', '.join(agree_T)}")
     if depth.shape != (T, H, W):
         raise ClipFormatError(clip_id, "depth", f"shape ({T}, {H}, {W}), the T of {', '.join(agree_T)} and the "
-                              f"H x W of {', '.join(agree_HW)}", f"shape {_shape_str(depth.shape)}")
+                              f"H x W of {', '.join(agree_HW)}", f"shape {shape_text(depth.shape)}")
     with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: invalid depth
         depth = depth.astype(np.float32)
 
@@ -287,7 +283,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     P = track_prev.shape[1]
     if P < 1:
         raise ClipFormatError(clip_id, "track_prev", f"shape ({T - 1}, P, 2) with P >= 1 tracks per pair",
-                              f"shape {_shape_str(track_prev.shape)}")
+                              f"shape {shape_text(track_prev.shape)}")
     track_curr = _require(typed, "track_curr", clip_id, f"shape ({T - 1}, {P}, 2)")
     _check_shape(clip_id, "track_curr", track_curr, (T - 1, P, 2))
     track_vis = _require(typed, "track_vis", clip_id, f"shape ({T - 1}, {P})")
@@ -459,7 +455,7 @@ def _bookkeeping(book: Mapping[str, np.ndarray], name: str, label: str, count: i
     array = _as_array(label, name, book[name], f"a ({count},) array of {what}")
     if array.ndim != 1 or array.dtype.kind not in kinds or len(array) != count:
         raise ClipFormatError(label, name, f"a ({count},) array of {what}, one per member ({source})",
-                              f"shape {_shape_str(array.shape)}, dtype {array.dtype}")
+                              f"shape {shape_text(array.shape)}, dtype {array.dtype}")
     return array
 
 
@@ -485,7 +481,7 @@ def batch_layout(shapes: Mapping[str, tuple[int, ...]], book: Mapping[str, Any],
         for name, size in leading:
             if size != count:
                 raise ClipFormatError(label, name, f"a leading axis of B = {count} members, {source}",
-                                      f"shape {_shape_str(shapes[name])}")
+                                      f"shape {shape_text(shapes[name])}")
     else:
         count, source = int(np.size(book["n_frames"])), "as n_frames lists"
     n_frames = _bookkeeping(book, "n_frames", label, count, source)

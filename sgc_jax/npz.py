@@ -24,9 +24,9 @@ import numpy as np
 DEFLATE_MAX_RATIO = 1032
 # What reading a broken archive raises: zip structure and CRC (BadZipFile, struct.error), zlib
 # streams, truncation (EOFError, ValueError from numpy), a garbled npy header (numpy tokenizes and
-# literal_evals it), encryption (RuntimeError), unknown compression (NotImplementedError).
+# literal_evals it), encryption and unsupported zip features (RuntimeError and its subclasses).
 _READ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error, struct.error, tokenize.TokenError,
-                SyntaxError, NotImplementedError, RuntimeError, OverflowError, MemoryError)
+                SyntaxError, RuntimeError, OverflowError, MemoryError)
 FILE = "<file>"  # the array name given to problems of the archive as a whole
 
 
@@ -38,7 +38,8 @@ class NpzError(ValueError):
         super().__init__(f"{self.path}: array {array!r}: expected {expected}, found {found}")
 
 
-def _shape_str(shape: Iterable[Any]) -> str:
+def shape_text(shape: Iterable[Any]) -> str:
+    """A shape as text, e.g. ``(3, 24, 32)``, for error messages."""
     return "(" + ", ".join(str(s) for s in shape) + ")"
 
 
@@ -66,11 +67,11 @@ def _check_header(path: Path, name: str, shape: tuple[int, ...], dtype: np.dtype
     if dtype.names is not None or dtype.subdtype is not None or dtype.kind == "V":
         raise NpzError(path, name, "a plain array of numbers or text", f"structured dtype {dtype}")
     if any(s < 0 for s in shape):
-        raise NpzError(path, name, "sizes >= 0", f"shape {_shape_str(shape)}")
+        raise NpzError(path, name, "sizes >= 0", f"shape {shape_text(shape)}")
     claimed = math.prod(shape) * max(dtype.itemsize, 1)
     if claimed > room:
         raise NpzError(path, name, f"at most the {room} bytes the archive holds for it",
-                       f"a header claiming shape {_shape_str(shape)} of {dtype} ({claimed} bytes)")
+                       f"a header claiming shape {shape_text(shape)} of {dtype} ({claimed} bytes)")
 
 
 def _member_room(info: zipfile.ZipInfo, archive_bytes: int, path: Path, name: str) -> int:
