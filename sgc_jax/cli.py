@@ -1,15 +1,98 @@
-"""The ``sgc-jax`` command line: score, demo, synth."""
+"""The ``sgc-jax`` command line; exit codes and the input/output guards: docs/semantics.md §8."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
+import traceback
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 from . import __version__
 from .calibration import COMPONENTS
+
+EXIT_OK = 0  # every input processed
+EXIT_SOME_FAILED = 1  # the command ran to the end and wrote its outputs; some inputs were reported as errors
+EXIT_USAGE = 2  # nothing done: bad arguments, inputs or outputs (one line on stderr says which)
+EXIT_INTERNAL = 3  # a bug in sgc_jax: the traceback is printed
+EXIT_INTERRUPTED = 130
+
+EXIT_CODES_HELP = ("exit codes: 0 every input processed; 1 finished, but some inputs were reported as errors "
+                   "(outputs written for the rest); 2 nothing done (bad arguments, an input of the wrong kind, "
+                   "--out naming an input); 3 internal error (a bug; please report the traceback). "
+                   "docs/semantics.md §8")
+
+
+class UsageError(Exception):
+    """A command line that cannot run as given: one line on stderr, exit 2, nothing read or written."""
+
+
+# ----------------------------------------------------------------------------- input and output guards
+_NOT_A_CLIP_HINTS = {
+    ".csv": "a scores table; `sgc-jax rescore`, `compare` and `calibrate` read those",
+    ".npy": "a single array; a clip is an .npz archive of named arrays (docs/semantics.md §1.2)",
+    ".json": "a calibration file? give it to --calibration",
+}
+
+
+def _file_key(path: str | os.PathLike) -> tuple | str:
+    """One key per file on disk: (device, inode) of an existing file (hard and symbolic links
+    included), else its resolved path."""
+    try:
+        st = os.stat(path)
+        return (st.st_dev, st.st_ino)
+    except OSError:
+        return os.path.realpath(path)
+
+
+def clip_input_files(paths: Iterable[str]) -> list[Path]:
+    """The files that clip arguments name; a named file that is not an ``.npz`` is refused with a
+    hint (directories and globs contribute their ``.npz`` files only)."""
+    from .clip import list_clip_files
+
+    files: list[Path] = []
+    for text in paths:
+        suffix = Path(text).suffix.lower()
+        if os.path.lexists(text) and not os.path.isdir(text) and suffix != ".npz":
+            hint = _NOT_A_CLIP_HINTS.get(suffix, "clip and batch files are .npz archives (docs/semantics.md §1)")
+            raise UsageError(f"{text}: not a clip file (.npz): {hint}")
+        try:
+            files += list_clip_files(text, allow_empty=True)
+        except FileNotFoundError as exc:
+            raise UsageError(str(exc)) from None
+    return files
+
+
+def table_input_files(paths: Iterable[str]) -> list[Path]:
+    """Scores CSVs named on the command line; a clip file is refused with a hint."""
+    for text in paths:
+        if Path(text).suffix.lower() == ".npz":
+            raise UsageError(f"{text}: a clip file; this command reads the scores CSV that "
+                             f"`sgc-jax score --out` writes (score the clips first)")
+        if not os.path.isfile(text):
+            raise UsageError(f"{text}: no such file")
+    return [Path(t) for t in paths]
+
+
+def guard_outputs(inputs: Iterable[str | os.PathLike], **outputs: str | os.PathLike | None) -> None:
+    """Refuse an output that is an input, a directory, or the same file as another output
+    (``outputs``: flag name -> path, None when not given)."""
+    taken = {_file_key(p): None for p in inputs}
+    for flag, path in outputs.items():
+        if path is None:
+            continue
+        option = "--" + flag.replace("_", "-")
+        if os.path.isdir(path):
+            raise UsageError(f"{option} {path}: a directory; give a file name")
+        key = _file_key(path)
+        if key in taken:
+            other = taken[key]
+            raise UsageError(f"{option} {path} " + (f"is the same file as {other}" if other else
+                             "is one of the inputs and would be overwritten; choose another file name"))
+        taken[key] = option
+
 
 
 def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
@@ -47,10 +130,20 @@ def _use_compilation_cache(engine: str) -> None:
         enable_compilation_cache()
 
 
-def _config_overrides(args: argparse.Namespace) -> dict:
-    return dict(partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
-                global_pose=not args.no_global_pose, compat=args.compat, seed=args.seed,
-                quality_rule=not args.no_quality_rule)
+def _config_and_calibration(args: argparse.Namespace):
+    """The SGCConfig and Calibration the algorithm flags name, resolved before any clip is read
+    (so that only a bad flag, never an engine's exception, becomes a usage error)."""
+    from .api import resolve_calibration
+    from .config import SGCConfig
+
+    try:
+        config = SGCConfig().replace(
+            partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
+            global_pose=not args.no_global_pose, compat=args.compat, seed=args.seed,
+            quality_rule=not args.no_quality_rule)
+        return config, resolve_calibration(args.calibration, config)
+    except (OSError, ValueError) as exc:  # an unknown calibration name or file, one for the other compat
+        raise UsageError(str(exc)) from None
 
 
 def _summary_line(result) -> str:
@@ -61,25 +154,25 @@ def _summary_line(result) -> str:
 def cmd_score(args: argparse.Namespace) -> int:
     from .api import score_batch
 
+    out = args.out or (Path(args.pairs).with_name("scores.csv") if args.pairs else None)
+    inputs = clip_input_files(args.paths)
+    if not inputs:
+        raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
+    guard_outputs(inputs, out=out, pairs=args.pairs)
+    config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
-    try:
-        result = score_batch(list(args.paths), calibration=args.calibration, engine=args.engine,
-                             progress=not args.quiet, **_config_overrides(args))
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sgc-jax score: {exc}", file=sys.stderr)
-        return 2
+    result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
+                         progress=not args.quiet)
     for clip in result.clips:
         if clip.status == "error":
             print(f"sgc-jax score: {clip.clip_id} ({clip.origin}): {clip.reason}", file=sys.stderr)
-    if args.out:
-        result.to_csv(args.out, pairs_path=args.pairs)
-        print(f"wrote {args.out}" + (f" and {args.pairs}" if args.pairs else ""), file=sys.stderr)
-    elif args.pairs:
-        result.to_csv(Path(args.pairs).with_name("scores.csv"), pairs_path=args.pairs)
+    if out:
+        result.to_csv(out, pairs_path=args.pairs)
+        print(f"wrote {out}" + (f" and {args.pairs}" if args.pairs else ""), file=sys.stderr)
     if not args.out or not args.quiet:
         print(result.table())
     print(_summary_line(result), file=sys.stderr)
-    return 0 if any(c.status != "error" for c in result.clips) else 1
+    return EXIT_SOME_FAILED if any(c.status == "error" for c in result.clips) else EXIT_OK
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
@@ -88,7 +181,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     paths = write_demo_corpus(args.out, seed=args.seed)
     for p in paths:
         print(p)
-    return 0
+    return EXIT_OK
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -107,7 +200,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
           file=sys.stderr)
     for claim, holds in demo_claims({c.clip_id: c.sgc for c in result.clips}):
         print(f"  {'yes' if holds else 'NOT SO in this run'}: {claim}", file=sys.stderr)
-    return 0 if all(c.status != "error" for c in result.clips) else 1
+    return EXIT_SOME_FAILED if any(c.status == "error" for c in result.clips) else EXIT_OK
 
 
 def _register_score(sub) -> None:
@@ -138,14 +231,19 @@ def _register_synth(sub) -> None:
     synth.set_defaults(func=cmd_synth)
 
 
-def _read_scores_or_exit(paths, command: str):
+def _read_scores(paths) -> list[dict]:
+    """Rows of the scores CSVs named on the command line (UsageError for anything else)."""
     from .result import read_scores
 
-    try:
-        return read_scores(paths)
-    except (OSError, ValueError) as exc:
-        print(f"sgc-jax {command}: {exc}", file=sys.stderr)
-        return None
+    records = []
+    for path in table_input_files(paths):
+        try:
+            records += read_scores(path)
+        except UnicodeDecodeError:
+            raise UsageError(f"{path}: not a scores CSV (not text)") from None
+        except (OSError, ValueError) as exc:
+            raise UsageError(str(exc)) from None
+    return records
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -154,14 +252,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration import calibrate, kfold_stability
     from .result import rescore_records, write_scores
 
-    records = _read_scores_or_exit(args.scores, "calibrate")
-    if records is None:
-        return 2
+    guard_outputs(table_input_files(args.scores), out=args.out, rescored=args.rescored)
+    records = _read_scores(args.scores)
     try:
         calibration = calibrate(records, by=args.by, name=args.name)
     except ValueError as exc:
-        print(f"sgc-jax calibrate: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     print(f"calibration {calibration.name!r}: {calibration.description}")
     print(f"{'component':<18}{'log1p':>6}{'mu':>10}{'sigma':>10}{'z_min':>9}{'z_max':>9}{'weight':>9}")
     for k in COMPONENTS:
@@ -185,37 +281,33 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.rescored:
         write_scores(args.rescored, rescore_records(records, calibration))
         print(f"wrote {args.rescored} (sgc under the new calibration, from the stored components)", file=sys.stderr)
-    return 0
+    return EXIT_OK
 
 
 def cmd_rescore(args: argparse.Namespace) -> int:
     from .result import format_table, rescore_records, write_scores
 
-    records = _read_scores_or_exit(args.scores, "rescore")
-    if records is None:
-        return 2
+    guard_outputs(table_input_files(args.scores), out=args.out)
+    records = _read_scores(args.scores)
     try:
         rescored = rescore_records(records, args.calibration)
     except (FileNotFoundError, ValueError) as exc:
-        print(f"sgc-jax rescore: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     if args.out:
         write_scores(args.out, rescored)
         print(f"wrote {args.out}", file=sys.stderr)
     else:
         print(format_table(rescored, ("clip_id", "group", "status", "sgc", *COMPONENTS, "ecd")))
-    return 0
+    return EXIT_OK
 
 
-def _matplotlib_or_report(command: str) -> bool:
-    """True when matplotlib imports; otherwise print why ``--plot`` cannot work."""
+def _require_matplotlib() -> None:
+    """Fail before any work when ``--plot`` cannot be honoured."""
     try:
         from .plot import _pyplot
         _pyplot()
     except ImportError as exc:
-        print(f"sgc-jax {command}: --plot: {exc}", file=sys.stderr)
-        return False
-    return True
+        raise UsageError(f"--plot: {exc}") from None
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -223,11 +315,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
                           group_table, motion_dependence, ranking_table)
     from .result import write_csv, format_table
 
-    if args.plot and not _matplotlib_or_report("compare"):
-        return 2
-    records = _read_scores_or_exit(args.scores, "compare")
-    if records is None:
-        return 2
+    guard_outputs(table_input_files([*args.scores, *(args.against or [])]), out=args.out, plot=args.plot)
+    if args.plot:
+        _require_matplotlib()
+    records = _read_scores(args.scores)
     try:
         if args.by == "group":
             table, columns = group_table(records, args.column, n_boot=args.boot, seed=args.seed), GROUP_COLUMNS
@@ -235,8 +326,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             table, columns = clip_table(records, args.column), CLIP_TABLE_COLUMNS
         motion = motion_dependence(records, args.column)
     except KeyError as exc:
-        print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
-        return 2
+        raise UsageError(exc.args[0]) from None
     print(format_table(table, columns))
     if motion["n_ecd"]:
         print(f"\n{args.column} vs ECD over {motion['n_ecd']} clips: Pearson r = {motion['pearson']:.3f} "
@@ -252,14 +342,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
         _pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.against:
-        other = _read_scores_or_exit(args.against, "compare")
-        if other is None:
-            return 2
+        other = _read_scores(args.against)
         try:
             agree = agreement_between(records, other, args.column, by=args.by)
         except (KeyError, ValueError) as exc:
-            print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
-            return 2
+            raise UsageError(exc.args[0]) from None
         print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched "
               f"{'groups' if args.by == 'group' else 'clips'}: Spearman rho = {agree['spearman']:.4f}, "
               f"Kendall tau-b = {agree['kendall_tau']:.4f}, Pearson r = {agree['pearson']:.4f}")
@@ -269,7 +356,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if agree["unmatched"]:
             print(f"{len(agree['unmatched'])} unmatched: {', '.join(agree['unmatched'][:10])}"
                   + (" ..." if len(agree["unmatched"]) > 10 else ""), file=sys.stderr)
-    return 0
+    return EXIT_OK
 
 
 def _register_calibrate(sub) -> None:
@@ -315,6 +402,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     from .adapters import import_clip
     from .clip import save_clip
 
+    inputs = [p for p in (args.cameras, args.depth, args.tracks, args.masks, args.frames) if p]
+    guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -325,8 +414,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
                 align_depth=not args.no_align_depth, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
-            print(f"sgc-jax import: error: {exc}", file=sys.stderr)
-            return 2
+            raise UsageError(str(exc)) from None
     for warning in caught:
         print(f"sgc-jax import: warning: {warning.message}", file=sys.stderr)
     path = save_clip(args.out, clip)
@@ -336,7 +424,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     H, W = clip.image_size
     print(f"wrote {path}: {clip.n_frames} frames, {H}x{W}, {clip.n_tracks} tracks per pair"
           + (" (reference-compat)" if args.reference_compat else ""), file=sys.stderr)
-    return 0
+    return EXIT_OK
 
 
 def cmd_pack(args: argparse.Namespace) -> int:
@@ -346,11 +434,11 @@ def cmd_pack(args: argparse.Namespace) -> int:
     from .config import SGCConfig
 
     keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
+    guard_outputs(clip_input_files(args.clips), out=args.out if args.out.endswith(".npz") else args.out + ".npz")
     try:
         entries = discover_clips(list(args.clips), keep_all)
     except (OSError, ValueError) as exc:
-        print(f"sgc-jax pack: error: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     clips, failed = [], 0
     for entry in entries:
         with warnings.catch_warnings(record=True) as caught:
@@ -365,33 +453,31 @@ def cmd_pack(args: argparse.Namespace) -> int:
     if failed and not args.skip_errors:
         print(f"sgc-jax pack: {failed} clip(s) failed to load; nothing written (--skip-errors packs the rest)",
               file=sys.stderr)
-        return 1
+        return EXIT_SOME_FAILED
     if not clips:
         print("sgc-jax pack: no clip to pack", file=sys.stderr)
-        return 1
+        return EXIT_SOME_FAILED
     path = save_batch(args.out, clips)
     print(f"packed {len(clips)} clip(s) into {path}" + (f"; {failed} skipped" if failed else ""), file=sys.stderr)
-    return 1 if failed else 0
+    return EXIT_SOME_FAILED if failed else EXIT_OK
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
     from .validate import validate_paths
 
+    if not clip_input_files(args.paths):  # as `score` does: nothing to check is a usage error
+        raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
     try:
         reports = validate_paths(list(args.paths))
     except (OSError, ValueError) as exc:
-        print(f"sgc-jax validate: error: {exc}", file=sys.stderr)
-        return 2
-    if not reports:  # as `score` does: nothing to check is a usage error
-        print(f"sgc-jax validate: error: no clip files found in {' '.join(args.paths)}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     for report in reports:
         for line in report.lines(show_info=args.verbose):
             print(line)
     errors = sum(not r.ok for r in reports)
     warned = sum(any(p.severity == "warning" for p in r.problems) for r in reports)
     print(f"{len(reports)} clip(s) checked: {errors} with errors, {warned} with warnings", file=sys.stderr)
-    return 1 if errors or (args.strict and warned) else 0
+    return EXIT_SOME_FAILED if errors or (args.strict and warned) else EXIT_OK
 
 
 def _register_import(sub) -> None:
@@ -457,23 +543,25 @@ def _csv_list(text: str, convert=str) -> list:
 
 
 def cmd_perturb(args: argparse.Namespace) -> int:
-    from .study import sensitivity_study
+    from .study import check_kinds, check_severities, sensitivity_study
 
+    inputs = clip_input_files(args.paths)
+    if not inputs:
+        raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
+    guard_outputs(inputs, out=args.out, summary=args.summary, plot=args.plot)
     if args.plot:  # fail before the (long) study when matplotlib is missing
-        try:
-            from .plot import _pyplot
-            _pyplot()
-        except ImportError as exc:
-            print(f"sgc-jax perturb: --plot: {exc}", file=sys.stderr)
-            return 2
-    _use_compilation_cache(args.engine)
+        _require_matplotlib()
+    config, calibration = _config_and_calibration(args)
     try:
-        study = sensitivity_study(list(args.paths), args.kinds, args.severities, calibration=args.calibration,
-                                  engine=args.engine, perturb_seed=args.perturb_seed, progress=not args.quiet,
-                                  chunk_size=args.chunk_size, **_config_overrides(args))
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sgc-jax perturb: {exc}", file=sys.stderr)
-        return 2
+        check_kinds(args.kinds), check_severities(args.severities)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.chunk_size < 1:
+        raise UsageError(f"--chunk-size must be >= 1, got {args.chunk_size}")
+    _use_compilation_cache(args.engine)
+    study = sensitivity_study(list(args.paths), args.kinds, args.severities, config=config, calibration=calibration,
+                              engine=args.engine, perturb_seed=args.perturb_seed, progress=not args.quiet,
+                              chunk_size=args.chunk_size)
     failed = sorted({r["base"] for r in study.rows if r["status"] == "error" and r["severity"] == 0})
     for base in failed:
         print(f"sgc-jax perturb: {base}: not scored", file=sys.stderr)
@@ -488,7 +576,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         _pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     print(study.table())
-    return 0 if any(r["status"] != "error" for r in study.rows) else 1
+    return EXIT_SOME_FAILED if failed else EXIT_OK
 
 
 def _register_perturb(sub) -> None:
@@ -531,7 +619,8 @@ SUBCOMMANDS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sgc-jax", description="Spatial Geometric Consistency scores")
+    parser = argparse.ArgumentParser(prog="sgc-jax", description="Spatial Geometric Consistency scores",
+                                     epilog=EXIT_CODES_HELP)
     parser.add_argument("--version", action="version", version=f"sgc-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for register in SUBCOMMANDS:
@@ -540,8 +629,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; returns its exit code (argparse itself exits 2 on malformed arguments)."""
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except UsageError as exc:
+        print(f"sgc-jax {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"sgc-jax {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # stdout closed early (`| head`): stop quietly, as the Python docs advise
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_SOME_FAILED
+    except Exception:  # not bad input (that is reported per clip or as a usage error): a bug, shown as one
+        traceback.print_exc()
+        print(f"sgc-jax {args.command}: internal error in sgc_jax {__version__}; please report it with the "
+              "traceback above", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

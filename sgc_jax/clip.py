@@ -19,6 +19,13 @@ import numpy as np
 from .config import SGCConfig
 from .npz import NpzError, npz_headers, read_npz, shape_text
 
+# Values beyond these are not measurements and count as invalid points (docs/semantics.md §1.2):
+# a track position more than TRACK_REACH image sizes outside the image, a depth more than
+# DEPTH_RATIO_LIMIT times larger or smaller than the clip's median depth. They would otherwise
+# overflow float32 arithmetic in one engine and not in the other.
+TRACK_REACH = 1.0
+DEPTH_RATIO_LIMIT = 1e6
+
 
 class ClipFormatError(ValueError):
     """A structural problem with a clip: missing array, wrong rank or shape, non-finite camera."""
@@ -69,13 +76,29 @@ class Clip:
         return str(self.meta.get("group", ""))
 
     def usable_tracks(self, min_track_conf: float) -> np.ndarray:
-        """(T-1, P) bool: visible, confident and finite (docs/semantics.md §1.2)."""
-        finite = np.isfinite(self.track_prev).all(-1) & np.isfinite(self.track_curr).all(-1)
-        return self.track_vis & (self.track_conf >= min_track_conf) & finite
+        """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2)."""
+        H, W = self.image_size
+        return (self.track_vis & (self.track_conf >= min_track_conf)
+                & within_reach(self.track_prev, H, W) & within_reach(self.track_curr, H, W))
 
-    def median_depth(self) -> float:
-        d = self.depth[np.isfinite(self.depth) & (self.depth > 0)]
-        return float(np.median(d)) if d.size else float("nan")
+
+def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:
+    """(...,) bool for positions (..., 2) in pixels: finite and at most TRACK_REACH image sizes
+    outside the H x W image. Per coordinate, not reduced over the last axis (that is slow)."""
+    x, y = track[..., 0], track[..., 1]
+    return ((x >= -TRACK_REACH * W) & (x <= (1 + TRACK_REACH) * W)
+            & (y >= -TRACK_REACH * H) & (y <= (1 + TRACK_REACH) * H))  # NaN compares false
+
+
+def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
+    """``depth`` with NaN where it is ≤ 0, non-finite or beyond DEPTH_RATIO_LIMIT of the median of
+    its positive finite values (docs/semantics.md §1.2); the same array when nothing is absurd."""
+    positive = np.isfinite(depth) & (depth > 0)
+    if not positive.any():
+        return depth
+    median = float(np.median(depth[positive].astype(np.float64)))
+    absurd = positive & ((depth > median * DEPTH_RATIO_LIMIT) | (depth < median / DEPTH_RATIO_LIMIT))
+    return np.where(absurd, np.float32(np.nan), depth).astype(depth.dtype) if absurd.any() else depth
 
 
 # ----------------------------------------------------------------------------- validation
@@ -656,8 +679,8 @@ def _npz_in(directory: Path) -> list[Path]:
 
 def list_clip_files(source: str | os.PathLike, *, allow_empty: bool = False) -> list[Path]:
     """The ``.npz`` files a path names: a directory's ``*.npz`` (sorted), a file (or a link, even
-    one that leads nowhere: reading it reports that), or a glob's matches, directories among them
-    expanded. Raises FileNotFoundError when it names nothing (or an empty directory, unless ``allow_empty``).
+    one that leads nowhere: reading it reports that), or a glob's ``.npz`` matches, directories
+    among them expanded. Raises FileNotFoundError when it names nothing (or an empty directory, unless ``allow_empty``).
     """
     text = os.fspath(source)
     if os.path.isdir(text):
@@ -667,7 +690,8 @@ def list_clip_files(source: str | os.PathLike, *, allow_empty: bool = False) -> 
     else:
         # glob only where there are wildcards: a literal name is matched by os.path.lexists above
         matches = sorted(glob.glob(text)) if glob.has_magic(text) else []
-        files = [f for m in matches for f in (_npz_in(Path(m)) if os.path.isdir(m) else [Path(m)])]
+        files = [f for m in matches for f in (_npz_in(Path(m)) if os.path.isdir(m) else [Path(m)])
+                 if f.suffix.lower() == ".npz"]  # as in a directory: a glob's other files are not clips
         if not matches:
             raise FileNotFoundError(f"no clip file, directory or glob match for {text!r}")
     if not files and not allow_empty:

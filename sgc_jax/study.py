@@ -162,7 +162,8 @@ def _load_bases(clips: Any, config: SGCConfig, engine: str) -> list[Clip | ClipR
     return bases
 
 
-def _check_kinds(kinds: Sequence[str] | str) -> tuple[str, ...]:
+def check_kinds(kinds: Sequence[str] | str) -> tuple[str, ...]:
+    """The studied kinds, deduplicated in order; ValueError names an unknown one."""
     kinds = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else tuple(kinds)
     known = PERTURBATIONS + MASK_CORRUPTIONS
     unknown = [k for k in kinds if k not in known]
@@ -171,7 +172,8 @@ def _check_kinds(kinds: Sequence[str] | str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(kinds))
 
 
-def _check_severities(severities: Sequence[float]) -> tuple[float, ...]:
+def check_severities(severities: Sequence[float]) -> tuple[float, ...]:
+    """The severities, sorted and deduplicated; ValueError for one outside [0, 1]."""
     values = tuple(sorted(dict.fromkeys(float(s) for s in severities)))
     if not values or any(not 0.0 <= s <= 1.0 for s in values):
         raise ValueError(f"severities must be in [0, 1], got {list(severities)}")
@@ -193,7 +195,7 @@ def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
     (each distinct call size compiles once per bucket).
     ``overrides`` are :class:`SGCConfig` fields. A base that cannot be loaded gives error rows.
     """
-    kinds, severities = _check_kinds(kinds), _check_severities(severities)
+    kinds, severities = check_kinds(kinds), check_severities(severities)
     params = {k: dict(v) for k, v in (params or {}).items()}
     stray = sorted(set(params) - set(kinds))
     if stray:

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from .clip import Clip
+from .clip import Clip, without_absurd_depth
 from .config import SGCConfig
 
 PERCENT = 100.0
@@ -33,8 +33,12 @@ def depth_unit(clip: Clip, config: SGCConfig) -> float:
 
 
 def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
-    """(the clip with depth / D, D): what both engines score. Float64 division, then float32, so
-    that scaling a clip's depth by s gives the same normalised depth up to one rounding."""
+    """(the clip both engines score, D): absurd depth made invalid (NaN, docs/semantics.md §1.2),
+    then depth / D. Float64 division, then float32, so that scaling a clip's depth by s gives the
+    same normalised depth up to one rounding."""
+    depth = without_absurd_depth(clip.depth)
+    if depth is not clip.depth:
+        clip = dataclasses.replace(clip, depth=depth)
     unit = depth_unit(clip, config)
     if unit == 1.0:
         return clip, unit

@@ -164,7 +164,10 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Visible track positions against the grid, their extent, and usable tracks per pair."""
     H, W = clip.image_size
     problems = []
-    visible = _usable(clip, dataclasses.replace(config, min_track_conf=-np.inf))
+    # visible and finite, however far outside: tracks of a larger grid are what this check finds
+    visible = clip.track_vis.copy()
+    for track in (clip.track_prev, clip.track_curr):
+        visible &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
     n_points = 2 * int(visible.sum())
     if n_points:
         n_out, x_max, y_max = 0, -np.inf, -np.inf
@@ -193,7 +196,7 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                                         f"all within x <= {x_max:.1f}, y <= {y_max:.1f}",
                                         f"tracks computed on a smaller grid? rescale them to {H}x{W} "
                                         "(`sgc-jax import --track-size HxW`)"))
-    usable = np.count_nonzero(_usable(clip, config), axis=1)
+    usable = np.count_nonzero(clip.usable_tracks(config.min_track_conf), axis=1)
     few = np.flatnonzero(usable < 4)
     if few.size:
         problems.append(Problem("warning", "too_few_tracks", "track_vis/track_conf",
@@ -234,12 +237,6 @@ def check_dtypes(arrays: Any) -> list[Problem]:
     return problems
 
 
-def _usable(clip: Clip, config: SGCConfig) -> np.ndarray:
-    """(T-1, P) usable tracks, as :meth:`Clip.usable_tracks` (written without small-axis reductions)."""
-    finite = np.ones(clip.track_vis.shape, bool)
-    for track in (clip.track_prev, clip.track_curr):
-        finite &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
-    return clip.track_vis & (clip.track_conf >= config.min_track_conf) & finite
 
 
 def depth_parallax_rho(clip: Clip, config: SGCConfig) -> float:
@@ -249,7 +246,7 @@ def depth_parallax_rho(clip: Clip, config: SGCConfig) -> float:
     (rho > 0). NaN when no pair has enough parallax to tell.
     """
     H, W = clip.image_size
-    usable = _usable(clip, config)
+    usable = clip.usable_tracks(config.min_track_conf)
     rhos = []
     pairs = np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
     for pair in pairs:

@@ -333,17 +333,23 @@ def write_controls(folder: Path) -> None:
         save_clip(folder / f"a_{clip.clip_id}.npz", clip)
 
 
-def test_a_directory_of_every_broken_kind_scores_its_controls_unchanged(tmp_path, control_scores, no_unpickling):
-    write_controls(tmp_path)
+def write_every_broken_kind(folder: Path) -> int:
+    """One file per malformed kind above (b_ arrays, c_ files, d_ batches, e_ links); returns how many."""
     for kind, (change, _, _) in ARRAY_KINDS.items():
-        (tmp_path / f"b_{kind}.npz").write_bytes(npz_bytes(change(dict(SINGLE, meta=np.asarray(f'{{"clip_id": "{kind}"}}')))))
+        (folder / f"b_{kind}.npz").write_bytes(npz_bytes(change(dict(SINGLE, meta=np.asarray(f'{{"clip_id": "{kind}"}}')))))
     for kind, (write, _, _) in FILE_KINDS.items():
-        (tmp_path / f"c_{kind}.npz").write_bytes(write(None))
+        (folder / f"c_{kind}.npz").write_bytes(write(None))
     for kind, (change, _, _, _) in BATCH_KINDS.items():
         ids = np.array([f"{kind}0", f"{kind}1"])
-        (tmp_path / f"d_{kind}.npz").write_bytes(npz_bytes(change(dict(BATCH, clip_id=ids))))
-    (tmp_path / "e_dangling.npz").symlink_to(tmp_path / "gone.npz")
-    (tmp_path / "e_loop.npz").symlink_to(tmp_path / "e_loop.npz")
+        (folder / f"d_{kind}.npz").write_bytes(npz_bytes(change(dict(BATCH, clip_id=ids))))
+    (folder / "e_dangling.npz").symlink_to(folder / "gone.npz")
+    (folder / "e_loop.npz").symlink_to(folder / "e_loop.npz")
+    return len(ARRAY_KINDS) + len(FILE_KINDS) + len(BATCH_KINDS) + 2
+
+
+def test_a_directory_of_every_broken_kind_scores_its_controls_unchanged(tmp_path, control_scores, no_unpickling):
+    write_controls(tmp_path)
+    n_broken = write_every_broken_kind(tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = score_batch(tmp_path, engine="reference", progress=False)
@@ -352,7 +358,7 @@ def test_a_directory_of_every_broken_kind_scores_its_controls_unchanged(tmp_path
         by_file.setdefault(Path(clip.origin.split("[")[0]).name, []).append(clip)
     np.testing.assert_equal({k: v for k, v in scores(result).items() if k.startswith("ctrl")}, control_scores)
     broken = [name for name in by_file if not name.startswith("a_")]
-    assert len(broken) == len(ARRAY_KINDS) + len(FILE_KINDS) + len(BATCH_KINDS) + 2
+    assert len(broken) == n_broken
     for name in broken:  # one error row per broken file; a batch's sound member is scored
         errors = [c for c in by_file[name] if c.status == "error"]
         assert len(errors) == 1, (name, [c.reason for c in by_file[name]])
@@ -481,3 +487,47 @@ def test_fuzzed_files_never_change_the_controls_scores(files, control_scores, no
     np.testing.assert_equal({k: rows[k] for k in control_scores}, control_scores)
     origins = {Path(c.origin.split("[")[0]).name for c in result.clips}
     assert origins == {f"a_{c.clip_id}.npz" for c in CONTROLS} | {f"b_broken{i}.npz" for i in range(len(files))}
+
+
+# ----------------------------------------------------------------------------- absurd values
+
+def test_positions_beyond_one_image_size_outside_are_out_of_reach():
+    from sgc_jax.clip import within_reach
+
+    H, W = 24, 32
+    inside = np.array([[-W, -H], [2 * W, 2 * H], [0.5, 0.5], [-1.0, 30.0]])
+    outside = np.array([[-W - 0.01, 0], [0, 2 * H + 0.01], [1e30, 1.0], [np.nan, 1.0], [np.inf, 0.0]])
+    assert within_reach(inside, H, W).all() and not within_reach(outside, H, W).any()
+
+
+def test_depth_a_million_times_off_the_median_is_invalid():
+    from sgc_jax.clip import DEPTH_RATIO_LIMIT, without_absurd_depth
+
+    depth = np.full((2, 4, 4), 5.0, np.float32)
+    depth[0, 0, :3] = (1e30, 5.0 * DEPTH_RATIO_LIMIT * 1.01, 5.0 / DEPTH_RATIO_LIMIT / 1.01)
+    depth[0, 1, 0] = 5.0 * DEPTH_RATIO_LIMIT * 0.99  # far but not absurd
+    kept = without_absurd_depth(depth)
+    assert np.isnan(kept[0, 0, :3]).all() and np.isfinite(np.delete(kept.ravel(), [0, 1, 2])).all()
+    assert without_absurd_depth(np.full((2, 4, 4), 5.0, np.float32)).dtype == np.float32
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_absurd_values_score_as_if_those_points_were_missing(rigid_clip, engine):
+    """20% of track_curr at 1e30 and 20% of the depth at 1e30 score exactly as hidden tracks and
+    invalid depth do, in both engines."""
+    rng = np.random.default_rng(0)
+    hit = rng.random(rigid_clip.track_vis.shape) < 0.2
+    far = rng.random(rigid_clip.depth.shape) < 0.2
+    absurd_tracks = dataclasses.replace(rigid_clip, clip_id="tracks_1e30",
+                                        track_curr=np.where(hit[..., None], np.float32(1e30), rigid_clip.track_curr))
+    hidden_tracks = dataclasses.replace(rigid_clip, clip_id="tracks_hidden", track_vis=rigid_clip.track_vis & ~hit)
+    absurd_depth = dataclasses.replace(rigid_clip, clip_id="depth_1e30",
+                                       depth=np.where(far, np.float32(1e30), rigid_clip.depth))
+    missing_depth = dataclasses.replace(rigid_clip, clip_id="depth_nan",
+                                        depth=np.where(far, np.float32(np.nan), rigid_clip.depth))
+    result = scores(score_batch([absurd_tracks, hidden_tracks, absurd_depth, missing_depth],
+                                engine=engine, progress=False))
+    (absurd_t, *_), (hidden_t, *_) = result["tracks_1e30"], result["tracks_hidden"]
+    assert absurd_t == hidden_t == "ok"
+    np.testing.assert_equal(result["tracks_1e30"], result["tracks_hidden"])
+    np.testing.assert_equal(result["depth_1e30"], result["depth_nan"])

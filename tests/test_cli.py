@@ -4,7 +4,11 @@ import csv
 import subprocess
 import sys
 
-from sgc_jax import save_clip
+import pytest
+from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
+
+from sgc_jax import save_clip, score_batch
+from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, main
 from sgc_jax.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
@@ -22,7 +26,7 @@ def test_score_reports_broken_clip_and_scores_the_others(tmp_path):
     (clips / "broken.npz").write_bytes(b"not an npz file")
     out, pairs = tmp_path / "scores.csv", tmp_path / "pairs.csv"
     proc = run("score", clips, "--out", out, "--pairs", pairs, "--engine", "reference", "-q")
-    assert proc.returncode == 0, proc.stderr
+    assert proc.returncode == 1, proc.stderr  # finished, with an error row
     assert "broken" in proc.stderr and "Traceback" not in proc.stderr
     rows = {r["clip_id"]: r for r in csv.DictReader(out.open())}
     assert rows["broken"]["status"] == "error" and rows["broken"]["reason"]
@@ -31,7 +35,7 @@ def test_score_reports_broken_clip_and_scores_the_others(tmp_path):
     assert len(pair_rows) == 4 and {"pair", "n_tracks", "n_regions", "n_poses"} <= set(pair_rows[0])
 
 
-def test_score_exits_non_zero_when_nothing_could_be_scored(tmp_path):
+def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):
     (tmp_path / "broken.npz").write_bytes(b"junk")
     proc = run("score", tmp_path / "broken.npz", "--engine", "reference", "-q")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
@@ -70,3 +74,101 @@ def test_every_option_of_every_command_has_help_text():
 def test_validate_and_score_treat_an_empty_folder_alike(tmp_path):
     codes = {command: run(command, tmp_path).returncode for command in ("validate", "score")}
     assert codes == {"validate": 2, "score": 2}
+
+
+# ----------------------------------------------------------------------------- bad input, exit codes (docs/semantics.md §8)
+
+
+def test_a_folder_of_broken_inputs_prints_no_traceback_in_any_command(tmp_path):
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    write_controls(folder)
+    n_broken = write_every_broken_kind(folder)
+    out = tmp_path / "scores.csv"
+    procs = {
+        "score": run("score", folder, "--engine", "reference", "-q", "--out", out),
+        "validate": run("validate", folder),
+        "pack": run("pack", folder, "--skip-errors", "--out", tmp_path / "packed.npz"),
+        "perturb": run("perturb", folder, "--engine", "reference", "--kinds", "warp", "--severities", "0,1", "-q"),
+    }
+    for command, proc in procs.items():
+        assert "Traceback" not in proc.stdout + proc.stderr, (command, proc.stderr[-3000:])
+        assert proc.returncode == EXIT_SOME_FAILED, (command, proc.stderr[-3000:])
+    rows = list(csv.DictReader(out.open()))
+    assert sum(r["status"] == "error" for r in rows) == n_broken
+    assert all(r["status"] != "error" for r in rows if r["clip_id"].startswith("ctrl"))
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory):
+    """A clip file and its scores CSV."""
+    folder = tmp_path_factory.mktemp("scored")
+    save_clip(folder / "clip.npz", CONTROLS[0])
+    score_batch(folder / "clip.npz", engine="reference", progress=False).to_csv(folder / "scores.csv")
+    return folder / "clip.npz", folder / "scores.csv"
+
+
+def test_exit_codes_are_as_documented(scored, tmp_path):
+    clip, table = scored
+    assert run("score", clip, "--engine", "reference", "-q").returncode == EXIT_OK
+    assert run("rescore", table, "--calibration", "sgc-spec-2026").returncode == EXIT_OK
+    (tmp_path / "a.npy").write_bytes(b"x")
+    usage = {
+        "a CSV given to score": (run("score", table), "rescore"),
+        "a clip given to compare": (run("compare", clip), "score the clips first"),
+        "an .npy given to validate": (run("validate", tmp_path / "a.npy"), "named arrays"),
+        "a calibration fitted for the other semantics": (run("rescore", table, "--calibration", "sgc-paper-2026"),
+                                                         "sgc-spec-2026"),
+        "nothing found": (run("score", tmp_path / "none"), "none"),
+        "an unknown calibration": (run("score", clip, "--calibration", "nope"), "nope"),
+        "a malformed option": (run("score", clip, "--partition", "hexagons"), "invalid choice"),
+    }
+    for case, (proc, words) in usage.items():
+        assert proc.returncode == EXIT_USAGE and words in proc.stderr, (case, proc.stderr)
+        assert "Traceback" not in proc.stderr and proc.stdout == "", case
+
+
+def test_an_unexpected_exception_is_an_internal_error_with_its_traceback(scored, monkeypatch, capsys):
+    from sgc_jax import reference
+
+    def broken_engine(clip, config):
+        raise RuntimeError("a bug in the engine")
+
+    monkeypatch.setattr(reference, "score_pairs", broken_engine)
+    assert main(["score", str(scored[0]), "--engine", "reference", "-q"]) == EXIT_INTERNAL
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "a bug in the engine" in err and "internal error" in err
+
+
+def _overwrite_attempts(clip, table, tmp_path):
+    link = tmp_path / "link.csv"
+    link.symlink_to(table)
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    return {  # case: (arguments, the input that must survive, words of the refusal)
+        "score a CSV onto itself": (("score", table, "--out", table), table, "not a clip file"),
+        "score onto its clip": (("score", clip, "--out", clip), clip, "would be overwritten"),
+        "score, pairs onto its clip": (("score", clip, "--pairs", clip), clip, "would be overwritten"),
+        "score, one file for both tables": (("score", clip, "--out", tmp_path / "x.csv", "--pairs", tmp_path / "x.csv"),
+                                            clip, "same file as --out"),
+        "score into a directory": (("score", clip, "--out", folder), clip, "a directory"),
+        "rescore onto itself": (("rescore", table, "--calibration", "sgc-spec-2026", "--out", table), table,
+                                "would be overwritten"),
+        "rescore through a link": (("rescore", table, "--calibration", "sgc-spec-2026", "--out", link), table,
+                                   "would be overwritten"),
+        "compare onto itself": (("compare", table, "--out", table), table, "would be overwritten"),
+        "calibrate onto its table": (("calibrate", table, "--rescored", table), table, "would be overwritten"),
+        "pack onto its clip": (("pack", clip, "--out", clip), clip, "would be overwritten"),
+        "perturb onto its clip": (("perturb", clip, "--summary", clip), clip, "would be overwritten"),
+        "import onto its cameras": (("import", "--cameras", clip, "--depth", table, "--tracks", folder, "--out", clip),
+                                    clip, "would be overwritten"),
+    }
+
+
+def test_an_output_that_names_an_input_is_refused_and_the_input_kept(scored, tmp_path):
+    clip, table = scored
+    before = {clip: clip.read_bytes(), table: table.read_bytes()}
+    for case, (args, kept, words) in _overwrite_attempts(clip, table, tmp_path).items():
+        proc = run(*args)
+        assert proc.returncode == EXIT_USAGE and words in proc.stderr, (case, proc.stderr)
+        assert "Traceback" not in proc.stderr and kept.read_bytes() == before[kept], case
