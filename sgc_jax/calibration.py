@@ -57,6 +57,11 @@ class Calibration:
     compat: str = ""  # semantics of the components it was fitted on: "spec" | "authors" ("" = unknown)
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
+    def __repr__(self) -> str:  # the five dicts, description and corpus record run to thousands of characters
+        weights = ", ".join(f"{k} {self.weight[k]:.3f}" for k in COMPONENTS)
+        return (f"Calibration({self.name!r}, compat={self.compat!r}, rows={self.rows!r}; weights {weights}"
+                "; .to_dict() for every field)")
+
     def check_compat(self, compat: str, what: str = "these scores") -> None:
         """Raise :class:`CalibrationMismatchError` when ``compat`` is known and differs from the
         semantics this calibration was fitted for."""
@@ -296,6 +301,10 @@ class KFoldStability:
     full_weights: dict[str, float]
     fold_weights: np.ndarray
     spearman: np.ndarray
+
+    def __repr__(self) -> str:  # the (k, 5) weights of a leave-one-out run would fill a screen
+        return (f"KFoldStability(k={self.k}, by={self.by!r}, seed={self.seed}, n_rows={self.n_rows}; Spearman "
+                f"{self.spearman_mean:.4f} +- {self.spearman_std:.4f}; .table() for the weights)")
 
     @property
     def weight_mean(self) -> dict[str, float]:

@@ -186,3 +186,12 @@ def test_kfold_is_reproducible_and_checks_k():
     for k in (1, 14):
         with pytest.raises(ValueError, match="k must be"):
             kfold_stability(rows, k=k)
+
+
+def test_repr_of_calibrations_and_stability_is_a_short_summary():
+    shipped = Calibration.load("sgc-spec-2026")  # a long description and corpus record in extra
+    rows, _, _ = paper_groups()
+    loo = kfold_stability(rows, k=len(rows), seed=0)
+    for obj, expected in ((shipped, "sgc-spec-2026"), (loo, "k=13")):
+        assert len(repr(obj)) < 300 and "\n" not in repr(obj) and expected in repr(obj), repr(obj)
+    assert shipped == Calibration.load("sgc-spec-2026")  # equality still compares every field

@@ -1,6 +1,7 @@
 """result.py: the corpus ECD column (SPEC §5), reading scores CSVs back, re-scoring without geometry."""
 
 import csv
+import dataclasses
 import math
 
 import numpy as np
@@ -102,3 +103,19 @@ def test_rescore_by_name_restores_the_shipped_scores(scored, monkeypatch):
     there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-spec-2026")
     np.testing.assert_allclose(there_and_back.sgc, scored.sgc, rtol=1e-12)
     assert there_and_back.calibration == Calibration.load("sgc-spec-2026")
+
+
+def test_repr_of_many_clips_is_a_short_summary(scored):
+    clips = [dataclasses.replace(c, clip_id=f"{c.clip_id}-{i}") for i in range(250) for c in scored.clips]
+    clips[0] = dataclasses.replace(clips[0], status="error", reason="x" * 500)
+    batch = BatchResult(clips, scored.calibration)
+    text = repr(batch)
+    assert len(text) < 500 and len(text.splitlines()) <= 3, text
+    assert "1000 clips" in text and "error 1" in text and "engine reference" in text
+    assert repr(scored.calibration.name) in text and ".table()" in text and ".to_pandas()" in text
+    for clip in (clips[0], clips[1]):  # one clip and its per-pair arrays are summaries too
+        assert len(repr(clip)) < 300 and clip.clip_id in repr(clip)
+        assert len(repr(clip.pairs)) < 300
+    # the summary repr leaves dataclass equality as it was
+    assert batch == BatchResult(list(clips), scored.calibration)
+    assert batch != BatchResult(clips[:-1], scored.calibration)
