@@ -150,6 +150,7 @@ def _read_scores_or_exit(paths, command: str):
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     import dataclasses
+    import warnings
 
     from .calibration import calibrate, kfold_stability
     from .result import rescore_records, write_scores
@@ -171,11 +172,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(f"PC1 explained variance ratio: {calibration.extra['pc1_explained_variance_ratio']:.4f}")
     if args.folds:
         try:
-            stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
         except ValueError as exc:
             print(f"k-fold stability not computed: {exc}", file=sys.stderr)
         else:
-            print(f"\n{args.folds}-fold stability of the weights:")
+            for warning in caught:
+                print(f"sgc-jax calibrate: warning: {warning.message}", file=sys.stderr)
+            print(f"\n{stability.k}-fold stability of the weights:")
             print(stability.table())
             calibration = dataclasses.replace(
                 calibration, extra={**calibration.extra, "kfold_stability": stability.to_dict()})
@@ -278,7 +283,7 @@ def _register_calibrate(sub) -> None:
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
                            help="fit on clips, or on per-group means (the paper's way)")
-    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip)")
+    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip; above the number of clips: leave-one-out)")
     algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed")
     output = cal.add_argument_group("output")
     output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`)")
