@@ -224,8 +224,8 @@ def _matplotlib_or_report(command: str) -> bool:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, format_ranking,
-                          group_table, motion_dependence, ranking_table)
+    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
+                          format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
     from .result import write_csv, format_table
 
     if args.plot and not _matplotlib_or_report("compare"):
@@ -242,10 +242,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except KeyError as exc:
         print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
         return 2
-    print(format_table(table, columns))
-    if motion["n_ecd"]:
+    print(format_group_table(table) if args.by == "group" else format_table(table, columns))
+    if motion["n_ecd"] >= MIN_N:
         print(f"\n{args.column} vs ECD over {motion['n_ecd']} clips: Pearson r = {motion['pearson']:.3f} "
               f"(r^2 = {motion['r2']:.3f}), Spearman rho = {motion['spearman']:.3f}")
+    elif motion["n_ecd"]:
+        print(f"\n{args.column} vs ECD: {motion['n_ecd']} clips (< {MIN_N}), no correlation")
     if args.out:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
@@ -265,9 +267,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
         except (KeyError, ValueError) as exc:
             print(f"sgc-jax compare: {exc.args[0]}", file=sys.stderr)
             return 2
-        print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched "
-              f"{'groups' if args.by == 'group' else 'clips'}: Spearman rho = {agree['spearman']:.4f}, "
-              f"Kendall tau-b = {agree['kendall_tau']:.4f}, Pearson r = {agree['pearson']:.4f}")
+        keys = "groups" if args.by == "group" else "clips"
+        if agree["n"] >= MIN_N:
+            print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched {keys}: "
+                  f"Spearman rho = {agree['spearman']:.4f}, Kendall tau-b = {agree['kendall_tau']:.4f}, "
+                  f"Pearson r = {agree['pearson']:.4f}")
+        else:
+            print(f"agreement by {args.by} with {' '.join(args.against)}: {agree['n']} matched {keys} "
+                  f"(< {MIN_N}), no correlation")
         if args.by == "group":  # the paper's Table 3: each variant's group values and ranks
             ranking = ranking_table({" ".join(args.scores): records, " ".join(args.against): other}, args.column)
             print(f"\nranking by group mean of {args.column} (rank 1 = lowest):\n{format_ranking(ranking)}")
