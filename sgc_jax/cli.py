@@ -519,7 +519,8 @@ def _register_perturb(sub) -> None:
     study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
     study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call")
     output = p.add_argument_group("output")
-    output.add_argument("--out", help="one row per clip, kind and severity (docs/semantics.md §4 columns + base, kind, severity)")
+    output.add_argument("--out", help="one row per clip, kind and severity: base, kind, severity, "
+                        "the columns of docs/semantics.md §4, rel_change")
     output.add_argument("--summary", help="per kind and severity means (CSV)")
     output.add_argument("--plot", help="figure of SGC and components vs severity (PNG/PDF; needs matplotlib)")
     _add_algorithm_flags(p)
