@@ -57,6 +57,11 @@ class Calibration:
     compat: str = ""  # semantics of the components it was fitted on: "spec" | "authors" ("" = unknown)
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
+    def __repr__(self) -> str:  # the five dicts, description and corpus record run to thousands of characters
+        weights = ", ".join(f"{k} {self.weight[k]:.3f}" for k in COMPONENTS)
+        return (f"Calibration({self.name!r}, compat={self.compat!r}, rows={self.rows!r}; weights {weights}"
+                "; .to_dict() for every field)")
+
     def check_compat(self, compat: str, what: str = "these scores") -> None:
         """Raise :class:`CalibrationMismatchError` when ``compat`` is known and differs from the
         semantics this calibration was fitted for."""
@@ -297,6 +302,10 @@ class KFoldStability:
     fold_weights: np.ndarray
     spearman: np.ndarray
 
+    def __repr__(self) -> str:  # the (k, 5) weights of a leave-one-out run would fill a screen
+        return (f"KFoldStability(k={self.k}, by={self.by!r}, seed={self.seed}, n_rows={self.n_rows}; Spearman "
+                f"{self.spearman_mean:.4f} +- {self.spearman_std:.4f}; .table() for the weights)")
+
     @property
     def weight_mean(self) -> dict[str, float]:
         return _as_dict(self.fold_weights.mean(axis=0))
@@ -337,6 +346,8 @@ def kfold_stability(rows: Any, k: int = 5, *, by: str = "clip", seed: int = 0,
     into k folds; each fold's calibration is fitted like :func:`calibrate` on the other k-1 folds
     (grouped first when ``by="group"``) and scores every row; its Spearman rho against the scores
     under the full-data calibration measures how much the ranking depends on the sample.
+    A k above the number of scored rows n becomes n (leave-one-out) with a warning; the result's
+    ``k`` is the number of folds used.
     """
     from .stats import spearman  # noqa: PLC0415 - keeps the import graph flat
 
@@ -344,8 +355,14 @@ def kfold_stability(rows: Any, k: int = 5, *, by: str = "clip", seed: int = 0,
     keep = ~np.isnan(matrix).all(axis=1)
     matrix, groups = matrix[keep], [g for g, kept in zip(groups, keep) if kept]
     n = matrix.shape[0]
-    if not 2 <= k <= n:
-        raise ValueError(f"k must be between 2 and the number of scored rows ({n}), got {k}")
+    if k < 2:
+        raise ValueError(f"k must be at least 2, got {k}")
+    if n < 2:
+        raise ValueError(f"k-fold stability needs at least 2 scored rows, got {n}")
+    if k > n:  # folds are cut from the clips, so n is their natural limit: leave-one-out
+        warnings.warn(f"k={k} folds but only {n} scored rows to cut them from: using leave-one-out (k={n})",
+                      UserWarning, stacklevel=2)
+        k = n
     flags = {c: c in log1p for c in COMPONENTS}
     to_calibration = lambda fitted: Calibration(  # noqa: E731
         name="fold", log1p=flags, **{f: _as_dict(v) for f, v in fitted.items()})

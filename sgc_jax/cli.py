@@ -248,6 +248,7 @@ def _read_scores(paths) -> list[dict]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     import dataclasses
+    import warnings
 
     from .calibration import calibrate, kfold_stability
     from .result import rescore_records, write_scores
@@ -267,11 +268,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(f"PC1 explained variance ratio: {calibration.extra['pc1_explained_variance_ratio']:.4f}")
     if args.folds:
         try:
-            stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
         except ValueError as exc:
             print(f"k-fold stability not computed: {exc}", file=sys.stderr)
         else:
-            print(f"\n{args.folds}-fold stability of the weights:")
+            for warning in caught:
+                print(f"sgc-jax calibrate: warning: {warning.message}", file=sys.stderr)
+            print(f"\n{stability.k}-fold stability of the weights:")
             print(stability.table())
             calibration = dataclasses.replace(
                 calibration, extra={**calibration.extra, "kfold_stability": stability.to_dict()})
@@ -311,8 +316,8 @@ def _require_matplotlib() -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, agreement_between, clip_table, format_ranking,
-                          group_table, motion_dependence, ranking_table)
+    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
+                          format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
     from .result import write_csv, format_table
 
     guard_outputs(table_input_files([*args.scores, *(args.against or [])]), out=args.out, plot=args.plot)
@@ -327,10 +332,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
         motion = motion_dependence(records, args.column)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
-    print(format_table(table, columns))
-    if motion["n_ecd"]:
+    print(format_group_table(table) if args.by == "group" else format_table(table, columns))
+    if motion["n_ecd"] >= MIN_N:
         print(f"\n{args.column} vs ECD over {motion['n_ecd']} clips: Pearson r = {motion['pearson']:.3f} "
               f"(r^2 = {motion['r2']:.3f}), Spearman rho = {motion['spearman']:.3f}")
+    elif motion["n_ecd"]:
+        print(f"\n{args.column} vs ECD: {motion['n_ecd']} clips (< {MIN_N}), no correlation")
     if args.out:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
@@ -347,9 +354,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
             agree = agreement_between(records, other, args.column, by=args.by)
         except (KeyError, ValueError) as exc:
             raise UsageError(exc.args[0]) from None
-        print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched "
-              f"{'groups' if args.by == 'group' else 'clips'}: Spearman rho = {agree['spearman']:.4f}, "
-              f"Kendall tau-b = {agree['kendall_tau']:.4f}, Pearson r = {agree['pearson']:.4f}")
+        keys = "groups" if args.by == "group" else "clips"
+        if agree["n"] >= MIN_N:
+            print(f"agreement by {args.by} with {' '.join(args.against)} over {agree['n']} matched {keys}: "
+                  f"Spearman rho = {agree['spearman']:.4f}, Kendall tau-b = {agree['kendall_tau']:.4f}, "
+                  f"Pearson r = {agree['pearson']:.4f}")
+        else:
+            print(f"agreement by {args.by} with {' '.join(args.against)}: {agree['n']} matched {keys} "
+                  f"(< {MIN_N}), no correlation")
         if args.by == "group":  # the paper's Table 3: each variant's group values and ranks
             ranking = ranking_table({" ".join(args.scores): records, " ".join(args.against): other}, args.column)
             print(f"\nranking by group mean of {args.column} (rank 1 = lowest):\n{format_ranking(ranking)}")
@@ -365,7 +377,7 @@ def _register_calibrate(sub) -> None:
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
                            help="fit on clips, or on per-group means (the paper's way)")
-    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip)")
+    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip; above the number of clips: leave-one-out)")
     algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed")
     output = cal.add_argument_group("output")
     output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`)")
@@ -595,7 +607,8 @@ def _register_perturb(sub) -> None:
     study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
     study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call")
     output = p.add_argument_group("output")
-    output.add_argument("--out", help="one row per clip, kind and severity (docs/semantics.md §4 columns + base, kind, severity)")
+    output.add_argument("--out", help="one row per clip, kind and severity: base, kind, severity, "
+                        "the columns of docs/semantics.md §4, rel_change")
     output.add_argument("--summary", help="per kind and severity means (CSV)")
     output.add_argument("--plot", help="figure of SGC and components vs severity (PNG/PDF; needs matplotlib)")
     _add_algorithm_flags(p)

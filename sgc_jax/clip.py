@@ -54,6 +54,12 @@ class Clip:
     frames: np.ndarray | None = None  # (T, H, W, 3) uint8, plots only
     meta: dict = dataclasses.field(default_factory=dict)
 
+    def __repr__(self) -> str:  # the arrays would flood a notebook cell
+        H, W = self.image_size
+        group = f", group {self.group!r}" if self.group else ""
+        return (f"Clip({self.clip_id!r}{group}: {self.n_frames} frames, {H}x{W}, {self.n_tracks} tracks per pair, "
+                f"masks from {self.mask_source}{', with frames' if self.frames is not None else ''})")
+
     @property
     def n_frames(self) -> int:
         return int(self.depth.shape[0])

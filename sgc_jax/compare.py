@@ -4,6 +4,8 @@ agreement between two score files, and how much a score follows camera dynamics 
 Inputs are per-clip rows (columns of docs/semantics.md §4), e.g. ``BatchResult.to_records()`` or
 ``sgc_jax.result.read_scores(...)``. Rows with status ``error`` or a NaN value are left out of
 every statistic. Ranks: 1 = lowest mean (lower SGC is better), ties share their average rank.
+Fewer than :data:`MIN_N` values give no bootstrap CI and no correlation (NaN): the CI of one or
+two values is the values themselves, and any two points correlate at exactly +-1.
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .result import add_ecd
-from .stats import agreement, bootstrap_ci, pearson, rankdata, spearman
+from .result import add_ecd, format_table
+from .stats import agreement, bootstrap_ci, paired, pearson, rankdata, spearman
 
+#: The fewest values (clips of a group, matched keys, clips with ECD) that get a CI or a correlation.
+MIN_N = 3
 GROUP_COLUMNS = ("group", "n", "mean", "median", "ci_low", "ci_high", "rank", "ecd_mean", "r_ecd")
 RANKING_COLUMNS = ("variant", "key", "value", "rank", "spearman_vs_first")
 CLIP_TABLE_COLUMNS = ("clip_id", "group", "value", "ecd", "rank")
@@ -26,26 +30,44 @@ def _scored(records: Sequence[dict[str, Any]], column: str) -> list[dict[str, An
     return [r for r in records if r.get("status", "ok") != "error" and not np.isnan(float(r[column]))]
 
 
+def _correlation(fn: Any, a: Any, b: Any) -> float:
+    """``fn(a, b)``, or NaN when fewer than MIN_N pairs are free of NaN."""
+    return fn(a, b) if paired(a, b)[0].size >= MIN_N else float("nan")
+
+
 def group_table(records: Sequence[dict[str, Any]], column: str = "sgc", *, n_boot: int = 2000,
                 level: float = 0.95, seed: int = 0) -> list[dict[str, Any]]:
     """One row per group (sorted by rank): n, mean, median, percentile-bootstrap CI of the mean,
     rank of the mean, mean ECD (normalised over all ``records``) and Pearson r of ``column`` vs
-    ECD within the group (the paper's motion-robustness check)."""
+    ECD within the group (the paper's motion-robustness check). CI and r are NaN for a group of
+    fewer than :data:`MIN_N` clips (r: clips with an ECD); :func:`format_group_table` says so."""
     rows = _scored(add_ecd(records), column)
     groups = sorted({str(r.get("group", "")) for r in rows})
     table = []
     for g in groups:
         values = np.array([float(r[column]) for r in rows if str(r.get("group", "")) == g])
         ecd = np.array([float(r["ecd"]) for r in rows if str(r.get("group", "")) == g])
-        lo, hi = bootstrap_ci(values, np.mean, n_boot=n_boot, level=level, seed=seed)
+        lo, hi = (bootstrap_ci(values, np.mean, n_boot=n_boot, level=level, seed=seed) if values.size >= MIN_N
+                  else (float("nan"), float("nan")))
         table.append({"group": g, "n": int(values.size), "mean": float(values.mean()),
                       "median": float(np.median(values)), "ci_low": lo, "ci_high": hi,
                       "ecd_mean": float(np.nanmean(ecd)) if not np.isnan(ecd).all() else float("nan"),
-                      "r_ecd": pearson(values, ecd)})
+                      "r_ecd": _correlation(pearson, values, ecd)})
     ranks = rankdata([t["mean"] for t in table])
     for t, rank in zip(table, ranks):
         t["rank"] = float(rank)
     return [{k: t[k] for k in GROUP_COLUMNS} for t in sorted(table, key=lambda t: t["rank"])]
+
+
+def format_group_table(table: Sequence[dict[str, Any]], columns: Sequence[str] = GROUP_COLUMNS) -> str:
+    """:func:`group_table` rows as terminal text, with a footnote when a group is too small for a CI
+    or a correlation."""
+    text = format_table(table, columns)
+    small = [t["group"] for t in table if t["n"] < MIN_N]
+    if small:
+        text += (f"\n* n < {MIN_N} ({', '.join(small)}): no CI, no r_ecd (one or two clips give a CI equal to "
+                 "the values and r = +-1 whatever the data)")
+    return text
 
 
 def clip_table(records: Sequence[dict[str, Any]], column: str = "sgc") -> list[dict[str, Any]]:
@@ -78,10 +100,13 @@ def agreement_between(records_a: Sequence[dict[str, Any]], records_b: Sequence[d
                       column: str = "sgc", *, by: str = "clip") -> dict[str, Any]:
     """Spearman rho, Kendall tau-b and Pearson r between two score tables, matched by clip_id
     (``by="clip"``) or by group of the per-group means (``by="group"``); ``n`` matched keys and
-    ``unmatched`` (keys present in only one table)."""
+    ``unmatched`` (keys present in only one table). The correlations are NaN with fewer than
+    :data:`MIN_N` matched keys."""
     a, b = _keyed(records_a, column, by), _keyed(records_b, column, by)
     keys = sorted(set(a) & set(b))
     out = agreement([a[k] for k in keys], [b[k] for k in keys])
+    if out["n"] < MIN_N:
+        out.update(spearman=float("nan"), kendall_tau=float("nan"), pearson=float("nan"))
     return {**out, "by": by, "unmatched": sorted(set(a) ^ set(b))}
 
 
@@ -90,14 +115,15 @@ def ranking_table(variants: dict[str, Sequence[dict[str, Any]]], column: str = "
     """Paper Table 3 ("ranking consistency across estimators"): for each variant (e.g. the full
     score and the "w/o VGGT" one, docs/semantics.md §6.3), each key's value (group mean, or clip
     value with ``by="clip"``) and rank over the keys every variant shares, and Spearman rho of the
-    variant's values against the first variant's. Long rows of :data:`RANKING_COLUMNS`."""
+    variant's values against the first variant's (NaN with fewer than :data:`MIN_N` shared keys).
+    Long rows of :data:`RANKING_COLUMNS`."""
     keyed = {name: _keyed(records, column, by) for name, records in variants.items()}
     shared = sorted(set.intersection(*(set(k) for k in keyed.values()))) if keyed else []
     first = next(iter(keyed.values()), {})
     rows = []
     for name, values in keyed.items():
         vector = [values[k] for k in shared]
-        rho = spearman(vector, [first[k] for k in shared]) if len(shared) > 1 else float("nan")
+        rho = _correlation(spearman, vector, [first[k] for k in shared])
         rows += [{"variant": name, "key": k, "value": v, "rank": float(r), "spearman_vs_first": rho}
                  for k, v, r in zip(shared, vector, rankdata(np.array(vector)))]
     return rows
@@ -116,15 +142,18 @@ def format_ranking(rows: Sequence[dict[str, Any]]) -> str:
     table = [["variant", *keys, "rho vs first"]]
     table += [[v, *(cell[(v, k)] for k in keys), f"{rho[v]:.3f}"] for v in variants]
     widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
-    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in table)
+    text = "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in table)
+    if len(keys) < MIN_N:
+        text += f"\n* {len(keys)} shared keys (< {MIN_N}): no rho (two keys always rank at rho = +-1)"
+    return text
 
 
 def motion_dependence(records: Sequence[dict[str, Any]], column: str = "sgc") -> dict[str, Any]:
     """How much ``column`` follows camera motion over the scored clips: Pearson r (and r^2, the
     share of variance motion explains) and Spearman rho against ECD (paper §4.3); ``n_ecd``:
-    clips with both values."""
+    clips with both values (NaN correlations below :data:`MIN_N`)."""
     rows = _scored(add_ecd(records), column)
     values, ecd = [float(r[column]) for r in rows], [float(r["ecd"]) for r in rows]
-    r = pearson(values, ecd)
+    r = _correlation(pearson, values, ecd)
     return {"n": len(rows), "n_ecd": int(np.sum(~np.isnan(ecd))) if ecd else 0, "pearson": r, "r2": r * r,
-            "spearman": spearman(values, ecd)}
+            "spearman": _correlation(spearman, values, ecd)}

@@ -15,7 +15,7 @@ import math
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -29,6 +29,8 @@ PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no
 #: leaves it out of the variances (see sgc_jax.uncertainty).
 REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3, "ill_conditioned": 4, "ambiguous": 5}
 
+#: Clip status codes (docs/semantics.md §3.7).
+CLIP_STATUSES = ("ok", "partial", "error")
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
                 "depth_unit", "n_ill_conditioned", "compat")
@@ -72,6 +74,11 @@ class PairArrays:
     @property
     def n_pairs(self) -> int:
         return len(self.reason)
+
+    def __repr__(self) -> str:  # the arrays run to thousands of lines
+        k = self.region_status.shape[1] if self.region_status.ndim == 2 else 0
+        return (f"PairArrays({self.n_pairs} pairs, {k} region slots; reasons: "
+                f"{_counts((str(r) for r in self.reason), PAIR_REASONS) or 'none'})")
 
     def components(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in COMPONENTS}
@@ -121,6 +128,12 @@ class ClipResult:
     compat: str = ""  # the semantics the components were computed with: "spec" | "authors"
     origin: str = ""
     pairs: PairArrays | None = None
+
+    def __repr__(self) -> str:  # the per-pair arrays would run to thousands of lines
+        reason = self.reason if len(self.reason) <= 80 else self.reason[:77] + "..."
+        return (f"ClipResult({self.clip_id!r}, group={self.group!r}, status={self.status!r}, sgc={self.sgc:.4g}, "
+                f"pairs scored {self.n_pairs_scored}/{self.n_pairs}, engine={self.engine!r}"
+                + (f", reason={reason!r}" if reason else "") + "; .record() for every column)")
 
     def record(self, ecd: float = float("nan")) -> dict[str, Any]:
         """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
@@ -299,6 +312,17 @@ class BatchResult:
     def __len__(self) -> int:
         return len(self.clips)
 
+    def __repr__(self) -> str:  # a summary: the default repr of thousands of clips floods a notebook
+        return (f"BatchResult: {self._summary()}\n"
+                "  .table() prints them; .to_records(), .to_pandas(), .to_csv(path) give every column")
+
+    def _summary(self) -> str:
+        """``"8 clips (ok 7, error 1), engine jax, calibration 'sgc-spec-2026'"``."""
+        statuses = _counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
+        engines = "/".join(dict.fromkeys(c.engine for c in self.clips if c.engine)) or "none"
+        calibration = repr(self.calibration.name) if self.calibration else "none"
+        return f"{len(self.clips)} clips ({statuses}), engine {engines}, calibration {calibration}"
+
     def __iter__(self) -> Iterator[ClipResult]:
         return iter(self.clips)
 
@@ -374,6 +398,13 @@ class BatchResult:
     def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *COMPONENTS)) -> str:
         """A plain-text table for terminals."""
         return format_table(self.to_records(), columns)
+
+
+def _counts(values: Iterable[str], order: Sequence[str] = ()) -> str:
+    """``"ok 7, partial 1"``: each distinct value with its count, in ``order`` then alphabetically."""
+    counts = Counter(values)
+    keys = [k for k in order if k in counts] + sorted(k for k in counts if k not in order)
+    return ", ".join(f"{k} {counts[k]}" for k in keys)
 
 
 def _format(value: Any) -> str:

@@ -24,7 +24,8 @@ from .calibration import COMPONENTS, Calibration
 from .clip import Clip, ClipFormatError, discover_clips
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
-from .result import CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_table, records_frame, write_csv
+from .result import (CLIP_COLUMNS, CLIP_STATUSES, BatchResult, ClipResult, _counts, failed_clip, format_table,
+                     records_frame, write_csv)
 from .stats import spearman
 
 #: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
@@ -75,6 +76,15 @@ class StudyResult:
 
     def __len__(self) -> int:
         return len(self.rows)
+
+    def __repr__(self) -> str:  # a summary: the rows and the scored clips would flood a notebook
+        severities = f"{self.severities[0]:g}..{self.severities[-1]:g}" if self.severities else ""
+        return (f"StudyResult: {len(self.bases)} base clips x {len(self.kinds)} kinds ({', '.join(self.kinds)}) x "
+                f"{len(self.severities)} severities ({severities}) = {len(self.rows)} rows "
+                f"({_counts((r['status'] for r in self.rows), CLIP_STATUSES) or 'none'})"
+                f"; scored {self.batch._summary()}\n"
+                "  .table() prints the summary and correlations; .to_records(), .to_pandas(), .to_csv(path) "
+                "give the rows")
 
     @property
     def bases(self) -> list[str]:

@@ -183,6 +183,41 @@ def test_kfold_is_reproducible_and_checks_k():
     a, b = kfold_stability(rows, k=4, seed=7), kfold_stability(rows, k=4, seed=7)
     np.testing.assert_array_equal(a.fold_weights, b.fold_weights)
     assert not np.array_equal(a.fold_weights, kfold_stability(rows, k=4, seed=8).fold_weights)
-    for k in (1, 14):
-        with pytest.raises(ValueError, match="k must be"):
+    for k in (1, 0, -3):
+        with pytest.raises(ValueError, match="k must be at least 2"):
             kfold_stability(rows, k=k)
+    with pytest.raises(ValueError, match="at least 2 scored rows, got 1"):
+        kfold_stability(rows[:1], k=2)
+
+
+# The demo corpus (sgc_jax.synth.demo_corpus, `sgc-jax synth`): its per-clip components scored by
+# the reference engine (compat="spec"), 4 significant digits; 8 clips in 5 groups.
+DEMO_ROWS = [
+    ("drift-0.05", "drift", (0.7888, 3.495, 0.357, 4.24, 0.4656)),
+    ("drift-0.20", "drift", (86.92, 284.8, 3.522, 317.9, 0.9073)),
+    ("moving-masked", "moving", (5.77e-09, 4.273e-09, 3.496e-10, 5.026e-09, 0.3407)),
+    ("moving-unmasked", "unmasked", (25.37, 251.9, 0.7475, 280.1, 0.9424)),
+    ("noisy-mild", "noisy", (200.2, 161.7, 15.49, 197.2, 0.2706)),
+    ("noisy-strong", "noisy", (244.1, 893.5, 104.7, 1104, 0.6057)),
+    ("rigid-a", "rigid", (4.36e-09, 1.884e-08, 4.883e-10, 2.285e-08, 0.4234)),
+    ("rigid-b", "rigid", (1.654e-09, 3.593e-09, 1.606e-10, 4.093e-09, 0.4363)),
+]
+
+
+def test_readme_kfold_example_runs_on_the_demo_corpus_as_leave_one_out():
+    rows = [{"clip_id": c, "group": g, "status": "ok", **dict(zip(COMPONENTS, m))} for c, g, m in DEMO_ROWS]
+    with pytest.warns(UserWarning, match=r"k=10 folds but only 8 scored rows .*: using leave-one-out \(k=8\)"):
+        stability = kfold_stability(rows, k=10, by="group")  # the README's call
+    assert stability.k == 8 and stability.fold_weights.shape == (8, 5) and "over 8 folds" in stability.table()
+    loo = kfold_stability(rows, k=8, by="group")
+    np.testing.assert_array_equal(stability.fold_weights, loo.fold_weights)
+    np.testing.assert_array_equal(stability.spearman, loo.spearman)
+
+
+def test_repr_of_calibrations_and_stability_is_a_short_summary():
+    shipped = Calibration.load("sgc-spec-2026")  # a long description and corpus record in extra
+    rows, _, _ = paper_groups()
+    loo = kfold_stability(rows, k=len(rows), seed=0)
+    for obj, expected in ((shipped, "sgc-spec-2026"), (loo, "k=13")):
+        assert len(repr(obj)) < 300 and "\n" not in repr(obj) and expected in repr(obj), repr(obj)
+    assert shipped == Calibration.load("sgc-spec-2026")  # equality still compares every field

@@ -61,6 +61,13 @@ def test_calibrate_on_published_groups_prints_weights_variance_and_stability(tmp
     np.testing.assert_allclose(column(rescored, "sgc"), column(GROUPS_CSV, "sgc"), atol=2e-4)
 
 
+def test_calibrate_with_more_folds_than_rows_says_so_and_runs_leave_one_out(capsys):
+    assert main(["calibrate", str(GROUPS_CSV), "--folds", "20"]) == 0
+    out, err = capsys.readouterr()
+    assert "warning: k=20 folds but only 13 scored rows" in err and "Traceback" not in err
+    assert "13-fold stability" in out and kfold_stability(read_scores(GROUPS_CSV), k=13).table() in out
+
+
 def test_score_with_a_new_calibration_equals_rescoring_the_paper_scores(scores_csv, tmp_path):
     calib = tmp_path / "calib.json"
     proc = run("calibrate", scores_csv, "--by", "group", "--folds", "3", "--out", calib)

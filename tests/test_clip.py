@@ -7,6 +7,7 @@ import pytest
 
 from sgc_jax import ClipFormatError, SGCConfig, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
 from sgc_jax.clip import clip_to_arrays, discover_clips
+from sgc_jax.synth import synth_clip
 
 
 def tiny_arrays(T=3, H=8, W=10, P=12, seed=0):
@@ -132,3 +133,8 @@ def test_sources_directories_globs_and_mappings(tmp_path):
     assert len(discover_clips([tiny_arrays(), tmp_path / "c2.npz"])) == 2
     with pytest.raises(FileNotFoundError, match="nothing_here"):
         discover_clips(tmp_path / "nothing_here")
+
+
+def test_a_clip_repr_is_one_short_line():
+    clip = synth_clip(seed=0, clip_id="a", group="g", n_frames=3, height=24, width=32, n_tracks=64)
+    assert repr(clip) == "Clip('a', group 'g': 3 frames, 24x32, 64 tracks per pair, masks from static_mask, with frames)"

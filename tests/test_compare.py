@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from sgc_jax.compare import (GROUP_COLUMNS, agreement_between, clip_table, format_ranking, group_table,
-                             motion_dependence, ranking_table)
+from sgc_jax import COMPONENTS
+from sgc_jax.cli import main
+from sgc_jax.compare import (GROUP_COLUMNS, MIN_N, agreement_between, clip_table, format_group_table, format_ranking,
+                             group_table, motion_dependence, ranking_table)
+from sgc_jax.result import write_scores
 
 NAN = math.nan
 
@@ -36,7 +39,7 @@ def test_group_table_statistics_and_ranks():
     assert by["good"]["rank"] == by["mid"]["rank"] == 1.5 and by["bad"]["rank"] == 3.0  # tie: average rank
     assert by["good"]["ci_low"] < 0.25 < by["good"]["ci_high"]
     assert 0.125 <= by["good"]["ci_low"] and by["good"]["ci_high"] <= 0.375  # a mean's CI stays in the data range
-    assert by["mid"]["ci_low"] == by["mid"]["ci_high"] == 0.25  # constant group
+    assert math.isnan(by["mid"]["ci_low"]) and math.isnan(by["bad"]["ci_high"])  # two clips: no CI
     # ECD over every row with inputs (trans 0..4 -> /4, rot 0..2 -> /2): "good" gets 0, 1/4, 1/2
     ecd_good = np.array([0.0, 0.25, 0.5])
     assert by["good"]["r_ecd"] == pytest.approx(scipy_stats.pearsonr([0.125, 0.375, 0.25], ecd_good).statistic)
@@ -97,3 +100,52 @@ def test_ranking_table_between_variants_like_the_papers_table_3():
     assert rho["w/o global pose"] == pytest.approx(scipy_stats.spearmanr([0.25, 0.8, 0.25], [0.5, 1.6, 2.0])[0])
     text = format_ranking(rows)
     assert text.splitlines()[0].split()[:4] == ["variant", "good", "mid", "bad"] and "w/o global pose" in text
+
+
+# ----------------------------------------------------------------------------- too few values
+
+
+def small_groups():
+    """Groups of 1, 2 and 3 clips whose scores follow ECD exactly (any two points would give r = 1)."""
+    sizes = {"one": 1, "two": 2, "three": 3}
+    return [row(f"{g}{i}", g, 0.1 * (j + 1) + 0.01 * i, ecd_trans=float(i + j), ecd_rot=0.0)
+            for j, (g, n) in enumerate(sizes.items()) for i in range(n)]
+
+
+def test_groups_of_fewer_than_three_clips_get_no_ci_and_no_correlation():
+    assert MIN_N == 3
+    by = {t["group"]: t for t in group_table(small_groups(), n_boot=200)}
+    for g in ("one", "two"):
+        assert math.isnan(by[g]["ci_low"]) and math.isnan(by[g]["ci_high"]) and math.isnan(by[g]["r_ecd"]), g
+        assert not math.isnan(by[g]["mean"]) and by[g]["rank"] > 0  # the mean and rank stay
+    assert by["three"]["ci_low"] < by["three"]["mean"] < by["three"]["ci_high"]
+    assert by["three"]["r_ecd"] == pytest.approx(1.0)
+    text = format_group_table(group_table(small_groups(), n_boot=200))
+    footnote = text.splitlines()[-1]
+    assert footnote.startswith("* n < 3 (one, two): no CI, no r_ecd") and "three" not in footnote
+    assert "* n < 3" not in format_group_table(group_table(corpus()[:3], n_boot=10))  # only "good", n = 3
+
+
+def test_correlations_of_fewer_than_three_keys_are_nan():
+    a = small_groups()
+    b = [{**r, "sgc": 2 * r["sgc"]} for r in a]
+    two = [r for r in a if r["group"] != "three"], [r for r in b if r["group"] != "three"]
+    agree = agreement_between(*two, by="group")
+    assert agree["n"] == 2 and all(math.isnan(agree[k]) for k in ("spearman", "kendall_tau", "pearson"))
+    assert agreement_between(a, b, by="group")["spearman"] == pytest.approx(1.0)  # three groups
+    ranking = ranking_table({"a": two[0], "b": two[1]})
+    assert all(math.isnan(r["spearman_vs_first"]) for r in ranking)
+    assert format_ranking(ranking).splitlines()[-1].startswith("* 2 shared keys (< 3): no rho")
+    assert math.isnan(motion_dependence(a[:2])["pearson"]) and math.isnan(motion_dependence(a[:2])["spearman"])
+    assert motion_dependence(a[:3])["n_ecd"] == 3 and not math.isnan(motion_dependence(a[:3])["pearson"])
+
+
+def test_compare_command_prints_the_small_sample_caveats(tmp_path, capsys):
+    rows = [{**r, **{k: 0.0 for k in COMPONENTS}} for r in small_groups() if r["group"] != "three"]
+    path = write_scores(tmp_path / "scores.csv", rows)
+    assert main(["compare", str(path), "--against", str(path), "--by", "group", "--boot", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "* n < 3 (one, two): no CI, no r_ecd" in out
+    assert "sgc vs ECD over 3 clips: Pearson r" in out  # three clips with ECD: a correlation
+    assert "2 matched groups (< 3), no correlation" in out and "Spearman rho = 1.0000" not in out
+    assert "* 2 shared keys (< 3): no rho" in out

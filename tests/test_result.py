@@ -1,14 +1,18 @@
 """result.py: the corpus ECD column (SPEC §5), reading scores CSVs back, re-scoring without geometry."""
 
 import csv
+import dataclasses
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import sgc_jax.api
 import sgc_jax.reference
-from sgc_jax import COMPONENTS, BatchResult, Calibration, ClipResult, calibrate, score_batch, sgc_score
+from sgc_jax import (CLIP_COLUMNS, COMPONENTS, PAIR_COLUMNS, BatchResult, Calibration, ClipResult, calibrate, score_batch,
+                     sgc_score)
 from sgc_jax.result import camera_dynamics, read_scores, rescore_records, write_scores
 from sgc_jax.synth import synth_clip
 
@@ -102,3 +106,44 @@ def test_rescore_by_name_restores_the_shipped_scores(scored, monkeypatch):
     there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-spec-2026")
     np.testing.assert_allclose(there_and_back.sgc, scored.sgc, rtol=1e-12)
     assert there_and_back.calibration == Calibration.load("sgc-spec-2026")
+
+
+def test_repr_of_many_clips_is_a_short_summary(scored):
+    clips = [dataclasses.replace(c, clip_id=f"{c.clip_id}-{i}") for i in range(250) for c in scored.clips]
+    clips[0] = dataclasses.replace(clips[0], status="error", reason="x" * 500)
+    batch = BatchResult(clips, scored.calibration)
+    text = repr(batch)
+    assert len(text) < 500 and len(text.splitlines()) <= 3, text
+    assert "1000 clips" in text and "error 1" in text and "engine reference" in text
+    assert repr(scored.calibration.name) in text and ".table()" in text and ".to_pandas()" in text
+    for clip in (clips[0], clips[1]):  # one clip and its per-pair arrays are summaries too
+        assert len(repr(clip)) < 300 and clip.clip_id in repr(clip)
+        assert len(repr(clip.pairs)) < 300
+    # the summary repr leaves dataclass equality as it was
+    assert batch == BatchResult(list(clips), scored.calibration)
+    assert batch != BatchResult(clips[:-1], scored.calibration)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def documented_clip_columns() -> list[str]:
+    """The first cells of the per-clip table of docs/semantics.md §4, in order."""
+    text = (ROOT / "docs" / "semantics.md").read_text().split("## 4. Units of the output columns", 1)[1]
+    table = text.split("Per-clip columns (`CLIP_COLUMNS`", 1)[1].split("\n\n")[1]
+    rows = [line for line in table.splitlines() if line.startswith("| `")]
+    return [name for line in rows for name in re.findall(r"`([^`]+)`", line.split("|")[1])]
+
+
+def readme_columns(label: str) -> list[str]:
+    """The backticked list after ``label`` in the README, e.g. "Per-clip columns"."""
+    text = " ".join((ROOT / "README.md").read_text().split(label, 1)[1].split())
+    return [c.strip() for c in re.search(r": `([^`]+)`", text).group(1).split(",")]
+
+
+def test_documented_column_lists_are_the_columns_written(scored, tmp_path):
+    scored.to_csv(tmp_path / "clips.csv", pairs_path=tmp_path / "pairs.csv")
+    written = next(csv.reader((tmp_path / "clips.csv").open()))
+    assert written == list(CLIP_COLUMNS) == documented_clip_columns() == readme_columns("Per-clip columns")
+    written_pairs = next(csv.reader((tmp_path / "pairs.csv").open()))
+    assert written_pairs == list(PAIR_COLUMNS) == readme_columns("Per-pair columns")

@@ -3,6 +3,7 @@ perturbation's targeted component rise strictly with severity, scored with the d
 in one batched call; rows, summaries, plot and the ``sgc-jax perturb`` command."""
 
 import csv
+import dataclasses
 import subprocess
 import sys
 
@@ -233,3 +234,13 @@ def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
     assert cli.main(["perturb", str(tmp_path / "none.npz"), "--plot", str(tmp_path / "p.png")]) == 2
     err = capsys.readouterr().err
     assert "--plot" in err and "pip install" in err
+
+
+def test_repr_of_a_study_is_a_short_summary():
+    study = sensitivity_study(tiny_clips(1), ["warp", "squeeze"], (0, 0.5, 1), engine="reference", progress=False)
+    many = dataclasses.replace(study, rows=study.rows * 500,
+                               batch=dataclasses.replace(study.batch, clips=study.batch.clips * 500))
+    text = repr(many)
+    assert len(text) < 500 and len(text.splitlines()) <= 3, text
+    assert "3000 rows" in text and "2 kinds (warp, squeeze)" in text and "3 severities (0..1)" in text
+    assert "engine reference" in text and ".table()" in text and ".to_pandas()" in text
