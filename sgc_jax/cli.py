@@ -320,9 +320,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
                           format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
     from .result import write_csv, format_table
 
-    guard_outputs(table_input_files([*args.scores, *(args.against or [])]), out=args.out, plot=args.plot)
     if args.plot:
         _require_matplotlib()
+    guard_outputs(table_input_files([*args.scores, *(args.against or [])]), out=args.out, plot=args.plot)
     records = _read_scores(args.scores)
     try:
         if args.by == "group":
@@ -557,12 +557,12 @@ def _csv_list(text: str, convert=str) -> list:
 def cmd_perturb(args: argparse.Namespace) -> int:
     from .study import check_kinds, check_severities, sensitivity_study
 
+    if args.plot:  # fail before the (long) study when matplotlib is missing
+        _require_matplotlib()
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
     guard_outputs(inputs, out=args.out, summary=args.summary, plot=args.plot)
-    if args.plot:  # fail before the (long) study when matplotlib is missing
-        _require_matplotlib()
     config, calibration = _config_and_calibration(args)
     try:
         check_kinds(args.kinds), check_severities(args.severities)
