@@ -74,3 +74,13 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
         return None  # a read-only home: run without the cache rather than fail
     jax.config.update("jax_compilation_cache_dir", str(target))
     return target
+
+
+def cache_hint() -> str:
+    """A clause for the compile message: how to keep compiled programs between runs, or "" when
+    the persistent cache is on."""
+    import jax
+
+    if jax.config.jax_compilation_cache_dir:
+        return ""
+    return "; sgc_jax.enable_compilation_cache() keeps them for later runs"

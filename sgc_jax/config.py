@@ -1,7 +1,7 @@
 """Frozen hyperparameters of the SGC computation (docs/semantics.md §2).
 
-Shape-like fields (``k_seg``, ``max_tracks``, ``ransac_hypotheses``, ``kmeans_bins``,
-``gn_steps``) are static for the JAX engine: changing them recompiles. Thresholds are values.
+``STATIC_FIELDS`` shape the JAX engine's compiled program; the other fields can change without
+a new compile.
 """
 
 from __future__ import annotations
@@ -15,6 +15,18 @@ COMPATS = ("spec", "authors")
 # nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
 # depth edge, not the slope of one surface).
 HOLE_DEPTH_MARGIN = 0.05
+
+
+# How the JAX engine uses each field (docs/semantics.md §2). STATIC fields shape its compiled
+# program (array sizes, loop counts, branches): a new value compiles a new program. VALUE fields
+# enter the program as traced scalars and HOST fields act before it (loading, padding), so
+# changing either reuses the program.
+STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "gn_steps", "partition", "compat", "global_pose",
+                 "align_scale", "quality_rule", "borrow_region_poses")
+HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
+VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed",
+                "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "min_region_extent",
+                "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import NamedTuple
+import sys
+import time
+from typing import Any, Callable, Mapping, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +22,7 @@ import numpy as np
 
 from .clip import Clip
 from .components import mean_pose, pair_pose_components
-from .config import SGCConfig
+from .config import HOST_FIELDS, VALUE_FIELDS, SGCConfig
 from .geometry import back_project, nearest_rotation, rotation_angle_deg
 from .kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
 from .partition import spatial_regions
@@ -34,7 +36,6 @@ REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
 MIN_TRACK_BUCKET = 64
-MAX_CLIP_BATCH = 8  # clips per jitted call; B in {1, 2, 4, 8} (see clip_groups)
 
 
 # ----------------------------------------------------------------------------- buckets
@@ -64,7 +65,8 @@ def bucket_for(clip: Clip) -> Bucket:
 
 
 class PaddedClips(NamedTuple):
-    """A bucket's clips stacked on a leading axis B; pairs index p = frames p -> p+1."""
+    """Clips of one bucket stacked on a leading axis B (1 in a scoring call); pairs index p =
+    frames p -> p+1."""
 
     depth: np.ndarray  # (B, T, H, W) float32, 0 = invalid (and in padding)
     static: np.ndarray  # (B, T, H, W) bool, False in padding
@@ -106,10 +108,6 @@ def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 
     return PaddedClips(depth[None], static[None], K[None], R_wc[None], t_wc[None], track_prev[None],
                        track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32),
                        np.array([depth_unit], np.float32))
-
-
-def stack_padded(parts: list[PaddedClips]) -> PaddedClips:
-    return PaddedClips(*(np.concatenate(fields) for fields in zip(*parts)))
 
 
 # ----------------------------------------------------------------------------- per pair
@@ -358,15 +356,76 @@ def score_padded(batch: PaddedClips, key, config: SGCConfig):
     return dict(comps, **poses._asdict(), scale=scale)
 
 
-@functools.lru_cache(maxsize=8)
-def compiled_scorer(config: SGCConfig):
-    """The jitted scorer of a bucket's clips for a config (jit caches one executable per bucket).
+# ----------------------------------------------------------------------------- programs
 
-    Bounded: every executable holds its machine code in memory mappings, so a long-lived process
-    that cycles through many configs keeps only the most recent few compiled.
-    """
-    key = jax.random.PRNGKey(config.seed)
-    return jax.jit(lambda batch: score_padded(batch, key, config))
+
+class ProgramConfig:
+    """The config as a compiled program sees it: static fields (and the config's properties) as
+    Python values, ``VALUE_FIELDS`` as traced scalars from ``values``."""
+
+    def __init__(self, static: SGCConfig, values: Mapping[str, Any]):
+        self._static, self._values = static, values
+
+    def __getattr__(self, name: str):
+        values = self.__dict__["_values"]
+        return values[name] if name in values else getattr(self.__dict__["_static"], name)
+
+
+def program_config(config: SGCConfig) -> SGCConfig:
+    """What a compiled program depends on: ``config`` with its value and host fields at their
+    defaults, so that configs differing only there share one program."""
+    defaults = SGCConfig()
+    return config.replace(**{name: getattr(defaults, name) for name in VALUE_FIELDS + HOST_FIELDS})
+
+
+def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
+    """The value fields a program takes as arguments (int32 or float32 scalars; the seed goes in as the key)."""
+    return {name: np.asarray(getattr(config, name), np.int32 if isinstance(getattr(config, name), int) else np.float32)
+            for name in VALUE_FIELDS if name != "seed"}
+
+
+def _score_program(batch: PaddedClips, key, values, static: SGCConfig):
+    return score_padded(batch, key, ProgramConfig(static, values))
+
+
+_jitted_program = jax.jit(_score_program, static_argnames=("static",))
+# (program config, bucket) -> executable; cleared by release_programs
+_programs: dict[tuple[SGCConfig, Bucket], Callable] = {}
+
+
+def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> Callable:
+    """The executable that scores one padded clip of ``bucket`` under ``config``: called as
+    ``program(batch, key, values)``. Compiled once per (bucket, ``program_config(config)``), with a
+    line on stderr while it compiles."""
+    static = program_config(config)
+    program = _programs.get((static, bucket))
+    if program is None:
+        start = time.perf_counter()
+        _announce_compile(bucket)
+        lowered = _jitted_program.lower(example, jax.random.PRNGKey(0), program_values(config), static=static)
+        program = _programs[(static, bucket)] = lowered.compile()
+        print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    return program
+
+
+def _announce_compile(bucket: Bucket) -> None:
+    from .compile_cache import cache_hint
+
+    print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, "
+          f"{bucket.P} tracks per pair (once per shape bucket; tens of seconds on a CPU{cache_hint()}) ...",
+          end="", file=sys.stderr, flush=True)
+
+
+def release_programs() -> int:
+    """Drop every compiled program (each holds its machine code in memory mappings); returns how many."""
+    count = len(_programs)
+    _programs.clear()
+    return count
+
+
+def compile_count() -> int:
+    """Programs compiled (or loaded from the persistent cache) and held by this process."""
+    return len(_programs)
 
 
 def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float) -> PairArrays:
@@ -391,36 +450,17 @@ def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: floa
 
 
 def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
-    """Per-pair arrays of every clip, computed bucket by bucket on the default JAX device."""
+    """Per-pair arrays of every clip, one program call per clip on the default JAX device."""
     config = config or SGCConfig()
-    scorer = compiled_scorer(config)
-    clips, units = zip(*(in_depth_units(clip, config) for clip in clips)) if clips else ((), ())
-    results: list[PairArrays | None] = [None] * len(clips)
-    by_bucket: dict[Bucket, list[int]] = {}
-    for i, clip in enumerate(clips):
-        by_bucket.setdefault(bucket_for(clip), []).append(i)
-    for bucket, members in sorted(by_bucket.items()):
-        for group in clip_groups(members):
-            batch = stack_padded([pad_clip(clips[i], bucket, config, units[i]) for i in group])
-            out = jax.device_get(scorer(batch))
-            for b, i in enumerate(group):
-                # s (per unit of D inside) is reported in depth units per pose unit; 1 when no
-                # global translation is scaled (the w/o-VGGT variant)
-                scale = float(np.asarray(out["scale"][b])) * units[i] if config.global_pose else 1.0
-                results[i] = _pair_arrays(out, b, clips[i].n_pairs, units[i], scale)
+    key, values = jax.random.PRNGKey(config.seed), program_values(config)
+    results = []
+    for clip in clips:
+        clip, unit = in_depth_units(clip, config)
+        bucket = bucket_for(clip)
+        batch = pad_clip(clip, bucket, config, unit)
+        out = jax.device_get(compiled_program(config, bucket, batch)(batch, key, values))
+        # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
+        # translation is scaled (the w/o-VGGT variant)
+        scale = float(np.asarray(out["scale"][0])) * unit if config.global_pose else 1.0
+        results.append(_pair_arrays(out, 0, clip.n_pairs, unit, scale))
     return results
-
-
-def clip_groups(members: list[int]) -> list[list[int]]:
-    """Split a bucket's clips into calls of MAX_CLIP_BATCH clips, then the rest by its binary
-    digits (13 -> 8, 4, 1): the clip axis B takes only the sizes 1, 2, 4, ..., MAX_CLIP_BATCH, so
-    a bucket compiles at most log2(MAX_CLIP_BATCH) + 1 times whatever the corpus size, with no
-    padded clips. Clips run one after another inside a call (``lax.map``), so splitting is free."""
-    groups, start = [], 0
-    size = MAX_CLIP_BATCH
-    while start < len(members):
-        while size > len(members) - start:
-            size //= 2
-        groups.append(members[start:start + size])
-        start += size
-    return groups

@@ -231,7 +231,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
-    min_cut_sq = jnp.asarray(min(MIN_CUT_PX, inlier_px) ** 2, dtype)
+    min_cut_sq = jnp.asarray(jnp.minimum(MIN_CUT_PX, inlier_px) ** 2, dtype)
     own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
     slots = region_slots(region, k, dtype)  # one layout for all the joint solves below
     fit_regions = lambda weight, start: solve_pnp_regions(X, uv, weight.astype(dtype), region, K, start,  # noqa: E731
@@ -396,7 +396,7 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     # inliers, any pose along an ill-conditioned valley keeps every point of a slightly
     # non-rigid region, which is misfit, not ambiguity.
     err_sq = (trunc[best] - (jnp.sum(scored_valid) - count[best]) * inlier_px**2) / jnp.maximum(count[best], 1)
-    cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), min(MIN_CUT_PX, inlier_px), inlier_px)
+    cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), jnp.minimum(MIN_CUT_PX, inlier_px), inlier_px)
     inl, count, _ = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
     drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
     margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))

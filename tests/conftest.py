@@ -61,8 +61,8 @@ def release_compiled_programs_when_mappings_run_high():
         return
     limit = int(_MAX_MAP_COUNT.read_text()) if _MAX_MAP_COUNT.exists() else 65530
     if _memory_mappings() > limit // 2:
-        from sgc_jax.engine import compiled_scorer
+        from sgc_jax.engine import release_programs
 
-        compiled_scorer.cache_clear()
+        release_programs()
         jax.clear_caches()
         gc.collect()

@@ -8,7 +8,7 @@ import numpy as np
 from sgc_jax import COMPONENTS, SGCConfig, engine
 
 
-def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkeypatch):
+def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkeypatch, capsys):
     # Noisy clip with 30% outliers: RANSAC's sampling must not depend on the padded track count.
     config = SGCConfig()
     natural = engine.bucket_for(noisy_clip)
@@ -16,6 +16,9 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkey
     [as_is] = engine.score_pairs_batch([noisy_clip], config)
     monkeypatch.setattr(engine, "bucket_for", lambda clip: larger)
     [padded] = engine.score_pairs_batch([noisy_clip], config)
+    # a bucket no other test uses: its compile is announced on stderr, once, naming the bucket
+    assert capsys.readouterr().err.count(f"compiling the JAX program for clips of up to {larger.T} frames, "
+                                         f"{larger.H}x{larger.W} px, {larger.P} tracks per pair") == 1
     assert list(padded.reason) == list(as_is.reason)
     np.testing.assert_array_equal(padded.n_tracks, as_is.n_tracks)
     np.testing.assert_array_equal(padded.n_regions, as_is.n_regions)
@@ -24,22 +27,27 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkey
         np.testing.assert_allclose(getattr(padded, k), getattr(as_is, k), rtol=1e-4, atol=1e-7, err_msg=k)
 
 
-def test_a_second_batch_of_the_same_bucket_does_not_recompile(rigid_clip, drift_clip):
+def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_clip, moving_clip):
+    """docs/semantics.md §7.1: a second corpus of the bucket, other thresholds or seed, use_mos=False,
+    other track filtering and perturbed clips reuse the program: XLA compiles nothing."""
+    from jax import monitoring
+
+    from sgc_jax import perturb_clip, score_batch
+
     config = SGCConfig()
-    scorer = engine.compiled_scorer(config)
-    other = dataclasses.replace(drift_clip, clip_id="other")
-    assert engine.bucket_for(rigid_clip) == engine.bucket_for(other)
-    engine.score_pairs_batch([rigid_clip, drift_clip], config)
-    compiled = scorer._cache_size()  # executables so far (this bucket, and others of the session)
-    assert compiled >= 1
-    engine.score_pairs_batch([other, rigid_clip], config)
-    assert scorer._cache_size() == compiled
-
-
-def test_clip_batches_take_few_sizes_and_keep_every_clip_once():
-    sizes = set()
-    for n in range(1, 40):
-        groups = engine.clip_groups(list(range(n)))
-        assert [i for g in groups for i in g] == list(range(n))
-        sizes.update(len(g) for g in groups)
-    assert sizes == {1, 2, 4, engine.MAX_CLIP_BATCH}
+    engine.score_pairs_batch([rigid_clip], config)  # the program of this bucket, compiled here or earlier
+    held = engine.compile_count()
+    compiles = []
+    listener = lambda event, duration, **kw: compiles.append(kw.get("fun_name")) if "backend_compile" in event else None  # noqa: E731
+    monitoring.register_event_duration_secs_listener(listener)
+    try:
+        other = dataclasses.replace(drift_clip, clip_id="other")
+        assert engine.bucket_for(other) == engine.bucket_for(moving_clip) == engine.bucket_for(rigid_clip)
+        engine.score_pairs_batch([other, moving_clip], config)
+        for changes in (dict(inlier_px=6.0, min_inlier_frac=0.4, confidence=0.95), dict(seed=7), dict(use_mos=False),
+                        dict(min_track_conf=0.9, max_rot_std_deg=2.0, min_region_pixels=50, ambiguous_rot_deg=5.0)):
+            engine.score_pairs_batch([moving_clip], config.replace(**changes))
+        score_batch([perturb_clip(rigid_clip, kind, 0.5, seed=0) for kind in ("warp", "depth_warp")], progress=False)
+    finally:
+        monitoring.unregister_event_duration_listener(listener)
+    assert compiles == [] and engine.compile_count() == held
