@@ -347,6 +347,7 @@ DIAGNOSTICS = [
     """),
     _code("""\
         from sgc_jax import diagnostics
+        from sgc_jax.codes import REGION_STATUS_NAMES
 
         rigid = synth_clip(seed=5, clip_id="rigid", **SCENE)
         drift = synth_clip(seed=5, clip_id="layer-drift", layer_drift=0.2, **SCENE)
@@ -378,7 +379,7 @@ DIAGNOSTICS = [
         flow = diagnostics.pose_flow(drift, result.clip("layer-drift"), PAIR)
         pd.DataFrame({
             "region": np.arange(1, len(flow.status) + 1), "points": flow.n_points,
-            "status": [diagnostics.REGION_STATUS_NAMES[s] for s in flow.status],
+            "status": [REGION_STATUS_NAMES[s] for s in flow.status],
             "local dx [px]": flow.local_px[:, 0], "local dy [px]": flow.local_px[:, 1],
             "global dx [px]": flow.global_px[:, 0], "global dy [px]": flow.global_px[:, 1],
             "gap [px]": flow.disagreement_px,

@@ -18,12 +18,10 @@ import numpy as np
 
 from . import reference
 from .clip import Clip, load_clip
+from .codes import REGION_STATUS
 from .config import SGCConfig
-from .result import REGION_STATUS, ClipResult, PairArrays
+from .result import ClipResult, PairArrays
 from .units import PERCENT, in_depth_units
-
-#: Region status names by code (inverse of :data:`~sgc_jax.result.REGION_STATUS`).
-REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:
@@ -108,7 +106,7 @@ class PoseFlow:
     Per region slot (k): ``anchor`` (k, 3) the centroid of the region's points in camera pair-1
     (depth units); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
     (k, 2) the displacement in pixels of that point under the region's local pose / the global
-    pose; ``status`` (k,) :data:`~sgc_jax.result.REGION_STATUS` codes; ``n_points`` (k,).
+    pose; ``status`` (k,) :data:`~sgc_jax.codes.REGION_STATUS` codes; ``n_points`` (k,).
     Rows of regions without an accepted pose (or without points) are NaN.
     """
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from .calibration import COMPONENTS
+from .codes import REGION_STATUS_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -172,7 +173,7 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
         d = depth[labels == j]
         text = f"{j}: depth {np.nanmin(d):.3g}–{np.nanmax(d):.3g}"
         if pairs is not None:
-            status = diagnostics.REGION_STATUS_NAMES[int(pairs.region_status[pair - 1, j - 1])]
+            status = REGION_STATUS_NAMES[int(pairs.region_status[pair - 1, j - 1])]
             text += f", {int(pairs.region_points[pair - 1, j - 1])} pts, {status}"
         handles.append(Patch(color=colours[j - 1], alpha=0.8, label=text))
     handles.append(Patch(color="black", alpha=0.55, label="no region (dynamic, invalid or small)"))
@@ -316,7 +317,7 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
     ax.set_yscale("log")
     ax.axhline(reproj.inlier_px, color="black", ls="--", lw=1)
     ax.set_xticks(positions)
-    ax.set_xticklabels([f"{j + 1}\n{len(reproj.global_px[j])} pts\n{diagnostics.REGION_STATUS_NAMES[int(reproj.status[j])]}"
+    ax.set_xticklabels([f"{j + 1}\n{len(reproj.global_px[j])} pts\n{REGION_STATUS_NAMES[int(reproj.status[j])]}"
                         for j in regions], fontsize="small")
     ax.set_xlabel("region (depth layer, nearest first)")
     ax.set_ylabel("reprojection error [px]")

@@ -15,8 +15,9 @@ import cv2
 import numpy as np
 
 from .clip import Clip
+from .codes import REGION_STATUS
 from .config import HOLE_DEPTH_MARGIN, SGCConfig
-from .result import REGION_STATUS, PairArrays, empty_pair_arrays
+from .result import PairArrays, empty_pair_arrays
 from .units import PERCENT, in_depth_units, translation_factor
 
 # ----------------------------------------------------------------------------- rotations

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sgc_jax import SGCConfig, diagnostics, reference
-from sgc_jax.result import REGION_STATUS
+from sgc_jax.codes import REGION_STATUS
 from sgc_jax.synth import relative_poses
 
 PAIR = 2
