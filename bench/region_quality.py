@@ -25,9 +25,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
 from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT
-from sgc_jax.ransac import ransac_pnp
+from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.study import DEFAULT_SEVERITIES, sensitivity_study
 from sgc_jax.synth import synth_clip
 

@@ -1,4 +1,4 @@
-"""sgc_jax.pnp and sgc_jax.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
+"""sgc_jax.kernels.pnp and sgc_jax.kernels.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
 
 Compiled functions are built once at module level and shared across tests (few compiles).
 """
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
-from sgc_jax.geometry import rotation_angle_deg, so3_exp, so3_log
-from sgc_jax.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals, solve_pnp,
-                         solve_pnp_regions)
-from sgc_jax.ransac import borrow_region_poses, group_by_region, ransac_pnp
+from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp, so3_log
+from sgc_jax.kernels.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals,
+                                 solve_pnp, solve_pnp_regions)
+from sgc_jax.kernels.ransac import borrow_region_poses, group_by_region, ransac_pnp
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view

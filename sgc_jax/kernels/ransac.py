@@ -17,7 +17,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from .geometry import rotation_angle_deg, so3_exp
 from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
                   solve_pnp, solve_pnp_regions)

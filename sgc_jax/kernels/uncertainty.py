@@ -18,7 +18,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
+from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
 from .geometry import so3_exp
 from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, region_onehot, solve_spd
 
