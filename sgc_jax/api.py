@@ -16,15 +16,15 @@ ENGINES = ("jax", "reference")
 
 
 def _reference_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from . import reference
+    from .engines import reference
 
     return [reference.score_pairs(clip, config) for clip in clips]
 
 
 def _jax_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from . import engine
+    from .engines import jax_engine
 
-    return engine.score_pairs_batch(clips, config)
+    return jax_engine.score_pairs_batch(clips, config)
 
 
 def _engine(name: str) -> Callable[[list[Clip], SGCConfig], list[PairArrays]]:

@@ -125,7 +125,7 @@ def _use_compilation_cache(engine: str) -> None:
     """The JAX engine's compiled programs persist between runs (``compile_cache``; off with
     ``SGC_JAX_COMPILATION_CACHE=off``)."""
     if engine == "jax":
-        from .compile_cache import enable_compilation_cache
+        from .engines.compile_cache import enable_compilation_cache
 
         enable_compilation_cache()
 

@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from . import reference
+from .engines import reference
 from .clip import Clip, load_clip
 from .codes import REGION_STATUS
 from .config import SGCConfig
 from .result import ClipResult, PairArrays
-from .units import PERCENT, in_depth_units
+from .engines.units import PERCENT, in_depth_units
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:

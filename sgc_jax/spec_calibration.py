@@ -111,7 +111,7 @@ def corpus_description() -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from .api import score_batch
-    from .compile_cache import enable_compilation_cache
+    from .engines.compile_cache import enable_compilation_cache
 
     parser = argparse.ArgumentParser(prog="python -m sgc_jax.spec_calibration", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

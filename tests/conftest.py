@@ -61,7 +61,7 @@ def release_compiled_programs_when_mappings_run_high():
         return
     limit = int(_MAX_MAP_COUNT.read_text()) if _MAX_MAP_COUNT.exists() else 65530
     if _memory_mappings() > limit // 2:
-        from sgc_jax.engine import compiled_scorer
+        from sgc_jax.engines.jax_engine import compiled_scorer
 
         compiled_scorer.cache_clear()
         jax.clear_caches()

@@ -367,7 +367,7 @@ def test_a_directory_of_every_broken_kind_scores_its_controls_unchanged(tmp_path
 
 
 def test_an_engine_exception_is_not_disguised_as_bad_input(tmp_path, monkeypatch):
-    from sgc_jax import reference
+    from sgc_jax.engines import reference
 
     def broken_engine(clip, config):
         raise RuntimeError("a bug in the engine")

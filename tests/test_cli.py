@@ -129,7 +129,7 @@ def test_exit_codes_are_as_documented(scored, tmp_path):
 
 
 def test_an_unexpected_exception_is_an_internal_error_with_its_traceback(scored, monkeypatch, capsys):
-    from sgc_jax import reference
+    from sgc_jax.engines import reference
 
     def broken_engine(clip, config):
         raise RuntimeError("a bug in the engine")

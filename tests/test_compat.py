@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import SCENE
 
-import sgc_jax.reference as reference
+import sgc_jax.engines.reference as reference
 from sgc_jax import score_batch
 from sgc_jax.clip import clip_from_arrays, clip_to_arrays
 from sgc_jax.config import SGCConfig

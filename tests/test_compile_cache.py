@@ -1,4 +1,4 @@
-"""sgc_jax.compile_cache: the CLI's compiled programs persist between runs, per machine."""
+"""sgc_jax.engines.compile_cache: the CLI's compiled programs persist between runs, per machine."""
 
 import os
 import subprocess
@@ -6,7 +6,8 @@ import sys
 
 import pytest
 
-from sgc_jax import compile_cache, save_clip
+from sgc_jax import save_clip
+from sgc_jax.engines import compile_cache
 from sgc_jax.synth import synth_clip
 
 

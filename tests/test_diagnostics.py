@@ -6,8 +6,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, diagnostics, reference
+from sgc_jax import SGCConfig, diagnostics
 from sgc_jax.codes import REGION_STATUS
+from sgc_jax.engines import reference
 from sgc_jax.synth import relative_poses
 
 PAIR = 2

@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 import pytest
 
-from sgc_jax import COMPONENTS, SGCConfig, reference, score_batch
+from sgc_jax import COMPONENTS, SGCConfig, score_batch
+from sgc_jax.engines import reference
 from sgc_jax.perturb import perturb_clip
 from sgc_jax.synth import synth_clip
 

@@ -5,17 +5,18 @@ import dataclasses
 
 import numpy as np
 
-from sgc_jax import COMPONENTS, SGCConfig, engine
+from sgc_jax import COMPONENTS, SGCConfig
+from sgc_jax.engines import jax_engine
 
 
 def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkeypatch):
     # Noisy clip with 30% outliers: RANSAC's sampling must not depend on the padded track count.
     config = SGCConfig()
-    natural = engine.bucket_for(noisy_clip)
-    larger = engine.Bucket(T=natural.T + 4, H=natural.H + 64, W=natural.W + 64, P=2 * natural.P)
-    [as_is] = engine.score_pairs_batch([noisy_clip], config)
-    monkeypatch.setattr(engine, "bucket_for", lambda clip: larger)
-    [padded] = engine.score_pairs_batch([noisy_clip], config)
+    natural = jax_engine.bucket_for(noisy_clip)
+    larger = jax_engine.Bucket(T=natural.T + 4, H=natural.H + 64, W=natural.W + 64, P=2 * natural.P)
+    [as_is] = jax_engine.score_pairs_batch([noisy_clip], config)
+    monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: larger)
+    [padded] = jax_engine.score_pairs_batch([noisy_clip], config)
     assert list(padded.reason) == list(as_is.reason)
     np.testing.assert_array_equal(padded.n_tracks, as_is.n_tracks)
     np.testing.assert_array_equal(padded.n_regions, as_is.n_regions)
@@ -26,20 +27,20 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkey
 
 def test_a_second_batch_of_the_same_bucket_does_not_recompile(rigid_clip, drift_clip):
     config = SGCConfig()
-    scorer = engine.compiled_scorer(config)
+    scorer = jax_engine.compiled_scorer(config)
     other = dataclasses.replace(drift_clip, clip_id="other")
-    assert engine.bucket_for(rigid_clip) == engine.bucket_for(other)
-    engine.score_pairs_batch([rigid_clip, drift_clip], config)
+    assert jax_engine.bucket_for(rigid_clip) == jax_engine.bucket_for(other)
+    jax_engine.score_pairs_batch([rigid_clip, drift_clip], config)
     compiled = scorer._cache_size()  # executables so far (this bucket, and others of the session)
     assert compiled >= 1
-    engine.score_pairs_batch([other, rigid_clip], config)
+    jax_engine.score_pairs_batch([other, rigid_clip], config)
     assert scorer._cache_size() == compiled
 
 
 def test_clip_batches_take_few_sizes_and_keep_every_clip_once():
     sizes = set()
     for n in range(1, 40):
-        groups = engine.clip_groups(list(range(n)))
+        groups = jax_engine.clip_groups(list(range(n)))
         assert [i for g in groups for i in g] == list(range(n))
         sizes.update(len(g) for g in groups)
-    assert sizes == {1, 2, 4, engine.MAX_CLIP_BATCH}
+    assert sizes == {1, 2, 4, jax_engine.MAX_CLIP_BATCH}

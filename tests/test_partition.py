@@ -5,7 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, reference, score_clip
+from sgc_jax import SGCConfig, score_clip
+from sgc_jax.engines import reference
 from sgc_jax.kernels.kmeans import grid_regions
 from sgc_jax.kernels.partition import connected_components, spatial_regions
 

@@ -14,8 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, reference, score_batch
+from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
+from sgc_jax.engines import reference
 from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
 from sgc_jax.kernels.pnp import solve_pnp
 from sgc_jax.kernels.ransac import ransac_pnp

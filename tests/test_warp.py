@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from sgc_jax import reference
+from sgc_jax.engines import reference
 from sgc_jax.kernels.geometry import so3_exp
 from sgc_jax.kernels.warp import depth_error, warp_depth
 

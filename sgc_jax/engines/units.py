@@ -14,8 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from .clip import Clip, without_absurd_depth
-from .config import SGCConfig
+from ..clip import Clip, without_absurd_depth
+from ..config import SGCConfig
 
 PERCENT = 100.0
 
