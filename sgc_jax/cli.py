@@ -50,7 +50,7 @@ def _file_key(path: str | os.PathLike) -> tuple | str:
 def clip_input_files(paths: Iterable[str]) -> list[Path]:
     """The files that clip arguments name; a named file that is not an ``.npz`` is refused with a
     hint (directories and globs contribute their ``.npz`` files only)."""
-    from .clip import list_clip_files
+    from .io.clip import list_clip_files
 
     files: list[Path] = []
     for text in paths:
@@ -233,7 +233,7 @@ def _register_synth(sub) -> None:
 
 def _read_scores(paths) -> list[dict]:
     """Rows of the scores CSVs named on the command line (UsageError for anything else)."""
-    from .result import read_scores
+    from .io.result import read_scores
 
     records = []
     for path in table_input_files(paths):
@@ -251,7 +251,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     import warnings
 
     from .calibration import calibrate, kfold_stability
-    from .result import rescore_records, write_scores
+    from .io.result import rescore_records, write_scores
 
     guard_outputs(table_input_files(args.scores), out=args.out, rescored=args.rescored)
     records = _read_scores(args.scores)
@@ -290,7 +290,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_rescore(args: argparse.Namespace) -> int:
-    from .result import format_table, rescore_records, write_scores
+    from .io.result import format_table, rescore_records, write_scores
 
     guard_outputs(table_input_files(args.scores), out=args.out)
     records = _read_scores(args.scores)
@@ -318,7 +318,7 @@ def _require_matplotlib() -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
                           format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
-    from .result import write_csv, format_table
+    from .io.result import write_csv, format_table
 
     if args.plot:
         _require_matplotlib()
@@ -412,7 +412,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     import warnings
 
     from .adapters import import_clip
-    from .clip import save_clip
+    from .io.clip import save_clip
 
     inputs = [p for p in (args.cameras, args.depth, args.tracks, args.masks, args.frames) if p]
     guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
@@ -442,7 +442,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_pack(args: argparse.Namespace) -> int:
     import warnings
 
-    from .clip import discover_clips, save_batch
+    from .io.clip import discover_clips, save_batch
     from .config import SGCConfig
 
     keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
@@ -475,7 +475,7 @@ def cmd_pack(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from .validate import validate_paths
+    from .io.validate import validate_paths
 
     if not clip_input_files(args.paths):  # as `score` does: nothing to check is a usage error
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")

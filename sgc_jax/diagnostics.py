@@ -2,9 +2,9 @@
 
 ``pair`` is the index i (docs/semantics.md §3) of frames i-1 -> i (1..T-1), the ``pair`` column of
 ``to_pandas(pairs=True)``; region label j (1..N_s) is slot j-1 of the per-region arrays of
-:class:`~sgc_jax.result.PairArrays`. Every quantity is recomputed with the reference
+:class:`~sgc_jax.io.result.PairArrays`. Every quantity is recomputed with the reference
 implementation (NumPy + OpenCV) from the clip and the config that scored it; the poses come from
-the scored :class:`~sgc_jax.result.PairArrays`, so the diagnostics show what either engine found.
+the scored :class:`~sgc_jax.io.result.PairArrays`, so the diagnostics show what either engine found.
 Pixels: x = column, y = row; depth and local translations in depth units.
 """
 
@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 
 from .engines import reference
-from .clip import Clip, load_clip
+from .io.clip import Clip, load_clip
 from .codes import REGION_STATUS
 from .config import SGCConfig
-from .result import ClipResult, PairArrays
+from .io.result import ClipResult, PairArrays
 from .engines.units import PERCENT, in_depth_units
 
 
@@ -137,7 +137,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
               config: SGCConfig | None = None) -> PoseFlow:
     """Where each region's centroid moves under its local pose and under the global pose.
 
-    ``scored``: the clip's :class:`~sgc_jax.result.ClipResult` (or its ``pairs``), scored with
+    ``scored``: the clip's :class:`~sgc_jax.io.result.ClipResult` (or its ``pairs``), scored with
     ``config``. Each arrow is the optical flow the pose predicts at the region's anchor:
     project(K[pair], R X + t) - project(K[pair-1], X); a rigid scene gives equal arrows.
     """

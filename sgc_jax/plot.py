@@ -21,9 +21,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from .calibration import Calibration, KFoldStability
-    from .clip import Clip
+    from .io.clip import Clip
     from .config import SGCConfig
-    from .result import BatchResult, ClipResult
+    from .io.result import BatchResult, ClipResult
     from .study import StudyResult
 
 _UNITS = {"local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth units²",
@@ -79,7 +79,7 @@ _LOCAL_COLOUR, _GLOBAL_COLOUR = "tab:blue", "tab:red"
 
 
 def _clip_results(results: "ClipResult | BatchResult | Sequence[ClipResult]") -> list["ClipResult"]:
-    from .result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
+    from .io.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
 
     if isinstance(results, ClipResult):
         return [results]
@@ -370,7 +370,7 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
 
 def _rows(rows: Any) -> list[dict[str, Any]]:
     """Per-clip dicts from a BatchResult, a DataFrame or a sequence of dicts."""
-    from .result import BatchResult  # noqa: PLC0415
+    from .io.result import BatchResult  # noqa: PLC0415
 
     if isinstance(rows, BatchResult):
         return rows.to_records()
@@ -386,7 +386,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ``rows``: a BatchResult, per-clip records or a DataFrame with ``group``, ``column``,
     ``ecd_trans`` and ``ecd_rot``; failed clips and NaN values are left out.
     """
-    from .result import add_ecd  # noqa: PLC0415
+    from .io.result import add_ecd  # noqa: PLC0415
 
     plt = _pyplot()
     records = [r for r in add_ecd(_rows(rows)) if r.get("status", "ok") != "error" and np.isfinite(float(r[column]))]

@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from .calibration import COMPONENTS, LOG1P_COMPONENTS, Calibration
-from .clip import Clip
+from .io.clip import Clip
 from .perturb import PERTURBATIONS, perturb_clip
 from .synth import synth_clip
 
@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     calibration = fit_spec_calibration(matrix, [k for _, k, _ in corpus], [s for _, _, s in corpus])
     calibration.save(args.out)
     if args.scores:
-        from .result import write_scores
+        from .io.result import write_scores
 
         rows = [{**r, "kind": k, "severity": s} for r, (_, k, s) in zip(result.rescore(calibration).to_records(), corpus)]
         write_scores(args.scores, rows)

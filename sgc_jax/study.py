@@ -21,11 +21,11 @@ from tqdm.auto import tqdm
 
 from .api import _resolve_config, resolve_calibration, score_batch
 from .calibration import COMPONENTS, Calibration
-from .clip import Clip, ClipFormatError, discover_clips
+from .io.clip import Clip, ClipFormatError, discover_clips
 from .codes import CLIP_STATUSES
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
-from .result import (CLIP_COLUMNS, BatchResult, ClipResult, _counts, failed_clip, format_table,
+from .io.result import (CLIP_COLUMNS, BatchResult, ClipResult, _counts, failed_clip, format_table,
                      records_frame, write_csv)
 from .stats import spearman
 

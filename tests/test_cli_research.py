@@ -15,7 +15,7 @@ from sgc_jax import COMPONENTS, Calibration, calibrate, save_clip, sgc_score
 from sgc_jax.calibration import kfold_stability
 from sgc_jax.cli import main
 from sgc_jax.compare import GROUP_COLUMNS
-from sgc_jax.result import read_scores
+from sgc_jax.io.result import read_scores
 from sgc_jax.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]

@@ -143,7 +143,7 @@ def test_a_label_map_that_does_not_match_the_result_warns(rigid_clip, rigid_pair
 
 
 def test_a_failed_clip_has_nothing_to_diagnose(rigid_clip):
-    from sgc_jax.result import failed_clip
+    from sgc_jax.io.result import failed_clip
 
     with pytest.raises(ValueError, match="no per-pair arrays"):
         diagnostics.pose_flow(rigid_clip, failed_clip("rigid", "broken"), PAIR)

@@ -13,7 +13,7 @@ import pytest
 from sgc_jax import SGCConfig, save_clip
 from sgc_jax.engines import reference
 from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_clip
-from sgc_jax.result import CLIP_COLUMNS
+from sgc_jax.io.result import CLIP_COLUMNS
 from sgc_jax import study as study_module
 from sgc_jax.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study
 from sgc_jax.synth import synth_clip

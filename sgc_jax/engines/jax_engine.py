@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..clip import Clip
+from ..io.clip import Clip
 from ..codes import (PAIR_REASON_CODE, PAIR_REASONS, REGION_AMBIGUOUS, REGION_EMPTY, REGION_ILL_CONDITIONED,
                     REGION_OK)
 from ..kernels.components import mean_pose, pair_pose_components
@@ -27,7 +27,7 @@ from ..kernels.geometry import back_project, nearest_rotation, rotation_angle_de
 from ..kernels.kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
 from ..kernels.partition import spatial_regions
 from ..kernels.ransac import ransac_pnp_regions
-from ..result import PairArrays
+from ..io.result import PairArrays
 from ..kernels.uncertainty import region_quality
 from .units import PERCENT, in_depth_units, translation_factor
 from ..kernels.warp import depth_error, warp_depth

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from ..clip import Clip, without_absurd_depth
+from ..io.clip import Clip, without_absurd_depth
 from ..config import SGCConfig
 
 PERCENT = 100.0

@@ -19,9 +19,9 @@ from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS, Calibration, rows_compat, sgc_score
-from .codes import CLIP_STATUSES, PAIR_REASONS, REGION_EMPTY
-from .stats import min_max
+from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
+from ..codes import CLIP_STATUSES, PAIR_REASONS, REGION_EMPTY
+from ..stats import min_max
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",

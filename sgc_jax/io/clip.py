@@ -16,7 +16,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from .config import SGCConfig
+from ..config import SGCConfig
 from .npz import NpzError, npz_headers, read_npz, shape_text
 
 # Values beyond these are not measurements and count as invalid points (docs/semantics.md §1.2):
@@ -244,7 +244,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
 
     Raises :class:`ClipFormatError` for structural problems (docs/semantics.md §1.4). ``validate``:
-    also run the content checks of :mod:`sgc_jax.validate` (K against the grid, rotations, tracks
+    also run the content checks of :mod:`sgc_jax.io.validate` (K against the grid, rotations, tracks
     on the grid, depth vs disparity): errors raise ``ClipValidationError``, warnings are issued as
     ``ClipWarning``. Tracks beyond ``config.max_tracks`` are sub-sampled deterministically (see
     :func:`subsample_tracks`).
@@ -627,7 +627,7 @@ def _failing(exc: ClipFormatError) -> Callable[[], Any]:
 
 
 def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False) -> dict[str, Any]:
-    """:func:`sgc_jax.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
+    """:func:`sgc_jax.io.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
     try:
         return npz_headers(path) if headers else read_npz(path, names)
     except NpzError as exc:

@@ -1,6 +1,6 @@
 """Plausibility checks of a clip's content, shared by the loader and ``sgc-jax validate``.
 
-Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.clip`. The
+Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.io.clip`. The
 checks here look for inputs whose units or resolutions do not fit together: intrinsics made for
 another image size, depth that is really disparity, poses that are not rotations, tracks on another
 pixel grid, masks that look inverted. Each problem is one actionable line. ``error`` problems make
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from .clip import Clip, ClipFormatError, clip_from_arrays, entries_from_file, guard_duplicate_ids, list_clip_files
-from .config import SGCConfig
-from .stats import spearman
+from ..config import SGCConfig
+from ..stats import spearman
 
 SEVERITIES = ("error", "warning", "info")
 
