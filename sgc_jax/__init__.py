@@ -7,7 +7,8 @@ from .adapters import import_clip
 from .api import ENGINES, score_batch, score_clip
 from .calibration import (COMPONENTS, Calibration, CalibrationMismatchError, KFoldStability, calibrate,
                           default_calibration, kfold_stability, sgc_score)
-from .io.clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
+from .io.clip import Clip, ClipFormatError, save_batch, save_clip
+from .io.loading import clip_from_arrays, load_clip, load_clips
 from .engines.compile_cache import enable_compilation_cache
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip

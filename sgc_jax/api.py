@@ -8,7 +8,8 @@ from typing import Any, Callable, Iterable
 from tqdm.auto import tqdm
 
 from .calibration import Calibration, default_calibration
-from .io.clip import Clip, ClipEntry, ClipFormatError, discover_clips
+from .io.clip import Clip, ClipFormatError
+from .io.loading import ClipEntry, discover_clips
 from .config import SGCConfig
 from .io.result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
 

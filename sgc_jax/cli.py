@@ -50,7 +50,7 @@ def _file_key(path: str | os.PathLike) -> tuple | str:
 def clip_input_files(paths: Iterable[str]) -> list[Path]:
     """The files that clip arguments name; a named file that is not an ``.npz`` is refused with a
     hint (directories and globs contribute their ``.npz`` files only)."""
-    from .io.clip import list_clip_files
+    from .io.loading import list_clip_files
 
     files: list[Path] = []
     for text in paths:
@@ -442,7 +442,8 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_pack(args: argparse.Namespace) -> int:
     import warnings
 
-    from .io.clip import discover_clips, save_batch
+    from .io.clip import save_batch
+    from .io.loading import discover_clips
     from .config import SGCConfig
 
     keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
@@ -475,7 +476,7 @@ def cmd_pack(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from .io.validate import validate_paths
+    from .io.loading import validate_paths
 
     if not clip_input_files(args.paths):  # as `score` does: nothing to check is a usage error
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")

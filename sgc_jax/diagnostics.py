@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from .engines import reference
-from .io.clip import Clip, load_clip
+from .io.clip import Clip
+from .io.loading import load_clip
 from .codes import REGION_STATUS
 from .config import SGCConfig
 from .io.result import ClipResult, PairArrays

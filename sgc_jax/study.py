@@ -21,7 +21,8 @@ from tqdm.auto import tqdm
 
 from .api import _resolve_config, resolve_calibration, score_batch
 from .calibration import COMPONENTS, Calibration
-from .io.clip import Clip, ClipFormatError, discover_clips
+from .io.clip import Clip, ClipFormatError
+from .io.loading import discover_clips
 from .codes import CLIP_STATUSES
 from .config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id

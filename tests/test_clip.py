@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sgc_jax import ClipFormatError, SGCConfig, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
-from sgc_jax.io.clip import clip_to_arrays, discover_clips
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import discover_clips
 from sgc_jax.synth import synth_clip
 
 

@@ -12,7 +12,8 @@ from conftest import SCENE
 
 import sgc_jax.engines.reference as reference
 from sgc_jax import score_batch
-from sgc_jax.io.clip import clip_from_arrays, clip_to_arrays
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import clip_from_arrays
 from sgc_jax.config import SGCConfig
 from sgc_jax.synth import synth_clip
 

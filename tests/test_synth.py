@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sgc_jax.io.clip import clip_from_arrays, clip_to_arrays, load_clip
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import clip_from_arrays, load_clip
 from sgc_jax.synth import SceneSpec, demo_corpus, relative_poses, synth_clip, write_demo_corpus
 
 # float32 track storage rounds positions to ~1e-5 px at these image sizes; the SPEC check is 1e-3.

@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..io.clip import Clip, clip_from_arrays
+from ..io.clip import Clip
+from ..io.loading import clip_from_arrays
 from ..config import SGCConfig
 from .common import parse_size, resize_frames, resize_points
 from .delta import DELTA_VIS_THRESHOLD, read_delta

@@ -1,0 +1,645 @@
+"""Reading clips (docs/semantics.md §1): arrays -> a validated :class:`~sgc_jax.io.clip.Clip`,
+single-clip and batch files, clip sources (paths, directories, globs, mappings), and the reports of
+``sgc-jax validate``.
+
+Structural problems (missing arrays, shapes, dtypes, non-finite cameras) are checked here and raise
+:class:`~sgc_jax.io.clip.ClipFormatError`; the content checks are :mod:`sgc_jax.io.validate`'s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import json
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Mapping
+
+import numpy as np
+
+from ..config import SGCConfig
+from .clip import Clip, ClipFormatError
+from .npz import NpzError, npz_headers, read_npz, shape_text
+from .validate import Problem, check_clip, enforce
+
+# ----------------------------------------------------------------------------- validation
+
+# dtype kinds a clip array may have: real numbers, plus booleans where the format says bool.
+# Complex values, text and Python objects are refused rather than cast (a cast drops the
+# imaginary part or fails with a message that names no array).
+_REAL, _BOOL_OR_REAL = "iuf", "biuf"
+_WHAT = {_REAL: "real numbers (int or float)", _BOOL_OR_REAL: "booleans or real numbers"}
+_KINDS = {"depth": _REAL, "K": _REAL, "R_wc": _REAL, "t_wc": _REAL, "extrinsic": _REAL,
+          "static_mask": _BOOL_OR_REAL, "dynamic_mask": _BOOL_OR_REAL, "frames": _BOOL_OR_REAL,
+          "track_prev": _REAL, "track_curr": _REAL, "track_vis": _BOOL_OR_REAL, "track_conf": _REAL}
+# K with a larger condition number cannot be inverted to back-project pixels (float64 keeps ~16 digits).
+K_CONDITION_MAX = 1e12
+
+
+def _as_array(clip_id: str, name: str, value: Any, expected: str) -> np.ndarray:
+    """``value`` as an ndarray; a value NumPy cannot make one of (ragged lists, ...) raises ClipFormatError."""
+    try:
+        return np.asarray(value)
+    except (ValueError, TypeError, OverflowError, RecursionError) as exc:
+        raise ClipFormatError(clip_id, name, expected, f"{type(exc).__name__}: {exc}") from None
+
+
+def _typed_arrays(arrays: Mapping[str, Any], clip_id: str) -> dict[str, np.ndarray]:
+    """The clip arrays present in ``arrays``, each checked for its dtype kind (see ``_KINDS``)."""
+    typed = {}
+    for name, kinds in _KINDS.items():
+        if name not in arrays or arrays[name] is None:
+            continue
+        array = _as_array(clip_id, name, arrays[name], _WHAT[kinds])
+        if array.dtype.kind not in kinds:
+            raise ClipFormatError(clip_id, name, _WHAT[kinds], f"dtype {array.dtype}")
+        typed[name] = array
+    return typed
+
+
+def _require(arrays: Mapping[str, Any], name: str, clip_id: str, expected: str) -> np.ndarray:
+    if name not in arrays:
+        raise ClipFormatError(clip_id, name, expected, "no such array",
+                              f"present: {sorted(arrays)}")
+    return np.asarray(arrays[name])
+
+
+def _check_shape(clip_id: str, name: str, array: np.ndarray, expected: tuple) -> None:
+    """``expected`` holds ints or None (any size); raise naming both shapes on mismatch."""
+    ok = array.ndim == len(expected) and all(e is None or e == s for e, s in zip(expected, array.shape))
+    if not ok:
+        want = shape_text("*" if e is None else e for e in expected)
+        raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {shape_text(array.shape)}")
+
+
+def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
+    if not np.isfinite(array).all():
+        bad = int((~np.isfinite(array)).sum())
+        raise ClipFormatError(clip_id, name, "finite values", f"{bad} non-finite value(s)")
+
+
+def _check_invertible(clip_id: str, K: np.ndarray) -> None:
+    """K (T, 3, 3), finite: each frame's K must be invertible (pixels are back-projected through K^-1)."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # a singular K has an infinite condition number
+        condition = np.linalg.cond(K)
+    bad = np.flatnonzero(~(condition < K_CONDITION_MAX))
+    if bad.size:
+        frames = ", ".join(str(int(t)) for t in bad[:5]) + (", ..." if bad.size > 5 else "")
+        raise ClipFormatError(clip_id, "K", "an invertible pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
+                              f"a singular matrix (condition number {condition[bad[0]]:.3g}) in frames {frames}")
+
+
+def _settle(votes: list[tuple[str, Any]], tie_break: Callable[[list[Any]], Any]) -> tuple[Any, list[str]]:
+    """The value most arrays agree on, and the arrays that agree; ``tie_break`` picks among equals."""
+    counts: dict[Any, list[str]] = {}
+    for name, value in votes:
+        counts.setdefault(value, []).append(name)
+    most = max(len(names) for names in counts.values())
+    value = tie_break([v for v, names in counts.items() if len(names) == most])
+    return value, counts[value]
+
+
+def _frame_count(typed: Mapping[str, np.ndarray], T_depth: int) -> tuple[int, list[str]]:
+    """T as most arrays give it: depth, cameras and masks (T, ...), tracks (T-1, ...); ties keep depth's."""
+    votes = [("depth", T_depth)]
+    for name in ("K", "R_wc", "t_wc", "extrinsic", "static_mask", "dynamic_mask", "frames"):
+        if name in typed and typed[name].ndim >= (3 if name == "K" else 1):
+            votes.append((name, typed[name].shape[0]))
+    for name in ("track_prev", "track_curr", "track_vis", "track_conf"):
+        if name in typed and typed[name].ndim >= 1:
+            votes.append((name, typed[name].shape[0] + 1))
+    return _settle(votes, lambda tied: T_depth if T_depth in tied else tied[0])
+
+
+def _image_size(typed: Mapping[str, np.ndarray], HW_depth: tuple[int, int]) -> tuple[tuple[int, int], list[str]]:
+    """(H, W) as most of depth, masks and frames give it; between equals, the one K's principal point
+    is the centre of (a mask or depth on another grid is the usual cause), else depth's."""
+    votes = [("depth", HW_depth)]
+    for name in ("static_mask", "dynamic_mask", "frames"):
+        if name in typed and typed[name].ndim >= 3:
+            votes.append((name, tuple(typed[name].shape[1:3])))
+
+    def tie_break(tied: list[tuple[int, int]]) -> tuple[int, int]:
+        K = typed.get("K")
+        if K is None or K.shape[-2:] != (3, 3) or not np.isfinite(K).all():
+            return HW_depth if HW_depth in tied else tied[0]
+        centre = np.array([np.median(K[..., 1, 2]), np.median(K[..., 0, 2])])
+        return min(tied, key=lambda hw: (float(np.abs((np.array(hw) - 1) / 2 - centre).sum()), hw != HW_depth))
+
+    return _settle(votes, tie_break)
+
+
+def _parse_meta(raw: Any) -> dict:
+    """A clip's ``meta`` as a dict: JSON text, bytes or a dict; anything else is kept as ``{"note": text}``."""
+    if raw is None:
+        return {}
+    value = raw
+    if isinstance(raw, np.ndarray) and raw.ndim == 0:
+        value = raw.item()
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", errors="replace")
+    if isinstance(value, dict):
+        return dict(value)
+    text = str(value)
+    try:
+        meta = json.loads(text)
+    except (ValueError, RecursionError):  # not JSON, or nested too deeply to parse
+        return {"note": text}
+    return meta if isinstance(meta, dict) else {"note": meta}
+
+
+def _meta_id(raw: Any) -> str | None:
+    """The ``clip_id`` a clip's ``meta`` names, as text; None when it names none."""
+    value = _parse_meta(raw).get("clip_id")
+    return None if value is None or str(value) == "" else str(value)
+
+
+def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
+                     config: SGCConfig | None = None, validate: bool = True) -> Clip:
+    """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
+
+    Raises :class:`ClipFormatError` for structural problems (docs/semantics.md §1.4). ``validate``:
+    also run the content checks of :mod:`sgc_jax.io.validate` (K against the grid, rotations, tracks
+    on the grid, depth vs disparity): errors raise ``ClipValidationError``, warnings are issued as
+    ``ClipWarning``. Tracks beyond ``config.max_tracks`` are sub-sampled deterministically (see
+    :func:`subsample_tracks`).
+    """
+    config = config or SGCConfig()
+    meta = _parse_meta(arrays.get("meta"))
+    clip_id = str(clip_id or meta.get("clip_id") or _text(arrays.get("clip_id")) or "clip")
+    meta.setdefault("clip_id", clip_id)
+    typed = _typed_arrays(arrays, clip_id)
+
+    depth = _require(typed, "depth", clip_id, "shape (T, H, W)")
+    if depth.ndim != 3:
+        raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {shape_text(depth.shape)}")
+    if depth.shape[0] < 2:
+        raise ClipFormatError(clip_id, "depth", "T >= 2 frames", f"T = {depth.shape[0]}")
+    if min(depth.shape[1:]) < 1:
+        raise ClipFormatError(clip_id, "depth", "an image of H >= 1 by W >= 1 pixels",
+                              f"shape {shape_text(depth.shape)}")
+    # The sizes most arrays agree on: an array of another size is the one blamed, depth included.
+    T, agree_T = _frame_count(typed, depth.shape[0])
+    (H, W), agree_HW = _image_size(typed, depth.shape[1:])
+    if T < 2:
+        raise ClipFormatError(clip_id, "depth", "T >= 2 frames", f"T = {T} in {', '.join(agree_T)}")
+    if depth.shape != (T, H, W):
+        raise ClipFormatError(clip_id, "depth", f"shape ({T}, {H}, {W}), the T of {', '.join(agree_T)} and the "
+                              f"H x W of {', '.join(agree_HW)}", f"shape {shape_text(depth.shape)}")
+    with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: invalid depth
+        depth = depth.astype(np.float32)
+
+    K = _require(typed, "K", clip_id, f"shape ({T}, 3, 3) or (3, 3)").astype(np.float64)
+    if K.shape == (3, 3):
+        K = np.broadcast_to(K, (T, 3, 3)).copy()
+    _check_shape(clip_id, "K", K, (T, 3, 3))
+    _check_finite(clip_id, "K", K)
+    _check_invertible(clip_id, K)
+
+    if "R_wc" in typed or "t_wc" in typed:
+        R_wc = _require(typed, "R_wc", clip_id, f"shape ({T}, 3, 3)").astype(np.float64)
+        t_wc = _require(typed, "t_wc", clip_id, f"shape ({T}, 3)").astype(np.float64)
+        _check_shape(clip_id, "R_wc", R_wc, (T, 3, 3))
+        _check_shape(clip_id, "t_wc", t_wc, (T, 3))
+    elif "extrinsic" in typed:
+        extrinsic = typed["extrinsic"].astype(np.float64)
+        _check_shape(clip_id, "extrinsic", extrinsic, (T, 3, 4))
+        R_wc, t_wc = extrinsic[:, :, :3].copy(), extrinsic[:, :, 3].copy()
+    else:
+        raise ClipFormatError(clip_id, "R_wc", f"shape ({T}, 3, 3) with t_wc, or extrinsic ({T}, 3, 4)",
+                              "no such array", f"present: {sorted(arrays)}")
+    _check_finite(clip_id, "R_wc", R_wc)
+    _check_finite(clip_id, "t_wc", t_wc)
+
+    if "static_mask" in typed:
+        static_mask = typed["static_mask"]
+        _check_shape(clip_id, "static_mask", static_mask, (T, H, W))
+        static_mask, mask_source = static_mask.astype(bool), "static_mask"
+    elif "dynamic_mask" in typed:
+        dynamic_mask = typed["dynamic_mask"]
+        _check_shape(clip_id, "dynamic_mask", dynamic_mask, (T, H, W))
+        static_mask, mask_source = ~dynamic_mask.astype(bool), "dynamic_mask"
+    else:
+        static_mask, mask_source = np.ones((T, H, W), bool), "none"
+
+    track_prev = _require(typed, "track_prev", clip_id, f"shape ({T - 1}, P, 2)")
+    _check_shape(clip_id, "track_prev", track_prev, (T - 1, None, 2))
+    P = track_prev.shape[1]
+    if P < 1:
+        raise ClipFormatError(clip_id, "track_prev", f"shape ({T - 1}, P, 2) with P >= 1 tracks per pair",
+                              f"shape {shape_text(track_prev.shape)}")
+    track_curr = _require(typed, "track_curr", clip_id, f"shape ({T - 1}, {P}, 2)")
+    _check_shape(clip_id, "track_curr", track_curr, (T - 1, P, 2))
+    track_vis = _require(typed, "track_vis", clip_id, f"shape ({T - 1}, {P})")
+    _check_shape(clip_id, "track_vis", track_vis, (T - 1, P))
+    if "track_conf" in typed:
+        track_conf = typed["track_conf"]
+        _check_shape(clip_id, "track_conf", track_conf, (T - 1, P))
+    else:
+        track_conf = np.ones((T - 1, P), np.float32)
+
+    frames = typed.get("frames")
+    if frames is not None:
+        _check_shape(clip_id, "frames", frames, (T, H, W, 3))
+
+    with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32's range becomes inf: invalid
+        clip = Clip(
+            clip_id=clip_id,
+            depth=depth,
+            K=K,
+            R_wc=R_wc,
+            t_wc=t_wc,
+            static_mask=static_mask,
+            track_prev=np.asarray(track_prev, np.float32),
+            track_curr=np.asarray(track_curr, np.float32),
+            track_vis=(track_vis > 0) if track_vis.dtype != bool else track_vis.copy(),
+            track_conf=np.nan_to_num(np.asarray(track_conf, np.float32), nan=0.0),
+            mask_source=mask_source,
+            frames=frames,
+            meta=meta,
+        )
+    if validate:
+        enforce(clip, config, arrays)
+    return subsample_tracks(clip, config)
+
+
+def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
+    """Keep at most ``config.max_tracks`` tracks per pair, deterministically.
+
+    Per pair, usable tracks (docs/semantics.md §1.2) come first in their original order; when there are more
+    than ``max_tracks`` of them, evenly spaced ones are kept. Clips within the limit are unchanged.
+    """
+    P, limit = clip.n_tracks, config.max_tracks
+    if P <= limit:
+        return clip
+    usable = clip.usable_tracks(config.min_track_conf)
+    index = np.empty((clip.n_pairs, limit), np.int64)
+    for pair, usable_row in enumerate(usable):
+        kept = np.flatnonzero(usable_row)
+        if kept.size > limit:
+            kept = kept[np.linspace(0, kept.size - 1, limit).astype(np.int64)]
+        rest = np.flatnonzero(~usable_row)[: limit - kept.size]
+        index[pair] = np.concatenate([kept, rest])
+    take2 = lambda a: np.take_along_axis(a, index[..., None], axis=1)  # noqa: E731
+    take1 = lambda a: np.take_along_axis(a, index, axis=1)  # noqa: E731
+    return dataclasses.replace(
+        clip,
+        track_prev=take2(clip.track_prev),
+        track_curr=take2(clip.track_curr),
+        track_vis=take1(clip.track_vis),
+        track_conf=take1(clip.track_conf),
+    )
+
+
+def is_batch(arrays: Mapping[str, Any]) -> bool:
+    return "n_frames" in arrays
+
+
+# ----------------------------------------------------------------------------- batch layout
+
+_PER_FRAME = ("depth", "K", "R_wc", "t_wc", "extrinsic", "static_mask", "dynamic_mask", "frames")
+_PER_PAIR = ("track_prev", "track_curr", "track_vis", "track_conf")
+_IMAGES = ("depth", "static_mask", "dynamic_mask", "frames")  # (B, T, H, W, ...)
+BOOKKEEPING = ("n_frames", "n_tracks", "heights", "widths", "clip_id", "mask_source", "meta")
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchLayout:
+    """What a batch file's bookkeeping says about its B members (docs/semantics.md §1.3)."""
+
+    ids: list[str]  # clip ids, in member order
+    sizes: list[tuple[int, int, int | None, int | None]]  # each member's true (T, P, H, W); None: not cut
+    problems: dict[int, ClipFormatError]  # members whose sizes do not fit the stored arrays
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def _bookkeeping(book: Mapping[str, np.ndarray], name: str, label: str, count: int, source: str,
+                 kinds: str = "iu") -> np.ndarray | None:
+    """Bookkeeping array ``name``: (count,) integers (or text); None when absent."""
+    if name not in book:
+        return None
+    what = "integers" if kinds == "iu" else "text"
+    array = _as_array(label, name, book[name], f"a ({count},) array of {what}")
+    if array.ndim != 1 or array.dtype.kind not in kinds or len(array) != count:
+        raise ClipFormatError(label, name, f"a ({count},) array of {what}, one per member ({source})",
+                              f"shape {shape_text(array.shape)}, dtype {array.dtype}")
+    return array
+
+
+def batch_layout(shapes: Mapping[str, tuple[int, ...]], book: Mapping[str, Any], label: str) -> BatchLayout:
+    """Check a batch's bookkeeping arrays (``book``) against the stored arrays' ``shapes``.
+
+    Raises :class:`ClipFormatError` (clip ``label``, usually the file name) when the file as a whole is
+    inconsistent: stored arrays that disagree on B, bookkeeping arrays of another length than B or
+    of the wrong dtype. A member whose own T, P, H or W do not fit the stored arrays gets its error in
+    :attr:`BatchLayout.problems`; the other members stay loadable.
+    """
+    if "n_frames" not in book:
+        raise ClipFormatError(label, "n_frames", "a (B,) array of integers", "no such array")
+    # B is what most stored arrays hold; absent any, n_frames says it
+    stacked = [name for name in _PER_FRAME + _PER_PAIR if name in shapes]
+    for name in stacked:
+        if len(shapes[name]) == 0:
+            raise ClipFormatError(label, name, "a leading axis of B members", "a 0-d array")
+    leading = [(name, shapes[name][0]) for name in stacked]
+    if leading:
+        count, agree = _settle(leading, lambda tied: tied[0])
+        source = f"as {', '.join(agree)} hold"
+        for name, size in leading:
+            if size != count:
+                raise ClipFormatError(label, name, f"a leading axis of B = {count} members, {source}",
+                                      f"shape {shape_text(shapes[name])}")
+    else:
+        count, source = int(np.size(book["n_frames"])), "as n_frames lists"
+    n_frames = _bookkeeping(book, "n_frames", label, count, source)
+    if count < 1:
+        raise ClipFormatError(label, "n_frames", "at least one member", "B = 0")
+    if "n_tracks" not in book:
+        raise ClipFormatError(label, "n_tracks", f"a ({count},) array of integers", "no such array")
+    n_tracks = _bookkeeping(book, "n_tracks", label, count, source)
+    heights = _bookkeeping(book, "heights", label, count, source)
+    widths = _bookkeeping(book, "widths", label, count, source)
+    texts = {name: _bookkeeping(book, name, label, count, source, kinds="US")
+             for name in ("clip_id", "mask_source", "meta")}
+
+    def stored(names: Iterable[str], axis: int, min_ndim: int, plus: int = 0) -> list[tuple[int, str]]:
+        return [(shapes[n][axis] + plus, n) for n in names if n in shapes and len(shapes[n]) >= min_ndim]
+
+    frame_room = stored([n for n in _PER_FRAME if n != "K"], 1, 2) + stored(["K"], 1, 4) + stored(_PER_PAIR, 1, 2, 1)
+    track_room = stored(_PER_PAIR, 2, 3)
+    height_room, width_room = stored(_IMAGES, 2, 4), stored(_IMAGES, 3, 4)
+    ids, sizes, problems = [], [], {}
+    for b in range(count):
+        text_id = str(texts["clip_id"][b]) if texts["clip_id"] is not None else ""
+        meta_id = _meta_id(texts["meta"][b]) if texts["meta"] is not None else None
+        ids.append(text_id or meta_id or f"clip{b}")
+        T, P = int(n_frames[b]), int(n_tracks[b])
+        # absent heights / widths: nothing cut, so arrays padded differently are found by the loader
+        H = int(heights[b]) if heights is not None else None
+        W = int(widths[b]) if widths is not None else None
+        sizes.append((T, P, H, W))
+        checks = (("n_frames", T, 2, frame_room, "frames"), ("n_tracks", P, 1, track_room, "tracks"),
+                  ("heights", H, 1, height_room, "rows"), ("widths", W, 1, width_room, "columns"))
+        for name, value, least, room, unit in checks:
+            if value is None:
+                continue
+            if value < least:
+                problems[b] = ClipFormatError(ids[b], name, f"{name}[{b}] >= {least}", f"{name}[{b}] = {value}")
+                break
+            over = [(s, n) for s, n in room if value > s]
+            if over:
+                s, n = over[0]
+                problems[b] = ClipFormatError(ids[b], name, f"{name}[{b}] at most the {s} {unit} stored in {n}",
+                                              f"{name}[{b}] = {value}")
+                break
+    return BatchLayout(ids, sizes, problems)
+
+
+def _batch_member(arrays: Mapping[str, Any], b: int, layout: BatchLayout) -> dict[str, Any]:
+    """Slice clip ``b`` out of a batch mapping, cutting the padding away; raises its layout problem."""
+    if b in layout.problems:
+        raise layout.problems[b]
+    T, P, H, W = layout.sizes[b]
+    images, cameras, pairs = (T, H, W), (T,), (T - 1, P)
+    cuts = {name: images for name in _IMAGES} | {"R_wc": cameras, "t_wc": cameras, "extrinsic": cameras}
+    cuts |= {"K": cameras if np.ndim(arrays.get("K")) == 4 else ()} | {name: pairs for name in _PER_PAIR}
+    member: dict[str, Any] = {}
+    for name, cut in cuts.items():
+        if name in arrays:
+            a = np.asarray(arrays[name])[b]
+            member[name] = a[tuple(slice(0, c) for c in cut[:a.ndim])]
+    if "meta" in arrays:
+        member["meta"] = np.asarray(arrays["meta"])[b]
+    source = np.asarray(arrays["mask_source"])[b] if "mask_source" in arrays else "static_mask"
+    if str(source) == "none":
+        member.pop("static_mask", None)
+    return member
+
+
+# ----------------------------------------------------------------------------- sources
+
+
+@dataclasses.dataclass
+class ClipEntry:
+    """A clip to be loaded lazily: its id, where it comes from, and how to read it.
+
+    ``read`` returns the clip's arrays (docs/semantics.md §1.2), or the :class:`Clip` given in
+    memory, and raises :class:`ClipFormatError` for a file that cannot give them.
+    """
+
+    clip_id: str
+    origin: str
+    read: Callable[[], Mapping[str, Any] | Clip]
+    config: SGCConfig = dataclasses.field(default_factory=SGCConfig)
+    path: str | None = None  # the file it comes from; None for clips given in memory
+    id_owners: dict[str, "ClipEntry"] | None = None  # clip id -> the entry that claimed it, shared by a run's files
+
+    def load(self) -> Clip:
+        """The validated clip; raises :class:`ClipFormatError` (only) for a bad input."""
+        source = self.read()
+        if isinstance(source, Clip):
+            return subsample_tracks(source, self.config)
+        clip = clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
+        self.claim_id()
+        return clip
+
+    def claim_id(self) -> None:
+        """Claim this clip's id for the run; raises :class:`ClipFormatError` when another clip file has it."""
+        if self.id_owners is None:
+            return
+        owner = self.id_owners.setdefault(self.clip_id, self)
+        if owner is not self:
+            raise duplicate_error(self.clip_id, owner.origin)
+
+
+def duplicate_error(clip_id: str, first_origin: str) -> ClipFormatError:
+    return ClipFormatError(clip_id, "clip_id", "an id no other clip file of the run has",
+                           f"a duplicate: first seen in {first_origin}",
+                           "this clip is not scored; give it its own clip_id")
+
+
+def _failing(exc: ClipFormatError) -> Callable[[], Any]:
+    def fail() -> Any:
+        raise exc
+    return fail
+
+
+def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False) -> dict[str, Any]:
+    """:func:`sgc_jax.io.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
+    try:
+        return npz_headers(path) if headers else read_npz(path, names)
+    except NpzError as exc:
+        raise ClipFormatError(clip_id, exc.array, exc.expected, exc.found, exc.path) from None
+
+
+def entries_from_file(path: Path, config: SGCConfig) -> list[ClipEntry]:
+    """The clips of one clip or batch ``.npz``; a file that cannot be listed is one failing entry."""
+    origin, stem = str(path), path.stem
+    try:
+        headers = _read(path, stem, headers=True)
+        if not is_batch(headers):
+            clip_id = _meta_id(_read(path, stem, ["meta"]).get("meta")) or stem
+            return [ClipEntry(clip_id, origin, lambda: _read(path, clip_id), config, origin)]
+        layout = batch_layout({k: shape for k, (shape, _) in headers.items()}, _read(path, stem, BOOKKEEPING), stem)
+    except ClipFormatError as exc:
+        return [ClipEntry(stem, origin, _failing(exc), config, origin)]
+
+    def read_member(b: int) -> dict[str, Any]:
+        arrays = _read(path, layout.ids[b])
+        return _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
+
+    return [ClipEntry(layout.ids[b], f"{origin}[{b}]", lambda b=b: read_member(b), config, origin)
+            for b in range(len(layout))]
+
+
+def _entries_from_mapping(source: Mapping[str, Any], config: SGCConfig) -> list[ClipEntry]:
+    if not is_batch(source):
+        clip_id = _meta_id(source.get("meta")) or _text(source.get("clip_id")) or "clip"
+        return [ClipEntry(clip_id, "<memory>", lambda: source, config)]
+    try:
+        arrays = {k: _as_array("batch", k, v, "an array") for k, v in source.items()}
+        layout = batch_layout({k: a.shape for k, a in arrays.items()}, arrays, "batch")
+    except ClipFormatError as exc:
+        return [ClipEntry("batch", "<memory>", _failing(exc), config)]
+    return [ClipEntry(layout.ids[b], f"<memory>[{b}]", lambda b=b: _batch_member(arrays, b, layout), config)
+            for b in range(len(layout))]
+
+
+def _text(value: Any) -> str | None:
+    """A 0-d text value as str; None for anything else."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value.item()
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", errors="replace")
+    return value if isinstance(value, str) and value else None
+
+
+def _npz_in(directory: Path) -> list[Path]:
+    try:
+        return sorted(directory.glob("*.npz"))
+    except OSError:  # an unreadable directory: reading it reports why
+        return [directory]
+
+
+def list_clip_files(source: str | os.PathLike, *, allow_empty: bool = False) -> list[Path]:
+    """The ``.npz`` files a path names: a directory's ``*.npz`` (sorted), a file (or a link, even
+    one that leads nowhere: reading it reports that), or a glob's ``.npz`` matches, directories
+    among them expanded. Raises FileNotFoundError when it names nothing (or an empty directory, unless ``allow_empty``).
+    """
+    text = os.fspath(source)
+    if os.path.isdir(text):
+        files = _npz_in(Path(text))
+    elif os.path.lexists(text):
+        files = [Path(text)]
+    else:
+        # glob only where there are wildcards: a literal name is matched by os.path.lexists above
+        matches = sorted(glob.glob(text)) if glob.has_magic(text) else []
+        files = [f for m in matches for f in (_npz_in(Path(m)) if os.path.isdir(m) else [Path(m)])
+                 if f.suffix.lower() == ".npz"]  # as in a directory: a glob's other files are not clips
+        if not matches:
+            raise FileNotFoundError(f"no clip file, directory or glob match for {text!r}")
+    if not files and not allow_empty:
+        raise FileNotFoundError(f"no .npz clips in {text}")
+    return files
+
+
+def guard_duplicate_ids(entries: list[ClipEntry]) -> None:
+    """Give the clips from files one id registry (docs/semantics.md §1.4): of the clips with one id,
+    the first that loads keeps it and later ones raise :class:`ClipFormatError` when loaded.
+
+    Clips given in memory are left alone: variants of one clip (perturbed, rescaled) share its id on purpose.
+    """
+    owners: dict[str, ClipEntry] = {}
+    for entry in entries:
+        if entry.path is not None:
+            entry.id_owners = owners
+
+
+def _discover(source: Any, config: SGCConfig) -> list[ClipEntry]:
+    if isinstance(source, Clip):
+        return [ClipEntry(source.clip_id, "<memory>", lambda: source, config)]
+    if isinstance(source, Mapping):
+        return _entries_from_mapping(source, config)
+    if isinstance(source, (list, tuple)):
+        return [e for item in source for e in _discover(item, config)]
+    return [e for path in list_clip_files(source) for e in entries_from_file(path, config)]
+
+
+def discover_clips(source: Any, config: SGCConfig | None = None) -> list[ClipEntry]:
+    """Expand a source into lazily loaded clips.
+
+    ``source``: a clip or batch ``.npz`` path, a directory (its ``*.npz``, sorted), a glob, a
+    :class:`Clip`, a mapping of arrays (single clip or batch), or a list of any of these. A broken
+    file or batch member never raises here: its entry raises :class:`ClipFormatError` when loaded.
+    Raises FileNotFoundError for a path, directory or glob that names no file.
+    """
+    entries = _discover(source, config or SGCConfig())
+    guard_duplicate_ids(entries)
+    return entries
+
+
+def load_clips(source: Any, config: SGCConfig | None = None) -> Iterator[Clip]:
+    """Load every clip of a source (raises :class:`ClipFormatError` on the first broken one; see :func:`discover_clips`)."""
+    for entry in discover_clips(source, config):
+        yield entry.load()
+
+
+def load_clip(source: Any, config: SGCConfig | None = None) -> Clip:
+    """Load exactly one clip from a path, mapping or :class:`Clip`."""
+    entries = discover_clips(source, config)
+    if len(entries) != 1:
+        raise ValueError(f"expected one clip, {source!r} holds {len(entries)}")
+    return entries[0].load()
+
+
+# ----------------------------------------------------------------------------- sgc-jax validate
+
+
+@dataclasses.dataclass
+class Report:
+    """The findings for one clip of a source."""
+
+    origin: str
+    clip_id: str
+    problems: list[Problem]
+
+    @property
+    def ok(self) -> bool:
+        return not any(p.severity == "error" for p in self.problems)
+
+    def lines(self, *, show_info: bool = False) -> list[str]:
+        return [f"{self.origin}: {p.line()}" for p in self.problems if show_info or p.severity != "info"]
+
+
+def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[Report]:
+    """Check every clip of clip / batch ``.npz`` files, directories or globs.
+
+    A broken file or member is a report, never an exception; raises FileNotFoundError only for a
+    path or glob that names nothing. Of clips with one id, the first without errors keeps it; later ones get a
+    ``duplicate_clip_id`` error (docs/semantics.md §1.4).
+    """
+    config = config or SGCConfig()
+    entries = [e for source in sources for path in list_clip_files(source, allow_empty=True)
+               for e in entries_from_file(path, config)]
+    guard_duplicate_ids(entries)
+    reports = []
+    for entry in entries:
+        try:
+            arrays = entry.read()
+            clip = clip_from_arrays(arrays, clip_id=entry.clip_id, config=config, validate=False)
+        except ClipFormatError as exc:
+            code = "unreadable" if exc.array == "<file>" else "structure"
+            reports.append(Report(entry.origin, entry.clip_id,
+                                  [Problem("error", code, exc.array, exc.expected, exc.found, exc.detail)]))
+            continue
+        problems = check_clip(clip, config, arrays)
+        if not any(p.severity == "error" for p in problems):  # as when scoring: the first clip that loads owns its id
+            try:
+                entry.claim_id()
+            except ClipFormatError as exc:
+                problems.insert(0, Problem("error", "duplicate_clip_id", exc.array, exc.expected, exc.found,
+                                           exc.detail))
+        reports.append(Report(entry.origin, clip.clip_id, problems))
+    return reports
