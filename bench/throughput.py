@@ -27,7 +27,7 @@ import jax
 
 from sgc_jax import enable_compilation_cache
 from sgc_jax.engines import jax_engine, reference
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 
 def main() -> None:

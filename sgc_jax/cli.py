@@ -176,7 +176,7 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
-    from .synth import write_demo_corpus
+    from .research.synth import write_demo_corpus
 
     paths = write_demo_corpus(args.out, seed=args.seed)
     for p in paths:
@@ -186,7 +186,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .api import score_batch
-    from .synth import demo_claims, write_demo_corpus
+    from .research.synth import demo_claims, write_demo_corpus
 
     _use_compilation_cache(args.engine)
     with tempfile.TemporaryDirectory() as tmp:
@@ -309,14 +309,14 @@ def cmd_rescore(args: argparse.Namespace) -> int:
 def _require_matplotlib() -> None:
     """Fail before any work when ``--plot`` cannot be honoured."""
     try:
-        from .plot import _pyplot
+        from .research.plot import _pyplot
         _pyplot()
     except ImportError as exc:
         raise UsageError(f"--plot: {exc}") from None
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
+    from .research.compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
                           format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
     from .io.result import write_csv, format_table
 
@@ -342,7 +342,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.plot:
-        from .plot import _pyplot, plot_group_violins
+        from .research.plot import _pyplot, plot_group_violins
 
         fig = plot_group_violins(records, args.column)
         fig.savefig(args.plot, dpi=120)
@@ -556,7 +556,7 @@ def _csv_list(text: str, convert=str) -> list:
 
 
 def cmd_perturb(args: argparse.Namespace) -> int:
-    from .study import check_kinds, check_severities, sensitivity_study
+    from .research.study import check_kinds, check_severities, sensitivity_study
 
     if args.plot:  # fail before the (long) study when matplotlib is missing
         _require_matplotlib()
@@ -582,7 +582,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         study.to_csv(args.out, summary_path=args.summary)
         print(f"wrote {args.out}" + (f" and {args.summary}" if args.summary else ""), file=sys.stderr)
     if args.plot:
-        from .plot import _pyplot, plot_sensitivity
+        from .research.plot import _pyplot, plot_sensitivity
 
         fig = plot_sensitivity(study)
         fig.savefig(args.plot, dpi=120)
@@ -593,7 +593,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
 
 
 def _register_perturb(sub) -> None:
-    from .perturb import MASK_CORRUPTIONS, PERTURBATIONS
+    from .research.perturb import MASK_CORRUPTIONS, PERTURBATIONS
 
     p = sub.add_parser("perturb", help="sensitivity study: score clips under perturbations of growing severity",
                        description="Score every clip under every perturbation kind and severity; print the mean "

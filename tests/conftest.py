@@ -12,7 +12,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 # (tests/test_compile_cache.py exercises the cache in subprocesses).
 os.environ.setdefault("SGC_JAX_COMPILATION_CACHE", "off")
 
-from sgc_jax.synth import synth_clip  # noqa: E402
+from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 # Well-conditioned scenes: two planar layers (one slanted) plus four static spheres, so every
 # depth region is a curved 3D point set. Small planar patches are the ill-posed case where any

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from sgc_jax import ClipFormatError, clip_from_arrays, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import discover_clips, validate_paths
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 # Tiny scenes: loading takes milliseconds and the reference engine scores one in ~0.3 s.
 TINY = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)

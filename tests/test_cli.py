@@ -9,7 +9,7 @@ from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
 from sgc_jax import save_clip, score_batch
 from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, main
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
 

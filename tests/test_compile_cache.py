@@ -8,7 +8,7 @@ import pytest
 
 from sgc_jax import save_clip
 from sgc_jax.engines import compile_cache
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 
 def test_cache_directory_follows_the_environment(monkeypatch, tmp_path):

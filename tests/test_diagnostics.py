@@ -1,4 +1,4 @@
-"""sgc_jax.diagnostics: per-pair quantities behind the diagnostic figures, checked against the
+"""sgc_jax.research.diagnostics: per-pair quantities behind the diagnostic figures, checked against the
 scored PairArrays and against known geometry (true poses of synthetic scenes)."""
 
 import dataclasses
@@ -6,10 +6,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, diagnostics
+from sgc_jax import SGCConfig
 from sgc_jax.codes import REGION_STATUS
 from sgc_jax.engines import reference
-from sgc_jax.synth import relative_poses
+from sgc_jax.research import diagnostics
+from sgc_jax.research.synth import relative_poses
 
 PAIR = 2
 ACCEPTED = REGION_STATUS["ok"]

@@ -21,7 +21,7 @@ from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
 from sgc_jax.kernels.pnp import solve_pnp
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.io.result import PAIR_COLUMNS
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 from sgc_jax.kernels.geometry import so3_log
 from sgc_jax.kernels.uncertainty import (PoseUncertainty, leverage, predicted_residual_chi2, region_quality,
                                          rot_std_limit_deg)

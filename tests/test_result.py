@@ -14,7 +14,7 @@ import sgc_jax.engines.reference
 from sgc_jax import (CLIP_COLUMNS, COMPONENTS, PAIR_COLUMNS, BatchResult, Calibration, ClipResult, calibrate, score_batch,
                      sgc_score)
 from sgc_jax.io.result import camera_dynamics, read_scores, rescore_records, write_scores
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 TINY = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
 

@@ -4,7 +4,7 @@ matplotlib (the ``viz`` extra).
 Sensitivity studies (paper Figures 6 and 8): :func:`plot_sensitivity`, :func:`plot_component_response`.
 Corpora (Figures 7 and 8a): :func:`plot_group_violins`, :func:`plot_component_correlation`,
 :func:`plot_calibration_weights`. One clip: :func:`plot_pair_components`, :func:`plot_region_map`.
-One pair (Figure 4 and the depth check, via :mod:`sgc_jax.diagnostics`): :func:`plot_pose_arrows`,
+One pair (Figure 4 and the depth check, via :mod:`sgc_jax.research.diagnostics`): :func:`plot_pose_arrows`,
 :func:`plot_depth_warp_error`, :func:`plot_region_reprojection`.
 """
 
@@ -14,16 +14,16 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS
-from .codes import REGION_STATUS_NAMES
+from ..calibration import COMPONENTS
+from ..codes import REGION_STATUS_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from .calibration import Calibration, KFoldStability
-    from .io.clip import Clip
-    from .config import SGCConfig
-    from .io.result import BatchResult, ClipResult
+    from ..calibration import Calibration, KFoldStability
+    from ..io.clip import Clip
+    from ..config import SGCConfig
+    from ..io.result import BatchResult, ClipResult
     from .study import StudyResult
 
 _UNITS = {"local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth units²",
@@ -79,7 +79,7 @@ _LOCAL_COLOUR, _GLOBAL_COLOUR = "tab:blue", "tab:red"
 
 
 def _clip_results(results: "ClipResult | BatchResult | Sequence[ClipResult]") -> list["ClipResult"]:
-    from .io.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
+    from ..io.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
 
     if isinstance(results, ClipResult):
         return [results]
@@ -337,7 +337,7 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
 def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | None = None) -> "Figure":
     """Each perturbation kind's targeted component vs severity (paper Figure 8b): mean over base
     clips, band = ±1 std, the clean mean as a dashed line. ``targets`` maps kind -> component
-    (default :data:`sgc_jax.perturb.TARGET_COMPONENT`, else ``sgc``)."""
+    (default :data:`sgc_jax.research.perturb.TARGET_COMPONENT`, else ``sgc``)."""
     from .perturb import TARGET_COMPONENT  # noqa: PLC0415
 
     plt = _pyplot()
@@ -370,7 +370,7 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
 
 def _rows(rows: Any) -> list[dict[str, Any]]:
     """Per-clip dicts from a BatchResult, a DataFrame or a sequence of dicts."""
-    from .io.result import BatchResult  # noqa: PLC0415
+    from ..io.result import BatchResult  # noqa: PLC0415
 
     if isinstance(rows, BatchResult):
         return rows.to_records()
@@ -386,7 +386,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ``rows``: a BatchResult, per-clip records or a DataFrame with ``group``, ``column``,
     ``ecd_trans`` and ``ecd_rot``; failed clips and NaN values are left out.
     """
-    from .io.result import add_ecd  # noqa: PLC0415
+    from ..io.result import add_ecd  # noqa: PLC0415
 
     plt = _pyplot()
     records = [r for r in add_ecd(_rows(rows)) if r.get("status", "ok") != "error" and np.isfinite(float(r[column]))]
@@ -426,7 +426,7 @@ def plot_calibration_weights(calibrations: Mapping[str, "Calibration | str"],
                              stability: "KFoldStability | None" = None) -> "Figure":
     """PC1 weights of several calibrations side by side (e.g. the paper's and a fitted one);
     ``stability`` adds the k-fold mean weight with ±1 std error bars (paper appendix C.1)."""
-    from .calibration import Calibration  # noqa: PLC0415
+    from ..calibration import Calibration  # noqa: PLC0415
 
     plt = _pyplot()
     series = {name: Calibration.load(c).weight for name, c in calibrations.items()}
@@ -455,8 +455,8 @@ def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
     """Pearson correlation matrix of the five components over the scored clips (paper Figure 8a);
     ``log1p``: of the values the score uses (log1p of the variances, docs/semantics.md §5.1), so one outlier
     clip does not decide every entry."""
-    from .calibration import LOG1P_COMPONENTS  # noqa: PLC0415
-    from .stats import pearson  # noqa: PLC0415
+    from ..calibration import LOG1P_COMPONENTS  # noqa: PLC0415
+    from ..stats import pearson  # noqa: PLC0415
 
     plt = _pyplot()
     records = [r for r in _rows(rows) if r.get("status", "ok") != "error"]

@@ -14,8 +14,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .io.result import add_ecd, format_table
-from .stats import agreement, bootstrap_ci, paired, pearson, rankdata, spearman
+from ..io.result import add_ecd, format_table
+from ..stats import agreement, bootstrap_ci, paired, pearson, rankdata, spearman
 
 #: The fewest values (clips of a group, matched keys, clips with ECD) that get a CI or a correlation.
 MIN_N = 3

@@ -19,16 +19,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from .api import _resolve_config, resolve_calibration, score_batch
-from .calibration import COMPONENTS, Calibration
-from .io.clip import Clip, ClipFormatError
-from .io.loading import discover_clips
-from .codes import CLIP_STATUSES
-from .config import SGCConfig
+from ..api import _resolve_config, resolve_calibration, score_batch
+from ..calibration import COMPONENTS, Calibration
+from ..io.clip import Clip, ClipFormatError
+from ..io.loading import discover_clips
+from ..codes import CLIP_STATUSES
+from ..config import SGCConfig
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
-from .io.result import (CLIP_COLUMNS, BatchResult, ClipResult, _counts, failed_clip, format_table,
+from ..io.result import (CLIP_COLUMNS, BatchResult, ClipResult, _counts, failed_clip, format_table,
                      records_frame, write_csv)
-from .stats import spearman
+from ..stats import spearman
 
 #: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
 #: relative change of the SGC with respect to the same base clip scored clean,
@@ -197,8 +197,8 @@ def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
                       config: SGCConfig | dict | None = None, calibration: Calibration | str | None = None,
                       engine: str = "jax", perturb_seed: int = 0, params: Mapping[str, Mapping[str, Any]] | None = None,
                       progress: bool | None = None, chunk_size: int = 256, **overrides: Any) -> StudyResult:
-    """Score every clip of ``clips`` under every kind (:data:`~sgc_jax.perturb.PERTURBATIONS`,
-    :data:`~sgc_jax.perturb.MASK_CORRUPTIONS`) at every severity in [0, 1].
+    """Score every clip of ``clips`` under every kind (:data:`~sgc_jax.research.perturb.PERTURBATIONS`,
+    :data:`~sgc_jax.research.perturb.MASK_CORRUPTIONS`) at every severity in [0, 1].
 
     ``clips``: anything :func:`sgc_jax.score_batch` accepts. ``perturb_seed`` drives the
     perturbations (the RANSAC seed is ``config.seed``, e.g. ``seed=1`` as an override); ``params``

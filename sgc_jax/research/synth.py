@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .io.clip import Clip, save_clip
+from ..io.clip import Clip, save_clip
 
 _EPS = 1e-9
 _OCCLUSION_REL_TOL = 0.02  # a point is hidden when farther than depth[i] * (1 + tol) at its pixel
