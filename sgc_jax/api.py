@@ -36,7 +36,9 @@ def _engine(name: str) -> Callable[[list[Clip], SGCConfig], list[PairArrays]]:
     raise ValueError(f"engine must be one of {ENGINES}, got {name!r}")
 
 
-def _resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) -> SGCConfig:
+def resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) -> SGCConfig:
+    """The config to score with: ``config`` (an :class:`SGCConfig`, a dict of its fields, or None for the
+    defaults) with ``overrides`` (SGCConfig fields) replaced."""
     if config is None:
         config = SGCConfig()
     elif isinstance(config, dict):
@@ -64,7 +66,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
     """
-    config = _resolve_config(config, overrides)
+    config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     run = _engine(engine)
     entries = discover_clips(source, config)
@@ -105,7 +107,7 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
                calibration: Calibration | str | None = None, engine: str = "jax",
                **overrides: Any) -> ClipResult:
     """Score one clip; raises :class:`ClipFormatError` on a structural problem."""
-    config = _resolve_config(config, overrides)
+    config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     entries = discover_clips(source, config)
     if len(entries) != 1:

@@ -309,8 +309,8 @@ def cmd_rescore(args: argparse.Namespace) -> int:
 def _require_matplotlib() -> None:
     """Fail before any work when ``--plot`` cannot be honoured."""
     try:
-        from .research.plot import _pyplot
-        _pyplot()
+        from .research.plot import import_pyplot
+        import_pyplot()
     except ImportError as exc:
         raise UsageError(f"--plot: {exc}") from None
 
@@ -342,11 +342,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.plot:
-        from .research.plot import _pyplot, plot_group_violins
+        from .research.plot import import_pyplot, plot_group_violins
 
         fig = plot_group_violins(records, args.column)
         fig.savefig(args.plot, dpi=120)
-        _pyplot().close(fig)
+        import_pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.against:
         other = _read_scores(args.against)
@@ -582,11 +582,11 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         study.to_csv(args.out, summary_path=args.summary)
         print(f"wrote {args.out}" + (f" and {args.summary}" if args.summary else ""), file=sys.stderr)
     if args.plot:
-        from .research.plot import _pyplot, plot_sensitivity
+        from .research.plot import import_pyplot, plot_sensitivity
 
         fig = plot_sensitivity(study)
         fig.savefig(args.plot, dpi=120)
-        _pyplot().close(fig)
+        import_pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     print(study.table())
     return EXIT_SOME_FAILED if failed else EXIT_OK

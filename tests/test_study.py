@@ -226,11 +226,11 @@ def test_perturb_command_writes_rows_summary_and_plot(tmp_path):
 
 def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
     from sgc_jax import cli
-    from sgc_jax.research.plot import _pyplot
+    from sgc_jax.research.plot import import_pyplot
 
     monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)  # import fails as if not installed
     with pytest.raises(ImportError, match=r"sgc-jax\[viz\]"):
-        _pyplot()
+        import_pyplot()
     # the command refuses before scoring anything, naming the option and the fix
     assert cli.main(["perturb", str(tmp_path / "none.npz"), "--plot", str(tmp_path / "p.png")]) == 2
     err = capsys.readouterr().err

@@ -70,7 +70,7 @@ class PairArrays:
     def __repr__(self) -> str:  # the arrays run to thousands of lines
         k = self.region_status.shape[1] if self.region_status.ndim == 2 else 0
         return (f"PairArrays({self.n_pairs} pairs, {k} region slots; reasons: "
-                f"{_counts((str(r) for r in self.reason), PAIR_REASONS) or 'none'})")
+                f"{format_counts((str(r) for r in self.reason), PAIR_REASONS) or 'none'})")
 
     def components(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in COMPONENTS}
@@ -310,7 +310,7 @@ class BatchResult:
 
     def _summary(self) -> str:
         """``"8 clips (ok 7, error 1), engine jax, calibration 'sgc-spec-2026'"``."""
-        statuses = _counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
+        statuses = format_counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
         engines = "/".join(dict.fromkeys(c.engine for c in self.clips if c.engine)) or "none"
         calibration = repr(self.calibration.name) if self.calibration else "none"
         return f"{len(self.clips)} clips ({statuses}), engine {engines}, calibration {calibration}"
@@ -392,7 +392,7 @@ class BatchResult:
         return format_table(self.to_records(), columns)
 
 
-def _counts(values: Iterable[str], order: Sequence[str] = ()) -> str:
+def format_counts(values: Iterable[str], order: Sequence[str] = ()) -> str:
     """``"ok 7, partial 1"``: each distinct value with its count, in ``order`` then alphabetically."""
     counts = Counter(values)
     keys = [k for k in order if k in counts] + sorted(k for k in counts if k not in order)

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
 from .geometry import so3_exp
-from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, region_onehot, solve_spd
+from .pnp import block_normals, materialise, point_columns, pointwise_residuals, region_onehot, solve_spd
 
 
 class PoseUncertainty(NamedTuple):
@@ -66,8 +66,8 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype) * inliers[None, :].astype(dtype)
     own = jnp.clip(region - 1, 0, k - 1)
-    cols = _point_columns(X, uv, (region >= 1).astype(dtype))
-    (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
+    cols = point_columns(X, uv, (region >= 1).astype(dtype))
+    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
 
     n = jnp.sum(onehot, axis=1)
     mean_depth = (onehot @ jnp.linalg.norm(X, axis=-1)) / jnp.maximum(n, 1.0)

@@ -30,7 +30,9 @@ _UNITS = {"local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var"
           "global_trans_var": "pose units²", "depth_error": "depth units"}
 
 
-def _pyplot():
+def import_pyplot():
+    """``matplotlib.pyplot``; without matplotlib, an ImportError naming the ``viz`` extra (the CLI calls
+    it to refuse ``--plot`` before any work)."""
     try:
         import matplotlib.pyplot as plt
     except ImportError as exc:
@@ -41,7 +43,7 @@ def _pyplot():
 def plot_sensitivity(study: "StudyResult", *, references: Mapping[str, float] | None = None) -> "Figure":
     """SGC vs severity per kind (mean over base clips, band = ±1 std), and each component's mean
     response; ``references`` adds labelled dashed horizontal SGC lines (e.g. a model's score)."""
-    plt = _pyplot()
+    plt = import_pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), constrained_layout=True)
     panels = ("sgc", *COMPONENTS)
     severities = np.asarray(study.severities)
@@ -99,7 +101,7 @@ def plot_pair_components(results: "ClipResult | BatchResult | Sequence[ClipResul
     ``log``: symmetric-log y axes (linear below 1e-2), so near-zero rigid clips and
     100 deg² spikes share a panel. Pairs without a value (reason other than ``ok``) leave gaps.
     """
-    plt = _pyplot()
+    plt = import_pyplot()
     clips = _clip_results(results)
     if not clips:
         raise ValueError("no clip with per-pair arrays to plot (did every clip fail?)")
@@ -153,7 +155,7 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
     from . import diagnostics  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     tracks = diagnostics.region_tracks(clip, pair, config)
     labels = tracks.labels
     n = int(labels.max())
@@ -204,7 +206,7 @@ def plot_pose_arrows(clip: "Clip", scored: "ClipResult", pair: int, *, config: "
     from . import diagnostics  # noqa: PLC0415
     from matplotlib.lines import Line2D  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     flow = diagnostics.pose_flow(clip, scored, pair, config)
     H, W = flow.labels.shape
     fig, ax = plt.subplots(figsize=(8, 8 * H / W + 0.8), constrained_layout=True)
@@ -263,7 +265,7 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
     from matplotlib.colors import LogNorm, Normalize  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     result = diagnostics.depth_warp_error(clip, pair, config, scale=scale)
     depth = np.where(np.isfinite(clip.depth[pair]) & (clip.depth[pair] > 0), clip.depth[pair], np.nan)
     warped = np.where(result.warped > 0, result.warped, np.nan)
@@ -299,7 +301,7 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
     from matplotlib.lines import Line2D  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     reproj = diagnostics.region_reprojection(clip, scored, pair, config)
     regions = [j for j, g in enumerate(reproj.global_px) if len(g)]
     if not regions:
@@ -340,7 +342,7 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
     (default :data:`sgc_jax.research.perturb.TARGET_COMPONENT`, else ``sgc``)."""
     from .perturb import TARGET_COMPONENT  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     targets = dict(targets or {})
     kinds = list(study.kinds)
     fig, axes = plt.subplots(1, len(kinds), figsize=(4.4 * len(kinds), 3.8), constrained_layout=True, squeeze=False)
@@ -388,7 +390,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     """
     from ..io.result import add_ecd  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     records = [r for r in add_ecd(_rows(rows)) if r.get("status", "ok") != "error" and np.isfinite(float(r[column]))]
     if not records:
         raise ValueError(f"no clip with a finite {column!r} to plot")
@@ -428,7 +430,7 @@ def plot_calibration_weights(calibrations: Mapping[str, "Calibration | str"],
     ``stability`` adds the k-fold mean weight with ±1 std error bars (paper appendix C.1)."""
     from ..calibration import Calibration  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     series = {name: Calibration.load(c).weight for name, c in calibrations.items()}
     if stability is not None:
         series[f"{stability.k}-fold mean ± std"] = stability.weight_mean
@@ -458,7 +460,7 @@ def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
     from ..calibration import LOG1P_COMPONENTS  # noqa: PLC0415
     from ..stats import pearson  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     records = [r for r in _rows(rows) if r.get("status", "ok") != "error"]
     columns = {c: np.array([float(r[c]) for r in records]) for c in COMPONENTS}
     if log1p:
