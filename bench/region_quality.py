@@ -26,8 +26,8 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
-from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT
 from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT
 from sgc_jax.research.study import DEFAULT_SEVERITIES, sensitivity_study
 from sgc_jax.research.synth import synth_clip
 

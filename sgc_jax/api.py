@@ -8,9 +8,9 @@ from typing import Any, Callable, Iterable
 from tqdm.auto import tqdm
 
 from .calibration import Calibration, default_calibration
+from .config import SGCConfig
 from .io.clip import Clip, ClipFormatError
 from .io.loading import ClipEntry, discover_clips
-from .config import SGCConfig
 from .io.result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
 
 ENGINES = ("jax", "reference")

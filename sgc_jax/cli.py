@@ -316,9 +316,10 @@ def _require_matplotlib() -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    from .io.result import format_table, write_csv
     from .research.compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
-                          format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
-    from .io.result import write_csv, format_table
+                                   format_group_table, format_ranking, group_table, motion_dependence,
+                                   ranking_table)
 
     if args.plot:
         _require_matplotlib()
@@ -442,9 +443,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_pack(args: argparse.Namespace) -> int:
     import warnings
 
+    from .config import SGCConfig
     from .io.clip import save_batch
     from .io.loading import discover_clips
-    from .config import SGCConfig
 
     keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
     guard_outputs(clip_input_files(args.clips), out=args.out if args.out.endswith(".npz") else args.out + ".npz")

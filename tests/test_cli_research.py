@@ -14,8 +14,8 @@ import sgc_jax.engines.reference
 from sgc_jax import COMPONENTS, Calibration, calibrate, save_clip, sgc_score
 from sgc_jax.calibration import kfold_stability
 from sgc_jax.cli import main
-from sgc_jax.research.compare import GROUP_COLUMNS
 from sgc_jax.io.result import read_scores
+from sgc_jax.research.compare import GROUP_COLUMNS
 from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]

@@ -17,14 +17,14 @@ import pytest
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
 from sgc_jax.engines import reference
+from sgc_jax.io.result import PAIR_COLUMNS
 from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.kernels.geometry import so3_log
 from sgc_jax.kernels.pnp import solve_pnp
 from sgc_jax.kernels.ransac import ransac_pnp
-from sgc_jax.io.result import PAIR_COLUMNS
-from sgc_jax.research.synth import synth_clip
-from sgc_jax.kernels.geometry import so3_log
 from sgc_jax.kernels.uncertainty import (PoseUncertainty, leverage, predicted_residual_chi2, region_quality,
                                          rot_std_limit_deg)
+from sgc_jax.research.synth import synth_clip
 
 RULE = dict(min_region_points=10, max_rot_std_deg=1.0, max_rot_std_px=4.0, min_region_extent=0.02,
             quality_noise_px=1.0)

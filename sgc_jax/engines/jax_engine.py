@@ -18,19 +18,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..io.clip import Clip
 from ..codes import (PAIR_REASON_CODE, PAIR_REASONS, REGION_AMBIGUOUS, REGION_EMPTY, REGION_ILL_CONDITIONED,
-                    REGION_OK)
-from ..kernels.components import mean_pose, pair_pose_components
+                     REGION_OK)
 from ..config import SGCConfig
+from ..io.clip import Clip
+from ..io.result import PairArrays
+from ..kernels.components import mean_pose, pair_pose_components
 from ..kernels.geometry import back_project, nearest_rotation, rotation_angle_deg
 from ..kernels.kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
 from ..kernels.partition import spatial_regions
 from ..kernels.ransac import ransac_pnp_regions
-from ..io.result import PairArrays
 from ..kernels.uncertainty import region_quality
-from .units import PERCENT, in_depth_units, translation_factor
 from ..kernels.warp import depth_error, warp_depth
+from .units import PERCENT, in_depth_units, translation_factor
 
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this

@@ -14,9 +14,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..io.clip import Clip
 from ..codes import REGION_STATUS
 from ..config import HOLE_DEPTH_MARGIN, SGCConfig
+from ..io.clip import Clip
 from ..io.result import PairArrays, empty_pair_arrays
 from .units import PERCENT, in_depth_units, translation_factor
 

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from .clip import Clip, ClipFormatError
 from ..config import SGCConfig
 from ..stats import spearman
+from .clip import Clip, ClipFormatError
 
 SEVERITIES = ("error", "warning", "info")
 

@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from ..engines import reference
-from ..io.clip import Clip
-from ..io.loading import load_clip
 from ..codes import REGION_STATUS
 from ..config import SGCConfig
-from ..io.result import ClipResult, PairArrays
+from ..engines import reference
 from ..engines.units import PERCENT, in_depth_units
+from ..io.clip import Clip
+from ..io.loading import load_clip
+from ..io.result import ClipResult, PairArrays
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:

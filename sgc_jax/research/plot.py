@@ -21,8 +21,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from ..calibration import Calibration, KFoldStability
-    from ..io.clip import Clip
     from ..config import SGCConfig
+    from ..io.clip import Clip
     from ..io.result import BatchResult, ClipResult
     from .study import StudyResult
 

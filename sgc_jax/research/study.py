@@ -21,14 +21,14 @@ from tqdm.auto import tqdm
 
 from ..api import resolve_calibration, resolve_config, score_batch
 from ..calibration import COMPONENTS, Calibration
-from ..io.clip import Clip, ClipFormatError
-from ..io.loading import discover_clips
 from ..codes import CLIP_STATUSES
 from ..config import SGCConfig
-from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
+from ..io.clip import Clip, ClipFormatError
+from ..io.loading import discover_clips
 from ..io.result import (CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_counts, format_table,
                          records_frame, write_csv)
 from ..stats import spearman
+from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
 
 #: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
 #: relative change of the SGC with respect to the same base clip scored clean,
