@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from sgc_jax.ransac import ransac_pnp, ransac_pnp_regions
+from sgc_jax.kernels.ransac import ransac_pnp, ransac_pnp_regions
 
 W, H = 512, 288
 FOV_DEG = 60.0

@@ -25,11 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.geometry import rotation_angle_deg, so3_exp
-from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT
-from sgc_jax.ransac import ransac_pnp
-from sgc_jax.study import DEFAULT_SEVERITIES, sensitivity_study
-from sgc_jax.synth import synth_clip
+from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT
+from sgc_jax.research.study import DEFAULT_SEVERITIES, sensitivity_study
+from sgc_jax.research.synth import synth_clip
 
 SPARSE_SCENE = dict(n_layers=6, static_spheres=0, n_tracks=400, height=192, width=320, n_frames=6,
                     with_frames=False)

@@ -6,7 +6,7 @@
 2. Masked moving objects: three rigid scenes scored with and without moving objects (masked):
    the depth error's ratio with the spec warp (static source) and the authors' warp (every pixel).
 3. The demo corpus: SGC per clip and engine under the defaults, and whether each demo claim holds.
-4. The calibration corpus (with ``--scores``, the CSV that ``python -m sgc_jax.spec_calibration
+4. The calibration corpus (with ``--scores``, the CSV that ``python -m sgc_jax.research.spec_calibration
    --scores`` writes): medians per perturbation kind and severity, and how each perturbed clip
    orders against its clean scene.
 
@@ -23,7 +23,7 @@ import numpy as np
 import sgc_jax
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS, Calibration
-from sgc_jax.synth import demo_claims, demo_corpus, synth_clip
+from sgc_jax.research.synth import demo_claims, demo_corpus, synth_clip
 
 SCENE = dict(n_layers=3, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)
 ENGINES = ("jax", "reference")
@@ -104,7 +104,8 @@ def corpus_table(scores_csv: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", choices=("units", "objects", "demo", "corpus"))
-    parser.add_argument("--scores", help="the calibration corpus's scores (python -m sgc_jax.spec_calibration --scores)")
+    parser.add_argument("--scores", help="the calibration corpus's scores "
+                        "(python -m sgc_jax.research.spec_calibration --scores)")
     args = parser.parse_args()
     sgc_jax.enable_compilation_cache()
     print(f"calibration: {Calibration.load('sgc-spec-2026').name} (spec), sgc-paper-2026 (authors)\n")

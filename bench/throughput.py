@@ -25,8 +25,9 @@ from pathlib import Path
 
 import jax
 
-from sgc_jax import engine, enable_compilation_cache, reference
-from sgc_jax.synth import synth_clip
+from sgc_jax import enable_compilation_cache
+from sgc_jax.engines import jax_engine, reference
+from sgc_jax.research.synth import synth_clip
 
 
 def main() -> None:
@@ -56,12 +57,12 @@ def main() -> None:
     ref_s = time.perf_counter() - start
 
     start = time.perf_counter()
-    engine.score_pairs_batch(clips)
+    jax_engine.score_pairs_batch(clips)
     cold_s = time.perf_counter() - start
     warm_s = float("inf")
     for _ in range(args.repeat):
         start = time.perf_counter()
-        engine.score_pairs_batch(clips)
+        jax_engine.score_pairs_batch(clips)
         warm_s = min(warm_s, time.perf_counter() - start)
 
     n = len(clips)

@@ -6,8 +6,8 @@
 Each notebook's cells are defined below; they are written with nbformat and executed top to
 bottom in a fresh kernel with nbclient, in this folder, and stored with their outputs.
 ``tests/test_notebooks.py`` checks that the stored code is the code below and executes every
-notebook again. The notebooks use only the public API (``sgc_jax``, ``sgc_jax.plot``,
-``sgc_jax.synth``, ``sgc_jax.diagnostics``, ``sgc_jax.compare``, ``sgc_jax.stats``).
+notebook again. The notebooks use only the public API (``sgc_jax``, ``sgc_jax.codes``, and
+``sgc_jax.research``'s ``plot``, ``synth``, ``diagnostics``, ``compare`` and ``perturb``; ``sgc_jax.stats``).
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 
 import sgc_jax
-from sgc_jax import plot
-from sgc_jax.synth import synth_clip
+from sgc_jax.research import plot
+from sgc_jax.research.synth import synth_clip
 
 matplotlib.rcParams["figure.dpi"] = 80  # small stored figures
 pd.set_option("display.precision", 4)
@@ -69,7 +69,7 @@ QUICKSTART = [
 
         SGC asks whether a video's static background behaves like one rigid 3D world seen by one
         moving camera. Its inputs are estimator outputs (camera poses and intrinsics, depth, point
-        tracks, moving-object masks) computed beforehand; here they come from `sgc_jax.synth`,
+        tracks, moving-object masks) computed beforehand; here they come from `sgc_jax.research.synth`,
         synthetic scenes whose geometry is exact. Lower SGC is better.
     """),
     _code(SETUP),
@@ -139,7 +139,7 @@ QUICKSTART = [
         ## Save and reload
 
         Results go to CSV (per clip and per pair) or JSON, and come back as rows for the research
-        tools (`sgc_jax.calibrate`, `sgc_jax.compare`) without re-running any geometry.
+        tools (`sgc_jax.calibrate`, `sgc_jax.research.compare`) without re-running any geometry.
     """),
     _code("""\
         import tempfile
@@ -199,10 +199,10 @@ SENSITIVITY = [
 
         Each perturbation is designed to isolate one component: `warp` the global rotation
         variance, `squeeze` the local rotation variance, `depth_warp` the depth error
-        (`sgc_jax.perturb.TARGET_COMPONENT`).
+        (`sgc_jax.research.perturb.TARGET_COMPONENT`).
     """),
     _code("""\
-        from sgc_jax.perturb import TARGET_COMPONENT
+        from sgc_jax.research.perturb import TARGET_COMPONENT
 
         print(TARGET_COMPONENT)
         fig = plot.plot_component_response(study)"""),
@@ -292,12 +292,12 @@ CALIBRATION = [
         ## Rescore and compare
 
         A calibration is a function of the stored components, so rescoring re-runs no geometry.
-        `sgc_jax.compare.group_table` ranks the groups (bootstrap 95% CI of the mean, mean ECD and
+        `sgc_jax.research.compare.group_table` ranks the groups (bootstrap 95% CI of the mean, mean ECD and
         the within-group correlation of SGC with ECD); `agreement_between` says how much the
         ranking of the clips changes between the two calibrations.
     """),
     _code("""\
-        from sgc_jax.compare import agreement_between, group_table, motion_dependence
+        from sgc_jax.research.compare import agreement_between, group_table, motion_dependence
 
         rescored = result.rescore(by_group)
         pd.DataFrame(group_table(rescored.to_records(), n_boot=1000))"""),
@@ -336,7 +336,7 @@ DIAGNOSTICS = [
 
         Why does a clip score what it scores? For one pair of frames this notebook shows the local
         pose of every depth layer against the global camera pose as image motion, the depth-warp
-        error map, and the reprojection error of each layer's points. `sgc_jax.diagnostics`
+        error map, and the reprojection error of each layer's points. `sgc_jax.research.diagnostics`
         recomputes these from the clip and the result that scored it.
     """),
     _code(SETUP),
@@ -346,7 +346,8 @@ DIAGNOSTICS = [
         squeeze of the tracks and a spatial remap of the depth maps (`depth_warp`).
     """),
     _code("""\
-        from sgc_jax import diagnostics
+        from sgc_jax.research import diagnostics
+        from sgc_jax.codes import REGION_STATUS_NAMES
 
         rigid = synth_clip(seed=5, clip_id="rigid", **SCENE)
         drift = synth_clip(seed=5, clip_id="layer-drift", layer_drift=0.2, **SCENE)
@@ -378,7 +379,7 @@ DIAGNOSTICS = [
         flow = diagnostics.pose_flow(drift, result.clip("layer-drift"), PAIR)
         pd.DataFrame({
             "region": np.arange(1, len(flow.status) + 1), "points": flow.n_points,
-            "status": [diagnostics.REGION_STATUS_NAMES[s] for s in flow.status],
+            "status": [REGION_STATUS_NAMES[s] for s in flow.status],
             "local dx [px]": flow.local_px[:, 0], "local dy [px]": flow.local_px[:, 1],
             "global dx [px]": flow.global_px[:, 0], "global dy [px]": flow.global_px[:, 1],
             "gap [px]": flow.disagreement_px,

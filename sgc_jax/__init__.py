@@ -7,13 +7,14 @@ from .adapters import import_clip
 from .api import ENGINES, score_batch, score_clip
 from .calibration import (COMPONENTS, Calibration, CalibrationMismatchError, KFoldStability, calibrate,
                           default_calibration, kfold_stability, sgc_score)
-from .clip import Clip, ClipFormatError, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
-from .compile_cache import enable_compilation_cache
 from .config import SGCConfig
-from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip
-from .result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays, read_scores, rescore_records
-from .study import StudyResult, sensitivity_study
-from .validate import ClipValidationError, ClipWarning, check_clip
+from .engines.compile_cache import enable_compilation_cache
+from .io.clip import Clip, ClipFormatError, save_batch, save_clip
+from .io.loading import clip_from_arrays, load_clip, load_clips
+from .io.result import CLIP_COLUMNS, PAIR_COLUMNS, BatchResult, ClipResult, PairArrays, read_scores, rescore_records
+from .io.validate import ClipValidationError, ClipWarning, check_clip
+from .research.perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip
+from .research.study import StudyResult, sensitivity_study
 
 __version__ = "0.1.0"
 

@@ -8,23 +8,24 @@ from typing import Any, Callable, Iterable
 from tqdm.auto import tqdm
 
 from .calibration import Calibration, default_calibration
-from .clip import Clip, ClipEntry, ClipFormatError, discover_clips
 from .config import SGCConfig
-from .result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
+from .io.clip import Clip, ClipFormatError
+from .io.loading import ClipEntry, discover_clips
+from .io.result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
 
 ENGINES = ("jax", "reference")
 
 
 def _reference_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from . import reference
+    from .engines import reference
 
     return [reference.score_pairs(clip, config) for clip in clips]
 
 
 def _jax_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from . import engine
+    from .engines import jax_engine
 
-    return engine.score_pairs_batch(clips, config)
+    return jax_engine.score_pairs_batch(clips, config)
 
 
 def _engine(name: str) -> Callable[[list[Clip], SGCConfig], list[PairArrays]]:
@@ -35,7 +36,9 @@ def _engine(name: str) -> Callable[[list[Clip], SGCConfig], list[PairArrays]]:
     raise ValueError(f"engine must be one of {ENGINES}, got {name!r}")
 
 
-def _resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) -> SGCConfig:
+def resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) -> SGCConfig:
+    """The config to score with: ``config`` (an :class:`SGCConfig`, a dict of its fields, or None for the
+    defaults) with ``overrides`` (SGCConfig fields) replaced."""
     if config is None:
         config = SGCConfig()
     elif isinstance(config, dict):
@@ -63,7 +66,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
     """
-    config = _resolve_config(config, overrides)
+    config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     run = _engine(engine)
     entries = discover_clips(source, config)
@@ -104,7 +107,7 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
                calibration: Calibration | str | None = None, engine: str = "jax",
                **overrides: Any) -> ClipResult:
     """Score one clip; raises :class:`ClipFormatError` on a structural problem."""
-    config = _resolve_config(config, overrides)
+    config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     entries = discover_clips(source, config)
     if len(entries) != 1:

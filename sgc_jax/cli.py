@@ -50,7 +50,7 @@ def _file_key(path: str | os.PathLike) -> tuple | str:
 def clip_input_files(paths: Iterable[str]) -> list[Path]:
     """The files that clip arguments name; a named file that is not an ``.npz`` is refused with a
     hint (directories and globs contribute their ``.npz`` files only)."""
-    from .clip import list_clip_files
+    from .io.loading import list_clip_files
 
     files: list[Path] = []
     for text in paths:
@@ -125,7 +125,7 @@ def _use_compilation_cache(engine: str) -> None:
     """The JAX engine's compiled programs persist between runs (``compile_cache``; off with
     ``SGC_JAX_COMPILATION_CACHE=off``)."""
     if engine == "jax":
-        from .compile_cache import enable_compilation_cache
+        from .engines.compile_cache import enable_compilation_cache
 
         enable_compilation_cache()
 
@@ -176,7 +176,7 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
-    from .synth import write_demo_corpus
+    from .research.synth import write_demo_corpus
 
     paths = write_demo_corpus(args.out, seed=args.seed)
     for p in paths:
@@ -186,7 +186,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .api import score_batch
-    from .synth import demo_claims, write_demo_corpus
+    from .research.synth import demo_claims, write_demo_corpus
 
     _use_compilation_cache(args.engine)
     with tempfile.TemporaryDirectory() as tmp:
@@ -233,7 +233,7 @@ def _register_synth(sub) -> None:
 
 def _read_scores(paths) -> list[dict]:
     """Rows of the scores CSVs named on the command line (UsageError for anything else)."""
-    from .result import read_scores
+    from .io.result import read_scores
 
     records = []
     for path in table_input_files(paths):
@@ -251,7 +251,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     import warnings
 
     from .calibration import calibrate, kfold_stability
-    from .result import rescore_records, write_scores
+    from .io.result import rescore_records, write_scores
 
     guard_outputs(table_input_files(args.scores), out=args.out, rescored=args.rescored)
     records = _read_scores(args.scores)
@@ -290,7 +290,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_rescore(args: argparse.Namespace) -> int:
-    from .result import format_table, rescore_records, write_scores
+    from .io.result import format_table, rescore_records, write_scores
 
     guard_outputs(table_input_files(args.scores), out=args.out)
     records = _read_scores(args.scores)
@@ -309,16 +309,17 @@ def cmd_rescore(args: argparse.Namespace) -> int:
 def _require_matplotlib() -> None:
     """Fail before any work when ``--plot`` cannot be honoured."""
     try:
-        from .plot import _pyplot
-        _pyplot()
+        from .research.plot import import_pyplot
+        import_pyplot()
     except ImportError as exc:
         raise UsageError(f"--plot: {exc}") from None
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
-                          format_group_table, format_ranking, group_table, motion_dependence, ranking_table)
-    from .result import write_csv, format_table
+    from .io.result import format_table, write_csv
+    from .research.compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
+                                   format_group_table, format_ranking, group_table, motion_dependence,
+                                   ranking_table)
 
     if args.plot:
         _require_matplotlib()
@@ -342,11 +343,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
         write_csv(args.out, table, columns)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.plot:
-        from .plot import _pyplot, plot_group_violins
+        from .research.plot import import_pyplot, plot_group_violins
 
         fig = plot_group_violins(records, args.column)
         fig.savefig(args.plot, dpi=120)
-        _pyplot().close(fig)
+        import_pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.against:
         other = _read_scores(args.against)
@@ -412,7 +413,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     import warnings
 
     from .adapters import import_clip
-    from .clip import save_clip
+    from .io.clip import save_clip
 
     inputs = [p for p in (args.cameras, args.depth, args.tracks, args.masks, args.frames) if p]
     guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
@@ -442,8 +443,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_pack(args: argparse.Namespace) -> int:
     import warnings
 
-    from .clip import discover_clips, save_batch
     from .config import SGCConfig
+    from .io.clip import save_batch
+    from .io.loading import discover_clips
 
     keep_all = SGCConfig(max_tracks=2**31 - 1)  # a batch file keeps every track; scoring sub-samples
     guard_outputs(clip_input_files(args.clips), out=args.out if args.out.endswith(".npz") else args.out + ".npz")
@@ -475,7 +477,7 @@ def cmd_pack(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from .validate import validate_paths
+    from .io.loading import validate_paths
 
     if not clip_input_files(args.paths):  # as `score` does: nothing to check is a usage error
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
@@ -555,7 +557,7 @@ def _csv_list(text: str, convert=str) -> list:
 
 
 def cmd_perturb(args: argparse.Namespace) -> int:
-    from .study import check_kinds, check_severities, sensitivity_study
+    from .research.study import check_kinds, check_severities, sensitivity_study
 
     if args.plot:  # fail before the (long) study when matplotlib is missing
         _require_matplotlib()
@@ -581,18 +583,18 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         study.to_csv(args.out, summary_path=args.summary)
         print(f"wrote {args.out}" + (f" and {args.summary}" if args.summary else ""), file=sys.stderr)
     if args.plot:
-        from .plot import _pyplot, plot_sensitivity
+        from .research.plot import import_pyplot, plot_sensitivity
 
         fig = plot_sensitivity(study)
         fig.savefig(args.plot, dpi=120)
-        _pyplot().close(fig)
+        import_pyplot().close(fig)
         print(f"wrote {args.plot}", file=sys.stderr)
     print(study.table())
     return EXIT_SOME_FAILED if failed else EXIT_OK
 
 
 def _register_perturb(sub) -> None:
-    from .perturb import MASK_CORRUPTIONS, PERTURBATIONS
+    from .research.perturb import MASK_CORRUPTIONS, PERTURBATIONS
 
     p = sub.add_parser("perturb", help="sensitivity study: score clips under perturbations of growing severity",
                        description="Score every clip under every perturbation kind and severity; print the mean "

@@ -52,7 +52,7 @@ class SGCConfig:
     compat: str = "spec"  # "spec" | "authors" (docs/semantics.md §3.9)
     kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
     gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
-    # Region-quality rule (issue 7, sgc_jax.uncertainty): accepted local poses that the data do not
+    # Region-quality rule (issue 7, sgc_jax.kernels.uncertainty): accepted local poses that the data do not
     # pin down are left out of the variances with status ill_conditioned / ambiguous. Never applied
     # under compat="authors" (the authors keep every accepted pose).
     quality_rule: bool = True
@@ -64,7 +64,7 @@ class SGCConfig:
     ambiguous_rot_deg: float = 3.0  # a rival fit this far away in rotation ...
     ambiguous_inlier_frac: float = 0.05  # ... losing at most this fraction of inliers: ambiguous (JAX)
     # JAX engine: each region also tries the other regions' poses of its pair as RANSAC hypotheses
-    # (sgc_jax.ransac.borrow_region_poses), kept only where they fit its own points better.
+    # (sgc_jax.kernels.ransac.borrow_region_poses), kept only where they fit its own points better.
     borrow_region_poses: bool = True
 
     def __post_init__(self) -> None:

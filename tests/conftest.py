@@ -61,7 +61,7 @@ def release_compiled_programs_when_mappings_run_high():
         return
     limit = int(_MAX_MAP_COUNT.read_text()) if _MAX_MAP_COUNT.exists() else 65530
     if _memory_mappings() > limit // 2:
-        from sgc_jax.engine import release_programs
+        from sgc_jax.engines.jax_engine import release_programs
 
         release_programs()
         jax.clear_caches()

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from sgc_jax.clip import Clip
+from sgc_jax.io.clip import Clip
 
 # DAVIS 2017 palette, first entries (index 0 black, then the usual object colours).
 DAVIS_PALETTE = [0, 0, 0, 128, 0, 0, 0, 128, 0, 128, 128, 0, 0, 0, 128, 128, 0, 128, 0, 128, 128]

@@ -16,7 +16,7 @@ from sgc_jax import score_batch
 from sgc_jax.adapters import (EstimatorFormatError, MaskFormatWarning, import_clip, read_delta, read_frames,
                               read_mask_labels, read_seganymo, read_vggt, read_video_depth, vggt_grid)
 from sgc_jax.calibration import COMPONENTS
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 # tests/conftest.py's SCENE (T, H, W, P), so the scoring test reuses the engine compiled for the
 # other tests. Portrait grids (VGGT's crop mode really crops) are checked array by array below.

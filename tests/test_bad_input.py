@@ -17,9 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sgc_jax import ClipFormatError, clip_from_arrays, load_clips, save_batch, save_clip, score_batch
-from sgc_jax.clip import clip_to_arrays, discover_clips
-from sgc_jax.synth import synth_clip
-from sgc_jax.validate import validate_paths
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import discover_clips, validate_paths
+from sgc_jax.research.synth import synth_clip
 
 # Tiny scenes: loading takes milliseconds and the reference engine scores one in ~0.3 s.
 TINY = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)
@@ -367,7 +367,7 @@ def test_a_directory_of_every_broken_kind_scores_its_controls_unchanged(tmp_path
 
 
 def test_an_engine_exception_is_not_disguised_as_bad_input(tmp_path, monkeypatch):
-    from sgc_jax import reference
+    from sgc_jax.engines import reference
 
     def broken_engine(clip, config):
         raise RuntimeError("a bug in the engine")
@@ -492,7 +492,7 @@ def test_fuzzed_files_never_change_the_controls_scores(files, control_scores, no
 # ----------------------------------------------------------------------------- absurd values
 
 def test_positions_beyond_one_image_size_outside_are_out_of_reach():
-    from sgc_jax.clip import within_reach
+    from sgc_jax.io.clip import within_reach
 
     H, W = 24, 32
     inside = np.array([[-W, -H], [2 * W, 2 * H], [0.5, 0.5], [-1.0, 30.0]])
@@ -501,7 +501,7 @@ def test_positions_beyond_one_image_size_outside_are_out_of_reach():
 
 
 def test_depth_a_million_times_off_the_median_is_invalid():
-    from sgc_jax.clip import DEPTH_RATIO_LIMIT, without_absurd_depth
+    from sgc_jax.io.clip import DEPTH_RATIO_LIMIT, without_absurd_depth
 
     depth = np.full((2, 4, 4), 5.0, np.float32)
     depth[0, 0, :3] = (1e30, 5.0 * DEPTH_RATIO_LIMIT * 1.01, 5.0 / DEPTH_RATIO_LIMIT / 1.01)

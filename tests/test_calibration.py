@@ -190,7 +190,7 @@ def test_kfold_is_reproducible_and_checks_k():
         kfold_stability(rows[:1], k=2)
 
 
-# The demo corpus (sgc_jax.synth.demo_corpus, `sgc-jax synth`): its per-clip components scored by
+# The demo corpus (sgc_jax.research.synth.demo_corpus, `sgc-jax synth`): its per-clip components scored by
 # the reference engine (compat="spec"), 4 significant digits; 8 clips in 5 groups.
 DEMO_ROWS = [
     ("drift-0.05", "drift", (0.7888, 3.495, 0.357, 4.24, 0.4656)),

@@ -9,7 +9,7 @@ from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
 from sgc_jax import save_clip, score_batch
 from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, main
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
 
@@ -129,7 +129,7 @@ def test_exit_codes_are_as_documented(scored, tmp_path):
 
 
 def test_an_unexpected_exception_is_an_internal_error_with_its_traceback(scored, monkeypatch, capsys):
-    from sgc_jax import reference
+    from sgc_jax.engines import reference
 
     def broken_engine(clip, config):
         raise RuntimeError("a bug in the engine")

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 import sgc_jax.api
-import sgc_jax.reference
+import sgc_jax.engines.reference
 from sgc_jax import COMPONENTS, Calibration, calibrate, save_clip, sgc_score
 from sgc_jax.calibration import kfold_stability
 from sgc_jax.cli import main
-from sgc_jax.compare import GROUP_COLUMNS
-from sgc_jax.result import read_scores
-from sgc_jax.synth import synth_clip
+from sgc_jax.io.result import read_scores
+from sgc_jax.research.compare import GROUP_COLUMNS
+from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
 GROUPS_CSV = Path(__file__).parent / "data" / "sgc-paper-2026-groups.csv"
@@ -91,7 +91,7 @@ def test_rescore_reads_components_and_never_runs_geometry(scores_csv, tmp_path, 
         raise AssertionError("geometry was re-run")
 
     monkeypatch.setattr(sgc_jax.api, "_engine", refuse)
-    monkeypatch.setattr(sgc_jax.reference, "score_pairs", refuse)
+    monkeypatch.setattr(sgc_jax.engines.reference, "score_pairs", refuse)
     assert main(["rescore", str(scores_csv), "--calibration", "sgc-spec-2026", "--out", str(tmp_path / "r.csv")]) == 0
     np.testing.assert_allclose(column(tmp_path / "r.csv", "sgc"), column(scores_csv, "sgc"), rtol=1e-12)
     assert main(["calibrate", str(scores_csv), "--folds", "0", "--rescored", str(tmp_path / "c.csv")]) == 0

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from sgc_jax import ClipFormatError, SGCConfig, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
-from sgc_jax.clip import clip_to_arrays, discover_clips
-from sgc_jax.synth import synth_clip
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import discover_clips
+from sgc_jax.research.synth import synth_clip
 
 
 def tiny_arrays(T=3, H=8, W=10, P=12, seed=0):

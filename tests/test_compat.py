@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from conftest import SCENE
 
-import sgc_jax.reference as reference
+import sgc_jax.engines.reference as reference
 from sgc_jax import score_batch
-from sgc_jax.clip import clip_from_arrays, clip_to_arrays
 from sgc_jax.config import SGCConfig
-from sgc_jax.synth import synth_clip
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import clip_from_arrays
+from sgc_jax.research.synth import synth_clip
 
 SPEC, AUTHORS = SGCConfig(), SGCConfig(compat="authors")
 HOLE = (slice(10, 40), slice(10, 50))  # 1200 static pixels without depth in frame 2 (> min_region_pixels)

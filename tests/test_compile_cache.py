@@ -1,4 +1,4 @@
-"""sgc_jax.compile_cache: the CLI's compiled programs persist between runs, per machine."""
+"""sgc_jax.engines.compile_cache: the CLI's compiled programs persist between runs, per machine."""
 
 import os
 import subprocess
@@ -6,8 +6,9 @@ import sys
 
 import pytest
 
-from sgc_jax import compile_cache, save_clip
-from sgc_jax.synth import synth_clip
+from sgc_jax import save_clip
+from sgc_jax.engines import compile_cache
+from sgc_jax.research.synth import synth_clip
 
 
 def test_cache_directory_follows_the_environment(monkeypatch, tmp_path):

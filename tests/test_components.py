@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sgc_jax import SGCConfig, reference
-from sgc_jax.components import (
+from sgc_jax import SGCConfig
+from sgc_jax.engines import reference
+from sgc_jax.kernels.components import (
     masked_mean,
     pair_pose_components,
     rotation_angle_deg_authors,

@@ -3,7 +3,7 @@
 import pytest
 
 from sgc_jax import score_batch
-from sgc_jax.synth import DEMO_CLAIMS, demo_claims, demo_corpus
+from sgc_jax.research.synth import DEMO_CLAIMS, demo_claims, demo_corpus
 
 
 @pytest.fixture(scope="module")

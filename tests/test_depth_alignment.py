@@ -18,8 +18,8 @@ from sgc_jax import load_clip, score_clip
 from sgc_jax.adapters import (DepthAlignmentWarning, EstimatorFormatError, VGGTDepth, fit_inverse_depth_affine,
                               import_clip, vggt_grid)
 from sgc_jax.adapters.depth_alignment import CONF_QUANTILE, MIN_FIT_PIXELS, vggt_depth_on_clip_grid
-from sgc_jax.synth import synth_clip
-from sgc_jax.validate import ClipWarning
+from sgc_jax.io.validate import ClipWarning
+from sgc_jax.research.synth import synth_clip
 
 # 8 frames, 96x128, 1024 tracks: the shape other tests (the demo corpus) already compile the JAX
 # engine for, so the scoring test costs no compile in CI.

@@ -1,4 +1,4 @@
-"""sgc_jax.diagnostics: per-pair quantities behind the diagnostic figures, checked against the
+"""sgc_jax.research.diagnostics: per-pair quantities behind the diagnostic figures, checked against the
 scored PairArrays and against known geometry (true poses of synthetic scenes)."""
 
 import dataclasses
@@ -6,9 +6,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, diagnostics, reference
-from sgc_jax.result import REGION_STATUS
-from sgc_jax.synth import relative_poses
+from sgc_jax import SGCConfig
+from sgc_jax.codes import REGION_STATUS
+from sgc_jax.engines import reference
+from sgc_jax.research import diagnostics
+from sgc_jax.research.synth import relative_poses
 
 PAIR = 2
 ACCEPTED = REGION_STATUS["ok"]
@@ -142,7 +144,7 @@ def test_a_label_map_that_does_not_match_the_result_warns(rigid_clip, rigid_pair
 
 
 def test_a_failed_clip_has_nothing_to_diagnose(rigid_clip):
-    from sgc_jax.result import failed_clip
+    from sgc_jax.io.result import failed_clip
 
     with pytest.raises(ValueError, match="no per-pair arrays"):
         diagnostics.pose_flow(rigid_clip, failed_clip("rigid", "broken"), PAIR)

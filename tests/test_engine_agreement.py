@@ -33,9 +33,10 @@ import cv2
 import numpy as np
 import pytest
 
-from sgc_jax import COMPONENTS, SGCConfig, reference, score_batch
-from sgc_jax.perturb import perturb_clip
-from sgc_jax.synth import synth_clip
+from sgc_jax import COMPONENTS, SGCConfig, score_batch
+from sgc_jax.engines import reference
+from sgc_jax.research.perturb import perturb_clip
+from sgc_jax.research.synth import synth_clip
 
 BASE = dict(n_layers=1, static_spheres=5, n_frames=4)
 SIZES = (dict(height=120, width=160, n_tracks=2048), dict(height=96, width=128, n_tracks=1024))

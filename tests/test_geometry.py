@@ -1,4 +1,4 @@
-"""sgc_jax.geometry: SO(3) exp/log, stable rotation angles, nearest rotation, pinhole projection.
+"""sgc_jax.kernels.geometry: SO(3) exp/log, stable rotation angles, nearest rotation, pinhole projection.
 
 float32 (the production path) throughout; float64 NumPy is the reference.
 """
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sgc_jax.geometry import (
+from sgc_jax.kernels.geometry import (
     back_project,
     nearest_rotation,
     project,

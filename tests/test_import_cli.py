@@ -10,8 +10,9 @@ import pytest
 from estimator_fixtures import vggt_intrinsics, write_all
 
 from sgc_jax import load_clip, load_clips
-from sgc_jax.clip import clip_from_arrays, clip_to_arrays, save_clip
-from sgc_jax.synth import synth_clip
+from sgc_jax.io.clip import clip_to_arrays, save_clip
+from sgc_jax.io.loading import clip_from_arrays
+from sgc_jax.research.synth import synth_clip
 
 _SCRIPT = Path(sys.executable).with_name("sgc-jax")
 CLI = [str(_SCRIPT)] if _SCRIPT.exists() else [shutil.which("sgc-jax") or "sgc-jax"]

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax.kmeans import cluster_counts, depth_regions, grid_regions, grid_shape, kmeans_1d
+from sgc_jax.kernels.kmeans import cluster_counts, depth_regions, grid_regions, grid_shape, kmeans_1d
 
 # The DP minimises the float32 within-cluster SSE; 1e-6 relative covers float32 round-off in
 # the costs on these small inputs (ties within that band may pick either partition).

@@ -16,7 +16,7 @@ build = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(build)
 NAMES = list(build.NOTEBOOKS)
 ISSUE_NAMES = ["01_quickstart", "02_sensitivity", "03_calibration", "04_diagnostics"]
-PRIVATE = ("sgc_jax._", "sgc_jax.engine", "sgc_jax.reference", "sgc_jax.kmeans", "sgc_jax.ransac", "sgc_jax.pnp",
+PRIVATE = ("sgc_jax._", "sgc_jax.engines", "sgc_jax.kernels",
            "plot._", "diagnostics._")
 
 

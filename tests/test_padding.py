@@ -5,17 +5,18 @@ import dataclasses
 
 import numpy as np
 
-from sgc_jax import COMPONENTS, SGCConfig, engine
+from sgc_jax import COMPONENTS, SGCConfig
+from sgc_jax.engines import jax_engine
 
 
 def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkeypatch, capsys):
     # Noisy clip with 30% outliers: RANSAC's sampling must not depend on the padded track count.
     config = SGCConfig()
-    natural = engine.bucket_for(noisy_clip)
-    larger = engine.Bucket(T=natural.T + 4, H=natural.H + 64, W=natural.W + 64, P=2 * natural.P)
-    [as_is] = engine.score_pairs_batch([noisy_clip], config)
-    monkeypatch.setattr(engine, "bucket_for", lambda clip: larger)
-    [padded] = engine.score_pairs_batch([noisy_clip], config)
+    natural = jax_engine.bucket_for(noisy_clip)
+    larger = jax_engine.Bucket(T=natural.T + 4, H=natural.H + 64, W=natural.W + 64, P=2 * natural.P)
+    [as_is] = jax_engine.score_pairs_batch([noisy_clip], config)
+    monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: larger)
+    [padded] = jax_engine.score_pairs_batch([noisy_clip], config)
     # a bucket no other test uses: its compile is announced on stderr, once, naming the bucket
     assert capsys.readouterr().err.count(f"compiling the JAX program for clips of up to {larger.T} frames, "
                                          f"{larger.H}x{larger.W} px, {larger.P} tracks per pair") == 1
@@ -35,19 +36,19 @@ def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_cl
     from sgc_jax import perturb_clip, score_batch
 
     config = SGCConfig()
-    engine.score_pairs_batch([rigid_clip], config)  # the program of this bucket, compiled here or earlier
-    held = engine.compile_count()
+    jax_engine.score_pairs_batch([rigid_clip], config)  # the program of this bucket, compiled here or earlier
+    held = jax_engine.compile_count()
     compiles = []
     listener = lambda event, duration, **kw: compiles.append(kw.get("fun_name")) if "backend_compile" in event else None  # noqa: E731
     monitoring.register_event_duration_secs_listener(listener)
     try:
         other = dataclasses.replace(drift_clip, clip_id="other")
-        assert engine.bucket_for(other) == engine.bucket_for(moving_clip) == engine.bucket_for(rigid_clip)
-        engine.score_pairs_batch([other, moving_clip], config)
+        assert jax_engine.bucket_for(other) == jax_engine.bucket_for(moving_clip) == jax_engine.bucket_for(rigid_clip)
+        jax_engine.score_pairs_batch([other, moving_clip], config)
         for changes in (dict(inlier_px=6.0, min_inlier_frac=0.4, confidence=0.95), dict(seed=7), dict(use_mos=False),
                         dict(min_track_conf=0.9, max_rot_std_deg=2.0, min_region_pixels=50, ambiguous_rot_deg=5.0)):
-            engine.score_pairs_batch([moving_clip], config.replace(**changes))
+            jax_engine.score_pairs_batch([moving_clip], config.replace(**changes))
         score_batch([perturb_clip(rigid_clip, kind, 0.5, seed=0) for kind in ("warp", "depth_warp")], progress=False)
     finally:
         monitoring.unregister_event_duration_listener(listener)
-    assert compiles == [] and engine.compile_count() == held
+    assert compiles == [] and jax_engine.compile_count() == held

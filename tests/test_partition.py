@@ -5,9 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, reference, score_clip
-from sgc_jax.kmeans import grid_regions
-from sgc_jax.partition import connected_components, spatial_regions
+from sgc_jax import SGCConfig, score_clip
+from sgc_jax.engines import reference
+from sgc_jax.kernels.kmeans import grid_regions
+from sgc_jax.kernels.partition import connected_components, spatial_regions
 
 CONFIG = SGCConfig(k_seg=3, min_region_pixels=4)
 
@@ -43,7 +44,7 @@ def test_depth_spatial_keeps_the_largest_k_components_above_the_size_floor():
 
 
 def test_jax_depth_spatial_matches_the_reference_on_the_hand_built_map():
-    from sgc_jax.kmeans import kmeans_1d
+    from sgc_jax.kernels.kmeans import kmeans_1d
     depth, mask = two_depth_map()
     for config in (CONFIG, CONFIG.replace(k_seg=2), CONFIG.replace(min_region_pixels=70)):
         cluster = kmeans_1d(depth.reshape(-1), mask.reshape(-1), k=config.k_seg, bins=config.kmeans_bins)
@@ -77,7 +78,7 @@ def test_both_engines_build_the_same_label_map_on_a_synthetic_frame(rigid_clip, 
     if partition == "grid":
         jx, n = grid_regions(mask, k=config.k_seg, min_region_pixels=config.min_region_pixels)
     else:
-        from sgc_jax.kmeans import kmeans_1d
+        from sgc_jax.kernels.kmeans import kmeans_1d
         cluster = kmeans_1d(depth.reshape(-1), mask.reshape(-1), k=config.k_seg, bins=config.kmeans_bins)
         jx, n = spatial_regions(cluster.reshape(depth.shape), k=config.k_seg,
                                 min_region_pixels=config.min_region_pixels)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sgc_jax import load_clip, save_clip
-from sgc_jax.perturb import (
+from sgc_jax.research.perturb import (
     MASK_CORRUPTIONS,
     PERTURBATIONS,
     WARP_AMPLITUDE_FRAC,
@@ -20,7 +20,7 @@ from sgc_jax.perturb import (
     squeeze,
     time_ramp,
 )
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 KINDS = PERTURBATIONS + MASK_CORRUPTIONS
 ARRAYS = ("depth", "K", "R_wc", "t_wc", "static_mask", "track_prev", "track_curr", "track_vis", "track_conf",

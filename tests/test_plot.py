@@ -1,4 +1,4 @@
-"""sgc_jax.plot: every helper returns a Figure that saves as PNG, with labelled axes (units),
+"""sgc_jax.research.plot: every helper returns a Figure that saves as PNG, with labelled axes (units),
 legends or colour bars, and draws the numbers it is given."""
 
 import subprocess
@@ -16,9 +16,10 @@ from matplotlib.collections import PathCollection  # noqa: E402
 from matplotlib.quiver import Quiver  # noqa: E402
 
 import sgc_jax  # noqa: E402
-from sgc_jax import COMPONENTS, diagnostics, plot  # noqa: E402
-from sgc_jax.perturb import TARGET_COMPONENT  # noqa: E402
-from sgc_jax.synth import synth_clip  # noqa: E402
+from sgc_jax import COMPONENTS  # noqa: E402
+from sgc_jax.research import diagnostics, plot  # noqa: E402
+from sgc_jax.research.perturb import TARGET_COMPONENT  # noqa: E402
+from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 PAIR = 2
 

@@ -1,4 +1,4 @@
-"""sgc_jax.pnp and sgc_jax.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
+"""sgc_jax.kernels.pnp and sgc_jax.kernels.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
 
 Compiled functions are built once at module level and shared across tests (few compiles).
 """
@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax.geometry import rotation_angle_deg, so3_exp, so3_log
-from sgc_jax.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals, solve_pnp,
-                         solve_pnp_regions)
-from sgc_jax.ransac import (STATUS_OK, STATUS_REJECTED, STATUS_TOO_FEW_POINTS, borrow_region_poses, group_by_region,
-                            ransac_pnp)
+from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp, so3_log
+from sgc_jax.kernels.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals,
+                                 solve_pnp, solve_pnp_regions)
+from sgc_jax.kernels.ransac import borrow_region_poses, group_by_region, ransac_pnp
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
@@ -208,7 +208,7 @@ def run_regions(X, uv, member, seed=0):
 def test_ransac_is_accurate_with_noise_and_outliers(seed):
     X, uv, member, R, _ = scene_with_regions(seed, sizes=[64, 64, 64])
     res, _ = run_regions(X, uv, member, seed)
-    assert np.all(np.asarray(res.status) == STATUS_OK)
+    assert np.all(np.asarray(res.status) == REGION_OK)
     rot_err = rotation_error_deg(res.R, np.broadcast_to(R, (3, 3, 3)))
     assert rot_err.max() < NOISY_ROT_DEG, rot_err
     # ~70% of the members are inliers; no outlier survives far from the truth.
@@ -220,7 +220,7 @@ def test_ransac_is_accurate_with_noise_and_outliers(seed):
 def test_status_codes():
     X, uv, member, _, _ = scene_with_regions(3, sizes=[3, 60, 60], outlier_region=1)
     res, _ = run_regions(X, uv, member)
-    np.testing.assert_array_equal(np.asarray(res.status), [STATUS_TOO_FEW_POINTS, STATUS_REJECTED, STATUS_OK])
+    np.testing.assert_array_equal(np.asarray(res.status), [REGION_TOO_FEW_POINTS, REGION_REJECTED, REGION_OK])
     np.testing.assert_array_equal(np.asarray(res.n_members), [3, 60, 60])
     inliers = np.asarray(res.inliers)
     assert not np.any(inliers & ~member)  # inliers are always members
@@ -239,7 +239,7 @@ def test_padding_does_not_change_the_result():
     member_pad[slots] = True
     small = ransac_one(*f32(X, uv), jnp.asarray(member), jnp.asarray(K, jnp.float32), key)
     padded = ransac_one(*f32(X_pad, uv_pad), jnp.asarray(member_pad), jnp.asarray(K, jnp.float32), key)
-    assert int(small.status) == int(padded.status) == STATUS_OK
+    assert int(small.status) == int(padded.status) == REGION_OK
     assert int(small.n_inliers) == int(padded.n_inliers)
     np.testing.assert_array_equal(np.asarray(padded.inliers)[slots], np.asarray(small.inliers))
     assert not np.any(np.asarray(padded.inliers)[~member_pad])

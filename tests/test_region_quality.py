@@ -14,15 +14,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, reference, score_batch
-from sgc_jax.geometry import rotation_angle_deg, so3_exp
-from sgc_jax.pnp import solve_pnp
-from sgc_jax.ransac import STATUS_OK, ransac_pnp
-from sgc_jax.result import PAIR_COLUMNS, REGION_STATUS
-from sgc_jax.synth import synth_clip
-from sgc_jax.geometry import so3_log
-from sgc_jax.uncertainty import (STATUS_AMBIGUOUS, STATUS_ILL_CONDITIONED, PoseUncertainty, leverage,
-                                 predicted_residual_chi2, region_quality, rot_std_limit_deg)
+from sgc_jax import SGCConfig, score_batch
+from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
+from sgc_jax.engines import reference
+from sgc_jax.io.result import PAIR_COLUMNS
+from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.kernels.geometry import so3_log
+from sgc_jax.kernels.pnp import solve_pnp
+from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.kernels.uncertainty import (PoseUncertainty, leverage, predicted_residual_chi2, region_quality,
+                                         rot_std_limit_deg)
+from sgc_jax.research.synth import synth_clip
 
 RULE = dict(min_region_points=10, max_rot_std_deg=1.0, max_rot_std_px=4.0, min_region_extent=0.02,
             quality_noise_px=1.0)
@@ -66,7 +68,7 @@ def wide_region():
 
 def test_well_conditioned_uncertainty_is_small_and_matches_the_noise_spread(wide_region):
     _, _, res, errors = wide_region
-    assert np.all(res.status == STATUS_OK)
+    assert np.all(res.status == REGION_OK)
     predicted = np.median(np.asarray(res.uncertainty.rot_std_deg))
     measured = np.sqrt(np.mean(errors**2))  # RMS rotation error over the draws, what rot_std predicts
     assert predicted < 0.1
@@ -148,9 +150,9 @@ def test_region_quality_statuses():
     n_inliers = jnp.array([100, 5, 100, 100, 100, 100, 100, 100])
     ambiguous = jnp.array([False, False, False, False, True, True, False, True])
     out = region_quality(status, n_inliers, unc, ambiguous, 500.0, 400.0, **RULE)
-    I, A = STATUS_ILL_CONDITIONED, STATUS_AMBIGUOUS
+    I, A = REGION_ILL_CONDITIONED, REGION_AMBIGUOUS
     assert out.tolist() == [0, I, I, I, A, 2, 0, 0]
-    assert (I, A) == (REGION_STATUS["ill_conditioned"], REGION_STATUS["ambiguous"])
+    assert (I, A) == (4, 5)  # the codes of docs/semantics.md §3.7
 
 
 def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
@@ -160,7 +162,7 @@ def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
     unc = PoseUncertainty(rot_std_deg=jnp.array([0.8, 1.5, 3.0]), trans_std=jnp.zeros(3),
                           extent_px=jnp.full(3, 50.0), sigma_px=jnp.ones(3))
     args = (jnp.zeros(3, jnp.int32), jnp.full(3, 100), unc, jnp.zeros(3, bool), 500.0)
-    I = STATUS_ILL_CONDITIONED
+    I = REGION_ILL_CONDITIONED
     assert region_quality(*args, 400.0, **RULE).tolist() == [0, I, I]
     assert region_quality(*args, 100.0, **RULE).tolist() == [0, 0, I]
 

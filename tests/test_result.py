@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import sgc_jax.api
-import sgc_jax.reference
+import sgc_jax.engines.reference
 from sgc_jax import (CLIP_COLUMNS, COMPONENTS, PAIR_COLUMNS, BatchResult, Calibration, ClipResult, calibrate, score_batch,
                      sgc_score)
-from sgc_jax.result import camera_dynamics, read_scores, rescore_records, write_scores
-from sgc_jax.synth import synth_clip
+from sgc_jax.io.result import camera_dynamics, read_scores, rescore_records, write_scores
+from sgc_jax.research.synth import synth_clip
 
 TINY = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
 
@@ -37,7 +37,7 @@ def forbid_geometry(monkeypatch):
         raise AssertionError("geometry was re-run")
 
     monkeypatch.setattr(sgc_jax.api, "_engine", refuse)
-    monkeypatch.setattr(sgc_jax.reference, "score_pairs", refuse)
+    monkeypatch.setattr(sgc_jax.engines.reference, "score_pairs", refuse)
 
 
 def test_ecd_is_the_larger_of_the_min_max_normalised_inputs():

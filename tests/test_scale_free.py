@@ -12,7 +12,7 @@ from conftest import SCENE
 
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 ENGINES = ("jax", "reference")
 SCALES = (0.01, 0.1, 10.0, 100.0)

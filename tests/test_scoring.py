@@ -13,7 +13,7 @@ import pytest
 
 from conftest import SCENE
 from sgc_jax import COMPONENTS, SGCConfig, score_batch, score_clip
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.synth import synth_clip
 
 ENGINES = ("reference", "jax")
 

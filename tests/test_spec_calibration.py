@@ -8,9 +8,9 @@ import pytest
 
 from sgc_jax import Calibration, CalibrationMismatchError, default_calibration, rescore_records, score_batch
 from sgc_jax.calibration import COMPONENTS, calibrate
-from sgc_jax.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.spec_calibration import CLEAN_QUANTILE, corpus_description, fit_spec_calibration
-from sgc_jax.synth import synth_clip
+from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+from sgc_jax.research.spec_calibration import CLEAN_QUANTILE, corpus_description, fit_spec_calibration
+from sgc_jax.research.synth import synth_clip
 
 # The demo's clip size (96x128, 8 frames, 1024 tracks): its bucket is compiled by the CLI tests too.
 DEMO_SCENE = dict(n_layers=3, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)

@@ -10,13 +10,14 @@ import sys
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, reference, save_clip
-from sgc_jax.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_clip
-from sgc_jax.result import CLIP_COLUMNS
-from sgc_jax import study as study_module
-from sgc_jax.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study
-from sgc_jax.synth import synth_clip
-from sgc_jax.units import in_depth_units
+from sgc_jax import SGCConfig, save_clip
+from sgc_jax.engines import reference
+from sgc_jax.engines.units import in_depth_units
+from sgc_jax.io.result import CLIP_COLUMNS
+from sgc_jax.research import study as study_module
+from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_clip
+from sgc_jax.research.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study
+from sgc_jax.research.synth import synth_clip
 
 # Four rigid base scenes like conftest.SCENE (two planar layers and four static spheres: curved
 # regions, so PnP is well posed), smaller so that the 4 + 4 x 3 x 4 = 52 clips of the study are
@@ -129,7 +130,7 @@ def test_summary_correlations_and_tables(ladder, tmp_path):
 def test_plot_sensitivity_labels_every_panel(ladder):
     import matplotlib.pyplot as plt
 
-    from sgc_jax.plot import plot_sensitivity
+    from sgc_jax.research.plot import plot_sensitivity
 
     fig = plot_sensitivity(ladder, references={"Cosmos": 0.0722})
     axes = fig.get_axes()
@@ -225,11 +226,11 @@ def test_perturb_command_writes_rows_summary_and_plot(tmp_path):
 
 def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
     from sgc_jax import cli
-    from sgc_jax.plot import _pyplot
+    from sgc_jax.research.plot import import_pyplot
 
     monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)  # import fails as if not installed
     with pytest.raises(ImportError, match=r"sgc-jax\[viz\]"):
-        _pyplot()
+        import_pyplot()
     # the command refuses before scoring anything, naming the option and the fix
     assert cli.main(["perturb", str(tmp_path / "none.npz"), "--plot", str(tmp_path / "p.png")]) == 2
     err = capsys.readouterr().err

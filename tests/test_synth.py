@@ -1,4 +1,4 @@
-"""sgc_jax.synth: synthetic scenes with exact geometry (SPEC §6)."""
+"""sgc_jax.research.synth: synthetic scenes with exact geometry (SPEC §6)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sgc_jax.clip import clip_from_arrays, clip_to_arrays, load_clip
-from sgc_jax.synth import SceneSpec, demo_corpus, relative_poses, synth_clip, write_demo_corpus
+from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.loading import clip_from_arrays, load_clip
+from sgc_jax.research.synth import SceneSpec, demo_corpus, relative_poses, synth_clip, write_demo_corpus
 
 # float32 track storage rounds positions to ~1e-5 px at these image sizes; the SPEC check is 1e-3.
 REPROJ_TOL_PX = 1e-3

@@ -6,9 +6,9 @@ import jax
 import numpy as np
 import pytest
 
-from sgc_jax import reference
-from sgc_jax.geometry import so3_exp
-from sgc_jax.warp import depth_error, warp_depth
+from sgc_jax.engines import reference
+from sgc_jax.kernels.geometry import so3_exp
+from sgc_jax.kernels.warp import depth_error, warp_depth
 
 H, W = 24, 32
 K = np.array([[30.0, 0.0, 15.5], [0.0, 30.0, 11.5], [0.0, 0.0, 1.0]], np.float32)

@@ -13,15 +13,16 @@ from typing import Any
 
 import numpy as np
 
-from ..clip import Clip, clip_from_arrays
 from ..config import SGCConfig
+from ..io.clip import Clip
+from ..io.loading import clip_from_arrays
 from .common import parse_size, resize_frames, resize_points
 from .delta import DELTA_VIS_THRESHOLD, read_delta
 from .depth_alignment import align_depth_to_vggt
 from .frames import read_frames
 from .seganymo import read_mask_hw, read_seganymo
-from .video_depth_anything import read_depth_hw, read_video_depth
 from .vggt import read_vggt
+from .video_depth_anything import read_depth_hw, read_video_depth
 
 
 def _label(source: Any) -> str:

@@ -4,7 +4,7 @@ matplotlib (the ``viz`` extra).
 Sensitivity studies (paper Figures 6 and 8): :func:`plot_sensitivity`, :func:`plot_component_response`.
 Corpora (Figures 7 and 8a): :func:`plot_group_violins`, :func:`plot_component_correlation`,
 :func:`plot_calibration_weights`. One clip: :func:`plot_pair_components`, :func:`plot_region_map`.
-One pair (Figure 4 and the depth check, via :mod:`sgc_jax.diagnostics`): :func:`plot_pose_arrows`,
+One pair (Figure 4 and the depth check, via :mod:`sgc_jax.research.diagnostics`): :func:`plot_pose_arrows`,
 :func:`plot_depth_warp_error`, :func:`plot_region_reprojection`.
 """
 
@@ -14,22 +14,25 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS
+from ..calibration import COMPONENTS
+from ..codes import REGION_STATUS_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from .calibration import Calibration, KFoldStability
-    from .clip import Clip
-    from .config import SGCConfig
-    from .result import BatchResult, ClipResult
+    from ..calibration import Calibration, KFoldStability
+    from ..config import SGCConfig
+    from ..io.clip import Clip
+    from ..io.result import BatchResult, ClipResult
     from .study import StudyResult
 
 _UNITS = {"local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth units²",
           "global_trans_var": "pose units²", "depth_error": "depth units"}
 
 
-def _pyplot():
+def import_pyplot():
+    """``matplotlib.pyplot``; without matplotlib, an ImportError naming the ``viz`` extra (the CLI calls
+    it to refuse ``--plot`` before any work)."""
     try:
         import matplotlib.pyplot as plt
     except ImportError as exc:
@@ -40,7 +43,7 @@ def _pyplot():
 def plot_sensitivity(study: "StudyResult", *, references: Mapping[str, float] | None = None) -> "Figure":
     """SGC vs severity per kind (mean over base clips, band = ±1 std), and each component's mean
     response; ``references`` adds labelled dashed horizontal SGC lines (e.g. a model's score)."""
-    plt = _pyplot()
+    plt = import_pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), constrained_layout=True)
     panels = ("sgc", *COMPONENTS)
     severities = np.asarray(study.severities)
@@ -78,7 +81,7 @@ _LOCAL_COLOUR, _GLOBAL_COLOUR = "tab:blue", "tab:red"
 
 
 def _clip_results(results: "ClipResult | BatchResult | Sequence[ClipResult]") -> list["ClipResult"]:
-    from .result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
+    from ..io.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
 
     if isinstance(results, ClipResult):
         return [results]
@@ -98,7 +101,7 @@ def plot_pair_components(results: "ClipResult | BatchResult | Sequence[ClipResul
     ``log``: symmetric-log y axes (linear below 1e-2), so near-zero rigid clips and
     100 deg² spikes share a panel. Pairs without a value (reason other than ``ok``) leave gaps.
     """
-    plt = _pyplot()
+    plt = import_pyplot()
     clips = _clip_results(results)
     if not clips:
         raise ValueError("no clip with per-pair arrays to plot (did every clip fail?)")
@@ -152,7 +155,7 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
     from . import diagnostics  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     tracks = diagnostics.region_tracks(clip, pair, config)
     labels = tracks.labels
     n = int(labels.max())
@@ -172,7 +175,7 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
         d = depth[labels == j]
         text = f"{j}: depth {np.nanmin(d):.3g}–{np.nanmax(d):.3g}"
         if pairs is not None:
-            status = diagnostics.REGION_STATUS_NAMES[int(pairs.region_status[pair - 1, j - 1])]
+            status = REGION_STATUS_NAMES[int(pairs.region_status[pair - 1, j - 1])]
             text += f", {int(pairs.region_points[pair - 1, j - 1])} pts, {status}"
         handles.append(Patch(color=colours[j - 1], alpha=0.8, label=text))
     handles.append(Patch(color="black", alpha=0.55, label="no region (dynamic, invalid or small)"))
@@ -203,7 +206,7 @@ def plot_pose_arrows(clip: "Clip", scored: "ClipResult", pair: int, *, config: "
     from . import diagnostics  # noqa: PLC0415
     from matplotlib.lines import Line2D  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     flow = diagnostics.pose_flow(clip, scored, pair, config)
     H, W = flow.labels.shape
     fig, ax = plt.subplots(figsize=(8, 8 * H / W + 0.8), constrained_layout=True)
@@ -262,7 +265,7 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
     from matplotlib.colors import LogNorm, Normalize  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     result = diagnostics.depth_warp_error(clip, pair, config, scale=scale)
     depth = np.where(np.isfinite(clip.depth[pair]) & (clip.depth[pair] > 0), clip.depth[pair], np.nan)
     warped = np.where(result.warped > 0, result.warped, np.nan)
@@ -298,7 +301,7 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
     from matplotlib.lines import Line2D  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     reproj = diagnostics.region_reprojection(clip, scored, pair, config)
     regions = [j for j, g in enumerate(reproj.global_px) if len(g)]
     if not regions:
@@ -316,7 +319,7 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
     ax.set_yscale("log")
     ax.axhline(reproj.inlier_px, color="black", ls="--", lw=1)
     ax.set_xticks(positions)
-    ax.set_xticklabels([f"{j + 1}\n{len(reproj.global_px[j])} pts\n{diagnostics.REGION_STATUS_NAMES[int(reproj.status[j])]}"
+    ax.set_xticklabels([f"{j + 1}\n{len(reproj.global_px[j])} pts\n{REGION_STATUS_NAMES[int(reproj.status[j])]}"
                         for j in regions], fontsize="small")
     ax.set_xlabel("region (depth layer, nearest first)")
     ax.set_ylabel("reprojection error [px]")
@@ -336,10 +339,10 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
 def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | None = None) -> "Figure":
     """Each perturbation kind's targeted component vs severity (paper Figure 8b): mean over base
     clips, band = ±1 std, the clean mean as a dashed line. ``targets`` maps kind -> component
-    (default :data:`sgc_jax.perturb.TARGET_COMPONENT`, else ``sgc``)."""
+    (default :data:`sgc_jax.research.perturb.TARGET_COMPONENT`, else ``sgc``)."""
     from .perturb import TARGET_COMPONENT  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     targets = dict(targets or {})
     kinds = list(study.kinds)
     fig, axes = plt.subplots(1, len(kinds), figsize=(4.4 * len(kinds), 3.8), constrained_layout=True, squeeze=False)
@@ -369,7 +372,7 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
 
 def _rows(rows: Any) -> list[dict[str, Any]]:
     """Per-clip dicts from a BatchResult, a DataFrame or a sequence of dicts."""
-    from .result import BatchResult  # noqa: PLC0415
+    from ..io.result import BatchResult  # noqa: PLC0415
 
     if isinstance(rows, BatchResult):
         return rows.to_records()
@@ -385,9 +388,9 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ``rows``: a BatchResult, per-clip records or a DataFrame with ``group``, ``column``,
     ``ecd_trans`` and ``ecd_rot``; failed clips and NaN values are left out.
     """
-    from .result import add_ecd  # noqa: PLC0415
+    from ..io.result import add_ecd  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     records = [r for r in add_ecd(_rows(rows)) if r.get("status", "ok") != "error" and np.isfinite(float(r[column]))]
     if not records:
         raise ValueError(f"no clip with a finite {column!r} to plot")
@@ -425,9 +428,9 @@ def plot_calibration_weights(calibrations: Mapping[str, "Calibration | str"],
                              stability: "KFoldStability | None" = None) -> "Figure":
     """PC1 weights of several calibrations side by side (e.g. the paper's and a fitted one);
     ``stability`` adds the k-fold mean weight with ±1 std error bars (paper appendix C.1)."""
-    from .calibration import Calibration  # noqa: PLC0415
+    from ..calibration import Calibration  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     series = {name: Calibration.load(c).weight for name, c in calibrations.items()}
     if stability is not None:
         series[f"{stability.k}-fold mean ± std"] = stability.weight_mean
@@ -454,10 +457,10 @@ def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
     """Pearson correlation matrix of the five components over the scored clips (paper Figure 8a);
     ``log1p``: of the values the score uses (log1p of the variances, docs/semantics.md §5.1), so one outlier
     clip does not decide every entry."""
-    from .calibration import LOG1P_COMPONENTS  # noqa: PLC0415
-    from .stats import pearson  # noqa: PLC0415
+    from ..calibration import LOG1P_COMPONENTS  # noqa: PLC0415
+    from ..stats import pearson  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = import_pyplot()
     records = [r for r in _rows(rows) if r.get("status", "ok") != "error"]
     columns = {c: np.array([float(r[c]) for r in records]) for c in COMPONENTS}
     if log1p:

@@ -17,20 +17,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from .geometry import rotation_angle_deg, so3_exp
 from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
                   solve_pnp, solve_pnp_regions)
 from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
-STATUS_OK = 0
-STATUS_TOO_FEW_POINTS = 1  # members < min_points
-STATUS_REJECTED = 2  # too few inliers, non-finite, or not a proper rotation
-
-
 class PnPResult(NamedTuple):
     """Pose (R, t) mapping camera i-1 coordinates to camera i (x_i = R x_{i-1} + t) and diagnostics.
 
-    status: int32 (0 ok, 1 too few points, 2 rejected); n_members, n_inliers: int32;
+    status: int32 region status (``codes``: REGION_OK, REGION_TOO_FEW_POINTS, REGION_REJECTED); n_members, n_inliers: int32;
     inliers (N,) bool for the final pose; reproj_px: mean reprojection error [px] of the final
     pose over all region members. From ``ransac_pnp_regions`` every field but ``inliers`` has a
     leading region axis (k,), and ``inliers`` (N,) marks each point an inlier of its own region.
@@ -488,8 +484,8 @@ def ransac_pnp_regions(
     good = (n_inliers >= need) & jnp.all(jnp.isfinite(poses), axis=-1) & proper & jnp.isfinite(reproj_px)
     status = jnp.where(
         n_members < min_points,
-        STATUS_TOO_FEW_POINTS,
-        jnp.where(good, STATUS_OK, STATUS_REJECTED),
+        REGION_TOO_FEW_POINTS,
+        jnp.where(good, REGION_OK, REGION_REJECTED),
     ).astype(jnp.int32)
     uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers)
     return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px, ambiguous, uncertainty)

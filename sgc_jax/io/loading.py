@@ -1,8 +1,9 @@
-"""The clip schema (docs/semantics.md §1): load, validate, sub-sample, save; single-clip and batch files.
+"""Reading clips (docs/semantics.md §1): arrays -> a validated :class:`~sgc_jax.io.clip.Clip`,
+single-clip and batch files, clip sources (paths, directories, globs, mappings), and the reports of
+``sgc-jax validate``.
 
-Pixel grid: x = column, y = row, pixel centres at integer coordinates. Poses are world->camera
-(OpenCV): x_cam = R_wc @ X_world + t_wc. Pair i (i = 1..T-1) goes from frame i-1 to frame i and
-its tracks live at index i-1 of the (T-1, P) track arrays.
+Structural problems (missing arrays, shapes, dtypes, non-finite cameras) are checked here and raise
+:class:`~sgc_jax.io.clip.ClipFormatError`; the content checks are :mod:`sgc_jax.io.validate`'s.
 """
 
 from __future__ import annotations
@@ -16,96 +17,10 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from .config import SGCConfig
+from ..config import SGCConfig
+from .clip import Clip, ClipFormatError
 from .npz import NpzError, npz_headers, read_npz, shape_text
-
-# Values beyond these are not measurements and count as invalid points (docs/semantics.md §1.2):
-# a track position more than TRACK_REACH image sizes outside the image, a depth more than
-# DEPTH_RATIO_LIMIT times larger or smaller than the clip's median depth. They would otherwise
-# overflow float32 arithmetic in one engine and not in the other.
-TRACK_REACH = 1.0
-DEPTH_RATIO_LIMIT = 1e6
-
-
-class ClipFormatError(ValueError):
-    """A structural problem with a clip: missing array, wrong rank or shape, non-finite camera."""
-
-    def __init__(self, clip_id: str, array: str, expected: str, found: str, detail: str = ""):
-        self.clip_id, self.array, self.expected, self.found, self.detail = clip_id, array, expected, found, detail
-        message = f"clip {clip_id!r}: array {array!r}: expected {expected}, found {found}"
-        super().__init__(message + (f" ({detail})" if detail else ""))
-
-
-@dataclasses.dataclass
-class Clip:
-    """One validated clip; arrays are NumPy, shapes use T frames, H x W pixels, P tracks."""
-
-    clip_id: str
-    depth: np.ndarray  # (T, H, W) float32; <= 0 or non-finite = invalid
-    K: np.ndarray  # (T, 3, 3) float64 pinhole intrinsics
-    R_wc: np.ndarray  # (T, 3, 3) float64 world -> camera rotation
-    t_wc: np.ndarray  # (T, 3) float64 world -> camera translation
-    static_mask: np.ndarray  # (T, H, W) bool, true on static background
-    track_prev: np.ndarray  # (T-1, P, 2) float32 positions in frame i-1
-    track_curr: np.ndarray  # (T-1, P, 2) float32 positions in frame i
-    track_vis: np.ndarray  # (T-1, P) bool, visible in frame i
-    track_conf: np.ndarray  # (T-1, P) float32 tracker confidence in frame i
-    mask_source: str = "static_mask"  # "static_mask" | "dynamic_mask" | "none" (whole frame static)
-    frames: np.ndarray | None = None  # (T, H, W, 3) uint8, plots only
-    meta: dict = dataclasses.field(default_factory=dict)
-
-    def __repr__(self) -> str:  # the arrays would flood a notebook cell
-        H, W = self.image_size
-        group = f", group {self.group!r}" if self.group else ""
-        return (f"Clip({self.clip_id!r}{group}: {self.n_frames} frames, {H}x{W}, {self.n_tracks} tracks per pair, "
-                f"masks from {self.mask_source}{', with frames' if self.frames is not None else ''})")
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.depth.shape[0])
-
-    @property
-    def n_pairs(self) -> int:
-        return self.n_frames - 1
-
-    @property
-    def n_tracks(self) -> int:
-        return int(self.track_prev.shape[1])
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        """(H, W) in pixels."""
-        return int(self.depth.shape[1]), int(self.depth.shape[2])
-
-    @property
-    def group(self) -> str:
-        return str(self.meta.get("group", ""))
-
-    def usable_tracks(self, min_track_conf: float) -> np.ndarray:
-        """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2)."""
-        H, W = self.image_size
-        return (self.track_vis & (self.track_conf >= min_track_conf)
-                & within_reach(self.track_prev, H, W) & within_reach(self.track_curr, H, W))
-
-
-def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:
-    """(...,) bool for positions (..., 2) in pixels: finite and at most TRACK_REACH image sizes
-    outside the H x W image. Per coordinate, not reduced over the last axis (that is slow)."""
-    x, y = track[..., 0], track[..., 1]
-    return ((x >= -TRACK_REACH * W) & (x <= (1 + TRACK_REACH) * W)
-            & (y >= -TRACK_REACH * H) & (y <= (1 + TRACK_REACH) * H))  # NaN compares false
-
-
-def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
-    """``depth`` with NaN where it is ≤ 0, non-finite or beyond DEPTH_RATIO_LIMIT of the median of
-    its positive finite values (docs/semantics.md §1.2); the same array when nothing is absurd."""
-    positive = np.isfinite(depth) & (depth > 0)
-    if not positive.any():
-        return depth
-    median = float(np.median(depth[positive].astype(np.float64)))
-    absurd = positive & ((depth > median * DEPTH_RATIO_LIMIT) | (depth < median / DEPTH_RATIO_LIMIT))
-    return np.where(absurd, np.float32(np.nan), depth).astype(depth.dtype) if absurd.any() else depth
-
+from .validate import Problem, check_clip, enforce
 
 # ----------------------------------------------------------------------------- validation
 
@@ -244,7 +159,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
 
     Raises :class:`ClipFormatError` for structural problems (docs/semantics.md §1.4). ``validate``:
-    also run the content checks of :mod:`sgc_jax.validate` (K against the grid, rotations, tracks
+    also run the content checks of :mod:`sgc_jax.io.validate` (K against the grid, rotations, tracks
     on the grid, depth vs disparity): errors raise ``ClipValidationError``, warnings are issued as
     ``ClipWarning``. Tracks beyond ``config.max_tracks`` are sub-sampled deterministically (see
     :func:`subsample_tracks`).
@@ -344,8 +259,6 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
             meta=meta,
         )
     if validate:
-        from .validate import enforce  # the checks use Clip; imported here to keep the modules acyclic
-
         enforce(clip, config, arrays)
     return subsample_tracks(clip, config)
 
@@ -376,79 +289,6 @@ def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
         track_vis=take1(clip.track_vis),
         track_conf=take1(clip.track_conf),
     )
-
-
-# ----------------------------------------------------------------------------- files
-
-
-def clip_to_arrays(clip: Clip) -> dict[str, np.ndarray]:
-    """The clip arrays (docs/semantics.md §1.2) of a clip (inverse of :func:`clip_from_arrays`)."""
-    arrays = dict(
-        depth=clip.depth, K=clip.K, R_wc=clip.R_wc, t_wc=clip.t_wc,
-        track_prev=clip.track_prev, track_curr=clip.track_curr,
-        track_vis=clip.track_vis, track_conf=clip.track_conf,
-        meta=np.asarray(json.dumps({**clip.meta, "clip_id": clip.clip_id})),
-    )
-    if clip.mask_source != "none":
-        arrays["static_mask"] = clip.static_mask
-    if clip.frames is not None:
-        arrays["frames"] = clip.frames
-    return arrays
-
-
-def save_clip(path: str | os.PathLike, clip: Clip) -> Path:
-    """Write one clip as a compressed ``.npz``; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **clip_to_arrays(clip))
-    return path
-
-
-def _pad_to(array: np.ndarray, shape: tuple[int, ...], fill: Any = 0) -> np.ndarray:
-    out = np.full(shape, fill, dtype=array.dtype)
-    out[tuple(slice(0, s) for s in array.shape)] = array
-    return out
-
-
-def save_batch(path: str | os.PathLike, clips: list[Clip]) -> Path:
-    """Stack clips into one batch file padded to common (T, H, W, P) (docs/semantics.md §1.3)."""
-    if not clips:
-        raise ValueError("save_batch needs at least one clip")
-    T = max(c.n_frames for c in clips)
-    H = max(c.image_size[0] for c in clips)
-    W = max(c.image_size[1] for c in clips)
-    P = max(c.n_tracks for c in clips)
-    eye = np.broadcast_to(np.eye(3), (T, 3, 3))
-
-    def pad_frames(a: np.ndarray, tail: np.ndarray) -> np.ndarray:
-        return np.concatenate([a, np.broadcast_to(tail, (T - len(a),) + a.shape[1:])])
-
-    stacked: dict[str, list] = {k: [] for k in (
-        "depth", "K", "R_wc", "t_wc", "static_mask", "track_prev", "track_curr", "track_vis", "track_conf")}
-    for c in clips:
-        stacked["depth"].append(_pad_to(c.depth, (T, H, W)))
-        stacked["K"].append(pad_frames(c.K, c.K[-1]))
-        stacked["R_wc"].append(pad_frames(c.R_wc, eye[0]))
-        stacked["t_wc"].append(pad_frames(c.t_wc, np.zeros(3)))
-        stacked["static_mask"].append(_pad_to(c.static_mask, (T, H, W), False))
-        stacked["track_prev"].append(_pad_to(c.track_prev, (T - 1, P, 2)))
-        stacked["track_curr"].append(_pad_to(c.track_curr, (T - 1, P, 2)))
-        stacked["track_vis"].append(_pad_to(c.track_vis, (T - 1, P), False))
-        stacked["track_conf"].append(_pad_to(c.track_conf, (T - 1, P)))
-    arrays = {k: np.stack(v) for k, v in stacked.items()}
-    arrays.update(
-        n_frames=np.array([c.n_frames for c in clips]),
-        n_tracks=np.array([c.n_tracks for c in clips]),
-        heights=np.array([c.image_size[0] for c in clips]),
-        widths=np.array([c.image_size[1] for c in clips]),
-        clip_id=np.array([c.clip_id for c in clips]),
-        mask_source=np.array([c.mask_source for c in clips]),
-        meta=np.array([json.dumps({**c.meta, "clip_id": c.clip_id}) for c in clips]),
-    )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **arrays)
-    return path
 
 
 def is_batch(arrays: Mapping[str, Any]) -> bool:
@@ -627,7 +467,7 @@ def _failing(exc: ClipFormatError) -> Callable[[], Any]:
 
 
 def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False) -> dict[str, Any]:
-    """:func:`sgc_jax.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
+    """:func:`sgc_jax.io.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
     try:
         return npz_headers(path) if headers else read_npz(path, names)
     except NpzError as exc:
@@ -752,3 +592,54 @@ def load_clip(source: Any, config: SGCConfig | None = None) -> Clip:
     if len(entries) != 1:
         raise ValueError(f"expected one clip, {source!r} holds {len(entries)}")
     return entries[0].load()
+
+
+# ----------------------------------------------------------------------------- sgc-jax validate
+
+
+@dataclasses.dataclass
+class Report:
+    """The findings for one clip of a source."""
+
+    origin: str
+    clip_id: str
+    problems: list[Problem]
+
+    @property
+    def ok(self) -> bool:
+        return not any(p.severity == "error" for p in self.problems)
+
+    def lines(self, *, show_info: bool = False) -> list[str]:
+        return [f"{self.origin}: {p.line()}" for p in self.problems if show_info or p.severity != "info"]
+
+
+def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[Report]:
+    """Check every clip of clip / batch ``.npz`` files, directories or globs.
+
+    A broken file or member is a report, never an exception; raises FileNotFoundError only for a
+    path or glob that names nothing. Of clips with one id, the first without errors keeps it; later ones get a
+    ``duplicate_clip_id`` error (docs/semantics.md §1.4).
+    """
+    config = config or SGCConfig()
+    entries = [e for source in sources for path in list_clip_files(source, allow_empty=True)
+               for e in entries_from_file(path, config)]
+    guard_duplicate_ids(entries)
+    reports = []
+    for entry in entries:
+        try:
+            arrays = entry.read()
+            clip = clip_from_arrays(arrays, clip_id=entry.clip_id, config=config, validate=False)
+        except ClipFormatError as exc:
+            code = "unreadable" if exc.array == "<file>" else "structure"
+            reports.append(Report(entry.origin, entry.clip_id,
+                                  [Problem("error", code, exc.array, exc.expected, exc.found, exc.detail)]))
+            continue
+        problems = check_clip(clip, config, arrays)
+        if not any(p.severity == "error" for p in problems):  # as when scoring: the first clip that loads owns its id
+            try:
+                entry.claim_id()
+            except ClipFormatError as exc:
+                problems.insert(0, Problem("error", "duplicate_clip_id", exc.array, exc.expected, exc.found,
+                                           exc.detail))
+        reports.append(Report(entry.origin, clip.clip_id, problems))
+    return reports

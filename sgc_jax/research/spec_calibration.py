@@ -1,10 +1,10 @@
 """The shipped ``compat="spec"`` calibration ``sgc-spec-2026``: its corpus and its fit (docs/semantics.md §5.4).
 
-    python -m sgc_jax.spec_calibration --out sgc_jax/calibration/sgc-spec-2026.json
+    python -m sgc_jax.research.spec_calibration --out sgc_jax/calibration/sgc-spec-2026.json
 
-The corpus is synthetic and reproducible: rigid static scenes (:func:`sgc_jax.synth.synth_clip`)
+The corpus is synthetic and reproducible: rigid static scenes (:func:`sgc_jax.research.synth.synth_clip`)
 at two resolutions, three camera motions and three depth scales, seen by a tracker with 0.5 px
-noise, each clean and under the three perturbation kinds of :mod:`sgc_jax.perturb` at severities
+noise, each clean and under the three perturbation kinds of :mod:`sgc_jax.research.perturb` at severities
 0.25 to 1. The fit keeps the paper's formula (log1p, z-score, min-max, PC1 weights) and anchors
 its two ends in words:
 
@@ -26,8 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS, LOG1P_COMPONENTS, Calibration
-from .clip import Clip
+from ..calibration import COMPONENTS, LOG1P_COMPONENTS, Calibration
+from ..io.clip import Clip
 from .perturb import PERTURBATIONS, perturb_clip
 from .synth import synth_clip
 
@@ -93,8 +93,8 @@ def fit_spec_calibration(matrix: np.ndarray, kinds: Sequence[str], severities: S
         description=(
             "sgc_jax's calibration for compat='spec' (scale-free units: rotation variances deg^2, translation "
             "variances (% of the clip's median static depth)^2, depth error %). Fitted by "
-            "`python -m sgc_jax.spec_calibration` on synthetic rigid scenes (0.5 px track noise) at two "
-            "resolutions, three camera motions and three depth scales, clean and under warp, squeeze and "
+            "`python -m sgc_jax.research.spec_calibration` on synthetic rigid scenes (0.5 px track noise) at "
+            "two resolutions, three camera motions and three depth scales, clean and under warp, squeeze and "
             "depth_warp at severities 0.25-1. 0 = a clean rigid scene (z_min: 90th percentile of the clean "
             "clips); 1 = a full-severity perturbation on the component it moves most (z_max: largest median "
             "z over the kinds at severity 1); weights: sgc-paper-2026's (the paper's PC1 over real generated "
@@ -110,10 +110,10 @@ def corpus_description() -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from .api import score_batch
-    from .compile_cache import enable_compilation_cache
+    from ..api import score_batch
+    from ..engines.compile_cache import enable_compilation_cache
 
-    parser = argparse.ArgumentParser(prog="python -m sgc_jax.spec_calibration", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m sgc_jax.research.spec_calibration", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", required=True, help="calibration JSON to write")
     parser.add_argument("--scores", help="also write the corpus's per-clip scores (CSV) here")
@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     calibration = fit_spec_calibration(matrix, [k for _, k, _ in corpus], [s for _, _, s in corpus])
     calibration.save(args.out)
     if args.scores:
-        from .result import write_scores
+        from ..io.result import write_scores
 
         rows = [{**r, "kind": k, "severity": s} for r, (_, k, s) in zip(result.rescore(calibration).to_records(), corpus)]
         write_scores(args.scores, rows)

@@ -19,14 +19,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from .api import _resolve_config, resolve_calibration, score_batch
-from .calibration import COMPONENTS, Calibration
-from .clip import Clip, ClipFormatError, discover_clips
-from .config import SGCConfig
+from ..api import resolve_calibration, resolve_config, score_batch
+from ..calibration import COMPONENTS, Calibration
+from ..codes import CLIP_STATUSES
+from ..config import SGCConfig
+from ..io.clip import Clip, ClipFormatError
+from ..io.loading import discover_clips
+from ..io.result import (CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_counts, format_table,
+                         records_frame, write_csv)
+from ..stats import spearman
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
-from .result import (CLIP_COLUMNS, CLIP_STATUSES, BatchResult, ClipResult, _counts, failed_clip, format_table,
-                     records_frame, write_csv)
-from .stats import spearman
 
 #: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
 #: relative change of the SGC with respect to the same base clip scored clean,
@@ -81,7 +83,7 @@ class StudyResult:
         severities = f"{self.severities[0]:g}..{self.severities[-1]:g}" if self.severities else ""
         return (f"StudyResult: {len(self.bases)} base clips x {len(self.kinds)} kinds ({', '.join(self.kinds)}) x "
                 f"{len(self.severities)} severities ({severities}) = {len(self.rows)} rows "
-                f"({_counts((r['status'] for r in self.rows), CLIP_STATUSES) or 'none'})"
+                f"({format_counts((r['status'] for r in self.rows), CLIP_STATUSES) or 'none'})"
                 f"; scored {self.batch._summary()}\n"
                 "  .table() prints the summary and correlations; .to_records(), .to_pandas(), .to_csv(path) "
                 "give the rows")
@@ -195,8 +197,8 @@ def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
                       config: SGCConfig | dict | None = None, calibration: Calibration | str | None = None,
                       engine: str = "jax", perturb_seed: int = 0, params: Mapping[str, Mapping[str, Any]] | None = None,
                       progress: bool | None = None, chunk_size: int = 256, **overrides: Any) -> StudyResult:
-    """Score every clip of ``clips`` under every kind (:data:`~sgc_jax.perturb.PERTURBATIONS`,
-    :data:`~sgc_jax.perturb.MASK_CORRUPTIONS`) at every severity in [0, 1].
+    """Score every clip of ``clips`` under every kind (:data:`~sgc_jax.research.perturb.PERTURBATIONS`,
+    :data:`~sgc_jax.research.perturb.MASK_CORRUPTIONS`) at every severity in [0, 1].
 
     ``clips``: anything :func:`sgc_jax.score_batch` accepts. ``perturb_seed`` drives the
     perturbations (the RANSAC seed is ``config.seed``, e.g. ``seed=1`` as an override); ``params``
@@ -212,7 +214,7 @@ def sensitivity_study(clips: Any, kinds: Sequence[str] | str = PERTURBATIONS,
         raise ValueError(f"params given for kind(s) {stray} that are not studied; kinds: {kinds}")
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
-    config = _resolve_config(config, overrides)
+    config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     bases = _load_bases(clips, config, engine)
 

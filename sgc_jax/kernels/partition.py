@@ -1,7 +1,7 @@
 """The ``depth+spatial`` partition of docs/semantics.md §6.1 in JAX: depth clusters split into 4-connected
 components, the largest ``k`` kept.
 
-Rule (shared with ``sgc_jax.reference.spatial_regions``): pixels of the same depth cluster that
+Rule (shared with ``sgc_jax.engines.reference.spatial_regions``): pixels of the same depth cluster that
 touch horizontally or vertically form one component; components with fewer than
 ``min_region_pixels`` pixels are dropped; of the rest the ``k`` largest are kept and numbered
 1..N_s by decreasing size, ties broken by the component's first pixel in raster order.

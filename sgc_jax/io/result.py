@@ -19,18 +19,10 @@ from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .calibration import COMPONENTS, Calibration, rows_compat, sgc_score
-from .stats import min_max
+from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
+from ..codes import CLIP_STATUSES, PAIR_REASONS, REGION_EMPTY
+from ..stats import min_max
 
-#: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
-PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap", "ill_conditioned")
-#: Per-region status codes shared by both engines.
-#: ill_conditioned / ambiguous: a pose was found but the region-quality rule (SGCConfig.quality_rule)
-#: leaves it out of the variances (see sgc_jax.uncertainty).
-REGION_STATUS = {"ok": 0, "too_few_points": 1, "rejected": 2, "empty": 3, "ill_conditioned": 4, "ambiguous": 5}
-
-#: Clip status codes (docs/semantics.md §3.7).
-CLIP_STATUSES = ("ok", "partial", "error")
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
                 "depth_unit", "n_ill_conditioned", "compat")
@@ -60,10 +52,10 @@ class PairArrays:
     n_ill_conditioned: np.ndarray  # poses left out by the region-quality rule (ill_conditioned, ambiguous)
     t_g_norm: np.ndarray  # ||t_g||, ECD input
     R_g_angle_deg: np.ndarray  # rotation angle of R_g, ECD input
-    reason: np.ndarray  # (n_pairs,) str, one of PAIR_REASONS
+    reason: np.ndarray  # (n_pairs,) str, one of codes.PAIR_REASONS
     R_local: np.ndarray  # (n_pairs, k, 3, 3), NaN where no pose (ok, ill_conditioned, ambiguous)
     t_local: np.ndarray  # (n_pairs, k, 3)
-    region_status: np.ndarray  # (n_pairs, k) int, REGION_STATUS
+    region_status: np.ndarray  # (n_pairs, k) int, codes.REGION_STATUS
     region_points: np.ndarray  # (n_pairs, k) tracks per region
     region_reproj: np.ndarray  # (n_pairs, k) mean reprojection error px
     region_rot_std: np.ndarray  # (n_pairs, k) RMS rotation uncertainty of the pose, deg (NaN: no pose)
@@ -78,7 +70,7 @@ class PairArrays:
     def __repr__(self) -> str:  # the arrays run to thousands of lines
         k = self.region_status.shape[1] if self.region_status.ndim == 2 else 0
         return (f"PairArrays({self.n_pairs} pairs, {k} region slots; reasons: "
-                f"{_counts((str(r) for r in self.reason), PAIR_REASONS) or 'none'})")
+                f"{format_counts((str(r) for r in self.reason), PAIR_REASONS) or 'none'})")
 
     def components(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in COMPONENTS}
@@ -93,7 +85,7 @@ def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:
         n_tracks=zeros(n_pairs), n_regions=zeros(n_pairs), n_poses=zeros(n_pairs), n_ill_conditioned=zeros(n_pairs),
         t_g_norm=nan(n_pairs), R_g_angle_deg=nan(n_pairs), reason=np.full(n_pairs, "ok", dtype=object),
         R_local=nan(n_pairs, k, 3, 3), t_local=nan(n_pairs, k, 3),
-        region_status=np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
+        region_status=np.full((n_pairs, k), REGION_EMPTY, np.int32),
         region_points=zeros(n_pairs, k), region_reproj=nan(n_pairs, k), region_rot_std=nan(n_pairs, k),
         region_trans_std=nan(n_pairs, k),
     )
@@ -318,7 +310,7 @@ class BatchResult:
 
     def _summary(self) -> str:
         """``"8 clips (ok 7, error 1), engine jax, calibration 'sgc-spec-2026'"``."""
-        statuses = _counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
+        statuses = format_counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
         engines = "/".join(dict.fromkeys(c.engine for c in self.clips if c.engine)) or "none"
         calibration = repr(self.calibration.name) if self.calibration else "none"
         return f"{len(self.clips)} clips ({statuses}), engine {engines}, calibration {calibration}"
@@ -400,7 +392,7 @@ class BatchResult:
         return format_table(self.to_records(), columns)
 
 
-def _counts(values: Iterable[str], order: Sequence[str] = ()) -> str:
+def format_counts(values: Iterable[str], order: Sequence[str] = ()) -> str:
     """``"ok 7, partial 1"``: each distinct value with its count, in ``order`` then alphabetically."""
     counts = Counter(values)
     keys = [k for k in order if k in counts] + sorted(k for k in counts if k not in order)

@@ -18,11 +18,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
 from .geometry import so3_exp
-from .pnp import _point_columns, _pointwise_residuals, block_normals, materialise, region_onehot, solve_spd
-
-STATUS_ILL_CONDITIONED = 4
-STATUS_AMBIGUOUS = 5
+from .pnp import block_normals, materialise, point_columns, pointwise_residuals, region_onehot, solve_spd
 
 
 class PoseUncertainty(NamedTuple):
@@ -68,8 +66,8 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype) * inliers[None, :].astype(dtype)
     own = jnp.clip(region - 1, 0, k - 1)
-    cols = _point_columns(X, uv, (region >= 1).astype(dtype))
-    (du, dv), (RX, grad_u, grad_v) = _pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
+    cols = point_columns(X, uv, (region >= 1).astype(dtype))
+    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
 
     n = jnp.sum(onehot, axis=1)
     mean_depth = (onehot @ jnp.linalg.norm(X, axis=-1)) / jnp.maximum(n, 1.0)
@@ -176,18 +174,18 @@ def rot_std_limit_deg(focal_px, max_rot_std_deg, max_rot_std_px):
 
 def region_quality(status, n_inliers, uncertainty: PoseUncertainty, ambiguous, image_diagonal_px, focal_px, *,
                    min_region_points, max_rot_std_deg, max_rot_std_px, min_region_extent, quality_noise_px):
-    """Region statuses (k,) after the quality rule: an accepted pose (status 0) becomes
-    ``ambiguous`` (5) when RANSAC found a rival pose for the same inliers and the residual sigma
+    """Region statuses (k,) after the quality rule: an accepted pose (``REGION_OK``) becomes
+    ``REGION_AMBIGUOUS`` when RANSAC found a rival pose for the same inliers and the residual sigma
     is within ``quality_noise_px``, else
-    ``ill_conditioned`` (4) when it has fewer than ``min_region_points`` inliers, a rotation std
+    ``REGION_ILL_CONDITIONED`` when it has fewer than ``min_region_points`` inliers, a rotation std
     (``rule_rot_std_deg``) above ``rot_std_limit_deg``, or inliers spread less than
     ``min_region_extent`` x the image diagonal (RMS radius). ``focal_px``: mean of fx and fy of the
     frame the region is projected into."""
     limit_deg = rot_std_limit_deg(focal_px, max_rot_std_deg, max_rot_std_px)
     weak = ((n_inliers < min_region_points) | ~(rule_rot_std_deg(uncertainty, quality_noise_px) <= limit_deg)
             | ~(uncertainty.extent_px >= min_region_extent * image_diagonal_px))
-    checked = jnp.where(weak, STATUS_ILL_CONDITIONED, status)
+    checked = jnp.where(weak, REGION_ILL_CONDITIONED, status)
     # Ambiguity is two motions fitting the same points to noise level; with residuals beyond
     # quality_noise_px the region's points do not move rigidly, which SGC must see.
-    checked = jnp.where(ambiguous & (uncertainty.sigma_px <= quality_noise_px), STATUS_AMBIGUOUS, checked)
-    return jnp.where(status == 0, checked, status).astype(jnp.int32)
+    checked = jnp.where(ambiguous & (uncertainty.sigma_px <= quality_noise_px), REGION_AMBIGUOUS, checked)
+    return jnp.where(status == REGION_OK, checked, status).astype(jnp.int32)

@@ -36,7 +36,7 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from .clip import Clip
+from ..io.clip import Clip
 
 #: Geometric perturbations (grow linearly in time).
 PERTURBATIONS = ("warp", "squeeze", "depth_warp")

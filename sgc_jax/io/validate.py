@@ -1,6 +1,6 @@
 """Plausibility checks of a clip's content, shared by the loader and ``sgc-jax validate``.
 
-Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.clip`. The
+Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.io.loading`. The
 checks here look for inputs whose units or resolutions do not fit together: intrinsics made for
 another image size, depth that is really disparity, poses that are not rotations, tracks on another
 pixel grid, masks that look inverted. Each problem is one actionable line. ``error`` problems make
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from .clip import Clip, ClipFormatError, clip_from_arrays, entries_from_file, guard_duplicate_ids, list_clip_files
-from .config import SGCConfig
-from .stats import spearman
+from ..config import SGCConfig
+from ..stats import spearman
+from .clip import Clip, ClipFormatError
 
 SEVERITIES = ("error", "warning", "info")
 
@@ -348,54 +348,3 @@ def enforce(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> 
     for problem in problems:
         if problem.severity == "warning" and problem.code not in SCORER_REPORTED:
             warnings.warn(ClipWarning(f"clip {clip.clip_id!r}: {problem.line()}"), stacklevel=3)
-
-
-# ----------------------------------------------------------------------------- sgc-jax validate
-
-
-@dataclasses.dataclass
-class Report:
-    """The findings for one clip of a source."""
-
-    origin: str
-    clip_id: str
-    problems: list[Problem]
-
-    @property
-    def ok(self) -> bool:
-        return not any(p.severity == "error" for p in self.problems)
-
-    def lines(self, *, show_info: bool = False) -> list[str]:
-        return [f"{self.origin}: {p.line()}" for p in self.problems if show_info or p.severity != "info"]
-
-
-def validate_paths(sources: list[Any], config: SGCConfig | None = None) -> list[Report]:
-    """Check every clip of clip / batch ``.npz`` files, directories or globs.
-
-    A broken file or member is a report, never an exception; raises FileNotFoundError only for a
-    path or glob that names nothing. Of clips with one id, the first without errors keeps it; later ones get a
-    ``duplicate_clip_id`` error (docs/semantics.md §1.4).
-    """
-    config = config or SGCConfig()
-    entries = [e for source in sources for path in list_clip_files(source, allow_empty=True)
-               for e in entries_from_file(path, config)]
-    guard_duplicate_ids(entries)
-    reports = []
-    for entry in entries:
-        try:
-            arrays = entry.read()
-            clip = clip_from_arrays(arrays, clip_id=entry.clip_id, config=config, validate=False)
-        except ClipFormatError as exc:
-            code = "unreadable" if exc.array == "<file>" else "structure"
-            reports.append(Report(entry.origin, entry.clip_id,
-                                  [Problem("error", code, exc.array, exc.expected, exc.found, exc.detail)]))
-            continue
-        problems = check_clip(clip, config, arrays)
-        if not any(p.severity == "error" for p in problems):  # as when scoring: the first clip that loads owns its id
-            try:
-                entry.claim_id()
-            except ClipFormatError as exc:
-                problems.insert(0, Problem("error", "duplicate_clip_id", exc.array, exc.expected, exc.found,
-                                           exc.detail))
-        reports.append(Report(entry.origin, clip.clip_id, problems))
-    return reports

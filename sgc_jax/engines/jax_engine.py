@@ -20,19 +20,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .clip import Clip
-from .components import mean_pose, pair_pose_components
-from .config import HOST_FIELDS, VALUE_FIELDS, SGCConfig
-from .geometry import back_project, nearest_rotation, rotation_angle_deg
-from .kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
-from .partition import spatial_regions
-from .ransac import ransac_pnp_regions
-from .result import PAIR_REASONS, REGION_STATUS, PairArrays
-from .uncertainty import region_quality
+from ..codes import (PAIR_REASON_CODE, PAIR_REASONS, REGION_AMBIGUOUS, REGION_EMPTY, REGION_ILL_CONDITIONED,
+                     REGION_OK)
+from ..config import HOST_FIELDS, VALUE_FIELDS, SGCConfig
+from ..io.clip import Clip
+from ..io.result import PairArrays
+from ..kernels.components import mean_pose, pair_pose_components
+from ..kernels.geometry import back_project, nearest_rotation, rotation_angle_deg
+from ..kernels.kmeans import depth_partition, depth_regions, grid_regions, kmeans_1d, region_of_depth
+from ..kernels.partition import spatial_regions
+from ..kernels.ransac import ransac_pnp_regions
+from ..kernels.uncertainty import region_quality
+from ..kernels.warp import depth_error, warp_depth
+from .compile_cache import cache_hint
 from .units import PERCENT, in_depth_units, translation_factor
-from .warp import depth_error, warp_depth
 
-REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
 MIN_TRACK_BUCKET = 64
@@ -118,7 +120,7 @@ class LocalPoses(NamedTuple):
 
     R_local: jax.Array  # (k, 3, 3)
     t_local: jax.Array  # (k, 3)
-    region_status: jax.Array  # (k,) int32, REGION_STATUS
+    region_status: jax.Array  # (k,) int32, codes.REGION_STATUS
     region_points: jax.Array  # (k,) int32
     region_reproj: jax.Array  # (k,) px
     region_rot_std: jax.Array  # (k,) deg, RMS rotation uncertainty of the pose
@@ -198,7 +200,7 @@ def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, 
                              ambiguous_inlier_frac=config.ambiguous_inlier_frac,
                              borrow=config.borrow_region_poses)
     exists = regions <= n_regions
-    status = jnp.where(exists & enough_tracks, fit.status, 3)
+    status = jnp.where(exists & enough_tracks, fit.status, REGION_EMPTY)
     if config.applies_quality_rule:
         diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
         focal = 0.5 * (K_curr[0, 0] + K_curr[1, 1])
@@ -241,13 +243,13 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
 
 def _excluded(status):
     """Regions whose pose the quality rule left out (ill_conditioned or ambiguous)."""
-    return (status == REGION_STATUS["ill_conditioned"]) | (status == REGION_STATUS["ambiguous"])
+    return (status == REGION_ILL_CONDITIONED) | (status == REGION_AMBIGUOUS)
 
 
 def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
     """docs/semantics.md §3.5-3.7 for one pair: pose variances, diagnostics, reason code; ``err`` is its depth
     error (``pair_depth_errors``)."""
-    accepted = poses.region_status == 0
+    accepted = poses.region_status == REGION_OK
     comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
     f2 = translation_factor(config) ** 2
     if not config.global_pose:  # the mean local pose is no independent reference
@@ -258,9 +260,9 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
     reason = jnp.select(
         [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, (n_poses == 0) & (n_excluded > 0),
          n_poses == 0, jnp.isnan(err)],
-        [REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "ill_conditioned", "no_pose",
-                                  "no_depth_overlap")],
-        REASON_CODE["ok"])
+        [PAIR_REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "ill_conditioned", "no_pose",
+                                       "no_depth_overlap")],
+        PAIR_REASON_CODE["ok"])
     return dict(
         local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * f2,
         global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * f2,
@@ -313,7 +315,7 @@ def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, c
                      in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
         clip.depth[prev], track_labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
         clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
-    accepted = poses.region_status == 0
+    accepted = poses.region_status == REGION_OK
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
         return poses, R_g, t_g, jnp.float32(1.0)
@@ -409,8 +411,6 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
 
 
 def _announce_compile(bucket: Bucket) -> None:
-    from .compile_cache import cache_hint
-
     print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, "
           f"{bucket.P} tracks per pair (once per shape bucket; tens of seconds on a CPU{cache_hint()}) ...",
           end="", file=sys.stderr, flush=True)
@@ -432,7 +432,7 @@ def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: floa
     """Clip b's arrays, with its depth unit D and the scale to report (depth units per pose unit)."""
     take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
     status = take("region_status")
-    posed = (status == REGION_STATUS["ok"]) | np.asarray(_excluded(status))
+    posed = (status == REGION_OK) | np.asarray(_excluded(status))
     R_local = np.where(posed[..., None, None], take("R_local"), np.nan).astype(np.float64)
     t_local = np.where(posed[..., None], take("t_local"), np.nan).astype(np.float64)
     per_region = lambda name: np.where(posed, take(name), np.nan).astype(np.float64)  # noqa: E731

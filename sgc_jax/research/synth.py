@@ -4,7 +4,7 @@ A scene is a far back wall (an unbounded plane), ``n_layers`` bounded rectangles
 over ``depth_range`` and optional moving spheres, seen by a smoothly moving pinhole camera. Every
 array is ray-cast or projected exactly, so a rigid clip is consistent to float32 precision.
 
-Conventions are those of :mod:`sgc_jax.clip`: world->camera poses (x_cam = R_wc X + t_wc, OpenCV
+Conventions are those of :mod:`sgc_jax.io.clip`: world->camera poses (x_cam = R_wc X + t_wc, OpenCV
 axes: x right, y down, z forward), depth = z along the optical axis in world units, pixel centres at
 integer coordinates. The world frame is camera 0. NumPy only; every draw comes from ``seed``.
 """
@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .clip import Clip, save_clip
+from ..io.clip import Clip, save_clip
 
 _EPS = 1e-9
 _OCCLUSION_REL_TOL = 0.02  # a point is hidden when farther than depth[i] * (1 + tol) at its pixel

@@ -27,7 +27,7 @@ _GN_RTOL = 1e-6
 _GN_ATOL = 1e-4
 
 
-def _point_columns(X, uv, weight):
+def point_columns(X, uv, weight):
     """Masked points (X (*points, 3), uv (*points, 2), weight (*points,)) as columns: (x, y, z, u,
     v, sqrt_w), each (*points,); masked points sit at (0, 0, 1)."""
     valid = weight > 0
@@ -83,7 +83,7 @@ def reprojection_residuals(pose6, X, uv, K, weight):
 
     Scaled by sqrt(weight) (cost = sum weight * |error|^2); exactly 0 where weight == 0.
     """
-    du, dv = _residual_columns(so3_exp(pose6[:3]), pose6[3:], K, _point_columns(X, uv, weight))
+    du, dv = _residual_columns(so3_exp(pose6[:3]), pose6[3:], K, point_columns(X, uv, weight))
     return jnp.stack([du, dv], axis=-1)
 
 
@@ -95,7 +95,7 @@ def initial_pose(X, uv, weight, K, n_iter=3):
     divided by the current point distance, so the error is roughly angular. Converges from the
     identity for rotations up to ~30 deg; needs >= 3 points with weight > 0 (4 for uniqueness).
     """
-    x, y, z, u, v, sqrt_w = _point_columns(X, uv, weight)
+    x, y, z, u, v, sqrt_w = point_columns(X, uv, weight)
     X, uv, w = jnp.stack([x, y, z], -1), jnp.stack([u, v], -1), sqrt_w**2
     b = back_project(K, uv, jnp.ones_like(uv[:, 0]))
     b = b / jnp.linalg.norm(b, axis=-1, keepdims=True)
@@ -207,7 +207,7 @@ def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     if pose0 is None:
         pose0 = initial_pose(X, uv, weight, K)
     R0, t0 = so3_exp(pose0[:3]), pose0[3:]
-    cols = _point_columns(X, uv, weight)
+    cols = point_columns(X, uv, weight)
     x, y, z, _, _, sqrt_w = cols
     valid = sqrt_w > 0
     dist = jnp.sqrt(x * x + y * y + z * z)
@@ -394,7 +394,7 @@ def to_slots(slots: RegionSlots, values, fill):
     return padded[slots.point].reshape((-1, SLOT_CHUNK) + values.shape[1:])
 
 
-def _pointwise_residuals(R_pt, t_pt, K, cols):
+def pointwise_residuals(R_pt, t_pt, K, cols):
     """Residuals of each point under its own pose (R_pt (*points, 3, 3) and t_pt (*points, 3)
     with the point axes first, or broadcastable to them: (n_chunks, 3, 3, 1) per chunk of slots)
     -> ((du, dv), (R X, d du / dY, d dv / dY)), each of the last three a triple of per-point
@@ -438,7 +438,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     onehot = slots.chunk_onehot
     R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
     weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
-    cols = _point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
+    cols = point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
                           to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
     x, y, z, u, v, sqrt_w = cols
     valid = (sqrt_w > 0).astype(dtype)
@@ -455,7 +455,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     @jax.custom_jvp
     def residuals_of(inc):
         R, t = pose_of(inc)
-        return _pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)[0]
+        return pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)[0]
 
     @residuals_of.defjvp
     def residuals_jvp(primals, tangents):
@@ -463,7 +463,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         # computed once, and a tangent costs a broadcast and a few products per point.
         (inc,), (d_inc,) = primals, tangents
         R, t = pose_of(inc)
-        out, (RX, grad_u, grad_v) = _pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
+        out, (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
         d_rot = jnp.einsum("kij,kj->ki", so3_left_jacobian(inc[:, :3] / scale_rot), d_inc[:, :3]) / scale_rot
         w, dt = per_chunk(d_rot), per_chunk(d_inc[:, 3:] / scale_t[:, None])  # (n_chunks, 3, 1) each
         X_r, Y_r, Z_r = RX

@@ -11,7 +11,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .config import HOLE_DEPTH_MARGIN
+from ..config import HOLE_DEPTH_MARGIN
 from .geometry import back_project_xyz, project_xyz
 
 

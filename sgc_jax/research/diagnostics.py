@@ -2,9 +2,9 @@
 
 ``pair`` is the index i (docs/semantics.md §3) of frames i-1 -> i (1..T-1), the ``pair`` column of
 ``to_pandas(pairs=True)``; region label j (1..N_s) is slot j-1 of the per-region arrays of
-:class:`~sgc_jax.result.PairArrays`. Every quantity is recomputed with the reference
+:class:`~sgc_jax.io.result.PairArrays`. Every quantity is recomputed with the reference
 implementation (NumPy + OpenCV) from the clip and the config that scored it; the poses come from
-the scored :class:`~sgc_jax.result.PairArrays`, so the diagnostics show what either engine found.
+the scored :class:`~sgc_jax.io.result.PairArrays`, so the diagnostics show what either engine found.
 Pixels: x = column, y = row; depth and local translations in depth units.
 """
 
@@ -16,14 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from . import reference
-from .clip import Clip, load_clip
-from .config import SGCConfig
-from .result import REGION_STATUS, ClipResult, PairArrays
-from .units import PERCENT, in_depth_units
-
-#: Region status names by code (inverse of :data:`~sgc_jax.result.REGION_STATUS`).
-REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
+from ..codes import REGION_STATUS
+from ..config import SGCConfig
+from ..engines import reference
+from ..engines.units import PERCENT, in_depth_units
+from ..io.clip import Clip
+from ..io.loading import load_clip
+from ..io.result import ClipResult, PairArrays
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:
@@ -108,7 +107,7 @@ class PoseFlow:
     Per region slot (k): ``anchor`` (k, 3) the centroid of the region's points in camera pair-1
     (depth units); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
     (k, 2) the displacement in pixels of that point under the region's local pose / the global
-    pose; ``status`` (k,) :data:`~sgc_jax.result.REGION_STATUS` codes; ``n_points`` (k,).
+    pose; ``status`` (k,) :data:`~sgc_jax.codes.REGION_STATUS` codes; ``n_points`` (k,).
     Rows of regions without an accepted pose (or without points) are NaN.
     """
 
@@ -139,7 +138,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
               config: SGCConfig | None = None) -> PoseFlow:
     """Where each region's centroid moves under its local pose and under the global pose.
 
-    ``scored``: the clip's :class:`~sgc_jax.result.ClipResult` (or its ``pairs``), scored with
+    ``scored``: the clip's :class:`~sgc_jax.io.result.ClipResult` (or its ``pairs``), scored with
     ``config``. Each arrow is the optical flow the pose predicts at the region's anchor:
     project(K[pair], R X + t) - project(K[pair-1], X); a rigid scene gives equal arrows.
     """

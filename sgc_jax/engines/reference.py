@@ -14,9 +14,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .clip import Clip
-from .config import HOLE_DEPTH_MARGIN, SGCConfig
-from .result import REGION_STATUS, PairArrays, empty_pair_arrays
+from ..codes import REGION_STATUS
+from ..config import HOLE_DEPTH_MARGIN, SGCConfig
+from ..io.clip import Clip
+from ..io.result import PairArrays, empty_pair_arrays
 from .units import PERCENT, in_depth_units, translation_factor
 
 # ----------------------------------------------------------------------------- rotations

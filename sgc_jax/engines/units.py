@@ -14,8 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from .clip import Clip, without_absurd_depth
-from .config import SGCConfig
+from ..config import SGCConfig
+from ..io.clip import Clip, without_absurd_depth
 
 PERCENT = 100.0
 

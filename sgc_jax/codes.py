@@ -1,0 +1,32 @@
+"""Every status and reason code (docs/semantics.md §3.7), defined once for the kernels, both engines
+and the result tables.
+
+Region statuses are int32 codes (per region slot, ``PairArrays.region_status``); pair reasons and
+clip statuses are text in the tables, and the JAX engine carries a pair's reason as its index in
+:data:`PAIR_REASONS` (:data:`PAIR_REASON_CODE`).
+"""
+
+from __future__ import annotations
+
+#: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
+PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap", "ill_conditioned")
+#: Pair reason -> its int code inside the JAX engine (the index in :data:`PAIR_REASONS`).
+PAIR_REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
+
+# Per-region status codes shared by both engines.
+REGION_OK = 0  # accepted pose, kept by the region-quality rule
+REGION_TOO_FEW_POINTS = 1  # members < min_points
+REGION_REJECTED = 2  # too few inliers, non-finite, or not a proper rotation
+REGION_EMPTY = 3  # no such region (slot beyond N_s), or the pair has fewer than 4 usable tracks
+# ill_conditioned / ambiguous: a pose was found but the region-quality rule (SGCConfig.quality_rule,
+# docs/semantics.md §3.3) leaves it out of the variances.
+REGION_ILL_CONDITIONED = 4
+REGION_AMBIGUOUS = 5  # JAX engine only
+#: Region status name -> code.
+REGION_STATUS = {"ok": REGION_OK, "too_few_points": REGION_TOO_FEW_POINTS, "rejected": REGION_REJECTED,
+                 "empty": REGION_EMPTY, "ill_conditioned": REGION_ILL_CONDITIONED, "ambiguous": REGION_AMBIGUOUS}
+#: Region status names by code (inverse of :data:`REGION_STATUS`).
+REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
+
+#: Clip status codes.
+CLIP_STATUSES = ("ok", "partial", "error")
