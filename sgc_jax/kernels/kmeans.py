@@ -139,13 +139,15 @@ def _range_cost(first, last):
     return jnp.where(n > 0, jnp.maximum(sse[0] + sse[1], 0.0), 0.0)
 
 
-def _search_plan(bins: int):
-    """Static plan of the divide-and-conquer row-minima search over the DP's columns 0..bins-1.
+def _search_plan(bins: int) -> tuple[np.ndarray, ...]:
+    """Static plan of the divide-and-conquer row-minima search over the DP's columns 0..bins-1,
+    padded so that every level has the same width M (a loop traces one level).
 
-    Per level: the columns solved there (ascending); for each, the already solved columns whose
-    optima bound its search from below / above (-1: none); and the indices of its left / right
-    child in the next level (-1: none). Optimal first bins are nondecreasing in the last bin (the
-    SSE cost is Monge), so a column's search lies between its neighbours' optima.
+    Per level (arrays (levels, M)): the columns solved there (ascending; ``bins`` pads); for each,
+    the already solved columns whose optima bound its search from below / above (-1: none); and
+    (levels, M, 2) the indices of its left / right child in the next level (-1: none). Optimal
+    first bins are nondecreasing in the last bin (the SSE cost is Monge), so a column's search
+    lies between its neighbours' optima.
     """
     levels, frontier = [], [(0, bins - 1, -1, -1)]
     while frontier:
@@ -161,9 +163,12 @@ def _search_plan(bins: int):
                 kids[1] = len(nxt)
                 nxt.append((m + 1, hi, m, right))
             children.append(kids)
-        levels.append(tuple(np.array(v, np.int32) for v in (mids, lefts, rights, children)))
+        levels.append((mids, lefts, rights, children))
         frontier = nxt
-    return levels
+    width = max(len(level[0]) for level in levels)
+    pad = lambda rows, fill: np.array([r + [fill] * (width - len(r)) for r in rows], np.int32)  # noqa: E731
+    return (pad([level[0] for level in levels], bins), pad([level[1] for level in levels], -1),
+            pad([level[2] for level in levels], -1), pad([level[3] for level in levels], [-1, -1]))
 
 
 def _dp_step(prev, sums, plan, bins):
@@ -173,32 +178,37 @@ def _dp_step(prev, sums, plan, bins):
     a == b + 1 (empty cluster), +inf when a > b + 1. -> (best (bins,), first (bins,) int32), ties
     to the smallest a. Divide and conquer over b: a level solves its columns over the rows of
     their search ranges, which tile the rows (neighbours share at most an end point, evaluated
-    separately), so every level costs O(bins) and the step O(bins log bins), not bins^2.
+    separately), so every level costs O(bins + M) and the step O((bins + M) log bins), not bins^2.
     """
     rows = jnp.arange(bins + 1, dtype=jnp.int32)
     take = lambda idx: jax.tree.map(lambda x: x[idx], sums)  # noqa: E731  prefix entries at idx
-    first = jnp.zeros(bins, jnp.int32)
-    best = jnp.zeros(bins, jnp.float32)
-    seg = jnp.zeros(bins + 1, jnp.int32)  # index of the column whose range a row lies in (-1: none)
-    for mids, lefts, rights, children in plan:
-        m = mids.shape[0]
-        lo = jnp.where(lefts >= 0, first[np.maximum(lefts, 0)], 0)
-        hi = jnp.minimum(jnp.where(rights >= 0, first[np.maximum(rights, 0)], bins), mids + 1)
-        last = take(mids + 1)  # prefix entries after each column's last bin
+    width = plan[0].shape[1]
+
+    def level(carry, columns):
+        first, best, seg = carry
+        mids, lefts, rights, children = columns
+        lo = jnp.where(lefts >= 0, first[jnp.maximum(lefts, 0)], 0)
+        hi = jnp.minimum(jnp.where(rights >= 0, first[jnp.maximum(rights, 0)], bins), mids + 1)
+        last = take(jnp.minimum(mids + 1, bins))  # prefix entries after each column's last bin
         seg_c = jnp.maximum(seg, 0)
         inside = (seg >= 0) & (rows >= lo[seg_c]) & (rows <= hi[seg_c])
         tot = jnp.where(inside, prev + _range_cost(sums, jax.tree.map(lambda x: x[seg_c], last)), jnp.inf)
-        seg_id = jnp.where(inside, seg_c, m)
+        seg_id = jnp.where(inside, seg_c, width)
         # A range's last row may lie in the next range too (which then owns it): evaluate it here.
         end = prev[hi] + _range_cost(take(hi), last)
-        low = jnp.minimum(jax.ops.segment_min(tot, seg_id, num_segments=m + 1)[:m], end)
-        arg = jax.ops.segment_min(jnp.where(tot == low[seg_c], rows, bins + 1), seg_id, num_segments=m + 1)[:m]
+        low = jnp.minimum(jax.ops.segment_min(tot, seg_id, num_segments=width + 1)[:width], end)
+        arg = jax.ops.segment_min(jnp.where(tot == low[seg_c], rows, bins + 1), seg_id, num_segments=width + 1)[:width]
         arg = jnp.minimum(jnp.minimum(arg, jnp.where(end == low, hi, bins + 1)), hi).astype(jnp.int32)
-        first = first.at[mids].set(arg)
-        best = best.at[mids].set(low)
+        first = first.at[mids].set(arg, mode="drop")  # padding columns (mids = bins) write nothing
+        best = best.at[mids].set(low, mode="drop")
         # Rows before a column's optimum are searched for its left child, the others for its right.
-        kids = jnp.asarray(children)[seg_c]
+        kids = children[seg_c]
         seg = jnp.where(seg >= 0, jnp.where(rows < arg[seg_c], kids[:, 0], kids[:, 1]), -1)
+        return (first, best, seg), None
+
+    # seg: index of the column whose range a row lies in (-1: none)
+    init = (jnp.zeros(bins, jnp.int32), jnp.zeros(bins, jnp.float32), jnp.zeros(bins + 1, jnp.int32))
+    (first, best, _), _ = lax.scan(level, init, tuple(jnp.asarray(a) for a in plan))
     return best, first
 
 
