@@ -246,45 +246,71 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     def truncated_cost(err_sq, tau_point):
         return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
 
-    def one_pass(p, state):
-        poses, err_sq = state
-        tau_point = own(jnp.where(p < passes - 1, thr_sq, noise_cut_sq(noise_sigma_sq(err_sq))))
-        fit = member & (err_sq < tau_point)
-        refined = fit_regions(fit, poses)
-        new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
-        better = jnp.all(jnp.isfinite(refined), axis=-1) & (
-            truncated_cost(new_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
-        return jnp.where(better[:, None], refined, poses), jnp.where(own(better.astype(dtype)) > 0, new_err_sq, err_sq)
-
-    poses, err_sq = jax.lax.fori_loop(0, passes, one_pass, (poses, _pose_errors_sq(poses, X, uv, K, onehot)))
-    sigma_sq = noise_sigma_sq(err_sq)
-    tau_point = own(noise_cut_sq(sigma_sq))
-
-    def keep_if_better(poses, err_sq, candidate, tried):
+    def keep_if_better(poses, err_sq, candidate, cand_err_sq, tried, tau_point):
         """Each region's candidate pose replaces its pose where tried (k,), finite and of no higher
-        truncated cost at the noise cut -> (poses, err_sq, used (N,) per point)."""
-        cand_err_sq = _pose_errors_sq(candidate, X, uv, K, onehot)
+        truncated cost at tau_point -> (poses, err_sq, used (N,) per point)."""
         use = tried & jnp.all(jnp.isfinite(candidate), axis=-1) & (
             truncated_cost(cand_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
         used = own(use.astype(dtype)) > 0
         return jnp.where(use[:, None], candidate, poses), jnp.where(used, cand_err_sq, err_sq), used
 
-    # Re-admission: members outside the cut that the pose's own uncertainty explains (they sit
-    # along the region's weak direction) join one fit, then the cut is applied again.
-    fit = member & (err_sq < tau_point)
-    admit = member & ~fit & (predicted_residual_chi2(X, uv, region, K, poses, fit, sigma_sq) < ADMIT_CHI2)
-    candidate = fit_regions(fit | admit, poses)
-    recut = member & (_pose_errors_sq(candidate, X, uv, K, onehot) < tau_point)
-    candidate = fit_regions(recut, candidate)
-    poses, err_sq, _ = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, admit.astype(dtype)) > 0)
+    # Every fit runs in one loop, so the solver is traced once: ``passes`` refinement passes, then
+    # the re-admission fit, its re-cut fit and the leverage fit. Per stage, one branch picks the
+    # points and start of the fit and one what is kept after it (``lax.switch`` on the loop
+    # index, which vmap leaves unbatched). The checks use the noise cut after the passes.
+    ADMIT, RECUT, LEVERAGE = passes, passes + 1, passes + 2
 
-    # Leverage check: points that decide the pose alone are dropped and the region refitted.
-    fit = member & (err_sq < tau_point)
-    n_fit = _region_sums(onehot, fit.astype(dtype))
-    limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
-    dropped = fit & (leverage(X, uv, region, K, poses, fit) > own(limit))
-    candidate = fit_regions(fit & ~dropped, poses)
-    poses, err_sq, used = keep_if_better(poses, err_sq, candidate, _region_sums(onehot, dropped.astype(dtype)) > 0)
+    class Stage(NamedTuple):
+        poses: jax.Array  # (k, 6) current poses
+        err_sq: jax.Array  # (N,) squared error of each point under its region's pose
+        candidate: jax.Array  # (k, 6) the re-admission fit, for the re-cut
+        tau: jax.Array  # (N,) squared cut of each point's region
+        tried: jax.Array  # (k,) regions the current check proposes a refit for
+        dropped: jax.Array  # (N,) points the leverage check left out
+        used: jax.Array  # (N,) points whose region took the leverage refit
+
+    def refine_pass(stage, st):
+        tau = own(jnp.where(stage < passes - 1, thr_sq, noise_cut_sq(noise_sigma_sq(st.err_sq))))
+        return member & (st.err_sq < tau), st.poses, st._replace(tau=tau)
+
+    def admit(stage, st):
+        # members outside the cut that the pose's own uncertainty explains (they sit along the
+        # region's weak direction) join the fit
+        sigma_sq = noise_sigma_sq(st.err_sq)
+        tau = own(noise_cut_sq(sigma_sq))
+        fit = member & (st.err_sq < tau)
+        extra = member & ~fit & (predicted_residual_chi2(X, uv, region, K, st.poses, fit, sigma_sq) < ADMIT_CHI2)
+        return fit | extra, st.poses, st._replace(tau=tau, tried=_region_sums(onehot, extra.astype(dtype)) > 0)
+
+    def recut(stage, st):  # the cut applied again to the re-admission fit
+        return member & (_pose_errors_sq(st.candidate, X, uv, K, onehot) < st.tau), st.candidate, st
+
+    def drop_leverage(stage, st):  # points that decide the pose alone are dropped, the region refitted
+        fit = member & (st.err_sq < st.tau)
+        n_fit = _region_sums(onehot, fit.astype(dtype))
+        limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
+        high = fit & (leverage(X, uv, region, K, st.poses, fit) > own(limit))
+        return fit & ~high, st.poses, st._replace(tried=_region_sums(onehot, high.astype(dtype)) > 0, dropped=high)
+
+    def keep_refit(st, refined, new_err_sq, tried):
+        poses, err_sq, used = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
+        return st._replace(poses=poses, err_sq=err_sq, used=used)
+
+    def one_fit(stage, st):
+        branch = jnp.where(stage < passes, 0, stage - passes + 1)
+        weight, start, st = jax.lax.switch(branch, (refine_pass, admit, recut, drop_leverage), stage, st)
+        refined = fit_regions(weight, start)
+        new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
+        return jax.lax.switch(jnp.where(stage < passes, 0, jnp.where(stage == ADMIT, 1, 2)), (
+            lambda: keep_refit(st, refined, new_err_sq, jnp.ones(k, bool)),
+            lambda: st._replace(candidate=refined),
+            lambda: keep_refit(st, refined, new_err_sq, st.tried)))
+
+    no_points = jnp.zeros_like(member)
+    st = Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]), jnp.zeros(k, bool),
+               no_points, no_points)
+    st = jax.lax.fori_loop(0, LEVERAGE + 1, one_fit, st)
+    poses, err_sq, dropped, used = st.poses, st.err_sq, st.dropped, st.used
     inliers = member & (err_sq < thr_sq) & ~(dropped & used)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
