@@ -1,0 +1,51 @@
+"""Traced size of the JAX engine's program for one bucket: jaxpr equations, counted through every
+sub-jaxpr (loops, conds, pjit, custom derivatives).
+
+    python bench/program_size.py                  # the standard bucket T=16, 288x512, P=4096, B=1
+    python bench/program_size.py --T 4 --H 128 --W 192 --P 2048
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.extend as jex
+import numpy as np
+
+from sgc_jax.config import SGCConfig
+from sgc_jax.engines.jax_engine import Bucket, PaddedClips, score_padded
+
+
+def count_equations(jaxpr) -> int:
+    """Equations of a (closed) jaxpr and of every jaxpr nested in its equations' parameters."""
+    jaxpr = getattr(jaxpr, "jaxpr", jaxpr)
+    return len(jaxpr.eqns) + sum(count_equations(sub) for sub in jex.core.subjaxprs(jaxpr))
+
+
+def zero_batch(bucket: Bucket, B: int = 1) -> PaddedClips:
+    T, H, W, P = bucket.T, bucket.H, bucket.W, bucket.P
+    f32 = np.float32
+    return PaddedClips(np.zeros((B, T, H, W), f32), np.zeros((B, T, H, W), bool), np.zeros((B, T, 3, 3), f32),
+                       np.zeros((B, T, 3, 3), f32), np.zeros((B, T, 3), f32), np.zeros((B, T - 1, P, 2), f32),
+                       np.zeros((B, T - 1, P, 2), f32), np.zeros((B, T - 1, P), bool), np.zeros((B, T - 1), bool),
+                       np.zeros((B, 2), np.int32), np.ones((B,), f32))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    for name, default in (("T", 16), ("H", 288), ("W", 512), ("P", 4096)):
+        parser.add_argument(f"--{name}", type=int, default=default)
+    args = parser.parse_args()
+    bucket = Bucket(args.T, -(-args.H // 64) * 64, -(-args.W // 64) * 64, args.P)
+    config = SGCConfig()
+    key = jax.random.PRNGKey(config.seed)
+    start = time.perf_counter()
+    closed = jax.make_jaxpr(lambda b: score_padded(b, key, config))(zero_batch(bucket))
+    traced_s = time.perf_counter() - start
+    print(f"bucket {bucket}: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()
