@@ -12,7 +12,8 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 # (tests/test_compile_cache.py exercises the cache in subprocesses).
 os.environ.setdefault("SGC_JAX_COMPILATION_CACHE", "off")
 
-from sgc_jax.synth import synth_clip  # noqa: E402
+from sgc_jax.config import STATIC_FIELDS, SGCConfig  # noqa: E402
+from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 # Well-conditioned scenes: two planar layers (one slanted) plus four static spheres, so every
 # depth region is a curved 3D point set. Small planar patches are the ill-posed case where any
@@ -66,3 +67,31 @@ def release_compiled_programs_when_mappings_run_high():
         release_programs()
         jax.clear_caches()
         gc.collect()
+
+
+# Where the suite's time goes: the programs each test module compiled (printed at the end).
+_COMPILES_BY_MODULE: dict[str, list] = {}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def record_compiles(request):
+    from sgc_jax.engines.jax_engine import compile_log
+
+    before = len(compile_log())
+    yield
+    new = compile_log()[before:]
+    if new:
+        _COMPILES_BY_MODULE[request.module.__name__] = new
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _COMPILES_BY_MODULE:
+        return
+    defaults = SGCConfig()
+    terminalreporter.section("JAX programs compiled, by test module")
+    rows = sorted(_COMPILES_BY_MODULE.items(), key=lambda kv: -sum(c[2] for c in kv[1]))
+    for module, compiles in rows:
+        terminalreporter.write_line(f"{module}: {len(compiles)} program(s), {sum(c[2] for c in compiles):.0f} s")
+        for static, bucket, seconds in compiles:
+            changed = {f: getattr(static, f) for f in STATIC_FIELDS if getattr(static, f) != getattr(defaults, f)}
+            terminalreporter.write_line(f"    {bucket.T}x{bucket.H}x{bucket.W}x{bucket.P} {changed or ''} {seconds:.0f} s")

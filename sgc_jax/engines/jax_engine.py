@@ -393,6 +393,7 @@ def _score_program(batch: PaddedClips, key, values, static: SGCConfig):
 _jitted_program = jax.jit(_score_program, static_argnames=("static",))
 # (program config, bucket) -> executable; cleared by release_programs
 _programs: dict[tuple[SGCConfig, Bucket], Callable] = {}
+_compiles: list[tuple[SGCConfig, Bucket, float]] = []  # every compile of this process, with its seconds
 
 
 def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> Callable:
@@ -406,7 +407,9 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
         _announce_compile(bucket)
         lowered = _jitted_program.lower(example, jax.random.PRNGKey(0), program_values(config), static=static)
         program = _programs[(static, bucket)] = lowered.compile()
-        print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+        seconds = time.perf_counter() - start
+        _compiles.append((static, bucket, seconds))
+        print(f" {seconds:.1f} s", file=sys.stderr, flush=True)
     return program
 
 
@@ -426,6 +429,12 @@ def release_programs() -> int:
 def compile_count() -> int:
     """Programs compiled (or loaded from the persistent cache) and held by this process."""
     return len(_programs)
+
+
+def compile_log() -> list[tuple[SGCConfig, Bucket, float]]:
+    """Every program this process compiled (or loaded from the persistent cache), in order:
+    (program config, bucket, seconds), released ones included."""
+    return list(_compiles)
 
 
 def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float) -> PairArrays:
