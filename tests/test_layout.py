@@ -1,4 +1,4 @@
-"""The package layout (issue 19): layers that import only the layers below them, no import cycles
+"""The package layout: layers that import only the layers below them, no import cycles
 (function-local imports included), no private name used across modules, every subpackage shipped.
 
 Layers, bottom up:
