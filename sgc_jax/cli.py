@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import os
 import sys
 import tempfile
+import tomllib
 import traceback
+import typing
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 from . import __version__
 from .calibration import COMPONENTS
+from .config import SGCConfig, cli_flag
 
 EXIT_OK = 0  # every input processed
 EXIT_SOME_FAILED = 1  # the command ran to the end and wrote its outputs; some inputs were reported as errors
@@ -33,7 +38,7 @@ class UsageError(Exception):
 _NOT_A_CLIP_HINTS = {
     ".csv": "a scores table; `sgc-jax rescore`, `compare` and `calibrate` read those",
     ".npy": "a single array; a clip is an .npz archive of named arrays (docs/semantics.md §1.2)",
-    ".json": "a calibration file? give it to --calibration",
+    ".json": "a calibration file (--calibration) or a configuration file (--config)?",
 }
 
 
@@ -76,10 +81,10 @@ def table_input_files(paths: Iterable[str]) -> list[Path]:
     return [Path(t) for t in paths]
 
 
-def guard_outputs(inputs: Iterable[str | os.PathLike], **outputs: str | os.PathLike | None) -> None:
+def guard_outputs(inputs: Iterable[str | os.PathLike | None], **outputs: str | os.PathLike | None) -> None:
     """Refuse an output that is an input, a directory, or the same file as another output
-    (``outputs``: flag name -> path, None when not given)."""
-    taken = {_file_key(p): None for p in inputs}
+    (``outputs``: flag name -> path; None, as an input or an output, when not given)."""
+    taken = {_file_key(p): None for p in inputs if p is not None}
     for flag, path in outputs.items():
         if path is None:
             continue
@@ -95,6 +100,23 @@ def guard_outputs(inputs: Iterable[str | os.PathLike], **outputs: str | os.PathL
 
 
 
+def _config_option_kwargs(field: dataclasses.Field, kind: Any) -> dict[str, Any]:
+    """``add_argument`` keywords of one SGCConfig field: its help and default from config.py, no
+    parsed default (so a flag left out does not override ``--config``)."""
+    default = field.default
+    if isinstance(default, bool):
+        default = "on" if default else "off"
+    shown = "" if default is None else f" (default: {default})"
+    kwargs = dict(dest=field.name, default=argparse.SUPPRESS, help=field.metadata["help"].replace("%", "%%") + shown)
+    if kind is bool or bool in typing.get_args(kind):
+        return {**kwargs, "action": argparse.BooleanOptionalAction}
+    if field.metadata.get("choices"):
+        return {**kwargs, "choices": field.metadata["choices"]}
+    if kind in (int, float):
+        return {**kwargs, "type": kind, "metavar": kind.__name__.upper()}
+    raise TypeError(f"SGCConfig.{field.name}: no command-line form for a field of type {kind}")
+
+
 def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("algorithm")
     group.add_argument("--engine", choices=("jax", "reference"), default="jax",
@@ -102,23 +124,14 @@ def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--calibration", default=None,
                        help="shipped calibration name or a calibration JSON file (default: sgc-spec-2026, or "
                             "sgc-paper-2026 with --compat authors; docs/semantics.md §5)")
-    group.add_argument("--partition", choices=("depth", "grid", "depth+spatial"), default="depth",
-                       help="how the static background is split into regions: depth layers (default), a "
-                            "k_seg grid over its bounding box, or depth layers split into connected "
-                            "parts (docs/semantics.md §3.2, §6.1)")
-    group.add_argument("--no-mos", action="store_true", help="ignore the static masks (paper's no-MOS ablation)")
-    group.add_argument("--align-scale", action=argparse.BooleanOptionalAction, default=None,
-                       help="fit one scale per clip between local (depth) and global (pose) translations "
-                            "(default: on, off with --compat authors)")
-    group.add_argument("--no-global-pose", action="store_true",
-                       help="the paper's 'w/o VGGT' variant: each pair's mean local pose stands in for the "
-                            "global camera pose; the global variances drop out (docs/semantics.md §6)")
-    group.add_argument("--compat", choices=("spec", "authors"), default="spec",
-                       help="authors: reproduce the paper code's choices (docs/semantics.md §3.9)")
-    group.add_argument("--no-quality-rule", action="store_true",
-                       help="keep every accepted local pose, ill-conditioned or ambiguous ones too (the paper's "
-                            "semantics; always so with --compat authors)")
-    group.add_argument("--seed", type=int, default=0, help="RANSAC seed")
+    group.add_argument("--config", metavar="FILE",
+                       help="SGCConfig fields as a JSON object, or TOML when FILE ends in .toml (e.g. "
+                            '{"inlier_px": 6, "partition": "grid"}); the options below override it')
+    fields = parser.add_argument_group("configuration",
+                                       "SGCConfig fields (docs/semantics.md §2); each overrides --config")
+    hints = typing.get_type_hints(SGCConfig)
+    for field in dataclasses.fields(SGCConfig):
+        fields.add_argument(cli_flag(field), **_config_option_kwargs(field, hints[field.name]))
 
 
 def _use_compilation_cache(engine: str) -> None:
@@ -130,17 +143,49 @@ def _use_compilation_cache(engine: str) -> None:
         enable_compilation_cache()
 
 
-def _config_and_calibration(args: argparse.Namespace):
-    """The SGCConfig and Calibration the algorithm flags name, resolved before any clip is read
-    (so that only a bad flag, never an engine's exception, becomes a usage error)."""
-    from .api import resolve_calibration
-    from .config import SGCConfig
-
+def _read_config_file(path: str) -> dict[str, Any]:
+    """``--config FILE``: a JSON object (TOML when the name ends in ``.toml``) of SGCConfig fields,
+    each value of its field's type."""
     try:
-        config = SGCConfig().replace(
-            partition=args.partition, use_mos=not args.no_mos, align_scale=args.align_scale,
-            global_pose=not args.no_global_pose, compat=args.compat, seed=args.seed,
-            quality_rule=not args.no_quality_rule)
+        text = Path(path).read_bytes().decode()
+        values = tomllib.loads(text) if path.lower().endswith(".toml") else json.loads(text)
+    except OSError as exc:
+        raise UsageError(f"--config {path}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # JSONDecodeError, TOMLDecodeError, UnicodeDecodeError
+        raise UsageError(f"--config {path}: not a {'TOML' if path.lower().endswith('.toml') else 'JSON'} "
+                         f"file: {exc}") from None
+    if not isinstance(values, dict):
+        raise UsageError(f"--config {path}: expected an object of SGCConfig fields, got {type(values).__name__}")
+    hints = typing.get_type_hints(SGCConfig)
+    for field in dataclasses.fields(SGCConfig):
+        if field.name not in values:
+            continue
+        value, kind = values[field.name], hints[field.name]
+        types = typing.get_args(kind) or (kind,)  # bool | None -> (bool, NoneType)
+        if float in types:
+            types += (int,)  # 6 for 6.0
+        if type(value) not in types:  # exact: true is not an int
+            raise UsageError(f"--config {path}: {field.name} must be {getattr(kind, '__name__', kind)}, "
+                             f"got {value!r}")
+        if kind is float:
+            values[field.name] = float(value)
+    return values
+
+
+def _config_and_calibration(args: argparse.Namespace):
+    """The SGCConfig and Calibration of the algorithm flags over ``--config``, resolved before any
+    clip is read (so that only a bad flag, never an engine's exception, becomes a usage error)."""
+    from .api import resolve_calibration
+
+    values = _read_config_file(args.config) if args.config else {}
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(SGCConfig) if hasattr(args, f.name)}
+    try:
+        config = SGCConfig.from_dict({**values, **given})
+    except TypeError as exc:  # an unknown field in the file
+        raise UsageError(f"--config {args.config}: {exc}") from None
+    except ValueError as exc:  # a value out of its range
+        raise UsageError(str(exc)) from None
+    try:
         return config, resolve_calibration(args.calibration, config)
     except (OSError, ValueError) as exc:  # an unknown calibration name or file, one for the other compat
         raise UsageError(str(exc)) from None
@@ -158,7 +203,7 @@ def cmd_score(args: argparse.Namespace) -> int:
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
-    guard_outputs(inputs, out=out, pairs=args.pairs)
+    guard_outputs([*inputs, args.config], out=out, pairs=args.pairs)
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
@@ -247,7 +292,6 @@ def _read_scores(paths) -> list[dict]:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    import dataclasses
     import warnings
 
     from .calibration import calibrate, kfold_stability
@@ -443,7 +487,6 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_pack(args: argparse.Namespace) -> int:
     import warnings
 
-    from .config import SGCConfig
     from .io.clip import save_batch
     from .io.loading import discover_clips
 
@@ -564,7 +607,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
-    guard_outputs(inputs, out=args.out, summary=args.summary, plot=args.plot)
+    guard_outputs([*inputs, args.config], out=args.out, summary=args.summary, plot=args.plot)
     config, calibration = _config_and_calibration(args)
     try:
         check_kinds(args.kinds), check_severities(args.severities)

@@ -29,43 +29,62 @@ VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "m
                 "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
+def _field(default: Any, help: str, *, flag: str | None = None, choices: tuple[str, ...] | None = None) -> Any:
+    """A dataclass field with its command-line form: ``help`` for ``sgc-jax score --help``, ``flag``
+    when the option is not ``--field-name``, ``choices`` for a string field."""
+    return dataclasses.field(default=default, metadata={"help": help, "flag": flag, "choices": choices})
+
+
 @dataclasses.dataclass(frozen=True)
 class SGCConfig:
-    """Hyperparameters; defaults are the paper's (appendix, Table of hyperparameters)."""
+    """Hyperparameters; defaults are the paper's (appendix, Table of hyperparameters). Each field's
+    help text doubles as its ``sgc-jax score`` / ``perturb`` option (:func:`cli_flag`)."""
 
-    k_seg: int = 10  # depth clusters per frame
-    min_region_pixels: int = 200  # clusters smaller than this are dropped
-    min_points: int = 4  # tracks a region needs for a local pose
-    inlier_px: float = 8.0  # RANSAC inlier threshold on reprojection error, pixels
-    ransac_hypotheses: int = 100  # minimal samples per region
-    confidence: float = 0.99  # RANSAC confidence: adaptive stop in both engines (OpenCV and JAX)
-    min_inlier_frac: float = 0.3  # pose accepted when inliers >= max(4, floor(frac * n))
-    min_track_conf: float = 0.5  # tracks below this confidence are unusable
-    max_tracks: int = 4096  # tracks kept per pair at load time (deterministic sub-sampling)
-    seed: int = 0  # every random draw derives from this
-    partition: str = "depth"  # "depth" | "grid" | "depth+spatial"
-    use_mos: bool = True  # False: ignore the static mask (the paper's no-MOS ablation)
-    # One scale s per clip between local (depth-unit) and global (pose-unit) translations:
-    # None = on under compat="spec" (docs/semantics.md §4), off under compat="authors".
-    align_scale: bool | None = None
-    global_pose: bool = True  # False: the "w/o VGGT" variant, the mean local pose stands in for the global one
-    compat: str = "spec"  # "spec" | "authors" (docs/semantics.md §3.9)
-    kmeans_bins: int = 1024  # histogram resolution of the exact 1-D k-means
-    gn_steps: int = 10  # Gauss-Newton steps per PnP solve (JAX engine)
-    # Region-quality rule (issue 7, sgc_jax.kernels.uncertainty): accepted local poses that the data do not
-    # pin down are left out of the variances with status ill_conditioned / ambiguous. Never applied
-    # under compat="authors" (the authors keep every accepted pose).
-    quality_rule: bool = True
-    min_region_points: int = 10  # inliers an accepted pose needs
-    max_rot_std_deg: float = 1.0  # largest RMS rotation uncertainty (Gauss-Newton covariance), deg,
-    max_rot_std_px: float = 4.0  # ... or the angle this many pixels subtend at the focal length, if larger
-    quality_noise_px: float = 1.0  # ... at the residual sigma, capped here: misfit beyond is inconsistency
-    min_region_extent: float = 0.02  # smallest RMS radius of the inlier pixels, x image diagonal
-    ambiguous_rot_deg: float = 3.0  # a rival fit this far away in rotation ...
-    ambiguous_inlier_frac: float = 0.05  # ... losing at most this fraction of inliers: ambiguous (JAX)
-    # JAX engine: each region also tries the other regions' poses of its pair as RANSAC hypotheses
-    # (sgc_jax.kernels.ransac.borrow_region_poses), kept only where they fit its own points better.
-    borrow_region_poses: bool = True
+    k_seg: int = _field(10, "region slots per frame: depth clusters, grid cells or components")
+    min_region_pixels: int = _field(200, "clusters, cells or components with fewer pixels are dropped")
+    min_points: int = _field(4, "tracks a region needs for a local pose (>= 4)")
+    inlier_px: float = _field(8.0, "RANSAC inlier threshold on the reprojection error, pixels")
+    ransac_hypotheses: int = _field(100, "most minimal samples drawn per region")
+    confidence: float = _field(0.99, "RANSAC confidence of the adaptive stop (both engines), in (0, 1)")
+    min_inlier_frac: float = _field(0.3, "a pose is accepted when its inliers >= max(4, floor(frac * n)), "
+                                         "n = the region's tracks")
+    min_track_conf: float = _field(0.5, "tracks below this confidence are unusable")
+    max_tracks: int = _field(4096, "tracks kept per pair at load time (deterministic sub-sampling)")
+    seed: int = _field(0, "every random draw derives from it: same seed, same result")
+    partition: str = _field("depth", "how the static background is split into regions: depth layers, a k_seg "
+                                     "grid over its bounding box, or depth layers split into connected parts "
+                                     "(docs/semantics.md §3.2, §6.1)", choices=PARTITIONS)
+    use_mos: bool = _field(True, "use the static masks; --no-mos ignores them (the paper's no-MOS ablation, "
+                                 "docs/semantics.md §6.2)", flag="--mos")
+    # None: on under compat="spec" (docs/semantics.md §3.4), off under compat="authors".
+    align_scale: bool | None = _field(None, "fit one scale per clip between local (depth-unit) and global "
+                                            "(pose-unit) translations (default: on, off with --compat authors)")
+    global_pose: bool = _field(True, "use the global camera pose; --no-global-pose is the paper's 'w/o VGGT' "
+                                     "variant: each pair's mean local pose stands in for it and the global "
+                                     "variances drop out (docs/semantics.md §6.3)")
+    compat: str = _field("spec", "authors: reproduce the paper code's choices (docs/semantics.md §3.9)",
+                         choices=COMPATS)
+    kmeans_bins: int = _field(1024, "histogram resolution of the exact 1-D k-means")
+    gn_steps: int = _field(10, "Gauss-Newton steps per PnP solve (JAX engine)")
+    quality_rule: bool = _field(True, "leave the accepted local poses that the data do not pin down out of the "
+                                      "variances (status ill_conditioned / ambiguous, docs/semantics.md §3.3); "
+                                      "never applied with --compat authors, which keeps every accepted pose")
+    min_region_points: int = _field(10, "quality rule: inliers an accepted pose needs")
+    max_rot_std_deg: float = _field(1.0, "quality rule: largest RMS rotation uncertainty (Gauss-Newton "
+                                         "covariance), degrees")
+    max_rot_std_px: float = _field(4.0, "quality rule: that bound is the angle this many pixels subtend at the "
+                                        "focal length, when larger")
+    quality_noise_px: float = _field(1.0, "quality rule: the residual sigma behind that uncertainty is capped "
+                                          "here, pixels (misfit beyond is inconsistency)")
+    min_region_extent: float = _field(0.02, "quality rule: smallest RMS radius of the inlier pixels, as a "
+                                            "fraction of the image diagonal, in [0, 1)")
+    ambiguous_rot_deg: float = _field(3.0, "quality rule (JAX engine): a rival fit at least this far away in "
+                                           "rotation, degrees, that loses at most --ambiguous-inlier-frac of the "
+                                           "inliers makes the pose ambiguous")
+    ambiguous_inlier_frac: float = _field(0.05, "quality rule (JAX engine): see --ambiguous-rot-deg; in [0, 1)")
+    borrow_region_poses: bool = _field(True, "JAX engine: each region also tries the other regions' poses of its "
+                                             "pair as RANSAC hypotheses, kept only where they fit its own points "
+                                             "better (docs/semantics.md §7.1)")
 
     def __post_init__(self) -> None:
         if self.partition not in PARTITIONS:
@@ -119,3 +138,9 @@ class SGCConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def cli_flag(field: dataclasses.Field) -> str:
+    """The ``sgc-jax score`` / ``perturb`` option that sets ``field``: ``--field-name`` unless the
+    field names another; a bool field also takes the ``--no-`` form of it."""
+    return field.metadata.get("flag") or "--" + field.name.replace("_", "-")

@@ -1,13 +1,15 @@
 """Agreement statistics for score lists (docs/semantics.md §6.5): rank correlations, bootstrap CIs,
 min-max scaling.
 
-Pure NumPy. Every paired function drops the pairs where either value is NaN (or missing, ``None``)
-before computing, and returns NaN when fewer than two pairs remain or a list is constant, as
-``scipy.stats`` does. Ties get average ranks (Spearman) and the tau-b correction (Kendall).
+A thin layer over ``scipy.stats`` that fixes our conventions: every paired function drops the pairs
+where either value is NaN (or missing, ``None``) and returns NaN, without a warning, when fewer than
+two pairs remain or a list is constant. Ties get average ranks (Spearman) and the tau-b correction
+(Kendall).
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -15,6 +17,14 @@ import numpy as np
 
 def _as_float(values: Any) -> np.ndarray:
     return np.asarray(values, np.float64).ravel()  # None -> NaN
+
+
+def _scipy_stats():
+    # Imported on first use: scipy.stats takes about a second to import, which `import sgc_jax`
+    # and the commands that compute no statistic should not pay.
+    import scipy.stats
+
+    return scipy.stats
 
 
 def paired(a: Any, b: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -27,59 +37,37 @@ def paired(a: Any, b: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rankdata(values: Any) -> np.ndarray:
-    """Ranks 1..n of a 1-D array, ties given their average rank (``scipy.stats.rankdata``)."""
-    values = _as_float(values)
-    order = np.argsort(values, kind="mergesort")
-    sorted_values = values[order]
-    new_group = np.concatenate([[True], sorted_values[1:] != sorted_values[:-1]])
-    group = np.cumsum(new_group) - 1
-    starts = np.flatnonzero(new_group)
-    ends = np.concatenate([starts[1:], [values.size]])
-    average = (starts + ends + 1) / 2.0  # mean of the 1-based positions start+1..end
-    ranks = np.empty(values.size)
-    ranks[order] = average[group]
-    return ranks
+    """Ranks 1..n of a 1-D array, ties given their average rank; a NaN gets rank NaN and the other
+    values are ranked among themselves."""
+    return np.asarray(_scipy_stats().rankdata(_as_float(values), nan_policy="omit"), np.float64)
+
+
+def _correlation(name: str, a: Any, b: Any) -> float:
+    """``scipy.stats.<name>(a, b).statistic`` over the non-NaN pairs, under the conventions above."""
+    a, b = paired(a, b)
+    if a.size < 2 or np.all(a == a[0]) or np.all(b == b[0]):
+        return float("nan")
+    stats = _scipy_stats()
+    # nearly constant lists warn and still get a value; an infinity makes Pearson NaN
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", stats.DegenerateDataWarning)
+        return float(getattr(stats, name)(a, b).statistic)
 
 
 def pearson(a: Any, b: Any) -> float:
     """Pearson correlation r of the non-NaN pairs (NaN with < 2 pairs or a constant list)."""
-    a, b = paired(a, b)
-    if a.size < 2:
-        return float("nan")
-    da, db = a - a.mean(), b - b.mean()
-    denom = np.sqrt(np.sum(da * da) * np.sum(db * db))
-    return float(np.clip(np.sum(da * db) / denom, -1.0, 1.0)) if denom > 0 else float("nan")
+    return _correlation("pearsonr", a, b)
 
 
 def spearman(a: Any, b: Any) -> float:
-    """Spearman rho: Pearson r of the average ranks of the non-NaN pairs."""
-    a, b = paired(a, b)
-    return pearson(rankdata(a), rankdata(b))
+    """Spearman rho (Pearson r of the average ranks) of the non-NaN pairs."""
+    return _correlation("spearmanr", a, b)
 
 
-def _tied_pairs(values: np.ndarray) -> float:
-    _, counts = np.unique(values, return_counts=True)
-    return float(np.sum(counts * (counts - 1) / 2.0))
-
-
-def kendall_tau(a: Any, b: Any, *, block: int = 1024) -> float:
-    """Kendall tau-b of the non-NaN pairs: (C - D) / sqrt((n0 - t_a)(n0 - t_b)).
-
-    C, D: concordant and discordant pairs, n0 = n(n-1)/2, t_a, t_b: pairs tied in a, in b. Exact,
-    O(n^2) in blocks of ``block`` rows (memory O(block * n)).
-    """
-    a, b = paired(a, b)
-    n = a.size
-    if n < 2:
-        return float("nan")
-    s = 0.0
-    for start in range(0, n, block):
-        rows = slice(start, min(start + block, n))
-        s += float(np.sum(np.sign(a[rows, None] - a[None, :]) * np.sign(b[rows, None] - b[None, :])))
-    s /= 2.0  # every unordered pair was counted twice
-    n0 = n * (n - 1) / 2.0
-    denom = np.sqrt((n0 - _tied_pairs(a)) * (n0 - _tied_pairs(b)))
-    return float(np.clip(s / denom, -1.0, 1.0)) if denom > 0 else float("nan")
+def kendall_tau(a: Any, b: Any) -> float:
+    """Kendall tau-b of the non-NaN pairs: (C - D) / sqrt((n0 - t_a)(n0 - t_b)), with C, D the
+    concordant and discordant pairs, n0 = n(n-1)/2 and t_a, t_b the pairs tied in a, in b."""
+    return _correlation("kendalltau", a, b)
 
 
 def bootstrap_ci(values: Any, statistic: Callable[..., Any] = np.mean, *, n_boot: int = 2000,
@@ -89,6 +77,8 @@ def bootstrap_ci(values: Any, statistic: Callable[..., Any] = np.mean, *, n_boot
     ``statistic(x, axis=-1)`` must reduce the last axis (``np.mean``, ``np.median``, ...). One value
     gives a zero-width interval at it; none gives (NaN, NaN). Deterministic for a given ``seed``.
     """
+    # Not scipy.stats.bootstrap: it draws the same resamples, but its percentile step differs from
+    # np.percentile in the last bits (and between scipy versions), and it refuses a single value.
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
     x = _as_float(values)

@@ -17,7 +17,7 @@ from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 # Well-conditioned scenes: two planar layers (one slanted) plus four static spheres, so every
 # depth region is a curved 3D point set. Small planar patches are the ill-posed case where any
-# PnP-RANSAC (OpenCV's included) may return the planar-ambiguity twin pose (see issue 7).
+# PnP-RANSAC (OpenCV's included) may return the planar-ambiguity twin pose (docs/semantics.md §3.3).
 SCENE = dict(n_layers=2, static_spheres=4, height=120, width=160, n_tracks=2048, n_frames=4)
 
 
@@ -43,9 +43,8 @@ def drift_clip():
 
 # Each XLA:CPU executable maps its machine code into a few dozen memory regions, and the suite
 # compiles hundreds of programs (one scorer per config and bucket). Past the kernel's
-# vm.max_map_count (65530 by default) the next compile segfaults inside XLA, which is how the
-# full suite used to die at ~75% on the 2-core CI. Release the compiled programs between test
-# modules once the process holds more than half that many mappings.
+# vm.max_map_count (65530 by default) the next compile segfaults inside XLA. Release the compiled
+# programs between test modules once the process holds more than half that many mappings.
 _MAPS = Path("/proc/self/maps")
 _MAX_MAP_COUNT = Path("/proc/sys/vm/max_map_count")
 

@@ -1,5 +1,5 @@
-"""Issue 5: estimator outputs -> clips. Fixtures are written in each estimator's own format and
-resolution by tests/estimator_fixtures.py (an independent restatement of the formats)."""
+"""Estimator outputs -> clips (docs/semantics.md §1.5). Fixtures are written in each estimator's own
+format and resolution by tests/estimator_fixtures.py (an independent restatement of the formats)."""
 
 import dataclasses
 import pickle
@@ -22,7 +22,7 @@ from sgc_jax.research.synth import synth_clip
 # other tests. Portrait grids (VGGT's crop mode really crops) are checked array by array below.
 SCENE = dict(n_layers=2, static_spheres=4, height=120, width=160, n_tracks=2048, n_frames=4)
 # Float32 storage in the estimators' files moves K and depth by ~1e-7 relative; scores move by
-# ~1e-5 relative (measured 4e-6). 1% is the issue's tolerance.
+# ~1e-5 relative (measured 4e-6). 1% is the required agreement.
 SCORE_RTOL = 0.01
 K_ATOL_PX = 1e-3  # float32 K on a 518-px grid: ~3e-5 px
 
@@ -353,7 +353,7 @@ def test_reference_compat_import_reproduces_the_authors_choices(tmp_path, scene_
 
 
 def test_round_trip_through_native_formats_scores_like_the_synthetic_clip(tmp_path, scene_clip):
-    """Issue 5 must-show: VGGT (518 x 392 grid, crop mode), VDA (1.5x), DELTA (per-pair files),
+    """VGGT (518 x 392 grid, crop mode), VDA (1.5x), DELTA (per-pair files),
     SegAnyMo (2x palette PNGs) and frames, imported back, score like the clip itself (JAX engine)."""
     H, W = scene_clip.image_size
     paths = write_all(tmp_path, scene_clip, depth_size=(int(1.5 * H), int(1.5 * W)), mask_size=(2 * H, 2 * W),

@@ -1,4 +1,4 @@
-"""Issue 18, docs/semantics.md §1.4: bad input is a ClipFormatError naming clip, array and expectation,
+"""docs/semantics.md §1.4: bad input is a ClipFormatError naming clip, array and expectation,
 raised before any engine runs; it never stops a directory and never changes the other clips' scores."""
 
 import dataclasses

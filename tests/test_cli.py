@@ -1,14 +1,18 @@
 """The sgc-jax command line, run as a real process on real files."""
 
 import csv
+import dataclasses
+import json
 import subprocess
 import sys
+import typing
 
 import pytest
 from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
-from sgc_jax import save_clip, score_batch
-from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, main
+from sgc_jax import SGCConfig, save_clip, score_batch
+from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, _config_and_calibration, build_parser, main
+from sgc_jax.config import cli_flag
 from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
@@ -172,3 +176,86 @@ def test_an_output_that_names_an_input_is_refused_and_the_input_kept(scored, tmp
         proc = run(*args)
         assert proc.returncode == EXIT_USAGE and words in proc.stderr, (case, proc.stderr)
         assert "Traceback" not in proc.stderr and kept.read_bytes() == before[kept], case
+
+
+# ----------------------------------------------------------------------------- configuration options, --config (docs/semantics.md §2, §8)
+
+
+def non_default_values() -> dict:
+    """A valid value other than the default for every SGCConfig field."""
+    hints = typing.get_type_hints(SGCConfig)
+    values = {}
+    for f in dataclasses.fields(SGCConfig):
+        kind = hints[f.name]
+        if f.metadata.get("choices"):
+            values[f.name] = next(c for c in reversed(f.metadata["choices"]) if c != f.default)
+        elif kind is bool or bool in typing.get_args(kind):
+            values[f.name] = True if f.default is None else not f.default
+        else:
+            values[f.name] = f.default + 1 if kind is int else f.default / 2  # every float field is > 0
+    return values
+
+
+def as_options(values: dict) -> list[str]:
+    options = []
+    for f in dataclasses.fields(SGCConfig):
+        value, flag = values[f.name], cli_flag(f)
+        options += [flag if value else "--no-" + flag[2:]] if isinstance(value, bool) else [flag, str(value)]
+    return options
+
+
+def configured(*argv, command="score") -> SGCConfig:
+    return _config_and_calibration(build_parser().parse_args([command, "clip.npz", *map(str, argv)]))[0]
+
+
+@pytest.mark.parametrize("command", ["score", "perturb"])
+def test_every_field_is_set_by_its_option_and_only_when_given(command):
+    values = non_default_values()
+    assert configured(command=command) == SGCConfig()
+    assert configured(*as_options(values), command=command) == SGCConfig(**values)
+    assert configured("--no-mos", "--no-global-pose", "--no-quality-rule", "--align-scale", "--compat", "authors",
+                      "--seed", "3", "--partition", "grid") == SGCConfig(
+        use_mos=False, global_pose=False, quality_rule=False, align_scale=True, compat="authors", seed=3,
+        partition="grid")
+
+
+def test_config_file_sets_fields_and_options_override_it(tmp_path):
+    values = non_default_values()
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(values))
+    assert configured("--config", path) == SGCConfig(**values)
+    assert configured("--config", path, "--inlier-px", "9", "--mos") == SGCConfig(**{**values, "inlier_px": 9.0,
+                                                                                        "use_mos": True})
+    path.write_text(json.dumps(SGCConfig().to_dict()))
+    assert configured("--config", path) == SGCConfig()
+    toml = tmp_path / "config.toml"
+    toml.write_text('inlier_px = 6\npartition = "grid"\nuse_mos = false\n')
+    assert configured("--config", toml, command="perturb") == SGCConfig(inlier_px=6.0, partition="grid", use_mos=False)
+
+
+@pytest.mark.parametrize("content, words", [
+    ('{"inlier": 6}', "unknown SGCConfig field(s) ['inlier']"),
+    ('{"k_seg": "10"}', "k_seg must be int, got '10'"),
+    ('{"k_seg": true}', "k_seg must be int, got True"),
+    ('{"use_mos": 0}', "use_mos must be bool, got 0"),
+    ('{"confidence": 2}', "confidence must be in (0, 1)"),
+    ('[1]', "expected an object of SGCConfig fields"),
+    ('{"k_seg": ', "not a JSON file"),
+])
+def test_a_bad_config_file_is_a_one_line_usage_error(scored, tmp_path, capsys, content, words):
+    path = tmp_path / "config.json"
+    path.write_text(content)
+    for command in ("score", "perturb"):
+        assert main([command, str(scored[0]), "--engine", "reference", "--config", str(path)]) == EXIT_USAGE
+        err = capsys.readouterr().err
+        assert err.startswith(f"sgc-jax {command}: error: ") and err.count("\n") == 1 and words in err, err
+
+
+def test_config_file_is_an_input_that_out_cannot_overwrite(scored, tmp_path):
+    path = tmp_path / "config.json"
+    path.write_text('{"seed": 1}')
+    proc = run("score", scored[0], "--config", path, "--out", path)
+    assert proc.returncode == EXIT_USAGE and "would be overwritten" in proc.stderr, proc.stderr
+    assert path.read_text() == '{"seed": 1}'
+    missing = run("perturb", scored[0], "--config", tmp_path / "none.json")
+    assert missing.returncode == EXIT_USAGE and "none.json" in missing.stderr and "Traceback" not in missing.stderr

@@ -1,5 +1,5 @@
-"""Issue 17 (3): relative Video Depth Anything disparity fitted to VGGT's depth on import, so that
-depth and camera translations share units. Estimator outputs come from tests/estimator_fixtures.py:
+"""Relative Video Depth Anything disparity fitted to VGGT's depth on import, so that depth and
+camera translations share units (docs/semantics.md §1.5). Estimator outputs come from tests/estimator_fixtures.py:
 VDA disparity = gain / depth + shift, VGGT depth = true depth x VGGT's scene scale, with noise,
 gross outliers, wrong depth on moving objects and low confidence, on VGGT's 518-px grid."""
 
@@ -27,18 +27,18 @@ SCENE = dict(n_layers=2, static_spheres=4, height=96, width=128, n_tracks=1024, 
 VGGT_UNITS = 0.37  # VGGT normalises its scene: its depth and translations are the true ones x a factor
 VDA_GAIN, VDA_SHIFT = 37.0, 2.0  # disparity = gain / depth + shift; the shift is ~40% of the far wall's
 TRUE_SCALE, TRUE_SHIFT = 1 / (VGGT_UNITS * VDA_GAIN), -VDA_SHIFT / (VGGT_UNITS * VDA_GAIN)  # 1/depth_vggt = a d + b
-# VGGT-like depth: a few percent of noise (log-std), the issue's 5-10% gross outliers, moving objects
+# VGGT-like depth: a few percent of noise (log-std), 5-10% gross outliers, moving objects
 # 60% too far, a fifth of the pixels low-confidence.
 VGGT_ERRORS = dict(noise=0.03, outlier_frac=0.08, moving_factor=1.6, low_conf_frac=0.2, seed=3)
-MEDIAN_REL_ERROR = 0.02  # the issue's bar on the imported depth vs true depth x VGGT_UNITS (measured 0.12-0.13%)
+MEDIAN_REL_ERROR = 0.02  # the required bar on the imported depth vs true depth x VGGT_UNITS (measured 0.12-0.13%)
 FIT_RTOL = 0.01  # fitted vs true scale and shift (measured 0.1%: the noise is 3%, the pixels ~5e4)
-# The shift-0 import (today's rule), even at its best global scale, is this far off: the shift matters
+# The shift-0 import (--no-align-depth), even at its best global scale, is this far off: the shift matters
 # here (measured ~12% with these gain and shift).
 SHIFT0_MIN_ERROR = 0.05
 MIN_MOVING_FRAC = 0.15  # the unmasked moving objects cover this much of the clip (seed 8, 4 spheres: 17%)
 FLOAT32_RTOL, FLOAT32_ATOL = 1e-6, 1e-6  # the estimators' files store float32 (~6e-8 relative)
 EXACT_RTOL = 1e-9  # float64 IRLS on a noise-free affine map converges to rounding (measured ~1e-15)
-# deg^2: the issue's bar on local rotation variance for a rigid scene imported through the alignment
+# deg^2: the required bar on local rotation variance for a rigid scene imported through the alignment
 # (measured 1e-10). Held to the global rotation variance too, which the shift-0 import fails
 # (0.10 deg^2; its local one, 0.028, passes: the bar alone would not tell the two apart).
 ROT_VAR_MAX = 0.05

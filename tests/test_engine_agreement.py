@@ -1,32 +1,25 @@
-"""The JAX engine against the NumPy/OpenCV reference on a 30-clip synthetic corpus (issue 3).
+"""The JAX engine against the NumPy/OpenCV reference on a 30-clip synthetic corpus.
 
 Both engines see the same points and regions (label maps match pixel for pixel); they differ in
 the PnP-RANSAC. Where they differ, the scene's known geometry says which one is wrong:
 
 - noise-free rigid clips: both recover the exact motion, so every component must agree within
-  the issue's tolerance (with masked moving objects one clip, moving1, has a small region whose
-  tracks cross the mask margin: both engines give ~40 deg^2 there, JAX 39 vs OpenCV 48);
+  ``ATOL`` (with masked moving objects one clip, moving1, has a small region whose tracks cross
+  the mask margin: both engines give ~40 deg^2 there, JAX 39 vs OpenCV 48);
 - noisy / outlier / perturbed clips: the variances are driven by per-region pose errors, and the
   two estimators make different errors. There the test checks that the JAX engine is not the
   wrong one: its poses are closer to the true camera motion on rigid scenes, and on every clip
   they explain the region's tracks at least as well as OpenCV's (MSAC cost: squared reprojection
   error truncated at inlier_px, summed over the region's points) in nearly every region.
 
-Measured on this corpus (2026-11-21, default config with the region-quality rule, after the
-re-admission and leverage checks below and with region-pose borrowing): within tolerance 88/150
-(clip, component) cases overall (rule off: 89/150; before the checks 93 and 89), 20/20 on the
-rigid and 20/20 on the masked moving clips, 4/20 on the 1 px + 30% outlier clips; Spearman rho of
-SGC 0.91 (rule off 0.91; before borrowing 0.92 and 0.91; before the checks 0.94 and 0.91). The checks lowered the JAX rotation variances of the
-low-confidence clip lowconf1 (a rigid scene, truth ~0) from within tolerance to 11-19% below
-OpenCV's, and moved some perturbed clips (no true value to compare with). The issue's >= 95% /
-rho >= 0.98 is not met because cv2.solvePnPRansac (100 iterations, adaptive stop, inlier-count
-scoring) returns poses several degrees off on small, weakly conditioned regions where the JAX
-engine's MSAC scoring and least-squares refinement land at the least-squares optimum; see the
-note on issue 3.
-The JAX engine had its own, rarer failure (found and fixed 2026-11-21): on weakly conditioned
-regions the final fit slid along the rotation-translation valley, resting on one gross outlier
-or leaving out the few clean points that pin it; ``ransac.refine_poses`` now re-admits points
-its uncertainty explains and drops points of extreme leverage (see the last test).
+So the engines agree on the rigid and masked moving clips (20/20 each) but on few of the 1 px +
+30% outlier clips (4/20; figures per variant: bench/RESULTS.md): cv2.solvePnPRansac (100
+iterations, adaptive stop, inlier-count scoring) returns poses several degrees off on small,
+weakly conditioned regions where the JAX engine's MSAC scoring and least-squares refinement land
+at the least-squares optimum. On such regions ``ransac.refine_poses`` re-admits points its
+uncertainty explains and drops points of extreme leverage, so that the final fit neither slides
+along the rotation-translation valley onto one gross outlier nor leaves out the few clean points
+that pin it (see the last test).
 """
 
 import cv2
@@ -74,9 +67,9 @@ def scored():
     return clips, ref, jx
 
 
-# Issue 3's tolerances in the scale-free units of docs/semantics.md §4: rotation variances 0.05
+# The agreement bar in the scale-free units of docs/semantics.md §4: rotation variances 0.05
 # deg^2; translation variances (1% of the median depth)^2 = 1 (% of D)^2 and the depth error 0.1%
-# (issue 3: 1e-4 md^2 and 1e-3 md in depth units); or 5% of the value.
+# (1e-4 md^2 and 1e-3 md in depth units); or 5% of the value.
 ATOL = {"local_rot_var": 0.05, "global_rot_var": 0.05, "local_trans_var": 1.0, "global_trans_var": 1.0,
         "depth_error": 0.1}
 
@@ -173,20 +166,17 @@ def _truth_errors(clips, result):
 
 
 def test_on_outlier_clips_jax_local_poses_are_near_the_information_limit(scored):
-    """Issue 3: local poses against the true motion, 1 px noise and 30% outlier tracks, accepted
-    regions with >= 50 points.
+    """Local poses against the true motion, 1 px noise and 30% outlier tracks, accepted regions
+    with >= 50 points.
 
     A depth layer is a narrow band of nearly one depth, so its rotation trades against its
     translation: the least-squares pose of its truly clean points, started at the truth, has a
     predicted std sigma_clean of 0.1-0.5 deg on these 120 x 160 / 96 x 128 clips (fx 139 / 111
-    px, where 1 px is 0.4-0.5 deg), so the issue's flat 0.2 deg is below what the data hold for
-    every region here. The bar is max(0.2 deg, 3 sigma_clean). Measured (2026-11-21): JAX 39/42
-    regions (93%), median error 0.44 deg; without ``borrow_region_poses`` 35/44 (80%), median
-    0.55 deg, and before the re-admission and leverage checks of ``ransac.refine_poses`` 71% on 8
-    such clips, median 0.79 deg; reference (OpenCV) 12/48 (25%), median 4.2 deg. Of the three
-    JAX misses, one region's sigma_clean is 1.7 deg (the data hardly pin it). At 288 x 512 the
-    JAX engine meets the bar on all 66 accepted regions of the same scenes (seeds 40-43, 4096
-    tracks).
+    px, where 1 px is 0.4-0.5 deg), so a flat 0.2 deg is below what the data hold for every
+    region here. The bar is max(0.2 deg, 3 sigma_clean). Of the JAX engine's few misses, one is a
+    region the data hardly pin (sigma_clean 1.7 deg); at 288 x 512 (seeds 40-43, 4096 tracks) it
+    meets the bar on every accepted region of the same scenes. Figures per engine and variant:
+    bench/RESULTS.md.
     """
     clips, ref, jx = scored
     jax_errors, jax_limits = _truth_errors(clips, jx)

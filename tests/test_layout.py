@@ -1,9 +1,9 @@
-"""The package layout (issue 19): layers that import only the layers below them, no import cycles
+"""The package layout: layers that import only the layers below them, no import cycles
 (function-local imports included), no private name used across modules, every subpackage shipped.
 
 Layers, bottom up:
-- base: ``config``, ``codes`` (status and reason codes), ``stats`` (pure NumPy), then ``calibration``
-  (the score formula; the result tables compute their ``sgc`` with it);
+- base: ``config``, ``codes`` (status and reason codes), ``stats`` (our conventions over scipy.stats),
+  then ``calibration`` (the score formula; the result tables compute their ``sgc`` with it);
 - ``kernels/``: JAX kernels, pure functions of arrays; they import only each other, config and codes;
 - ``io/``: clip schema, loading, validation, result tables;
 - ``engines/``: the JAX and reference engines (kernels -> per-pair arrays of io.result);

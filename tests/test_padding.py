@@ -1,4 +1,4 @@
-"""Padding and bucketing (issue 3): padded frames, tracks and pixels are marked invalid and never
+"""Padding and bucketing: padded frames, tracks and pixels are marked invalid and never
 change a clip's numbers; clips of one bucket share one compiled executable."""
 
 import dataclasses

@@ -1,4 +1,4 @@
-"""The partitions of SPEC §3.2 (issue 4 ablations): ``grid`` and ``depth+spatial`` region
+"""The partitions of docs/semantics.md §3.2 and §6.1: ``grid`` and ``depth+spatial`` region
 structure, identical in both engines, and scored end to end."""
 
 import cv2

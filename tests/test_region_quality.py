@@ -1,4 +1,4 @@
-"""Pose uncertainty, ambiguity and the region-quality rule (issue 7).
+"""Pose uncertainty, ambiguity and the region-quality rule (docs/semantics.md §3.3).
 
 Must-shows: a well-conditioned region's rotation uncertainty is below 0.1 deg and within 2x of
 the spread of its poses over noise draws; on rigid scenes with sparse, near, planar regions the

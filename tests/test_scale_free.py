@@ -16,7 +16,7 @@ from sgc_jax.research.synth import synth_clip
 
 ENGINES = ("jax", "reference")
 SCALES = (0.01, 0.1, 10.0, 100.0)
-# Issue 17's bar for "unchanged" under a change of units (depth scaled in float64, so the scaled
+# The bar for "unchanged" under a change of units (depth scaled in float64, so the scaled
 # clip is the same data: the engines divide by D in float64 and see identical float32 depth).
 SCALE_REL_TOL = 1e-3
 # Depth scaled and stored in float32 is different data: every depth moves by up to 6e-8 relative,
@@ -26,7 +26,7 @@ FLOAT32_STORAGE_REL_TOL = 1e-2
 # Below this, a component is float32 rounding of a clean fit (rotations resolve ~1e-5 deg, poses
 # ~1e-7 of D): relative differences of such values mean nothing.
 FLOAT32_FLOOR = 1e-6
-# Issue 17's bars for a rigid scene with a masked moving object.
+# The bars for a rigid scene with a masked moving object.
 ROT_VAR_BAR = 0.05  # deg^2
 DEPTH_ERROR_RATIO_BAR = 1.5  # against the same scene without the object
 
@@ -62,7 +62,7 @@ def tracked_clip():
 def test_scaling_depth_and_camera_translations_together_changes_nothing(moving_clip, tracked_clip, engine):
     clips = [moving_clip, tracked_clip]
     variants = [rescaled(c, s, s) for c in clips for s in SCALES]
-    # OpenCV's adaptive RANSAC (the reference under both modes until issue 20) takes another path
+    # OpenCV's adaptive RANSAC (the reference engine's, in both modes) takes another path
     # for a 1-ulp change of its input, so the float32-stored variants are checked on the JAX engine
     stored = [rescaled(c, s, s, np.float32) for c in clips for s in (0.1, 10.0)] if engine == "jax" else []
     result = score_batch(clips + variants + stored, engine=engine)
@@ -87,7 +87,7 @@ def test_camera_translations_in_other_units_than_depth_change_nothing(tracked_cl
 
 
 # A median of ~10^4 track equations with 0.5 px noise: the fitted scale's spread across scenes and
-# seeds is ~0.3% (bench/RESULTS.md, issue 17); the bar allows three times that.
+# seeds is ~0.3% (bench/RESULTS.md); the bar allows three times that.
 SCALE_FIT_REL_TOL = 1e-2
 
 

@@ -1,7 +1,7 @@
 """docs/semantics.md §3 end to end on synthetic scenes with known geometry, for both engines.
 
 Tolerances: noise-free rigid scenes are exact up to float arithmetic, so pose variances must be
-tiny (the issue's bounds: 1e-3 deg^2, and 1e-6 x median depth^2 = 1e-2 (% of D)^2); the depth
+tiny (the required bounds: 1e-3 deg^2, and 1e-6 x median depth^2 = 1e-2 (% of D)^2); the depth
 error is bounded by the forward splat's rounding to the nearest pixel (half a pixel of depth
 gradient), < 1% of depth.
 """
@@ -87,7 +87,7 @@ def test_engines_agree_on_consistent_and_drifting_scenes(rigid_clip, drift_clip)
         if clip is rigid_clip:  # exact poses: the same translation scale, the same depth check
             assert jx.components["depth_error"] == pytest.approx(ref.components["depth_error"], rel=1e-3)
             assert abs(jx.sgc - ref.sgc) < 0.05
-        else:  # the drifting layer's poses differ between the engines' RANSACs (issue 20)
+        else:  # the drifting layer's poses differ between the engines' RANSACs
             assert abs(jx.sgc - ref.sgc) < 0.15 and min(jx.sgc, ref.sgc) > 0
 
 

@@ -15,7 +15,7 @@ from sgc_jax.research.synth import synth_clip
 # The demo's clip size (96x128, 8 frames, 1024 tracks): its bucket is compiled by the CLI tests too.
 DEMO_SCENE = dict(n_layers=3, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)
 SEVERITIES = (0.25, 0.5, 0.75, 1.0)
-# Issue 17: a rigid static scene must not score above this merely because its depth is large.
+# A rigid static scene must not score above this merely because its depth is large.
 RIGID_BAR = 0.05
 
 

@@ -1,4 +1,4 @@
-"""Issue 5: content checks shared by the loader and `sgc-jax validate`; one actionable line each."""
+"""Content checks shared by the loader and `sgc-jax validate`; one actionable line each."""
 
 import dataclasses
 import json

@@ -24,7 +24,7 @@ from .clip import Clip, ClipFormatError
 SEVERITIES = ("error", "warning", "info")
 
 # Thresholds, each with where it comes from.
-FOCAL_RATIO_MAX = 3.0  # issue 5: focal length off by more than 3x from the image size is an error
+FOCAL_RATIO_MAX = 3.0  # focal length off by more than 3x from the image size is an error
 PRINCIPAL_OFFSET_WARN = 0.25  # principal point this far from the centre (fraction of the side) is suspicious
 ROTATION_ERROR_TOL = 1e-2  # max |R R^T - I| beyond which R is not a rotation (float32 VGGT R: ~1e-7)
 ROTATION_WARN_TOL = 1e-4  # ... and beyond which it is used as is but reported

@@ -1,4 +1,4 @@
-"""How well the data pin down each region's local pose, and the region-quality rule (issue 7).
+"""How well the data pin down each region's local pose, and the region-quality rule (docs/semantics.md §3.3).
 
 A region of a few tracks over a small image patch, or a near-planar one seen almost head-on,
 can be fitted to well under a pixel by poses tens of degrees apart: rotation trades against
