@@ -30,7 +30,7 @@ def _score_in_a_fresh_process(clip_path, out_csv, cache_dir):
     done = subprocess.run([sys.executable, "-m", "sgc_jax.cli", "score", str(clip_path), "--out", str(out_csv), "-q"],
                           env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
-    return {p.name: p.stat().st_mtime_ns for p in cache_dir.iterdir()}
+    return done.stderr, {p.relative_to(cache_dir).as_posix(): p.stat().st_mtime_ns for p in cache_dir.rglob("*")}
 
 
 @pytest.mark.slow
@@ -38,8 +38,10 @@ def test_a_second_cli_run_loads_every_program_from_the_cache(tmp_path):
     clip_path = save_clip(tmp_path / "tiny.npz", synth_clip(seed=5, clip_id="tiny", height=48, width=64, n_tracks=256,
                                                             n_frames=3, n_layers=2, static_spheres=2))
     cache_dir = tmp_path / "cache"
-    first = _score_in_a_fresh_process(clip_path, tmp_path / "first.csv", cache_dir)
-    assert any(name.startswith("jit_") for name in first)
-    second = _score_in_a_fresh_process(clip_path, tmp_path / "second.csv", cache_dir)
-    assert second == first  # nothing compiled anew, nothing rewritten
+    said, first = _score_in_a_fresh_process(clip_path, tmp_path / "first.csv", cache_dir)
+    assert any(name.startswith("jit_") for name in first) and "compiling the JAX program" in said
+    assert any(name.endswith(".jaxexport") for name in first)  # the traced program, kept
+    said, second = _score_in_a_fresh_process(clip_path, tmp_path / "second.csv", cache_dir)
+    assert second == first  # nothing traced or compiled anew, nothing rewritten
+    assert "loading the JAX program" in said and "compiling" not in said
     assert (tmp_path / "second.csv").read_text() == (tmp_path / "first.csv").read_text()

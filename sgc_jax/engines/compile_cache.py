@@ -1,9 +1,11 @@
-"""JAX's persistent compilation cache, per machine, so a second run skips most of the compile.
+"""The persistent cache of compiled programs, per machine, so a later run starts in seconds.
 
-The JAX engine compiles one executable per shape bucket and config (tens of seconds on a small
-CPU). With the cache on, later processes load those executables from disk; what remains of the
-cold start is JAX's tracing in Python. The ``sgc-jax`` commands turn it on by default; library
-users call ``enable_compilation_cache()`` once, before scoring.
+The JAX engine compiles one executable per shape bucket and static config (tens of seconds on a
+small CPU). With the cache on, each traced program is kept as a ``jax.export`` file under
+``sgc_programs/`` and its executable in JAX's persistent compilation cache beside it, so a later
+process neither traces nor compiles. The ``sgc-jax`` commands turn it on by default; library
+users call ``enable_compilation_cache()`` once, before scoring (a process-wide JAX setting, so the
+library does not change it unasked; the first compile says how).
 
 Where: ``$SGC_JAX_COMPILATION_CACHE`` if set (``off`` disables it), else
 ``$XDG_CACHE_HOME/sgc_jax/xla/<host>`` (``~/.cache`` without XDG). ``<host>`` names the
@@ -14,9 +16,11 @@ else can write to lets them run code as you (JAX's warning): keep it private.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
+import sys
 from pathlib import Path
 
 ENV_VAR = "SGC_JAX_COMPILATION_CACHE"
@@ -84,3 +88,60 @@ def cache_hint() -> str:
     if jax.config.jax_compilation_cache_dir:
         return ""
     return "; sgc_jax.enable_compilation_cache() keeps them for later runs"
+
+
+# ----------------------------------------------------------------------------- traced programs
+
+PROGRAMS_DIR = "sgc_programs"  # inside the persistent cache directory
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """sha256 of every sgc_jax source file and the jax / jaxlib versions: a traced program is
+    reused only by the code that traced it."""
+    import jax
+    import jaxlib
+
+    digest = hashlib.sha256(f"{jax.__version__} {jaxlib.__version__}".encode())
+    package = Path(__file__).resolve().parents[1]
+    for source in sorted(package.rglob("*.py")):
+        digest.update(source.relative_to(package).as_posix().encode())
+        digest.update(source.read_bytes())
+    return digest.hexdigest()
+
+
+def program_path(static_config, bucket) -> Path | None:
+    """Where the traced program of (``static_config``, ``bucket``) is kept on this backend, or
+    None while the persistent cache is off."""
+    import jax
+
+    cache_dir = jax.config.jax_compilation_cache_dir
+    if not cache_dir:
+        return None
+    key = hashlib.sha256(f"{code_fingerprint()} {jax.default_backend()} {static_config!r} {bucket!r}".encode())
+    return Path(cache_dir) / PROGRAMS_DIR / f"{key.hexdigest()[:32]}.jaxexport"
+
+
+def load_program(path: Path):
+    """The ``jax.export.Exported`` kept at ``path``, or None when there is none or it cannot be
+    read (it is then traced again and replaced)."""
+    import jax
+
+    try:
+        return jax.export.deserialize(bytearray(path.read_bytes()))
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # a truncated or foreign file: not fatal, the program is rebuilt
+        print(f"sgc-jax: ignoring the unreadable cached program {path} ({type(exc).__name__})", file=sys.stderr)
+        return None
+
+
+def save_program(path: Path, exported) -> None:
+    """Keep ``exported`` at ``path`` (atomically: concurrent processes may write the same one)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        partial = path.with_suffix(f".{os.getpid()}.partial")
+        partial.write_bytes(exported.serialize())
+        os.replace(partial, path)
+    except OSError as exc:  # a read-only cache: run without keeping it
+        print(f"sgc-jax: could not keep the traced program in {path.parent} ({exc})", file=sys.stderr)

@@ -32,7 +32,7 @@ from ..kernels.partition import spatial_regions
 from ..kernels.ransac import ransac_pnp_regions
 from ..kernels.uncertainty import region_quality
 from ..kernels.warp import depth_error, warp_depth
-from .compile_cache import cache_hint
+from .compile_cache import cache_hint, load_program, program_path, save_program
 from .units import PERCENT, in_depth_units, translation_factor
 
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
@@ -386,26 +386,36 @@ def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
             for name in VALUE_FIELDS if name != "seed"}
 
 
-def _score_program(batch: PaddedClips, key, values, static: SGCConfig):
-    return score_padded(batch, key, ProgramConfig(static, values))
+def _score_program(flat_batch: tuple, key, values, static: SGCConfig):
+    """The program: ``flat_batch`` is a PaddedClips as a plain tuple (an exported program's
+    arguments are plain pytrees)."""
+    return score_padded(PaddedClips(*flat_batch), key, ProgramConfig(static, values))
 
 
 _jitted_program = jax.jit(_score_program, static_argnames=("static",))
-# (program config, bucket) -> executable; cleared by release_programs
+# (program config, bucket) -> executable taking (flat batch, key, values); cleared by release_programs
 _programs: dict[tuple[SGCConfig, Bucket], Callable] = {}
 _compiles: list[tuple[SGCConfig, Bucket, float]] = []  # every compile of this process, with its seconds
 
 
 def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> Callable:
     """The executable that scores one padded clip of ``bucket`` under ``config``: called as
-    ``program(batch, key, values)``. Compiled once per (bucket, ``program_config(config)``), with a
-    line on stderr while it compiles."""
+    ``program(tuple(batch), key, values)``. Compiled once per (bucket, ``program_config(config)``)
+    with a line on stderr. With the persistent cache on, the traced program is kept next to it
+    (``compile_cache.program_path``), so a later process skips tracing as well as compiling."""
     static = program_config(config)
     program = _programs.get((static, bucket))
     if program is None:
         start = time.perf_counter()
-        _announce_compile(bucket)
-        lowered = _jitted_program.lower(example, jax.random.PRNGKey(0), program_values(config), static=static)
+        args = (tuple(example), jax.random.PRNGKey(0), program_values(config))
+        path = program_path(static, bucket)
+        exported = load_program(path) if path is not None else None
+        _announce(bucket, "loading" if exported is not None else "compiling", path)
+        if exported is None and path is not None:
+            exported = jax.export.export(jax.jit(functools.partial(_score_program, static=static)))(*args)
+            save_program(path, exported)
+        lowered = jax.jit(exported.call).lower(*args) if exported is not None else _jitted_program.lower(
+            *args, static=static)
         program = _programs[(static, bucket)] = lowered.compile()
         seconds = time.perf_counter() - start
         _compiles.append((static, bucket, seconds))
@@ -413,10 +423,14 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
     return program
 
 
-def _announce_compile(bucket: Bucket) -> None:
-    print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, "
-          f"{bucket.P} tracks per pair (once per shape bucket; tens of seconds on a CPU{cache_hint()}) ...",
-          end="", file=sys.stderr, flush=True)
+def _announce(bucket: Bucket, verb: str, path) -> None:
+    shape = f"clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, {bucket.P} tracks per pair"
+    if verb == "loading":
+        text = f"sgc-jax: loading the JAX program for {shape} from {path.parent} ..."
+    else:
+        text = (f"sgc-jax: compiling the JAX program for {shape} (once per shape bucket; tens of seconds on a CPU"
+                f"{cache_hint()}) ...")
+    print(text, end="", file=sys.stderr, flush=True)
 
 
 def release_programs() -> int:
@@ -467,7 +481,7 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
         clip, unit = in_depth_units(clip, config)
         bucket = bucket_for(clip)
         batch = pad_clip(clip, bucket, config, unit)
-        out = jax.device_get(compiled_program(config, bucket, batch)(batch, key, values))
+        out = jax.device_get(compiled_program(config, bucket, batch)(tuple(batch), key, values))
         # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
         # translation is scaled (the w/o-VGGT variant)
         scale = float(np.asarray(out["scale"][0])) * unit if config.global_pose else 1.0
