@@ -456,6 +456,7 @@ def main(argv: list[str]) -> int:
     # The notebooks share one batch shape; a persistent cache lets the later kernels reuse the
     # first one's compilation.
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(tempfile.gettempdir()) / "sgc_jax-notebook-jax-cache"))
+    os.environ.setdefault("SGC_JAX_COMPILE_MESSAGES", "off")  # the stored notebooks show results only
     for name in names:
         start = time.perf_counter()
         nb = execute(build(name))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import sys
 import time
 from typing import Any, Callable, Mapping, NamedTuple
@@ -419,11 +420,19 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
         program = _programs[(static, bucket)] = lowered.compile()
         seconds = time.perf_counter() - start
         _compiles.append((static, bucket, seconds))
-        print(f" {seconds:.1f} s", file=sys.stderr, flush=True)
+        if _messages_on():
+            print(f" {seconds:.1f} s", file=sys.stderr, flush=True)
     return program
 
 
+def _messages_on() -> bool:
+    """The compile lines on stderr, unless ``$SGC_JAX_COMPILE_MESSAGES`` is ``off``."""
+    return os.environ.get("SGC_JAX_COMPILE_MESSAGES", "").strip().lower() not in ("off", "0", "false", "no")
+
+
 def _announce(bucket: Bucket, verb: str, path) -> None:
+    if not _messages_on():
+        return
     shape = f"clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, {bucket.P} tracks per pair"
     if verb == "loading":
         text = f"sgc-jax: loading the JAX program for {shape} from {path.parent} ..."
