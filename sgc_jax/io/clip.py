@@ -39,7 +39,7 @@ class Clip:
     """One validated clip; arrays are NumPy, shapes use T frames, H x W pixels, P tracks."""
 
     clip_id: str
-    depth: np.ndarray  # (T, H, W) float32; <= 0 or non-finite = invalid
+    depth: np.ndarray  # (T, H, W) float32; <= 0, non-finite or absurd (without_absurd_depth) = invalid
     K: np.ndarray  # (T, 3, 3) float64 pinhole intrinsics
     R_wc: np.ndarray  # (T, 3, 3) float64 world -> camera rotation
     t_wc: np.ndarray  # (T, 3) float64 world -> camera translation
@@ -95,10 +95,13 @@ def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:
 
 
 def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
-    """``depth`` with NaN where it is ≤ 0, non-finite or beyond DEPTH_RATIO_LIMIT of the median of
-    its positive finite values (docs/semantics.md §1.2); the same array when nothing is absurd."""
+    """``depth`` with NaN where a positive, finite value lies beyond DEPTH_RATIO_LIMIT of the median
+    of those values (docs/semantics.md §1.2); the same array when nothing is absurd."""
     positive = np.isfinite(depth) & (depth > 0)
     if not positive.any():
+        return depth
+    lo, hi = depth.min(where=positive, initial=np.inf), depth.max(where=positive, initial=-np.inf)
+    if hi <= lo * DEPTH_RATIO_LIMIT:  # lo <= median <= hi: no value can be that far from the median
         return depth
     median = float(np.median(depth[positive].astype(np.float64)))
     absurd = positive & ((depth > median * DEPTH_RATIO_LIMIT) | (depth < median / DEPTH_RATIO_LIMIT))
