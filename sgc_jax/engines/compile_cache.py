@@ -80,6 +80,11 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     return target
 
 
+def compile_messages_on() -> bool:
+    """The compile lines on stderr, unless ``$SGC_JAX_COMPILE_MESSAGES`` turns them off."""
+    return os.environ.get("SGC_JAX_COMPILE_MESSAGES", "").strip().lower() not in _OFF
+
+
 def cache_hint() -> str:
     """A clause for the compile message: how to keep compiled programs between runs, or "" when
     the persistent cache is on."""

@@ -1,5 +1,5 @@
-"""The JAX engine (docs/semantics.md §3, §7.1): clips padded to bucketed shapes, one jitted
-function per bucket.
+"""The JAX engine (docs/semantics.md §3, §7.1): clips padded to bucketed shapes, one compiled
+program per bucket and static config, one clip per call.
 
 A kernel handles one pair (or frame) with static shapes and validity masks; ``vmap`` lifts the
 pose kernels over the pairs of a clip, ``lax.map`` runs clips, and the pixel kernels (regions,
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import os
 import sys
 import time
 from typing import Any, Callable, Mapping, NamedTuple
@@ -33,7 +32,7 @@ from ..kernels.partition import spatial_regions
 from ..kernels.ransac import ransac_pnp_regions
 from ..kernels.uncertainty import region_quality
 from ..kernels.warp import depth_error, warp_depth
-from .compile_cache import cache_hint, load_program, program_path, save_program
+from .compile_cache import cache_hint, compile_messages_on, load_program, program_path, save_program
 from .units import PERCENT, in_depth_units, translation_factor
 
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
@@ -46,7 +45,7 @@ MIN_TRACK_BUCKET = 64
 
 @dataclasses.dataclass(frozen=True, order=True)
 class Bucket:
-    """Padded (T frames, H x W pixels, P tracks); one compile per bucket and config."""
+    """Padded (T frames, H x W pixels, P tracks); one compile per bucket and static config."""
 
     T: int
     H: int
@@ -420,18 +419,13 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
         program = _programs[(static, bucket)] = lowered.compile()
         seconds = time.perf_counter() - start
         _compiles.append((static, bucket, seconds))
-        if _messages_on():
+        if compile_messages_on():
             print(f" {seconds:.1f} s", file=sys.stderr, flush=True)
     return program
 
 
-def _messages_on() -> bool:
-    """The compile lines on stderr, unless ``$SGC_JAX_COMPILE_MESSAGES`` is ``off``."""
-    return os.environ.get("SGC_JAX_COMPILE_MESSAGES", "").strip().lower() not in ("off", "0", "false", "no")
-
-
 def _announce(bucket: Bucket, verb: str, path) -> None:
-    if not _messages_on():
+    if not compile_messages_on():
         return
     shape = f"clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, {bucket.P} tracks per pair"
     if verb == "loading":

@@ -258,7 +258,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     # the re-admission fit, its re-cut fit and the leverage fit. Per stage, one branch picks the
     # points and start of the fit and one what is kept after it (``lax.switch`` on the loop
     # index, which vmap leaves unbatched). The checks use the noise cut after the passes.
-    ADMIT, RECUT, LEVERAGE = passes, passes + 1, passes + 2
+    ADMIT, LEVERAGE = passes, passes + 2  # the re-cut fit is stage passes + 1
 
     class Stage(NamedTuple):
         poses: jax.Array  # (k, 6) current poses
