@@ -99,6 +99,10 @@ def guard_outputs(inputs: Iterable[str | os.PathLike | None], **outputs: str | o
         taken[key] = option
 
 
+def _calibration_file(calibration: str | None) -> str | None:
+    """``--calibration`` when it names a file (an input the outputs must not overwrite), else None."""
+    return calibration if calibration is not None and os.path.isfile(calibration) else None
+
 
 def _config_option_kwargs(field: dataclasses.Field, kind: Any) -> dict[str, Any]:
     """``add_argument`` keywords of one SGCConfig field: its help and default from config.py, no
@@ -203,7 +207,7 @@ def cmd_score(args: argparse.Namespace) -> int:
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
-    guard_outputs([*inputs, args.config], out=out, pairs=args.pairs)
+    guard_outputs([*inputs, args.config, _calibration_file(args.calibration)], out=out, pairs=args.pairs)
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
@@ -336,7 +340,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_rescore(args: argparse.Namespace) -> int:
     from .io.result import format_table, rescore_records, write_scores
 
-    guard_outputs(table_input_files(args.scores), out=args.out)
+    guard_outputs([*table_input_files(args.scores), _calibration_file(args.calibration)], out=args.out)
     records = _read_scores(args.scores)
     try:
         rescored = rescore_records(records, args.calibration)
@@ -607,7 +611,8 @@ def cmd_perturb(args: argparse.Namespace) -> int:
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
-    guard_outputs([*inputs, args.config], out=args.out, summary=args.summary, plot=args.plot)
+    guard_outputs([*inputs, args.config, _calibration_file(args.calibration)], out=args.out, summary=args.summary,
+                  plot=args.plot)
     config, calibration = _config_and_calibration(args)
     try:
         check_kinds(args.kinds), check_severities(args.severities)

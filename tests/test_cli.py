@@ -10,7 +10,7 @@ import typing
 import pytest
 from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
-from sgc_jax import SGCConfig, save_clip, score_batch
+from sgc_jax import Calibration, SGCConfig, save_clip, score_batch
 from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, _config_and_calibration, build_parser, main
 from sgc_jax.config import cli_flag
 from sgc_jax.research.synth import synth_clip
@@ -149,6 +149,8 @@ def _overwrite_attempts(clip, table, tmp_path):
     link.symlink_to(table)
     folder = tmp_path / "a_folder"
     folder.mkdir()
+    calibration = tmp_path / "calibration.json"
+    Calibration.load("sgc-spec-2026").save(calibration)
     return {  # case: (arguments, the input that must survive, words of the refusal)
         "score a CSV onto itself": (("score", table, "--out", table), table, "not a clip file"),
         "score onto its clip": (("score", clip, "--out", clip), clip, "would be overwritten"),
@@ -156,6 +158,8 @@ def _overwrite_attempts(clip, table, tmp_path):
         "score, one file for both tables": (("score", clip, "--out", tmp_path / "x.csv", "--pairs", tmp_path / "x.csv"),
                                             clip, "same file as --out"),
         "score into a directory": (("score", clip, "--out", folder), clip, "a directory"),
+        "score onto its calibration file": (("score", clip, "--calibration", calibration, "--out", calibration),
+                                            calibration, "would be overwritten"),
         "rescore onto itself": (("rescore", table, "--calibration", "sgc-spec-2026", "--out", table), table,
                                 "would be overwritten"),
         "rescore through a link": (("rescore", table, "--calibration", "sgc-spec-2026", "--out", link), table,
@@ -171,8 +175,8 @@ def _overwrite_attempts(clip, table, tmp_path):
 
 def test_an_output_that_names_an_input_is_refused_and_the_input_kept(scored, tmp_path):
     clip, table = scored
-    before = {clip: clip.read_bytes(), table: table.read_bytes()}
     for case, (args, kept, words) in _overwrite_attempts(clip, table, tmp_path).items():
+        before = {kept: kept.read_bytes()}
         proc = run(*args)
         assert proc.returncode == EXIT_USAGE and words in proc.stderr, (case, proc.stderr)
         assert "Traceback" not in proc.stderr and kept.read_bytes() == before[kept], case
