@@ -242,7 +242,8 @@ def test_paths_that_lead_nowhere_are_format_errors(tmp_path, kind):
 
 # ----------------------------------------------------------------------------- batch files
 
-# kind: (change, member that fails (None: the whole file), array blamed, words of the message)
+# kind: (change, member that fails (None: the whole file; a tuple: each of them), array blamed, words of the
+# message)
 BATCH_KINDS = {
     "clip_id_shorter": (changed(clip_id=lambda a: a[:1]), None, "clip_id", "a (2,) array of text"),
     "clip_id_longer": (changed(clip_id=lambda a: np.append(a, "extra")), None, "clip_id", "found shape (3)"),
@@ -258,6 +259,7 @@ BATCH_KINDS = {
     "n_tracks_zero": (changed(n_tracks=lambda a: a * [0, 1]), 0, "n_tracks", "n_tracks[0] >= 1"),
     "heights_beyond_padded": (changed(heights=lambda a: a + [5, 0]), 0, "heights", "at most the 24 rows"),
     "widths_zero": (changed(widths=lambda a: a * [1, 0]), 1, "widths", "widths[1] >= 1"),
+    "K_one_text_per_member": (changed(K=lambda a: np.array(["fx", "fy"])), (0, 1), "K", "real numbers"),
 }
 
 
@@ -274,6 +276,10 @@ def test_batch_bookkeeping_is_checked_against_the_stored_arrays(tmp_path, no_unp
         except ClipFormatError as exc:
             outcomes.append(exc)
     errors = [o for o in outcomes if isinstance(o, ClipFormatError)]
+    if isinstance(member, tuple):  # every member: one error each, naming it
+        assert [e.clip_id for e in errors] == ["victim", "partner"], outcomes
+        assert all(e.array == array and words in str(e) for e in errors), outcomes
+        return
     assert len(errors) == 1 and errors[0].array == array and words in str(errors[0]), outcomes
     if member is None:  # the file as a whole: one error, named after the file
         assert [e.clip_id for e in entries] == ["batch"] and errors[0].clip_id == "batch"

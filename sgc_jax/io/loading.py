@@ -408,7 +408,7 @@ def _batch_member(arrays: Mapping[str, Any], b: int, layout: BatchLayout) -> dic
     member: dict[str, Any] = {}
     for name, cut in cuts.items():
         if name in arrays:
-            a = np.asarray(arrays[name])[b]
+            a = np.asarray(np.asarray(arrays[name])[b])  # 0-d for a (B,) array: the validator names it
             member[name] = a[tuple(slice(0, c) for c in cut[:a.ndim])]
     if "meta" in arrays:
         member["meta"] = np.asarray(arrays["meta"])[b]
