@@ -88,9 +88,10 @@ def pytest_terminal_summary(terminalreporter):
         return
     defaults = SGCConfig()
     terminalreporter.section("JAX programs compiled, by test module")
-    rows = sorted(_COMPILES_BY_MODULE.items(), key=lambda kv: -sum(c[2] for c in kv[1]))
+    rows = sorted(_COMPILES_BY_MODULE.items(), key=lambda kv: -sum(c[1] for c in kv[1]))
     for module, compiles in rows:
-        terminalreporter.write_line(f"{module}: {len(compiles)} program(s), {sum(c[2] for c in compiles):.0f} s")
-        for static, bucket, seconds in compiles:
-            changed = {f: getattr(static, f) for f in STATIC_FIELDS if getattr(static, f) != getattr(defaults, f)}
-            terminalreporter.write_line(f"    {bucket.T}x{bucket.H}x{bucket.W}x{bucket.P} {changed or ''} {seconds:.0f} s")
+        terminalreporter.write_line(f"{module}: {len(compiles)} stage program(s), {sum(c[1] for c in compiles):.0f} s")
+        for key, seconds in compiles:
+            changed = {f: getattr(key.static, f) for f in STATIC_FIELDS
+                       if getattr(key.static, f) != getattr(defaults, f)}
+            terminalreporter.write_line(f"    {key} {changed or ''} {seconds:.0f} s")

@@ -7,7 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax.kernels.kmeans import cluster_counts, depth_regions, grid_regions, grid_shape, kmeans_1d
+from sgc_jax.kernels import kmeans
+from sgc_jax.kernels.kmeans import cluster_counts, grid_shape
+
+# The kernels are traced inside the engine's program; called alone here, each is jitted once.
+kmeans_1d = jax.jit(kmeans.kmeans_1d, static_argnames=("k", "bins"))
+depth_regions = jax.jit(kmeans.depth_regions, static_argnames=("k", "bins"))
+grid_regions = jax.jit(kmeans.grid_regions, static_argnames=("k",))
 
 # The DP minimises the float32 within-cluster SSE; 1e-6 relative covers float32 round-off in
 # the costs on these small inputs (ties within that band may pick either partition).

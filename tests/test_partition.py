@@ -2,13 +2,18 @@
 structure, identical in both engines, and scored end to end."""
 
 import cv2
+import jax
 import numpy as np
 import pytest
 
 from sgc_jax import SGCConfig, score_clip
 from sgc_jax.engines import reference
-from sgc_jax.kernels.kmeans import grid_regions
-from sgc_jax.kernels.partition import connected_components, spatial_regions
+from sgc_jax.kernels import kmeans, partition
+
+# The kernels are traced inside the engine's program; called alone here, each is jitted once.
+grid_regions = jax.jit(kmeans.grid_regions, static_argnames=("k",))
+connected_components = jax.jit(partition.connected_components)
+spatial_regions = jax.jit(partition.spatial_regions, static_argnames=("k",))
 
 CONFIG = SGCConfig(k_seg=3, min_region_pixels=4)
 

@@ -8,7 +8,11 @@ import pytest
 
 from sgc_jax.engines import reference
 from sgc_jax.kernels.geometry import so3_exp
-from sgc_jax.kernels.warp import depth_error, warp_depth
+from sgc_jax.kernels import warp
+
+# The kernels are traced inside the engine's program; called alone here, each is jitted once.
+warp_depth = jax.jit(warp.warp_depth, static_argnames=("nearest", "mask_holes"))
+depth_error = jax.jit(warp.depth_error, static_argnames=("relative",))
 
 H, W = 24, 32
 K = np.array([[30.0, 0.0, 15.5], [0.0, 30.0, 11.5], [0.0, 0.0, 1.0]], np.float32)

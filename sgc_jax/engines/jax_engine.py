@@ -10,6 +10,7 @@ numbers. This is the one place that maps over clips.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import sys
@@ -22,7 +23,7 @@ import numpy as np
 
 from ..codes import (PAIR_REASON_CODE, PAIR_REASONS, REGION_AMBIGUOUS, REGION_EMPTY, REGION_ILL_CONDITIONED,
                      REGION_OK)
-from ..config import HOST_FIELDS, VALUE_FIELDS, SGCConfig
+from ..config import STATIC_FIELDS, VALUE_FIELDS, SGCConfig
 from ..io.clip import Clip
 from ..io.result import PairArrays
 from ..kernels.components import mean_pose, pair_pose_components
@@ -168,23 +169,28 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
 
 
-def points_prev(depth_prev, K_prev, track_prev, usable, image_hw):
-    """Tracks (P, 2) of frame i-1 back-projected at the depth of their pixel (floor, clamped to
-    the image) -> (X (P, 3) in camera i-1, (P,) bool usable with depth > 0). docs/semantics.md §3.2."""
+def depth_at_tracks(depth_prev, track_prev, image_hw):
+    """Depth (P,) of frame i-1 (H, W) at each track's floor pixel, clamped to the true image
+    (``image_hw`` (2,)). docs/semantics.md §3.2."""
     H, W = image_hw[0], image_hw[1]
     col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
     row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
-    Z = depth_prev[row, col]
+    return depth_prev[row, col]
+
+
+def points_prev(Z, K_prev, track_prev, usable):
+    """Tracks (P, 2) of frame i-1 back-projected at their pixel's depth Z (P,) (``depth_at_tracks``)
+    -> (X (P, 3) in camera i-1, (P,) bool usable with depth > 0). docs/semantics.md §3.2."""
     return back_project(K_prev, track_prev, Z), usable & (Z > 0)
 
 
-def local_poses_pair(depth_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
+def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
                      usable, image_hw, key, config: SGCConfig) -> LocalPoses:
     """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
     config applies it."""
     H, W = image_hw[0], image_hw[1]
-    X, has_depth = points_prev(depth_prev, K_prev, track_prev, usable, image_hw)
+    X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
 
     point_region = jnp.where(has_depth, track_label, 0)
     n_tracks = jnp.sum(usable)
@@ -275,12 +281,12 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig):
 # ----------------------------------------------------------------------------- per clip
 
 
-def scale_equations(depth_prev, track_label, K_prev, K_curr, track_prev, track_curr, usable, image_hw, R_g, t_g):
+def scale_equations(Z_prev, track_label, K_prev, K_curr, track_prev, track_curr, usable, R_g, t_g):
     """One pair's equations for the translation scale s (docs/semantics.md §3.4): a static point
     X of camera i-1 seen at normalised n in frame i gives, per image axis k, a_k s = b_k with
     a_k = n_k t_3 - t_k and b_k = Y_k - n_k Y_3 (Y = R_g X) -> (ratios b / a, weights |a| f_k / Y_3),
     each (P, 2); the weight is the reprojection change in pixels per unit of s, 0 for an unused point."""
-    X, has_depth = points_prev(depth_prev, K_prev, track_prev, usable, image_hw)
+    X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
     use = has_depth & (track_label > 0)
     Y = X @ R_g.T
     n = back_project(K_curr, track_curr, jnp.ones_like(track_curr[:, 0]))  # (P, 3), n_3 = 1
@@ -304,52 +310,103 @@ def weighted_median(values, weights, fallback):
     return jnp.where(total > 0, median, fallback)
 
 
-def clip_poses(clip: PaddedClips, track_labels, n_regions, region_pixels, key, config: SGCConfig):
+def clip_poses(x: PoseInputs, key, config: SGCConfig):
     """Local poses of all pairs of one padded clip (no leading B axis), the reference poses and
     the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale). The
     reference pose is the global relative pose, or each pair's mean local pose (NaN without one)
     when ``config.global_pose`` is off."""
-    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(clip.pair_valid.shape[0]) + 1)
+    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(x.pair_valid.shape[0]) + 1)
     prev, curr = slice(None, -1), slice(1, None)
+    usable = x.usable & x.pair_valid[:, None]
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
                      in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
-        clip.depth[prev], track_labels, n_regions, region_pixels, clip.K[prev], clip.K[curr],
-        clip.track_prev, clip.track_curr, clip.usable & clip.pair_valid[:, None], clip.image_hw, pair_keys)
+        x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,
+        usable, x.image_hw, pair_keys)
     accepted = poses.region_status == REGION_OK
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
         return poses, R_g, t_g, jnp.float32(1.0)
     R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
-        clip.R_wc[prev], clip.t_wc[prev], clip.R_wc[curr], clip.t_wc[curr])
+        x.R_wc[prev], x.t_wc[prev], x.R_wc[curr], x.t_wc[curr])
     # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
-    shared = 1.0 / clip.depth_unit
+    shared = 1.0 / x.depth_unit
     if not config.fits_translation_scale:
         return poses, R_g, t_g, shared
-    ratios, weights = jax.vmap(scale_equations, in_axes=(0, 0, 0, 0, 0, 0, 0, None, 0, 0))(
-        clip.depth[prev], track_labels, clip.K[prev], clip.K[curr], clip.track_prev, clip.track_curr,
-        clip.usable & clip.pair_valid[:, None], clip.image_hw, R_g, t_g)
+    ratios, weights = jax.vmap(scale_equations)(x.Z_prev, x.track_labels, x.K[prev], x.K[curr], x.track_prev,
+                                                x.track_curr, usable, R_g, t_g)
     return poses, R_g, t_g, weighted_median(ratios, weights, fallback=shared)
 
 
-def score_padded(batch: PaddedClips, key, config: SGCConfig):
-    """All pairs of the clips of a bucket (leading axis B) -> dict of per-clip, per-pair and
-    per-region arrays (leading axes B, T-1). Frame and pair pixel work (regions, depth warp) runs
-    over the flattened B (T-1) frames one at a time; the pose work clip by clip, vmapped over pairs.
-    """
-    B, T, H, W = batch.depth.shape
-    flat = lambda x: x.reshape((B * (T - 1),) + x.shape[2:])  # noqa: E731
-    unflat = lambda x: x.reshape((B, T - 1) + x.shape[1:])  # noqa: E731
-    prev, curr = (slice(None), slice(None, -1)), (slice(None), slice(1, None))
-    image_hw = jnp.broadcast_to(batch.image_hw[:, None], (B, T - 1, 2))
-    track_labels, n_regions, region_pixels = map(unflat, frame_regions(
-        flat(batch.depth[curr]), flat(batch.static[curr]), flat(batch.track_curr), flat(image_hw), config))
-    # Clips one at a time, pairs vmapped: RANSAC's loops run until their slowest lane is done, so
-    # vmapping every pair of a large bucket at once costs more than it saves.
-    poses, R_g, t_g, scale = jax.lax.map(lambda a: clip_poses(*a, key, config),
-                                         (batch, track_labels, n_regions, region_pixels))
+# ----------------------------------------------------------------------------- stages
+#
+# A clip is scored by three programs, each compiled for the shapes it touches: the pixel stage
+# (regions at the tracks; T, H, W, P), the pose stage (RANSAC, the scale; T, P: most of the
+# compile, shared by clips of every image size) and the finish (depth warp, components; T, H, W).
+# Their inputs and outputs are flat tuples and dicts (what ``jax.export`` keeps).
+
+
+class PixelInputs(NamedTuple):
+    depth: jax.Array  # (B, T, H, W)
+    static: jax.Array  # (B, T, H, W)
+    track_prev: jax.Array  # (B, T-1, P, 2)
+    track_curr: jax.Array  # (B, T-1, P, 2)
+    image_hw: jax.Array  # (B, 2)
+
+
+class PoseInputs(NamedTuple):
+    Z_prev: jax.Array  # (B, T-1, P) depth of frame i-1 at the tracks (``depth_at_tracks``)
+    track_labels: jax.Array  # (B, T-1, P) region of each track in frame i
+    n_regions: jax.Array  # (B, T-1)
+    region_pixels: jax.Array  # (B, T-1)
+    K: jax.Array
+    R_wc: jax.Array
+    t_wc: jax.Array
+    track_prev: jax.Array
+    track_curr: jax.Array
+    usable: jax.Array
+    pair_valid: jax.Array
+    image_hw: jax.Array
+    depth_unit: jax.Array
+
+
+def _pairs_flat(B, T):
+    """(flat, unflat): (B, T-1, ...) <-> (B (T-1), ...)."""
+    return (lambda x: x.reshape((B * (T - 1),) + x.shape[2:]),
+            lambda x: x.reshape((B, T - 1) + x.shape[1:]))
+
+
+def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
+    """Regions at the tracks of every pair of the clips (leading axis B): frame i's region of each
+    track, N_s and |S_i| (``frame_regions``), and frame i-1's depth at each track (``Z_prev``),
+    frame by frame over the flattened B (T-1) frames."""
+    B, T = x.depth.shape[:2]
+    flat, unflat = _pairs_flat(B, T)
+    image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
+    labels, n_regions, region_pixels = map(unflat, frame_regions(
+        flat(x.depth[:, 1:]), flat(x.static[:, 1:]), flat(x.track_curr), image_hw, config))
+    Z_prev = unflat(jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw))
+    return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)
+
+
+def pose_stage(x: PoseInputs, key, config: SGCConfig) -> dict:
+    """Local poses, reference poses and the scale of the clips (leading axis B), clip by clip.
+    Pairs are vmapped within a clip: RANSAC's loops run until their slowest lane is done, so
+    vmapping every pair of a large bucket at once costs more than it saves."""
+    poses, R_g, t_g, scale = jax.lax.map(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x))
+    return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)
+
+
+def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
+    """Depth errors and per-pair components from the pose stage's output and the clips' depth
+    (B, T, H, W), masks and K -> dict of per-clip, per-pair and per-region arrays (leading axes
+    B, T-1)."""
+    B, T = depth.shape[:2]
+    flat, unflat = _pairs_flat(B, T)
+    poses = LocalPoses(**{name: pose[name] for name in LocalPoses._fields})
+    R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
-    err = unflat(pair_depth_errors(flat(batch.depth[prev]), flat(batch.static[prev]), flat(batch.depth[curr]),
-                                   flat(batch.static[curr]), flat(batch.K[prev]), flat(batch.K[curr]), flat(R_g),
+    err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
+                                   flat(static[:, 1:]), flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
                                    flat(t_g_scaled), config))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, config=config)))(poses, R_g, t_g_scaled, err)
     # ECD input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
@@ -358,26 +415,93 @@ def score_padded(batch: PaddedClips, key, config: SGCConfig):
     return dict(comps, **poses._asdict(), scale=scale)
 
 
+STAGES = ("pixel", "pose", "finish")
+
+
+def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple:
+    """The flat inputs of ``stage`` for a padded batch, given the previous stage's output."""
+    if stage == "pixel":
+        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.image_hw))
+    if stage == "pose":
+        return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
+                                previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
+                                batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
+    return (previous, batch.depth, batch.static, batch.K)
+
+
+def run_stage(stage: str, inputs: tuple, key, config: SGCConfig):
+    """One stage on its flat inputs (``stage_inputs``)."""
+    if stage == "pixel":
+        return pixel_stage(PixelInputs(*inputs), config)
+    if stage == "pose":
+        return pose_stage(PoseInputs(*inputs), key, config)
+    return finish_stage(*inputs, config)
+
+
+def score_padded(batch: PaddedClips, key, config: SGCConfig):
+    """All pairs of the clips of a bucket (leading axis B) -> dict of per-clip, per-pair and
+    per-region arrays (leading axes B, T-1): the three stages in one trace."""
+    out = None
+    for stage in STAGES:
+        out = run_stage(stage, stage_inputs(stage, batch, out), key, config)
+    return out
+
+
 # ----------------------------------------------------------------------------- programs
+
+# The static config fields each stage reads (``ProgramConfig`` refuses the others): a stage's
+# program is shared by configs that differ elsewhere. The config's properties used in a stage
+# must derive from its fields (scale_free, fits_translation_scale, applies_quality_rule do).
+STAGE_FIELDS = {
+    "pixel": ("k_seg", "kmeans_bins", "partition", "compat"),
+    "pose": ("k_seg", "ransac_hypotheses", "gn_steps", "compat", "global_pose", "align_scale", "quality_rule",
+             "borrow_region_poses"),
+    "finish": ("k_seg", "compat", "global_pose"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class StageKey:
+    """One compiled program: a stage, its static config (``stage_config``) and the bucket sizes
+    it depends on (pixel: T, H, W, P; pose: T, P; finish: T, H, W)."""
+
+    stage: str
+    static: SGCConfig
+    shape: tuple[int, ...]
+
+    def __str__(self) -> str:
+        return f"{self.stage} {'x'.join(map(str, self.shape))}"
+
+
+def stage_config(config: SGCConfig, stage: str) -> SGCConfig:
+    """What ``stage``'s program depends on: ``config`` with every field but the stage's static
+    fields at its default, so that configs differing only elsewhere share the program."""
+    defaults, keep = SGCConfig(), set(STAGE_FIELDS[stage])
+    return config.replace(**{f.name: getattr(defaults, f.name) for f in dataclasses.fields(SGCConfig)
+                             if f.name not in keep})
+
+
+def stage_key(config: SGCConfig, stage: str, bucket: Bucket) -> StageKey:
+    T, H, W, P = bucket.T, bucket.H, bucket.W, bucket.P
+    shape = {"pixel": (T, H, W, P), "pose": (T, P), "finish": (T, H, W)}[stage]
+    return StageKey(stage, stage_config(config, stage), shape)
 
 
 class ProgramConfig:
-    """The config as a compiled program sees it: static fields (and the config's properties) as
-    Python values, ``VALUE_FIELDS`` as traced scalars from ``values``."""
+    """The config as a compiled stage sees it: its static fields (and the config's properties) as
+    Python values, ``VALUE_FIELDS`` as traced scalars from ``values``; reading another stage's
+    static field is an error (it would not be part of the program's key)."""
 
-    def __init__(self, static: SGCConfig, values: Mapping[str, Any]):
-        self._static, self._values = static, values
+    def __init__(self, static: SGCConfig, values: Mapping[str, Any], stage: str):
+        self._static, self._values, self._stage = static, values, stage
 
     def __getattr__(self, name: str):
-        values = self.__dict__["_values"]
-        return values[name] if name in values else getattr(self.__dict__["_static"], name)
-
-
-def program_config(config: SGCConfig) -> SGCConfig:
-    """What a compiled program depends on: ``config`` with its value and host fields at their
-    defaults, so that configs differing only there share one program."""
-    defaults = SGCConfig()
-    return config.replace(**{name: getattr(defaults, name) for name in VALUE_FIELDS + HOST_FIELDS})
+        values, stage = self.__dict__["_values"], self.__dict__["_stage"]
+        if name in values:
+            return values[name]
+        if name in STATIC_FIELDS and name not in STAGE_FIELDS[stage]:
+            raise AttributeError(f"the {stage} stage reads config.{name}, which is not in STAGE_FIELDS[{stage!r}]")
+        return getattr(self.__dict__["_static"], name)
 
 
 def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
@@ -386,71 +510,113 @@ def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
             for name in VALUE_FIELDS if name != "seed"}
 
 
-def _score_program(flat_batch: tuple, key, values, static: SGCConfig):
-    """The program: ``flat_batch`` is a PaddedClips as a plain tuple (an exported program's
-    arguments are plain pytrees)."""
-    return score_padded(PaddedClips(*flat_batch), key, ProgramConfig(static, values))
+def _stage_program(inputs: tuple, key, values, stage: str, static: SGCConfig):
+    return run_stage(stage, inputs, key, ProgramConfig(static, values, stage))
 
 
-_jitted_program = jax.jit(_score_program, static_argnames=("static",))
-# (program config, bucket) -> executable taking (flat batch, key, values); cleared by release_programs
-_programs: dict[tuple[SGCConfig, Bucket], Callable] = {}
-_compiles: list[tuple[SGCConfig, Bucket, float]] = []  # every compile of this process, with its seconds
+_jitted_stage = jax.jit(_stage_program, static_argnames=("stage", "static"))
+# StageKey -> (executable taking (inputs, key, values), its output's shapes); cleared by release_programs
+_programs: dict[StageKey, tuple[Callable, Any]] = {}
+_compiles: list[tuple[StageKey, float]] = []  # every compile of this process, with its seconds
 
 
-def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> Callable:
-    """The executable that scores one padded clip of ``bucket`` under ``config``: called as
-    ``program(tuple(batch), key, values)``. Compiled once per (bucket, ``program_config(config)``)
-    with a line on stderr. With the persistent cache on, the traced program is kept next to it
-    (``compile_cache.program_path``), so a later process skips tracing as well as compiling."""
-    static = program_config(config)
-    program = _programs.get((static, bucket))
-    if program is None:
+class BucketProgram(NamedTuple):
+    """The three compiled stages that score one padded clip of a bucket."""
+
+    stages: tuple[Callable, ...]
+
+    def __call__(self, batch: PaddedClips, key, values) -> dict:
+        batch = PaddedClips(*jax.device_put(tuple(batch)))  # once, not per stage
+        out = None
+        for stage, program in zip(STAGES, self.stages):
+            out = program(stage_inputs(stage, batch, out), key, values)
+        return out
+
+
+def _spec(tree):
+    return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), tree)
+
+
+def _lower(key: StageKey, args: tuple):
+    """The stage lowered for ``args`` (shapes): from its kept ``jax.export`` file when the
+    persistent cache has one, else traced (and kept when the cache is on)."""
+    path = program_path(key.static, key)
+    exported = load_program(path) if path is not None else None
+    if exported is None and path is not None:
+        exported = jax.export.export(jax.jit(functools.partial(_stage_program, stage=key.stage, static=key.static)))(
+            *args)
+        save_program(path, exported)
+    if exported is not None:
+        return jax.jit(exported.call).lower(*args)
+    return _jitted_stage.lower(*args, stage=key.stage, static=key.static)
+
+
+def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> BucketProgram:
+    """The stages that score one padded clip of ``bucket`` under ``config``, called as
+    ``program(batch, key, values)``. Each stage is compiled once per ``StageKey`` (a line on
+    stderr says so); while one compiles, the next is traced. With the persistent cache on, traced
+    stages are kept (``compile_cache.program_path``), so a later process skips tracing too."""
+    keys = [stage_key(config, stage, bucket) for stage in STAGES]
+    missing = [key for key in keys if key not in _programs]
+    if missing:
         start = time.perf_counter()
-        args = (tuple(example), jax.random.PRNGKey(0), program_values(config))
-        path = program_path(static, bucket)
-        exported = load_program(path) if path is not None else None
-        _announce(bucket, "loading" if exported is not None else "compiling", path)
-        if exported is None and path is not None:
-            exported = jax.export.export(jax.jit(functools.partial(_score_program, static=static)))(*args)
-            save_program(path, exported)
-        lowered = jax.jit(exported.call).lower(*args) if exported is not None else _jitted_program.lower(
-            *args, static=static)
-        program = _programs[(static, bucket)] = lowered.compile()
-        seconds = time.perf_counter() - start
-        _compiles.append((static, bucket, seconds))
+        paths = [program_path(key.static, key) for key in missing]
+        _announce(bucket, missing, all(p is not None and p.exists() for p in paths))
+        key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
+        batch_spec = PaddedClips(*_spec(tuple(example)))
+
+        def compile_stage(key: StageKey, lowered, lowered_s: float):
+            begin = time.perf_counter()
+            executable = lowered.compile()
+            _compiles.append((key, lowered_s + time.perf_counter() - begin))
+            return executable, lowered.out_info
+
+        previous = None
+        with concurrent.futures.ThreadPoolExecutor(max_workers=len(missing)) as pool:
+            pending = {}
+            for key in keys:
+                if key in _programs:
+                    previous = _programs[key][1]
+                    continue
+                begin = time.perf_counter()
+                lowered = _lower(key, (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                previous = lowered.out_info
+                pending[key] = pool.submit(compile_stage, key, lowered, time.perf_counter() - begin)
+            for key, future in pending.items():
+                _programs[key] = future.result()
         if compile_messages_on():
-            print(f" {seconds:.1f} s", file=sys.stderr, flush=True)
-    return program
+            print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    return BucketProgram(tuple(_programs[key][0] for key in keys))
 
 
-def _announce(bucket: Bucket, verb: str, path) -> None:
+def _announce(bucket: Bucket, missing: list[StageKey], kept: bool) -> None:
     if not compile_messages_on():
         return
     shape = f"clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, {bucket.P} tracks per pair"
-    if verb == "loading":
-        text = f"sgc-jax: loading the JAX program for {shape} from {path.parent} ..."
+    stages = ", ".join(key.stage for key in missing)
+    if kept:
+        text = f"sgc-jax: loading the JAX program for {shape} ({stages}) from the cache ..."
     else:
-        text = (f"sgc-jax: compiling the JAX program for {shape} (once per shape bucket; tens of seconds on a CPU"
-                f"{cache_hint()}) ...")
+        text = (f"sgc-jax: compiling the JAX program for {shape} ({stages}; once per shape bucket; tens of "
+                f"seconds on a CPU{cache_hint()}) ...")
     print(text, end="", file=sys.stderr, flush=True)
 
 
 def release_programs() -> int:
-    """Drop every compiled program (each holds its machine code in memory mappings); returns how many."""
+    """Drop every compiled stage (each holds its machine code in memory mappings); returns how many."""
     count = len(_programs)
     _programs.clear()
     return count
 
 
 def compile_count() -> int:
-    """Programs compiled (or loaded from the persistent cache) and held by this process."""
+    """Stage programs compiled (or loaded from the persistent cache) and held by this process."""
     return len(_programs)
 
 
-def compile_log() -> list[tuple[SGCConfig, Bucket, float]]:
-    """Every program this process compiled (or loaded from the persistent cache), in order:
-    (program config, bucket, seconds), released ones included."""
+def compile_log() -> list[tuple[StageKey, float]]:
+    """Every stage program this process compiled (or loaded from the persistent cache), in order,
+    with its seconds (tracing or loading included), released ones included."""
     return list(_compiles)
 
 
@@ -484,7 +650,7 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
         clip, unit = in_depth_units(clip, config)
         bucket = bucket_for(clip)
         batch = pad_clip(clip, bucket, config, unit)
-        out = jax.device_get(compiled_program(config, bucket, batch)(tuple(batch), key, values))
+        out = jax.device_get(compiled_program(config, bucket, batch)(batch, key, values))
         # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
         # translation is scaled (the w/o-VGGT variant)
         scale = float(np.asarray(out["scale"][0])) * unit if config.global_pose else 1.0

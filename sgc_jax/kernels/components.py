@@ -8,7 +8,6 @@ distances in float32, and IQR == 0 rejecting every value of the trimmed mean.
 
 from __future__ import annotations
 
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -60,7 +59,6 @@ def masked_percentile(values, valid, q: int):
     return jnp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
 
 
-@functools.partial(jax.jit, static_argnames=("compat",))
 def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
     """Mean of valid v (R,) with q1 - k*IQR <= v <= p98, k = (p98 - q3) / IQR; float32, NaN if none valid.
 
@@ -90,7 +88,6 @@ def mean_pose(R_local, t_local, accepted):
     return R_mean, masked_mean(t_local.astype(jnp.float32), accepted)
 
 
-@functools.partial(jax.jit, static_argnames=("compat",))
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
     """Local poses (R, 3, 3), (R, 3), accepted (R,) vs global (3, 3), (3,) -> dict of float32 scalars.
 

@@ -12,7 +12,6 @@ O(bins^2) layer in float64 (``reference.kmeans_1d``), up to float rounding at ex
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
@@ -212,7 +211,6 @@ def _dp_step(prev, sums, plan, bins):
     return best, first
 
 
-@functools.partial(jax.jit, static_argnames=("k", "bins"))
 def kmeans_1d(values, valid, *, k: int, bins: int):
     """(N,) float values, (N,) bool valid -> (N,) int32 cluster 0..k-1 by increasing value, -1 invalid."""
     bin_of, valid, cluster_of_bin, _ = _kmeans_bins(values, valid, k, bins)
@@ -269,7 +267,6 @@ def _renumber_kept(cluster, counts, min_region_pixels):
     return region.astype(jnp.int32), jnp.sum(kept, axis=-1).astype(jnp.int32)
 
 
-@functools.partial(jax.jit, static_argnames=("k", "bins"))
 def depth_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels):
     """(H, W) depth, (H, W) bool mask -> ((H, W) int32 region 1..N_s by increasing depth, 0 = none; N_s)."""
     partition = depth_partition(depth[None], region_mask[None], k=k, bins=bins, min_region_pixels=min_region_pixels)
@@ -286,7 +283,6 @@ class DepthPartition(NamedTuple):
     n_regions: jax.Array  # (F,) int32
 
 
-@functools.partial(jax.jit, static_argnames=("k", "bins"))
 def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels):
     """docs/semantics.md §3.2 step 2 for frames (F, H, W) -> DepthPartition; ``region_of_depth``
     labels pixels.
@@ -321,7 +317,6 @@ def grid_shape(k: int) -> tuple[tuple[int, int], ...]:
     return tuple((r, k // r) for r in range(1, k + 1) if k % r == 0)
 
 
-@functools.partial(jax.jit, static_argnames=("k",))
 def grid_regions(region_mask, *, k: int, min_region_pixels):
     """(H, W) bool mask -> ((H, W) int32 grid cell 1..N_s in row-major cell order, 0 = none; N_s).
 

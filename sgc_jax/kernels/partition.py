@@ -9,7 +9,6 @@ touch horizontally or vertically form one component; components with fewer than
 
 from __future__ import annotations
 
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +30,6 @@ def _neighbour_min(label, cluster):
     return out
 
 
-@jax.jit
 def connected_components(cluster):
     """(H, W) int32 cluster ids (-1 = none) -> (H, W) int32 component root: the raster index of
     the component's first pixel, ``_NONE`` outside every cluster. Min-label propagation with
@@ -52,7 +50,6 @@ def connected_components(cluster):
     return label
 
 
-@functools.partial(jax.jit, static_argnames=("k",))
 def spatial_regions(cluster, *, k: int, min_region_pixels):
     """(H, W) int32 depth cluster ids (-1 = none) -> ((H, W) int32 region 1..N_s, 0 = none; N_s)."""
     H, W = cluster.shape

@@ -6,7 +6,6 @@ coordinates to camera i coordinates (x_i = R x_{i-1} + t); depth is along the op
 
 from __future__ import annotations
 
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -23,7 +22,6 @@ def _valid_depth(depth, valid):
     return valid & (depth > 0) & jnp.isfinite(depth)
 
 
-@functools.partial(jax.jit, static_argnames=("nearest", "mask_holes"))
 def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
     """(H, W) depth of frame i-1 -> ((H, W) float32 z in frame i, 0 where nothing lands; (H, W) bool hit).
 
@@ -79,7 +77,6 @@ def _footprint_cover(u_c, v_c, z, front, H, W):
     return cover
 
 
-@functools.partial(jax.jit, static_argnames=("relative",))
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
     """Mean |warped - depth_curr| over hit & valid & static (H, W) -> (float32, int32 count): in
     depth units, or divided by depth_curr pixel by pixel when ``relative`` (AbsRel, a fraction).
