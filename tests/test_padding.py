@@ -1,12 +1,24 @@
 """Padding and bucketing: padded frames, tracks and pixels are marked invalid and never
-change a clip's numbers; clips of one bucket share one compiled executable."""
+change a clip's numbers; clips of one bucket share its compiled stages, and the pose stage is
+shared by every image size."""
 
 import dataclasses
 
 import numpy as np
+import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig
+from sgc_jax.config import STATIC_FIELDS
 from sgc_jax.engines import jax_engine
+
+
+def assert_same_pairs(padded, as_is):
+    assert list(padded.reason) == list(as_is.reason)
+    np.testing.assert_array_equal(padded.n_tracks, as_is.n_tracks)
+    np.testing.assert_array_equal(padded.n_regions, as_is.n_regions)
+    np.testing.assert_array_equal(padded.region_status, as_is.region_status)
+    for k in COMPONENTS:  # float32 reductions over longer padded axes reorder sums
+        np.testing.assert_allclose(getattr(padded, k), getattr(as_is, k), rtol=1e-4, atol=1e-7, err_msg=k)
 
 
 def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkeypatch, capsys):
@@ -20,12 +32,33 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(noisy_clip, monkey
     # a bucket no other test uses: its compile is announced on stderr, once, naming the bucket
     assert capsys.readouterr().err.count(f"compiling the JAX program for clips of up to {larger.T} frames, "
                                          f"{larger.H}x{larger.W} px, {larger.P} tracks per pair") == 1
-    assert list(padded.reason) == list(as_is.reason)
-    np.testing.assert_array_equal(padded.n_tracks, as_is.n_tracks)
-    np.testing.assert_array_equal(padded.n_regions, as_is.n_regions)
-    np.testing.assert_array_equal(padded.region_status, as_is.region_status)
-    for k in COMPONENTS:  # float32 reductions over longer padded axes reorder sums
-        np.testing.assert_allclose(getattr(padded, k), getattr(as_is, k), rtol=1e-4, atol=1e-7, err_msg=k)
+    assert_same_pairs(padded, as_is)
+
+
+def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatch):
+    """docs/semantics.md §7.1: the pose stage (most of the compile) depends on T and P only."""
+    config = SGCConfig()
+    natural = jax_engine.bucket_for(noisy_clip)
+    [as_is] = jax_engine.score_pairs_batch([noisy_clip], config)
+    before = len(jax_engine.compile_log())
+    monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: dataclasses.replace(natural, H=natural.H + 64))
+    [padded] = jax_engine.score_pairs_batch([noisy_clip], config)
+    assert [key.stage for key, _ in jax_engine.compile_log()[before:]] == ["pixel", "finish"]
+    assert_same_pairs(padded, as_is)
+
+
+def test_each_stage_reads_only_the_static_fields_its_program_is_keyed_on():
+    BUCKET = jax_engine.Bucket(T=4, H=128, W=192, P=2048)
+    assert set().union(*jax_engine.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
+    finish = jax_engine.ProgramConfig(SGCConfig(), {}, "finish")
+    assert finish.compat == "spec" and finish.scale_free
+    with pytest.raises(AttributeError, match="ransac_hypotheses"):
+        finish.ransac_hypotheses
+    # configs that differ in another stage's field share the stage's program
+    assert (jax_engine.stage_key(SGCConfig(partition="grid"), "pose", BUCKET)
+            == jax_engine.stage_key(SGCConfig(), "pose", BUCKET))
+    assert (jax_engine.stage_key(SGCConfig(quality_rule=False), "pixel", BUCKET)
+            == jax_engine.stage_key(SGCConfig(), "pixel", BUCKET))
 
 
 def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_clip, moving_clip):
