@@ -1,5 +1,5 @@
-"""Traced size of the JAX engine's program for one bucket: jaxpr equations, counted through every
-sub-jaxpr (loops, conds, pjit, custom derivatives).
+"""Traced size of the JAX engine's programs for one bucket: jaxpr equations per stage (pixel,
+pose, finish) and in all, counted through every sub-jaxpr (loops, conds, pjit, custom derivatives).
 
     python bench/program_size.py                  # the standard bucket T=16, 288x512, P=4096, B=1
     python bench/program_size.py --T 4 --H 128 --W 192 --P 2048
@@ -15,7 +15,7 @@ import jax.extend as jex
 import numpy as np
 
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine import Bucket, PaddedClips, score_padded
+from sgc_jax.engines.jax_engine import STAGES, Bucket, PaddedClips, run_stage, stage_inputs
 
 
 def count_equations(jaxpr) -> int:
@@ -41,11 +41,16 @@ def main() -> None:
     bucket = Bucket(args.T, -(-args.H // 64) * 64, -(-args.W // 64) * 64, args.P)
     config = SGCConfig()
     key = jax.random.PRNGKey(config.seed)
-    start = time.perf_counter()
-    closed = jax.make_jaxpr(lambda b: score_padded(b, key, config))(zero_batch(bucket))
-    traced_s = time.perf_counter() - start
-    print(f"bucket {bucket}: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
-
+    batch, previous, total = zero_batch(bucket), None, 0
+    for stage in STAGES:
+        inputs = stage_inputs(stage, batch, previous)
+        start = time.perf_counter()
+        closed = jax.make_jaxpr(lambda x: run_stage(stage, x, key, config))(inputs)
+        traced_s = time.perf_counter() - start
+        previous = jax.eval_shape(lambda x: run_stage(stage, x, key, config), inputs)
+        total += count_equations(closed)
+        print(f"bucket {bucket}, {stage} stage: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
+    print(f"bucket {bucket}: {total} jaxpr equations in all")
 
 if __name__ == "__main__":
     main()

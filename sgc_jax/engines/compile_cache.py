@@ -1,7 +1,7 @@
 """The persistent cache of compiled programs, per machine, so a later run starts in seconds.
 
-The JAX engine compiles one executable per shape bucket and static config (tens of seconds on a
-small CPU). With the cache on, each traced program is kept as a ``jax.export`` file under
+The JAX engine compiles its stage programs per shape bucket and static config (tens of seconds
+on a small CPU). With the cache on, each traced program is kept as a ``jax.export`` file under
 ``sgc_programs/`` and its executable in JAX's persistent compilation cache beside it, so a later
 process neither traces nor compiles. The ``sgc-jax`` commands turn it on by default; library
 users call ``enable_compilation_cache()`` once, before scoring (a process-wide JAX setting, so the

@@ -1,5 +1,6 @@
-"""The JAX engine (docs/semantics.md §3, §7.1): clips padded to bucketed shapes, one compiled
-program per bucket and static config, one clip per call.
+"""The JAX engine (docs/semantics.md §3, §7.1): clips padded to bucketed shapes and scored one per
+call by three compiled stages (pixel, pose, finish), each compiled once per the bucket sizes and
+static config fields it depends on.
 
 A kernel handles one pair (or frame) with static shapes and validity masks; ``vmap`` lifts the
 pose kernels over the pairs of a clip, ``lax.map`` runs clips, and the pixel kernels (regions,
