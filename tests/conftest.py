@@ -1,19 +1,31 @@
 """Shared fixtures: small synthetic scenes reused across test files (built once per session)."""
 
+import atexit
 import gc
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import jax
 import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
-# The CLI tests run in this process: keep its compiled programs out of the user's cache
-# (tests/test_compile_cache.py exercises the cache in subprocesses).
-os.environ.setdefault("SGC_JAX_COMPILATION_CACHE", "off")
+# One persistent compilation cache for the test run, shared by this process, the CLI and notebook
+# subprocesses and the other xdist workers: a stage compiled once is loaded (seconds) wherever it
+# is needed again, also after the release below. A temporary directory, so the user's cache is
+# left alone (tests/test_compile_cache.py exercises the cache with caches of its own). The
+# controller makes it; workers inherit it through the environment.
+if "SGC_JAX_COMPILATION_CACHE" not in os.environ:
+    _RUN_CACHE = tempfile.mkdtemp(prefix="sgc_jax-test-cache-")
+    atexit.register(shutil.rmtree, _RUN_CACHE, ignore_errors=True)
+    os.environ["SGC_JAX_COMPILATION_CACHE"] = _RUN_CACHE
 
+from sgc_jax import enable_compilation_cache  # noqa: E402
 from sgc_jax.config import STATIC_FIELDS, SGCConfig  # noqa: E402
 from sgc_jax.research.synth import synth_clip  # noqa: E402
+
+enable_compilation_cache()
 
 # Well-conditioned scenes: two planar layers (one slanted) plus four static spheres, so every
 # depth region is a curved 3D point set. Small planar patches are the ill-posed case where any
@@ -68,8 +80,9 @@ def release_compiled_programs_when_mappings_run_high():
         gc.collect()
 
 
-# Where the suite's time goes: the programs each test module compiled (printed at the end).
-_COMPILES_BY_MODULE: dict[str, list] = {}
+# Where the suite's time goes: the programs each test module compiled (printed at the end; xdist
+# workers send theirs to the controller).
+_COMPILES_BY_MODULE: dict[str, list[tuple[str, dict, float]]] = {}
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -78,20 +91,31 @@ def record_compiles(request):
 
     before = len(compile_log())
     yield
-    new = compile_log()[before:]
+    defaults = SGCConfig()
+    new = [(str(key), {f: getattr(key.static, f) for f in STATIC_FIELDS
+                       if getattr(key.static, f) != getattr(defaults, f)}, seconds)
+           for key, seconds in compile_log()[before:]]
     if new:
         _COMPILES_BY_MODULE[request.module.__name__] = new
+
+
+def pytest_sessionfinish(session):
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:  # an xdist worker: hand the log to the controller
+        workeroutput["sgc_jax_compiles"] = _COMPILES_BY_MODULE
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    _COMPILES_BY_MODULE.update(getattr(node, "workeroutput", {}).get("sgc_jax_compiles", {}))
 
 
 def pytest_terminal_summary(terminalreporter):
     if not _COMPILES_BY_MODULE:
         return
-    defaults = SGCConfig()
-    terminalreporter.section("JAX programs compiled, by test module")
-    rows = sorted(_COMPILES_BY_MODULE.items(), key=lambda kv: -sum(c[1] for c in kv[1]))
+    terminalreporter.section("JAX stage programs compiled or loaded, by test module")
+    rows = sorted(_COMPILES_BY_MODULE.items(), key=lambda kv: -sum(c[2] for c in kv[1]))
     for module, compiles in rows:
-        terminalreporter.write_line(f"{module}: {len(compiles)} stage program(s), {sum(c[1] for c in compiles):.0f} s")
-        for key, seconds in compiles:
-            changed = {f: getattr(key.static, f) for f in STATIC_FIELDS
-                       if getattr(key.static, f) != getattr(defaults, f)}
+        terminalreporter.write_line(f"{module}: {len(compiles)} stage program(s), {sum(c[2] for c in compiles):.0f} s")
+        for key, changed, seconds in compiles:
             terminalreporter.write_line(f"    {key} {changed or ''} {seconds:.0f} s")

@@ -6,6 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import jax
 import nbformat
 import pytest
 from nbclient.exceptions import CellExecutionError
@@ -61,8 +62,9 @@ def test_notebook_uses_only_the_public_api(name):
 
 @pytest.fixture(scope="session")
 def jax_cache(tmp_path_factory):
-    """One persistent compilation cache for every notebook kernel: they share one batch shape."""
-    return tmp_path_factory.mktemp("jax-cache")
+    """The test run's compilation cache (tests/conftest.py), so the notebook kernels load the demo
+    corpus's programs instead of compiling them; one of their own when it is off."""
+    return jax.config.jax_compilation_cache_dir or tmp_path_factory.mktemp("jax-cache")
 
 
 @pytest.mark.slow
