@@ -15,7 +15,8 @@ import jax.extend as jex
 import numpy as np
 
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine import STAGES, Bucket, PaddedClips, run_stage, stage_inputs
+from sgc_jax.engines.buckets import STAGES, Bucket, PaddedClips, stage_inputs
+from sgc_jax.engines.stages import run_stage
 
 
 def count_equations(jaxpr) -> int:

@@ -22,6 +22,8 @@ REGION_EMPTY = 3  # no such region (slot beyond N_s), or the pair has fewer than
 # docs/semantics.md §3.3) leaves it out of the variances.
 REGION_ILL_CONDITIONED = 4
 REGION_AMBIGUOUS = 5  # JAX engine only
+# Regions the quality rule leaves out: posed, but not counted (docs/semantics.md §3.3)
+EXCLUDED_STATUSES = (REGION_ILL_CONDITIONED, REGION_AMBIGUOUS)
 #: Region status name -> code.
 REGION_STATUS = {"ok": REGION_OK, "too_few_points": REGION_TOO_FEW_POINTS, "rejected": REGION_REJECTED,
                  "empty": REGION_EMPTY, "ill_conditioned": REGION_ILL_CONDITIONED, "ambiguous": REGION_AMBIGUOUS}

@@ -9,7 +9,7 @@ import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig
 from sgc_jax.config import STATIC_FIELDS
-from sgc_jax.engines import jax_engine
+from sgc_jax.engines import buckets, jax_engine, stages
 from sgc_jax.research.synth import synth_clip
 
 
@@ -27,15 +27,15 @@ def assert_same_pairs(padded, as_is):
 # frames (the demo corpus's) and more tracks and columns (conftest.SCENE's).
 SMALL_NOISY = dict(n_layers=2, static_spheres=4, height=100, width=120, n_tracks=1000, n_frames=3, noise_px=1.0,
                    outlier_frac=0.3)
-LARGER = {"frames": jax_engine.Bucket(T=8, H=128, W=128, P=1024),
-          "tracks_and_columns": jax_engine.Bucket(T=4, H=128, W=192, P=2048)}
+LARGER = {"frames": buckets.Bucket(T=8, H=128, W=128, P=1024),
+          "tracks_and_columns": buckets.Bucket(T=4, H=128, W=192, P=2048)}
 
 
 @pytest.mark.parametrize("larger", sorted(LARGER))
 def test_padding_to_a_larger_bucket_does_not_change_the_score(larger, monkeypatch):
     clip = synth_clip(seed=3, clip_id="small-noisy", **SMALL_NOISY)
     config = SGCConfig()
-    assert jax_engine.bucket_for(clip) == jax_engine.Bucket(T=4, H=128, W=128, P=1024)
+    assert jax_engine.bucket_for(clip) == buckets.Bucket(T=4, H=128, W=128, P=1024)
     [as_is] = jax_engine.score_pairs_batch([clip], config)
     monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: LARGER[larger])
     [padded] = jax_engine.score_pairs_batch([clip], config)
@@ -60,9 +60,9 @@ def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatc
 
 
 def test_each_stage_reads_only_the_static_fields_its_program_is_keyed_on():
-    BUCKET = jax_engine.Bucket(T=4, H=128, W=192, P=2048)
-    assert set().union(*jax_engine.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
-    finish = jax_engine.ProgramConfig(SGCConfig(), {}, "finish")
+    BUCKET = buckets.Bucket(T=4, H=128, W=192, P=2048)
+    assert set().union(*buckets.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
+    finish = stages.ProgramConfig(SGCConfig(), {}, "finish")
     assert finish.compat == "spec" and finish.scale_free
     with pytest.raises(AttributeError, match="ransac_hypotheses"):
         finish.ransac_hypotheses

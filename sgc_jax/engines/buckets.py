@@ -1,0 +1,145 @@
+"""Shape buckets and padding for the JAX engine (docs/semantics.md §7.1), and what each compiled
+stage takes: plain NumPy and tuples, so scoring from already compiled programs never imports the
+kernels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from ..config import SGCConfig
+from ..io.clip import Clip
+
+FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
+PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
+MIN_TRACK_BUCKET = 64
+
+
+@dataclasses.dataclass(frozen=True, order=True)
+class Bucket:
+    """Padded (T frames, H x W pixels, P tracks); one compile per bucket and static config."""
+
+    T: int
+    H: int
+    W: int
+    P: int
+
+
+def _round_up(value: int, multiple: int) -> int:
+    return -(-value // multiple) * multiple
+
+
+def bucket_for(clip: Clip) -> Bucket:
+    """The bucket a clip is padded to: T to the next of FRAME_BUCKETS, H and W to a multiple of
+    64, P to the next power of two (at least 64)."""
+    T = next((b for b in FRAME_BUCKETS if b >= clip.n_frames), _round_up(clip.n_frames, 64))
+    H, W = (_round_up(s, PIXEL_MULTIPLE) for s in clip.image_size)
+    P = max(MIN_TRACK_BUCKET, 1 << max(clip.n_tracks - 1, 0).bit_length())
+    return Bucket(T, H, W, P)
+
+
+class PaddedClips(NamedTuple):
+    """Clips of one bucket stacked on a leading axis B (1 in a scoring call); pairs index p =
+    frames p -> p+1."""
+
+    depth: np.ndarray  # (B, T, H, W) float32, 0 = invalid (and in padding)
+    static: np.ndarray  # (B, T, H, W) bool, False in padding
+    K: np.ndarray  # (B, T, 3, 3) float32
+    R_wc: np.ndarray  # (B, T, 3, 3) float32
+    t_wc: np.ndarray  # (B, T, 3) float32
+    track_prev: np.ndarray  # (B, T-1, P, 2) float32
+    track_curr: np.ndarray  # (B, T-1, P, 2) float32
+    usable: np.ndarray  # (B, T-1, P) bool: visible, confident, finite; False in padding
+    pair_valid: np.ndarray  # (B, T-1) bool
+    image_hw: np.ndarray  # (B, 2) int32 true image size
+    depth_unit: np.ndarray  # (B,) float32 D in input depth units (depth above is depth / D)
+
+
+def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 1.0) -> PaddedClips:
+    """One clip padded to ``bucket`` (leading axis B = 1); ``depth_unit``: the D its depth was
+    divided by (``units.in_depth_units``)."""
+    T, H, W, P = clip.n_frames, *clip.image_size, clip.n_tracks
+    if (T > bucket.T) or (H > bucket.H) or (W > bucket.W) or (P > bucket.P):
+        raise ValueError(f"clip {clip.clip_id!r} of shape {(T, H, W, P)} does not fit bucket {bucket}")
+    depth = np.zeros((bucket.T, bucket.H, bucket.W), np.float32)
+    finite = np.isfinite(clip.depth) & (clip.depth > 0)
+    depth[:T, :H, :W] = np.where(finite, clip.depth, 0.0)
+    static = np.zeros((bucket.T, bucket.H, bucket.W), bool)
+    static[:T, :H, :W] = clip.static_mask if config.use_mos else True
+    K = np.broadcast_to(clip.K[-1], (bucket.T, 3, 3)).astype(np.float32)
+    K[:T] = clip.K
+    R_wc = np.broadcast_to(np.eye(3), (bucket.T, 3, 3)).astype(np.float32)
+    R_wc[:T] = clip.R_wc
+    t_wc = np.zeros((bucket.T, 3), np.float32)
+    t_wc[:T] = clip.t_wc
+    track_prev = np.zeros((bucket.T - 1, bucket.P, 2), np.float32)
+    track_curr = np.zeros((bucket.T - 1, bucket.P, 2), np.float32)
+    usable = np.zeros((bucket.T - 1, bucket.P), bool)
+    usable[: T - 1, :P] = clip.usable_tracks(config.min_track_conf)
+    track_prev[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_prev, 0.0)
+    track_curr[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_curr, 0.0)
+    pair_valid = np.arange(bucket.T - 1) < T - 1
+    return PaddedClips(depth[None], static[None], K[None], R_wc[None], t_wc[None], track_prev[None],
+                       track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32),
+                       np.array([depth_unit], np.float32))
+
+
+# ----------------------------------------------------------------------------- stages
+#
+# A clip is scored by three programs, each compiled for the shapes it touches: the pixel stage
+# (regions at the tracks; T, H, W, P), the pose stage (RANSAC, the scale; T, P: most of the
+# compile, shared by clips of every image size) and the finish (depth warp, components; T, H, W).
+# Their inputs and outputs are flat tuples and dicts (what ``jax.export`` keeps).
+
+
+class PixelInputs(NamedTuple):
+    depth: jax.Array  # (B, T, H, W)
+    static: jax.Array  # (B, T, H, W)
+    track_prev: jax.Array  # (B, T-1, P, 2)
+    track_curr: jax.Array  # (B, T-1, P, 2)
+    image_hw: jax.Array  # (B, 2)
+
+
+class PoseInputs(NamedTuple):
+    Z_prev: jax.Array  # (B, T-1, P) depth of frame i-1 at the tracks (``depth_at_tracks``)
+    track_labels: jax.Array  # (B, T-1, P) region of each track in frame i
+    n_regions: jax.Array  # (B, T-1)
+    region_pixels: jax.Array  # (B, T-1)
+    K: jax.Array
+    R_wc: jax.Array
+    t_wc: jax.Array
+    track_prev: jax.Array
+    track_curr: jax.Array
+    usable: jax.Array
+    pair_valid: jax.Array
+    image_hw: jax.Array
+    depth_unit: jax.Array
+
+
+STAGES = ("pixel", "pose", "finish")
+
+
+def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple:
+    """The flat inputs of ``stage`` for a padded batch, given the previous stage's output."""
+    if stage == "pixel":
+        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.image_hw))
+    if stage == "pose":
+        return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
+                                previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
+                                batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
+    return (previous, batch.depth, batch.static, batch.K)
+
+
+# The static config fields each stage reads (``ProgramConfig`` refuses the others): a stage's
+# program is shared by configs that differ elsewhere. The config's properties used in a stage
+# must derive from its fields (scale_free, fits_translation_scale, applies_quality_rule do).
+STAGE_FIELDS = {
+    "pixel": ("k_seg", "kmeans_bins", "partition", "compat"),
+    "pose": ("k_seg", "ransac_hypotheses", "gn_steps", "compat", "global_pose", "align_scale", "quality_rule",
+             "borrow_region_poses"),
+    "finish": ("k_seg", "compat", "global_pose"),
+}
