@@ -45,3 +45,17 @@ def test_a_second_cli_run_loads_every_program_from_the_cache(tmp_path):
     assert second == first  # nothing traced or compiled anew, nothing rewritten
     assert "loading the JAX program" in said and "compiling" not in said
     assert (tmp_path / "second.csv").read_text() == (tmp_path / "first.csv").read_text()
+
+
+def test_a_program_being_compiled_is_locked_against_other_processes(tmp_path):
+    # Processes sharing a cache compile each program once: the others wait for the lock, then load it.
+    path = tmp_path / "sgc_programs" / "stage.jaxexport"
+    probe = "import fcntl, sys; fcntl.flock(open(sys.argv[1], 'a'), fcntl.LOCK_EX | fcntl.LOCK_NB)"
+
+    def another_process_can_lock() -> bool:
+        return subprocess.run([sys.executable, "-c", probe, str(path.with_suffix(".lock"))]).returncode == 0
+
+    lock = compile_cache.ProgramLock(path)
+    held = another_process_can_lock()
+    lock.release()
+    assert not held and another_process_can_lock()

@@ -23,6 +23,11 @@ import platform
 import sys
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:  # Windows: no lock, concurrent processes may compile the same program
+    fcntl = None
+
 ENV_VAR = "SGC_JAX_COMPILATION_CACHE"
 _OFF = {"off", "0", "false", "no", "disabled"}
 
@@ -125,6 +130,29 @@ def program_path(static_config, bucket) -> Path | None:
         return None
     key = hashlib.sha256(f"{code_fingerprint()} {jax.default_backend()} {static_config!r} {bucket!r}".encode())
     return Path(cache_dir) / PROGRAMS_DIR / f"{key.hexdigest()[:32]}.jaxexport"
+
+
+class ProgramLock:
+    """An exclusive lock on one kept program (``<path>.lock``), taken before it is traced and
+    released once it is compiled: processes sharing the cache (xdist workers, several runs at
+    once) compile each program once; the others wait, then load it. Does nothing without the
+    cache (``path`` None), where ``fcntl`` is missing (Windows) or the cache is read-only."""
+
+    def __init__(self, path: Path | None):
+        self._file = None
+        if path is None or fcntl is None:
+            return
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+            self._file = open(path.with_suffix(".lock"), "a")
+            fcntl.flock(self._file, fcntl.LOCK_EX)
+        except OSError:
+            self.release()
+
+    def release(self) -> None:
+        if self._file is not None:
+            self._file.close()  # closing the file drops the lock
+            self._file = None
 
 
 def load_program(path: Path):

@@ -22,7 +22,7 @@ from ..config import VALUE_FIELDS, SGCConfig
 from ..io.clip import Clip
 from ..io.result import PairArrays
 from .buckets import STAGE_FIELDS, STAGES, Bucket, PaddedClips, bucket_for, pad_clip, stage_inputs
-from .compile_cache import cache_hint, compile_messages_on, load_program, program_path, save_program
+from .compile_cache import ProgramLock, cache_hint, compile_messages_on, load_program, program_path, save_program
 from .units import in_depth_units
 
 
@@ -104,7 +104,8 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
     """The stages that score one padded clip of ``bucket`` under ``config``, called as
     ``program(batch, key, values)``. Each stage is compiled once per ``StageKey`` (a line on
     stderr says so); while one compiles, the next is traced. With the persistent cache on, traced
-    stages are kept (``compile_cache.program_path``), so a later process skips tracing too."""
+    stages are kept (``compile_cache.program_path``), so a later process skips tracing too, and a
+    stage another process is compiling is waited for (``ProgramLock``), then loaded."""
     keys = [stage_key(config, stage, bucket) for stage in STAGES]
     missing = [key for key in keys if key not in _programs]
     if missing:
@@ -114,11 +115,14 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
         key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
         batch_spec = PaddedClips(*_spec(tuple(example)))
 
-        def compile_stage(key: StageKey, lowered, lowered_s: float):
-            begin = time.perf_counter()
-            executable = lowered.compile()
-            _compiles.append((key, lowered_s + time.perf_counter() - begin))
-            return executable, lowered.out_info
+        def compile_stage(key: StageKey, lowered, lowered_s: float, lock: ProgramLock):
+            try:
+                begin = time.perf_counter()
+                executable = lowered.compile()
+                _compiles.append((key, lowered_s + time.perf_counter() - begin))
+                return executable, lowered.out_info
+            finally:
+                lock.release()
 
         previous = None
         with concurrent.futures.ThreadPoolExecutor(max_workers=len(missing)) as pool:
@@ -128,9 +132,14 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
                     previous = _programs[key][1]
                     continue
                 begin = time.perf_counter()
-                lowered = _lower(key, (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                lock = ProgramLock(program_path(key.static, key))  # another process may be compiling it
+                try:
+                    lowered = _lower(key, (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                except BaseException:
+                    lock.release()
+                    raise
                 previous = lowered.out_info
-                pending[key] = pool.submit(compile_stage, key, lowered, time.perf_counter() - begin)
+                pending[key] = pool.submit(compile_stage, key, lowered, time.perf_counter() - begin, lock)
             for key, future in pending.items():
                 _programs[key] = future.result()
         if compile_messages_on():
