@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
-from sgc_jax.engines import reference
+from sgc_jax.engines import reference, stages
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.synth import synth_clip
 
@@ -187,3 +187,15 @@ def test_on_outlier_clips_jax_local_poses_are_near_the_information_limit(scored)
     assert jax_within >= 0.85, (jax_within, ref_within)
     assert jax_within > ref_within + 0.3
     assert np.median(jax_errors) < 0.5 * np.median(ref_errors)
+
+
+def test_both_engines_back_project_and_project_through_the_whole_K_skew_included():
+    """docs/semantics.md §3.2 step 3: X = Z K^-1 (u, v, 1), K's skew K[0, 1] included."""
+    rng = np.random.default_rng(0)
+    K = np.array([[300.0, 4.0, 160.0], [0.0, 280.0, 120.0], [0.0, 0.0, 1.0]])
+    uv, Z = rng.uniform([0.0, 0.0], [320.0, 240.0], (50, 2)), rng.uniform(1.0, 5.0, 50)
+    X = reference.back_project(K, uv, Z)
+    np.testing.assert_allclose(X, Z[:, None] * np.linalg.solve(K, np.c_[uv, np.ones(50)].T).T, rtol=1e-12)
+    X_jax, _ = stages.points_prev(*(np.asarray(a, np.float32) for a in (Z, K, uv)), np.ones(50, bool))
+    np.testing.assert_allclose(np.asarray(X_jax), X, rtol=1e-5)  # float32
+    assert reference.reprojection_errors(X, uv, K, np.eye(3), np.zeros(3)).max() < 1e-9

@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..codes import REGION_STATUS
+from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import HOLE_DEPTH_MARGIN, SGCConfig
 from ..io.clip import Clip
 from ..io.result import PairArrays, empty_pair_arrays
@@ -199,9 +199,22 @@ def usable_points(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray,
     row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
     Z = clip.depth[pair - 1][row, col].astype(np.float64)
     has_depth = np.isfinite(Z) & (Z > 0)
-    K = clip.K[pair - 1]
-    X = np.stack([(prev[:, 0] - K[0, 2]) * Z / K[0, 0], (prev[:, 1] - K[1, 2]) * Z / K[1, 1], Z], axis=1)
+    X = back_project(clip.K[pair - 1], prev, Z)
     return X[has_depth], curr[has_depth], int(usable.sum())
+
+
+def back_project(K: np.ndarray, uv: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """Points X (n, 3) = Z K^-1 (u, v, 1) of pixels uv (n, 2) at depths Z (n,) (docs/semantics.md
+    §3.2 step 3; the skew K[0, 1] included)."""
+    rays = np.linalg.solve(K.astype(np.float64), np.column_stack([uv, np.ones(len(uv))]).T).T
+    return rays * Z[:, None]
+
+
+def project(K: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """Pixels (n, 2) of camera-frame points cam (n, 3): K (x / z, y / z, 1), the skew included;
+    |z| floored at 1e-12."""
+    z = np.where(np.abs(cam[:, 2]) > 1e-12, cam[:, 2], 1e-12)
+    return (np.column_stack([cam[:, :2] / z[:, None], np.ones(len(cam))]) @ K.astype(np.float64).T)[:, :2]
 
 
 def point_regions(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -305,10 +318,7 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
 
 def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Pixel distance (n,) between uv and the projection of R X + t with K."""
-    cam = X @ R.T + t
-    z = np.where(np.abs(cam[:, 2]) > 1e-12, cam[:, 2], 1e-12)
-    proj = (cam[:, :2] / z[:, None]) * K[[0, 1], [0, 1]] + K[:2, 2]
-    return np.linalg.norm(proj - uv, axis=1)
+    return np.linalg.norm(project(K, X @ R.T + t) - uv, axis=1)
 
 
 # ----------------------------------------------------------------------------- components
@@ -572,7 +582,7 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
             out.t_g_norm[p] = np.linalg.norm(scale * t_g[p] if config.scale_free else t_g[p]) * f
             out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.n_poses[p] = len(R_list)
-        out.n_ill_conditioned[p] = int(np.sum(poses["region_status"][p] == REGION_STATUS["ill_conditioned"]))
+        out.n_ill_conditioned[p] = int(np.isin(poses["region_status"][p], EXCLUDED_STATUSES).sum())
         out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
         out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, pair, config).sum()),
                                     int(out.n_regions[p]), len(R_list), out.depth_error[p],
