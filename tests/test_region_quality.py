@@ -52,9 +52,16 @@ def region_draws(n, half_px, depth, relief, noise_px, seed=0):
     return X, uvs
 
 
+FIT_POINTS = 300  # regions are padded to this many points (masked out), so every fit shares one compile
+
+
 def fit(X, uvs):
     keys = jax.random.split(jax.random.PRNGKey(0), len(uvs))
-    res = fit_draws(X.astype(np.float32), uvs.astype(np.float32), jnp.ones(len(X), bool), K, keys)
+    pad = FIT_POINTS - len(X)
+    X = np.concatenate([X, np.tile([0.0, 0.0, 1.0], (pad, 1))])
+    uvs = np.concatenate([uvs, np.zeros((len(uvs), pad, 2))], axis=1)
+    member = np.arange(FIT_POINTS) < FIT_POINTS - pad
+    res = fit_draws(X.astype(np.float32), uvs.astype(np.float32), jnp.asarray(member), K, keys)
     errors = np.asarray(rotation_angle_deg(jnp.asarray(R_TRUE, jnp.float32)[None], res.R))
     return res, errors
 
