@@ -21,7 +21,7 @@ MIN_TRACK_BUCKET = 64
 
 @dataclasses.dataclass(frozen=True, order=True)
 class Bucket:
-    """Padded (T frames, H x W pixels, P tracks); one compile per bucket and static config."""
+    """Padded (T frames, H x W pixels, P tracks); each stage compiles once per the sizes it reads."""
 
     T: int
     H: int

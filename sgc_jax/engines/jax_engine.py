@@ -50,6 +50,7 @@ def stage_config(config: SGCConfig, stage: str) -> SGCConfig:
 
 
 def stage_key(config: SGCConfig, stage: str, bucket: Bucket) -> StageKey:
+    """The program that runs ``stage`` for clips of ``bucket`` under ``config``."""
     T, H, W, P = bucket.T, bucket.H, bucket.W, bucket.P
     shape = {"pixel": (T, H, W, P), "pose": (T, P), "finish": (T, H, W)}[stage]
     return StageKey(stage, stage_config(config, stage), shape)
