@@ -60,17 +60,17 @@ def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatc
 
 
 def test_each_stage_reads_only_the_static_fields_its_program_is_keyed_on():
-    BUCKET = buckets.Bucket(T=4, H=128, W=192, P=2048)
+    bucket = buckets.Bucket(T=4, H=128, W=192, P=2048)
     assert set().union(*buckets.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
     finish = stages.ProgramConfig(SGCConfig(), {}, "finish")
     assert finish.compat == "spec" and finish.scale_free
     with pytest.raises(AttributeError, match="ransac_hypotheses"):
         finish.ransac_hypotheses
     # configs that differ in another stage's field share the stage's program
-    assert (jax_engine.stage_key(SGCConfig(partition="grid"), "pose", BUCKET)
-            == jax_engine.stage_key(SGCConfig(), "pose", BUCKET))
-    assert (jax_engine.stage_key(SGCConfig(quality_rule=False), "pixel", BUCKET)
-            == jax_engine.stage_key(SGCConfig(), "pixel", BUCKET))
+    assert (jax_engine.stage_key(SGCConfig(partition="grid"), "pose", bucket)
+            == jax_engine.stage_key(SGCConfig(), "pose", bucket))
+    assert (jax_engine.stage_key(SGCConfig(quality_rule=False), "pixel", bucket)
+            == jax_engine.stage_key(SGCConfig(), "pixel", bucket))
 
 
 def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_clip, moving_clip):

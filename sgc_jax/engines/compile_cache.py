@@ -120,15 +120,15 @@ def code_fingerprint() -> str:
     return digest.hexdigest()
 
 
-def program_path(static_config, bucket) -> Path | None:
-    """Where the traced program of (``static_config``, ``bucket``) is kept on this backend, or
-    None while the persistent cache is off."""
+def program_path(program_key) -> Path | None:
+    """Where the traced program named by ``program_key`` (its repr: the stage, its static config
+    and shape) is kept on this backend, or None while the persistent cache is off."""
     import jax
 
     cache_dir = jax.config.jax_compilation_cache_dir
     if not cache_dir:
         return None
-    key = hashlib.sha256(f"{code_fingerprint()} {jax.default_backend()} {static_config!r} {bucket!r}".encode())
+    key = hashlib.sha256(f"{code_fingerprint()} {jax.default_backend()} {program_key!r}".encode())
     return Path(cache_dir) / PROGRAMS_DIR / f"{key.hexdigest()[:32]}.jaxexport"
 
 

@@ -84,11 +84,10 @@ def _spec(tree):
     return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), tree)
 
 
-def _lower(key: StageKey, args: tuple):
-    """The stage lowered for ``args`` (shapes): from its kept ``jax.export`` file when the
-    persistent cache has one, else traced (and kept when the cache is on). Only tracing imports
-    ``stages`` and the kernels."""
-    path = program_path(key.static, key)
+def _lower(key: StageKey, path, args: tuple):
+    """The stage lowered for ``args`` (shapes): from its kept ``jax.export`` file at ``path`` when
+    the persistent cache has one, else traced (and kept there when the cache is on). Only tracing
+    imports ``stages`` and the kernels."""
     exported = load_program(path) if path is not None else None
     if exported is None:
         from .stages import stage_program
@@ -111,17 +110,15 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
     missing = [key for key in keys if key not in _programs]
     if missing:
         start = time.perf_counter()
-        paths = [program_path(key.static, key) for key in missing]
-        _announce(bucket, missing, all(p is not None and p.exists() for p in paths))
+        paths = {key: program_path(key) for key in missing}
+        _announce(bucket, missing, all(p is not None and p.exists() for p in paths.values()))
         key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
         batch_spec = PaddedClips(*_spec(tuple(example)))
 
-        def compile_stage(key: StageKey, lowered, lowered_s: float, lock: ProgramLock):
+        def compile_stage(lowered, lowered_s: float, lock: ProgramLock):
             try:
                 begin = time.perf_counter()
-                executable = lowered.compile()
-                _compiles.append((key, lowered_s + time.perf_counter() - begin))
-                return executable, lowered.out_info
+                return lowered.compile(), lowered.out_info, lowered_s + time.perf_counter() - begin
             finally:
                 lock.release()
 
@@ -133,16 +130,19 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
                     previous = _programs[key][1]
                     continue
                 begin = time.perf_counter()
-                lock = ProgramLock(program_path(key.static, key))  # another process may be compiling it
+                lock = ProgramLock(paths[key])  # another process may be compiling it
                 try:
-                    lowered = _lower(key, (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                    lowered = _lower(key, paths[key], (stage_inputs(key.stage, batch_spec, previous), key_spec,
+                                                        values_spec))
                 except BaseException:
                     lock.release()
                     raise
                 previous = lowered.out_info
-                pending[key] = pool.submit(compile_stage, key, lowered, time.perf_counter() - begin, lock)
-            for key, future in pending.items():
-                _programs[key] = future.result()
+                pending[key] = pool.submit(compile_stage, lowered, time.perf_counter() - begin, lock)
+            for key, future in pending.items():  # logged in stage order, whichever compile ends first
+                executable, out_info, seconds = future.result()
+                _programs[key] = executable, out_info
+                _compiles.append((key, seconds))
         if compile_messages_on():
             print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
     return BucketProgram(tuple(_programs[key][0] for key in keys))

@@ -314,8 +314,6 @@ def score_padded(batch: PaddedClips, key, config: SGCConfig):
     return out
 
 
-
-
 # ----------------------------------------------------------------------------- programs
 
 
@@ -341,5 +339,3 @@ def stage_program(inputs: tuple, key, values, stage: str, static: SGCConfig):
     value fields (``jax_engine.program_values``), and the static config ``static`` (a jit-static
     argument)."""
     return run_stage(stage, inputs, key, ProgramConfig(static, values, stage))
-
-
