@@ -11,6 +11,8 @@ rotations in degrees in every output; depth and local translations in depth unit
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -18,6 +20,8 @@ from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import HOLE_DEPTH_MARGIN, SGCConfig
 from ..io.clip import Clip
 from ..io.result import PairArrays, empty_pair_arrays
+from . import reference_pose as reference_pose_search
+from .reference_pose import residual_jacobian
 from .units import PERCENT, in_depth_units, translation_factor
 
 # ----------------------------------------------------------------------------- rotations
@@ -271,13 +275,7 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
     n = len(X)
     if n < 4:
         return float("nan"), float("nan"), float("nan")
-    RX = X @ R.T
-    Y = RX + t
-    z = Y[:, 2]
-    grad_u = np.stack([K[0, 0] / z, K[0, 1] / z, -(K[0, 0] * Y[:, 0] + K[0, 1] * Y[:, 1]) / z**2], axis=1)
-    grad_v = np.stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2], axis=1)
-    # d residual = grad . (w x RX + dt) = w . (RX x grad) + dt . grad
-    J = np.concatenate([np.concatenate([np.cross(RX, g), g], axis=1) for g in (grad_u, grad_v)])
+    _, J = residual_jacobian(X, uv, K, R, t)
     sigma_sq = np.sum(reprojection_errors(X, uv, K, R, t) ** 2) / max(2 * n - 6, 1)
     covariance = sigma_sq * np.linalg.pinv(J.T @ J)
     return (float(np.degrees(np.sqrt(max(np.trace(covariance[:3, :3]), 0.0)))),
@@ -297,14 +295,13 @@ def rot_std_limit_deg(K: np.ndarray, config: SGCConfig) -> float:
 
 
 def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                   image_size: tuple[int, int], config: SGCConfig) -> tuple[bool, float, float]:
-    """The region-quality rule on an accepted pose: (well_conditioned, rot std deg, trans std).
+                   image_size: tuple[int, int], config: SGCConfig) -> tuple[bool, float, float, float]:
+    """The region-quality rule on an accepted pose: (well_conditioned, sigma px, rot std deg, trans std).
 
     On the inliers of the pose (error < inlier_px, in front of the camera): at least
     ``min_region_points`` of them, rotation uncertainty <= ``rot_std_limit_deg`` with sigma capped
     at ``quality_noise_px`` (larger residuals are misfit, not noise), RMS radius >=
-    ``min_region_extent`` x the image diagonal. (The JAX engine also marks ambiguous fits;
-    OpenCV's RANSAC returns one pose, so the reference has no rival to compare with.)
+    ``min_region_extent`` x the image diagonal (docs/semantics.md §3.3; ambiguity is the search's).
     """
     in_front = (X @ R.T + t)[:, 2] > 0
     inliers = in_front & (reprojection_errors(X, uv, K, R, t) < config.inlier_px)
@@ -313,7 +310,7 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     diagonal = float(np.hypot(*image_size))
     good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
-    return good, rot_std, trans_std
+    return good, sigma, rot_std, trans_std
 
 
 def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -456,40 +453,134 @@ def region_seed(config: SGCConfig, pair: int, region: int) -> int:
     return (config.seed * 1_000_003 + pair * 1_009 + region) % (2**31 - 1)
 
 
-def local_poses(clip: Clip, config: SGCConfig) -> dict[str, np.ndarray]:
-    """Per pair and region (k_seg slots): status, R, t, point count, reprojection error; plus
-    per pair n_tracks and n_regions (docs/semantics.md §3.2-3.3)."""
+class PairPoints(NamedTuple):
+    """A pair's points (docs/semantics.md §3.2 steps 1-5): labels (H, W) of frame pair's regions,
+    X (n, 3) in camera pair-1 and uv (n, 2) in frame pair of the usable tracks with depth, their
+    region (n,) (0: none) and n_usable, the usable tracks with or without depth."""
+
+    labels: np.ndarray
+    X: np.ndarray
+    uv: np.ndarray
+    region: np.ndarray
+    n_usable: int
+
+
+def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
+    labels = partition_regions(clip, pair, config)
+    X, uv, n_usable = usable_points(clip, pair, config)
+    return PairPoints(labels, X, uv, point_regions(labels, uv), n_usable)
+
+
+class RegionPose(NamedTuple):
+    """One region's local pose before the quality rule: status (``ok``, ``rejected`` or
+    ``too_few_points``), R, t (NaN unless found) and whether a rival makes it ambiguous (spec)."""
+
+    status: int
+    R: np.ndarray
+    t: np.ndarray
+    ambiguous: bool = False
+
+
+def accepted_status(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                    config: SGCConfig) -> int:
+    """``ok`` when the pose is finite and proper and its inliers (in front, error < inlier_px)
+    number >= max(4, floor(min_inlier_frac * n)), else ``rejected`` (docs/semantics.md §3.2 step 6)."""
+    if not (np.isfinite(R).all() and np.isfinite(t).all()) or abs(np.linalg.det(R) - 1.0) >= 1e-3:
+        return REGION_STATUS["rejected"]
+    in_front = (X @ R.T + t)[:, 2] > 0
+    inliers = in_front & (reprojection_errors(X, uv, K, R, t) < config.inlier_px)
+    needed = max(4, int(np.floor(config.min_inlier_frac * len(X))))
+    return REGION_STATUS["ok"] if inliers.sum() >= needed else REGION_STATUS["rejected"]
+
+
+NAN_POSE = (np.full((3, 3), np.nan), np.full(3, np.nan))
+
+
+def spec_region_poses(points: PairPoints, K: np.ndarray, reference_pose: tuple[np.ndarray, np.ndarray] | None,
+                      config: SGCConfig, pair: int) -> list[RegionPose]:
+    """Every region's local pose of a pair under ``compat="spec"`` (docs/semantics.md §3.2 step 6),
+    searched by ``reference_pose.region_pose``: the region's own triples, then the other regions'
+    coarse optima and ``reference_pose`` (R_g, s t_g) as further starts."""
+    n_triples = SPEC_TRIPLES_PER_HYPOTHESIS * config.ransac_hypotheses
+    K = K.astype(np.float64)
+    members = [points.region == r for r in range(1, points.labels.max() + 1)]
+    searches = []
+    for region, member in enumerate(members, start=1):
+        rng = np.random.default_rng(region_seed(config, pair, region))
+        searches.append(reference_pose_search.search_region(points.X[member], points.uv[member], K, config.inlier_px,
+                                                            n_triples, rng) if member.sum() >= config.min_points else None)
+    out = []
+    for member, search in zip(members, searches):
+        if member.sum() < config.min_points:
+            out.append(RegionPose(REGION_STATUS["too_few_points"], *NAN_POSE))
+            continue
+        if search is None:
+            out.append(RegionPose(REGION_STATUS["rejected"], *NAN_POSE))
+            continue
+        others = [s.optima[0] for s in searches if s is not None and s is not search]
+        if reference_pose is not None:
+            others.append(reference_pose_search.Pose(*reference_pose))
+        X, uv = points.X[member], points.uv[member]
+        found = reference_pose_search.region_pose(X, uv, K, search, others, config.inlier_px, config.ambiguous_rot_deg,
+                                                  config.ambiguous_inlier_frac)
+        out.append(RegionPose(accepted_status(X, uv, K, *found.pose, config), *found.pose, found.ambiguous))
+    return out
+
+
+def authors_region_poses(points: PairPoints, K: np.ndarray, config: SGCConfig, pair: int) -> list[RegionPose]:
+    """Every region's local pose of a pair by ``cv2.solvePnPRansac`` with the authors' settings."""
+    out = []
+    for region in range(1, points.labels.max() + 1):
+        member = points.region == region
+        status, R, t, _ = solve_region_pose(points.X[member], points.uv[member], K, config,
+                                            region_seed(config, pair, region))
+        out.append(RegionPose(status, R, t))
+    return out
+
+
+# Random triples of the spec search per RANSAC hypothesis of the JAX engine (whose adaptive stop
+# usually ends far sooner): the reference is meant to be the harder searcher of the two.
+SPEC_TRIPLES_PER_HYPOTHESIS = 5
+
+
+def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
+                reference_poses: list[tuple[np.ndarray, np.ndarray]] | None = None) -> dict[str, np.ndarray]:
+    """Per pair and region (k_seg slots): status, R, t, point count, reprojection error, pose
+    uncertainty; plus per pair n_tracks and n_regions (docs/semantics.md §3.2-3.3). ``points``
+    per pair (``pair_points``); ``reference_poses`` per pair (R_g, s t_g), a start of the spec
+    search."""
     n_pairs, k = clip.n_pairs, config.k_seg
     out = {
         "R_local": np.full((n_pairs, k, 3, 3), np.nan), "t_local": np.full((n_pairs, k, 3), np.nan),
         "region_status": np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
         "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
-        "n_tracks": np.zeros(n_pairs, np.int32), "n_regions": np.zeros(n_pairs, np.int32),
-        "region_members": [(np.zeros((0, 3)), np.zeros((0, 2)))] * n_pairs,  # (X, uv) of the pair's region points
+        "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
+        "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
     for pair in range(1, clip.n_frames):
-        p = pair - 1
-        labels = partition_regions(clip, pair, config)
-        out["n_regions"][p] = labels.max()
-        X, uv, n_usable = usable_points(clip, pair, config)
-        out["n_tracks"][p] = n_usable
-        member_of = point_regions(labels, uv)
-        out["region_members"][p] = (X[member_of > 0], uv[member_of > 0])  # the scale fit uses them all
-        if n_usable < 4:
+        p, pp, K = pair - 1, points[pair - 1], clip.K[pair]
+        if pp.n_usable < 4:
             continue
-        for region in range(1, labels.max() + 1):
-            member = member_of == region
-            status, R, t, reproj = solve_region_pose(X[member], uv[member], clip.K[pair], config,
-                                                     region_seed(config, pair, region))
-            j = region - 1
+        if config.compat == "authors":
+            poses = authors_region_poses(pp, K, config, pair)
+        else:
+            poses = spec_region_poses(pp, K, reference_poses[p] if reference_poses else None, config, pair)
+        for j, pose in enumerate(poses):
+            member = pp.region == j + 1
+            X, uv = pp.X[member], pp.uv[member]
+            status = pose.status
             if status == REGION_STATUS["ok"]:
-                good, out["region_rot_std"][p, j], out["region_trans_std"][p, j] = region_quality(
-                    X[member], uv[member], clip.K[pair], R, t, clip.image_size, config)
-                if config.applies_quality_rule and not good:
+                good, sigma, out["region_rot_std"][p, j], out["region_trans_std"][p, j] = region_quality(
+                    X, uv, K, pose.R, pose.t, clip.image_size, config)
+                if config.applies_quality_rule and pose.ambiguous and sigma <= config.quality_noise_px:
+                    status = REGION_STATUS["ambiguous"]
+                elif config.applies_quality_rule and not good:
                     status = REGION_STATUS["ill_conditioned"]
             out["region_status"][p, j], out["region_points"][p, j] = status, member.sum()
-            out["R_local"][p, j], out["t_local"][p, j], out["region_reproj"][p, j] = R, t, reproj
+            if pose.status == REGION_STATUS["ok"]:
+                out["R_local"][p, j], out["t_local"][p, j] = pose.R, pose.t
+                out["region_reproj"][p, j] = float(reprojection_errors(X, uv, K, pose.R, pose.t).mean())
     return out
 
 
@@ -544,19 +635,22 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     """Every per-pair component and diagnostic of a clip (docs/semantics.md §3), as :class:`PairArrays`."""
     config = config or SGCConfig()
     clip, unit = in_depth_units(clip, config)
-    poses = local_poses(clip, config)
     n_pairs = clip.n_pairs
-    accepted = poses["region_status"] == REGION_STATUS["ok"]
-    posed = [(list(poses["R_local"][p][accepted[p]]), list(poses["t_local"][p][accepted[p]])) for p in range(n_pairs)]
+    points = [pair_points(clip, pair, config) for pair in range(1, clip.n_frames)]
     if config.global_pose:
         globals_ = [global_relative_pose(clip, pair, config) for pair in range(1, clip.n_frames)]
         R_g = np.stack([g[0] for g in globals_])
         t_g = np.stack([g[1] for g in globals_])
         # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
-        fitted = config.fits_translation_scale
-        scale = (fit_translation_scale(poses["region_members"], clip.K, R_g, t_g, 1.0 / unit) if fitted
+        members = [(pp.X[pp.region > 0], pp.uv[pp.region > 0]) for pp in points]  # the scale fit uses them all
+        scale = (fit_translation_scale(members, clip.K, R_g, t_g, 1.0 / unit) if config.fits_translation_scale
                  else 1.0 / unit)
+        poses = local_poses(clip, points, config, [(R_g[p], scale * t_g[p]) for p in range(n_pairs)])
     else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one
+        poses = local_poses(clip, points, config)
+    accepted = poses["region_status"] == REGION_STATUS["ok"]
+    posed = [(list(poses["R_local"][p][accepted[p]]), list(poses["t_local"][p][accepted[p]])) for p in range(n_pairs)]
+    if not config.global_pose:
         means = [mean_pose(R, t) if R else (np.full((3, 3), np.nan), np.full(3, np.nan)) for R, t in posed]
         R_g = np.stack([m[0] for m in means])
         t_g = np.stack([m[1] for m in means])

@@ -1,0 +1,308 @@
+"""The spec reference's local-pose search (docs/semantics.md §3.2 step 6, §7.2): NumPy + OpenCV.
+
+An independent searcher for the optimum the semantics define, written to search harder than the
+JAX engine rather than fast: OpenCV's P3P on many random triples (every triple of a small region)
+with no early stop, the pair's other regions' optima and the global pose as further candidates,
+iterated local optimisation (least squares on the inliers until they stop changing) of the best
+ones, then the polish at the noise-level cut. Least squares is a Levenberg-Marquardt on the
+pixel residuals through the whole K (skew included).
+
+Conventions: poses (R (3, 3), t (3,)) map camera i-1 coordinates to camera i (x_i = R x_{i-1} +
+t); X (n, 3) region points in camera i-1, uv (n, 2) their pixels in frame i; errors in pixels.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+# The polish's noise-level cut: clip(NOISE_CUT * sigma, MIN_CUT_PX, inlier_px) (docs/semantics.md §3.2).
+NOISE_CUT = 3.5
+MIN_CUT_PX = 1.0
+# Candidates from the triples that go on to local optimisation, and the rotation [deg] under
+# which two of them count as the same start.
+LO_STARTS = 8
+DISTINCT_DEG = 0.5
+# Two local optima this close (rotation [deg], translation relative to its norm) are one.
+SAME_OPTIMUM_DEG = 1e-3
+SAME_OPTIMUM_REL = 1e-4
+# Least-squares fits per local optimisation (each on the inliers of the previous one) and
+# Levenberg-Marquardt steps per fit.
+LO_ROUNDS = 10
+LM_STEPS = 15
+
+
+class Pose(NamedTuple):
+    R: np.ndarray  # (3, 3)
+    t: np.ndarray  # (3,)
+
+
+def rotation_angles_deg(R_a: np.ndarray, Rs: np.ndarray) -> np.ndarray:
+    """Angles [deg] (m,) of R_a^T R for rotations Rs (m, 3, 3), by atan2 (accurate near 0)."""
+    M = np.einsum("ji,mjk->mik", R_a, Rs)
+    sin = 0.5 * np.linalg.norm(np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0],
+                                         M[:, 1, 0] - M[:, 0, 1]], -1), axis=-1)
+    return np.degrees(np.arctan2(sin, 0.5 * (np.trace(M, axis1=1, axis2=2) - 1.0)))
+
+
+def errors_sq(Rs: np.ndarray, ts: np.ndarray, X: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Squared reprojection errors [px^2] (m, n) of poses Rs (m, 3, 3), ts (m, 3); inf behind the
+    camera (z <= 0)."""
+    P = K @ np.concatenate([Rs, ts[:, :, None]], axis=2)  # (m, 3, 4)
+    proj = P @ np.concatenate([X, np.ones((len(X), 1))], axis=1).T  # (m, 3, n)
+    z = proj[:, 2]
+    front = z > 0
+    safe_z = np.where(front, z, 1.0)
+    err = (proj[:, 0] / safe_z - uv[:, 0]) ** 2 + (proj[:, 1] / safe_z - uv[:, 1]) ** 2
+    return np.where(front, err, np.inf)
+
+
+def truncated_costs(err_sq: np.ndarray, tau: float) -> np.ndarray:
+    """MSAC cost (...,) of squared errors (..., n): sum of min(e^2, tau^2) (behind the camera: tau^2)."""
+    return np.sum(np.minimum(err_sq, tau * tau), axis=-1)
+
+
+def pose_errors_sq(pose: Pose, X: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return errors_sq(pose.R[None], pose.t[None], X, uv, K)[0]
+
+
+# ----------------------------------------------------------------------------- least squares
+
+
+def residual_jacobian(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray,
+                      t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (2n,) (u errors, then v errors) and their Jacobian (2n, 6) in the left perturbation
+    (w, dt): exp([w]) R X + t + dt, through the whole K."""
+    RX = X @ R.T
+    Y = RX + t
+    z = Y[:, 2]
+    proj = (Y / z[:, None]) @ K.T
+    n = len(X)
+    grad_u = np.stack([K[0, 0] / z, K[0, 1] / z, -(K[0, 0] * Y[:, 0] + K[0, 1] * Y[:, 1]) / z**2], axis=1)
+    grad_v = np.stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2], axis=1)
+    # d residual = grad . (w x RX + dt) = w . (RX x grad) + dt . grad
+    J = np.empty((2 * n, 6))
+    for rows, g in ((slice(0, n), grad_u), (slice(n, 2 * n), grad_v)):
+        J[rows, 0] = RX[:, 1] * g[:, 2] - RX[:, 2] * g[:, 1]
+        J[rows, 1] = RX[:, 2] * g[:, 0] - RX[:, 0] * g[:, 2]
+        J[rows, 2] = RX[:, 0] * g[:, 1] - RX[:, 1] * g[:, 0]
+        J[rows, 3:] = g
+    return np.concatenate([proj[:, 0] - uv[:, 0], proj[:, 1] - uv[:, 1]]), J
+
+
+def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose, steps: int = LM_STEPS) -> Pose:
+    """The pose minimising the summed squared reprojection error of X, uv (Levenberg-Marquardt from
+    ``start``; a step is taken only when it lowers the error and keeps every point in front)."""
+    R, t = start
+    if len(X) < 3:
+        return start
+    r, J = residual_jacobian(X, uv, K, R, t)
+    cost, damping = r @ r, 1e-3
+    for _ in range(steps):
+        H, g = J.T @ J, J.T @ r
+        delta = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), g)
+        R_new = cv2.Rodrigues(delta[:3])[0] @ R
+        t_new = cv2.Rodrigues(delta[:3])[0] @ t + delta[3:]
+        if np.all((X @ R_new.T + t_new)[:, 2] > 0):
+            r_new, J_new = residual_jacobian(X, uv, K, R_new, t_new)
+            cost_new = r_new @ r_new
+        else:
+            cost_new = np.inf
+        if cost_new < cost:
+            converged = cost - cost_new <= 1e-9 * cost
+            R, t, r, J, cost, damping = R_new, t_new, r_new, J_new, cost_new, max(damping / 10.0, 1e-9)
+            if converged:
+                break
+        else:
+            damping *= 10.0
+            if damping > 1e8:
+                break
+    return Pose(R, t)
+
+
+def local_optimum(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose, tau: float) -> tuple[Pose, float]:
+    """Iterated least squares on the inliers at tau (error < tau, in front) until they stop
+    changing, each fit kept only when it lowers the truncated cost at tau -> (pose, cost)."""
+    pose = start
+    err = pose_errors_sq(pose, X, uv, K)
+    cost = truncated_costs(err, tau)
+    inliers = err < tau * tau
+    for _ in range(LO_ROUNDS):
+        if inliers.sum() < 4:
+            break
+        fitted = least_squares_pose(X[inliers], uv[inliers], K, pose)
+        err_new = pose_errors_sq(fitted, X, uv, K)
+        cost_new = truncated_costs(err_new, tau)
+        if not cost_new < cost:
+            break
+        pose, err, cost = fitted, err_new, cost_new
+        if np.array_equal(err < tau * tau, inliers):
+            break
+        inliers = err < tau * tau
+    return pose, float(cost)
+
+
+# ----------------------------------------------------------------------------- minimal samples
+
+
+def triples(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(m, 3) index triples of n points: every triple when there are at most ``count``, else
+    ``count`` random triples of distinct points."""
+    if math.comb(n, 3) <= count:
+        return np.array(list(itertools.combinations(range(n), 3)), np.int64).reshape(-1, 3)
+    out = rng.integers(0, n, (count, 3))
+    while True:
+        bad = (out[:, 0] == out[:, 1]) | (out[:, 0] == out[:, 2]) | (out[:, 1] == out[:, 2])
+        if not bad.any():
+            return out
+        out[bad] = rng.integers(0, n, (int(bad.sum()), 3))
+
+
+def p3p_candidates(X: np.ndarray, uv: np.ndarray, K: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every P3P solution (OpenCV, AP3P) of the triples ``samples`` (m, 3) -> (Rs (c, 3, 3), ts (c, 3)).
+
+    P3P only needs each pixel's viewing ray K^-1 (u, v, 1), so the pixels are first moved into the
+    skew-free camera with the same fx, fy, cx, cy (exact for any skew)."""
+    K0 = np.array([[K[0, 0], 0.0, K[0, 2]], [0.0, K[1, 1], K[1, 2]], [0.0, 0.0, 1.0]])
+    rays = np.linalg.solve(K, np.column_stack([uv, np.ones(len(uv))]).T).T
+    uv0 = (rays @ K0.T)[:, :2]
+    rvecs, tvecs = [], []
+    for sample in samples:
+        try:
+            n_sol, rv, tv = cv2.solveP3P(X[sample], uv0[sample], K0, None, flags=cv2.SOLVEPNP_AP3P)
+        except cv2.error:
+            continue
+        rvecs.extend(rv[:n_sol])
+        tvecs.extend(tv[:n_sol])
+    if not rvecs:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    rvecs, tvecs = np.asarray(rvecs, np.float64).reshape(-1, 3), np.asarray(tvecs, np.float64).reshape(-1, 3)
+    finite = np.isfinite(rvecs).all(1) & np.isfinite(tvecs).all(1)
+    return rotation_matrices(rvecs[finite]), tvecs[finite]
+
+
+def rotation_matrices(rotvecs: np.ndarray) -> np.ndarray:
+    """Rotation matrices (m, 3, 3) of rotation vectors (m, 3) [rad] (Rodrigues' formula)."""
+    theta = np.linalg.norm(rotvecs, axis=1)
+    axis = rotvecs / np.where(theta > 0, theta, 1.0)[:, None]
+    x, y, z = axis.T
+    zero = np.zeros_like(x)
+    cross = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=1).reshape(-1, 3, 3)
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3) + s * cross + (1.0 - c) * cross @ cross
+
+
+def leading_distinct(costs: np.ndarray, Rs: np.ndarray, ts: np.ndarray, count: int) -> list[Pose]:
+    """Up to ``count`` poses of lowest cost, each more than DISTINCT_DEG in rotation from the ones
+    before it (ties: lower index first)."""
+    chosen: list[Pose] = []
+    for i in np.argsort(costs, kind="stable"):
+        if not np.isfinite(costs[i]):
+            break
+        if chosen and np.min(rotation_angles_deg(Rs[i], np.stack([p.R for p in chosen]))) <= DISTINCT_DEG:
+            continue
+        chosen.append(Pose(Rs[i], ts[i]))
+        if len(chosen) == count:
+            break
+    return chosen
+
+
+# ----------------------------------------------------------------------------- the search
+
+
+class RegionSearch(NamedTuple):
+    """A region's own search: the local optima at inlier_px (``local_optimum``) its triples led
+    to, lowest cost first, and their costs."""
+
+    optima: list[Pose]
+    costs: list[float]
+
+
+def search_region(X: np.ndarray, uv: np.ndarray, K: np.ndarray, inlier_px: float, n_triples: int,
+                  rng: np.random.Generator) -> RegionSearch | None:
+    """P3P on ``n_triples`` random triples (every triple when there are fewer), the LO_STARTS best
+    distinct candidates optimised locally at inlier_px; None when no triple gives a pose."""
+    Rs, ts = p3p_candidates(X, uv, K, triples(len(X), n_triples, rng))
+    if not len(Rs):
+        return None
+    costs = np.concatenate([truncated_costs(errors_sq(Rs[c:c + 512], ts[c:c + 512], X, uv, K), inlier_px)
+                            for c in range(0, len(Rs), 512)])
+    optima = sorted((local_optimum(X, uv, K, start, inlier_px) for start in leading_distinct(costs, Rs, ts, LO_STARTS)),
+                    key=lambda pc: pc[1])
+    return RegionSearch([p for p, _ in optima], [c for _, c in optima])
+
+
+def noise_cut(err_sq: np.ndarray, inlier_px: float) -> float:
+    """clip(NOISE_CUT * sigma, min(MIN_CUT_PX, inlier_px), inlier_px) [px], sigma^2 = mean e^2 / 2 over
+    the errors under inlier_px (inlier_px when there are none)."""
+    inl = err_sq < inlier_px**2
+    if not inl.any():
+        return inlier_px
+    sigma = math.sqrt(float(np.mean(err_sq[inl])) / 2.0)
+    return float(np.clip(NOISE_CUT * sigma, min(MIN_CUT_PX, inlier_px), inlier_px))
+
+
+class RegionPose(NamedTuple):
+    """A region's local pose (docs/semantics.md §3.2 step 6): ``pose``, the noise-level ``cut`` [px]
+    it minimises the truncated cost at, and whether a rival local optimum makes it ``ambiguous``."""
+
+    pose: Pose
+    cut: float
+    ambiguous: bool
+
+
+def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSearch, others: list[Pose],
+                inlier_px: float, ambiguous_rot_deg: float, ambiguous_inlier_frac: float) -> RegionPose:
+    """The region's pose from its own search and ``others`` (the pair's other regions' coarse
+    optima, the global pose), each taken to its local optimum at inlier_px:
+
+    1. the coarse optimum: the lowest truncated cost at inlier_px;
+    2. its noise-level cut (``noise_cut``);
+    3. the pose: the lowest truncated cost at the cut among the local optima at the cut started
+       from every coarse local optimum;
+    4. ambiguous: another of those, started from the region's own triples, lies more than
+       ``ambiguous_rot_deg`` away in rotation and keeps all but max(1, floor(
+       ``ambiguous_inlier_frac`` m)) of the pose's m inliers at the cut.
+    """
+    coarse = list(zip(search.optima, search.costs))
+    for start in others:
+        if np.all(np.isfinite(start.R)) and np.all(np.isfinite(start.t)):
+            coarse.append(local_optimum(X, uv, K, start, inlier_px))
+    best = min(range(len(coarse)), key=lambda i: coarse[i][1])
+    cut = noise_cut(pose_errors_sq(coarse[best][0], X, uv, K), inlier_px)
+    unique = distinct_optima([pose for pose, _ in coarse])
+    fine = {i: local_optimum(X, uv, K, coarse[i][0], cut) for i in unique}
+    chosen = min(unique, key=lambda i: (fine[i][1], i != best))
+    pose = fine[chosen][0]
+    own = [fine[i][0] for i in unique if i < len(search.optima)]
+    return RegionPose(pose, cut, is_ambiguous(X, uv, K, pose, cut, own, ambiguous_rot_deg, ambiguous_inlier_frac))
+
+
+def distinct_optima(poses: list[Pose]) -> list[int]:
+    """Indices of ``poses`` without repeats: a pose within SAME_OPTIMUM_DEG in rotation and
+    SAME_OPTIMUM_REL in translation (relative to its norm) of an earlier one is the same optimum."""
+    kept: list[int] = []
+    for i, pose in enumerate(poses):
+        if not any(rotation_angles_deg(pose.R, poses[j].R[None])[0] <= SAME_OPTIMUM_DEG and np.linalg.norm(
+                pose.t - poses[j].t) <= SAME_OPTIMUM_REL * max(np.linalg.norm(pose.t), 1e-12) for j in kept):
+            kept.append(i)
+    return kept
+
+
+def is_ambiguous(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rivals: list[Pose],
+                 rot_deg: float, inlier_frac: float) -> bool:
+    """A rival more than ``rot_deg`` away in rotation that keeps all but max(1, floor(inlier_frac *
+    m)) of the m inliers of ``pose`` at ``cut`` (docs/semantics.md §3.3)."""
+    if not rivals:
+        return False
+    inl = pose_errors_sq(pose, X, uv, K) < cut * cut
+    m = int(inl.sum())
+    margin = max(1, int(np.floor(inlier_frac * m)))
+    Rs, ts = np.stack([p.R for p in rivals]), np.stack([p.t for p in rivals])
+    apart = rotation_angles_deg(pose.R, Rs) > rot_deg
+    shared = np.sum((errors_sq(Rs, ts, X, uv, K) < cut * cut) & inl[None], axis=1)
+    return bool(np.any(apart & (shared >= m - margin)))
