@@ -321,19 +321,30 @@ def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     In a static scene every region moves with the camera, so a well-conditioned region's pose is
     a good hypothesis for a weak one (a narrow, far depth band), whose own minimal samples can
     settle in the wrong basin of the valley where rotation trades against translation. Per
-    region, the other regions' poses are scored on its members like its own candidates (summed
-    truncated squared error at inlier_px, MSAC), and the best replaces its pose only where it
+    region, the other regions' poses are scored on its members by the summed squared error
+    truncated at the region's noise-level cut (clip(NOISE_CUT sigma, MIN_CUT_PX, inlier_px), sigma
+    from its own pose's inliers at inlier_px), and the best replaces its pose only where it
     scores strictly lower; the refinement (``refine_poses``) then fits it to the region's own
     inliers. A region whose points move otherwise (an unmasked object, a warped layer) keeps
     its own pose: the borrowed ones do not explain them. The ambiguity flag stays that of the
     region's own candidates.
     """
     k = poses.shape[0]
-    onehot = region_onehot(region, k, X.dtype)
+    dtype = X.dtype
+    onehot = region_onehot(region, k, dtype)
+    member = region >= 1
     finite = jnp.all(jnp.isfinite(poses), axis=-1)
     safe = jnp.where(finite[:, None], poses, 0.0)
-    _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, region >= 1, inlier_px)
-    cost = jnp.where(finite[None, :], _region_sums(onehot, trunc.T), jnp.inf)  # (k regions, k poses)
+    _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, member, inlier_px)  # (k poses, N)
+    # each region's noise-level cut, from its own pose's inliers at inlier_px
+    thr_sq = jnp.asarray(inlier_px, dtype) ** 2
+    own_trunc = jnp.sum(onehot * trunc, axis=0)  # (N,) under the point's own region's pose
+    own_inl = (member & (own_trunc < thr_sq)).astype(dtype)
+    sigma_sq = _region_sums(onehot, own_trunc * own_inl) / (2.0 * jnp.maximum(_region_sums(onehot, own_inl), 1.0))
+    cut_sq = jnp.clip(NOISE_CUT**2 * sigma_sq, jnp.minimum(MIN_CUT_PX, inlier_px) ** 2, thr_sq)
+    point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
+    cost = _region_sums(onehot, jnp.minimum(trunc, point_cut_sq[None]).T)  # (k regions, k poses)
+    cost = jnp.where(finite[None, :], cost, jnp.inf)
     own_cost = jnp.diagonal(cost)
     lender = jnp.argmin(jnp.where(jnp.eye(k, dtype=bool), jnp.inf, cost), axis=1)
     borrow = cost[jnp.arange(k), lender] < own_cost
@@ -413,13 +424,15 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     contenders = jnp.concatenate([top_pose, fits])
     R_c = so3_exp(contenders[:, :3])
     inl, count, trunc = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    best = _best(trunc)
-    # Rivals are judged at the best fit's noise level (the final refinement's cut): with 8 px
-    # inliers, any pose along an ill-conditioned valley keeps every point of a slightly
-    # non-rigid region, which is misfit, not ambiguity.
-    err_sq = (trunc[best] - (jnp.sum(scored_valid) - count[best]) * inlier_px**2) / jnp.maximum(count[best], 1)
+    coarse = _best(trunc)
+    # The pose is chosen, and rivals judged, at the coarse optimum's noise level (the final
+    # refinement's cut, docs/semantics.md §3.2): at inlier_px a pose slid along an ill-conditioned
+    # valley keeps every point of the region, and any pose keeps every point of a slightly
+    # non-rigid one.
+    err_sq = (trunc[coarse] - (jnp.sum(scored_valid) - count[coarse]) * inlier_px**2) / jnp.maximum(count[coarse], 1)
     cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), jnp.minimum(MIN_CUT_PX, inlier_px), inlier_px)
-    inl, count, _ = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
+    inl, count, trunc_cut = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
+    best = _best(jnp.where(jnp.isfinite(trunc), trunc_cut, jnp.inf))
     drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
     margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))
     shared = jnp.sum(inl & inl[best][None], axis=-1, dtype=jnp.int32)
