@@ -21,7 +21,7 @@ REGION_EMPTY = 3  # no such region (slot beyond N_s), or the pair has fewer than
 # ill_conditioned / ambiguous: a pose was found but the region-quality rule (SGCConfig.quality_rule,
 # docs/semantics.md §3.3) leaves it out of the variances.
 REGION_ILL_CONDITIONED = 4
-REGION_AMBIGUOUS = 5  # JAX engine only
+REGION_AMBIGUOUS = 5
 # Regions the quality rule leaves out: posed, but not counted (docs/semantics.md §3.3)
 EXCLUDED_STATUSES = (REGION_ILL_CONDITIONED, REGION_AMBIGUOUS)
 #: Region status name -> code.

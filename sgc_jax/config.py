@@ -78,10 +78,10 @@ class SGCConfig:
                                           "here, pixels (misfit beyond is inconsistency)")
     min_region_extent: float = _field(0.02, "quality rule: smallest RMS radius of the inlier pixels, as a "
                                             "fraction of the image diagonal, in [0, 1)")
-    ambiguous_rot_deg: float = _field(3.0, "quality rule (JAX engine): a rival fit at least this far away in "
+    ambiguous_rot_deg: float = _field(3.0, "quality rule: a rival fit at least this far away in "
                                            "rotation, degrees, that loses at most --ambiguous-inlier-frac of the "
                                            "inliers makes the pose ambiguous")
-    ambiguous_inlier_frac: float = _field(0.05, "quality rule (JAX engine): see --ambiguous-rot-deg; in [0, 1)")
+    ambiguous_inlier_frac: float = _field(0.05, "quality rule: see --ambiguous-rot-deg; in [0, 1)")
     borrow_region_poses: bool = _field(True, "JAX engine: each region also tries the other regions' poses of its "
                                              "pair as RANSAC hypotheses, kept only where they fit its own points "
                                              "better (docs/semantics.md §7.1)")

@@ -175,17 +175,23 @@ def test_where_the_local_poses_differ_the_jax_engine_is_seldom_the_wrong_one(sco
     assert jax_wrong <= JAX_WRONG_MAX * len(angle), (jax_wrong, ref_wrong, len(angle))
 
 
-def _authors_rotations(clip, pair):
-    """Rotations (k_seg, 3, 3) of cv2.solvePnPRansac with the authors' settings on the spec regions
-    of a pair (NaN where it gives none)."""
-    points = reference.pair_points(clip, pair, CONFIG)
-    out = np.full((CONFIG.k_seg, 3, 3), np.nan)
-    for slot, pose in enumerate(reference.authors_region_poses(points, clip.K[pair], CONFIG, pair)):
-        out[slot] = pose.R
+@pytest.fixture(scope="module")
+def opencv_rotations(scored):
+    """(clip_id, pair) -> rotations (k_seg, 3, 3) of cv2.solvePnPRansac with the authors' settings
+    on the spec regions of the pair (NaN where it gives none), on the rigid-scene families."""
+    out = {}
+    for clip in scored[0]:
+        if clip.group not in ("rigid", "moving", "noisy", "outliers", "lowconf") or "~" in clip.clip_id:
+            continue
+        for pair in range(1, clip.n_frames):
+            points = reference.pair_points(clip, pair, CONFIG)
+            out[clip.clip_id, pair] = np.full((CONFIG.k_seg, 3, 3), np.nan)
+            for slot, pose in enumerate(reference.authors_region_poses(points, clip.K[pair], CONFIG, pair)):
+                out[clip.clip_id, pair][slot] = pose.R
     return out
 
 
-def test_on_rigid_scenes_the_spec_local_poses_are_closer_to_the_truth_than_opencv_ransac(scored):
+def test_on_rigid_scenes_the_spec_local_poses_are_closer_to_the_truth_than_opencv_ransac(scored, opencv_rotations):
     """The authors' PnP (OpenCV's adaptive RANSAC, inlier counting) on the same regions, against
     both spec engines: where they differ, OpenCV's pose is the one away from the true motion."""
     clips, ref, jx = scored
@@ -195,7 +201,7 @@ def test_on_rigid_scenes_the_spec_local_poses_are_closer_to_the_truth_than_openc
             continue
         for p in range(clip.n_pairs):
             R_g, _ = reference.global_relative_pose(clip, p + 1, CONFIG)
-            opencv = _authors_rotations(clip, p + 1)
+            opencv = opencv_rotations[clip.clip_id, p + 1]
             posed = ((j.pairs.region_status[p] == 0) & (r.pairs.region_status[p] == 0)
                      & np.isfinite(opencv).all((1, 2)))
             for slot in np.flatnonzero(posed):
@@ -243,7 +249,7 @@ def _truth_errors(clips, rotations):
     return np.array(errors), np.array(limits)
 
 
-def test_on_outlier_clips_the_spec_local_poses_are_near_the_information_limit(scored):
+def test_on_outlier_clips_the_spec_local_poses_are_near_the_information_limit(scored, opencv_rotations):
     """Local poses against the true motion, 1 px noise and 30% outlier tracks, posed regions
     with >= 50 points.
 
@@ -256,12 +262,11 @@ def test_on_outlier_clips_the_spec_local_poses_are_near_the_information_limit(sc
     """
     clips, ref, jx = scored
     within = {}
-    for name, rotations in (
-            ("jax", lambda i, clip, pair: (jx.clips[i].pairs.region_status[pair - 1], jx.clips[i].pairs.R_local[pair - 1])),
-            ("reference", lambda i, clip, pair: (ref.clips[i].pairs.region_status[pair - 1],
-                                                 ref.clips[i].pairs.R_local[pair - 1])),
-            ("opencv", lambda i, clip, pair: (np.where(np.isfinite(_authors_rotations(clip, pair)).all((1, 2)), 0, 2),
-                                              _authors_rotations(clip, pair)))):
+    engine = lambda result: lambda i, clip, pair: (result.clips[i].pairs.region_status[pair - 1],  # noqa: E731
+                                                    result.clips[i].pairs.R_local[pair - 1])
+    opencv = lambda i, clip, pair: (np.where(np.isfinite(opencv_rotations[clip.clip_id, pair]).all((1, 2)), 0, 2),  # noqa: E731
+                                    opencv_rotations[clip.clip_id, pair])
+    for name, rotations in (("jax", engine(jx)), ("reference", engine(ref)), ("opencv", opencv)):
         errors, limits = _truth_errors(clips, rotations)
         assert len(errors) >= 20, name
         within[name] = np.mean(errors <= np.maximum(0.2, 3.0 * limits))

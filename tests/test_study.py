@@ -147,18 +147,20 @@ def test_plot_sensitivity_labels_every_panel(ladder):
 # ----------------------------------------------------------------------------- mask corruptions
 
 
-def test_mask_study_reports_relative_change_and_under_segmentation_hurts():
+def test_mask_study_reports_relative_change_and_under_segmentation_hurts_the_depth_check():
     bases = [synth_clip(seed=s, clip_id=f"moving{s}", n_frames=3, height=96, width=128, n_tracks=512, n_layers=2,
                         static_spheres=4, moving_objects=2) for s in (20, 21)]
     study = sensitivity_study(bases, "erode,dilate,false_positive,false_negative", (0, 1), engine="reference",
                               progress=False)
     summary = {(s["kind"], s["severity"]): s for s in study.summary()}
     assert all(summary[kind, 0.0]["rel_change"] == 0 for kind in study.kinds)
-    # eroding the dynamic mask lets the moving spheres' tracks into the static regions: the local
-    # poses part (at this size the score may stay inside sgc-spec-2026's clean floor, 0)
-    for k in ("local_rot_var", "local_trans_var"):
-        assert summary["erode", 1.0][k] > 10 * summary["erode", 0.0][k], k
-    assert summary["erode", 1.0]["sgc"] >= summary["erode", 0.0]["sgc"]
+    # eroding the dynamic mask lets the moving spheres' tracks into the static regions and their
+    # pixels into the depth comparison: the depth error and the score rise, while each region's
+    # pose, the optimum of its truncated cost (docs/semantics.md §3.2), leaves the few leaked
+    # tracks out
+    assert summary["erode", 1.0]["depth_error"] > 2 * summary["erode", 0.0]["depth_error"]
+    assert summary["erode", 1.0]["sgc"] > summary["erode", 0.0]["sgc"]
+    assert summary["erode", 1.0]["local_rot_var"] < 0.05
 
 
 # ----------------------------------------------------------------------------- batching and errors

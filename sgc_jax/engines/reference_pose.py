@@ -25,7 +25,7 @@ NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
 # Candidates from the triples that go on to local optimisation, and the rotation [deg] under
 # which two of them count as the same start.
-LO_STARTS = 8
+LO_STARTS = 6
 DISTINCT_DEG = 0.5
 # Two local optima this close (rotation [deg], translation relative to its norm) are one.
 SAME_OPTIMUM_DEG = 1e-3
