@@ -15,6 +15,10 @@ COMPATS = ("spec", "authors")
 # nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
 # depth edge, not the slope of one surface).
 HOLE_DEPTH_MARGIN = 0.05
+# A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
+# never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
+NOISE_CUT = 3.5
+MIN_CUT_PX = 1.0
 
 
 # How the JAX engine uses each field (docs/semantics.md §2). STATIC fields shape its compiled

@@ -41,10 +41,8 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
 
 def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle of R_a^T R_b in degrees via atan2 (stable for tiny angles, unlike arccos)."""
-    M = R_a.T @ R_b
-    sin_part = 0.5 * np.linalg.norm([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
-    cos_part = 0.5 * (np.trace(M) - 1.0)
-    return float(np.degrees(np.arctan2(sin_part, cos_part)))
+    return float(reference_pose_search.rotation_angles_deg(np.asarray(R_a, np.float64),
+                                                           np.asarray(R_b, np.float64)[None])[0])
 
 
 def rotation_angle_deg_authors(R_a: np.ndarray, R_b: np.ndarray) -> float:
@@ -235,8 +233,8 @@ def point_regions(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCConfig,
-                      seed: int) -> tuple[int, np.ndarray, np.ndarray, float]:
-    """PnP-RANSAC with OpenCV's solver: (status, R (3,3), t (3,), mean reprojection error px).
+                      seed: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """PnP-RANSAC with OpenCV's solver: (status, R (3,3), t (3,)).
 
     Status codes are :data:`REGION_STATUS`. Accepted when inliers >= max(4, floor(frac * n)) and
     R is a proper rotation (docs/semantics.md §3.2 step 6).
@@ -244,7 +242,7 @@ def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCC
     n = len(X)
     nan_pose = np.full((3, 3), np.nan), np.full(3, np.nan)
     if n < config.min_points:
-        return REGION_STATUS["too_few_points"], *nan_pose, float("nan")
+        return REGION_STATUS["too_few_points"], *nan_pose
     cv2.setRNGSeed(seed)
     try:
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
@@ -254,13 +252,13 @@ def solve_region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, config: SGCC
     except cv2.error:
         found = False
     if not found or inliers is None or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
-        return REGION_STATUS["rejected"], *nan_pose, float("nan")
+        return REGION_STATUS["rejected"], *nan_pose
     R, t = so3_exp(rvec), tvec.ravel()
     needed = max(4, int(np.floor(config.min_inlier_frac * n)))
     proper = abs(np.linalg.det(R) - 1.0) < 1e-3
     if len(inliers) < needed or not proper:
-        return REGION_STATUS["rejected"], *nan_pose, float("nan")
-    return REGION_STATUS["ok"], R, t, float(reprojection_errors(X, uv, K, R, t).mean())
+        return REGION_STATUS["rejected"], *nan_pose
+    return REGION_STATUS["ok"], R, t
 
 
 def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray,
@@ -303,14 +301,19 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     at ``quality_noise_px`` (larger residuals are misfit, not noise), RMS radius >=
     ``min_region_extent`` x the image diagonal (docs/semantics.md §3.3; ambiguity is the search's).
     """
-    in_front = (X @ R.T + t)[:, 2] > 0
-    inliers = in_front & (reprojection_errors(X, uv, K, R, t) < config.inlier_px)
+    inliers = pose_inliers(X, uv, K, R, t, config.inlier_px)
     rot_std, trans_std, sigma = pose_uncertainty(X[inliers], uv[inliers], K, R, t)
     judged_rot_std = rot_std * min(1.0, config.quality_noise_px / max(sigma, 1e-12))
     diagonal = float(np.hypot(*image_size))
     good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
     return good, sigma, rot_std, trans_std
+
+
+def pose_inliers(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                 inlier_px: float) -> np.ndarray:
+    """(n,) bool: in front of the camera with reprojection error < inlier_px under (R, t)."""
+    return reference_pose_search.pose_errors_sq(reference_pose_search.Pose(R, t), X, uv, K) < inlier_px**2
 
 
 def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -487,8 +490,7 @@ def accepted_status(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray,
     number >= max(4, floor(min_inlier_frac * n)), else ``rejected`` (docs/semantics.md §3.2 step 6)."""
     if not (np.isfinite(R).all() and np.isfinite(t).all()) or abs(np.linalg.det(R) - 1.0) >= 1e-3:
         return REGION_STATUS["rejected"]
-    in_front = (X @ R.T + t)[:, 2] > 0
-    inliers = in_front & (reprojection_errors(X, uv, K, R, t) < config.inlier_px)
+    inliers = pose_inliers(X, uv, K, R, t, config.inlier_px)
     needed = max(4, int(np.floor(config.min_inlier_frac * len(X))))
     return REGION_STATUS["ok"] if inliers.sum() >= needed else REGION_STATUS["rejected"]
 
@@ -532,7 +534,7 @@ def authors_region_poses(points: PairPoints, K: np.ndarray, config: SGCConfig, p
     out = []
     for region in range(1, points.labels.max() + 1):
         member = points.region == region
-        status, R, t, _ = solve_region_pose(points.X[member], points.uv[member], K, config,
+        status, R, t = solve_region_pose(points.X[member], points.uv[member], K, config,
                                             region_seed(config, pair, region))
         out.append(RegionPose(status, R, t))
     return out

@@ -20,9 +20,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-# The polish's noise-level cut: clip(NOISE_CUT * sigma, MIN_CUT_PX, inlier_px) (docs/semantics.md §3.2).
-NOISE_CUT = 3.5
-MIN_CUT_PX = 1.0
+from ..config import MIN_CUT_PX, NOISE_CUT
+
 # Candidates from the triples that go on to local optimisation, and the rotation [deg] under
 # which two of them count as the same start.
 LO_STARTS = 6
@@ -105,8 +104,8 @@ def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose
     for _ in range(steps):
         H, g = J.T @ J, J.T @ r
         delta = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), g)
-        R_new = cv2.Rodrigues(delta[:3])[0] @ R
-        t_new = cv2.Rodrigues(delta[:3])[0] @ t + delta[3:]
+        step = cv2.Rodrigues(delta[:3])[0]
+        R_new, t_new = step @ R, step @ t + delta[3:]
         if np.all((X @ R_new.T + t_new)[:, 2] > 0):
             r_new, J_new = residual_jacobian(X, uv, K, R_new, t_new)
             cost_new = r_new @ r_new
@@ -247,11 +246,10 @@ def noise_cut(err_sq: np.ndarray, inlier_px: float) -> float:
 
 
 class RegionPose(NamedTuple):
-    """A region's local pose (docs/semantics.md §3.2 step 6): ``pose``, the noise-level ``cut`` [px]
-    it minimises the truncated cost at, and whether a rival local optimum makes it ``ambiguous``."""
+    """A region's local pose (docs/semantics.md §3.2 step 6) and whether a rival local optimum
+    makes it ``ambiguous``."""
 
     pose: Pose
-    cut: float
     ambiguous: bool
 
 
@@ -279,7 +277,7 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     chosen = min(unique, key=lambda i: (fine[i][1], i != best))
     pose = fine[chosen][0]
     own = [fine[i][0] for i in unique if i < len(search.optima)]
-    return RegionPose(pose, cut, is_ambiguous(X, uv, K, pose, cut, own, ambiguous_rot_deg, ambiguous_inlier_frac))
+    return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, own, ambiguous_rot_deg, ambiguous_inlier_frac))
 
 
 def distinct_optima(poses: list[Pose]) -> list[int]:
