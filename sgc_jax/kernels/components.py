@@ -9,7 +9,6 @@ distances in float32, and IQR == 0 rejecting every value of the trimmed mean.
 from __future__ import annotations
 
 
-import jax
 import jax.numpy as jnp
 
 from .geometry import rotation_angle_deg, so3_exp, so3_log

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from ..config import MIN_CUT_PX, NOISE_CUT
 from .geometry import rotation_angle_deg, so3_exp
 from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
                   solve_pnp, solve_pnp_regions)
@@ -160,10 +161,6 @@ def _best(trunc):
     return jnp.argmin(trunc)
 
 
-# Final refinement pass: inliers re-selected at NOISE_CUT * (estimated pixel noise sigma), never
-# tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
-NOISE_CUT = 3.5
-MIN_CUT_PX = 1.0
 # Re-admission after the final pass: members outside the noise cut whose residual the pose's
 # uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
 # (13.8) admits stray outliers with the pinning points, which hold the refit back.
@@ -172,6 +169,22 @@ ADMIT_CHI2 = 6.0
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
 LEVERAGE_RATIO = 3.0
+
+
+def _noise_sigma_sq(err_sq, member, onehot, thr_sq):
+    """(k,) pixel noise variance per coordinate of each region: mean e^2 / 2 over its members
+    with e^2 < thr_sq (err_sq (N,) under each point's own region's pose)."""
+    inl = member & (err_sq < thr_sq)
+    return (_region_sums(onehot, jnp.where(inl, err_sq, 0.0))
+            / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(err_sq.dtype)), 1.0)))
+
+
+def _noise_cut_sq(sigma_sq, inlier_px):
+    """Squared noise-level cut of sigma^2 (any shape): NOISE_CUT sigma within [min(MIN_CUT_PX,
+    inlier_px), inlier_px] (docs/semantics.md §3.2 step 6)."""
+    dtype = sigma_sq.dtype
+    return jnp.clip(NOISE_CUT**2 * sigma_sq, jnp.asarray(jnp.minimum(MIN_CUT_PX, inlier_px) ** 2, dtype),
+                    jnp.asarray(inlier_px, dtype) ** 2)
 
 
 def _own_pose_errors_sq(poses, X, uv, K, onehot):
@@ -227,21 +240,10 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
-    min_cut_sq = jnp.asarray(jnp.minimum(MIN_CUT_PX, inlier_px) ** 2, dtype)
     own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
     slots = region_slots(region, k, dtype)  # one layout for all the joint solves below
     fit_regions = lambda weight, start: solve_pnp_regions(X, uv, weight.astype(dtype), region, K, start,  # noqa: E731
                                                           steps=steps, slots=slots)[0]
-
-    def noise_sigma_sq(err_sq):
-        """(k,) pixel noise variance per coordinate: mean e^2 / 2 over the inliers at inlier_px."""
-        inl = member & (err_sq < thr_sq)
-        return (_region_sums(onehot, jnp.where(inl, err_sq, 0.0))
-                / (2.0 * jnp.maximum(_region_sums(onehot, inl.astype(dtype)), 1.0)))
-
-    def noise_cut_sq(sigma_sq):
-        """(k,) squared cut: NOISE_CUT * sigma, within [MIN_CUT_PX, inlier_px]."""
-        return jnp.clip(NOISE_CUT**2 * sigma_sq, min_cut_sq, thr_sq)
 
     def truncated_cost(err_sq, tau_point):
         return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
@@ -270,14 +272,15 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
         used: jax.Array  # (N,) points whose region took the leverage refit
 
     def refine_pass(stage, st):
-        tau = own(jnp.where(stage < passes - 1, thr_sq, noise_cut_sq(noise_sigma_sq(st.err_sq))))
+        cut_sq = _noise_cut_sq(_noise_sigma_sq(st.err_sq, member, onehot, thr_sq), inlier_px)
+        tau = own(jnp.where(stage < passes - 1, thr_sq, cut_sq))
         return member & (st.err_sq < tau), st.poses, st._replace(tau=tau)
 
     def admit(stage, st):
         # members outside the cut that the pose's own uncertainty explains (they sit along the
         # region's weak direction) join the fit
-        sigma_sq = noise_sigma_sq(st.err_sq)
-        tau = own(noise_cut_sq(sigma_sq))
+        sigma_sq = _noise_sigma_sq(st.err_sq, member, onehot, thr_sq)
+        tau = own(_noise_cut_sq(sigma_sq, inlier_px))
         fit = member & (st.err_sq < tau)
         extra = member & ~fit & (predicted_residual_chi2(X, uv, region, K, st.poses, fit, sigma_sq) < ADMIT_CHI2)
         return fit | extra, st.poses, st._replace(tau=tau, tried=_region_sums(onehot, extra.astype(dtype)) > 0)
@@ -337,12 +340,9 @@ def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     safe = jnp.where(finite[:, None], poses, 0.0)
     _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, member, inlier_px)  # (k poses, N)
     # each region's noise-level cut, from its own pose's inliers at inlier_px
-    thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     own_trunc = jnp.sum(onehot * trunc, axis=0)  # (N,) under the point's own region's pose
-    own_inl = (member & (own_trunc < thr_sq)).astype(dtype)
-    sigma_sq = _region_sums(onehot, own_trunc * own_inl) / (2.0 * jnp.maximum(_region_sums(onehot, own_inl), 1.0))
-    cut_sq = jnp.clip(NOISE_CUT**2 * sigma_sq, jnp.minimum(MIN_CUT_PX, inlier_px) ** 2, thr_sq)
-    point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
+    sigma_sq = _noise_sigma_sq(own_trunc, member, onehot, jnp.asarray(inlier_px, dtype) ** 2)
+    point_cut_sq = jnp.dot(onehot.T, _noise_cut_sq(sigma_sq, inlier_px), precision=jax.lax.Precision.HIGHEST)
     cost = _region_sums(onehot, jnp.minimum(trunc, point_cut_sq[None]).T)  # (k regions, k poses)
     cost = jnp.where(finite[None, :], cost, jnp.inf)
     own_cost = jnp.diagonal(cost)
@@ -432,7 +432,7 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     err_sq = (trunc[coarse] - (jnp.sum(scored_valid) - count[coarse]) * inlier_px**2) / jnp.maximum(count[coarse], 1)
     cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), jnp.minimum(MIN_CUT_PX, inlier_px), inlier_px)
     inl, count, trunc_cut = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
-    best = _best(jnp.where(jnp.isfinite(trunc), trunc_cut, jnp.inf))
+    best = _best(trunc_cut)
     drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
     margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))
     shared = jnp.sum(inl & inl[best][None], axis=-1, dtype=jnp.int32)
@@ -491,7 +491,6 @@ def ransac_pnp_regions(
     sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
     borrow) must be static under jit.
     """
-    N = X.shape[0]
     k = keys.shape[0]
     dtype = X.dtype
     region = jnp.where(jnp.isfinite(X).all(-1) & jnp.isfinite(uv).all(-1), region, 0).astype(jnp.int32)

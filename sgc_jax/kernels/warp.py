@@ -7,7 +7,6 @@ coordinates to camera i coordinates (x_i = R x_{i-1} + t); depth is along the op
 from __future__ import annotations
 
 
-import jax
 import jax.numpy as jnp
 
 from ..config import HOLE_DEPTH_MARGIN
