@@ -161,6 +161,10 @@ def _best(trunc):
     return jnp.argmin(trunc)
 
 
+# Contenders carried through the refinement differ by more than this rotation [deg]; nearer ones
+# fall into the same optimum.
+DISTINCT_DEG = 0.5
+
 # Re-admission after the final pass: members outside the noise cut whose residual the pose's
 # uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
 # (13.8) admits stray outliers with the pinning points, which hold the refit back.
@@ -318,6 +322,35 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
+def lowest_cost_refined(X, uv, region, K, poses, inliers, n_inliers, *, inlier_px):
+    """Per region, the refined contender of lowest truncated cost at the region's noise-level cut
+    (docs/semantics.md §3.2 step 6) -> (poses (k, 6), inliers (N,), n_inliers (k,)).
+
+    poses (M, k, 6), inliers (M, N), n_inliers (M, k): ``refine_poses`` from M contender sets.
+    The cut is that of the contender with the lowest cost at inlier_px (the coarse optimum);
+    ties go to the earlier contender.
+    """
+    k = poses.shape[1]
+    dtype = X.dtype
+    onehot = region_onehot(region, k, dtype)
+    member = region >= 1
+    thr_sq = jnp.asarray(inlier_px, dtype) ** 2
+    err_sq = jax.vmap(lambda p: _pose_errors_sq(p, X, uv, K, onehot))(poses)  # (M, N), inf off the camera
+    err_sq = jnp.where(member[None], err_sq, 0.0)
+    finite = jnp.all(jnp.isfinite(poses), axis=-1)  # (M, k)
+    coarse_cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, thr_sq).T).T, jnp.inf)
+    coarse = jnp.argmin(coarse_cost, axis=0)  # (k,)
+    point_region = jnp.clip(region - 1, 0, k - 1)  # points of no region are inliers of none
+    coarse_err_sq = jnp.take_along_axis(err_sq, coarse[point_region][None], axis=0)[0]
+    cut_sq = _noise_cut_sq(_noise_sigma_sq(coarse_err_sq, member, onehot, thr_sq), inlier_px)  # (k,)
+    point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
+    cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, point_cut_sq[None]).T).T, jnp.inf)
+    chosen = jnp.argmin(cost, axis=0)  # (k,)
+    return (jnp.take_along_axis(poses, chosen[None, :, None], axis=0)[0],
+            jnp.take_along_axis(inliers, chosen[point_region][None], axis=0)[0],
+            jnp.take_along_axis(n_inliers, chosen[None], axis=0)[0])
+
+
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     """Each region tries the other regions' poses (k, 6) as hypotheses -> poses (k, 6).
 
@@ -360,9 +393,9 @@ def samples_needed(inlier_frac, sample_size, confidence):
 
 def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
                        sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence,
-                       ambiguous_rot_deg, ambiguous_inlier_frac):
-    """Best pose6 (6,) of one region from minimal samples, scoring and local optimisation, and
-    whether it is ambiguous (bool).
+                       ambiguous_rot_deg, ambiguous_inlier_frac, n_refined):
+    """The ``n_refined`` best distinct pose6 (n_refined, 6) of one region, best first, from
+    minimal samples, scoring and local optimisation, and whether the best is ambiguous (bool).
 
     Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
     gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
@@ -370,8 +403,9 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     MSAC, then draw order). Drawing stops once ``samples_needed`` for the best inlier fraction
     and ``confidence`` are done (confidence 1: all of them). Each kept candidate then gets one
     least-squares fit (``lo_steps`` Gauss-Newton steps) on its inliers, and the best of
-    candidates and fits is returned. Ambiguous: another fit (a local least-squares optimum) with
-    a rotation more than ``ambiguous_rot_deg`` away explains nearly all the same inliers at the
+    candidates and fits (the lowest truncated cost at the best one's noise-level cut) is returned
+    with the next best more than DISTINCT_DEG apart. Ambiguous: another fit (a local least-squares
+    optimum) with a rotation more than ``ambiguous_rot_deg`` away explains nearly all the same inliers at the
     best fit's noise level (misses at most max(1, ambiguous_inlier_frac x best count) of those
     within clip(3.5 sigma, 1 px, inlier_px), sigma from the best fit): the same points admit two
     motions (the planar two-fold ambiguity, or rotation traded against translation). A rival
@@ -436,9 +470,20 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
     margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))
     shared = jnp.sum(inl & inl[best][None], axis=-1, dtype=jnp.int32)
-    apart = rotation_angle_deg(R_c[best][None], R_c) > ambiguous_rot_deg
-    ambiguous = jnp.any(drawn_fit & apart & (shared >= count[best] - margin))
-    return contenders[best], ambiguous
+    angle = rotation_angle_deg(R_c[best][None], R_c)
+    ambiguous = jnp.any(drawn_fit & (angle > ambiguous_rot_deg) & (shared >= count[best] - margin))
+    return contenders[_leading_distinct(trunc_cut, R_c, n_refined)], ambiguous
+
+
+def _leading_distinct(cost, R, count):
+    """Indices (count,) of the lowest ``cost`` (m,), each more than DISTINCT_DEG in rotation (R
+    (m, 3, 3)) from the ones before it; the lowest repeated where fewer are distinct."""
+    chosen = [_best(cost)]
+    for _ in range(count - 1):  # static, count is small
+        near = jnp.any(jnp.stack([rotation_angle_deg(R[c][None], R) <= DISTINCT_DEG for c in chosen]), axis=0)
+        rest = jnp.where(near, jnp.inf, cost)
+        chosen.append(jnp.where(jnp.isfinite(jnp.min(rest)), _best(rest), chosen[0]))
+    return jnp.stack(chosen)
 
 
 def ransac_pnp_regions(
@@ -464,6 +509,7 @@ def ransac_pnp_regions(
     ambiguous_rot_deg=3.0,
     ambiguous_inlier_frac=0.05,
     borrow=True,
+    refined_contenders=2,
 ):
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
@@ -480,16 +526,18 @@ def ransac_pnp_regions(
        (``samples_needed``) is met at ``confidence`` for the best inlier fraction seen.
     2. The ``lo_candidates`` best (lowest summed truncated squared error, MSAC, then draw order)
        get one least-squares fit on their inliers (local optimisation, ``lo_steps`` Gauss-Newton
-       steps: it only has to pick the inlier set); the best of these goes on.
+       steps: it only has to pick the inlier set); the ``refined_contenders`` best of these
+       (at the best one's noise-level cut, DISTINCT_DEG apart) go on.
     2b. With ``borrow`` (and k > 1), ``borrow_region_poses``: each region also scores the other
-       regions' poses from step 2 on its members and takes the best one where it scores lower.
-    3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
-       Gauss-Newton steps each) on the current inliers; inliers and n_inliers are those of the
-       final pose.
+       regions' poses from step 2 on its members and takes the best one in place of its first
+       contender where it scores lower.
+    3. All regions together, ``refine_poses`` of each contender: ``refine_passes`` least-squares
+       fits (``steps`` Gauss-Newton steps each) on the current inliers; ``lowest_cost_refined``
+       keeps one per region; inliers and n_inliers are those of the final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
     members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
     sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
-    borrow) must be static under jit.
+    borrow, refined_contenders) must be static under jit.
     """
     k = keys.shape[0]
     dtype = X.dtype
@@ -505,13 +553,14 @@ def ransac_pnp_regions(
             X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
             sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
             chunk=chunk, confidence=confidence, ambiguous_rot_deg=ambiguous_rot_deg,
-            ambiguous_inlier_frac=ambiguous_inlier_frac)
-    )(start, n_members, keys)
+            ambiguous_inlier_frac=ambiguous_inlier_frac, n_refined=refined_contenders)
+    )(start, n_members, keys)  # (k, refined_contenders, 6), (k,)
 
     if borrow and k > 1:
-        best = borrow_region_poses(X, uv, region, K, best, inlier_px=inlier_px)
-    poses, inliers, n_inliers = refine_poses(X, uv, region, K, best, inlier_px=inlier_px, steps=steps,
-                                             passes=refine_passes)
+        best = best.at[:, 0].set(borrow_region_poses(X, uv, region, K, best[:, 0], inlier_px=inlier_px))
+    refined = jax.vmap(lambda p: refine_poses(X, uv, region, K, p, inlier_px=inlier_px, steps=steps,
+                                              passes=refine_passes))(jnp.swapaxes(best, 0, 1))
+    poses, inliers, n_inliers = lowest_cost_refined(X, uv, region, K, *refined, inlier_px=inlier_px)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
