@@ -2,38 +2,20 @@
 
 from __future__ import annotations
 
+import os
 import sys
-from typing import Any, Callable, Iterable
+from typing import Any, Iterator
 
 from tqdm.auto import tqdm
 
 from .calibration import Calibration, default_calibration
 from .config import SGCConfig
-from .io.clip import Clip, ClipFormatError
-from .io.loading import ClipEntry, discover_clips
-from .io.result import BatchResult, ClipResult, PairArrays, failed_clip, summarize_clip
+from .io.journal import ScoresJournal, run_id, run_record
+from .io.loading import discover_clips
+from .io.result import BatchResult, ClipResult, summarize_clip
+from .streaming import StreamStats, Streamed, engine_steps, stream_scores
 
 ENGINES = ("jax", "reference")
-
-
-def _reference_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from .engines import reference
-
-    return [reference.score_pairs(clip, config) for clip in clips]
-
-
-def _jax_engine(clips: list[Clip], config: SGCConfig) -> list[PairArrays]:
-    from .engines import jax_engine
-
-    return jax_engine.score_pairs_batch(clips, config)
-
-
-def _engine(name: str) -> Callable[[list[Clip], SGCConfig], list[PairArrays]]:
-    if name == "reference":
-        return _reference_engine
-    if name == "jax":
-        return _jax_engine
-    raise ValueError(f"engine must be one of {ENGINES}, got {name!r}")
 
 
 def resolve_config(config: SGCConfig | dict | None, overrides: dict[str, Any]) -> SGCConfig:
@@ -57,7 +39,9 @@ def resolve_calibration(calibration: Calibration | str | None, config: SGCConfig
 
 def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax",
-                progress: bool | None = None, chunk_size: int = 16, **overrides: Any) -> BatchResult:
+                progress: bool | None = None, chunk_size: int = 16, out: str | os.PathLike | None = None,
+                pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int = 2,
+                stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
     A clip that fails to load (:class:`ClipFormatError`: a bad input) is reported with status
@@ -65,42 +49,54 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``overrides`` are :class:`SGCConfig` fields (``use_mos=False``, ...).
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
+    ``chunk_size``: clips read ahead of the device by ``readers`` threads (memory is bounded by it).
+    ``out`` / ``pairs_out``: per-clip / per-pair CSVs written as clips finish (docs/semantics.md
+    §4.1); ``resume``: keep the rows ``out`` already holds for the same input file content and
+    run (version, engine, config, calibration) and score only the rest.
+    ``stats``: a :class:`~sgc_jax.streaming.StreamStats` to fill (timings, counts).
     """
     config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
-    run = _engine(engine)
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if resume and out is None:
+        raise ValueError("resume=True needs out: the output file to resume")
     entries = discover_clips(source, config)
+    run = run_record(config, calibration, engine)
+    journal = ScoresJournal(out, pairs_out, run, resume=resume) if out is not None else None
     show = sys.stderr.isatty() if progress is None else progress
-    results: list[ClipResult] = []
-    with tqdm(total=len(entries), desc=f"sgc ({engine})", unit="clip", disable=not show) as bar:
-        for start in range(0, len(entries), chunk_size):
-            results.extend(_score_chunk(entries[start:start + chunk_size], run, config, calibration, engine))
-            bar.update(min(chunk_size, len(entries) - start))
-    return BatchResult(results, calibration)
+    clips: list[Streamed] = []
+    try:
+        with tqdm(total=len(entries), desc=f"sgc ({engine})", unit="clip", disable=not show) as bar:
+            stream = stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run_id(run),
+                                   done=journal.done if journal else None, read_ahead=chunk_size, readers=readers,
+                                   stats=stats)
+            for item in stream:
+                clips.append(item)
+                if journal is not None and item.kept_row is None:
+                    journal.append([item.result])
+                bar.update(1)
+        if journal is not None:
+            journal.finish([item.kept_row if item.kept_row is not None else item.result for item in clips])
+    finally:
+        if journal is not None:
+            journal.close()
+    return BatchResult([item.result for item in clips], calibration)
 
 
-def _score_chunk(entries: list[ClipEntry], run: Callable, config: SGCConfig, calibration: Calibration,
-                 engine: str) -> list[ClipResult]:
-    """Load a chunk, score the loadable clips together, keep input order and per-clip errors.
-
-    Only :class:`ClipFormatError` (a bad input, docs/semantics.md §1.4) becomes an error row; any
-    other exception, from the loader or an engine, is a bug and propagates.
-    """
-    loaded: dict[int, Clip] = {}
-    results: dict[int, ClipResult] = {}
-    for i, entry in enumerate(entries):
-        try:
-            loaded[i] = entry.load()
-        except ClipFormatError as exc:
-            results[i] = failed_clip(entry.clip_id, str(exc), engine=engine, origin=entry.origin,
-                                     compat=config.compat)
-    order = sorted(loaded)
-    pair_arrays = run([loaded[i] for i in order], config) if order else []
-    for i, pairs in zip(order, pair_arrays):
-        clip = loaded[i]
-        results[i] = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
-                                    mask_source=clip.mask_source, origin=entries[i].origin, compat=config.compat)
-    return [results[i] for i in range(len(entries))]
+def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
+                calibration: Calibration | str | None = None, engine: str = "jax", chunk_size: int = 16,
+                readers: int = 2, **overrides: Any) -> Iterator[ClipResult]:
+    """Each clip's :class:`ClipResult` as soon as it is scored, in input order (arguments as
+    :func:`score_batch`): for corpora too large to hold every result. ``ecd`` needs the whole
+    corpus: compute it afterwards with :func:`~sgc_jax.io.result.camera_dynamics`."""
+    config = resolve_config(config, overrides)
+    calibration = resolve_calibration(calibration, config)
+    entries = discover_clips(source, config)
+    run = run_id(run_record(config, calibration, engine))
+    for item in stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run,
+                              read_ahead=chunk_size, readers=readers):
+        yield item.result
 
 
 def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
@@ -113,6 +109,7 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
     if len(entries) != 1:
         raise ValueError(f"score_clip expects one clip, the source holds {len(entries)}; use score_batch")
     clip = entries[0].load()
-    pairs = _engine(engine)([clip], config)[0]
+    steps = engine_steps(engine, config)
+    pairs = steps.collect(steps.dispatch(steps.prepare(clip)))
     return summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
                           mask_source=clip.mask_source, origin=entries[0].origin, compat=config.compat)

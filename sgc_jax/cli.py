@@ -14,7 +14,7 @@ import typing
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from . import __version__
+from .version import __version__
 from .calibration import COMPONENTS
 from .config import SGCConfig, cli_flag
 
@@ -202,21 +202,27 @@ def _summary_line(result) -> str:
 
 def cmd_score(args: argparse.Namespace) -> int:
     from .api import score_batch
+    from .streaming import StreamStats
 
     out = args.out or (Path(args.pairs).with_name("scores.csv") if args.pairs else None)
     inputs = clip_input_files(args.paths)
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
     guard_outputs([*inputs, args.config, _calibration_file(args.calibration)], out=out, pairs=args.pairs)
+    if args.resume and not out:
+        raise UsageError("--resume needs --out: the output of the run to resume")
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
+    stats = StreamStats()
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
-                         progress=not args.quiet)
+                         progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume, stats=stats)
     for clip in result.clips:
         if clip.status == "error":
             print(f"sgc-jax score: {clip.clip_id} ({clip.origin}): {clip.reason}", file=sys.stderr)
+    if args.resume:
+        print(f"resumed: {stats.resumed} clip(s) kept from {out}, {stats.scored + stats.errors} read and scored",
+              file=sys.stderr)
     if out:
-        result.to_csv(out, pairs_path=args.pairs)
         print(f"wrote {out}" + (f" and {args.pairs}" if args.pairs else ""), file=sys.stderr)
     if not args.out or not args.quiet:
         print(result.table())
@@ -258,6 +264,9 @@ def _register_score(sub) -> None:
     output = score.add_argument_group("output")
     output.add_argument("--out", help="per-clip CSV (columns: docs/semantics.md §4)")
     output.add_argument("--pairs", help="per-pair CSV")
+    output.add_argument("--resume", action="store_true",
+                        help="keep the clips --out already holds for the same file content, version, engine, "
+                             "configuration and calibration; score the rest (docs/semantics.md §4.1)")
     _add_algorithm_flags(score)
     score.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no table when --out")
     score.set_defaults(func=cmd_score)

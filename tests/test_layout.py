@@ -3,11 +3,12 @@
 
 Layers, bottom up:
 - base: ``config``, ``codes`` (status and reason codes), ``stats`` (our conventions over scipy.stats),
+  ``version``,
   then ``calibration`` (the score formula; the result tables compute their ``sgc`` with it);
 - ``kernels/``: JAX kernels, pure functions of arrays; they import only each other, config and codes;
 - ``io/``: clip schema, loading, validation, result tables;
 - ``engines/``: the JAX and reference engines (kernels -> per-pair arrays of io.result);
-- ``api``: score_clip / score_batch; ``adapters/``: estimator outputs -> clips;
+- ``api``: score_clip / score_batch and ``streaming`` (their scoring loop); ``adapters/``: estimator outputs -> clips;
 - ``research/``: synthetic scenes, perturbations, studies, tables, diagnostics, plots;
 - ``cli`` and the public ``sgc_jax`` namespace on top.
 The source is read, not imported, so the test needs neither JAX nor matplotlib.
@@ -22,7 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "sgc_jax"
 
-BASE = {"sgc_jax.config", "sgc_jax.codes", "sgc_jax.stats"}
+BASE = {"sgc_jax.config", "sgc_jax.codes", "sgc_jax.stats", "sgc_jax.version"}
 # layer -> what it may import: layer names, or module names for single modules of a layer
 ALLOWED = {
     "base": set(),
@@ -59,6 +60,8 @@ def layer(name: str) -> str:
         return "public"
     if parts[1] in ("calibration", "api", "cli"):
         return parts[1]
+    if parts[1] == "streaming":  # the scoring loop under score_batch
+        return "api"
     if parts[1] in (*SUBPACKAGES, "adapters"):
         return parts[1]
     raise KeyError(f"{name} belongs to no layer: add it to tests/test_layout.py")

@@ -11,6 +11,7 @@ import pytest
 
 import sgc_jax.api
 import sgc_jax.engines.reference
+import sgc_jax.streaming
 from sgc_jax import (CLIP_COLUMNS, COMPONENTS, PAIR_COLUMNS, BatchResult, Calibration, ClipResult, calibrate, score_batch,
                      sgc_score)
 from sgc_jax.io.result import camera_dynamics, read_scores, rescore_records, write_scores
@@ -36,7 +37,8 @@ def forbid_geometry(monkeypatch):
     def refuse(*_args, **_kwargs):
         raise AssertionError("geometry was re-run")
 
-    monkeypatch.setattr(sgc_jax.api, "_engine", refuse)
+    monkeypatch.setattr(sgc_jax.api, "engine_steps", refuse)
+    monkeypatch.setattr(sgc_jax.streaming, "engine_steps", refuse)
     monkeypatch.setattr(sgc_jax.engines.reference, "score_pairs", refuse)
 
 

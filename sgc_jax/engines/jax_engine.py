@@ -200,18 +200,57 @@ def _pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: floa
         scale=scale, depth_unit=depth_unit)
 
 
-def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
-    """Per-pair arrays of every clip, one program call per clip on the default JAX device."""
-    config = config or SGCConfig()
+class PreparedClip(NamedTuple):
+    """A clip ready for the device: padded to its bucket (host arrays, ``prepare_clip``)."""
+
+    n_pairs: int
+    bucket: Bucket
+    batch: PaddedClips
+    depth_unit: float
+
+
+def prepare_clip(clip: Clip, config: SGCConfig) -> PreparedClip:
+    """The host side of scoring a clip: depth units and padding (NumPy only, safe in a thread)."""
+    clip, unit = in_depth_units(clip, config)
+    bucket = bucket_for(clip)
+    return PreparedClip(clip.n_pairs, bucket, pad_clip(clip, bucket, config, unit), unit)
+
+
+class Dispatched(NamedTuple):
+    """A clip whose program has been called: ``out`` holds device arrays still being computed."""
+
+    prepared: PreparedClip
+    out: dict
+
+
+def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
+    """Start scoring a prepared clip on the default device and return without waiting for it
+    (JAX dispatches asynchronously; a bucket's first clip compiles its program first)."""
     key, values = jax.random.PRNGKey(config.seed), program_values(config)
-    results = []
+    program = compiled_program(config, prepared.bucket, prepared.batch)
+    return Dispatched(prepared, program(prepared.batch, key, values))
+
+
+def collect(dispatched: Dispatched, config: SGCConfig) -> PairArrays:
+    """Wait for a dispatched clip and turn its outputs into per-pair arrays."""
+    out = jax.device_get(dispatched.out)
+    prepared = dispatched.prepared
+    # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
+    # translation is scaled (the w/o-VGGT variant)
+    scale = float(np.asarray(out["scale"][0])) * prepared.depth_unit if config.global_pose else 1.0
+    return _pair_arrays(out, 0, prepared.n_pairs, prepared.depth_unit, scale)
+
+
+def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
+    """Per-pair arrays of every clip, one program call per clip on the default JAX device; the
+    next clip is dispatched before the previous one's outputs are fetched."""
+    config = config or SGCConfig()
+    results, pending = [], None
     for clip in clips:
-        clip, unit = in_depth_units(clip, config)
-        bucket = bucket_for(clip)
-        batch = pad_clip(clip, bucket, config, unit)
-        out = jax.device_get(compiled_program(config, bucket, batch)(batch, key, values))
-        # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
-        # translation is scaled (the w/o-VGGT variant)
-        scale = float(np.asarray(out["scale"][0])) * unit if config.global_pose else 1.0
-        results.append(_pair_arrays(out, 0, clip.n_pairs, unit, scale))
+        current = dispatch(prepare_clip(clip, config), config)
+        if pending is not None:
+            results.append(collect(pending, config))
+        pending = current
+    if pending is not None:
+        results.append(collect(pending, config))
     return results

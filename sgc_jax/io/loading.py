@@ -437,13 +437,19 @@ class ClipEntry:
     id_owners: dict[str, "ClipEntry"] | None = None  # clip id -> the entry that claimed it, shared by a run's files
 
     def load(self) -> Clip:
-        """The validated clip; raises :class:`ClipFormatError` (only) for a bad input."""
+        """The validated clip with its id claimed for the run (``read_clip``, then ``claim_id``);
+        raises :class:`ClipFormatError` (only) for a bad input."""
+        clip = self.read_clip()
+        self.claim_id()
+        return clip
+
+    def read_clip(self) -> Clip:
+        """The validated clip, its id not yet claimed: safe to call from several threads, as long
+        as ``claim_id`` is then called in input order (the first file with an id keeps it)."""
         source = self.read()
         if isinstance(source, Clip):
             return subsample_tracks(source, self.config)
-        clip = clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
-        self.claim_id()
-        return clip
+        return clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
 
     def claim_id(self) -> None:
         """Claim this clip's id for the run; raises :class:`ClipFormatError` when another clip file has it."""

@@ -15,7 +15,7 @@ import math
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from ..stats import min_max
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
-                "depth_unit", "n_ill_conditioned", "compat")
+                "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
                 "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
 
@@ -118,7 +118,9 @@ class ClipResult:
     depth_unit: float = float("nan")  # D, input depth units
     n_ill_conditioned: int = 0  # local poses left out by the region-quality rule, all pairs
     compat: str = ""  # the semantics the components were computed with: "spec" | "authors"
-    origin: str = ""
+    origin: str = ""  # the file (file[member] in a batch file) or <memory>
+    input_sha256: str = ""  # SHA-256 of the input file's bytes ("" for clips given in memory)
+    run_id: str = ""  # the run that scored it (docs/semantics.md §4.1; "" once re-scored)
     pairs: PairArrays | None = None
 
     def __repr__(self) -> str:  # the per-pair arrays would run to thousands of lines
@@ -134,7 +136,8 @@ class ClipResult:
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
                "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
-               "n_ill_conditioned": self.n_ill_conditioned, "compat": self.compat}
+               "n_ill_conditioned": self.n_ill_conditioned, "compat": self.compat, "origin": self.origin,
+               "input_sha256": self.input_sha256, "run_id": self.run_id}
         return {k: row[k] for k in CLIP_COLUMNS}
 
     def pair_records(self) -> list[dict[str, Any]]:
@@ -169,6 +172,19 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
         n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs)
+
+
+def clip_from_row(row: Mapping[str, str]) -> ClipResult:
+    """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
+    every column but ``ecd``; no per-pair arrays."""
+    number = lambda name: float(row[name]) if row[name] else float("nan")  # noqa: E731
+    return ClipResult(
+        clip_id=row["clip_id"], group=row["group"], status=row["status"], reason=row["reason"], sgc=number("sgc"),
+        components={k: number(k) for k in COMPONENTS}, reproj_error=number("reproj_error"),
+        ecd_trans=number("ecd_trans"), ecd_rot=number("ecd_rot"), n_pairs=int(row["n_pairs"] or 0),
+        n_pairs_scored=int(row["n_pairs_scored"] or 0), engine=row["engine"], mask_source=row["mask_source"],
+        scale=number("scale"), depth_unit=number("depth_unit"), n_ill_conditioned=int(row["n_ill_conditioned"] or 0),
+        compat=row["compat"], origin=row["origin"], input_sha256=row["input_sha256"], run_id=row["run_id"])
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
@@ -211,7 +227,8 @@ def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[s
 
 
 _INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
-_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat")
+_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat", "origin",
+                 "input_sha256", "run_id")
 
 
 def _parse_column(name: str, values: list[str]) -> list[Any]:
@@ -259,12 +276,12 @@ def read_scores(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[
 def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration | str) -> list[dict[str, Any]]:
     """Copies of per-clip rows with ``sgc`` recomputed from their stored components under
     ``calibration`` (no geometry: the per-clip components are all the score needs) and ``ecd``
-    recomputed over these rows."""
+    recomputed over these rows; ``run_id`` is emptied (no run scored them so)."""
     calibration = Calibration.load(calibration)
     calibration.check_compat(rows_compat(records), "the rows")
     components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
     sgc = sgc_score(components, calibration) if records else np.array([])
-    out = [{**r, "sgc": float(v)} for r, v in zip(records, sgc)]
+    out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {})} for r, v in zip(records, sgc)]
     return add_ecd(out) if any("ecd_trans" in r for r in out) else out
 
 
@@ -381,8 +398,9 @@ class BatchResult:
         calibration = Calibration.load(calibration)
         for c in self.clips:
             calibration.check_compat(c.compat, f"the scores of clip {c.clip_id!r}")
-        clips = [summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
-                                mask_source=c.mask_source, origin=c.origin, compat=c.compat)
+        clips = [dataclasses.replace(summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
+                                                    mask_source=c.mask_source, origin=c.origin, compat=c.compat),
+                                     input_sha256=c.input_sha256)
                  if c.pairs is not None else c
                  for c in self.clips]
         return BatchResult(clips, calibration)

@@ -1,0 +1,111 @@
+"""End-to-end scoring from disk against in-memory scoring, and peak memory by corpus size, in one
+run (docs/semantics.md §4.1).
+
+    python bench/stream.py [--clips 64] [--memory-sizes 64 256] [--dir /tmp/sgc-stream-corpus]
+    python bench/stream.py --clips 1000 --memory-sizes   # the 1,000-clip measurement (on a GPU)
+
+Writes the standard corpus (T=16, 288x512, 4096 tracks per pair, ~10 regions; clip files of
+~8 MB) to --dir once (kept for later runs), compiles the bucket's program, then, warm:
+- in memory: ``score_batch`` of --in-memory clips already loaded (the device-only figure);
+- from disk: ``sgc-jax score``'s path, ``score_batch(folder, out=...)``: find, read, hash,
+  validate and pad in reader threads, score, write the CSV as clips finish. Prints clips per
+  second of both, their ratio, and the share of the wall time the scoring thread waited for a
+  clip to be read (an upper bound of the device's idle time for want of input);
+- peak memory: for each of --memory-sizes, a fresh process scores that many files from disk and
+  reports its maximum resident set size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+from sgc_jax import enable_compilation_cache, save_clip, score_batch
+from sgc_jax.io.loading import load_clips
+from sgc_jax.research.synth import synth_clip
+from sgc_jax.streaming import StreamStats
+
+SCENE = dict(n_frames=16, height=288, width=512, n_tracks=4096, n_layers=4, static_spheres=3, noise_px=0.5,
+             outlier_frac=0.1)
+
+
+def write_corpus(folder: Path, n: int) -> list[Path]:
+    """The first n standard clips in ``folder`` (written where missing; seeds 0..n-1, so a run
+    with fewer clips reuses a larger corpus's files)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for seed in range(n):
+        path = folder / f"clip{seed:05d}.npz"
+        if not path.exists():
+            partial = path.with_suffix(".partial.npz")
+            save_clip(partial, synth_clip(seed=seed, clip_id=f"clip{seed:05d}", **SCENE))
+            os.replace(partial, path)
+        paths.append(path)
+    return paths
+
+
+def peak_memory_mib(paths: list[Path]) -> float:
+    """Maximum resident set size [MiB] of a fresh process scoring ``paths`` from disk."""
+    code = ("import resource, sys, json, tempfile; from sgc_jax import score_batch, enable_compilation_cache; "
+            "enable_compilation_cache(); paths = json.load(sys.stdin); "
+            "score_batch(paths, out=tempfile.mkdtemp() + '/s.csv', progress=False); "
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+    done = subprocess.run([sys.executable, "-c", code], input=json.dumps([str(p) for p in paths]), text=True,
+                          capture_output=True, check=True)
+    return float(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--clips", type=int, default=64, help="clips scored from disk")
+    parser.add_argument("--in-memory", type=int, default=16, help="clips scored from memory (the device-only figure)")
+    parser.add_argument("--memory-sizes", type=int, nargs="*", default=[64, 256],
+                        help="corpus sizes whose peak memory is measured, each in a fresh process")
+    parser.add_argument("--dir", default=os.path.join(tempfile.gettempdir(), "sgc-stream-corpus"))
+    parser.add_argument("--readers", type=int, default=2, help="reader threads")
+    args = parser.parse_args()
+    enable_compilation_cache()  # the peak-memory processes load the program compiled here
+    folder = Path(args.dir)
+    begin = time.perf_counter()
+    paths = write_corpus(folder, max([args.clips, args.in_memory, *args.memory_sizes]))
+    print(f"corpus: {len(paths)} standard clips in {folder} ({time.perf_counter() - begin:.0f} s to write the missing)",
+          flush=True)
+    print(f"devices: {jax.devices()}; load average {os.getloadavg()[0]:.2f}", flush=True)
+
+    in_memory = list(load_clips([str(p) for p in paths[:args.in_memory]]))
+    score_batch(in_memory[:1], progress=False)  # compile (or load) the bucket's program
+    begin = time.perf_counter()
+    score_batch(in_memory, progress=False)
+    memory_rate = len(in_memory) / (time.perf_counter() - begin)
+
+    stats = StreamStats()
+    with tempfile.TemporaryDirectory() as out:
+        begin = time.perf_counter()
+        score_batch([str(p) for p in paths[:args.clips]], out=Path(out) / "scores.csv", progress=False,
+                    readers=args.readers, stats=stats)
+        disk_rate = args.clips / (time.perf_counter() - begin)
+    print(f"in memory: {memory_rate:.3f} clips/s ({len(in_memory)} clips, warm)")
+    print(f"from disk: {disk_rate:.3f} clips/s ({args.clips} clips, reading, hashing, validating, writing the CSV)")
+    print(f"  in-memory / from-disk time per clip: {memory_rate / disk_rate:.3f}x; scoring thread waited for input "
+          f"{stats.input_wait_share:.1%} of the wall time ({stats.input_wait_s:.1f} of {stats.wall_s:.1f} s)")
+    sizes = {n: peak_memory_mib(paths[:n]) for n in args.memory_sizes}
+    for n, mib in sizes.items():
+        print(f"peak memory, {n} clips from disk in a fresh process: {mib:.0f} MiB")
+    if len(sizes) > 1:
+        low, high = min(sizes.values()), max(sizes.values())
+        print(f"  largest / smallest: {high / low:.3f}")
+    print(f"this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB; load average "
+          f"{os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,164 @@
+"""A run's per-clip (and per-pair) CSV written as clips finish, and read back to resume the run
+(docs/semantics.md §4.1).
+
+Every row names its input (``clip_id``, ``input_sha256``: the file's bytes) and its run
+(``run_id``: a hash of the package version, engine, configuration and calibration, kept in full in
+``<out>.run.json``). ``--resume`` keeps the complete rows of the same input and run (but error rows), scores the
+rest, and the table is rewritten in input order when the run ends, so a run killed at any point
+and resumed writes the same table as one that never stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import threading
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from ..calibration import Calibration
+from ..config import SGCConfig
+from ..version import __version__
+from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, camera_dynamics, write_csv
+
+RUN_ID_LENGTH = 16
+
+
+def run_record(config: SGCConfig, calibration: Calibration, engine: str) -> dict[str, Any]:
+    """Everything a clip's numbers depend on besides its input: version, engine, config, calibration."""
+    return {"sgc_jax_version": __version__, "engine": engine, "config": config.to_dict(),
+            "calibration": calibration.to_dict()}
+
+
+def run_id(record: Mapping[str, Any]) -> str:
+    """``RUN_ID_LENGTH`` hex digits of the SHA-256 of a ``run_record`` (canonical JSON)."""
+    text = json.dumps(record, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:RUN_ID_LENGTH]
+
+
+class FileDigests:
+    """SHA-256 of input files, each read once per run (a batch file's clips share its digest);
+    safe to use from several threads."""
+
+    def __init__(self) -> None:
+        self._digests: dict[tuple, str] = {}
+        self._lock = threading.Lock()
+
+    def of(self, path: str | os.PathLike) -> str:
+        stat = os.stat(path)
+        key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+        with self._lock:
+            if key in self._digests:
+                return self._digests[key]
+        digest = hashlib.sha256()
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 22), b""):
+                digest.update(block)
+        with self._lock:
+            return self._digests.setdefault(key, digest.hexdigest())
+
+
+def _complete_rows(path: Path, columns: tuple[str, ...]) -> list[dict[str, str]]:
+    """The rows of a CSV this module wrote that were written completely: the text up to its last
+    newline, rows with every column (a killed run may leave half a line). A file with other
+    columns (another version's) gives none."""
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        text = f.read()
+    reader = csv.DictReader(io.StringIO(text[:text.rfind("\n") + 1]))
+    if tuple(reader.fieldnames or ()) != columns:
+        return []
+    return [row for row in reader if None not in row.values()]
+
+
+def _write_rows_atomically(path: Path, rows: Iterable[Mapping[str, Any]], columns: tuple[str, ...]) -> None:
+    temporary = path.with_name(path.name + ".partial")
+    write_csv(temporary, list(rows), columns)
+    os.replace(temporary, path)
+
+
+class ScoresJournal:
+    """The output files of one run: ``out`` (per clip) and optionally ``pairs_out`` (per pair).
+
+    On opening, the complete rows of an earlier run with the same ``run_id`` are kept when
+    ``resume`` (``done`` maps (clip_id, input_sha256) to them; error rows are not kept), everything else is dropped; then
+    ``append`` adds each batch of results as it finishes (flushed, so a killed run loses at most
+    the batch being written), and ``finish`` rewrites both files in input order with ``ecd``
+    normalised over the whole table.
+    """
+
+    def __init__(self, out: str | os.PathLike, pairs_out: str | os.PathLike | None, run: Mapping[str, Any],
+                 *, resume: bool) -> None:
+        self.out = Path(out)
+        self.pairs_out = Path(pairs_out) if pairs_out is not None else None
+        self.run_id = run_id(run)
+        self.done: dict[tuple[str, str], dict[str, str]] = {}  # (clip_id, input_sha256) -> row
+        kept_pairs: list[dict[str, str]] = []
+        if resume:
+            for row in _complete_rows(self.out, CLIP_COLUMNS):
+                # the run_id is the last column: a row cut short does not match it; error rows
+                # are read again (a duplicate id, say, depends on the other inputs)
+                if row["run_id"] == self.run_id and row["input_sha256"] and row["status"] != "error":
+                    self.done.setdefault((row["clip_id"], row["input_sha256"]), row)
+            if self.pairs_out is not None:
+                # pairs are flushed before their clip's row, so a kept clip has all of its pairs
+                kept_ids = {row["clip_id"] for row in self.done.values()}
+                kept_pairs = [r for r in _complete_rows(self.pairs_out, PAIR_COLUMNS) if r["clip_id"] in kept_ids]
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        run_file = self.out.with_name(self.out.name + ".run.json")
+        run_file.write_text(json.dumps({"run_id": self.run_id, **run}, indent=1, default=str))
+        _write_rows_atomically(self.out, self.done.values(), CLIP_COLUMNS)
+        if self.pairs_out is not None:
+            _write_rows_atomically(self.pairs_out, kept_pairs, PAIR_COLUMNS)
+        self._pairs_kept = kept_pairs
+        self._clip_file = self.out.open("a", newline="")
+        self._pair_file = self.pairs_out.open("a", newline="") if self.pairs_out is not None else None
+
+    def append(self, results: Iterable[ClipResult]) -> None:
+        """Add finished clips (``ecd`` left empty until ``finish``): pairs first, then the clips."""
+        results = list(results)
+        if self._pair_file is not None:
+            _append(self._pair_file, [row for c in results for row in c.pair_records()], PAIR_COLUMNS)
+        _append(self._clip_file, [c.record() for c in results], CLIP_COLUMNS)
+
+    def finish(self, clips: list[ClipResult | dict[str, str]]) -> None:
+        """Rewrite both files with every clip of the run in input order: new results and kept rows
+        (``done`` values, written back unchanged but for ``ecd``)."""
+        self.close()
+        records = [c.record() if isinstance(c, ClipResult) else dict(c) for c in clips]
+        ecd = camera_dynamics([_number(r["ecd_trans"]) for r in records], [_number(r["ecd_rot"]) for r in records])
+        records = [{**r, "ecd": float(e)} for r, e in zip(records, ecd)]
+        _write_rows_atomically(self.out, records, CLIP_COLUMNS)
+        if self.pairs_out is not None:
+            kept = {}
+            for row in self._pairs_kept:
+                kept.setdefault(row["clip_id"], []).append(row)
+            pairs = [row for c in clips for row in (
+                c.pair_records() if isinstance(c, ClipResult) else kept.get(c["clip_id"], []))]
+            _write_rows_atomically(self.pairs_out, pairs, PAIR_COLUMNS)
+
+    def close(self) -> None:
+        for f in (self._clip_file, self._pair_file):
+            if f is not None and not f.closed:
+                f.close()
+
+
+def _number(value: float | str) -> float:
+    """A float column of a record: as written (a kept row's text) or as computed."""
+    return (float(value) if value else float("nan")) if isinstance(value, str) else float(value)
+
+
+def _append(f, rows: list[dict[str, Any]], columns: tuple[str, ...]) -> None:
+    """Rows written with one call and flushed to the OS (a killed process loses nothing written)."""
+    if not rows:
+        return
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), extrasaction="ignore")
+    for row in rows:
+        writer.writerow({k: ("" if isinstance(v, float) and v != v else v) for k, v in row.items()})
+    f.write(buffer.getvalue())
+    f.flush()

@@ -1,0 +1,172 @@
+"""Scoring a corpus as a stream (docs/semantics.md §4.1).
+
+Reader threads hash, read, validate and pad the clips ahead of the device, at most ``read_ahead``
+of them at a time (memory does not grow with the corpus); the scoring thread dispatches each
+clip to the device before it fetches the previous one's results, and hands every finished clip
+on at once, in input order. Clip ids are claimed in input order by the scoring thread, so the
+first file with an id keeps it whatever order the readers finish in.
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import dataclasses
+import time
+from typing import Any, Callable, Iterator, Mapping, NamedTuple
+
+from .calibration import Calibration
+from .config import SGCConfig
+from .io.clip import Clip, ClipFormatError
+from .io.journal import FileDigests
+from .io.loading import ClipEntry
+from .io.result import ClipResult, PairArrays, clip_from_row, failed_clip, summarize_clip
+
+
+class Engine(NamedTuple):
+    """How an engine scores a clip in three steps: ``prepare`` (host arrays; runs in a reader
+    thread), ``dispatch`` (starts the device work, returns without waiting) and ``collect``
+    (waits, returns the per-pair arrays)."""
+
+    prepare: Callable[[Clip], Any]
+    dispatch: Callable[[Any], Any]
+    collect: Callable[[Any], PairArrays]
+
+
+def engine_steps(name: str, config: SGCConfig) -> Engine:
+    """The :class:`Engine` steps of ``"jax"`` or ``"reference"`` (which computes in ``collect``)."""
+    if name == "jax":
+        from .engines import jax_engine
+
+        return Engine(lambda clip: jax_engine.prepare_clip(clip, config),
+                      lambda prepared: jax_engine.dispatch(prepared, config),
+                      lambda dispatched: jax_engine.collect(dispatched, config))
+    if name == "reference":
+        from .engines import reference
+
+        return Engine(lambda clip: clip, lambda clip: clip, lambda clip: reference.score_pairs(clip, config))
+    raise ValueError(f"engine must be one of ('jax', 'reference'), got {name!r}")
+
+
+@dataclasses.dataclass
+class StreamStats:
+    """What a stream did: clips handed on (``scored``, ``resumed`` from an earlier run's output,
+    ``errors``), its wall time and the time the scoring thread waited for a clip to be read (an
+    upper bound of the time the device waited for input)."""
+
+    scored: int = 0
+    resumed: int = 0
+    errors: int = 0
+    wall_s: float = 0.0
+    input_wait_s: float = 0.0
+
+    @property
+    def input_wait_share(self) -> float:
+        return self.input_wait_s / self.wall_s if self.wall_s > 0 else 0.0
+
+
+class Streamed(NamedTuple):
+    """One clip handed on by :func:`stream_scores`: its result and, for a clip resumed from an
+    earlier run's output, that output's row (text, as written)."""
+
+    result: ClipResult
+    kept_row: Mapping[str, str] | None
+
+
+class _Read(NamedTuple):
+    """A reader thread's work on one entry."""
+
+    entry: ClipEntry
+    sha256: str
+    clip: Clip | None = None
+    prepared: Any = None
+    error: ClipFormatError | None = None
+    kept_row: Mapping[str, str] | None = None
+
+
+def _read(entry: ClipEntry, engine: Engine, digests: FileDigests, done: Mapping[tuple[str, str], Any]) -> _Read:
+    try:
+        sha256 = digests.of(entry.path) if entry.path is not None else ""
+    except OSError:  # a dangling link, say: reading the clip names the problem
+        sha256 = ""
+    if sha256 and (entry.clip_id, sha256) in done:
+        return _Read(entry, sha256, kept_row=done[(entry.clip_id, sha256)])
+    try:
+        clip = entry.read_clip()
+    except ClipFormatError as exc:
+        return _Read(entry, sha256, error=exc)
+    return _Read(entry, sha256, clip, engine.prepare(clip))
+
+
+def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
+                  run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
+                  read_ahead: int = 16, readers: int = 2, stats: StreamStats | None = None) -> Iterator[Streamed]:
+    """Every entry's result, in input order, as soon as it is known.
+
+    ``done``: rows of an earlier run's output by (clip_id, input_sha256); those inputs are not
+    read again and come back with their row (``Streamed.kept_row``). A clip that fails to load
+    (:class:`ClipFormatError`) is an error row; any other exception propagates.
+    """
+    steps = engine_steps(engine, config)
+    digests, done = FileDigests(), done or {}
+    stats = stats if stats is not None else StreamStats()
+    start = time.perf_counter()
+
+    def finished(read: _Read, pairs: PairArrays) -> Streamed:
+        clip = read.clip
+        result = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
+                                mask_source=clip.mask_source, origin=read.entry.origin, compat=config.compat)
+        stats.scored += 1
+        return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=run_id), None)
+
+    def failed(read: _Read, error: ClipFormatError) -> Streamed:
+        stats.errors += 1
+        result = failed_clip(read.entry.clip_id, str(error), engine=engine, origin=read.entry.origin,
+                             compat=config.compat)
+        return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=run_id), None)
+
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, readers), thread_name_prefix="sgc-read") as pool:
+        queue: collections.deque = collections.deque()
+        upcoming = iter(entries)
+
+        def fill() -> None:
+            while len(queue) < max(1, read_ahead):
+                entry = next(upcoming, None)
+                if entry is None:
+                    return
+                queue.append(pool.submit(_read, entry, steps, digests, done))
+
+        pending = None  # (read, dispatched): on the device, results not yet fetched
+        try:
+            fill()
+            while queue:
+                begin = time.perf_counter()
+                read = queue.popleft().result()
+                stats.input_wait_s += time.perf_counter() - begin
+                fill()
+                error = read.error
+                if error is None:
+                    try:
+                        read.entry.claim_id()  # in input order: the first file with an id keeps it
+                    except ClipFormatError as exc:
+                        error = exc
+                if error is not None or read.kept_row is not None:
+                    if pending is not None:  # handed on first: results go in input order
+                        yield finished(pending[0], steps.collect(pending[1]))
+                        pending = None
+                    if error is not None:
+                        yield failed(read, error)
+                    else:
+                        stats.resumed += 1
+                        yield Streamed(clip_from_row(read.kept_row), read.kept_row)
+                    continue
+                dispatched = steps.dispatch(read.prepared)
+                if pending is not None:
+                    yield finished(pending[0], steps.collect(pending[1]))
+                pending = (read, dispatched)
+            if pending is not None:
+                yield finished(pending[0], steps.collect(pending[1]))
+        finally:
+            for future in queue:
+                future.cancel()
+            stats.wall_s += time.perf_counter() - start

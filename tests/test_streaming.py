@@ -1,0 +1,128 @@
+"""Scoring as a stream, results written as clips finish, and resuming a run (docs/semantics.md §4.1)."""
+
+import csv
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from conftest import SCENE
+
+from sgc_jax import CLIP_COLUMNS, iter_scores, save_clip, score_batch
+from sgc_jax.research.synth import synth_clip
+from sgc_jax.streaming import StreamStats
+
+CLI = [sys.executable, "-m", "sgc_jax.cli"]
+# slow enough under the reference engine (about a second each on the 2-core box) to kill a run
+# part-way by watching its output grow
+KILLED_SCENE = dict(SCENE, n_frames=3)
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def clip_files(tmp_path_factory, rigid_clip, moving_clip, noisy_clip, drift_clip):
+    folder = tmp_path_factory.mktemp("stream")
+    for clip in (rigid_clip, moving_clip, noisy_clip, drift_clip):
+        save_clip(folder / f"{clip.clip_id}.npz", clip)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(clip_files, tmp_path_factory):
+    out = tmp_path_factory.mktemp("whole") / "scores.csv"
+    result = score_batch(clip_files, out=out, pairs_out=out.with_name("pairs.csv"), progress=False)
+    return result, out
+
+
+def test_results_from_files_equal_those_of_the_same_clips_in_memory(uninterrupted, rigid_clip, moving_clip,
+                                                                     noisy_clip, drift_clip):
+    from_files, _ = uninterrupted
+    in_memory = score_batch([rigid_clip, moving_clip, noisy_clip, drift_clip], progress=False)
+    by_id = {c.clip_id: c for c in in_memory}
+    for clip in from_files:
+        assert clip.sgc == by_id[clip.clip_id].sgc and clip.components == by_id[clip.clip_id].components
+
+
+def test_iter_scores_hands_on_each_clip_in_input_order(clip_files, uninterrupted):
+    streamed = list(iter_scores(clip_files, chunk_size=1, readers=3))
+    assert [c.clip_id for c in streamed] == uninterrupted[0].clip_ids
+    assert [c.sgc for c in streamed] == list(uninterrupted[0].sgc)
+
+
+def test_the_output_records_its_inputs_and_run(uninterrupted, clip_files):
+    _, out = uninterrupted
+    rows = _rows(out)
+    assert tuple(rows[0]) == CLIP_COLUMNS
+    run = out.with_name("scores.csv.run.json").read_text()
+    for key in ("sgc_jax_version", "config", "calibration", "engine"):
+        assert f'"{key}"' in run
+    assert {r["run_id"] for r in rows} == {run.split('"run_id": "')[1][:16]}
+    assert all(len(r["input_sha256"]) == 64 and r["origin"].startswith(str(clip_files)) for r in rows)
+
+
+def test_a_resumed_run_keeps_complete_rows_and_scores_the_rest(uninterrupted, clip_files, tmp_path):
+    _, whole = uninterrupted
+    out, pairs = tmp_path / "scores.csv", tmp_path / "pairs.csv"
+    text = whole.read_text()
+    lines = text.splitlines(keepends=True)
+    out.write_text("".join(lines[:3]) + lines[3][:40])  # two rows and half a line: a run killed mid-write
+    pairs.write_text(whole.with_name("pairs.csv").read_text())  # pairs of every clip: only the kept ones stay
+    stats = StreamStats()
+    score_batch(clip_files, out=out, pairs_out=pairs, resume=True, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (2, 2)
+    assert out.read_text() == text
+    assert pairs.read_text() == whole.with_name("pairs.csv").read_text()
+
+
+def test_resume_scores_again_what_changed_input_or_run(uninterrupted, clip_files, tmp_path, rigid_clip):
+    _, whole = uninterrupted
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for path in sorted(clip_files.iterdir()):
+        (folder / path.name).write_bytes(path.read_bytes())
+    out = tmp_path / "scores.csv"
+    score_batch(folder, out=out, progress=False)
+    save_clip(folder / "rigid.npz", dataclasses.replace(rigid_clip, meta={**rigid_clip.meta, "group": "relabelled"}))  # other bytes, same id
+    stats = StreamStats()
+    score_batch(folder, out=out, resume=True, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (3, 1)
+    assert {r["clip_id"]: r["group"] for r in _rows(out)}["rigid"] == "relabelled"
+    stats = StreamStats()
+    score_batch(folder, out=out, resume=True, progress=False, stats=stats, inlier_px=6.0)
+    assert (stats.resumed, stats.scored) == (0, 4)
+
+
+def test_a_killed_scoring_process_resumed_gives_the_uninterrupted_table(tmp_path):
+    folder = tmp_path / "clips"
+    for seed in range(8):
+        save_clip(folder / f"c{seed}.npz", synth_clip(seed=seed, clip_id=f"c{seed}", **KILLED_SCENE))
+    args = [str(folder), "--engine", "reference", "-q"]
+    whole = tmp_path / "whole.csv"
+    assert subprocess.run([*CLI, "score", *args, "--out", str(whole), "--pairs", str(tmp_path / "whole_pairs.csv")],
+                          capture_output=True, timeout=600).returncode == 0
+    out, pairs = tmp_path / "scores.csv", tmp_path / "pairs.csv"
+    command = [*CLI, "score", *args, "--out", str(out), "--pairs", str(pairs), "--resume"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and process.poll() is None:
+        if out.exists() and out.read_text().count("\n") >= 3:  # header and two clips
+            break
+        time.sleep(0.02)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    kept = len(_rows(out))
+    assert 2 <= kept < 8, kept
+    resumed = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resumed: {kept} clip(s) kept from {out}, {8 - kept} read and scored" in resumed.stderr
+    assert out.read_text() == whole.read_text()
+    assert pairs.read_text() == (tmp_path / "whole_pairs.csv").read_text()
+    assert np.isfinite([float(r["ecd"]) for r in _rows(out)]).all()
