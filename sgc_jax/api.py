@@ -41,7 +41,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax",
                 progress: bool | None = None, chunk_size: int = 16, out: str | os.PathLike | None = None,
                 pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int = 2,
-                stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
+                devices: int | None = None, stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
     A clip that fails to load (:class:`ClipFormatError`: a bad input) is reported with status
@@ -53,6 +53,9 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``out`` / ``pairs_out``: per-clip / per-pair CSVs written as clips finish (docs/semantics.md
     §4.1); ``resume``: keep the rows ``out`` already holds for the same input file content and
     run (version, engine, config, calibration) and score only the rest.
+    ``devices``: the JAX engine spreads the clips one per device over the first that many local
+    devices (default: all of them; several GPUs, or ``--xla_force_host_platform_device_count``
+    on a CPU); the numbers do not depend on it.
     ``stats``: a :class:`~sgc_jax.streaming.StreamStats` to fill (timings, counts).
     """
     config = resolve_config(config, overrides)
@@ -70,7 +73,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
         with tqdm(total=len(entries), desc=f"sgc ({engine})", unit="clip", disable=not show) as bar:
             stream = stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run_id(run),
                                    done=journal.done if journal else None, read_ahead=chunk_size, readers=readers,
-                                   stats=stats)
+                                   devices=devices, stats=stats)
             for item in stream:
                 clips.append(item)
                 if journal is not None and item.kept_row is None:
@@ -86,7 +89,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
 
 def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax", chunk_size: int = 16,
-                readers: int = 2, **overrides: Any) -> Iterator[ClipResult]:
+                readers: int = 2, devices: int | None = None, **overrides: Any) -> Iterator[ClipResult]:
     """Each clip's :class:`ClipResult` as soon as it is scored, in input order (arguments as
     :func:`score_batch`): for corpora too large to hold every result. ``ecd`` needs the whole
     corpus: compute it afterwards with :func:`~sgc_jax.io.result.camera_dynamics`."""
@@ -95,7 +98,7 @@ def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
     entries = discover_clips(source, config)
     run = run_id(run_record(config, calibration, engine))
     for item in stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run,
-                              read_ahead=chunk_size, readers=readers):
+                              read_ahead=chunk_size, readers=readers, devices=devices):
         yield item.result
 
 
@@ -110,6 +113,6 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
         raise ValueError(f"score_clip expects one clip, the source holds {len(entries)}; use score_batch")
     clip = entries[0].load()
     steps = engine_steps(engine, config)
-    pairs = steps.collect(steps.dispatch(steps.prepare(clip)))
+    pairs = steps.collect(steps.dispatch([steps.prepare(clip)]))[0]
     return summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
                           mask_source=clip.mask_source, origin=entries[0].origin, compat=config.compat)

@@ -209,13 +209,16 @@ def cmd_score(args: argparse.Namespace) -> int:
     if not inputs:
         raise UsageError(f"no .npz clips in {' '.join(args.paths)}")
     guard_outputs([*inputs, args.config, _calibration_file(args.calibration)], out=out, pairs=args.pairs)
+    if args.devices < 0:
+        raise UsageError(f"--devices must be 0 (all) or more, got {args.devices}")
     if args.resume and not out:
         raise UsageError("--resume needs --out: the output of the run to resume")
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
     stats = StreamStats()
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
-                         progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume, stats=stats)
+                         progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
+                         devices=args.devices or None, stats=stats)
     for clip in result.clips:
         if clip.status == "error":
             print(f"sgc-jax score: {clip.clip_id} ({clip.origin}): {clip.reason}", file=sys.stderr)
@@ -264,6 +267,8 @@ def _register_score(sub) -> None:
     output = score.add_argument_group("output")
     output.add_argument("--out", help="per-clip CSV (columns: docs/semantics.md §4)")
     output.add_argument("--pairs", help="per-pair CSV")
+    score.add_argument("--devices", type=int, default=0, metavar="N",
+                       help="JAX engine: spread the clips over the first N local devices (default 0: all of them)")
     output.add_argument("--resume", action="store_true",
                         help="keep the clips --out already holds for the same file content, version, engine, "
                              "configuration and calibration; score the rest (docs/semantics.md §4.1)")

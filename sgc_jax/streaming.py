@@ -2,8 +2,9 @@
 
 Reader threads hash, read, validate and pad the clips ahead of the device, at most ``read_ahead``
 of them at a time (memory does not grow with the corpus); the scoring thread dispatches each
-clip to the device before it fetches the previous one's results, and hands every finished clip
-on at once, in input order. Clip ids are claimed in input order by the scoring thread, so the
+clip (with several devices, a group of one clip per device, the clip axis sharded over them)
+before it fetches the previous one's results, and hands every finished clip on at once, in
+input order. Clip ids are claimed in input order by the scoring thread, so the
 first file with an id keeps it whatever order the readers finish in.
 """
 
@@ -24,27 +25,38 @@ from .io.result import ClipResult, PairArrays, clip_from_row, failed_clip, summa
 
 
 class Engine(NamedTuple):
-    """How an engine scores a clip in three steps: ``prepare`` (host arrays; runs in a reader
-    thread), ``dispatch`` (starts the device work, returns without waiting) and ``collect``
-    (waits, returns the per-pair arrays)."""
+    """How an engine scores clips in three steps: ``prepare`` (host arrays of one clip; runs in a
+    reader thread), ``dispatch`` (starts the device work on a group of up to ``group_size``
+    prepared clips of one ``group_key``, returns without waiting) and ``collect`` (waits,
+    returns the group's per-pair arrays)."""
 
     prepare: Callable[[Clip], Any]
-    dispatch: Callable[[Any], Any]
-    collect: Callable[[Any], PairArrays]
+    dispatch: Callable[[list[Any]], Any]
+    collect: Callable[[Any], list[PairArrays]]
+    group_size: int = 1
+    group_key: Callable[[Any], Any] = lambda prepared: None
 
 
-def engine_steps(name: str, config: SGCConfig) -> Engine:
-    """The :class:`Engine` steps of ``"jax"`` or ``"reference"`` (which computes in ``collect``)."""
+def engine_steps(name: str, config: SGCConfig, devices: int | None = None) -> Engine:
+    """The :class:`Engine` steps of ``"jax"`` (clips spread one per device over the first
+    ``devices`` local devices, all when None) or ``"reference"`` (which computes in ``collect``)."""
     if name == "jax":
         from .engines import jax_engine
 
+        spread = jax_engine.scoring_devices(devices)
+        if len(spread) == 1:
+            return Engine(lambda clip: jax_engine.prepare_clip(clip, config),
+                          lambda group: jax_engine.dispatch(group[0], config),
+                          lambda dispatched: [jax_engine.collect(dispatched, config)])
         return Engine(lambda clip: jax_engine.prepare_clip(clip, config),
-                      lambda prepared: jax_engine.dispatch(prepared, config),
-                      lambda dispatched: jax_engine.collect(dispatched, config))
+                      lambda group: jax_engine.dispatch_group(group, config, spread),
+                      lambda dispatched: jax_engine.collect_group(dispatched, config),
+                      len(spread), lambda prepared: prepared.bucket)
     if name == "reference":
         from .engines import reference
 
-        return Engine(lambda clip: clip, lambda clip: clip, lambda clip: reference.score_pairs(clip, config))
+        return Engine(lambda clip: clip, lambda group: group[0],
+                      lambda clip: [reference.score_pairs(clip, config)])
     raise ValueError(f"engine must be one of ('jax', 'reference'), got {name!r}")
 
 
@@ -100,14 +112,17 @@ def _read(entry: ClipEntry, engine: Engine, digests: FileDigests, done: Mapping[
 
 def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                   run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
-                  read_ahead: int = 16, readers: int = 2, stats: StreamStats | None = None) -> Iterator[Streamed]:
+                  read_ahead: int = 16, readers: int = 2, devices: int | None = None,
+                  stats: StreamStats | None = None) -> Iterator[Streamed]:
     """Every entry's result, in input order, as soon as it is known.
 
     ``done``: rows of an earlier run's output by (clip_id, input_sha256); those inputs are not
     read again and come back with their row (``Streamed.kept_row``). A clip that fails to load
-    (:class:`ClipFormatError`) is an error row; any other exception propagates.
+    (:class:`ClipFormatError`) is an error row; any other exception propagates. ``devices``: the
+    JAX engine spreads clips over the first that many local devices (all when None), one clip
+    per device at a time.
     """
-    steps = engine_steps(engine, config)
+    steps = engine_steps(engine, config, devices)
     digests, done = FileDigests(), done or {}
     stats = stats if stats is not None else StreamStats()
     start = time.perf_counter()
@@ -136,7 +151,27 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                     return
                 queue.append(pool.submit(_read, entry, steps, digests, done))
 
-        pending = None  # (read, dispatched): on the device, results not yet fetched
+        group: list[_Read] = []  # read, waiting to be dispatched together (one bucket)
+        pending: list = []  # at most one dispatched group: (reads, handle), results not yet fetched
+
+        def launch() -> Iterator[Streamed]:
+            """Dispatch the group, then hand on the group dispatched before it."""
+            pending.append((list(group), steps.dispatch([r.prepared for r in group])))
+            group.clear()
+            if len(pending) > 1:
+                yield from land()
+
+        def land() -> Iterator[Streamed]:
+            reads, handle = pending.pop(0)
+            for read, pairs in zip(reads, steps.collect(handle)):
+                yield finished(read, pairs)
+
+        def drain() -> Iterator[Streamed]:  # everything in flight, in input order
+            if group:
+                yield from launch()
+            while pending:
+                yield from land()
+
         try:
             fill()
             while queue:
@@ -151,21 +186,19 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                     except ClipFormatError as exc:
                         error = exc
                 if error is not None or read.kept_row is not None:
-                    if pending is not None:  # handed on first: results go in input order
-                        yield finished(pending[0], steps.collect(pending[1]))
-                        pending = None
+                    yield from drain()  # results go in input order
                     if error is not None:
                         yield failed(read, error)
                     else:
                         stats.resumed += 1
                         yield Streamed(clip_from_row(read.kept_row), read.kept_row)
                     continue
-                dispatched = steps.dispatch(read.prepared)
-                if pending is not None:
-                    yield finished(pending[0], steps.collect(pending[1]))
-                pending = (read, dispatched)
-            if pending is not None:
-                yield finished(pending[0], steps.collect(pending[1]))
+                if group and steps.group_key(read.prepared) != steps.group_key(group[0].prepared):
+                    yield from launch()
+                group.append(read)
+                if len(group) == steps.group_size:
+                    yield from launch()
+            yield from drain()
         finally:
             for future in queue:
                 future.cancel()

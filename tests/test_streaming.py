@@ -2,6 +2,7 @@
 
 import csv
 import dataclasses
+import json
 import os
 import signal
 import subprocess
@@ -126,3 +127,36 @@ def test_a_killed_scoring_process_resumed_gives_the_uninterrupted_table(tmp_path
     assert out.read_text() == whole.read_text()
     assert pairs.read_text() == (tmp_path / "whole_pairs.csv").read_text()
     assert np.isfinite([float(r["ecd"]) for r in _rows(out)]).all()
+
+
+# The two-device compile fuses differently: one tiny component (global_trans_var of a rigid clip,
+# 2.9e-9 (% of D)^2, a float32 cancellation of translations of ~1 % of D) moved by 3.6e-12; poses,
+# statuses and SGC are bitwise equal.
+SHARDED_ROUNDOFF = 1e-10
+TWO_DEVICES = """
+import json, sys
+import numpy as np
+from sgc_jax import score_batch
+from sgc_jax.research.synth import synth_clip
+import jax
+assert len(jax.devices()) == 2, jax.devices()
+tiny = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)
+clips = [synth_clip(seed=s, clip_id=f"c{s}", **tiny) for s in range(3)]  # odd: the last group is filled
+spread, single = score_batch(clips, progress=False), score_batch(clips, progress=False, devices=1)
+rows = lambda result: [[float(v) for v in (c.sgc, *c.pairs.R_local.ravel(), *c.pairs.t_local.ravel(),
+                        *c.pairs.region_status.ravel())] for c in result]
+components = lambda result: [list(c.components.values()) for c in result]
+print(json.dumps({"spread": rows(spread), "single": rows(single),  # NaN as NaN
+                  "spread_components": components(spread), "single_components": components(single)}))
+"""
+
+
+def test_two_forced_host_devices_give_the_numbers_of_one():
+    env = {**os.environ, "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"}
+    done = subprocess.run([sys.executable, "-c", TWO_DEVICES], capture_output=True, text=True, env=env, timeout=900)
+    assert done.returncode == 0, done.stderr
+    assert "one clip on each of 2 devices" in done.stderr
+    rows = json.loads(done.stdout.strip().splitlines()[-1])
+    np.testing.assert_array_equal(np.array(rows["spread"]), np.array(rows["single"]))  # NaN where both are NaN
+    np.testing.assert_allclose(np.array(rows["spread_components"]), np.array(rows["single_components"]),
+                               rtol=1e-6, atol=SHARDED_ROUNDOFF)

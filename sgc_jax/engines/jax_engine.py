@@ -217,9 +217,10 @@ def prepare_clip(clip: Clip, config: SGCConfig) -> PreparedClip:
 
 
 class Dispatched(NamedTuple):
-    """A clip whose program has been called: ``out`` holds device arrays still being computed."""
+    """A clip (or a group of clips, ``dispatch_group``) whose program has been called: ``out``
+    holds device arrays still being computed."""
 
-    prepared: PreparedClip
+    prepared: PreparedClip | list[PreparedClip]
     out: dict
 
 
@@ -253,4 +254,78 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
         pending = current
     if pending is not None:
         results.append(collect(pending, config))
+    return results
+
+
+# ----------------------------------------------------------------------------- several devices
+
+
+def scoring_devices(limit: int | None = None) -> list:
+    """The local devices of the default backend that clips are spread over: all of them, or the
+    first ``limit``."""
+    devices = jax.local_devices()
+    if limit is not None and limit < 1:
+        raise ValueError(f"devices must be at least 1, got {limit}")
+    return devices[:limit] if limit else devices
+
+
+# (stage keys, device ids) -> (the stages over a batch of one clip per device, the batch's sharding)
+_sharded: dict[tuple, tuple["BucketProgram", Any]] = {}
+
+
+def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips) -> tuple:
+    """The three stages over a batch of one clip per device (leading axis B = len(devices)),
+    the clip axis sharded over ``devices`` (``jax.sharding``, ``shard_map``): each device runs
+    the one-clip stage programs on its own clip, so the numbers are those of one device.
+    Compiled once per bucket, static config and device set (a line on stderr says so); not kept
+    in the persistent cache. -> (BucketProgram, the batch's sharding)"""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    from .stages import stage_program
+
+    keys = tuple(stage_key(config, stage, bucket) for stage in STAGES)
+    cache_key = (keys, tuple(d.id for d in devices))
+    if cache_key not in _sharded:
+        mesh = Mesh(np.array(devices), ("clips",))
+        clips, replicated = PartitionSpec("clips"), PartitionSpec()
+        sharding = NamedSharding(mesh, clips)
+        start = time.perf_counter()
+        if compile_messages_on():
+            print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} "
+                  f"px, {bucket.P} tracks per pair, one clip on each of {len(devices)} devices (once per shape "
+                  "bucket) ...", end="", file=sys.stderr, flush=True)
+        batch_spec = PaddedClips(*(jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding) for a in example))
+        key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
+        stages, previous = [], None
+        for key in keys:  # one program per stage, as on one device (the same fusions, the same numbers)
+            # check_vma off: the kernels' loops start from constants that the per-device clip makes
+            # device-varying, which the check would have every loop annotate
+            spread = jax.shard_map(functools.partial(stage_program, stage=key.stage, static=key.static), mesh=mesh,
+                                   in_specs=(clips, replicated, replicated), out_specs=clips, check_vma=False)
+            lowered = jax.jit(spread).lower(stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec)
+            previous = lowered.out_info
+            stages.append(lowered.compile())
+        if compile_messages_on():
+            print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+        _sharded[cache_key] = BucketProgram(tuple(stages)), sharding
+    return _sharded[cache_key]
+
+
+def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list) -> Dispatched:
+    """Start scoring up to len(devices) prepared clips of one bucket, one per device (a short
+    group is filled with copies of its last clip, whose results are dropped)."""
+    fill = [group[-1].batch] * (len(devices) - len(group))
+    stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
+    program, sharding = sharded_program(config, group[0].bucket, devices, stacked)
+    key, values = jax.random.PRNGKey(config.seed), program_values(config)
+    return Dispatched(group, program(PaddedClips(*jax.device_put(tuple(stacked), sharding)), key, values))
+
+
+def collect_group(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
+    """Wait for a dispatched group; its clips' per-pair arrays, in order."""
+    out = jax.device_get(dispatched.out)
+    results = []
+    for b, prepared in enumerate(dispatched.prepared):
+        scale = float(np.asarray(out["scale"][b])) * prepared.depth_unit if config.global_pose else 1.0
+        results.append(_pair_arrays(out, b, prepared.n_pairs, prepared.depth_unit, scale))
     return results
