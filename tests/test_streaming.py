@@ -136,9 +136,10 @@ SHARDED_ROUNDOFF = 1e-10
 TWO_DEVICES = """
 import json, sys
 import numpy as np
-from sgc_jax import score_batch
+from sgc_jax import enable_compilation_cache, score_batch
 from sgc_jax.research.synth import synth_clip
 import jax
+enable_compilation_cache()  # the suite's cache (inherited): the one-device program is loaded, not compiled
 assert len(jax.devices()) == 2, jax.devices()
 tiny = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)
 clips = [synth_clip(seed=s, clip_id=f"c{s}", **tiny) for s in range(3)]  # odd: the last group is filled

@@ -277,8 +277,9 @@ def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: P
     """The three stages over a batch of one clip per device (leading axis B = len(devices)),
     the clip axis sharded over ``devices`` (``jax.sharding``, ``shard_map``): each device runs
     the one-clip stage programs on its own clip, so the numbers are those of one device.
-    Compiled once per bucket, static config and device set (a line on stderr says so); not kept
-    in the persistent cache. -> (BucketProgram, the batch's sharding)"""
+    Compiled once per bucket, static config and device set (a line on stderr says so); with the
+    persistent cache on, JAX keeps the compiled stages and a later process only traces them.
+    -> (BucketProgram, the batch's sharding)"""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     from .stages import stage_program
