@@ -112,7 +112,7 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None,
     if len(entries) != 1:
         raise ValueError(f"score_clip expects one clip, the source holds {len(entries)}; use score_batch")
     clip = entries[0].load()
-    steps = engine_steps(engine, config)
+    steps = engine_steps(engine, config, devices=1)  # one clip: one device
     pairs = steps.collect(steps.dispatch([steps.prepare(clip)]))[0]
     return summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
                           mask_source=clip.mask_source, origin=entries[0].origin, compat=config.compat)

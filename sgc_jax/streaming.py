@@ -44,13 +44,11 @@ def engine_steps(name: str, config: SGCConfig, devices: int | None = None) -> En
         from .engines import jax_engine
 
         spread = jax_engine.scoring_devices(devices)
+        prepare = lambda clip: jax_engine.prepare_clip(clip, config)  # noqa: E731
+        collect = lambda dispatched: jax_engine.collect(dispatched, config)  # noqa: E731
         if len(spread) == 1:
-            return Engine(lambda clip: jax_engine.prepare_clip(clip, config),
-                          lambda group: jax_engine.dispatch(group[0], config),
-                          lambda dispatched: [jax_engine.collect(dispatched, config)])
-        return Engine(lambda clip: jax_engine.prepare_clip(clip, config),
-                      lambda group: jax_engine.dispatch_group(group, config, spread),
-                      lambda dispatched: jax_engine.collect_group(dispatched, config),
+            return Engine(prepare, lambda group: jax_engine.dispatch(group[0], config), collect)
+        return Engine(prepare, lambda group: jax_engine.dispatch_group(group, config, spread), collect,
                       len(spread), lambda prepared: prepared.bucket)
     if name == "reference":
         from .engines import reference
@@ -101,8 +99,9 @@ def _read(entry: ClipEntry, engine: Engine, digests: FileDigests, done: Mapping[
         sha256 = digests.of(entry.path) if entry.path is not None else ""
     except OSError:  # a dangling link, say: reading the clip names the problem
         sha256 = ""
-    if sha256 and (entry.clip_id, sha256) in done:
-        return _Read(entry, sha256, kept_row=done[(entry.clip_id, sha256)])
+    kept_row = done.get((entry.clip_id, sha256)) if sha256 else None
+    if kept_row is not None:
+        return _Read(entry, sha256, kept_row=kept_row)
     try:
         clip = entry.read_clip()
     except ClipFormatError as exc:

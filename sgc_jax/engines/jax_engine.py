@@ -163,8 +163,9 @@ def _announce(bucket: Bucket, missing: list[StageKey], kept: bool) -> None:
 
 def release_programs() -> int:
     """Drop every compiled stage (each holds its machine code in memory mappings); returns how many."""
-    count = len(_programs)
+    count = len(_programs) + len(STAGES) * len(_sharded)
     _programs.clear()
+    _sharded.clear()
     return count
 
 
@@ -217,10 +218,10 @@ def prepare_clip(clip: Clip, config: SGCConfig) -> PreparedClip:
 
 
 class Dispatched(NamedTuple):
-    """A clip (or a group of clips, ``dispatch_group``) whose program has been called: ``out``
-    holds device arrays still being computed."""
+    """Clips whose program has been called (one, ``dispatch``; one per device,
+    ``dispatch_group``): ``out`` holds device arrays still being computed, clip b at index b."""
 
-    prepared: PreparedClip | list[PreparedClip]
+    prepared: list[PreparedClip]
     out: dict
 
 
@@ -229,17 +230,19 @@ def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
     (JAX dispatches asynchronously; a bucket's first clip compiles its program first)."""
     key, values = jax.random.PRNGKey(config.seed), program_values(config)
     program = compiled_program(config, prepared.bucket, prepared.batch)
-    return Dispatched(prepared, program(prepared.batch, key, values))
+    return Dispatched([prepared], program(prepared.batch, key, values))
 
 
-def collect(dispatched: Dispatched, config: SGCConfig) -> PairArrays:
-    """Wait for a dispatched clip and turn its outputs into per-pair arrays."""
+def collect(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
+    """Wait for dispatched clips; their per-pair arrays, in order (a filled group's copies dropped)."""
     out = jax.device_get(dispatched.out)
-    prepared = dispatched.prepared
-    # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
-    # translation is scaled (the w/o-VGGT variant)
-    scale = float(np.asarray(out["scale"][0])) * prepared.depth_unit if config.global_pose else 1.0
-    return _pair_arrays(out, 0, prepared.n_pairs, prepared.depth_unit, scale)
+    results = []
+    for b, prepared in enumerate(dispatched.prepared):
+        # s (per unit of D inside) is reported in depth units per pose unit; 1 when no global
+        # translation is scaled (the w/o-VGGT variant)
+        scale = float(np.asarray(out["scale"][b])) * prepared.depth_unit if config.global_pose else 1.0
+        results.append(_pair_arrays(out, b, prepared.n_pairs, prepared.depth_unit, scale))
+    return results
 
 
 def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
@@ -250,10 +253,10 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
     for clip in clips:
         current = dispatch(prepare_clip(clip, config), config)
         if pending is not None:
-            results.append(collect(pending, config))
+            results.extend(collect(pending, config))
         pending = current
     if pending is not None:
-        results.append(collect(pending, config))
+        results.extend(collect(pending, config))
     return results
 
 
@@ -314,19 +317,9 @@ def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: P
 
 def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list) -> Dispatched:
     """Start scoring up to len(devices) prepared clips of one bucket, one per device (a short
-    group is filled with copies of its last clip, whose results are dropped)."""
+    group is filled with copies of its last clip, which ``collect`` leaves out)."""
     fill = [group[-1].batch] * (len(devices) - len(group))
     stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
     program, sharding = sharded_program(config, group[0].bucket, devices, stacked)
     key, values = jax.random.PRNGKey(config.seed), program_values(config)
     return Dispatched(group, program(PaddedClips(*jax.device_put(tuple(stacked), sharding)), key, values))
-
-
-def collect_group(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
-    """Wait for a dispatched group; its clips' per-pair arrays, in order."""
-    out = jax.device_get(dispatched.out)
-    results = []
-    for b, prepared in enumerate(dispatched.prepared):
-        scale = float(np.asarray(out["scale"][b])) * prepared.depth_unit if config.global_pose else 1.0
-        results.append(_pair_arrays(out, b, prepared.n_pairs, prepared.depth_unit, scale))
-    return results

@@ -22,7 +22,7 @@ from typing import Any, Iterable, Mapping
 from ..calibration import Calibration
 from ..config import SGCConfig
 from ..version import __version__
-from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, camera_dynamics, write_csv
+from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, write_csv, write_csv_rows
 
 RUN_ID_LENGTH = 16
 
@@ -100,8 +100,7 @@ class ScoresJournal:
         kept_pairs: list[dict[str, str]] = []
         if resume:
             for row in _complete_rows(self.out, CLIP_COLUMNS):
-                # the run_id is the last column: a row cut short does not match it; error rows
-                # are read again (a duplicate id, say, depends on the other inputs)
+                # error rows are read again (a duplicate id, say, depends on the other inputs)
                 if row["run_id"] == self.run_id and row["input_sha256"] and row["status"] != "error":
                     self.done.setdefault((row["clip_id"], row["input_sha256"]), row)
             if self.pairs_out is not None:
@@ -129,9 +128,9 @@ class ScoresJournal:
         """Rewrite both files with every clip of the run in input order: new results and kept rows
         (``done`` values, written back unchanged but for ``ecd``)."""
         self.close()
-        records = [c.record() if isinstance(c, ClipResult) else dict(c) for c in clips]
-        ecd = camera_dynamics([_number(r["ecd_trans"]) for r in records], [_number(r["ecd_rot"]) for r in records])
-        records = [{**r, "ecd": float(e)} for r, e in zip(records, ecd)]
+        # a kept row's text and the float it reads as are written alike (str(float) round-trips)
+        records = add_ecd([c.record() if isinstance(c, ClipResult) else
+                           {**c, "ecd_trans": _number(c["ecd_trans"]), "ecd_rot": _number(c["ecd_rot"])} for c in clips])
         _write_rows_atomically(self.out, records, CLIP_COLUMNS)
         if self.pairs_out is not None:
             kept = {}
@@ -147,9 +146,9 @@ class ScoresJournal:
                 f.close()
 
 
-def _number(value: float | str) -> float:
-    """A float column of a record: as written (a kept row's text) or as computed."""
-    return (float(value) if value else float("nan")) if isinstance(value, str) else float(value)
+def _number(text: str) -> float:
+    """A kept row's float cell (empty: NaN)."""
+    return float(text) if text else float("nan")
 
 
 def _append(f, rows: list[dict[str, Any]], columns: tuple[str, ...]) -> None:
@@ -157,8 +156,6 @@ def _append(f, rows: list[dict[str, Any]], columns: tuple[str, ...]) -> None:
     if not rows:
         return
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(columns), extrasaction="ignore")
-    for row in rows:
-        writer.writerow({k: ("" if isinstance(v, float) and v != v else v) for k, v in row.items()})
+    write_csv_rows(buffer, rows, columns, header=False)
     f.write(buffer.getvalue())
     f.flush()

@@ -219,11 +219,17 @@ def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[s
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
+        write_csv_rows(f, rows, columns, header=True)
     return path
+
+
+def write_csv_rows(f, rows: Iterable[dict], columns: Sequence[str], *, header: bool) -> None:
+    """``write_csv``'s rows (and header) on an open text file."""
+    writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
+    if header:
+        writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
 
 
 _INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
