@@ -41,7 +41,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax",
                 progress: bool | None = None, chunk_size: int = 16, out: str | os.PathLike | None = None,
                 pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int = 2,
-                devices: int | None = None, stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
+                devices: int | None = None, ray_address: str | None = None, ray_scorers: int | None = None,
+                stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
     A clip that fails to load (:class:`ClipFormatError`: a bad input) is reported with status
@@ -50,12 +51,14 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
     ``chunk_size``: clips read ahead of the device by ``readers`` threads (memory is bounded by it).
-    ``out`` / ``pairs_out``: per-clip / per-pair CSVs written as clips finish (docs/semantics.md
-    §4.1); ``resume``: keep the rows ``out`` already holds for the same input file content and
+    ``out`` / ``pairs_out``: per-clip / per-pair tables written as clips finish, CSV or Parquet
+    by the suffix (docs/semantics.md §4.1); ``resume``: keep the rows ``out`` already holds for the same input file content and
     run (version, engine, config, calibration) and score only the rest.
     ``devices``: the JAX engine spreads the clips one per device over the first that many local
     devices (default: all of them; several GPUs, or ``--xla_force_host_platform_device_count``
     on a CPU); the numbers do not depend on it.
+    ``ray_address``: score on a Ray cluster instead of this process ("auto", "local", an address;
+    :mod:`sgc_jax.cluster`), with ``ray_scorers`` actors (default one per GPU, else per node).
     ``stats``: a :class:`~sgc_jax.streaming.StreamStats` to fill (timings, counts).
     """
     config = resolve_config(config, overrides)
@@ -71,9 +74,17 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     clips: list[Streamed] = []
     try:
         with tqdm(total=len(entries), desc=f"sgc ({engine})", unit="clip", disable=not show) as bar:
-            stream = stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run_id(run),
-                                   done=journal.done if journal else None, read_ahead=chunk_size, readers=readers,
-                                   devices=devices, stats=stats)
+            done = journal.done if journal else None
+            if ray_address is None:
+                stream = stream_scores(entries, config=config, calibration=calibration, engine=engine,
+                                       run_id=run_id(run), done=done, read_ahead=chunk_size, readers=readers,
+                                       devices=devices, stats=stats)
+            else:
+                from .cluster import ray_stream_scores
+
+                stream = ray_stream_scores(entries, config=config, calibration=calibration, engine=engine,
+                                           run_id=run_id(run), done=done, address=ray_address, scorers=ray_scorers,
+                                           shard_size=chunk_size, devices=devices, stats=stats)
             for item in stream:
                 clips.append(item)
                 if journal is not None and item.kept_row is None:

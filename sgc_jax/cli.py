@@ -213,12 +213,18 @@ def cmd_score(args: argparse.Namespace) -> int:
         raise UsageError(f"--devices must be 0 (all) or more, got {args.devices}")
     if args.resume and not out:
         raise UsageError("--resume needs --out: the output of the run to resume")
+    if args.ray_scorers < 0 or (args.ray_scorers and args.ray is None):
+        raise UsageError(f"--ray-scorers must be 1 or more and goes with --ray, got {args.ray_scorers}")
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
     stats = StreamStats()
+    if args.ray is not None and not args.quiet:
+        print(f"sgc-jax score: scoring on the Ray cluster at {args.ray}"
+              + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
                          progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
-                         devices=args.devices or None, stats=stats)
+                         devices=args.devices or None, ray_address=args.ray, ray_scorers=args.ray_scorers or None,
+                         stats=stats)
     for clip in result.clips:
         if clip.status == "error":
             print(f"sgc-jax score: {clip.clip_id} ({clip.origin}): {clip.reason}", file=sys.stderr)
@@ -265,10 +271,16 @@ def _register_score(sub) -> None:
     score = sub.add_parser("score", help="score clip / batch .npz files, directories or globs")
     score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
     output = score.add_argument_group("output")
-    output.add_argument("--out", help="per-clip CSV (columns: docs/semantics.md §4)")
-    output.add_argument("--pairs", help="per-pair CSV")
+    output.add_argument("--out", help="per-clip table, CSV or .parquet (columns: docs/semantics.md §4)")
+    output.add_argument("--pairs", help="per-pair table, CSV or .parquet")
     score.add_argument("--devices", type=int, default=0, metavar="N",
                        help="JAX engine: spread the clips over the first N local devices (default 0: all of them)")
+    score.add_argument("--ray", metavar="ADDRESS",
+                       help="score on a Ray cluster: 'auto' (the one this machine belongs to), 'local' (start one "
+                            "here) or its address; inputs must be readable from every node (docs/semantics.md §4.2; "
+                            "pip install 'sgc-jax[ray]')")
+    score.add_argument("--ray-scorers", type=int, default=0, metavar="N",
+                       help="with --ray: N scorer processes (default 0: one per GPU of the cluster, else per node)")
     output.add_argument("--resume", action="store_true",
                         help="keep the clips --out already holds for the same file content, version, engine, "
                              "configuration and calibration; score the rest (docs/semantics.md §4.1)")

@@ -81,6 +81,14 @@ class Streamed(NamedTuple):
 
     result: ClipResult
     kept_row: Mapping[str, str] | None
+    load_failed: bool = False  # the clip could not be loaded (so it claimed no id)
+
+
+def error_result(entry: ClipEntry, error: ClipFormatError, sha256: str, engine: str, config: SGCConfig,
+                 run_id: str) -> ClipResult:
+    """The error row of a clip that could not be loaded or whose id another file has."""
+    result = failed_clip(entry.clip_id, str(error), engine=engine, origin=entry.origin, compat=config.compat)
+    return dataclasses.replace(result, input_sha256=sha256, run_id=run_id)
 
 
 class _Read(NamedTuple):
@@ -135,9 +143,8 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
 
     def failed(read: _Read, error: ClipFormatError) -> Streamed:
         stats.errors += 1
-        result = failed_clip(read.entry.clip_id, str(error), engine=engine, origin=read.entry.origin,
-                             compat=config.compat)
-        return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=run_id), None)
+        return Streamed(error_result(read.entry, error, read.sha256, engine, config, run_id), None,
+                        load_failed=read.error is not None)
 
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, readers), thread_name_prefix="sgc-read") as pool:
         queue: collections.deque = collections.deque()

@@ -4,6 +4,7 @@ import csv
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import pytest
 from conftest import SCENE
 
 from sgc_jax import CLIP_COLUMNS, iter_scores, save_clip, score_batch
+from sgc_jax.io.result import read_table_text
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.streaming import StreamStats
 
@@ -161,3 +163,49 @@ def test_two_forced_host_devices_give_the_numbers_of_one():
     np.testing.assert_array_equal(np.array(rows["spread"]), np.array(rows["single"]))  # NaN where both are NaN
     np.testing.assert_allclose(np.array(rows["spread_components"]), np.array(rows["single_components"]),
                                rtol=1e-6, atol=SHARDED_ROUNDOFF)
+
+
+# ----------------------------------------------------------------------------- Ray
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """A local Ray cluster started for these tests, two CPUs (two scorer processes); its address.
+    Its workers inherit the suite's compilation cache (SGC_JAX_COMPILATION_CACHE), so they load
+    the programs the suite compiled."""
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False)
+    try:
+        yield ray.get_runtime_context().gcs_address
+    finally:
+        ray.shutdown()
+
+
+def test_the_ray_path_on_a_local_cluster_writes_the_table_of_one_process(ray_cluster, clip_files, uninterrupted,
+                                                                         tmp_path):
+    _, whole = uninterrupted
+    out, pairs = tmp_path / "scores.parquet", tmp_path / "pairs.parquet"
+    run = subprocess.run([*CLI, "score", str(clip_files), "--ray", ray_cluster, "--ray-scorers", "2",
+                          "--out", str(out), "--pairs", str(pairs), "-q"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert read_table_text(out) == read_table_text(whole)
+    assert read_table_text(pairs) == read_table_text(whole.with_name("pairs.csv"))
+    assert not out.with_name("scores.parquet.journal.csv").exists()  # the log is gone once the table is written
+
+
+def test_a_ray_run_claims_ids_in_input_order_and_resumes_like_one_process(ray_cluster, clip_files, tmp_path):
+    copy = tmp_path / "copy" / "rigid_again.npz"
+    copy.parent.mkdir()
+    shutil.copy(clip_files / "rigid.npz", copy)
+    inputs = [str(clip_files), str(copy)]  # the copy, listed last, is a duplicate of rigid
+    here, out = tmp_path / "here.csv", tmp_path / "ray.csv"
+    score_batch(inputs, out=here, progress=False)
+    score_batch(inputs, out=out, ray_address=ray_cluster, chunk_size=1, progress=False)
+    assert out.read_text() == here.read_text()
+    assert "duplicate: first seen in" in _rows(out)[-1]["reason"]
+    out.write_text("".join(here.read_text().splitlines(keepends=True)[:3]))  # killed after two clips
+    stats = StreamStats()
+    score_batch(inputs, out=out, resume=True, ray_address=ray_cluster, chunk_size=1, progress=False, stats=stats)
+    assert out.read_text() == here.read_text()
+    assert (stats.resumed, stats.scored, stats.errors) == (2, 2, 1)

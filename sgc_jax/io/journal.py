@@ -1,4 +1,4 @@
-"""A run's per-clip (and per-pair) CSV written as clips finish, and read back to resume the run
+"""A run's per-clip (and per-pair) table (CSV or Parquet) written as clips finish, and read back to resume the run
 (docs/semantics.md §4.1).
 
 Every row names its input (``clip_id``, ``input_sha256``: the file's bytes) and its run
@@ -22,7 +22,8 @@ from typing import Any, Iterable, Mapping
 from ..calibration import Calibration
 from ..config import SGCConfig
 from ..version import __version__
-from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, write_csv, write_csv_rows
+from .parquet import is_parquet
+from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, read_table_text, write_csv_rows, write_table
 
 RUN_ID_LENGTH = 16
 
@@ -75,14 +76,60 @@ def _complete_rows(path: Path, columns: tuple[str, ...]) -> list[dict[str, str]]
     return [row for row in reader if None not in row.values()]
 
 
+class _TableFile:
+    """One output table of a run. Rows are appended to a CSV log as clips finish: the table
+    itself when it is a CSV, ``<table>.journal.csv`` beside a Parquet table (which cannot be
+    appended to), written whole by ``finish`` and the log removed."""
+
+    def __init__(self, path: Path, columns: tuple[str, ...]) -> None:
+        self.path, self.columns = path, columns
+        self.log = path.with_name(path.name + ".journal.csv") if is_parquet(path) else path
+        self._file = None
+
+    def earlier_rows(self) -> list[dict[str, str]]:
+        """The complete rows an earlier run left: a finished table's, then its log's."""
+        rows = []
+        if self.log != self.path and self.path.is_file():
+            header, table = read_table_text(self.path)
+            rows = table if tuple(header) == self.columns else []
+        return rows + _complete_rows(self.log, self.columns)
+
+    def start(self, kept: Iterable[Mapping[str, Any]]) -> None:
+        """Begin the run's log with the rows kept from an earlier run (a stale table is removed)."""
+        if self.log != self.path:
+            self.path.unlink(missing_ok=True)
+        _write_rows_atomically(self.log, kept, self.columns)
+        self._file = self.log.open("a", newline="")
+
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        """Rows written with one call and flushed to the OS (a killed process loses nothing written)."""
+        if not rows:
+            return
+        buffer = io.StringIO()
+        write_csv_rows(buffer, rows, self.columns, header=False)
+        self._file.write(buffer.getvalue())
+        self._file.flush()
+
+    def finish(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        self.close()
+        _write_rows_atomically(self.path, rows, self.columns)
+        if self.log != self.path:
+            self.log.unlink(missing_ok=True)
+
+    def close(self) -> None:
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+
+
 def _write_rows_atomically(path: Path, rows: Iterable[Mapping[str, Any]], columns: tuple[str, ...]) -> None:
-    temporary = path.with_name(path.name + ".partial")
-    write_csv(temporary, list(rows), columns)
+    temporary = path.with_name(f"{path.stem}.partial{path.suffix}")  # the suffix chooses the format
+    write_table(temporary, list(rows), columns)
     os.replace(temporary, path)
 
 
 class ScoresJournal:
-    """The output files of one run: ``out`` (per clip) and optionally ``pairs_out`` (per pair).
+    """The output files of one run: ``out`` (per clip) and optionally ``pairs_out`` (per pair),
+    each a CSV or a ``.parquet`` table.
 
     On opening, the complete rows of an earlier run with the same ``run_id`` are kept when
     ``resume`` (``done`` maps (clip_id, input_sha256) to them; error rows are not kept), everything else is dropped; then
@@ -97,32 +144,32 @@ class ScoresJournal:
         self.pairs_out = Path(pairs_out) if pairs_out is not None else None
         self.run_id = run_id(run)
         self.done: dict[tuple[str, str], dict[str, str]] = {}  # (clip_id, input_sha256) -> row
+        self._clips = _TableFile(self.out, CLIP_COLUMNS)
+        self._pairs = _TableFile(self.pairs_out, PAIR_COLUMNS) if self.pairs_out is not None else None
         kept_pairs: list[dict[str, str]] = []
         if resume:
-            for row in _complete_rows(self.out, CLIP_COLUMNS):
+            for row in self._clips.earlier_rows():
                 # error rows are read again (a duplicate id, say, depends on the other inputs)
                 if row["run_id"] == self.run_id and row["input_sha256"] and row["status"] != "error":
                     self.done.setdefault((row["clip_id"], row["input_sha256"]), row)
-            if self.pairs_out is not None:
+            if self._pairs is not None:
                 # pairs are flushed before their clip's row, so a kept clip has all of its pairs
                 kept_ids = {row["clip_id"] for row in self.done.values()}
-                kept_pairs = [r for r in _complete_rows(self.pairs_out, PAIR_COLUMNS) if r["clip_id"] in kept_ids]
+                kept_pairs = [r for r in self._pairs.earlier_rows() if r["clip_id"] in kept_ids]
         self.out.parent.mkdir(parents=True, exist_ok=True)
         run_file = self.out.with_name(self.out.name + ".run.json")
         run_file.write_text(json.dumps({"run_id": self.run_id, **run}, indent=1, default=str))
-        _write_rows_atomically(self.out, self.done.values(), CLIP_COLUMNS)
-        if self.pairs_out is not None:
-            _write_rows_atomically(self.pairs_out, kept_pairs, PAIR_COLUMNS)
+        self._clips.start(self.done.values())
+        if self._pairs is not None:
+            self._pairs.start(kept_pairs)
         self._pairs_kept = kept_pairs
-        self._clip_file = self.out.open("a", newline="")
-        self._pair_file = self.pairs_out.open("a", newline="") if self.pairs_out is not None else None
 
     def append(self, results: Iterable[ClipResult]) -> None:
         """Add finished clips (``ecd`` left empty until ``finish``): pairs first, then the clips."""
         results = list(results)
-        if self._pair_file is not None:
-            _append(self._pair_file, [row for c in results for row in c.pair_records()], PAIR_COLUMNS)
-        _append(self._clip_file, [c.record() for c in results], CLIP_COLUMNS)
+        if self._pairs is not None:
+            self._pairs.append([row for c in results for row in c.pair_records()])
+        self._clips.append([c.record() for c in results])
 
     def finish(self, clips: list[ClipResult | dict[str, str]]) -> None:
         """Rewrite both files with every clip of the run in input order: new results and kept rows
@@ -131,31 +178,21 @@ class ScoresJournal:
         # a kept row's text and the float it reads as are written alike (str(float) round-trips)
         records = add_ecd([c.record() if isinstance(c, ClipResult) else
                            {**c, "ecd_trans": _number(c["ecd_trans"]), "ecd_rot": _number(c["ecd_rot"])} for c in clips])
-        _write_rows_atomically(self.out, records, CLIP_COLUMNS)
-        if self.pairs_out is not None:
+        self._clips.finish(records)
+        if self._pairs is not None:
             kept = {}
             for row in self._pairs_kept:
                 kept.setdefault(row["clip_id"], []).append(row)
-            pairs = [row for c in clips for row in (
-                c.pair_records() if isinstance(c, ClipResult) else kept.get(c["clip_id"], []))]
-            _write_rows_atomically(self.pairs_out, pairs, PAIR_COLUMNS)
+            self._pairs.finish([row for c in clips for row in (
+                c.pair_records() if isinstance(c, ClipResult) else kept.get(c["clip_id"], []))])
 
     def close(self) -> None:
-        for f in (self._clip_file, self._pair_file):
-            if f is not None and not f.closed:
-                f.close()
+        for table in (self._clips, self._pairs):
+            if table is not None:
+                table.close()
 
 
 def _number(text: str) -> float:
     """A kept row's float cell (empty: NaN)."""
     return float(text) if text else float("nan")
 
-
-def _append(f, rows: list[dict[str, Any]], columns: tuple[str, ...]) -> None:
-    """Rows written with one call and flushed to the OS (a killed process loses nothing written)."""
-    if not rows:
-        return
-    buffer = io.StringIO()
-    write_csv_rows(buffer, rows, columns, header=False)
-    f.write(buffer.getvalue())
-    f.flush()

@@ -22,6 +22,7 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..codes import CLIP_STATUSES, PAIR_REASONS, REGION_EMPTY
 from ..stats import min_max
+from .parquet import is_parquet, read_parquet_text, write_parquet
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
@@ -223,6 +224,13 @@ def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[s
     return path
 
 
+def write_table(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[str]) -> Path:
+    """``write_csv``, or a Parquet file (typed columns, :func:`column_kind`) for a ``.parquet`` path."""
+    if is_parquet(path):
+        return write_parquet(path, rows, columns, column_kind)
+    return write_csv(path, rows, columns)
+
+
 def write_csv_rows(f, rows: Iterable[dict], columns: Sequence[str], *, header: bool) -> None:
     """``write_csv``'s rows (and header) on an open text file."""
     writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
@@ -232,15 +240,30 @@ def write_csv_rows(f, rows: Iterable[dict], columns: Sequence[str], *, header: b
         writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
 
 
-_INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
-_TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat", "origin",
+INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
+TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat", "origin",
                  "input_sha256", "run_id")
 
 
+def column_kind(name: str) -> str:
+    """A table column's type: "text", "int" or "float" (a Parquet file's column types)."""
+    return "text" if name in TEXT_COLUMNS else "int" if name in INT_COLUMNS else "float"
+
+
+def read_table_text(path: str | os.PathLike) -> tuple[list[str], list[dict[str, str]]]:
+    """A table file's header and rows as text cells: CSV, or Parquet by its ``.parquet`` suffix."""
+    if is_parquet(path):
+        return read_parquet_text(path)
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        rows = list(reader)
+        return list(reader.fieldnames or []), rows
+
+
 def _parse_column(name: str, values: list[str]) -> list[Any]:
-    if name in _TEXT_COLUMNS:
+    if name in TEXT_COLUMNS:
         return values
-    if name in _INT_COLUMNS:
+    if name in INT_COLUMNS:
         return [int(v) if v != "" else 0 for v in values]
     try:  # a numeric column: every non-empty cell parses (as int when every cell is an integer)
         return [int(v) for v in values]
@@ -253,7 +276,8 @@ def _parse_column(name: str, values: list[str]) -> list[Any]:
 
 
 def read_scores(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[dict[str, Any]]:
-    """Per-clip rows of one or more CSVs written by ``to_csv`` / ``sgc-jax score --out``.
+    """Per-clip rows of one or more CSVs (or ``.parquet`` files) written by ``to_csv`` /
+    ``sgc-jax score --out``.
 
     Numeric columns come back as float (empty cell -> NaN) or int, text columns as str; extra
     columns (e.g. a study's ``base``, ``kind``, ``severity``) are kept. Each row gets ``source``,
@@ -264,10 +288,7 @@ def read_scores(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[
         paths = [paths]
     records: list[dict[str, Any]] = []
     for path in paths:
-        with Path(path).open(newline="") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            header = reader.fieldnames or []
+        header, rows = read_table_text(path)
         missing = [k for k in COMPONENTS if k not in header]
         if missing:
             raise ValueError(f"{path}: not a per-clip scores CSV, columns {missing} are missing (found {header})")
@@ -300,13 +321,13 @@ def add_ecd(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def write_scores(path: str | os.PathLike, records: Sequence[dict[str, Any]]) -> Path:
-    """Write per-clip rows as CSV: :data:`CLIP_COLUMNS` present in the rows first, then any extra
-    columns in their order of appearance (``source`` is not written)."""
+    """Write per-clip rows as CSV (Parquet for a ``.parquet`` path): :data:`CLIP_COLUMNS` present in
+    the rows first, then any extra columns in their order of appearance (``source`` is not written)."""
     seen: list[str] = []
     for r in records:
         seen.extend(k for k in r if k not in seen and k != "source")
     columns = [c for c in CLIP_COLUMNS if c in seen] + [c for c in seen if c not in CLIP_COLUMNS]
-    return write_csv(path, list(records), columns)
+    return write_table(path, list(records), columns)
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
