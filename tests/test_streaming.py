@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import SCENE
 
-from sgc_jax import CLIP_COLUMNS, iter_scores, save_clip, score_batch
+from sgc_jax import CLIP_COLUMNS, iter_scores, read_scores, save_clip, score_batch
 from sgc_jax.io.result import read_table_text
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.streaming import StreamStats
@@ -163,6 +163,24 @@ def test_two_forced_host_devices_give_the_numbers_of_one():
     np.testing.assert_array_equal(np.array(rows["spread"]), np.array(rows["single"]))  # NaN where both are NaN
     np.testing.assert_allclose(np.array(rows["spread_components"]), np.array(rows["single_components"]),
                                rtol=1e-6, atol=SHARDED_ROUNDOFF)
+
+
+def test_a_parquet_output_resumes_from_its_log_and_from_the_finished_table(uninterrupted, clip_files, tmp_path):
+    _, whole = uninterrupted
+    out = tmp_path / "scores.parquet"
+    log = tmp_path / "scores.parquet.journal.csv"
+    log.write_text("".join(whole.read_text().splitlines(keepends=True)[:3]))  # killed after two clips
+    stats = StreamStats()
+    score_batch(clip_files, out=out, resume=True, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (2, 2)
+    assert read_table_text(out) == read_table_text(whole) and not log.exists()
+    stats = StreamStats()
+    score_batch(clip_files, out=out, resume=True, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (4, 0)
+    assert read_table_text(out) == read_table_text(whole)
+    from_parquet, from_csv = read_scores(out), read_scores(whole)  # typed columns read alike
+    assert [(r["clip_id"], r["sgc"], r["n_pairs"]) for r in from_parquet] == \
+        [(r["clip_id"], r["sgc"], r["n_pairs"]) for r in from_csv]
 
 
 # ----------------------------------------------------------------------------- Ray

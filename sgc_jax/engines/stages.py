@@ -209,14 +209,24 @@ def scale_equations(Z_prev, track_label, K_prev, K_curr, track_prev, track_curr,
 
 
 def weighted_median(values, weights, fallback):
-    """The first value (sorted) whose cumulative weight reaches half the total; ``fallback`` when
-    the total is 0. Any shape, flattened; weight 0 marks an unused entry."""
-    values, weights = values.reshape(-1), weights.reshape(-1)
-    values = jnp.where(weights > 0, values, jnp.inf)
-    order = jnp.argsort(values)
-    cumulative = jnp.cumsum(weights[order])
-    total = cumulative[-1]
-    median = values[order][jnp.argmax(cumulative >= 0.5 * total)]
+    """The first value (sorted) whose cumulative weight reaches half the total, i.e. the smallest
+    value whose weight at or below it does; ``fallback`` when the total is 0. Any shape,
+    flattened; weight 0 marks an unused entry. Found by bisection over the values' order-keeping
+    uint32 keys (32 masked sums; a sort of the values costs ten times more on CPU)."""
+    values, weights = values.reshape(-1).astype(jnp.float32), weights.reshape(-1)
+    sign = jnp.uint32(0x80000000)
+    bits = jax.lax.bitcast_convert_type(values, jnp.uint32)
+    keys = jnp.where(bits & sign, ~bits, bits | sign)  # negative floats reversed, below the positive ones
+    total = jnp.sum(weights)
+
+    def halve(_, bounds):  # the smallest key whose weight at or below it reaches half the total is in [lo, hi]
+        lo, hi = bounds
+        mid = lo + (hi - lo) // 2
+        enough = jnp.sum(jnp.where(keys <= mid, weights, 0.0)) >= 0.5 * total
+        return jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi)
+
+    key, _ = jax.lax.fori_loop(0, 32, halve, (jnp.uint32(0), jnp.uint32(0xFFFFFFFF)))
+    median = jax.lax.bitcast_convert_type(jnp.where(key & sign, key ^ sign, ~key), jnp.float32)
     return jnp.where(total > 0, median, fallback)
 
 
