@@ -216,9 +216,11 @@ def _region_sums(onehot, values):
     return jnp.dot(onehot, values, precision=jax.lax.Precision.HIGHEST)
 
 
-def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
-    """Local optimisation of every region's pose6 (poses (k, 6)): ``passes`` least-squares fits
-    (``solve_pnp_regions``, all regions at once) on the current inliers, then two checks.
+def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
+    """Local optimisation of every region's pose6 from M contenders (contenders (M, k, 6)):
+    ``passes`` least-squares fits (``solve_pnp_regions``, all regions at once) on the current
+    inliers of each contender, the contender of lowest cost kept per region
+    (``lowest_cost_contender``), then two checks on it.
 
     Per region, each pass fits the members with error < tau and is kept when the truncated cost
     sum(min(e^2, tau^2)) over the members does not increase (LO-RANSAC / MSAC; it cannot, up to
@@ -239,7 +241,7 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
     -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose, points dropped
     by the leverage check excluded, n_inliers (k,) int32)
     """
-    k = poses.shape[0]
+    k = contenders.shape[1]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
@@ -314,22 +316,29 @@ def refine_poses(X, uv, region, K, poses, *, inlier_px, steps, passes):
             lambda: keep_refit(st, refined, new_err_sq, st.tried)))
 
     no_points = jnp.zeros_like(member)
-    st = Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]), jnp.zeros(k, bool),
-               no_points, no_points)
-    st = jax.lax.fori_loop(0, LEVERAGE + 1, one_fit, st)
+
+    def start(poses):
+        return Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]),
+                     jnp.zeros(k, bool), no_points, no_points)
+
+    # the passes for every contender, then the checks for the one of lowest cost in each region
+    passed = jax.vmap(lambda poses: jax.lax.fori_loop(0, passes, one_fit, start(poses)))(contenders)
+    chosen = lowest_cost_contender(X, uv, region, K, passed.poses, inlier_px=inlier_px)  # (k,)
+    point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]  # points of no region: any, they are never used
+    per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
+    poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
+    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool), no_points,
+               no_points)
+    st = jax.lax.fori_loop(passes, LEVERAGE + 1, one_fit, st)
     poses, err_sq, dropped, used = st.poses, st.err_sq, st.dropped, st.used
     inliers = member & (err_sq < thr_sq) & ~(dropped & used)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
-def lowest_cost_refined(X, uv, region, K, poses, inliers, n_inliers, *, inlier_px):
-    """Per region, the refined contender of lowest truncated cost at the region's noise-level cut
-    (docs/semantics.md §3.2 step 6) -> (poses (k, 6), inliers (N,), n_inliers (k,)).
-
-    poses (M, k, 6), inliers (M, N), n_inliers (M, k): ``refine_poses`` from M contender sets.
-    The cut is that of the contender with the lowest cost at inlier_px (the coarse optimum);
-    ties go to the earlier contender.
-    """
+def lowest_cost_contender(X, uv, region, K, poses, *, inlier_px):
+    """Per region, the index (k,) of the contender poses (M, k, 6) of lowest truncated cost at the
+    region's noise-level cut (docs/semantics.md §3.2 step 6), the cut being that of the contender
+    with the lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender."""
     k = poses.shape[1]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -340,15 +349,12 @@ def lowest_cost_refined(X, uv, region, K, poses, inliers, n_inliers, *, inlier_p
     finite = jnp.all(jnp.isfinite(poses), axis=-1)  # (M, k)
     coarse_cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, thr_sq).T).T, jnp.inf)
     coarse = jnp.argmin(coarse_cost, axis=0)  # (k,)
-    point_region = jnp.clip(region - 1, 0, k - 1)  # points of no region are inliers of none
+    point_region = jnp.clip(region - 1, 0, k - 1)
     coarse_err_sq = jnp.take_along_axis(err_sq, coarse[point_region][None], axis=0)[0]
     cut_sq = _noise_cut_sq(_noise_sigma_sq(coarse_err_sq, member, onehot, thr_sq), inlier_px)  # (k,)
     point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
     cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, point_cut_sq[None]).T).T, jnp.inf)
-    chosen = jnp.argmin(cost, axis=0)  # (k,)
-    return (jnp.take_along_axis(poses, chosen[None, :, None], axis=0)[0],
-            jnp.take_along_axis(inliers, chosen[point_region][None], axis=0)[0],
-            jnp.take_along_axis(n_inliers, chosen[None], axis=0)[0])
+    return jnp.argmin(cost, axis=0)
 
 
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
@@ -531,9 +537,10 @@ def ransac_pnp_regions(
     2b. With ``borrow`` (and k > 1), ``borrow_region_poses``: each region also scores the other
        regions' poses from step 2 on its members and takes the best one in place of its first
        contender where it scores lower.
-    3. All regions together, ``refine_poses`` of each contender: ``refine_passes`` least-squares
-       fits (``steps`` Gauss-Newton steps each) on the current inliers; ``lowest_cost_refined``
-       keeps one per region; inliers and n_inliers are those of the final pose.
+    3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
+       Gauss-Newton steps each) of each contender on its current inliers, the one of lowest
+       cost kept per region (``lowest_cost_contender``), then its checks; inliers and n_inliers
+       are those of the final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
     members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
     sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
@@ -558,9 +565,8 @@ def ransac_pnp_regions(
 
     if borrow and k > 1:
         best = best.at[:, 0].set(borrow_region_poses(X, uv, region, K, best[:, 0], inlier_px=inlier_px))
-    refined = jax.vmap(lambda p: refine_poses(X, uv, region, K, p, inlier_px=inlier_px, steps=steps,
-                                              passes=refine_passes))(jnp.swapaxes(best, 0, 1))
-    poses, inliers, n_inliers = lowest_cost_refined(X, uv, region, K, *refined, inlier_px=inlier_px)
+    poses, inliers, n_inliers = refine_poses(X, uv, region, K, jnp.swapaxes(best, 0, 1), inlier_px=inlier_px,
+                                             steps=steps, passes=refine_passes)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
