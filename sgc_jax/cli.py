@@ -200,6 +200,18 @@ def _summary_line(result) -> str:
     return f"{len(result)} clip(s): {counts['ok']} ok, {counts['partial']} partial, {counts['error']} error"
 
 
+def _connect_ray(address: str) -> None:
+    """``--ray``: join (or start) the cluster now, so that a missing extra or cluster is a usage error."""
+    from .cluster import connect
+
+    try:
+        connect(address)
+    except ImportError as exc:
+        raise UsageError(str(exc)) from None
+    except ConnectionError as exc:
+        raise UsageError(f"--ray {address}: {exc} (start one with `ray start --head`, or use --ray local)") from None
+
+
 def cmd_score(args: argparse.Namespace) -> int:
     from .api import score_batch
     from .streaming import StreamStats
@@ -218,9 +230,11 @@ def cmd_score(args: argparse.Namespace) -> int:
     config, calibration = _config_and_calibration(args)
     _use_compilation_cache(args.engine)
     stats = StreamStats()
-    if args.ray is not None and not args.quiet:
-        print(f"sgc-jax score: scoring on the Ray cluster at {args.ray}"
-              + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
+    if args.ray is not None:
+        _connect_ray(args.ray)
+        if not args.quiet:
+            print(f"sgc-jax score: scoring on the Ray cluster at {args.ray}"
+                  + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
                          progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
                          devices=args.devices or None, ray_address=args.ray, ray_scorers=args.ray_scorers or None,

@@ -8,7 +8,7 @@ import warnings
 import cv2
 import numpy as np
 import pytest
-from estimator_fixtures import (DAVIS_PALETTE, delta_vis, frame_names, upsample_nearest, vggt_intrinsics,
+from estimator_fixtures import (DAVIS_PALETTE, delta_vis, frame_names, vggt_intrinsics,
                                 vggt_preprocess, write_all, write_delta_dense, write_delta_pairs, write_frames,
                                 write_palette_png, write_seganymo, write_vda, write_vggt)
 

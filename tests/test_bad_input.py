@@ -3,7 +3,6 @@ raised before any engine runs; it never stops a directory and never changes the 
 
 import dataclasses
 import io
-import os
 import pickle
 import struct
 import tempfile
@@ -16,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sgc_jax import ClipFormatError, clip_from_arrays, load_clips, save_batch, save_clip, score_batch
+from sgc_jax import ClipFormatError, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import discover_clips, validate_paths
 from sgc_jax.research.synth import synth_clip

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 from typing import Any
 
-import numpy as np
 
 from ..config import SGCConfig
 from ..io.clip import Clip

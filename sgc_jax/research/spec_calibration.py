@@ -20,7 +20,6 @@ its two ends in words:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from typing import Sequence
 

@@ -1,0 +1,62 @@
+"""Warm time of each JAX stage program (pixel, pose, finish) per standard clip: where a clip's time goes.
+
+    python bench/stage_times.py [--clips 6] [--repeat 3] [--corpus /tmp/sgc-stream-corpus]
+    PYTHONPATH=<another checkout> python bench/stage_times.py     # checkouts from c50b066 on
+
+Scores --clips standard clips (bench/stream.py's corpus, written where missing) --repeat times,
+each stage called on its own and waited for, and prints each stage's median over the warm calls
+(the first clip of the first round, which compiles or loads the programs, is left out). Medians,
+not means: the shared 2-core box swings by tens of percent from call to call. The persistent
+compilation cache is on, so a second run starts at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--clips", type=int, default=6)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--corpus", type=Path, default=Path("/tmp/sgc-stream-corpus"))
+    args = parser.parse_args()
+    sys.path.insert(0, str(HERE))
+    import jax
+    from stream import write_corpus
+
+    import sgc_jax
+    from sgc_jax import SGCConfig, enable_compilation_cache
+    from sgc_jax.engines import jax_engine
+    from sgc_jax.engines.buckets import STAGES, PaddedClips, stage_inputs
+    from sgc_jax.io.loading import load_clips
+
+    enable_compilation_cache()
+    config = SGCConfig()
+    prepared = [jax_engine.prepare_clip(clip, config) for clip in load_clips(write_corpus(args.corpus, args.clips))]
+    key, values = jax.random.PRNGKey(0), jax_engine.program_values(config)
+    times: dict[str, list[float]] = {stage: [] for stage in STAGES}
+    for round_ in range(args.repeat):
+        for i, clip in enumerate(prepared):
+            program = jax_engine.compiled_program(config, clip.bucket, clip.batch)
+            batch = PaddedClips(*jax.device_put(tuple(clip.batch)))
+            out = None
+            for stage, stage_program in zip(STAGES, program.stages):
+                start = time.perf_counter()
+                out = jax.block_until_ready(stage_program(stage_inputs(stage, batch, out), key, values))
+                if round_ or i:
+                    times[stage].append(time.perf_counter() - start)
+    medians = {stage: statistics.median(t) * 1000 for stage, t in times.items()}
+    print(f"{Path(sgc_jax.__file__).parent.parent}: "
+          + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in medians.items())
+          + f"; a clip {sum(medians.values()):.0f} ms ({len(times[STAGES[0]])} warm calls per stage)")
+
+
+if __name__ == "__main__":
+    main()
