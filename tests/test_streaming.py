@@ -200,6 +200,8 @@ def ray_cluster():
         ray.shutdown()
 
 
+# the CLI subprocess is forked from a process running JAX and execs at once: JAX's fork warning does not apply
+@pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
 def test_the_ray_path_on_a_local_cluster_writes_the_table_of_one_process(ray_cluster, clip_files, uninterrupted,
                                                                          tmp_path):
     _, whole = uninterrupted

@@ -238,8 +238,8 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
     - leverage: members of the fit whose ``leverage`` exceeds max(LEVERAGE_MAX, LEVERAGE_RATIO x
       the mean 6 / n) decide the pose alone, so their residuals cannot show whether they are
       outliers; the region is refitted without them.
-    -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose, points dropped
-    by the leverage check excluded, n_inliers (k,) int32)
+    -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
+    rule's inputs, as in the reference engine), n_inliers (k,) int32)
     """
     k = contenders.shape[1]
     dtype = X.dtype
@@ -256,11 +256,10 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
 
     def keep_if_better(poses, err_sq, candidate, cand_err_sq, tried, tau_point):
         """Each region's candidate pose replaces its pose where tried (k,), finite and of no higher
-        truncated cost at tau_point -> (poses, err_sq, used (N,) per point)."""
+        truncated cost at tau_point -> (poses, err_sq)."""
         use = tried & jnp.all(jnp.isfinite(candidate), axis=-1) & (
             truncated_cost(cand_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
-        used = own(use.astype(dtype)) > 0
-        return jnp.where(use[:, None], candidate, poses), jnp.where(used, cand_err_sq, err_sq), used
+        return jnp.where(use[:, None], candidate, poses), jnp.where(own(use.astype(dtype)) > 0, cand_err_sq, err_sq)
 
     # Every fit runs in one loop, so the solver is traced once: ``passes`` refinement passes, then
     # the re-admission fit, its re-cut fit and the leverage fit. Per stage, one branch picks the
@@ -274,8 +273,6 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
         candidate: jax.Array  # (k, 6) the re-admission fit, for the re-cut
         tau: jax.Array  # (N,) squared cut of each point's region
         tried: jax.Array  # (k,) regions the current check proposes a refit for
-        dropped: jax.Array  # (N,) points the leverage check left out
-        used: jax.Array  # (N,) points whose region took the leverage refit
 
     def refine_pass(stage, st):
         cut_sq = _noise_cut_sq(_noise_sigma_sq(st.err_sq, member, onehot, thr_sq), inlier_px)
@@ -299,11 +296,11 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
         n_fit = _region_sums(onehot, fit.astype(dtype))
         limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
         high = fit & (leverage(X, uv, region, K, st.poses, fit) > own(limit))
-        return fit & ~high, st.poses, st._replace(tried=_region_sums(onehot, high.astype(dtype)) > 0, dropped=high)
+        return fit & ~high, st.poses, st._replace(tried=_region_sums(onehot, high.astype(dtype)) > 0)
 
     def keep_refit(st, refined, new_err_sq, tried):
-        poses, err_sq, used = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
-        return st._replace(poses=poses, err_sq=err_sq, used=used)
+        poses, err_sq = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
+        return st._replace(poses=poses, err_sq=err_sq)
 
     def one_fit(stage, st):
         branch = jnp.where(stage < passes, 0, stage - passes + 1)
@@ -315,11 +312,9 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
             lambda: st._replace(candidate=refined),
             lambda: keep_refit(st, refined, new_err_sq, st.tried)))
 
-    no_points = jnp.zeros_like(member)
-
     def start(poses):
         return Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]),
-                     jnp.zeros(k, bool), no_points, no_points)
+                     jnp.zeros(k, bool))
 
     # the passes for every contender, then the checks for the one of lowest cost in each region
     passed = jax.vmap(lambda poses: jax.lax.fori_loop(0, passes, one_fit, start(poses)))(contenders)
@@ -327,12 +322,10 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
     point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]  # points of no region: any, they are never used
     per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
     poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
-    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool), no_points,
-               no_points)
+    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool))
     st = jax.lax.fori_loop(passes, LEVERAGE + 1, one_fit, st)
-    poses, err_sq, dropped, used = st.poses, st.err_sq, st.dropped, st.used
-    inliers = member & (err_sq < thr_sq) & ~(dropped & used)
-    return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
+    inliers = member & (st.err_sq < thr_sq)
+    return st.poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
 def lowest_cost_contender(X, uv, region, K, poses, *, inlier_px):
