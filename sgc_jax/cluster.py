@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import time
 from typing import Any, Iterator, Mapping
 
@@ -57,12 +58,16 @@ class ShardScorer:
         return list(stream_scores(entries, done=done, stats=stats, **self.options)), stats
 
 
-def _scorer_count(ray: Any) -> tuple[int, dict[str, float]]:
-    """One scorer per GPU of the cluster, else one per node; and the resources each asks for."""
-    gpus = int(ray.cluster_resources().get("GPU", 0))
-    if gpus:
-        return gpus, {"num_gpus": 1}
-    return max(1, sum(1 for node in ray.nodes() if node.get("Alive"))), {"num_cpus": 1}
+def _scorers(ray: Any, count: int | None) -> tuple[int, dict[str, float]]:
+    """How many scorers (``count``, else one per GPU of the cluster, else one per node) and the
+    resources each asks for: a GPU each, or an equal share of them when more scorers than GPUs
+    are asked for (likewise a CPU each without GPUs), so every scorer can be placed."""
+    resources = ray.cluster_resources()
+    gpus, cpus = int(resources.get("GPU", 0)), resources.get("CPU", 1.0)
+    if count is None:
+        count = gpus or max(1, sum(1 for node in ray.nodes() if node.get("Alive")))
+    share = lambda total: math.floor(min(1.0, total / count) * 1e4) / 1e4  # noqa: E731  Ray's resolution
+    return count, ({"num_gpus": share(gpus)} if gpus else {"num_cpus": share(cpus)})
 
 
 def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
@@ -78,8 +83,7 @@ def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibratio
     stats = stats if stats is not None else StreamStats()
     done = done or {}
     start = time.perf_counter()
-    count, resources = _scorer_count(ray)
-    count = scorers or count
+    count, resources = _scorers(ray, scorers)
     actor = ray.remote(ShardScorer).options(scheduling_strategy="SPREAD", **resources)
     pool = [actor.remote(config, calibration, engine, run_id, devices) for _ in range(count)]
     shard_size = max(1, min(shard_size, -(-len(entries) // count)))  # a small corpus still reaches every scorer

@@ -96,9 +96,9 @@ class _TableFile:
 
     def start(self, kept: Iterable[Mapping[str, Any]]) -> None:
         """Begin the run's log with the rows kept from an earlier run (a stale table is removed)."""
-        if self.log != self.path:
-            self.path.unlink(missing_ok=True)
         _write_rows_atomically(self.log, kept, self.columns)
+        if self.log != self.path:  # after the log holds the kept rows: a kill in between loses none
+            self.path.unlink(missing_ok=True)
         self._file = self.log.open("a", newline="")
 
     def append(self, rows: list[dict[str, Any]]) -> None:
