@@ -22,7 +22,7 @@ from typing import Any, Iterable, Mapping
 from ..calibration import Calibration
 from ..config import SGCConfig
 from ..version import __version__
-from .parquet import is_parquet
+from .parquet import is_parquet, typed_cell
 from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, read_table_text, write_csv_rows, write_table
 
 RUN_ID_LENGTH = 16
@@ -177,7 +177,7 @@ class ScoresJournal:
         self.close()
         # a kept row's text and the float it reads as are written alike (str(float) round-trips)
         records = add_ecd([c.record() if isinstance(c, ClipResult) else
-                           {**c, "ecd_trans": _number(c["ecd_trans"]), "ecd_rot": _number(c["ecd_rot"])} for c in clips])
+                           {**c, "ecd_trans": typed_cell("float", c["ecd_trans"]), "ecd_rot": typed_cell("float", c["ecd_rot"])} for c in clips])
         self._clips.finish(records)
         if self._pairs is not None:
             kept = {}
@@ -190,9 +190,4 @@ class ScoresJournal:
         for table in (self._clips, self._pairs):
             if table is not None:
                 table.close()
-
-
-def _number(text: str) -> float:
-    """A kept row's float cell (empty: NaN)."""
-    return float(text) if text else float("nan")
 

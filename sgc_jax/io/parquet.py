@@ -31,8 +31,9 @@ def _pyarrow():
     return pyarrow, pyarrow.parquet
 
 
-def _typed(kind: str, value: Any) -> Any:
-    """A cell as its column's type; text cells (a resumed row's) parsed, an empty one NaN / 0."""
+def typed_cell(kind: str, value: Any) -> Any:
+    """A cell as its column's type ("text", "int" or "float"); a text cell (a CSV's, or a resumed
+    row's) parsed, an empty one NaN / 0."""
     if kind == "text":
         return "" if value is None else str(value)
     if isinstance(value, str):
@@ -51,7 +52,7 @@ def write_parquet(path: str | os.PathLike, rows: Sequence[Mapping[str, Any]], co
     path.parent.mkdir(parents=True, exist_ok=True)
     kinds = {c: kind(c) for c in columns}
     schema = pa.schema([(c, getattr(pa, ARROW_TYPES[kinds[c]])()) for c in columns])
-    arrays = [pa.array([_typed(kinds[c], row.get(c)) for row in rows], type=schema.field(c).type) for c in columns]
+    arrays = [pa.array([typed_cell(kinds[c], row.get(c)) for row in rows], type=schema.field(c).type) for c in columns]
     pq.write_table(pa.Table.from_arrays(arrays, schema=schema), path)
     return path
 

@@ -22,7 +22,7 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..codes import CLIP_STATUSES, PAIR_REASONS, REGION_EMPTY
 from ..stats import min_max
-from .parquet import is_parquet, read_parquet_text, write_parquet
+from .parquet import is_parquet, read_parquet_text, typed_cell, write_parquet
 
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
@@ -178,14 +178,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
     """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
     every column but ``ecd``; no per-pair arrays."""
-    number = lambda name: float(row[name]) if row[name] else float("nan")  # noqa: E731
-    return ClipResult(
-        clip_id=row["clip_id"], group=row["group"], status=row["status"], reason=row["reason"], sgc=number("sgc"),
-        components={k: number(k) for k in COMPONENTS}, reproj_error=number("reproj_error"),
-        ecd_trans=number("ecd_trans"), ecd_rot=number("ecd_rot"), n_pairs=int(row["n_pairs"] or 0),
-        n_pairs_scored=int(row["n_pairs_scored"] or 0), engine=row["engine"], mask_source=row["mask_source"],
-        scale=number("scale"), depth_unit=number("depth_unit"), n_ill_conditioned=int(row["n_ill_conditioned"] or 0),
-        compat=row["compat"], origin=row["origin"], input_sha256=row["input_sha256"], run_id=row["run_id"])
+    cell = {name: typed_cell(column_kind(name), row[name]) for name in CLIP_COLUMNS if name != "ecd"}
+    return ClipResult(components={k: cell.pop(k) for k in COMPONENTS}, **cell)
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:

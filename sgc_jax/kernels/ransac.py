@@ -318,7 +318,8 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
 
     # the passes for every contender, then the checks for the one of lowest cost in each region
     passed = jax.vmap(lambda poses: jax.lax.fori_loop(0, passes, one_fit, start(poses)))(contenders)
-    chosen = lowest_cost_contender(X, uv, region, K, passed.poses, inlier_px=inlier_px)  # (k,)
+    chosen = lowest_cost_contender(passed.err_sq, jnp.all(jnp.isfinite(passed.poses), axis=-1), region,
+                                   inlier_px=inlier_px)  # (k,)
     point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]  # points of no region: any, they are never used
     per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
     poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
@@ -328,18 +329,20 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
     return st.poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
 
 
-def lowest_cost_contender(X, uv, region, K, poses, *, inlier_px):
-    """Per region, the index (k,) of the contender poses (M, k, 6) of lowest truncated cost at the
-    region's noise-level cut (docs/semantics.md §3.2 step 6), the cut being that of the contender
-    with the lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender."""
-    k = poses.shape[1]
-    dtype = X.dtype
+def lowest_cost_contender(err_sq, finite, region, *, inlier_px):
+    """Per region, the index (k,) of the contender of lowest truncated cost at the region's
+    noise-level cut (docs/semantics.md §3.2 step 6), the cut being that of the contender with the
+    lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender.
+
+    err_sq (M, N): each point's squared error under its region's pose of each of M contenders
+    (``_pose_errors_sq``); finite (M, k): which contender poses are finite.
+    """
+    k = finite.shape[1]
+    dtype = err_sq.dtype
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
-    err_sq = jax.vmap(lambda p: _pose_errors_sq(p, X, uv, K, onehot))(poses)  # (M, N), inf off the camera
     err_sq = jnp.where(member[None], err_sq, 0.0)
-    finite = jnp.all(jnp.isfinite(poses), axis=-1)  # (M, k)
     coarse_cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, thr_sq).T).T, jnp.inf)
     coarse = jnp.argmin(coarse_cost, axis=0)  # (k,)
     point_region = jnp.clip(region - 1, 0, k - 1)
