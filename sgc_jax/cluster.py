@@ -107,7 +107,7 @@ def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibratio
             stats.scored += shard_stats.scored
             stats.resumed += shard_stats.resumed
             stats.errors += shard_stats.errors
-            stats.input_wait_s += shard_stats.input_wait_s
+            stats.input_wait_s += shard_stats.input_wait_s  # summed over the scorers, which wait in parallel
             for entry, item in zip(shards[k], items):
                 if not item.load_failed:
                     try:
