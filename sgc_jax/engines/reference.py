@@ -502,9 +502,13 @@ def spec_region_poses(points: PairPoints, K: np.ndarray, reference_pose: tuple[n
                       config: SGCConfig, pair: int) -> list[RegionPose]:
     """Every region's local pose of a pair under ``compat="spec"`` (docs/semantics.md §3.2 step 6),
     searched by ``reference_pose.region_pose``: the region's own triples, then the other regions'
-    coarse optima and ``reference_pose`` (R_g, s t_g) as further starts."""
+    coarse optima and ``reference_pose`` (R_g, s t_g) as further starts; R_g (the identity without
+    it) is the rival's rotation."""
     n_triples = SPEC_TRIPLES_PER_HYPOTHESIS * config.ransac_hypotheses
     K = K.astype(np.float64)
+    # the rival's rotation (docs/semantics.md §3.3): the camera's, or none (identity) without it
+    rival_rotation = (reference_pose[0].astype(np.float64) if reference_pose is not None
+                      and np.isfinite(reference_pose[0]).all() else np.eye(3))
     members = [points.region == r for r in range(1, points.labels.max() + 1)]
     searches = []
     for region, member in enumerate(members, start=1):
@@ -523,8 +527,8 @@ def spec_region_poses(points: PairPoints, K: np.ndarray, reference_pose: tuple[n
         if reference_pose is not None:
             others.append(reference_pose_search.Pose(*reference_pose))
         X, uv = points.X[member], points.uv[member]
-        found = reference_pose_search.region_pose(X, uv, K, search, others, config.inlier_px, config.ambiguous_rot_deg,
-                                                  config.ambiguous_inlier_frac)
+        found = reference_pose_search.region_pose(X, uv, K, search, others, rival_rotation, config.inlier_px,
+                                                  config.ambiguous_rot_deg, config.ambiguous_inlier_frac)
         out.append(RegionPose(accepted_status(X, uv, K, *found.pose, config), *found.pose, found.ambiguous))
     return out
 

@@ -30,9 +30,12 @@ DISTINCT_DEG = 0.5
 SAME_OPTIMUM_DEG = 1e-3
 SAME_OPTIMUM_REL = 1e-4
 # Least-squares fits per local optimisation (each on the inliers of the previous one) and
-# Levenberg-Marquardt steps per fit.
+# Levenberg-Marquardt steps per fit; a fit has converged when a step lowers the squared error by
+# less than LM_RTOL of it. In the flat valley of a weak region (rotation traded against
+# translation) a fit needs tens of steps.
 LO_ROUNDS = 10
-LM_STEPS = 15
+LM_STEPS = 100
+LM_RTOL = 1e-10
 
 
 class Pose(NamedTuple):
@@ -95,15 +98,17 @@ def residual_jacobian(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarra
 
 def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose, steps: int = LM_STEPS) -> Pose:
     """The pose minimising the summed squared reprojection error of X, uv (Levenberg-Marquardt from
-    ``start``; a step is taken only when it lowers the error and keeps every point in front)."""
+    ``start``, Nielsen's damping update; a step is taken only when it lowers the error and keeps
+    every point in front)."""
     R, t = start
     if len(X) < 3:
         return start
     r, J = residual_jacobian(X, uv, K, R, t)
-    cost, damping = r @ r, 1e-3
+    cost, damping, growth = r @ r, 1e-3, 2.0
     for _ in range(steps):
         H, g = J.T @ J, J.T @ r
-        delta = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), g)
+        D = np.diag(np.diag(H) + 1e-12)
+        delta = -np.linalg.solve(H + damping * D, g)
         step = cv2.Rodrigues(delta[:3])[0]
         R_new, t_new = step @ R, step @ t + delta[3:]
         if np.all((X @ R_new.T + t_new)[:, 2] > 0):
@@ -112,12 +117,16 @@ def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose
         else:
             cost_new = np.inf
         if cost_new < cost:
-            converged = cost - cost_new <= 1e-9 * cost
-            R, t, r, J, cost, damping = R_new, t_new, r_new, J_new, cost_new, max(damping / 10.0, 1e-9)
+            # the gain ratio: actual decrease over the decrease the linear model predicts
+            predicted = -(2.0 * g @ delta + delta @ H @ delta)
+            rho = (cost - cost_new) / max(predicted, 1e-300)
+            converged = cost - cost_new <= LM_RTOL * cost
+            R, t, r, J, cost = R_new, t_new, r_new, J_new, cost_new
+            damping, growth = max(damping * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12), 2.0
             if converged:
                 break
         else:
-            damping *= 10.0
+            damping, growth = damping * growth, growth * 2.0
             if damping > 1e8:
                 break
     return Pose(R, t)
@@ -221,6 +230,13 @@ class RegionSearch(NamedTuple):
     costs: list[float]
 
 
+def candidate_costs(Rs: np.ndarray, ts: np.ndarray, X: np.ndarray, uv: np.ndarray, K: np.ndarray,
+                    tau: float) -> np.ndarray:
+    """Truncated costs at tau (c,) of poses Rs (c, 3, 3), ts (c, 3), 512 poses at a time."""
+    return np.concatenate([truncated_costs(errors_sq(Rs[c:c + 512], ts[c:c + 512], X, uv, K), tau)
+                           for c in range(0, len(Rs), 512)])
+
+
 def search_region(X: np.ndarray, uv: np.ndarray, K: np.ndarray, inlier_px: float, n_triples: int,
                   rng: np.random.Generator) -> RegionSearch | None:
     """P3P on ``n_triples`` random triples (every triple when there are fewer), the LO_STARTS best
@@ -228,8 +244,7 @@ def search_region(X: np.ndarray, uv: np.ndarray, K: np.ndarray, inlier_px: float
     Rs, ts = p3p_candidates(X, uv, K, triples(len(X), n_triples, rng))
     if not len(Rs):
         return None
-    costs = np.concatenate([truncated_costs(errors_sq(Rs[c:c + 512], ts[c:c + 512], X, uv, K), inlier_px)
-                            for c in range(0, len(Rs), 512)])
+    costs = candidate_costs(Rs, ts, X, uv, K, inlier_px)
     optima = sorted((local_optimum(X, uv, K, start, inlier_px) for start in leading_distinct(costs, Rs, ts, LO_STARTS)),
                     key=lambda pc: pc[1])
     return RegionSearch([p for p, _ in optima], [c for _, c in optima])
@@ -246,25 +261,25 @@ def noise_cut(err_sq: np.ndarray, inlier_px: float) -> float:
 
 
 class RegionPose(NamedTuple):
-    """A region's local pose (docs/semantics.md §3.2 step 6) and whether a rival local optimum
-    makes it ``ambiguous``."""
+    """A region's local pose (docs/semantics.md §3.2 step 6) and whether its rival makes it
+    ``ambiguous`` (§3.3)."""
 
     pose: Pose
     ambiguous: bool
 
 
 def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSearch, others: list[Pose],
-                inlier_px: float, ambiguous_rot_deg: float, ambiguous_inlier_frac: float) -> RegionPose:
+                rival_rotation: np.ndarray, inlier_px: float, ambiguous_rot_deg: float,
+                ambiguous_inlier_frac: float) -> RegionPose:
     """The region's pose from its own search and ``others`` (the pair's other regions' coarse
     optima, the global pose), each taken to its local optimum at inlier_px:
 
     1. the coarse optimum: the lowest truncated cost at inlier_px;
     2. its noise-level cut (``noise_cut``);
     3. the pose: the lowest truncated cost at the cut among the local optima at the cut started
-       from every coarse local optimum;
-    4. ambiguous: another of those, started from the region's own triples, lies more than
-       ``ambiguous_rot_deg`` away in rotation and keeps all but max(1, floor(
-       ``ambiguous_inlier_frac`` m)) of the pose's m inliers at the cut.
+       from every coarse local optimum and from the rival's start (``rival_pose``);
+    4. ambiguous: the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all
+       but max(1, floor(``ambiguous_inlier_frac`` m)) of the pose's m members within the cut.
     """
     coarse = list(zip(search.optima, search.costs))
     for start in others:
@@ -274,10 +289,42 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     cut = noise_cut(pose_errors_sq(coarse[best][0], X, uv, K), inlier_px)
     unique = distinct_optima([pose for pose, _ in coarse])
     fine = {i: local_optimum(X, uv, K, coarse[i][0], cut) for i in unique}
-    chosen = min(unique, key=lambda i: (fine[i][1], i != best))
-    pose = fine[chosen][0]
-    own = [fine[i][0] for i in unique if i < len(search.optima)]
-    return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, own, ambiguous_rot_deg, ambiguous_inlier_frac))
+    pose, cost = fine[min(unique, key=lambda i: (fine[i][1], i != best))]
+    rival = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px)
+    if truncated_costs(pose_errors_sq(rival, X, uv, K), cut) < cost:
+        pose = rival
+    return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, rival, ambiguous_rot_deg, ambiguous_inlier_frac))
+
+
+def translation_for_rotation(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The translation t (3,) that best explains pixels uv (n, 2) of points X (n, 3) under the
+    rotation R: linear least squares of t_k - r_k t_3 = r_k Y_3 - Y_k on both image axes k (r =
+    K^-1 (u, v, 1), Y = R X), each divided by Y_3 so that it weighs as a pixel error over f.
+    Points with Y_3 <= 0 are left out; zeros when fewer than two remain."""
+    rays = np.linalg.solve(K, np.column_stack([uv, np.ones(len(uv))]).T).T
+    Y = X @ R.T
+    front = Y[:, 2] > 0
+    if front.sum() < 2:
+        return np.zeros(3)
+    rays, Y = rays[front], Y[front]
+    rows, rhs = [], []
+    for axis in (0, 1):
+        a = np.zeros((len(Y), 3))
+        a[:, axis], a[:, 2] = 1.0, -rays[:, axis]
+        rows.append(a / Y[:, 2:])
+        rhs.append(rays[:, axis] - Y[:, axis] / Y[:, 2])
+    return np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+
+
+def rival_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rotation: np.ndarray,
+               inlier_px: float) -> Pose:
+    """The region's rival (docs/semantics.md §3.3): from ``rotation`` (the camera's, R_g) with the
+    translation that best explains the pose's members within the cut (``translation_for_rotation``),
+    the local optimum at inlier_px, then at the cut."""
+    near = pose_errors_sq(pose, X, uv, K) < cut * cut
+    start = Pose(rotation, translation_for_rotation(X[near], uv[near], K, rotation))
+    coarse, _ = local_optimum(X, uv, K, start, inlier_px)
+    return local_optimum(X, uv, K, coarse, cut)[0]
 
 
 def distinct_optima(poses: list[Pose]) -> list[int]:
@@ -291,16 +338,13 @@ def distinct_optima(poses: list[Pose]) -> list[int]:
     return kept
 
 
-def is_ambiguous(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rivals: list[Pose],
+def is_ambiguous(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rival: Pose,
                  rot_deg: float, inlier_frac: float) -> bool:
-    """A rival more than ``rot_deg`` away in rotation that keeps all but max(1, floor(inlier_frac *
-    m)) of the m inliers of ``pose`` at ``cut`` (docs/semantics.md §3.3)."""
-    if not rivals:
-        return False
+    """The rival lies more than ``rot_deg`` away in rotation and keeps all but max(1, floor(
+    inlier_frac * m)) of the m members within ``cut`` of ``pose`` (docs/semantics.md §3.3)."""
     inl = pose_errors_sq(pose, X, uv, K) < cut * cut
     m = int(inl.sum())
     margin = max(1, int(np.floor(inlier_frac * m)))
-    Rs, ts = np.stack([p.R for p in rivals]), np.stack([p.t for p in rivals])
-    apart = rotation_angles_deg(pose.R, Rs) > rot_deg
-    shared = np.sum((errors_sq(Rs, ts, X, uv, K) < cut * cut) & inl[None], axis=1)
-    return bool(np.any(apart & (shared >= m - margin)))
+    apart = rotation_angles_deg(pose.R, rival.R[None])[0] > rot_deg
+    shared = int(np.sum((pose_errors_sq(rival, X, uv, K) < cut * cut) & inl))
+    return bool(apart and shared >= m - margin)

@@ -95,10 +95,10 @@ def points_prev(Z, K_prev, track_prev, usable):
 
 
 def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
-                     usable, image_hw, key, config: SGCConfig) -> LocalPoses:
+                     usable, image_hw, key, rival_R, config: SGCConfig) -> LocalPoses:
     """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
-    config applies it."""
+    config applies it. rival_R (3, 3): the rotation the regions' rivals start from (§3.3)."""
     H, W = image_hw[0], image_hw[1]
     X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
 
@@ -109,7 +109,8 @@ def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_cu
     point_region = jnp.where((point_region <= n_regions) & enough_tracks, point_region, 0)
 
     keys = jax.vmap(lambda r: jax.random.fold_in(key, r))(regions)
-    fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, hypotheses=config.ransac_hypotheses,
+    fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, rival_R,
+                             hypotheses=config.ransac_hypotheses,
                              inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
                              min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence,
                              ambiguous_rot_deg=config.ambiguous_rot_deg,
@@ -235,19 +236,25 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
     the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale). The
     reference pose is the global relative pose, or each pair's mean local pose (NaN without one)
     when ``config.global_pose`` is off."""
-    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(x.pair_valid.shape[0]) + 1)
+    n_pairs = x.pair_valid.shape[0]
+    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(n_pairs) + 1)
     prev, curr = slice(None, -1), slice(1, None)
     usable = x.usable & x.pair_valid[:, None]
+    if config.global_pose:
+        R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
+            x.R_wc[prev], x.t_wc[prev], x.R_wc[curr], x.t_wc[curr])
+        # the rivals' rotation (docs/semantics.md §3.3): the camera's, the identity where it is not finite
+        rival_R = jnp.where(jnp.all(jnp.isfinite(R_g), axis=(1, 2))[:, None, None], R_g, jnp.eye(3, dtype=R_g.dtype))
+    else:
+        rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
-                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0))(
+                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0))(
         x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,
-        usable, x.image_hw, pair_keys)
+        usable, x.image_hw, pair_keys, rival_R)
     accepted = poses.region_status == REGION_OK
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
         return poses, R_g, t_g, jnp.float32(1.0)
-    R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
-        x.R_wc[prev], x.t_wc[prev], x.R_wc[curr], x.t_wc[curr])
     # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
     shared = 1.0 / x.depth_unit
     if not config.fits_translation_scale:

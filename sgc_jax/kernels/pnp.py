@@ -484,3 +484,26 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     pose6 = jnp.concatenate([so3_log(R), t], axis=-1)
     ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6), axis=-1)
     return pose6, ok
+
+
+def translation_for_rotation(X, uv, weight, region, K, R, k: int):
+    """Per region, the translation (k, 3) that best explains pixels uv (N, 2) of points X (N, 3)
+    (weight (N,) > 0, region (N,) in 1..k) under one rotation R (3, 3): linear least squares of
+    t_a - r_a t_3 = r_a Y_3 - Y_a on both image axes a (r = K^-1 (u, v, 1), Y = R X), each divided
+    by Y_3 so that it weighs as a pixel error over f; points with Y_3 <= 0 are left out. A region
+    with fewer than two such points gets a meaningless (finite) translation."""
+    dtype = X.dtype
+    rays = back_project(K, uv, jnp.ones_like(uv[:, 0]))  # (N, 3), z = 1
+    Y = X @ R.T
+    use = (weight > 0) & (Y[:, 2] > 0)
+    inv_z = jnp.where(use, 1.0 / jnp.where(use, Y[:, 2], 1.0), 0.0)
+    zero, one = jnp.zeros_like(inv_z), jnp.ones_like(inv_z)
+    rows = [jnp.stack([one, zero, -rays[:, 0]], -1) * inv_z[:, None],  # (N, 3) per image axis
+            jnp.stack([zero, one, -rays[:, 1]], -1) * inv_z[:, None]]
+    rhs = [(rays[:, a] - Y[:, a] * inv_z) * use for a in (0, 1)]
+    normal = sum(r[:, :, None] * r[:, None, :] for r in rows).reshape(-1, 9)
+    moment = sum(r * b[:, None] for r, b in zip(rows, rhs))
+    onehot = region_onehot(region, k, dtype)
+    A = jnp.dot(onehot, normal, precision=jax.lax.Precision.HIGHEST).reshape(k, 3, 3)
+    b = jnp.dot(onehot, moment, precision=jax.lax.Precision.HIGHEST)
+    return jax.vmap(solve_spd)(A, b)

@@ -19,9 +19,9 @@ import jax.numpy as jnp
 
 from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from ..config import MIN_CUT_PX, NOISE_CUT
-from .geometry import rotation_angle_deg, so3_exp
+from .geometry import rotation_angle_deg, so3_exp, so3_log
 from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
-                  solve_pnp, solve_pnp_regions)
+                  solve_pnp, solve_pnp_regions, translation_for_rotation)
 from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
 
 class PnPResult(NamedTuple):
@@ -169,6 +169,9 @@ DISTINCT_DEG = 0.5
 # uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
 # (13.8) admits stray outliers with the pinning points, which hold the refit back.
 ADMIT_CHI2 = 6.0
+# The rival's least-squares fits at inlier_px, then at the noise cut (docs/semantics.md §3.3), each
+# on the members within the threshold of the previous one.
+RIVAL_FITS = (2, 2)
 # Leverage check after it: a point carrying more than half of its region's pose information in
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
@@ -216,11 +219,12 @@ def _region_sums(onehot, values):
     return jnp.dot(onehot, values, precision=jax.lax.Precision.HIGHEST)
 
 
-def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
+def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, passes, ambiguous_rot_deg,
+                 ambiguous_inlier_frac):
     """Local optimisation of every region's pose6 from M contenders (contenders (M, k, 6)):
     ``passes`` least-squares fits (``solve_pnp_regions``, all regions at once) on the current
     inliers of each contender, the contender of lowest cost kept per region
-    (``lowest_cost_contender``), then two checks on it.
+    (``lowest_cost_contender``), two checks on it, then the rival.
 
     Per region, each pass fits the members with error < tau and is kept when the truncated cost
     sum(min(e^2, tau^2)) over the members does not increase (LO-RANSAC / MSAC; it cannot, up to
@@ -238,8 +242,14 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
     - leverage: members of the fit whose ``leverage`` exceeds max(LEVERAGE_MAX, LEVERAGE_RATIO x
       the mean 6 / n) decide the pose alone, so their residuals cannot show whether they are
       outliers; the region is refitted without them.
+    The rival (docs/semantics.md §3.3): from the rotation rival_R (3, 3) (the camera's) with the
+    translation that best explains the pose's members within the cut (``translation_for_rotation``),
+    RIVAL_FITS least-squares fits at inlier_px, then at the cut, each on the members within the
+    threshold and kept when it does not raise the truncated cost there. It replaces the pose where its cost at the cut is lower; otherwise the pose is
+    ambiguous where the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all but
+    max(1, floor(ambiguous_inlier_frac m)) of the m members within the cut of the pose.
     -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
-    rule's inputs, as in the reference engine), n_inliers (k,) int32)
+    rule's inputs, as in the reference engine), n_inliers (k,) int32, ambiguous (k,) bool)
     """
     k = contenders.shape[1]
     dtype = X.dtype
@@ -262,10 +272,13 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
         return jnp.where(use[:, None], candidate, poses), jnp.where(own(use.astype(dtype)) > 0, cand_err_sq, err_sq)
 
     # Every fit runs in one loop, so the solver is traced once: ``passes`` refinement passes, then
-    # the re-admission fit, its re-cut fit and the leverage fit. Per stage, one branch picks the
-    # points and start of the fit and one what is kept after it (``lax.switch`` on the loop
-    # index, which vmap leaves unbatched). The checks use the noise cut after the passes.
-    ADMIT, LEVERAGE = passes, passes + 2  # the re-cut fit is stage passes + 1
+    # the re-admission fit, its re-cut fit, the leverage fit and the rival's two fits. Per stage,
+    # one branch picks the points and start of the fit and one what is kept after it
+    # (``lax.switch`` on the loop index, which vmap leaves unbatched). The checks and the rival
+    # use the noise cut after the passes.
+    ADMIT, LEVERAGE, RIVAL = passes, passes + 2, passes + 3  # re-cut: passes + 1
+    RIVAL_CUT = RIVAL + RIVAL_FITS[0]  # the rival's first fit at the cut
+    END = RIVAL_CUT + RIVAL_FITS[1]
 
     class Stage(NamedTuple):
         poses: jax.Array  # (k, 6) current poses
@@ -298,19 +311,36 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
         high = fit & (leverage(X, uv, region, K, st.poses, fit) > own(limit))
         return fit & ~high, st.poses, st._replace(tried=_region_sums(onehot, high.astype(dtype)) > 0)
 
+    def rival_start(stage, st):  # the camera's rotation, the translation that explains the pose's members
+        t = translation_for_rotation(X, uv, member & (st.err_sq < st.tau), region, K, rival_R, k)
+        start = jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1)
+        return member & (_pose_errors_sq(start, X, uv, K, onehot) < thr_sq), start, st._replace(candidate=start)
+
+    def rival_again(stage, st):  # the rival's next fit at inlier_px
+        return member & (_pose_errors_sq(st.candidate, X, uv, K, onehot) < thr_sq), st.candidate, st
+
     def keep_refit(st, refined, new_err_sq, tried):
         poses, err_sq = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
         return st._replace(poses=poses, err_sq=err_sq)
 
+    def keep_rival_fit(st, refined, new_err_sq, tau_point):
+        rival, _ = keep_if_better(st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot), refined, new_err_sq,
+                                  jnp.ones(k, bool), tau_point)
+        return st._replace(candidate=rival)
+
     def one_fit(stage, st):
-        branch = jnp.where(stage < passes, 0, stage - passes + 1)
-        weight, start, st = jax.lax.switch(branch, (refine_pass, admit, recut, drop_leverage), stage, st)
+        branch = jnp.select([stage < passes, stage <= RIVAL, stage < RIVAL_CUT], [0, stage - passes + 1, 5], 2)
+        weight, start, st = jax.lax.switch(branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_again),
+                                           stage, st)
         refined = fit_regions(weight, start)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
-        return jax.lax.switch(jnp.where(stage < passes, 0, jnp.where(stage == ADMIT, 1, 2)), (
+        keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage < RIVAL_CUT], [0, 1, 2, 3], 4)
+        return jax.lax.switch(keep, (
             lambda: keep_refit(st, refined, new_err_sq, jnp.ones(k, bool)),
             lambda: st._replace(candidate=refined),
-            lambda: keep_refit(st, refined, new_err_sq, st.tried)))
+            lambda: keep_refit(st, refined, new_err_sq, st.tried),
+            lambda: keep_rival_fit(st, refined, new_err_sq, jnp.full_like(st.tau, thr_sq)),
+            lambda: keep_rival_fit(st, refined, new_err_sq, st.tau)))
 
     def start(poses):
         return Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]),
@@ -324,9 +354,22 @@ def refine_poses(X, uv, region, K, contenders, *, inlier_px, steps, passes):
     per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
     poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
     st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool))
-    st = jax.lax.fori_loop(passes, LEVERAGE + 1, one_fit, st)
-    inliers = member & (st.err_sq < thr_sq)
-    return st.poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
+    st = jax.lax.fori_loop(passes, END, one_fit, st)
+
+    rival, rival_err_sq = st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot)
+    rival_finite = jnp.all(jnp.isfinite(rival), axis=-1)
+    lower = rival_finite & (truncated_cost(rival_err_sq, st.tau) < truncated_cost(st.err_sq, st.tau))
+    poses = jnp.where(lower[:, None], rival, st.poses)
+    err_sq = jnp.where(own(lower.astype(dtype)) > 0, rival_err_sq, st.err_sq)
+    near = member & (err_sq < st.tau)
+    m = _region_sums(onehot, near.astype(dtype))
+    shared = _region_sums(onehot, (near & (rival_err_sq < st.tau)).astype(dtype))
+    margin = jnp.maximum(1.0, jnp.floor(ambiguous_inlier_frac * m))
+    apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival[:, :3])) > ambiguous_rot_deg
+    ambiguous = rival_finite & apart & (shared >= m - margin)
+
+    inliers = member & (err_sq < thr_sq)
+    return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32), ambiguous
 
 
 def lowest_cost_contender(err_sq, finite, region, *, inlier_px):
@@ -364,8 +407,7 @@ def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
     from its own pose's inliers at inlier_px), and the best replaces its pose only where it
     scores strictly lower; the refinement (``refine_poses``) then fits it to the region's own
     inliers. A region whose points move otherwise (an unmasked object, a warped layer) keeps
-    its own pose: the borrowed ones do not explain them. The ambiguity flag stays that of the
-    region's own candidates.
+    its own pose: the borrowed ones do not explain them.
     """
     k = poses.shape[0]
     dtype = X.dtype
@@ -394,10 +436,9 @@ def samples_needed(inlier_frac, sample_size, confidence):
 
 
 def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
-                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence,
-                       ambiguous_rot_deg, ambiguous_inlier_frac, n_refined):
+                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence, n_refined):
     """The ``n_refined`` best distinct pose6 (n_refined, 6) of one region, best first, from
-    minimal samples, scoring and local optimisation, and whether the best is ambiguous (bool).
+    minimal samples, scoring and local optimisation.
 
     Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
     gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
@@ -406,13 +447,7 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     and ``confidence`` are done (confidence 1: all of them). Each kept candidate then gets one
     least-squares fit (``lo_steps`` Gauss-Newton steps) on its inliers, and the best of
     candidates and fits (the lowest truncated cost at the best one's noise-level cut) is returned
-    with the next best more than DISTINCT_DEG apart. Ambiguous: another fit (a local least-squares
-    optimum) with a rotation more than ``ambiguous_rot_deg`` away explains nearly all the same inliers at the
-    best fit's noise level (misses at most max(1, ambiguous_inlier_frac x best count) of those
-    within clip(3.5 sigma, 1 px, inlier_px), sigma from the best fit): the same points admit two
-    motions (the planar two-fold ambiguity, or rotation traded against translation). A rival
-    that explains other points instead (a moving object inside the region) is not ambiguity
-    but inconsistency, and does not count.
+    with the next best more than DISTINCT_DEG apart.
     """
     N = X.shape[0]
     dtype = X.dtype
@@ -461,20 +496,13 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     R_c = so3_exp(contenders[:, :3])
     inl, count, trunc = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
     coarse = _best(trunc)
-    # The pose is chosen, and rivals judged, at the coarse optimum's noise level (the final
-    # refinement's cut, docs/semantics.md §3.2): at inlier_px a pose slid along an ill-conditioned
-    # valley keeps every point of the region, and any pose keeps every point of a slightly
-    # non-rigid one.
+    # The pose is chosen at the coarse optimum's noise level (the final refinement's cut,
+    # docs/semantics.md §3.2): at inlier_px a pose slid along an ill-conditioned valley keeps
+    # every point of the region.
     err_sq = (trunc[coarse] - (jnp.sum(scored_valid) - count[coarse]) * inlier_px**2) / jnp.maximum(count[coarse], 1)
     cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), jnp.minimum(MIN_CUT_PX, inlier_px), inlier_px)
-    inl, count, trunc_cut = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
-    best = _best(trunc_cut)
-    drawn_fit = jnp.concatenate([jnp.zeros(n_keep, bool), jnp.isfinite(top_rank)])
-    margin = jnp.maximum(1, jnp.floor(ambiguous_inlier_frac * count[best]).astype(jnp.int32))
-    shared = jnp.sum(inl & inl[best][None], axis=-1, dtype=jnp.int32)
-    angle = rotation_angle_deg(R_c[best][None], R_c)
-    ambiguous = jnp.any(drawn_fit & (angle > ambiguous_rot_deg) & (shared >= count[best] - margin))
-    return contenders[_leading_distinct(trunc_cut, R_c, n_refined)], ambiguous
+    _, _, trunc_cut = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
+    return contenders[_leading_distinct(trunc_cut, R_c, n_refined)]
 
 
 def _leading_distinct(cost, R, count):
@@ -494,6 +522,7 @@ def ransac_pnp_regions(
     region,
     K,
     keys,
+    rival_R=None,
     *,
     hypotheses,
     sample_size=4,
@@ -517,7 +546,8 @@ def ransac_pnp_regions(
 
     X (N, 3) points in camera i-1, uv (N, 2) their pixels in frame i, region (N,) int region of
     each point (1..k, 0: none), K (3, 3) intrinsics of frame i, keys (k,): one PRNG key per
-    region (same keys, same result). Inlier: in front of the camera and reprojection error <
+    region (same keys, same result), rival_R (3, 3): the rotation the rival starts from (the
+    camera's; None: the identity). Inlier: in front of the camera and reprojection error <
     inlier_px [px]. Per region (vmapped):
 
     1. Samples of ``sample_size`` distinct members, ``chunk`` at a time, each giving sample_size
@@ -535,7 +565,8 @@ def ransac_pnp_regions(
        contender where it scores lower.
     3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
        Gauss-Newton steps each) of each contender on its current inliers, the one of lowest
-       cost kept per region (``lowest_cost_contender``), then its checks; inliers and n_inliers
+       cost kept per region (``lowest_cost_contender``), then its checks and the rival, which
+       replaces it where it fits better and else may make it ambiguous; inliers and n_inliers
        are those of the final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
     members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
@@ -551,18 +582,19 @@ def ransac_pnp_regions(
     K = jnp.asarray(K, dtype)
     order, start, n_members = group_by_region(region, k)
 
-    best, ambiguous = jax.vmap(
+    best = jax.vmap(
         lambda s, n, key: _region_candidates(
             X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
             sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
-            chunk=chunk, confidence=confidence, ambiguous_rot_deg=ambiguous_rot_deg,
-            ambiguous_inlier_frac=ambiguous_inlier_frac, n_refined=refined_contenders)
-    )(start, n_members, keys)  # (k, refined_contenders, 6), (k,)
+            chunk=chunk, confidence=confidence, n_refined=refined_contenders)
+    )(start, n_members, keys)  # (k, refined_contenders, 6)
 
     if borrow and k > 1:
         best = best.at[:, 0].set(borrow_region_poses(X, uv, region, K, best[:, 0], inlier_px=inlier_px))
-    poses, inliers, n_inliers = refine_poses(X, uv, region, K, jnp.swapaxes(best, 0, 1), inlier_px=inlier_px,
-                                             steps=steps, passes=refine_passes)
+    rival_R = jnp.eye(3, dtype=dtype) if rival_R is None else jnp.asarray(rival_R, dtype)
+    poses, inliers, n_inliers, ambiguous = refine_poses(
+        X, uv, region, K, jnp.swapaxes(best, 0, 1), rival_R, inlier_px=inlier_px, steps=steps, passes=refine_passes,
+        ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
@@ -580,12 +612,12 @@ def ransac_pnp_regions(
     return PnPResult(R, t, status, n_members, n_inliers, inliers, reproj_px, ambiguous, uncertainty)
 
 
-def ransac_pnp(X, uv, member, K, key, **options):
+def ransac_pnp(X, uv, member, K, key, rival_R=None, **options):
     """Robust pose of one region -> PnPResult (no region axis); ``member`` (N,) bool masks it.
 
     ``ransac_pnp_regions`` with k = 1; same options. Vmaps over regions (member masks, keys) and
     pairs, but scoring every region on all N points: prefer ``ransac_pnp_regions`` for the
     regions of one pair.
     """
-    res = ransac_pnp_regions(X, uv, jnp.asarray(member).astype(jnp.int32), K, key[None], **options)
+    res = ransac_pnp_regions(X, uv, jnp.asarray(member).astype(jnp.int32), K, key[None], rival_R, **options)
     return jax.tree.map(lambda field: field[0], res)._replace(inliers=res.inliers)
