@@ -289,9 +289,9 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     cut = noise_cut(pose_errors_sq(coarse[best][0], X, uv, K), inlier_px)
     unique = distinct_optima([pose for pose, _ in coarse])
     fine = {i: local_optimum(X, uv, K, coarse[i][0], cut) for i in unique}
-    pose, cost = fine[min(unique, key=lambda i: (fine[i][1], i != best))]
-    rival = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px)
-    if truncated_costs(pose_errors_sq(rival, X, uv, K), cut) < cost:
+    pose, _ = fine[min(unique, key=lambda i: (fine[i][1], i != best))]
+    rival, cut = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px, coarse[best][1])
+    if truncated_costs(pose_errors_sq(rival, X, uv, K), cut) < truncated_costs(pose_errors_sq(pose, X, uv, K), cut):
         pose = rival
     return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, rival, ambiguous_rot_deg, ambiguous_inlier_frac))
 
@@ -317,14 +317,17 @@ def translation_for_rotation(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np
 
 
 def rival_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rotation: np.ndarray,
-               inlier_px: float) -> Pose:
-    """The region's rival (docs/semantics.md §3.3): from ``rotation`` (the camera's, R_g) with the
-    translation that best explains the pose's members within the cut (``translation_for_rotation``),
-    the local optimum at inlier_px, then at the cut."""
+               inlier_px: float, coarse_cost: float) -> tuple[Pose, float]:
+    """The region's rival (docs/semantics.md §3.3) and the cut: from ``rotation`` (the camera's,
+    R_g) with the translation that best explains the pose's members within the cut
+    (``translation_for_rotation``), the local optimum at inlier_px, which sets the cut where it
+    costs less than ``coarse_cost`` (it is then the coarse optimum), then at the cut."""
     near = pose_errors_sq(pose, X, uv, K) < cut * cut
     start = Pose(rotation, translation_for_rotation(X[near], uv[near], K, rotation))
-    coarse, _ = local_optimum(X, uv, K, start, inlier_px)
-    return local_optimum(X, uv, K, coarse, cut)[0]
+    coarse, cost = local_optimum(X, uv, K, start, inlier_px)
+    if cost < coarse_cost:
+        cut = noise_cut(pose_errors_sq(coarse, X, uv, K), inlier_px)
+    return local_optimum(X, uv, K, coarse, cut)[0], cut
 
 
 def distinct_optima(poses: list[Pose]) -> list[int]:

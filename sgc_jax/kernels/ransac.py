@@ -245,8 +245,10 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     The rival (docs/semantics.md §3.3): from the rotation rival_R (3, 3) (the camera's) with the
     translation that best explains the pose's members within the cut (``translation_for_rotation``),
     RIVAL_FITS least-squares fits at inlier_px, then at the cut, each on the members within the
-    threshold and kept when it does not raise the truncated cost there. It replaces the pose where its cost at the cut is lower; otherwise the pose is
-    ambiguous where the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all but
+    threshold and kept when it does not raise the truncated cost there; where its optimum at
+    inlier_px costs less there than the coarse optimum, it is the coarse optimum and sets the cut.
+    It replaces the pose where its cost at the cut is lower; otherwise the pose is ambiguous
+    where the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all but
     max(1, floor(ambiguous_inlier_frac m)) of the m members within the cut of the pose.
     -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
     rule's inputs, as in the reference engine), n_inliers (k,) int32, ambiguous (k,) bool)
@@ -275,7 +277,8 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     # the re-admission fit, its re-cut fit, the leverage fit and the rival's two fits. Per stage,
     # one branch picks the points and start of the fit and one what is kept after it
     # (``lax.switch`` on the loop index, which vmap leaves unbatched). The checks and the rival
-    # use the noise cut after the passes.
+    # use the noise cut after the passes, the rival's own where its optimum at inlier_px is the
+    # coarse optimum.
     ADMIT, LEVERAGE, RIVAL = passes, passes + 2, passes + 3  # re-cut: passes + 1
     RIVAL_CUT = RIVAL + RIVAL_FITS[0]  # the rival's first fit at the cut
     END = RIVAL_CUT + RIVAL_FITS[1]
@@ -286,6 +289,7 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
         candidate: jax.Array  # (k, 6) the re-admission fit, for the re-cut
         tau: jax.Array  # (N,) squared cut of each point's region
         tried: jax.Array  # (k,) regions the current check proposes a refit for
+        coarse: jax.Array  # (k,) the coarse optimum's truncated cost at inlier_px
 
     def refine_pass(stage, st):
         cut_sq = _noise_cut_sq(_noise_sigma_sq(st.err_sq, member, onehot, thr_sq), inlier_px)
@@ -319,6 +323,14 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     def rival_again(stage, st):  # the rival's next fit at inlier_px
         return member & (_pose_errors_sq(st.candidate, X, uv, K, onehot) < thr_sq), st.candidate, st
 
+    def rival_recut(stage, st):
+        # where the rival's optimum at inlier_px is the coarse optimum, it sets the cut
+        err_sq = _pose_errors_sq(st.candidate, X, uv, K, onehot)
+        lower = truncated_cost(err_sq, jnp.full_like(st.tau, thr_sq)) < st.coarse
+        cut_sq = _noise_cut_sq(_noise_sigma_sq(err_sq, member, onehot, thr_sq), inlier_px)
+        tau = jnp.where(own(lower.astype(dtype)) > 0, own(cut_sq), st.tau)
+        return member & (err_sq < tau), st.candidate, st._replace(tau=tau)
+
     def keep_refit(st, refined, new_err_sq, tried):
         poses, err_sq = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
         return st._replace(poses=poses, err_sq=err_sq)
@@ -329,9 +341,10 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
         return st._replace(candidate=rival)
 
     def one_fit(stage, st):
-        branch = jnp.select([stage < passes, stage <= RIVAL, stage < RIVAL_CUT], [0, stage - passes + 1, 5], 2)
-        weight, start, st = jax.lax.switch(branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_again),
-                                           stage, st)
+        branch = jnp.select([stage < passes, stage <= RIVAL, stage < RIVAL_CUT, stage == RIVAL_CUT],
+                            [0, stage - passes + 1, 5, 6], 2)
+        weight, start, st = jax.lax.switch(
+            branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_again, rival_recut), stage, st)
         refined = fit_regions(weight, start)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
         keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage < RIVAL_CUT], [0, 1, 2, 3], 4)
@@ -344,16 +357,16 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
 
     def start(poses):
         return Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]),
-                     jnp.zeros(k, bool))
+                     jnp.zeros(k, bool), jnp.zeros(k, dtype))
 
     # the passes for every contender, then the checks for the one of lowest cost in each region
     passed = jax.vmap(lambda poses: jax.lax.fori_loop(0, passes, one_fit, start(poses)))(contenders)
-    chosen = lowest_cost_contender(passed.err_sq, jnp.all(jnp.isfinite(passed.poses), axis=-1), region,
-                                   inlier_px=inlier_px)  # (k,)
+    chosen, coarse_cost = lowest_cost_contender(
+        passed.err_sq, jnp.all(jnp.isfinite(passed.poses), axis=-1), region, inlier_px=inlier_px)  # (k,) each
     point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]  # points of no region: any, they are never used
     per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
     poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
-    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool))
+    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool), coarse_cost)
     st = jax.lax.fori_loop(passes, END, one_fit, st)
 
     rival, rival_err_sq = st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot)
@@ -375,7 +388,8 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
 def lowest_cost_contender(err_sq, finite, region, *, inlier_px):
     """Per region, the index (k,) of the contender of lowest truncated cost at the region's
     noise-level cut (docs/semantics.md §3.2 step 6), the cut being that of the contender with the
-    lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender.
+    lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender. Also that
+    lowest cost at inlier_px (k,).
 
     err_sq (M, N): each point's squared error under its region's pose of each of M contenders
     (``_pose_errors_sq``); finite (M, k): which contender poses are finite.
@@ -393,7 +407,7 @@ def lowest_cost_contender(err_sq, finite, region, *, inlier_px):
     cut_sq = _noise_cut_sq(_noise_sigma_sq(coarse_err_sq, member, onehot, thr_sq), inlier_px)  # (k,)
     point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
     cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, point_cut_sq[None]).T).T, jnp.inf)
-    return jnp.argmin(cost, axis=0)
+    return jnp.argmin(cost, axis=0), jnp.min(coarse_cost, axis=0)
 
 
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
