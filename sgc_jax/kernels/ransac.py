@@ -171,7 +171,7 @@ DISTINCT_DEG = 0.5
 ADMIT_CHI2 = 6.0
 # The rival's least-squares fits at inlier_px, then at the noise cut (docs/semantics.md §3.3), each
 # on the members within the threshold of the previous one.
-RIVAL_FITS = (2, 2)
+RIVAL_FITS = (1, 1)
 # Leverage check after it: a point carrying more than half of its region's pose information in
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
