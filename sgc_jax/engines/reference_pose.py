@@ -277,7 +277,8 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     1. the coarse optimum: the lowest truncated cost at inlier_px;
     2. its noise-level cut (``noise_cut``);
     3. the pose: the lowest truncated cost at the cut among the local optima at the cut started
-       from every coarse local optimum and from the rival's start (``rival_pose``);
+       from every coarse local optimum and from the rival's start (``rival_pose``, whose optimum
+       at inlier_px, where it is the lowest, is the coarse optimum and sets the cut);
     4. ambiguous: the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all
        but max(1, floor(``ambiguous_inlier_frac`` m)) of the pose's m members within the cut.
     """
