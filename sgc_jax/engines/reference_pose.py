@@ -230,13 +230,6 @@ class RegionSearch(NamedTuple):
     costs: list[float]
 
 
-def candidate_costs(Rs: np.ndarray, ts: np.ndarray, X: np.ndarray, uv: np.ndarray, K: np.ndarray,
-                    tau: float) -> np.ndarray:
-    """Truncated costs at tau (c,) of poses Rs (c, 3, 3), ts (c, 3), 512 poses at a time."""
-    return np.concatenate([truncated_costs(errors_sq(Rs[c:c + 512], ts[c:c + 512], X, uv, K), tau)
-                           for c in range(0, len(Rs), 512)])
-
-
 def search_region(X: np.ndarray, uv: np.ndarray, K: np.ndarray, inlier_px: float, n_triples: int,
                   rng: np.random.Generator) -> RegionSearch | None:
     """P3P on ``n_triples`` random triples (every triple when there are fewer), the LO_STARTS best
@@ -244,7 +237,8 @@ def search_region(X: np.ndarray, uv: np.ndarray, K: np.ndarray, inlier_px: float
     Rs, ts = p3p_candidates(X, uv, K, triples(len(X), n_triples, rng))
     if not len(Rs):
         return None
-    costs = candidate_costs(Rs, ts, X, uv, K, inlier_px)
+    costs = np.concatenate([truncated_costs(errors_sq(Rs[c:c + 512], ts[c:c + 512], X, uv, K), inlier_px)
+                            for c in range(0, len(Rs), 512)])
     optima = sorted((local_optimum(X, uv, K, start, inlier_px) for start in leading_distinct(costs, Rs, ts, LO_STARTS)),
                     key=lambda pc: pc[1])
     return RegionSearch([p for p, _ in optima], [c for _, c in optima])

@@ -500,7 +500,7 @@ def translation_for_rotation(X, uv, weight, region, K, R, k: int):
     zero, one = jnp.zeros_like(inv_z), jnp.ones_like(inv_z)
     rows = [jnp.stack([one, zero, -rays[:, 0]], -1) * inv_z[:, None],  # (N, 3) per image axis
             jnp.stack([zero, one, -rays[:, 1]], -1) * inv_z[:, None]]
-    rhs = [(rays[:, a] - Y[:, a] * inv_z) * use for a in (0, 1)]
+    rhs = [rays[:, a] - Y[:, a] * inv_z for a in (0, 1)]  # rows of unused points are 0
     normal = sum(r[:, :, None] * r[:, None, :] for r in rows).reshape(-1, 9)
     moment = sum(r * b[:, None] for r, b in zip(rows, rhs))
     onehot = region_onehot(region, k, dtype)

@@ -169,9 +169,6 @@ DISTINCT_DEG = 0.5
 # uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
 # (13.8) admits stray outliers with the pinning points, which hold the refit back.
 ADMIT_CHI2 = 6.0
-# The rival's least-squares fits at inlier_px, then at the noise cut (docs/semantics.md §3.3), each
-# on the members within the threshold of the previous one.
-RIVAL_FITS = (1, 1)
 # Leverage check after it: a point carrying more than half of its region's pose information in
 # some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
 LEVERAGE_MAX = 0.5
@@ -244,7 +241,7 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
       outliers; the region is refitted without them.
     The rival (docs/semantics.md §3.3): from the rotation rival_R (3, 3) (the camera's) with the
     translation that best explains the pose's members within the cut (``translation_for_rotation``),
-    RIVAL_FITS least-squares fits at inlier_px, then at the cut, each on the members within the
+    one least-squares fit at inlier_px, then one at the cut, each on the members within the
     threshold and kept when it does not raise the truncated cost there; where its optimum at
     inlier_px costs less there than the coarse optimum, it is the coarse optimum and sets the cut.
     It replaces the pose where its cost at the cut is lower; otherwise the pose is ambiguous
@@ -279,9 +276,7 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     # (``lax.switch`` on the loop index, which vmap leaves unbatched). The checks and the rival
     # use the noise cut after the passes, the rival's own where its optimum at inlier_px is the
     # coarse optimum.
-    ADMIT, LEVERAGE, RIVAL = passes, passes + 2, passes + 3  # re-cut: passes + 1
-    RIVAL_CUT = RIVAL + RIVAL_FITS[0]  # the rival's first fit at the cut
-    END = RIVAL_CUT + RIVAL_FITS[1]
+    ADMIT, LEVERAGE, RIVAL = passes, passes + 2, passes + 3  # re-cut: passes + 1; rival at the cut: passes + 4
 
     class Stage(NamedTuple):
         poses: jax.Array  # (k, 6) current poses
@@ -320,9 +315,6 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
         start = jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1)
         return member & (_pose_errors_sq(start, X, uv, K, onehot) < thr_sq), start, st._replace(candidate=start)
 
-    def rival_again(stage, st):  # the rival's next fit at inlier_px
-        return member & (_pose_errors_sq(st.candidate, X, uv, K, onehot) < thr_sq), st.candidate, st
-
     def rival_recut(stage, st):
         # where the rival's optimum at inlier_px is the coarse optimum, it sets the cut
         err_sq = _pose_errors_sq(st.candidate, X, uv, K, onehot)
@@ -341,13 +333,12 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
         return st._replace(candidate=rival)
 
     def one_fit(stage, st):
-        branch = jnp.select([stage < passes, stage <= RIVAL, stage < RIVAL_CUT, stage == RIVAL_CUT],
-                            [0, stage - passes + 1, 5, 6], 2)
+        branch = jnp.where(stage < passes, 0, stage - passes + 1)
         weight, start, st = jax.lax.switch(
-            branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_again, rival_recut), stage, st)
+            branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_recut), stage, st)
         refined = fit_regions(weight, start)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
-        keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage < RIVAL_CUT], [0, 1, 2, 3], 4)
+        keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage == RIVAL], [0, 1, 2, 3], 4)
         return jax.lax.switch(keep, (
             lambda: keep_refit(st, refined, new_err_sq, jnp.ones(k, bool)),
             lambda: st._replace(candidate=refined),
@@ -367,7 +358,7 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
     poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
     st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool), coarse_cost)
-    st = jax.lax.fori_loop(passes, END, one_fit, st)
+    st = jax.lax.fori_loop(passes, RIVAL + 2, one_fit, st)
 
     rival, rival_err_sq = st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot)
     rival_finite = jnp.all(jnp.isfinite(rival), axis=-1)
