@@ -19,56 +19,19 @@ from scipy.stats import spearmanr
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
 from sgc_jax.codes import REGION_EMPTY
-from sgc_jax.engines import reference, reference_pose, stages
-from sgc_jax.engines.units import in_depth_units
-from sgc_jax.research.perturb import perturb_clip
-from sgc_jax.research.synth import synth_clip
+from sgc_jax.engines import reference, stages
+from sgc_jax.research.agreement import DIFFER_DEG, agreement_corpus, region_costs, within_by_family, within_tolerance
 
-BASE = dict(n_layers=1, static_spheres=5, n_frames=4)
-SIZES = (dict(height=120, width=160, n_tracks=2048), dict(height=96, width=128, n_tracks=1024))
 CONFIG = SGCConfig()
-
-
-def _corpus():
-    specs = []
-    for family, seed0, extra in (
-        ("rigid", 10, {}),
-        ("moving", 20, dict(moving_objects=2)),
-        ("noisy", 30, None),
-        ("outliers", 40, dict(noise_px=1.0, outlier_frac=0.3)),
-        ("unmasked", 60, dict(moving_objects=2, with_mask=False)),
-    ):
-        for i in range(4):
-            kw = extra if extra is not None else dict(noise_px=0.5 + 0.25 * i)
-            specs.append((f"{family}{i}", family, dict(seed=seed0 + i, **kw, **SIZES[i % 2])))
-    for i in range(2):
-        specs.append((f"lowconf{i}", "lowconf", dict(seed=70 + i, low_conf_frac=0.3, noise_px=0.5, **SIZES[i])))
-    clips = [synth_clip(clip_id=name, group=family, **BASE, **kw) for name, family, kw in specs]
-    ladder = [("warp", 0.25), ("warp", 0.75), ("squeeze", 0.25), ("squeeze", 0.75),
-              ("depth_warp", 0.25), ("depth_warp", 0.75), ("warp", 0.5), ("squeeze", 0.5)]
-    for i, (kind, severity) in enumerate(ladder):
-        clips.append(perturb_clip(clips[i % 4], kind, severity, seed=i))
-    return clips
 
 
 @pytest.fixture(scope="module")
 def scored():
-    clips = _corpus()
+    clips = agreement_corpus()
     assert len(clips) >= 30
     ref = score_batch(clips, engine="reference", progress=False)
     jx = score_batch(clips, engine="jax", progress=False)
     return clips, ref, jx
-
-
-# The agreement bar in the scale-free units of docs/semantics.md §4: rotation variances 0.05
-# deg^2; translation variances (1% of the median depth)^2 = 1 (% of D)^2 and the depth error 0.1%
-# (1e-4 md^2 and 1e-3 md in depth units); or 5% of the value.
-ATOL = {"local_rot_var": 0.05, "global_rot_var": 0.05, "local_trans_var": 1.0, "global_trans_var": 1.0,
-        "depth_error": 0.1}
-
-
-def _within_tolerance(clip, ref_value, jax_value, component):
-    return abs(jax_value - ref_value) <= max(ATOL[component], 0.05 * abs(ref_value))
 
 
 def _angle_deg(R_a, R_b):
@@ -82,7 +45,7 @@ def test_noise_free_rigid_clips_agree_on_every_component(scored):
         if clip.group != "rigid" or "~" in clip.clip_id:
             continue
         for k in COMPONENTS:
-            assert _within_tolerance(clip, r.components[k], j.components[k], k), (clip.clip_id, k)
+            assert within_tolerance(r.components[k], j.components[k], k), (clip.clip_id, k)
             checked += 1
     assert checked == 4 * len(COMPONENTS)
 
@@ -98,12 +61,8 @@ def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
     clips, ref, jx = scored
     for clip, r, j in zip(clips, ref.clips, jx.clips):
         assert abs(r.scale - j.scale) <= SCALE_REL_TOL * abs(r.scale), (clip.clip_id, r.scale, j.scale)
-        assert _within_tolerance(clip, r.components["depth_error"], j.components["depth_error"], "depth_error"), (
+        assert within_tolerance(r.components["depth_error"], j.components["depth_error"], "depth_error"), (
             clip.clip_id, r.components["depth_error"], j.components["depth_error"])
-
-
-def _family(clip):
-    return "perturbed" if "~" in clip.clip_id else clip.group
 
 
 # The issue's bars (issue 20): rho 0.98, 0.98 of statuses and JAX wrong on at most 0.02 of
@@ -117,11 +76,7 @@ JAX_WRONG_MAX = 0.02
 
 
 def test_every_component_agrees_on_masked_moving_and_low_confidence_clips_and_most_others(scored):
-    clips, ref, jx = scored
-    within = {}
-    for clip, r, j in zip(clips, ref.clips, jx.clips):
-        for k in COMPONENTS:
-            within.setdefault(_family(clip), []).append(_within_tolerance(clip, r.components[k], j.components[k], k))
+    within = within_by_family(*scored)
     for family in ("moving", "lowconf"):
         assert all(within[family]), family
     share = np.mean(np.concatenate(list(within.values())))
@@ -143,34 +98,10 @@ def test_the_engines_agree_on_nearly_every_region_status(scored):
     assert same[existing].mean() >= STATUS_AGREEMENT, same[existing].mean()
 
 
-def _region_costs(clips, ref, jx):
-    """(rotation difference deg, reference cost, JAX cost) of every region both engines posed: the
-    truncated cost on the region's points at the noise-level cut of whichever pose has the lower
-    cost at inlier_px (the coarse optimum of docs/semantics.md §3.2 step 6)."""
-    out = []
-    for clip, r, j in zip(clips, ref.clips, jx.clips):
-        unit_clip, _ = in_depth_units(clip, CONFIG)
-        for p in range(clip.n_pairs):
-            points = reference.pair_points(unit_clip, p + 1, CONFIG)
-            K = unit_clip.K[p + 1].astype(np.float64)
-            posed = np.isfinite(r.pairs.R_local[p]).all((1, 2)) & np.isfinite(j.pairs.R_local[p]).all((1, 2))
-            for slot in np.flatnonzero(posed):
-                member = points.region == slot + 1
-                X, uv = points.X[member], points.uv[member]
-                err = [reference_pose.pose_errors_sq(reference_pose.Pose(
-                    pairs.R_local[p, slot].astype(np.float64), pairs.t_local[p, slot].astype(np.float64)), X, uv, K)
-                    for pairs in (r.pairs, j.pairs)]
-                coarse = [reference_pose.truncated_costs(e, CONFIG.inlier_px) for e in err]
-                cut = reference_pose.noise_cut(err[int(np.argmin(coarse))], CONFIG.inlier_px)
-                out.append((_angle_deg(r.pairs.R_local[p, slot], j.pairs.R_local[p, slot]),
-                            *(reference_pose.truncated_costs(e, cut) for e in err)))
-    return np.array(out)
-
-
 def test_where_the_local_poses_differ_the_jax_engine_is_seldom_the_wrong_one(scored):
     clips, ref, jx = scored
-    angle, ref_cost, jax_cost = _region_costs(clips, ref, jx).T
-    differ = angle > 1.0
+    angle, ref_cost, jax_cost = region_costs(clips, ref, jx, CONFIG).T
+    differ = angle > DIFFER_DEG
     jax_wrong, ref_wrong = np.sum(differ & (jax_cost > ref_cost)), np.sum(differ & (ref_cost > jax_cost))
     assert len(angle) > 500 and differ.sum() > 0
     assert jax_wrong <= JAX_WRONG_MAX * len(angle), (jax_wrong, ref_wrong, len(angle))
