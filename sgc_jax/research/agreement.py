@@ -68,7 +68,8 @@ def family(clip) -> str:
 
 
 def within_tolerance(a: float, b: float, component: str) -> bool:
-    """|a - b| <= max(ATOL[component], RTOL |a|); two NaNs agree."""
+    """|a - b| <= max(ATOL[component], RTOL |a|), a the base (the reference engine's value); two
+    NaNs agree."""
     if np.isnan(a) and np.isnan(b):
         return True
     return bool(abs(b - a) <= max(ATOL[component], RTOL * abs(a)))
@@ -131,7 +132,8 @@ def within_by_family(clips: Sequence, a: BatchResult, b: BatchResult) -> dict[st
 
 
 def compare(clips: Sequence, a: BatchResult, b: BatchResult, config: SGCConfig | None = None) -> Agreement:
-    """The agreement of scorings a and b of ``clips`` (same order)."""
+    """The agreement of scorings a (the base of the relative tolerances) and b of ``clips`` (same
+    order)."""
     within = np.concatenate(list(within_by_family(clips, a, b).values()))
     existing = np.concatenate([ca.pairs.region_status.ravel() != REGION_EMPTY for ca in a.clips])
     same = np.concatenate([ca.pairs.region_status.ravel() == cb.pairs.region_status.ravel()
