@@ -20,7 +20,8 @@ from scipy.stats import spearmanr
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
 from sgc_jax.codes import REGION_EMPTY
 from sgc_jax.engines import reference, stages
-from sgc_jax.research.agreement import DIFFER_DEG, agreement_corpus, region_costs, within_by_family, within_tolerance
+from sgc_jax.research.agreement import (DIFFER_DEG, agreement_corpus, compare, region_costs, within_by_family,
+                                        within_tolerance)
 
 CONFIG = SGCConfig()
 
@@ -98,6 +99,17 @@ def test_the_engines_agree_on_nearly_every_region_status(scored):
                            for r, j in zip(ref.clips, jx.clips)])
     assert existing.sum() > 500
     assert same[existing].mean() >= STATUS_AGREEMENT, same[existing].mean()
+
+
+def test_a_scoring_compared_with_itself_agrees_in_every_figure(scored):
+    # bench/engine_agreement.py's comparison, on its fixed point
+    clips, ref, jx = scored
+    same = compare(clips, jx, jx, CONFIG)
+    assert same.components_within == same.components == len(clips) * len(COMPONENTS)
+    assert same.same_status == same.regions > 500 and same.spearman == 1.0
+    assert same.posed > 500 and same.differ == same.a_worse == same.b_worse == 0
+    across = compare(clips, ref, jx, CONFIG)
+    assert across.components_within < across.components and across.differ > 0
 
 
 def test_where_the_local_poses_differ_the_jax_engine_is_seldom_the_wrong_one(scored):
