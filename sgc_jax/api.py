@@ -41,7 +41,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax",
                 progress: bool | None = None, chunk_size: int = 16, out: str | os.PathLike | None = None,
                 pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int = 2,
-                devices: int | None = None, ray_address: str | None = None, ray_scorers: int | None = None,
+                devices: int | None = None, lanes: int | None = None, ray_address: str | None = None,
+                ray_scorers: int | None = None,
                 stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
@@ -56,7 +57,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     run (version, engine, config, calibration) and score only the rest.
     ``devices``: the JAX engine spreads the clips one per device over the first that many local
     devices (default: all of them; several GPUs, or ``--xla_force_host_platform_device_count``
-    on a CPU); the numbers do not depend on it.
+    on a CPU); ``lanes``: clips scored at once (default: one per core up to two on CPU devices, one
+    on an accelerator; docs/semantics.md §4.1); the numbers depend on neither.
     ``ray_address``: score on a Ray cluster instead of this process ("auto", "local", an address;
     :mod:`sgc_jax.cluster`), with ``ray_scorers`` actors (default one per GPU, else per node).
     ``stats``: a :class:`~sgc_jax.streaming.StreamStats` to fill (timings, counts).
@@ -78,13 +80,13 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
             if ray_address is None:
                 stream = stream_scores(entries, config=config, calibration=calibration, engine=engine,
                                        run_id=run_id(run), done=done, read_ahead=chunk_size, readers=readers,
-                                       devices=devices, stats=stats)
+                                       devices=devices, lanes=lanes, stats=stats)
             else:
                 from .cluster import ray_stream_scores
 
                 stream = ray_stream_scores(entries, config=config, calibration=calibration, engine=engine,
                                            run_id=run_id(run), done=done, address=ray_address, scorers=ray_scorers,
-                                           shard_size=chunk_size, devices=devices, stats=stats)
+                                           shard_size=chunk_size, devices=devices, lanes=lanes, stats=stats)
             for item in stream:
                 clips.append(item)
                 if journal is not None and item.kept_row is None:
@@ -100,7 +102,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
 
 def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax", chunk_size: int = 16,
-                readers: int = 2, devices: int | None = None, **overrides: Any) -> Iterator[ClipResult]:
+                readers: int = 2, devices: int | None = None, lanes: int | None = None,
+                **overrides: Any) -> Iterator[ClipResult]:
     """Each clip's :class:`ClipResult` as soon as it is scored, in input order (arguments as
     :func:`score_batch`): for corpora too large to hold every result. ``ecd`` needs the whole
     corpus: compute it afterwards with :func:`~sgc_jax.io.result.camera_dynamics`."""
@@ -109,7 +112,7 @@ def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
     entries = discover_clips(source, config)
     run = run_id(run_record(config, calibration, engine))
     for item in stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run,
-                              read_ahead=chunk_size, readers=readers, devices=devices):
+                              read_ahead=chunk_size, readers=readers, devices=devices, lanes=lanes):
         yield item.result
 
 

@@ -223,6 +223,8 @@ def cmd_score(args: argparse.Namespace) -> int:
     guard_outputs([*inputs, args.config, _calibration_file(args.calibration)], out=out, pairs=args.pairs)
     if args.devices < 0:
         raise UsageError(f"--devices must be 0 (all) or more, got {args.devices}")
+    if args.lanes < 0:
+        raise UsageError(f"--lanes must be 0 (the default) or more, got {args.lanes}")
     if args.resume and not out:
         raise UsageError("--resume needs --out: the output of the run to resume")
     if args.ray_scorers < 0 or (args.ray_scorers and args.ray is None):
@@ -237,7 +239,8 @@ def cmd_score(args: argparse.Namespace) -> int:
                   + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
                          progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
-                         devices=args.devices or None, ray_address=args.ray, ray_scorers=args.ray_scorers or None,
+                         devices=args.devices or None, lanes=args.lanes or None, ray_address=args.ray,
+                         ray_scorers=args.ray_scorers or None,
                          stats=stats)
     for clip in result.clips:
         if clip.status == "error":
@@ -289,6 +292,9 @@ def _register_score(sub) -> None:
     output.add_argument("--pairs", help="per-pair table, CSV or .parquet")
     score.add_argument("--devices", type=int, default=0, metavar="N",
                        help="JAX engine: spread the clips over the first N local devices (default 0: all of them)")
+    score.add_argument("--lanes", type=int, default=0, metavar="N",
+                       help="clips scored at once on the devices (default 0: one per core up to two on a CPU, one "
+                            "on an accelerator; docs/semantics.md §4.1); the numbers do not depend on it")
     score.add_argument("--ray", metavar="ADDRESS",
                        help="score on a Ray cluster: 'auto' (the one this machine belongs to), 'local' (start one "
                             "here) or its address; inputs must be readable from every node (docs/semantics.md §4.2; "

@@ -45,12 +45,13 @@ class ShardScorer:
     process would otherwise compile every program), unless ``SGC_JAX_COMPILATION_CACHE=off``."""
 
     def __init__(self, config: SGCConfig, calibration: Calibration, engine: str, run_id: str,
-                 devices: int | None) -> None:
+                 devices: int | None, lanes: int | None = None) -> None:
         if engine == "jax":
             from .engines.compile_cache import enable_compilation_cache
 
             enable_compilation_cache()
-        self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices)
+        self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices,
+                            lanes=lanes)
 
     def score(self, entries: list[ClipEntry], done: Mapping[tuple[str, str], Mapping[str, str]]
               ) -> tuple[list[Streamed], StreamStats]:
@@ -73,19 +74,20 @@ def _scorers(ray: Any, count: int | None) -> tuple[int, dict[str, float]]:
 def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                       run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
                       address: str | None = "auto", scorers: int | None = None, shard_size: int = SHARD_SIZE,
-                      devices: int | None = None, stats: StreamStats | None = None) -> Iterator[Streamed]:
+                      devices: int | None = None, lanes: int | None = None,
+                      stats: StreamStats | None = None) -> Iterator[Streamed]:
     """:func:`~sgc_jax.streaming.stream_scores` with the clips scored by Ray actors: every
     entry's result in input order. ``scorers``: how many actors (default: one per GPU of the
     cluster, else one per node); ``shard_size``: clips per task at most (fewer when the corpus is
     too small to reach every scorer otherwise); ``devices``: local devices each actor uses (default
-    all it sees)."""
+    all it sees); ``lanes``: clips each actor scores at once (``streaming.engine_steps``)."""
     ray = connect(address)
     stats = stats if stats is not None else StreamStats()
     done = done or {}
     start = time.perf_counter()
     count, resources = _scorers(ray, scorers)
     actor = ray.remote(ShardScorer).options(scheduling_strategy="SPREAD", **resources)
-    pool = [actor.remote(config, calibration, engine, run_id, devices) for _ in range(count)]
+    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes) for _ in range(count)]
     shard_size = max(1, min(shard_size, -(-len(entries) // count)))  # a small corpus still reaches every scorer
     shards = [entries[i:i + shard_size] for i in range(0, len(entries), shard_size)]
 

@@ -1,11 +1,11 @@
 """Scoring a corpus as a stream (docs/semantics.md §4.1).
 
 Reader threads hash, read, validate and pad the clips ahead of the device, at most ``read_ahead``
-of them at a time (memory does not grow with the corpus); the scoring thread dispatches each
-clip (with several devices, a group of one clip per device, the clip axis sharded over them)
-before it fetches the previous one's results, and hands every finished clip on at once, in
-input order. Clip ids are claimed in input order by the scoring thread, so the
-first file with an id keeps it whatever order the readers finish in.
+of them at a time (memory does not grow with the corpus); ``lanes`` scoring threads each score
+one clip (with several devices, a group of one clip per device, the clip axis sharded over them)
+at a time, and every finished clip is handed on at once, in input order. Clip ids are claimed in
+input order by the generator's thread, so the first file with an id keeps it whatever order the
+readers finish in.
 """
 
 from __future__ import annotations
@@ -28,33 +28,40 @@ class Engine(NamedTuple):
     """How an engine scores clips in three steps: ``prepare`` (host arrays of one clip; runs in a
     reader thread), ``dispatch`` (starts the device work on a group of up to ``group_size``
     prepared clips of one ``group_key``, returns without waiting) and ``collect`` (waits,
-    returns the group's per-pair arrays)."""
+    returns the group's per-pair arrays). ``lanes``: groups scored at once, each dispatched and
+    collected in a scoring thread of its own."""
 
     prepare: Callable[[Clip], Any]
     dispatch: Callable[[list[Any]], Any]
     collect: Callable[[Any], list[PairArrays]]
     group_size: int = 1
     group_key: Callable[[Any], Any] = lambda prepared: None
+    lanes: int = 1
 
 
-def engine_steps(name: str, config: SGCConfig, devices: int | None = None) -> Engine:
+def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes: int | None = None) -> Engine:
     """The :class:`Engine` steps of ``"jax"`` (clips spread one per device over the first
-    ``devices`` local devices, all when None) or ``"reference"`` (which computes in ``collect``)."""
+    ``devices`` local devices, all when None; ``lanes`` groups at once, by default
+    ``jax_engine.default_lanes``) or ``"reference"`` (which computes in ``collect``, one clip at a
+    time unless ``lanes`` says otherwise)."""
+    if lanes is not None and lanes < 1:
+        raise ValueError(f"lanes must be at least 1, got {lanes}")
     if name == "jax":
         from .engines import jax_engine
 
         spread = jax_engine.scoring_devices(devices)
+        lanes = lanes or jax_engine.default_lanes(spread)
         prepare = lambda clip: jax_engine.prepare_clip(clip, config)  # noqa: E731
         collect = lambda dispatched: jax_engine.collect(dispatched, config)  # noqa: E731
         if len(spread) == 1:
-            return Engine(prepare, lambda group: jax_engine.dispatch(group[0], config), collect)
+            return Engine(prepare, lambda group: jax_engine.dispatch(group[0], config), collect, lanes=lanes)
         return Engine(prepare, lambda group: jax_engine.dispatch_group(group, config, spread), collect,
-                      len(spread), lambda prepared: prepared.bucket)
+                      len(spread), lambda prepared: prepared.bucket, lanes)
     if name == "reference":
         from .engines import reference
 
         return Engine(lambda clip: clip, lambda group: group[0],
-                      lambda clip: [reference.score_pairs(clip, config)])
+                      lambda clip: [reference.score_pairs(clip, config)], lanes=lanes or 1)
     raise ValueError(f"engine must be one of ('jax', 'reference'), got {name!r}")
 
 
@@ -119,7 +126,7 @@ def _read(entry: ClipEntry, engine: Engine, digests: FileDigests, done: Mapping[
 
 def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                   run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
-                  read_ahead: int = 16, readers: int = 2, devices: int | None = None,
+                  read_ahead: int = 16, readers: int = 2, devices: int | None = None, lanes: int | None = None,
                   stats: StreamStats | None = None) -> Iterator[Streamed]:
     """Every entry's result, in input order, as soon as it is known.
 
@@ -127,9 +134,10 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
     read again and come back with their row (``Streamed.kept_row``). A clip that fails to load
     (:class:`ClipFormatError`) is an error row; any other exception propagates. ``devices``: the
     JAX engine spreads clips over the first that many local devices (all when None), one clip
-    per device at a time.
+    per device at a time; ``lanes``: clips (groups) scored at once (``engine_steps``). The
+    results do not depend on either.
     """
-    steps = engine_steps(engine, config, devices)
+    steps = engine_steps(engine, config, devices, lanes)
     digests, done = FileDigests(), done or {}
     stats = stats if stats is not None else StreamStats()
     start = time.perf_counter()
@@ -146,7 +154,9 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
         return Streamed(error_result(read.entry, error, read.sha256, engine, config, run_id), None,
                         load_failed=read.error is not None)
 
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, readers), thread_name_prefix="sgc-read") as pool:
+    threads = concurrent.futures.ThreadPoolExecutor
+    with threads(max_workers=max(1, readers), thread_name_prefix="sgc-read") as pool, \
+            threads(max_workers=steps.lanes, thread_name_prefix="sgc-score") as lanes_pool:
         queue: collections.deque = collections.deque()
         upcoming = iter(entries)
 
@@ -157,19 +167,21 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                     return
                 queue.append(pool.submit(_read, entry, steps, digests, done))
 
-        group: list[_Read] = []  # read, waiting to be dispatched together (one bucket)
-        pending: list = []  # at most one dispatched group: (reads, handle), results not yet fetched
+        group: list[_Read] = []  # read, waiting to be scored together (one bucket)
+        pending: collections.deque = collections.deque()  # (reads, future of their per-pair arrays), input order
 
         def launch() -> Iterator[Streamed]:
-            """Dispatch the group, then hand on the group dispatched before it."""
-            pending.append((list(group), steps.dispatch([r.prepared for r in group])))
+            """Score the group in a lane; with every lane busy and one more group queued behind
+            them, hand on the oldest first."""
+            prepared = [r.prepared for r in group]
+            pending.append((list(group), lanes_pool.submit(lambda: steps.collect(steps.dispatch(prepared)))))
             group.clear()
-            if len(pending) > 1:
+            if len(pending) > steps.lanes:
                 yield from land()
 
         def land() -> Iterator[Streamed]:
-            reads, handle = pending.pop(0)
-            for read, pairs in zip(reads, steps.collect(handle)):
+            reads, future = pending.popleft()
+            for read, pairs in zip(reads, future.result()):
                 yield finished(read, pairs)
 
         def drain() -> Iterator[Streamed]:  # everything in flight, in input order
@@ -206,6 +218,6 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                     yield from launch()
             yield from drain()
         finally:
-            for future in queue:
+            for future in [*queue, *(future for _, future in pending)]:
                 future.cancel()
             stats.wall_s += time.perf_counter() - start

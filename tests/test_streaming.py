@@ -54,6 +54,16 @@ def test_results_from_files_equal_those_of_the_same_clips_in_memory(uninterrupte
         assert clip.sgc == by_id[clip.clip_id].sgc and clip.components == by_id[clip.clip_id].components
 
 
+def test_clips_scored_at_once_in_lanes_give_the_numbers_of_one_at_a_time(clip_files, uninterrupted):
+    one_lane = score_batch(clip_files, lanes=1, progress=False)
+    three_lanes = score_batch(clip_files, lanes=3, chunk_size=1, progress=False)
+    for result in (one_lane, three_lanes):
+        assert result.table() == uninterrupted[0].table()
+        for clip, whole in zip(result, uninterrupted[0]):
+            for a, b in zip(dataclasses.astuple(clip.pairs), dataclasses.astuple(whole.pairs)):
+                np.testing.assert_array_equal(a, b)  # bit for bit, NaN where both are NaN
+
+
 def test_iter_scores_hands_on_each_clip_in_input_order(clip_files, uninterrupted):
     streamed = list(iter_scores(clip_files, chunk_size=1, readers=3))
     assert [c.clip_id for c in streamed] == uninterrupted[0].clip_ids

@@ -10,7 +10,9 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import functools
+import os
 import sys
+import threading
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -65,6 +67,9 @@ def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
 # StageKey -> (executable taking (inputs, key, values), its output's shapes); cleared by release_programs
 _programs: dict[StageKey, tuple[Callable, Any]] = {}
 _compiles: list[tuple[StageKey, float]] = []  # every compile of this process, with its seconds
+# Held while a program is found, compiled or loaded: scoring lanes (threads) that need the same
+# program wait for the first one's compile instead of compiling it again.
+_compiling = threading.RLock()
 
 
 class BucketProgram(NamedTuple):
@@ -107,6 +112,13 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
     stages are kept (``compile_cache.program_path``), so a later process skips tracing too, and a
     stage another process is compiling is waited for (``ProgramLock``), then loaded."""
     keys = [stage_key(config, stage, bucket) for stage in STAGES]
+    with _compiling:
+        _compile_missing(config, bucket, example, keys)
+    return BucketProgram(tuple(_programs[key][0] for key in keys))
+
+
+def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, keys: list[StageKey]) -> None:
+    """``compiled_program``'s work: compile or load the stages of ``keys`` not yet held."""
     missing = [key for key in keys if key not in _programs]
     if missing:
         start = time.perf_counter()
@@ -145,7 +157,6 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
                 _compiles.append((key, seconds))
         if compile_messages_on():
             print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
-    return BucketProgram(tuple(_programs[key][0] for key in keys))
 
 
 def _announce(bucket: Bucket, missing: list[StageKey], kept: bool) -> None:
@@ -260,7 +271,22 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
     return results
 
 
-# ----------------------------------------------------------------------------- several devices
+# ----------------------------------------------------------------------------- lanes and devices
+
+
+# Clips scored at once on CPU devices, at most: XLA runs one clip's program on about 1.5 of the
+# 2-core box's cores, and a second clip at once fills the rest; a third gains nothing there and a
+# fourth loses (bench/RESULTS.md). Larger CPUs are unmeasured.
+CPU_LANES = 2
+
+
+def default_lanes(devices: list) -> int:
+    """Clips (or groups of one clip per device) the streaming scorer keeps in flight at once on
+    ``devices``: on CPU devices one per core, up to CPU_LANES; on an accelerator one."""
+    if devices and devices[0].platform == "cpu":
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return max(1, min(cores, CPU_LANES))
+    return 1
 
 
 def scoring_devices(limit: int | None = None) -> list:
@@ -283,36 +309,42 @@ def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: P
     Compiled once per bucket, static config and device set (a line on stderr says so); with the
     persistent cache on, JAX keeps the compiled stages and a later process only traces them.
     -> (BucketProgram, the batch's sharding)"""
+    keys = tuple(stage_key(config, stage, bucket) for stage in STAGES)
+    cache_key = (keys, tuple(d.id for d in devices))
+    with _compiling:
+        if cache_key not in _sharded:
+            _sharded[cache_key] = _compile_sharded(config, bucket, devices, example, keys)
+    return _sharded[cache_key]
+
+
+def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips, keys: tuple) -> tuple:
+    """``sharded_program``'s compile -> (BucketProgram, the batch's sharding)."""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     from .stages import stage_program
 
-    keys = tuple(stage_key(config, stage, bucket) for stage in STAGES)
-    cache_key = (keys, tuple(d.id for d in devices))
-    if cache_key not in _sharded:
-        mesh = Mesh(np.array(devices), ("clips",))
-        clips, replicated = PartitionSpec("clips"), PartitionSpec()
-        sharding = NamedSharding(mesh, clips)
-        start = time.perf_counter()
-        if compile_messages_on():
-            print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} "
-                  f"px, {bucket.P} tracks per pair, one clip on each of {len(devices)} devices (once per shape "
-                  "bucket) ...", end="", file=sys.stderr, flush=True)
-        batch_spec = PaddedClips(*(jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding) for a in example))
-        key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
-        stages, previous = [], None
-        for key in keys:  # one program per stage, as on one device (the same fusions, the same numbers)
-            # check_vma off: the kernels' loops start from constants that the per-device clip makes
-            # device-varying, which the check would have every loop annotate
-            spread = jax.shard_map(functools.partial(stage_program, stage=key.stage, static=key.static), mesh=mesh,
-                                   in_specs=(clips, replicated, replicated), out_specs=clips, check_vma=False)
-            lowered = jax.jit(spread).lower(stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec)
-            previous = lowered.out_info
-            stages.append(lowered.compile())
-        if compile_messages_on():
-            print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
-        _sharded[cache_key] = BucketProgram(tuple(stages)), sharding
-    return _sharded[cache_key]
+    mesh = Mesh(np.array(devices), ("clips",))
+    clips, replicated = PartitionSpec("clips"), PartitionSpec()
+    sharding = NamedSharding(mesh, clips)
+    start = time.perf_counter()
+    if compile_messages_on():
+        print(f"sgc-jax: compiling the JAX program for clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} "
+              f"px, {bucket.P} tracks per pair, one clip on each of {len(devices)} devices (once per shape "
+              "bucket) ...", end="", file=sys.stderr, flush=True)
+    batch_spec = PaddedClips(*(jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding) for a in example))
+    key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
+    stages, previous = [], None
+    for key in keys:  # one program per stage, as on one device (the same fusions, the same numbers)
+        # check_vma off: the kernels' loops start from constants that the per-device clip makes
+        # device-varying, which the check would have every loop annotate
+        spread = jax.shard_map(functools.partial(stage_program, stage=key.stage, static=key.static), mesh=mesh,
+                               in_specs=(clips, replicated, replicated), out_specs=clips, check_vma=False)
+        lowered = jax.jit(spread).lower(stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec)
+        previous = lowered.out_info
+        stages.append(lowered.compile())
+    if compile_messages_on():
+        print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    return BucketProgram(tuple(stages)), sharding
 
 
 def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list) -> Dispatched:
