@@ -26,6 +26,10 @@ from ..kernels.warp import depth_error, warp_depth
 from .buckets import STAGE_FIELDS, STAGES, PaddedClips, PixelInputs, PoseInputs, stage_inputs
 from .units import PERCENT, translation_factor
 
+# The vmap axis of a clip's pairs in ``clip_poses``: ``local_poses_pair`` is only called under it.
+PAIRS = "pairs"
+
+
 class LocalPoses(NamedTuple):
     """Stage A of a pair: regions and their PnP-RANSAC poses (k region slots)."""
 
@@ -115,7 +119,7 @@ def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_cu
                              min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence,
                              ambiguous_rot_deg=config.ambiguous_rot_deg,
                              ambiguous_inlier_frac=config.ambiguous_inlier_frac,
-                             borrow=config.borrow_region_poses)
+                             borrow=config.borrow_region_poses, batch_axis=PAIRS)
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, REGION_EMPTY)
     if config.applies_quality_rule:
@@ -248,7 +252,7 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
     else:
         rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
-                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0))(
+                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0), axis_name=PAIRS)(
         x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,
         usable, x.image_hw, pair_keys, rival_R)
     accepted = poses.region_status == REGION_OK

@@ -217,7 +217,7 @@ def _region_sums(onehot, values):
 
 
 def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, passes, ambiguous_rot_deg,
-                 ambiguous_inlier_frac):
+                 ambiguous_inlier_frac, batch_axis=None):
     """Local optimisation of every region's pose6 from M contenders (contenders (M, k, 6)):
     ``passes`` least-squares fits (``solve_pnp_regions``, all regions at once) on the current
     inliers of each contender, the contender of lowest cost kept per region
@@ -249,6 +249,10 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
     max(1, floor(ambiguous_inlier_frac m)) of the m members within the cut of the pose.
     -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
     rule's inputs, as in the reference engine), n_inliers (k,) int32, ambiguous (k,) bool)
+
+    A check whose refit no region tries is skipped (it would keep nothing); ``batch_axis``, the
+    name of a ``vmap`` axis this is mapped over, makes that decision once for all the mapped
+    calls, so the skip stays a branch instead of both sides computed.
     """
     k = contenders.shape[1]
     dtype = X.dtype
@@ -336,7 +340,10 @@ def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, pas
         branch = jnp.where(stage < passes, 0, stage - passes + 1)
         weight, start, st = jax.lax.switch(
             branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_recut), stage, st)
-        refined = fit_regions(weight, start)
+        wanted = (stage < ADMIT) | (stage > LEVERAGE) | jnp.any(st.tried)
+        if batch_axis is not None:
+            wanted = jax.lax.psum(wanted.astype(jnp.int32), batch_axis) > 0
+        refined = jax.lax.cond(wanted, lambda: fit_regions(weight, start), lambda: start)
         new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
         keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage == RIVAL], [0, 1, 2, 3], 4)
         return jax.lax.switch(keep, (
@@ -546,6 +553,7 @@ def ransac_pnp_regions(
     ambiguous_inlier_frac=0.05,
     borrow=True,
     refined_contenders=2,
+    batch_axis=None,
 ):
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
@@ -574,7 +582,8 @@ def ransac_pnp_regions(
        replaces it where it fits better and else may make it ambiguous; inliers and n_inliers
        are those of the final pose.
     Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
-    members)), the pose is finite and det(R) ~ 1; else 2. Shape-like arguments (hypotheses,
+    members)), the pose is finite and det(R) ~ 1; else 2. ``batch_axis``: the name of a ``vmap``
+    axis the call is mapped over (``refine_poses``). Shape-like arguments (hypotheses,
     sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
     borrow, refined_contenders) must be static under jit.
     """
@@ -599,7 +608,7 @@ def ransac_pnp_regions(
     rival_R = jnp.eye(3, dtype=dtype) if rival_R is None else jnp.asarray(rival_R, dtype)
     poses, inliers, n_inliers, ambiguous = refine_poses(
         X, uv, region, K, jnp.swapaxes(best, 0, 1), rival_R, inlier_px=inlier_px, steps=steps, passes=refine_passes,
-        ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac)
+        ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac, batch_axis=batch_axis)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))
