@@ -1,7 +1,7 @@
 """Warm clips per second of this checkout against an older one, in one run (issue 21's 2x bar).
 
     git worktree add /tmp/sgc-base 0082bfe       # main before issue 21
-    python bench/warm_speed.py --baseline /tmp/sgc-base [--clips 4] [--repeat 3] [--rounds 2]
+    python bench/warm_speed.py --baseline /tmp/sgc-base [--clips 8] [--repeat 3] [--rounds 2]
 
 Writes --clips standard clips (T=16, 288x512, 4096 tracks per pair) once, then for each round
 times each tree in a fresh process (``PYTHONPATH`` = the tree): ``score_batch`` of the clips held
@@ -45,7 +45,7 @@ def warm_rate(tree: Path, clips: Path, repeat: int, cache: Path) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--baseline", type=Path, required=True, help="the older checkout")
-    parser.add_argument("--clips", type=int, default=4)
+    parser.add_argument("--clips", type=int, default=8, help="enough for the scorer's lanes to stay full")
     parser.add_argument("--repeat", type=int, default=3, help="warm calls per process; the fastest counts")
     parser.add_argument("--rounds", type=int, default=2, help="processes per tree, alternating")
     args = parser.parse_args()
