@@ -19,6 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .fence import materialise
+
 
 def _normalise(values, valid):
     """(N,) values, (N,) valid -> (u in [0, 1], bin-ready mask, has_span, (lo, span));
@@ -198,6 +200,8 @@ def _dp_step(prev, sums, plan, bins):
         low = jnp.minimum(jax.ops.segment_min(tot, seg_id, num_segments=width + 1)[:width], end)
         arg = jax.ops.segment_min(jnp.where(tot == low[seg_c], rows, bins + 1), seg_id, num_segments=width + 1)[:width]
         arg = jnp.minimum(jnp.minimum(arg, jnp.where(end == low, hi, bins + 1)), hi).astype(jnp.int32)
+        # per column, then gathered per row below: fused there, XLA would redo the columns' costs per row
+        arg, low = materialise((arg, low))
         first = first.at[mids].set(arg, mode="drop")  # padding columns (mids = bins) write nothing
         best = best.at[mids].set(low, mode="drop")
         # Rows before a column's optimum are searched for its left child, the others for its right.

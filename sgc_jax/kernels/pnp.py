@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from .fence import materialise
 from .geometry import back_project, hat, small_matmul, so3_exp, so3_left_jacobian, so3_log
 
 # Points with z below this fraction of their distance are "behind the camera": their projection
@@ -227,24 +228,6 @@ def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     pose6 = jnp.concatenate([so3_log(R), t])
     ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6))
     return pose6, ok
-
-
-def materialise(tree):
-    """``tree`` unchanged, but computed once into memory: XLA CPU otherwise fuses an expensive
-    elementwise producer into each of its consumers and recomputes it per output element
-    (``optimization_barrier`` is dropped before fusion there). A loop XLA cannot unroll or
-    hoist, run once (an identity: it multiplies by 1), is the fence."""
-    leaves = jax.tree_util.tree_leaves(tree)
-    first = leaves[0].reshape(-1)[0]
-    trips = (first != first).astype(jnp.int32) + 1  # 1 (2 for a NaN), which XLA cannot bound to 1
-    unit = 1.0 + 0.0 * first  # 1 (NaN for a NaN), which XLA cannot fold
-
-    def body(carry):
-        i, scale, value = carry
-        return i + 1, scale, jax.tree.map(lambda x: x * scale.astype(x.dtype), value)
-
-    _, _, out = jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.int32(0), unit, tree))
-    return out
 
 
 class BlockNormalCholesky(lx.AbstractLinearSolver):

@@ -19,8 +19,9 @@ import jax
 import jax.numpy as jnp
 
 from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
+from .fence import materialise
 from .geometry import so3_exp
-from .pnp import block_normals, materialise, point_columns, pointwise_residuals, region_onehot, solve_spd
+from .pnp import block_normals, point_columns, pointwise_residuals, region_onehot, solve_spd
 
 
 class PoseUncertainty(NamedTuple):
