@@ -67,9 +67,10 @@ def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
 # StageKey -> (executable taking (inputs, key, values), its output's shapes); cleared by release_programs
 _programs: dict[StageKey, tuple[Callable, Any]] = {}
 _compiles: list[tuple[StageKey, float]] = []  # every compile of this process, with its seconds
-# Held while a program is found, compiled or loaded: scoring lanes (threads) that need the same
-# program wait for the first one's compile instead of compiling it again.
-_compiling = threading.RLock()
+# Held while programs are compiled or loaded: scoring lanes (threads) that need the same program
+# wait for the first one's compile instead of compiling it again. Programs already held are
+# looked up without it, so a lane scoring a known bucket never waits for another's compile.
+_compiling = threading.Lock()
 
 
 class BucketProgram(NamedTuple):
@@ -112,8 +113,9 @@ def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) ->
     stages are kept (``compile_cache.program_path``), so a later process skips tracing too, and a
     stage another process is compiling is waited for (``ProgramLock``), then loaded."""
     keys = [stage_key(config, stage, bucket) for stage in STAGES]
-    with _compiling:
-        _compile_missing(config, bucket, example, keys)
+    if not all(key in _programs for key in keys):
+        with _compiling:
+            _compile_missing(config, bucket, example, keys)
     return BucketProgram(tuple(_programs[key][0] for key in keys))
 
 
@@ -312,9 +314,10 @@ def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: P
     -> (BucketProgram, the batch's sharding)"""
     keys = tuple(stage_key(config, stage, bucket) for stage in STAGES)
     cache_key = (keys, tuple(d.id for d in devices))
-    with _compiling:
-        if cache_key not in _sharded:
-            _sharded[cache_key] = _compile_sharded(config, bucket, devices, example, keys)
+    if cache_key not in _sharded:
+        with _compiling:
+            if cache_key not in _sharded:
+                _sharded[cache_key] = _compile_sharded(config, bucket, devices, example, keys)
     return _sharded[cache_key]
 
 
