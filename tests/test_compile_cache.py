@@ -59,3 +59,30 @@ def test_a_program_being_compiled_is_locked_against_other_processes(tmp_path):
     held = another_process_can_lock()
     lock.release()
     assert not held and another_process_can_lock()
+
+
+class _Lowered:
+    """A stand-in for ``jax.stages.Lowered`` that records the options it was compiled with."""
+
+    def __init__(self, known_options=()):
+        self.known, self.calls = set(known_options), []
+
+    def compile(self, compiler_options=None):
+        self.calls.append(compiler_options)
+        unknown = set(compiler_options or ()) - self.known
+        if unknown:
+            raise RuntimeError(f"INVALID_ARGUMENT: No such compile option: '{sorted(unknown)[0]}'")
+        return "executable"
+
+
+def test_the_pose_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lacks_them():
+    from sgc_jax.engines.jax_engine import CPU_COMPILER_OPTIONS, compile_stage
+
+    options = CPU_COMPILER_OPTIONS["pose"]
+    knows = _Lowered(options)
+    assert compile_stage(knows, "pose", "cpu") == "executable" and knows.calls == [options]
+    lacks = _Lowered()
+    assert compile_stage(lacks, "pose", "cpu") == "executable" and lacks.calls == [options, None]
+    elsewhere = _Lowered()
+    assert compile_stage(elsewhere, "pose", "gpu") == "executable" and elsewhere.calls == [None]
+    assert compile_stage(elsewhere, "pixel", "cpu") == "executable" and elsewhere.calls == [None, None]

@@ -86,6 +86,25 @@ class BucketProgram(NamedTuple):
         return out
 
 
+# XLA options per stage on CPU devices. XLA CPU's YNNPACK fusions run the pose stage's many small
+# reductions and batched products slower than its own loops: without them that stage takes ~175
+# against ~220 ms per standard clip and a fifth less CPU time (bench/RESULTS.md); the pixel and
+# finish stages gain nothing. An XLA that no longer knows an option compiles without it.
+CPU_COMPILER_OPTIONS = {"pose": {"xla_cpu_experimental_ynn_fusion_type": ""}}
+
+
+def compile_stage(lowered, stage: str, platform: str):
+    """``lowered.compile()`` with the stage's ``CPU_COMPILER_OPTIONS`` on a CPU ``platform``."""
+    options = CPU_COMPILER_OPTIONS.get(stage) if platform == "cpu" else None
+    if options:
+        try:
+            return lowered.compile(compiler_options=options)
+        except Exception as exc:  # an unknown option (a newer XLA); anything else is raised again
+            if not any(name in str(exc) for name in options):
+                raise
+    return lowered.compile()
+
+
 def _spec(tree):
     return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), tree)
 
@@ -129,10 +148,13 @@ def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, ke
         key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
         batch_spec = PaddedClips(*_spec(tuple(example)))
 
-        def compile_stage(lowered, lowered_s: float, lock: ProgramLock):
+        platform = jax.default_backend()
+
+        def compile_one(key: StageKey, lowered, lowered_s: float, lock: ProgramLock):
             try:
                 begin = time.perf_counter()
-                return lowered.compile(), lowered.out_info, lowered_s + time.perf_counter() - begin
+                return (compile_stage(lowered, key.stage, platform), lowered.out_info,
+                        lowered_s + time.perf_counter() - begin)
             finally:
                 lock.release()
 
@@ -152,7 +174,7 @@ def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, ke
                     lock.release()
                     raise
                 previous = lowered.out_info
-                pending[key] = pool.submit(compile_stage, lowered, time.perf_counter() - begin, lock)
+                pending[key] = pool.submit(compile_one, key, lowered, time.perf_counter() - begin, lock)
             for key, future in pending.items():  # logged in stage order, whichever compile ends first
                 executable, out_info, seconds = future.result()
                 _programs[key] = executable, out_info
@@ -345,7 +367,7 @@ def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: 
                                in_specs=(clips, replicated, replicated), out_specs=clips, check_vma=False)
         lowered = jax.jit(spread).lower(stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec)
         previous = lowered.out_info
-        stages.append(lowered.compile())
+        stages.append(compile_stage(lowered, key.stage, devices[0].platform))
     if compile_messages_on():
         print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
     return BucketProgram(tuple(stages)), sharding
