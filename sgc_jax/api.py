@@ -57,7 +57,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     run (version, engine, config, calibration) and score only the rest.
     ``devices``: the JAX engine spreads the clips one per device over the first that many local
     devices (default: all of them; several GPUs, or ``--xla_force_host_platform_device_count``
-    on a CPU); ``lanes``: clips scored at once (default: one per core up to two on CPU devices, one
+    on a CPU); ``lanes``: clips scored at once (default: one per core up to two on CPU devices, two
     on an accelerator; docs/semantics.md §4.1); the numbers depend on neither.
     ``ray_address``: score on a Ray cluster instead of this process ("auto", "local", an address;
     :mod:`sgc_jax.cluster`), with ``ray_scorers`` actors (default one per GPU, else per node).

@@ -293,7 +293,7 @@ def _register_score(sub) -> None:
     score.add_argument("--devices", type=int, default=0, metavar="N",
                        help="JAX engine: spread the clips over the first N local devices (default 0: all of them)")
     score.add_argument("--lanes", type=int, default=0, metavar="N",
-                       help="clips scored at once on the devices (default 0: one per core up to two on a CPU, one "
+                       help="clips scored at once on the devices (default 0: one per core up to two on a CPU, two "
                             "on an accelerator; docs/semantics.md §4.1); the numbers do not depend on it")
     score.add_argument("--ray", metavar="ADDRESS",
                        help="score on a Ray cluster: 'auto' (the one this machine belongs to), 'local' (start one "

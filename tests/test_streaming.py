@@ -239,3 +239,15 @@ def test_a_ray_run_claims_ids_in_input_order_and_resumes_like_one_process(ray_cl
     score_batch(inputs, out=out, resume=True, ray_address=ray_cluster, chunk_size=1, progress=False, stats=stats)
     assert out.read_text() == here.read_text()
     assert (stats.resumed, stats.scored, stats.errors) == (2, 2, 1)
+
+
+def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_accelerator(monkeypatch):
+    from types import SimpleNamespace
+
+    from sgc_jax.engines.jax_engine import ACCELERATOR_LANES, CPU_LANES, default_lanes
+
+    cpu, gpu = SimpleNamespace(platform="cpu"), SimpleNamespace(platform="gpu")
+    assert default_lanes([gpu]) == default_lanes([gpu, gpu]) == ACCELERATOR_LANES == 2
+    for cores, devices, lanes in ((1, 1, 1), (2, 1, 2), (16, 1, CPU_LANES), (2, 2, 1), (8, 2, 2)):
+        monkeypatch.setattr("os.sched_getaffinity", lambda pid, n=cores: set(range(n)), raising=False)
+        assert default_lanes([cpu] * devices) == lanes, (cores, devices)

@@ -302,16 +302,19 @@ def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> lis
 # 2-core box's cores, and a second clip at once fills the rest; a third gains nothing there and a
 # fourth loses (bench/RESULTS.md). Larger CPUs are unmeasured.
 CPU_LANES = 2
+# On an accelerator: one clip computes while the other lane fetches the previous clip's results
+# and sends the next clip's arrays (the device runs one program at a time either way).
+ACCELERATOR_LANES = 2
 
 
 def default_lanes(devices: list) -> int:
     """Clips (or groups of one clip per device) the streaming scorer keeps in flight at once on
     ``devices``: on CPU devices one per core of each device's share, up to CPU_LANES (forced host
-    devices share the same cores); on an accelerator one."""
+    devices share the same cores); on an accelerator ACCELERATOR_LANES."""
     if devices and devices[0].platform == "cpu":
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         return max(1, min(cores // len(devices), CPU_LANES))
-    return 1
+    return ACCELERATOR_LANES
 
 
 def scoring_devices(limit: int | None = None) -> list:
