@@ -5,7 +5,8 @@
 
 Scores --clips standard clips (bench/stream.py's corpus, written where missing) --repeat times,
 each stage called on its own and waited for, and prints each stage's median over the warm calls
-(the first clip of the first round, which compiles or loads the programs, is left out). Medians,
+(the first clip of the first round, which compiles or loads the programs, is left out), and the
+median CPU time of the process over each call (all of XLA's threads). Medians,
 not means: the shared 2-core box swings by tens of percent from call to call. The persistent
 compilation cache is on, so a second run starts at once.
 """
@@ -42,20 +43,25 @@ def main() -> None:
     prepared = [jax_engine.prepare_clip(clip, config) for clip in load_clips(write_corpus(args.corpus, args.clips))]
     key, values = jax.random.PRNGKey(0), jax_engine.program_values(config)
     times: dict[str, list[float]] = {stage: [] for stage in STAGES}
+    cpu: dict[str, list[float]] = {stage: [] for stage in STAGES}  # process CPU time: all threads
     for round_ in range(args.repeat):
         for i, clip in enumerate(prepared):
             program = jax_engine.compiled_program(config, clip.bucket, clip.batch)
             batch = PaddedClips(*jax.device_put(tuple(clip.batch)))
             out = None
             for stage, stage_program in zip(STAGES, program.stages):
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.process_time()
                 out = jax.block_until_ready(stage_program(stage_inputs(stage, batch, out), key, values))
                 if round_ or i:
                     times[stage].append(time.perf_counter() - start)
+                    cpu[stage].append(time.process_time() - start_cpu)
     medians = {stage: statistics.median(t) * 1000 for stage, t in times.items()}
+    cpu_medians = {stage: statistics.median(t) * 1000 for stage, t in cpu.items()}
     print(f"{Path(sgc_jax.__file__).parent.parent}: "
           + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in medians.items())
           + f"; a clip {sum(medians.values()):.0f} ms ({len(times[STAGES[0]])} warm calls per stage)")
+    print("  CPU time (all threads): " + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in cpu_medians.items())
+          + f"; a clip {sum(cpu_medians.values()):.0f} ms")
 
 
 if __name__ == "__main__":
