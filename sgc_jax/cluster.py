@@ -5,7 +5,7 @@ process, each score shards of the file list with :func:`~sgc_jax.streaming.strea
 their own devices and send the results back. The driver hands them on in input order as the
 shards finish, claims clip ids in input order (the first file with an id keeps it, as in one
 process) and resumes the same way. Input paths must be readable from every node (a shared
-folder). Needs the ``ray`` extra: ``pip install 'sgc-jax[ray]'``.
+folder, or a URL: :mod:`sgc_jax.io.remote`). Needs the ``ray`` extra: ``pip install 'sgc-jax[ray]'``.
 """
 
 from __future__ import annotations

@@ -251,3 +251,30 @@ def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_a
     for cores, devices, lanes in ((1, 1, 1), (2, 1, 2), (16, 1, CPU_LANES), (2, 2, 1), (8, 2, 2)):
         monkeypatch.setattr("os.sched_getaffinity", lambda pid, n=cores: set(range(n)), raising=False)
         assert default_lanes([cpu] * devices) == lanes, (cores, devices)
+
+
+def test_clips_named_by_url_score_and_resume_as_the_same_files_on_disk(clip_files, uninterrupted, tmp_path):
+    whole, whole_out = uninterrupted
+    url = clip_files.as_uri()  # file:///...: the same pyarrow filesystem code as s3:// or gs://
+    out = tmp_path / "scores.csv"
+    by_url = score_batch(url + "/", out=out, progress=False)
+    assert [c.origin for c in by_url] == [f"{url}/{c.clip_id}.npz" for c in whole]
+    for clip, expected in zip(by_url, whole):
+        assert (clip.clip_id, clip.sgc, clip.components, clip.input_sha256) == (
+            expected.clip_id, expected.sgc, expected.components, expected.input_sha256)
+    stats = StreamStats()
+    resumed = score_batch(url, out=out, resume=True, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (len(whole), 0)
+    assert [c.sgc for c in resumed] == [c.sgc for c in whole]
+
+
+def test_a_url_that_names_no_clip_says_so(clip_files):
+    from sgc_jax.io.loading import list_clip_files
+
+    url = clip_files.as_uri()
+    assert list_clip_files(url + "/rigid*") == [f"{url}/rigid.npz"]
+    for source, words in ((url + "/none.npz", "no clip file or directory"), ("nosuch://bucket/clips", "no filesystem")):
+        with pytest.raises(FileNotFoundError, match=words):
+            list_clip_files(source)
+    done = subprocess.run([*CLI, "score", url + "/none.npz"], capture_output=True, text=True)
+    assert done.returncode == 2 and "no clip file or directory" in done.stderr

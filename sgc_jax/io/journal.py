@@ -23,6 +23,7 @@ from ..calibration import Calibration
 from ..config import SGCConfig
 from ..version import __version__
 from .parquet import is_parquet, typed_cell
+from .remote import is_url, open_file, version_key
 from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, read_table_text, write_csv_rows, write_table
 
 RUN_ID_LENGTH = 16
@@ -49,13 +50,17 @@ class FileDigests:
         self._lock = threading.Lock()
 
     def of(self, path: str | os.PathLike) -> str:
-        stat = os.stat(path)
-        key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+        """The file's SHA-256 (hex); ``path`` may be a URL (``remote``)."""
+        if is_url(path):
+            key = (os.fspath(path), *version_key(os.fspath(path)))
+        else:
+            stat = os.stat(path)
+            key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
         with self._lock:
             if key in self._digests:
                 return self._digests[key]
         digest = hashlib.sha256()
-        with open(path, "rb") as f:
+        with (open_file(os.fspath(path))[0] if is_url(path) else open(path, "rb")) as f:
             for block in iter(lambda: f.read(1 << 22), b""):
                 digest.update(block)
         with self._lock:

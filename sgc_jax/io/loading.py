@@ -20,6 +20,7 @@ import numpy as np
 from ..config import SGCConfig
 from .clip import Clip, ClipFormatError
 from .npz import NpzError, npz_headers, read_npz, shape_text
+from .remote import is_url, list_files
 from .validate import Problem, check_clip, enforce
 
 # ----------------------------------------------------------------------------- validation
@@ -480,9 +481,10 @@ def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers:
         raise ClipFormatError(clip_id, exc.array, exc.expected, exc.found, exc.path) from None
 
 
-def entries_from_file(path: Path, config: SGCConfig) -> list[ClipEntry]:
-    """The clips of one clip or batch ``.npz``; a file that cannot be listed is one failing entry."""
-    origin, stem = str(path), path.stem
+def entries_from_file(path: Path | str, config: SGCConfig) -> list[ClipEntry]:
+    """The clips of one clip or batch ``.npz`` (a path or a URL); a file that cannot be listed is
+    one failing entry."""
+    origin, stem = os.fspath(path), Path(os.fspath(path)).stem
     try:
         headers = _read(path, stem, headers=True)
         if not is_batch(headers):
@@ -529,13 +531,18 @@ def _npz_in(directory: Path) -> list[Path]:
         return [directory]
 
 
-def list_clip_files(source: str | os.PathLike, *, allow_empty: bool = False) -> list[Path]:
+def list_clip_files(source: str | os.PathLike, *, allow_empty: bool = False) -> list[Path | str]:
     """The ``.npz`` files a path names: a directory's ``*.npz`` (sorted), a file (or a link, even
     one that leads nowhere: reading it reports that), or a glob's ``.npz`` matches, directories
     among them expanded. Raises FileNotFoundError when it names nothing (or an empty directory, unless ``allow_empty``).
+    A URL (``s3://bucket/clips/``, ``file:///...``; :mod:`sgc_jax.io.remote`) gives URLs: its
+    directory's ``.npz`` files, the file, or a wildcard's matches in its last part.
     """
     text = os.fspath(source)
-    if os.path.isdir(text):
+    files: list[Path | str]
+    if is_url(text):
+        files = list_files(text)
+    elif os.path.isdir(text):
         files = _npz_in(Path(text))
     elif os.path.lexists(text):
         files = [Path(text)]

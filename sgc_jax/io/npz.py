@@ -8,6 +8,7 @@ zlib stream, truncation, encryption) becomes one :class:`NpzError` naming the ar
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import struct
@@ -18,6 +19,8 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
+
+from .remote import is_url, open_file
 
 # Deflate expands data by at most 1032:1 (zlib's technical details), so a member whose recorded
 # size exceeds that is lying; checking the npy header against it bounds what loading allocates.
@@ -108,17 +111,18 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, archive_bytes:
 
 
 def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bool) -> dict[str, Any]:
-    path = Path(path)
+    url = is_url(path)
+    path = os.fspath(path) if url else Path(path)  # a Path would fold a URL's "//"
     try:
-        archive_bytes = os.path.getsize(path)
-        with zipfile.ZipFile(path) as archive:
+        stream, archive_bytes = open_file(path) if url else (None, os.path.getsize(path))
+        with stream or contextlib.nullcontext(), zipfile.ZipFile(stream or path) as archive:
             members = {info.filename[:-4]: info for info in archive.infolist() if info.filename.endswith(".npy")}
             wanted = list(members) if names is None else [n for n in names if n in members]
             return {n: _read_member(archive, members[n], archive_bytes, path, n, headers_only) for n in wanted}
     except NpzError:
         raise
     except _READ_ERRORS as exc:
-        if os.path.islink(path) and not os.path.exists(path):
+        if not url and os.path.islink(path) and not os.path.exists(path):
             found = "a link that leads nowhere (dangling, or a loop of links)"
         else:
             found = _describe(exc)
