@@ -297,8 +297,8 @@ def _register_score(sub) -> None:
                             "on an accelerator; docs/semantics.md §4.1); the numbers do not depend on it")
     score.add_argument("--ray", metavar="ADDRESS",
                        help="score on a Ray cluster: 'auto' (the one this machine belongs to), 'local' (start one "
-                            "here) or its address; inputs must be readable from every node: a shared folder or a URL such as s3://bucket/clips/ (docs/semantics.md §4.2; "
-                            "pip install 'sgc-jax[ray]')")
+                            "here) or its address; inputs must be readable from every node: a shared folder or a "
+                            "URL such as s3://bucket/clips/ (docs/semantics.md §4.2; pip install 'sgc-jax[ray]')")
     score.add_argument("--ray-scorers", type=int, default=0, metavar="N",
                        help="with --ray: N scorer processes (default 0: one per GPU of the cluster, else per node)")
     output.add_argument("--resume", action="store_true",

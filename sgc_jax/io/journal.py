@@ -51,16 +51,17 @@ class FileDigests:
 
     def of(self, path: str | os.PathLike) -> str:
         """The file's SHA-256 (hex); ``path`` may be a URL (``remote``)."""
-        if is_url(path):
-            key = (os.fspath(path), *version_key(os.fspath(path)))
+        text, url = os.fspath(path), is_url(path)
+        if url:
+            key = (text, *version_key(text))
         else:
             stat = os.stat(path)
-            key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+            key = (text, stat.st_size, stat.st_mtime_ns)
         with self._lock:
             if key in self._digests:
                 return self._digests[key]
         digest = hashlib.sha256()
-        with (open_file(os.fspath(path))[0] if is_url(path) else open(path, "rb")) as f:
+        with (open_file(text)[0] if url else open(path, "rb")) as f:
             for block in iter(lambda: f.read(1 << 22), b""):
                 digest.update(block)
         with self._lock:

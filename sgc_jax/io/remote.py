@@ -29,12 +29,8 @@ def _filesystem(url: str) -> tuple[Any, str]:
         raise ImportError(f'{url}: reading clips by URL needs pyarrow: pip install "sgc_jax[parquet]"') from None
     try:
         return pyarrow.fs.FileSystem.from_uri(url)
-    except (pyarrow.ArrowInvalid, pyarrow.ArrowNotImplementedError, OSError) as exc:
+    except (pyarrow.ArrowException, OSError) as exc:  # an unknown scheme, a malformed URL
         raise FileNotFoundError(f"{url}: no filesystem for this URL ({exc})") from None
-
-
-def _child(url: str, name: str) -> str:
-    return url.rstrip("/") + "/" + name
 
 
 def list_files(url: str) -> list[str]:
@@ -55,7 +51,7 @@ def list_files(url: str) -> list[str]:
         raise FileNotFoundError(f"no clip file or directory at {url}")
     children = fs.get_file_info(pyarrow.fs.FileSelector(directory))
     names = sorted(posixpath.basename(child.path) for child in children if child.type == pyarrow.fs.FileType.File)
-    return [_child(directory_url, name) for name in names
+    return [f"{directory_url.rstrip('/')}/{name}" for name in names
             if fnmatch.fnmatchcase(name.lower(), pattern.lower()) and name.lower().endswith(".npz")]
 
 
