@@ -69,7 +69,8 @@ class SGCConfig:
     compat: str = _field("spec", "authors: reproduce the paper code's choices (docs/semantics.md §3.9)",
                          choices=COMPATS)
     kmeans_bins: int = _field(1024, "histogram resolution of the exact 1-D k-means")
-    gn_steps: int = _field(10, "Gauss-Newton steps per PnP solve (JAX engine)")
+    gn_steps: int = _field(10, "most Levenberg-Marquardt steps per least-squares fit of a local optimum "
+                                "(JAX engine, docs/semantics.md §7.1)")
     quality_rule: bool = _field(True, "leave the accepted local poses that the data do not pin down out of the "
                                       "variances (status ill_conditioned / ambiguous, docs/semantics.md §3.3); "
                                       "never applied with --compat authors, which keeps every accepted pose")
@@ -86,9 +87,8 @@ class SGCConfig:
                                            "rotation, degrees, that loses at most --ambiguous-inlier-frac of the "
                                            "inliers makes the pose ambiguous")
     ambiguous_inlier_frac: float = _field(0.05, "quality rule: see --ambiguous-rot-deg; in [0, 1)")
-    borrow_region_poses: bool = _field(True, "JAX engine: each region also tries the other regions' poses of its "
-                                             "pair as RANSAC hypotheses, kept only where they fit its own points "
-                                             "better (docs/semantics.md §7.1)")
+    borrow_region_poses: bool = _field(True, "JAX engine: each region's search also starts from the pair's other "
+                                             "region pose that fits its points best (docs/semantics.md §7.1)")
 
     def __post_init__(self) -> None:
         if self.partition not in PARTITIONS:

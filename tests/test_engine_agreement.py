@@ -2,13 +2,15 @@
 30-clip synthetic corpus.
 
 Both engines see the same points and regions (label maps match pixel for pixel) and state the
-same local pose: the region's optimum of the truncated reprojection cost at its noise-level cut
-(docs/semantics.md §3.2 step 6). They search for it differently, the reference harder (many more
-minimal samples, no early stop, every coarse optimum polished at the cut). Where the engines'
-poses differ, the one of higher cost on the region's points is the wrong one. Both judge a pose
-against the same rival (docs/semantics.md §3.3), so they agree on the region statuses. The bars
-below are the issue's, except the share of components within tolerance (the issue's 0.95 is not
-yet met: the figures and the reasons are in bench/RESULTS.md).
+same local pose (docs/semantics.md §3.2 step 6): from the coarse optimum (the local optimum of
+lowest truncated cost at inlier_px), the local optimum at its noise-level cut, or the rival where
+that costs less. They search for the coarse optimum differently, the reference harder (many
+more minimal samples, no early stop, every neighbour's optimum and the camera's pose as starts).
+Where the engines' poses differ, the one of higher cost on the region's points is the wrong
+one. Both judge a pose against the same rival (docs/semantics.md §3.3), so they agree on the
+region statuses. The bars below are the issue's, except the share of components within
+tolerance (the issue's 0.95 is met within one case of 150: the figures and the reasons are in
+bench/RESULTS.md).
 """
 
 import cv2
@@ -63,20 +65,23 @@ def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
 
 
 # The issue's bars (issue 20): rho 0.98, 0.98 of statuses and JAX wrong on at most 0.02 of
-# regions, met at the default seed (rho 0.999, 688 of 699 statuses, JAX wrong on 10 of 699, the
-# reference on 12); and 0.95 of (clip, component) cases within ATOL, not met: 119 of 150. The 1 px
-# + 30% outlier, unmasked and perturbed clips are where the searches settle in different optima,
-# and where each engine's own figures move with the seed (the reference reproduces 137 of 150
-# under another seed, the JAX engine 128): bench/engine_agreement.py, bench/RESULTS.md.
-AGREEMENT_SHARE = 0.75
+# regions, met at the default seed (rho 0.9995, 696 of 699 statuses, JAX wrong on 3 of 699, the
+# reference on 4); and 0.95 of (clip, component) cases within ATOL: 142 of 150 (0.947). The
+# misses are on the 1 px + 30% outlier and unmasked clips, whose small regions have coarse optima
+# of nearly equal cost; there the reference reproduces 144 of 150 under another seed, and with
+# 10x the triples agrees with itself at the default effort on 142: bench/engine_agreement.py,
+# bench/RESULTS.md.
+AGREEMENT_SHARE = 0.92
+# Families whose every (clip, component) case agrees: one pose per region, found alike.
+AGREEING_FAMILIES = ("rigid", "moving", "noisy", "lowconf", "perturbed")
 SPEARMAN_MIN = 0.98
 STATUS_AGREEMENT = 0.98
 JAX_WRONG_MAX = 0.02
 
 
-def test_every_component_agrees_on_masked_moving_and_low_confidence_clips_and_most_others(scored):
+def test_every_component_agrees_on_all_but_the_outlier_and_unmasked_clips_and_most_of_those(scored):
     within = within_by_family(*scored)
-    for family in ("moving", "lowconf"):
+    for family in AGREEING_FAMILIES:
         assert all(within[family]), family
     share = np.mean(np.concatenate(list(within.values())))
     assert share >= AGREEMENT_SHARE, share

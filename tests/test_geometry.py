@@ -16,7 +16,6 @@ from sgc_jax.kernels.geometry import (
     project,
     rotation_angle_deg,
     so3_exp,
-    so3_left_jacobian,
     so3_log,
 )
 
@@ -146,16 +145,3 @@ def test_back_project_inverts_project():
     assert X.shape == (4, 7, 3)
     np.testing.assert_allclose(np.asarray(X[..., 2]), np.asarray(z))
     np.testing.assert_allclose(np.asarray(project(K, X)), np.asarray(uv), atol=1e-3)
-
-
-@pytest.mark.parametrize("angle", [0.0, 1e-4, 0.3, 2.5])
-def test_left_jacobian_maps_rotvec_steps_to_left_increments(angle):
-    """exp(w + d) = exp([J(w) d]) exp(w) to first order in d (the Gauss-Newton Jacobian of PnP)."""
-    w = rotvec([0.3, -0.5, 0.8], angle)
-    d = np.array([1e-3, -2e-3, 1.5e-3])
-    lhs = rodrigues64(w + d)
-    J = np.asarray(so3_left_jacobian(jnp.asarray(w, jnp.float32)), np.float64)
-    rhs = rodrigues64(J @ d) @ rodrigues64(w)
-    # Second-order remainder ~|d|^2 ~ 1e-5; float32 J carries ~1e-7.
-    np.testing.assert_allclose(lhs, rhs, atol=2e-5)
-

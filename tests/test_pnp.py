@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from sgc_jax.engines import reference_pose
 from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp, so3_log
 from sgc_jax.kernels.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals,
                                  solve_pnp, solve_pnp_regions)
@@ -268,15 +269,16 @@ def test_vmap_over_regions_equals_per_region_calls():
         np.testing.assert_allclose(np.asarray(single.t), np.asarray(batched.t[r]), atol=1e-5)
 
 
-def test_regions_borrow_a_better_pose_only_where_it_fits_their_own_points_better():
-    """``borrow_region_poses``: a region with a wrong pose (5 deg off) or none takes the other
-    region's pose that fits its points best; a region moving otherwise, a region already right
-    and a region with no members keep their own."""
+def test_each_region_is_offered_the_other_regions_pose_that_fits_its_points_best():
+    """``borrow_region_poses``: per region, the finite pose of another region with the lowest
+    truncated cost at inlier_px on its own members (a region with a wrong pose, none, or a
+    motion of its own alike)."""
     rng = np.random.default_rng(7)
     R, t = random_pose(rng, 10.0)
     R_other, t_other = rodrigues(np.radians([0.0, 8.0, 0.0])) @ R, t + [0.1, 0.0, 0.0]
     motions = [(R, t), (R, t), (R_other, t_other), (R, t)]  # regions 1-4; region 5 has no members
     X, uv = zip(*(correspondences(rng, 60, *motion, noise_px=1.0, outlier_frac=0.2) for motion in motions))
+    X, uv = np.concatenate(X), np.concatenate(uv)
     region = np.repeat(np.arange(1, 5), 60)
 
     def pose6(R, t):
@@ -284,8 +286,11 @@ def test_regions_borrow_a_better_pose_only_where_it_fits_their_own_points_better
 
     poses = np.stack([pose6(R, t), pose6(rodrigues(np.radians([5.0, 0.0, 0.0])) @ R, t),
                       pose6(R_other, t_other), np.full(6, np.nan), [0.1, 0.0, 0.0, 0.0, 0.0, 1.0]])
-    out = np.asarray(borrow_region_poses(*f32(np.concatenate(X), np.concatenate(uv)), jnp.asarray(region),
-                                         jnp.asarray(K, jnp.float32), jnp.asarray(poses, jnp.float32),
-                                         inlier_px=8.0))
-    np.testing.assert_array_equal(out[[0, 1, 3]], np.float32(poses[[0, 0, 0]]))  # 2 and 4 borrow 1's
-    np.testing.assert_array_equal(out[[2, 4]], np.float32(poses[[2, 4]]))
+    out = np.asarray(borrow_region_poses(*f32(X, uv), jnp.asarray(region), jnp.asarray(K, jnp.float32),
+                                         jnp.asarray(poses, jnp.float32), inlier_px=8.0))
+    for r in range(4):
+        member = region == r + 1
+        costs = {j: reference_pose.truncated_costs(reference_pose.pose_errors_sq(reference_pose.Pose(
+            rodrigues(poses[j, :3]), poses[j, 3:]), X[member], uv[member], K), 8.0) for j in (0, 1, 2, 4) if j != r}
+        np.testing.assert_array_equal(out[r], np.float32(poses[min(costs, key=costs.get)]), err_msg=str(r))
+    assert out[1].tolist() == np.float32(poses[0]).tolist()  # the region 5 deg off is offered the right pose

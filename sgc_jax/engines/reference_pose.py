@@ -2,9 +2,9 @@
 
 An independent searcher for the optimum the semantics define, written to search harder than the
 JAX engine rather than fast: OpenCV's P3P on many random triples (every triple of a small region)
-with no early stop, the pair's other regions' optima and the global pose as further candidates,
-iterated local optimisation (least squares on the inliers until they stop changing) of the best
-ones, then the polish at the noise-level cut. Least squares is a Levenberg-Marquardt on the
+with no early stop, the pair's other regions' optima and the global pose as further starts,
+local optima (least squares on the inliers until they stop changing) of the best ones, then the
+descent at the noise-level cut and the rival. Least squares is a Levenberg-Marquardt on the
 pixel residuals through the whole K (skew included).
 
 Conventions: poses (R (3, 3), t (3,)) map camera i-1 coordinates to camera i (x_i = R x_{i-1} +
@@ -26,9 +26,6 @@ from ..config import MIN_CUT_PX, NOISE_CUT
 # which two of them count as the same start.
 LO_STARTS = 6
 DISTINCT_DEG = 0.5
-# Two local optima this close (rotation [deg], translation relative to its norm) are one.
-SAME_OPTIMUM_DEG = 1e-3
-SAME_OPTIMUM_REL = 1e-4
 # Least-squares fits per local optimisation (each on the inliers of the previous one) and
 # Levenberg-Marquardt steps per fit; a fit has converged when a step lowers the squared error by
 # less than LM_RTOL of it. In the flat valley of a weak region (rotation traded against
@@ -265,14 +262,15 @@ class RegionPose(NamedTuple):
 def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSearch, others: list[Pose],
                 rival_rotation: np.ndarray, inlier_px: float, ambiguous_rot_deg: float,
                 ambiguous_inlier_frac: float) -> RegionPose:
-    """The region's pose from its own search and ``others`` (the pair's other regions' coarse
-    optima, the global pose), each taken to its local optimum at inlier_px:
+    """The region's pose (docs/semantics.md §3.2 step 6) from its own search and ``others`` (the
+    pair's other regions' best optima, the global pose), each taken to its local optimum at
+    inlier_px:
 
-    1. the coarse optimum: the lowest truncated cost at inlier_px;
-    2. its noise-level cut (``noise_cut``);
-    3. the pose: the lowest truncated cost at the cut among the local optima at the cut started
-       from every coarse local optimum and from the rival's start (``rival_pose``, whose optimum
-       at inlier_px, where it is the lowest, is the coarse optimum and sets the cut);
+    1. the coarse optimum: the lowest truncated cost at inlier_px; its noise-level cut
+       (``noise_cut``);
+    2. the pose: the local optimum at the cut from the coarse optimum;
+    3. the rival (``rival_pose``, whose optimum at inlier_px, where it costs less, is the coarse
+       optimum and sets the cut) replaces the pose where it costs less at the cut;
     4. ambiguous: the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all
        but max(1, floor(``ambiguous_inlier_frac`` m)) of the pose's m members within the cut.
     """
@@ -280,12 +278,10 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     for start in others:
         if np.all(np.isfinite(start.R)) and np.all(np.isfinite(start.t)):
             coarse.append(local_optimum(X, uv, K, start, inlier_px))
-    best = min(range(len(coarse)), key=lambda i: coarse[i][1])
-    cut = noise_cut(pose_errors_sq(coarse[best][0], X, uv, K), inlier_px)
-    unique = distinct_optima([pose for pose, _ in coarse])
-    fine = {i: local_optimum(X, uv, K, coarse[i][0], cut) for i in unique}
-    pose, _ = fine[min(unique, key=lambda i: (fine[i][1], i != best))]
-    rival, cut = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px, coarse[best][1])
+    best, best_cost = min(coarse, key=lambda pose_cost: pose_cost[1])
+    cut = noise_cut(pose_errors_sq(best, X, uv, K), inlier_px)
+    pose, _ = local_optimum(X, uv, K, best, cut)
+    rival, cut = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px, best_cost)
     if truncated_costs(pose_errors_sq(rival, X, uv, K), cut) < truncated_costs(pose_errors_sq(pose, X, uv, K), cut):
         pose = rival
     return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, rival, ambiguous_rot_deg, ambiguous_inlier_frac))
@@ -323,17 +319,6 @@ def rival_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: fl
     if cost < coarse_cost:
         cut = noise_cut(pose_errors_sq(coarse, X, uv, K), inlier_px)
     return local_optimum(X, uv, K, coarse, cut)[0], cut
-
-
-def distinct_optima(poses: list[Pose]) -> list[int]:
-    """Indices of ``poses`` without repeats: a pose within SAME_OPTIMUM_DEG in rotation and
-    SAME_OPTIMUM_REL in translation (relative to its norm) of an earlier one is the same optimum."""
-    kept: list[int] = []
-    for i, pose in enumerate(poses):
-        if not any(rotation_angles_deg(pose.R, poses[j].R[None])[0] <= SAME_OPTIMUM_DEG and np.linalg.norm(
-                pose.t - poses[j].t) <= SAME_OPTIMUM_REL * max(np.linalg.norm(pose.t), 1e-12) for j in kept):
-            kept.append(i)
-    return kept
 
 
 def is_ambiguous(X: np.ndarray, uv: np.ndarray, K: np.ndarray, pose: Pose, cut: float, rival: Pose,

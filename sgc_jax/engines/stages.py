@@ -26,10 +26,6 @@ from ..kernels.warp import depth_error, warp_depth
 from .buckets import STAGE_FIELDS, STAGES, PaddedClips, PixelInputs, PoseInputs, stage_inputs
 from .units import PERCENT, translation_factor
 
-# The vmap axis of a clip's pairs in ``clip_poses``: ``local_poses_pair`` is only called under it.
-PAIRS = "pairs"
-
-
 class LocalPoses(NamedTuple):
     """Stage A of a pair: regions and their PnP-RANSAC poses (k region slots)."""
 
@@ -99,10 +95,12 @@ def points_prev(Z, K_prev, track_prev, usable):
 
 
 def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_curr, track_prev, track_curr,
-                     usable, image_hw, key, rival_R, config: SGCConfig) -> LocalPoses:
+                     usable, image_hw, key, rival_R, global_t, config: SGCConfig) -> LocalPoses:
     """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
-    config applies it. rival_R (3, 3): the rotation the regions' rivals start from (§3.3)."""
+    config applies it. rival_R (3, 3), global_t (3,): the camera's motion R_g, s t_g (units of D),
+    a start of every region's search, R_g that of its rival (§3.3); the identity and NaN without
+    a global pose."""
     H, W = image_hw[0], image_hw[1]
     X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
 
@@ -113,13 +111,13 @@ def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_cu
     point_region = jnp.where((point_region <= n_regions) & enough_tracks, point_region, 0)
 
     keys = jax.vmap(lambda r: jax.random.fold_in(key, r))(regions)
-    fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, rival_R,
+    fit = ransac_pnp_regions(X, track_curr, point_region, K_curr, keys, rival_R, global_t=global_t,
                              hypotheses=config.ransac_hypotheses,
                              inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
                              min_points=config.min_points, steps=config.gn_steps, confidence=config.confidence,
                              ambiguous_rot_deg=config.ambiguous_rot_deg,
                              ambiguous_inlier_frac=config.ambiguous_inlier_frac,
-                             borrow=config.borrow_region_poses, batch_axis=PAIRS)
+                             borrow=config.borrow_region_poses)
     exists = regions <= n_regions
     status = jnp.where(exists & enough_tracks, fit.status, REGION_EMPTY)
     if config.applies_quality_rule:
@@ -251,21 +249,26 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
         rival_R = jnp.where(jnp.all(jnp.isfinite(R_g), axis=(1, 2))[:, None, None], R_g, jnp.eye(3, dtype=R_g.dtype))
     else:
         rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
+    if config.global_pose:
+        # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D).
+        # It does not depend on the local poses, which start from the camera's pose (R_g, s t_g).
+        scale = 1.0 / x.depth_unit
+        if config.fits_translation_scale:
+            ratios, weights = jax.vmap(scale_equations)(x.Z_prev, x.track_labels, x.K[prev], x.K[curr], x.track_prev,
+                                                        x.track_curr, usable, R_g, t_g)
+            scale = weighted_median(ratios, weights, fallback=scale)
+        global_t = scale * t_g
+    else:
+        global_t = jnp.full((n_pairs, 3), jnp.nan, x.K.dtype)
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
-                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0), axis_name=PAIRS)(
+                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0, 0))(
         x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,
-        usable, x.image_hw, pair_keys, rival_R)
+        usable, x.image_hw, pair_keys, rival_R, global_t)
     accepted = poses.region_status == REGION_OK
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
         return poses, R_g, t_g, jnp.float32(1.0)
-    # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
-    shared = 1.0 / x.depth_unit
-    if not config.fits_translation_scale:
-        return poses, R_g, t_g, shared
-    ratios, weights = jax.vmap(scale_equations)(x.Z_prev, x.track_labels, x.K[prev], x.K[curr], x.track_prev,
-                                                x.track_curr, usable, R_g, t_g)
-    return poses, R_g, t_g, weighted_median(ratios, weights, fallback=shared)
+    return poses, R_g, t_g, scale
 
 
 # ----------------------------------------------------------------------------- stages

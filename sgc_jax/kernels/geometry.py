@@ -60,20 +60,6 @@ def so3_exp(rotvec):
     )
 
 
-def so3_left_jacobian(rotvec):
-    """(..., 3) -> (..., 3, 3) J with exp(rotvec + d) ~ exp([J d]) exp(rotvec) for small d:
-    I + (1 - cos t) / t^2 [w] + (t - sin t) / t^3 [w]^2, Taylor series near the identity."""
-    theta_sq = jnp.sum(rotvec * rotvec, axis=-1)
-    small = theta_sq < _SMALL_ANGLE_SQ
-    theta_sq_safe = jnp.where(small, 1.0, theta_sq)
-    theta = jnp.sqrt(theta_sq_safe)
-    half_sin = jnp.sin(0.5 * theta)
-    a = jnp.where(small, 0.5 - theta_sq / 24.0, 2.0 * half_sin**2 / theta_sq_safe)
-    b = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (theta - jnp.sin(theta)) / (theta_sq_safe * theta))
-    W = hat(rotvec)
-    return jnp.eye(3, dtype=rotvec.dtype) + a[..., None, None] * W + b[..., None, None] * (W @ W)
-
-
 def _quaternion_wxyz(R):
     """(..., 3, 3) -> (..., 4) unit quaternion (w, x, y, z) with w >= 0 (Shepperd's method)."""
     r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]

@@ -1,5 +1,5 @@
-"""Perspective-n-point: reprojection residuals and an optimistix Gauss-Newton pose solve
-(docs/semantics.md §7.1).
+"""Perspective-n-point: reprojection residuals, an optimistix Gauss-Newton pose solve (one point
+set) and a Levenberg-Marquardt solve of many regions' poses at once (docs/semantics.md §7.1).
 
 A pose is a 6-vector ``pose6 = (rotvec [rad], t)`` mapping camera i-1 coordinates X to camera i
 coordinates ``R X + t`` with ``R = so3_exp(rotvec)``; pixels follow ``geometry.project``.
@@ -16,7 +16,7 @@ import lineax as lx
 import optimistix as optx
 
 from .fence import materialise
-from .geometry import back_project, hat, small_matmul, so3_exp, so3_left_jacobian, so3_log
+from .geometry import back_project, hat, small_matmul, so3_exp, so3_log
 
 # Points with z below this fraction of their distance are "behind the camera": their projection
 # uses this floor instead, so residuals stay finite (large) and never inf/NaN.
@@ -230,52 +230,6 @@ def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     return pose6, ok
 
 
-class BlockNormalCholesky(lx.AbstractLinearSolver):
-    """Least-squares solve of a block-diagonal Jacobian: k independent 6-parameter blocks (one
-    pose per region), each residual depending on its own block only; operator: (k, 6) -> a pair
-    of (N,) residual columns.
-
-    With e_d the unit direction d in every block at once, J e_d holds every residual's
-    derivative along its own block's parameter d, so six operator products give every nonzero
-    Jacobian entry. Each block's 6x6 normal equations are summed over its own residuals
-    (``onehot`` (k, N) marks them) and solved with ``solve_spd``: O(N) work, where materialising
-    the full J costs O(k N). Residuals may be laid out in ``RegionSlots`` chunks (each (n_chunks,
-    SLOT_CHUNK), ``onehot`` (k, n_chunks) marking each chunk's block), where a block sum is a sum
-    over each chunk's slots followed by a (k, n_chunks) product.
-    """
-
-    onehot: jax.Array
-
-    def init(self, operator, options):
-        del options
-        k = self.onehot.shape[0]
-        directions = jnp.zeros((6, k, 6), self.onehot.dtype).at[jnp.arange(6), :, jnp.arange(6)].set(1.0)
-        J_u, J_v = materialise(jax.vmap(operator.mv)(directions))  # (6, *points) each
-        return J_u, J_v, block_normals(self.onehot, J_u, J_v), False
-
-    def compute(self, state, vector, options):
-        del options
-        J_u, J_v, normal, transposed = state
-        if transposed:  # minimum-norm solve: J (J^T J)^-1 b, block by block
-            y_block = jax.vmap(solve_spd)(normal, vector)  # (k, 6)
-            y_point = jnp.einsum("kb,kd->db", self.onehot, y_block, precision=jax.lax.Precision.HIGHEST)
-            y_point = y_point.reshape(y_point.shape + (1,) * (J_u.ndim - y_point.ndim))  # per point or chunk
-            return (jnp.sum(J_u * y_point, axis=0), jnp.sum(J_v * y_point, axis=0)), lx.RESULTS.successful, {}
-        r_u, r_v = vector
-        rhs = _block_sums(self.onehot, J_u * r_u + J_v * r_v)  # (k, 6)
-        return jax.vmap(solve_spd)(normal, rhs), lx.RESULTS.successful, {}
-
-    def transpose(self, state, options):
-        J_u, J_v, normal, transposed = state
-        return (J_u, J_v, normal, not transposed), options
-
-    def conj(self, state, options):
-        return state, options
-
-    def assume_full_rank(self):
-        return True
-
-
 def block_normals(onehot, J_u, J_v):
     """Normal matrices (k, 6, 6) J^T J of each block from Jacobian rows J_u, J_v (6, *points)
     (d residual / d parameter, parameter axis first), summed over the block's points (``onehot``
@@ -399,70 +353,91 @@ def pointwise_residuals(R_pt, t_pt, K, cols):
     return (sqrt_w * (u_hat - u), sqrt_w * (v_hat - v)), (RX, grad_u, grad_v)
 
 
-def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSlots | None = None):
-    """``solve_pnp`` for k regions at once: each point fits its own region's pose.
+# Levenberg-Marquardt of the joint region solve: a region stops once a step would lower its squared
+# error by less than _LM_RTOL of it (float32 resolves ~1e-7), or its damping passes
+# _LM_MAX_DAMPING (no step lowers it), or its step is below _LM_ATOL_PX in pixel-scaled units.
+_LM_RTOL = 1e-6
+_LM_ATOL_PX = 1e-4
+_LM_MAX_DAMPING = 1e8
 
-    X (N, 3), uv (N, 2), weight (N,), region (N,) int in 1..k (0: no region), pose0 (k, 6) starts
-    -> (pose6 (k, 6), ok (k,) bool). One ``optimistix.least_squares`` Gauss-Newton solve of the
-    (separable) sum of all regions' costs with ``BlockNormalCholesky``: the same steps as k
-    separate solves, at the cost of one pass over the N points, laid out in ``RegionSlots``
-    (``slots``: ``region_slots(region, k)``, computed here when not given; pass it to reuse the
-    layout across solves of the same regions). Scaling and tolerances as in ``solve_pnp``, but
-    measured as root-mean-square changes over all regions' parameters and residuals: the maximum
-    over thousands of float32 residuals never settles below 1e-4 px. Stops after ``steps`` at
-    most.
+
+def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSlots | None = None):
+    """Minimise each region's sum weight * |project(K, R X + t) - uv|^2, all k regions at once
+    -> (pose6 (k, 6), converged (k,) bool).
+
+    X (N, 3), uv (N, 2), weight (N,), region (N,) int in 1..k (0: none), pose0 (k, 6) starts.
+    Levenberg-Marquardt with a damping of its own per region (Nielsen's update), on the left
+    perturbation (exp([w]) R, t + dt) in pixel-scaled parameters (w by fx, dt by fx / the
+    region's mean point distance): a step is taken only where it lowers that region's error, so
+    a start far from the optimum (a few points, a rotation tens of degrees off) descends to it
+    instead of diverging. One pass over the N points per step, laid out in ``RegionSlots``
+    (``slots``: ``region_slots(region, k)``, computed here when not given); at most ``steps``
+    steps, fewer once every region has stopped. Needs >= 3 weighted points per region.
     """
     k = pose0.shape[0]
     dtype = X.dtype
     if slots is None:
         slots = region_slots(region, k, dtype)
     onehot = slots.chunk_onehot
-    R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
     weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
     cols = point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
                           to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
-    x, y, z, u, v, sqrt_w = cols
+    x, y, z, _, _, sqrt_w = cols
     valid = (sqrt_w > 0).astype(dtype)
-    dist = jnp.sqrt(x * x + y * y + z * z)
-    sums = _block_sums(onehot, jnp.stack([valid * dist, valid]))
+    sums = _block_sums(onehot, jnp.stack([valid * jnp.sqrt(x * x + y * y + z * z), valid]))
     mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
-    scale_rot = K[0, 0]
-    scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+    scale = jnp.concatenate([jnp.broadcast_to(K[0, 0], (k, 3)),
+                             jnp.broadcast_to((K[0, 0] / jnp.maximum(mean_dist, 1e-12))[:, None], (k, 3))],
+                            axis=-1)  # (k, 6): pixel-scaled units per parameter unit (finite for an empty region)
     per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
 
-    def pose_of(inc):
-        return small_matmul(so3_exp(inc[:, :3] / scale_rot), R0), t0 + inc[:, 3:] / scale_t[:, None]
+    def linearise(R, t):
+        """Squared error (k,), J^T J (k, 6, 6) and J^T r (k, 6) in the scaled parameters."""
+        (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
+        s = per_chunk(scale)[:, :, 0][..., None]  # (n_chunks, 6, 1)
 
-    @jax.custom_jvp
-    def residuals_of(inc):
-        R, t = pose_of(inc)
-        return pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)[0]
+        def rows(g):  # d residual / d (w, dt): w . (RX x g) + dt . g, then scaled
+            return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
+                              g[0], g[1], g[2]]) / jnp.moveaxis(s, 1, 0)
 
-    @residuals_of.defjvp
-    def residuals_jvp(primals, tangents):
-        # Analytic: d(exp(phi) R0 X) = (J_l(phi) d phi) x (R X); the per-point factors are
-        # computed once, and a tangent costs a broadcast and a few products per point.
-        (inc,), (d_inc,) = primals, tangents
-        R, t = pose_of(inc)
-        out, (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
-        d_rot = jnp.einsum("kij,kj->ki", so3_left_jacobian(inc[:, :3] / scale_rot), d_inc[:, :3]) / scale_rot
-        w, dt = per_chunk(d_rot), per_chunk(d_inc[:, 3:] / scale_t[:, None])  # (n_chunks, 3, 1) each
-        X_r, Y_r, Z_r = RX
-        dY = (w[:, 1] * Z_r - w[:, 2] * Y_r + dt[:, 0],  # w x (R X) + dt, by coordinate
-              w[:, 2] * X_r - w[:, 0] * Z_r + dt[:, 1],
-              w[:, 0] * Y_r - w[:, 1] * X_r + dt[:, 2])
-        return out, tuple(sum(g[i] * dY[i] for i in range(3)) for g in (grad_u, grad_v))
+        J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
+        cost = _block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
+        return cost, block_normals(onehot, J_u, J_v), _block_sums(onehot, J_u * du + J_v * dv)
 
-    def residuals(inc, args):
-        return residuals_of(inc)
+    def step(state):
+        R, t, cost, normal, grad, damping, growth, done, i = state
+        diag = jnp.diagonal(normal, axis1=1, axis2=2)
+        damped = normal + (damping[:, None] * diag + 1e-12)[:, :, None] * jnp.eye(6, dtype=dtype)
+        delta = -jax.vmap(solve_spd)(damped, grad) / scale  # (k, 6) in (w [rad], dt)
+        R_new, t_new = small_matmul(so3_exp(delta[:, :3]), R), t + delta[:, 3:]
+        cost_new, normal_new, grad_new = linearise(R_new, t_new)
+        scaled = delta * scale
+        predicted = -(2.0 * jnp.sum(grad * scaled, -1) + jnp.einsum("ki,kij,kj->k", scaled, normal, scaled))
+        rho = (cost - cost_new) / jnp.maximum(predicted, 1e-30)
+        # A step is taken only where it lowers the error by more than float32's rounding of the sum
+        # (so that differently fused programs, one device or several, take the same steps).
+        # Settled: the step lowers it by less, the linear model expects no more, or the step is
+        # below float32's resolution of a pixel; it is not taken, and nothing is left to gain.
+        lower = jnp.isfinite(cost_new) & (cost_new < cost)
+        significant = lower & (cost - cost_new > _LM_RTOL * cost + _LM_ATOL_PX**2)
+        settled = ~done & ((lower & ~significant) | (predicted <= _LM_RTOL * cost + _LM_ATOL_PX**2)
+                           | (jnp.max(jnp.abs(scaled), -1) < _LM_ATOL_PX))
+        accept = ~done & ~settled & significant
+        damping = jnp.where(accept, jnp.maximum(damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12),
+                            jnp.where(done, damping, damping * growth))
+        growth = jnp.where(accept, 2.0, jnp.where(done, growth, growth * 2.0))
+        pick = lambda new, old: jnp.where(accept.reshape((k,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
+        done = done | settled | (damping > _LM_MAX_DAMPING)
+        return (pick(R_new, R), pick(t_new, t), pick(cost_new, cost), pick(normal_new, normal), pick(grad_new, grad),
+                damping, growth, done, i + 1)
 
-    solver = optx.GaussNewton(rtol=_GN_RTOL, atol=_GN_ATOL, norm=optx.rms_norm,
-                              linear_solver=BlockNormalCholesky(onehot))
-    sol = optx.least_squares(residuals, solver, jnp.zeros((k, 6), pose0.dtype), max_steps=steps, throw=False)
-    R, t = pose_of(sol.value)
+    R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
+    cost0, normal0, grad0 = linearise(R0, t0)
+    done0 = ~jnp.isfinite(cost0) | ~jnp.all(jnp.isfinite(pose0), axis=-1)
+    state = (R0, t0, cost0, normal0, grad0, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype), done0, 0)
+    R, t, _, _, _, _, _, done, _ = jax.lax.while_loop(lambda s: (s[-1] < steps) & jnp.any(~s[-2]), step, state)
     pose6 = jnp.concatenate([so3_log(R), t], axis=-1)
-    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(pose6), axis=-1)
-    return pose6, ok
+    return pose6, done & jnp.all(jnp.isfinite(pose6), axis=-1)
 
 
 def translation_for_rotation(X, uv, weight, region, K, R, k: int):

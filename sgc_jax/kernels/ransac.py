@@ -4,14 +4,15 @@
 ``ransac_pnp_regions`` handles every region of a pair at once. Fixed shapes throughout: N padded
 points, each tagged with its region 1..k (0: none). A counting sort (``pnp.label_ranks``) groups
 the points by region, so each region draws its samples and scores its candidates on its own
-members only, and the final refinement solves all regions jointly (each point against its own
-region's pose, in ``pnp.RegionSlots`` chunks): a pair costs O(N) per Gauss-Newton step, not
+members only, and the local optimisation solves all regions jointly (each point against its own
+region's pose, in ``pnp.RegionSlots`` chunks): a pair costs O(N) per least-squares step, not
 O(k N). ``ransac_pnp`` is the one-region form. Poses map camera i-1 coordinates to camera i
 (x_i = R x_{i-1} + t); errors are in pixels of frame i.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -22,7 +23,7 @@ from ..config import MIN_CUT_PX, NOISE_CUT
 from .geometry import rotation_angle_deg, so3_exp, so3_log
 from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise, region_onehot, region_slots,
                   solve_pnp, solve_pnp_regions, translation_for_rotation)
-from .uncertainty import PoseUncertainty, leverage, pose_uncertainty, predicted_residual_chi2
+from .uncertainty import PoseUncertainty, pose_uncertainty
 
 class PnPResult(NamedTuple):
     """Pose (R, t) mapping camera i-1 coordinates to camera i (x_i = R x_{i-1} + t) and diagnostics.
@@ -161,18 +162,21 @@ def _best(trunc):
     return jnp.argmin(trunc)
 
 
-# Contenders carried through the refinement differ by more than this rotation [deg]; nearer ones
-# fall into the same optimum.
-DISTINCT_DEG = 0.5
+# RANSAC's adaptive stop counts the members within this many pixels of a candidate (at most
+# inlier_px): within inlier_px (8 px) nearly every member of a warped or mixed region fits some
+# early candidate, so the draws stopped after one chunk while better basins were still to be found
+# (docs/semantics.md §7.1; bench/RESULTS.md).
+ADAPTIVE_PX = 2.0
 
-# Re-admission after the final pass: members outside the noise cut whose residual the pose's
-# uncertainty explains at chi-square(2) < ADMIT_CHI2 (p = 0.05) join a refit. A looser threshold
-# (13.8) admits stray outliers with the pinning points, which hold the refit back.
-ADMIT_CHI2 = 6.0
-# Leverage check after it: a point carrying more than half of its region's pose information in
-# some direction (or LEVERAGE_RATIO x the average share, on small regions) is dropped for a refit.
-LEVERAGE_MAX = 0.5
-LEVERAGE_RATIO = 3.0
+# One truncated cost is lower than another when by more than this fraction of it, beyond
+# float32's rounding of the sum: two fits that reach the same optimum tie, whatever the order of
+# the sum (a program fused otherwise, on one device or several, makes the same choices).
+COST_RTOL = 1e-6
+
+
+def _lower(cost_a, cost_b):
+    """cost_a lower than cost_b by more than COST_RTOL of it (elementwise, finite cost_a)."""
+    return jnp.isfinite(cost_a) & (cost_a < cost_b - COST_RTOL * jnp.abs(cost_b))
 
 
 def _noise_sigma_sq(err_sq, member, onehot, thr_sq):
@@ -216,228 +220,147 @@ def _region_sums(onehot, values):
     return jnp.dot(onehot, values, precision=jax.lax.Precision.HIGHEST)
 
 
-def refine_poses(X, uv, region, K, contenders, rival_R, *, inlier_px, steps, passes, ambiguous_rot_deg,
-                 ambiguous_inlier_frac, batch_axis=None):
-    """Local optimisation of every region's pose6 from M contenders (contenders (M, k, 6)):
-    ``passes`` least-squares fits (``solve_pnp_regions``, all regions at once) on the current
-    inliers of each contender, the contender of lowest cost kept per region
-    (``lowest_cost_contender``), two checks on it, then the rival.
+class LocalOptima(NamedTuple):
+    """Poses (k, 6), each point's squared error under its region's pose (N,) [px^2], and each
+    region's truncated cost (k,) at the threshold they were optimised at."""
 
-    Per region, each pass fits the members with error < tau and is kept when the truncated cost
-    sum(min(e^2, tau^2)) over the members does not increase (LO-RANSAC / MSAC; it cannot, up to
-    the solver's accuracy). tau = inlier_px, except in the last pass: the noise cut
-    clip(NOISE_CUT * sigma, MIN_CUT_PX, inlier_px) with sigma^2 = mean e^2 / 2 over the inliers,
-    which drops stray outliers that sit just inside inlier_px when the noise is small.
+    poses: jax.Array
+    err_sq: jax.Array
+    cost: jax.Array
 
-    On a weakly conditioned region (a narrow depth band) the fit can slide along the valley where
-    rotation trades against translation, leaving out the few clean points that pin it (tens of
-    px off) or resting on one gross outlier. Each check proposes a refit, kept per region when its
-    truncated cost at the noise cut is no higher:
-    - re-admission: members outside the cut whose residual the pose's own uncertainty explains
-      (``predicted_residual_chi2`` < ADMIT_CHI2) join a fit, then the cut is applied again and
-      the fit repeated;
-    - leverage: members of the fit whose ``leverage`` exceeds max(LEVERAGE_MAX, LEVERAGE_RATIO x
-      the mean 6 / n) decide the pose alone, so their residuals cannot show whether they are
-      outliers; the region is refitted without them.
-    The rival (docs/semantics.md §3.3): from the rotation rival_R (3, 3) (the camera's) with the
-    translation that best explains the pose's members within the cut (``translation_for_rotation``),
-    one least-squares fit at inlier_px, then one at the cut, each on the members within the
-    threshold and kept when it does not raise the truncated cost there; where its optimum at
-    inlier_px costs less there than the coarse optimum, it is the coarse optimum and sets the cut.
-    It replaces the pose where its cost at the cut is lower; otherwise the pose is ambiguous
-    where the rival lies more than ``ambiguous_rot_deg`` away in rotation and keeps all but
-    max(1, floor(ambiguous_inlier_frac m)) of the m members within the cut of the pose.
-    -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
-    rule's inputs, as in the reference engine), n_inliers (k,) int32, ambiguous (k,) bool)
 
-    A check whose refit no region tries is skipped (it would keep nothing); ``batch_axis``, the
-    name of a ``vmap`` axis this is mapped over, makes that decision once for all the mapped
-    calls, so the skip stays a branch instead of both sides computed.
+def local_optima(X, uv, region, K, start, tau_sq_point, *, steps, max_rounds, slots=None):
+    """Every region's local optimum of the truncated cost at its threshold, from ``start`` (k, 6)
+    (docs/semantics.md §3.2 step 6): least squares on the members within the threshold
+    (``tau_sq_point`` (N,): each point's region's squared threshold), repeated on the new ones
+    until they stop changing, each fit kept only when it lowers the truncated cost; a region
+    stops at its first fit that does not, with fewer than 4 such members, or after
+    ``max_rounds`` fits -> LocalOptima.
+
+    All regions fit together (``solve_pnp_regions``, at most ``steps`` Levenberg-Marquardt steps
+    per fit); the loop runs until every region (and, under ``vmap``, every mapped call) has
+    stopped.
     """
-    k = contenders.shape[1]
+    k = start.shape[0]
+    dtype = X.dtype
+    onehot = region_onehot(region, k, dtype)
+    member = region >= 1
+    own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
+    slots = region_slots(region, k, dtype) if slots is None else slots
+
+    def evaluate(poses):
+        err_sq = _pose_errors_sq(poses, X, uv, K, onehot)
+        within = member & (err_sq < tau_sq_point)
+        cost = _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_sq_point), 0.0))
+        return err_sq, within, cost, _region_sums(onehot, within.astype(dtype))
+
+    def fit(state):
+        poses, err_sq, cost, within, n_within, done, rounds = state
+        fitted, _ = solve_pnp_regions(X, uv, (within & (own(done.astype(dtype)) == 0)).astype(dtype), region, K,
+                                      poses, steps=steps, slots=slots)
+        new_err_sq, new_within, new_cost, new_n = evaluate(fitted)
+        better = ~done & jnp.all(jnp.isfinite(fitted), axis=-1) & _lower(new_cost, cost)
+        point_better = own(better.astype(dtype)) > 0
+        changed = _region_sums(onehot, (new_within != within).astype(dtype)) > 0
+        return (jnp.where(better[:, None], fitted, poses), jnp.where(point_better, new_err_sq, err_sq),
+                jnp.where(better, new_cost, cost), jnp.where(point_better, new_within, within),
+                jnp.where(better, new_n, n_within), done | ~better | ~changed | (new_n < 4), rounds + 1)
+
+    def more(state):
+        return (state[-1] < max_rounds) & jnp.any(~state[-2])
+
+    err_sq, within, cost, n_within = evaluate(start)
+    done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
+    poses, err_sq, cost, *_ = jax.lax.while_loop(more, fit, (start, err_sq, cost, within, n_within, done, 0))
+    return LocalOptima(poses, err_sq, cost)
+
+
+def refine_poses(X, uv, region, K, starts, rival_R, *, inlier_px, steps, max_rounds, ambiguous_rot_deg,
+                 ambiguous_inlier_frac):
+    """The local pose of every region from M starts (starts (M, k, 6)), as docs/semantics.md
+    §3.2 step 6 and §3.3 define it:
+
+    1. each start's local optimum at inlier_px (``local_optima``); the lowest truncated cost is
+       the coarse optimum, whose noise-level cut clip(NOISE_CUT sigma, min(MIN_CUT_PX,
+       inlier_px), inlier_px) (sigma^2 = mean e^2 / 2 over its members within inlier_px) is the
+       region's cut tau;
+    2. the pose: the local optimum at tau from the coarse optimum;
+    3. the rival: from the rotation rival_R (3, 3) (the camera's) with the translation that best
+       explains the pose's members within tau (``translation_for_rotation``), the local optimum
+       at inlier_px (where it costs less than the coarse optimum, it is the coarse optimum and
+       its cut is tau), then at tau. It replaces the pose where it costs less at tau; otherwise
+       the pose is ambiguous where the rival lies more than ``ambiguous_rot_deg`` away in
+       rotation and keeps all but max(1, floor(ambiguous_inlier_frac m)) of the m members within
+       tau of the pose.
+    -> (poses (k, 6), inliers (N,) at inlier_px under each point's own final pose (the quality
+    rule's inputs), n_inliers (k,) int32, ambiguous (k,) bool)
+    """
+    k = starts.shape[1]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     own = lambda per_region: jnp.dot(onehot.T, per_region, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
-    slots = region_slots(region, k, dtype)  # one layout for all the joint solves below
-    fit_regions = lambda weight, start: solve_pnp_regions(X, uv, weight.astype(dtype), region, K, start,  # noqa: E731
-                                                          steps=steps, slots=slots)[0]
+    slots = region_slots(region, k, dtype)  # one layout for every joint solve
+    optimise = functools.partial(local_optima, X, uv, region, K, steps=steps, max_rounds=max_rounds, slots=slots)
+    at_inlier_px = jnp.full(X.shape[:1], thr_sq)
 
-    def truncated_cost(err_sq, tau_point):
-        return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_point), 0.0))
+    def cut_of(err_sq):
+        return own(_noise_cut_sq(_noise_sigma_sq(err_sq, member, onehot, thr_sq), inlier_px))
 
-    def keep_if_better(poses, err_sq, candidate, cand_err_sq, tried, tau_point):
-        """Each region's candidate pose replaces its pose where tried (k,), finite and of no higher
-        truncated cost at tau_point -> (poses, err_sq)."""
-        use = tried & jnp.all(jnp.isfinite(candidate), axis=-1) & (
-            truncated_cost(cand_err_sq, tau_point) <= truncated_cost(err_sq, tau_point))
-        return jnp.where(use[:, None], candidate, poses), jnp.where(own(use.astype(dtype)) > 0, cand_err_sq, err_sq)
+    def truncated_cost(err_sq, tau_sq_point):
+        return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_sq_point), 0.0))
 
-    # Every fit runs in one loop, so the solver is traced once: ``passes`` refinement passes, then
-    # the re-admission fit, its re-cut fit, the leverage fit and the rival's two fits. Per stage,
-    # one branch picks the points and start of the fit and one what is kept after it
-    # (``lax.switch`` on the loop index, which vmap leaves unbatched). The checks and the rival
-    # use the noise cut after the passes, the rival's own where its optimum at inlier_px is the
-    # coarse optimum.
-    ADMIT, LEVERAGE, RIVAL = passes, passes + 2, passes + 3  # re-cut: passes + 1; rival at the cut: passes + 4
+    coarse_all = jax.vmap(lambda start: optimise(start, at_inlier_px))(starts)
+    costs = jnp.where(jnp.isfinite(coarse_all.cost), coarse_all.cost, jnp.inf)
+    chosen = jnp.argmax(~_lower(jnp.min(costs, axis=0), costs), axis=0)  # (k,) the first of the lowest
+    point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]
+    coarse = LocalOptima(jnp.take_along_axis(coarse_all.poses, chosen[None, :, None], axis=0)[0],
+                         jnp.take_along_axis(coarse_all.err_sq, point_chosen[None], axis=0)[0],
+                         jnp.take_along_axis(coarse_all.cost, chosen[None], axis=0)[0])
+    tau = cut_of(coarse.err_sq)
+    pose = optimise(coarse.poses, tau)
 
-    class Stage(NamedTuple):
-        poses: jax.Array  # (k, 6) current poses
-        err_sq: jax.Array  # (N,) squared error of each point under its region's pose
-        candidate: jax.Array  # (k, 6) the re-admission fit, for the re-cut
-        tau: jax.Array  # (N,) squared cut of each point's region
-        tried: jax.Array  # (k,) regions the current check proposes a refit for
-        coarse: jax.Array  # (k,) the coarse optimum's truncated cost at inlier_px
+    t = translation_for_rotation(X, uv, member & (pose.err_sq < tau), region, K, rival_R, k)
+    rival_start = jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1)
+    rival_coarse = optimise(rival_start, at_inlier_px)
+    tau = jnp.where(own(_lower(rival_coarse.cost, coarse.cost).astype(dtype)) > 0, cut_of(rival_coarse.err_sq), tau)
+    rival = optimise(rival_coarse.poses, tau)
 
-    def refine_pass(stage, st):
-        cut_sq = _noise_cut_sq(_noise_sigma_sq(st.err_sq, member, onehot, thr_sq), inlier_px)
-        tau = own(jnp.where(stage < passes - 1, thr_sq, cut_sq))
-        return member & (st.err_sq < tau), st.poses, st._replace(tau=tau)
-
-    def admit(stage, st):
-        # members outside the cut that the pose's own uncertainty explains (they sit along the
-        # region's weak direction) join the fit
-        sigma_sq = _noise_sigma_sq(st.err_sq, member, onehot, thr_sq)
-        tau = own(_noise_cut_sq(sigma_sq, inlier_px))
-        fit = member & (st.err_sq < tau)
-        extra = member & ~fit & (predicted_residual_chi2(X, uv, region, K, st.poses, fit, sigma_sq) < ADMIT_CHI2)
-        return fit | extra, st.poses, st._replace(tau=tau, tried=_region_sums(onehot, extra.astype(dtype)) > 0)
-
-    def recut(stage, st):  # the cut applied again to the re-admission fit
-        return member & (_pose_errors_sq(st.candidate, X, uv, K, onehot) < st.tau), st.candidate, st
-
-    def drop_leverage(stage, st):  # points that decide the pose alone are dropped, the region refitted
-        fit = member & (st.err_sq < st.tau)
-        n_fit = _region_sums(onehot, fit.astype(dtype))
-        limit = jnp.maximum(LEVERAGE_MAX, LEVERAGE_RATIO * 6.0 / jnp.maximum(n_fit, 1.0))
-        high = fit & (leverage(X, uv, region, K, st.poses, fit) > own(limit))
-        return fit & ~high, st.poses, st._replace(tried=_region_sums(onehot, high.astype(dtype)) > 0)
-
-    def rival_start(stage, st):  # the camera's rotation, the translation that explains the pose's members
-        t = translation_for_rotation(X, uv, member & (st.err_sq < st.tau), region, K, rival_R, k)
-        start = jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1)
-        return member & (_pose_errors_sq(start, X, uv, K, onehot) < thr_sq), start, st._replace(candidate=start)
-
-    def rival_recut(stage, st):
-        # where the rival's optimum at inlier_px is the coarse optimum, it sets the cut
-        err_sq = _pose_errors_sq(st.candidate, X, uv, K, onehot)
-        lower = truncated_cost(err_sq, jnp.full_like(st.tau, thr_sq)) < st.coarse
-        cut_sq = _noise_cut_sq(_noise_sigma_sq(err_sq, member, onehot, thr_sq), inlier_px)
-        tau = jnp.where(own(lower.astype(dtype)) > 0, own(cut_sq), st.tau)
-        return member & (err_sq < tau), st.candidate, st._replace(tau=tau)
-
-    def keep_refit(st, refined, new_err_sq, tried):
-        poses, err_sq = keep_if_better(st.poses, st.err_sq, refined, new_err_sq, tried, st.tau)
-        return st._replace(poses=poses, err_sq=err_sq)
-
-    def keep_rival_fit(st, refined, new_err_sq, tau_point):
-        rival, _ = keep_if_better(st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot), refined, new_err_sq,
-                                  jnp.ones(k, bool), tau_point)
-        return st._replace(candidate=rival)
-
-    def one_fit(stage, st):
-        branch = jnp.where(stage < passes, 0, stage - passes + 1)
-        weight, start, st = jax.lax.switch(
-            branch, (refine_pass, admit, recut, drop_leverage, rival_start, rival_recut), stage, st)
-        wanted = (stage < ADMIT) | (stage > LEVERAGE) | jnp.any(st.tried)
-        if batch_axis is not None:
-            wanted = jax.lax.psum(wanted.astype(jnp.int32), batch_axis) > 0
-        refined = jax.lax.cond(wanted, lambda: fit_regions(weight, start), lambda: start)
-        new_err_sq = _pose_errors_sq(refined, X, uv, K, onehot)
-        keep = jnp.select([stage < passes, stage == ADMIT, stage <= LEVERAGE, stage == RIVAL], [0, 1, 2, 3], 4)
-        return jax.lax.switch(keep, (
-            lambda: keep_refit(st, refined, new_err_sq, jnp.ones(k, bool)),
-            lambda: st._replace(candidate=refined),
-            lambda: keep_refit(st, refined, new_err_sq, st.tried),
-            lambda: keep_rival_fit(st, refined, new_err_sq, jnp.full_like(st.tau, thr_sq)),
-            lambda: keep_rival_fit(st, refined, new_err_sq, st.tau)))
-
-    def start(poses):
-        return Stage(poses, _pose_errors_sq(poses, X, uv, K, onehot), poses, jnp.zeros_like(X[:, 0]),
-                     jnp.zeros(k, bool), jnp.zeros(k, dtype))
-
-    # the passes for every contender, then the checks for the one of lowest cost in each region
-    passed = jax.vmap(lambda poses: jax.lax.fori_loop(0, passes, one_fit, start(poses)))(contenders)
-    chosen, coarse_cost = lowest_cost_contender(
-        passed.err_sq, jnp.all(jnp.isfinite(passed.poses), axis=-1), region, inlier_px=inlier_px)  # (k,) each
-    point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]  # points of no region: any, they are never used
-    per_point = lambda a: jnp.take_along_axis(a, point_chosen[None], axis=0)[0]  # noqa: E731
-    poses = jnp.take_along_axis(passed.poses, chosen[None, :, None], axis=0)[0]
-    st = Stage(poses, per_point(passed.err_sq), poses, per_point(passed.tau), jnp.zeros(k, bool), coarse_cost)
-    st = jax.lax.fori_loop(passes, RIVAL + 2, one_fit, st)
-
-    rival, rival_err_sq = st.candidate, _pose_errors_sq(st.candidate, X, uv, K, onehot)
-    rival_finite = jnp.all(jnp.isfinite(rival), axis=-1)
-    lower = rival_finite & (truncated_cost(rival_err_sq, st.tau) < truncated_cost(st.err_sq, st.tau))
-    poses = jnp.where(lower[:, None], rival, st.poses)
-    err_sq = jnp.where(own(lower.astype(dtype)) > 0, rival_err_sq, st.err_sq)
-    near = member & (err_sq < st.tau)
+    rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
+    pose_cost = truncated_cost(pose.err_sq, tau)
+    lower = rival_finite & _lower(truncated_cost(rival.err_sq, tau), pose_cost)
+    poses = jnp.where(lower[:, None], rival.poses, pose.poses)
+    err_sq = jnp.where(own(lower.astype(dtype)) > 0, rival.err_sq, pose.err_sq)
+    near = member & (err_sq < tau)
     m = _region_sums(onehot, near.astype(dtype))
-    shared = _region_sums(onehot, (near & (rival_err_sq < st.tau)).astype(dtype))
+    shared = _region_sums(onehot, (near & (rival.err_sq < tau)).astype(dtype))
     margin = jnp.maximum(1.0, jnp.floor(ambiguous_inlier_frac * m))
-    apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival[:, :3])) > ambiguous_rot_deg
+    apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival.poses[:, :3])) > ambiguous_rot_deg
     ambiguous = rival_finite & apart & (shared >= m - margin)
 
     inliers = member & (err_sq < thr_sq)
     return poses, inliers, _region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32), ambiguous
 
 
-def lowest_cost_contender(err_sq, finite, region, *, inlier_px):
-    """Per region, the index (k,) of the contender of lowest truncated cost at the region's
-    noise-level cut (docs/semantics.md §3.2 step 6), the cut being that of the contender with the
-    lowest cost at inlier_px (the coarse optimum); ties go to the earlier contender. Also that
-    lowest cost at inlier_px (k,).
-
-    err_sq (M, N): each point's squared error under its region's pose of each of M contenders
-    (``_pose_errors_sq``); finite (M, k): which contender poses are finite.
-    """
-    k = finite.shape[1]
-    dtype = err_sq.dtype
-    onehot = region_onehot(region, k, dtype)
-    member = region >= 1
-    thr_sq = jnp.asarray(inlier_px, dtype) ** 2
-    err_sq = jnp.where(member[None], err_sq, 0.0)
-    coarse_cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, thr_sq).T).T, jnp.inf)
-    coarse = jnp.argmin(coarse_cost, axis=0)  # (k,)
-    point_region = jnp.clip(region - 1, 0, k - 1)
-    coarse_err_sq = jnp.take_along_axis(err_sq, coarse[point_region][None], axis=0)[0]
-    cut_sq = _noise_cut_sq(_noise_sigma_sq(coarse_err_sq, member, onehot, thr_sq), inlier_px)  # (k,)
-    point_cut_sq = jnp.dot(onehot.T, cut_sq, precision=jax.lax.Precision.HIGHEST)
-    cost = jnp.where(finite, _region_sums(onehot, jnp.minimum(err_sq, point_cut_sq[None]).T).T, jnp.inf)
-    return jnp.argmin(cost, axis=0), jnp.min(coarse_cost, axis=0)
-
-
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
-    """Each region tries the other regions' poses (k, 6) as hypotheses -> poses (k, 6).
+    """For each region, the other region's pose (poses (k, 6)) of lowest truncated cost at
+    inlier_px on its members -> (k, 6); its own pose where no other is finite.
 
     In a static scene every region moves with the camera, so a well-conditioned region's pose is
-    a good hypothesis for a weak one (a narrow, far depth band), whose own minimal samples can
-    settle in the wrong basin of the valley where rotation trades against translation. Per
-    region, the other regions' poses are scored on its members by the summed squared error
-    truncated at the region's noise-level cut (clip(NOISE_CUT sigma, MIN_CUT_PX, inlier_px), sigma
-    from its own pose's inliers at inlier_px), and the best replaces its pose only where it
-    scores strictly lower; the refinement (``refine_poses``) then fits it to the region's own
-    inliers. A region whose points move otherwise (an unmasked object, a warped layer) keeps
-    its own pose: the borrowed ones do not explain them.
+    a good start for a weak one (a narrow, far depth band), whose own minimal samples can settle
+    in the wrong basin of the valley where rotation trades against translation.
     """
     k = poses.shape[0]
-    dtype = X.dtype
-    onehot = region_onehot(region, k, dtype)
+    onehot = region_onehot(region, k, X.dtype)
     member = region >= 1
     finite = jnp.all(jnp.isfinite(poses), axis=-1)
     safe = jnp.where(finite[:, None], poses, 0.0)
     _, trunc = _truncated_errors_sq(so3_exp(safe[:, :3]), safe[:, 3:], X, uv, K, member, inlier_px)  # (k poses, N)
-    # each region's noise-level cut, from its own pose's inliers at inlier_px
-    own_trunc = jnp.sum(onehot * trunc, axis=0)  # (N,) under the point's own region's pose
-    sigma_sq = _noise_sigma_sq(own_trunc, member, onehot, jnp.asarray(inlier_px, dtype) ** 2)
-    point_cut_sq = jnp.dot(onehot.T, _noise_cut_sq(sigma_sq, inlier_px), precision=jax.lax.Precision.HIGHEST)
-    cost = _region_sums(onehot, jnp.minimum(trunc, point_cut_sq[None]).T)  # (k regions, k poses)
-    cost = jnp.where(finite[None, :], cost, jnp.inf)
-    own_cost = jnp.diagonal(cost)
-    lender = jnp.argmin(jnp.where(jnp.eye(k, dtype=bool), jnp.inf, cost), axis=1)
-    borrow = cost[jnp.arange(k), lender] < own_cost
-    return jnp.where(borrow[:, None], safe[lender], poses)
+    cost = _region_sums(onehot, trunc.T)  # (k regions, k poses)
+    cost = jnp.where(finite[None, :] & ~jnp.eye(k, dtype=bool), cost, jnp.inf)
+    lender = jnp.argmin(cost, axis=1)
+    return jnp.where(jnp.isfinite(cost[jnp.arange(k), lender])[:, None], safe[lender], poses)
 
 
 def samples_needed(inlier_frac, sample_size, confidence):
@@ -448,18 +371,17 @@ def samples_needed(inlier_frac, sample_size, confidence):
 
 
 def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
-                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence, n_refined):
-    """The ``n_refined`` best distinct pose6 (n_refined, 6) of one region, best first, from
-    minimal samples, scoring and local optimisation.
+                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence):
+    """The best pose6 (6,) of one region from minimal samples, scoring and one least-squares fit.
 
     Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
     gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
     subset; the ``lo_candidates`` best so far are kept (lowest summed truncated squared error,
-    MSAC, then draw order). Drawing stops once ``samples_needed`` for the best inlier fraction
-    and ``confidence`` are done (confidence 1: all of them). Each kept candidate then gets one
-    least-squares fit (``lo_steps`` Gauss-Newton steps) on its inliers, and the best of
-    candidates and fits (the lowest truncated cost at the best one's noise-level cut) is returned
-    with the next best more than DISTINCT_DEG apart.
+    MSAC, then draw order). Drawing stops once ``samples_needed`` for the best fraction of
+    members within ADAPTIVE_PX (at most inlier_px) of a candidate and ``confidence`` are done
+    (confidence 1: all of them). Each kept candidate then gets one least-squares fit (``lo_steps``
+    Gauss-Newton steps) on its inliers; the lowest truncated cost at inlier_px of candidates and
+    fits is returned.
     """
     N = X.shape[0]
     dtype = X.dtype
@@ -476,6 +398,7 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
     n_keep = min(lo_candidates, hypotheses * per_sample)
     n_valid_scored = jnp.minimum(n_members, n_scored)
     need_factor = jnp.asarray(confidence, dtype)
+    close_sq = jnp.minimum(jnp.asarray(ADAPTIVE_PX, dtype), inlier_px) ** 2
 
     def draw(state):
         c, top_pose, top_rank, best_count = state
@@ -483,49 +406,31 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
         poses = sample_candidates(X, uv, K, idx, sample_steps=sample_steps)
         ok = jnp.all(jnp.isfinite(poses), axis=-1) & jnp.repeat(drawn[c], per_sample)
         poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
-        _, count, trunc = _score(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-        rank = _rank_key(ok, trunc)
+        inliers, trunc_sq = _truncated_errors_sq(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid,
+                                                 inlier_px)
+        rank = _rank_key(ok, jnp.sum(trunc_sq, axis=-1))
         all_rank = jnp.concatenate([top_rank, rank])
         _, keep = jax.lax.top_k(all_rank, n_keep)
-        best_count = jnp.maximum(best_count, jnp.max(jnp.where(ok, count, 0)))
+        close = jnp.sum(inliers & (trunc_sq < close_sq), axis=-1, dtype=jnp.int32)
+        best_count = jnp.maximum(best_count, jnp.max(jnp.where(ok, close, 0)))
         return c + 1, jnp.concatenate([top_pose, poses])[keep], all_rank[keep], best_count
 
     def more(state):
         c, _, _, best_count = state
-        inlier_frac = best_count / jnp.maximum(n_valid_scored, 1).astype(dtype)
+        close_frac = best_count / jnp.maximum(n_valid_scored, 1).astype(dtype)
         return (c < n_chunks) & (n_members >= sample_size) & (
-            (c * chunk).astype(dtype) < samples_needed(inlier_frac, sample_size, need_factor))
+            (c * chunk).astype(dtype) < samples_needed(close_frac, sample_size, need_factor))
 
     init = (jnp.int32(0), jnp.zeros((n_keep, 6), dtype), jnp.full(n_keep, -jnp.inf, dtype), jnp.int32(0))
-    _, top_pose, top_rank, _ = jax.lax.while_loop(more, draw, init)
+    _, top_pose, _, _ = jax.lax.while_loop(more, draw, init)
 
-    # Local optimisation of the leading candidates on the scored points: one least-squares fit
-    # on each one's inliers; the best of candidates and fits goes on to the full refinement.
+    # one least-squares fit of each leading candidate on its inliers among the scored points
     inl_top, _, _ = _score(so3_exp(top_pose[:, :3]), top_pose[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
     fits, _ = jax.vmap(lambda p, w: solve_pnp(X_s, uv_s, w, K, steps=lo_steps, pose0=p))(top_pose, inl_top.astype(dtype))
     fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, top_pose)
-    contenders = jnp.concatenate([top_pose, fits])
-    R_c = so3_exp(contenders[:, :3])
-    inl, count, trunc = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    coarse = _best(trunc)
-    # The pose is chosen at the coarse optimum's noise level (the final refinement's cut,
-    # docs/semantics.md §3.2): at inlier_px a pose slid along an ill-conditioned valley keeps
-    # every point of the region.
-    err_sq = (trunc[coarse] - (jnp.sum(scored_valid) - count[coarse]) * inlier_px**2) / jnp.maximum(count[coarse], 1)
-    cut = jnp.clip(NOISE_CUT * jnp.sqrt(jnp.maximum(err_sq, 0.0) / 2.0), jnp.minimum(MIN_CUT_PX, inlier_px), inlier_px)
-    _, _, trunc_cut = _score(R_c, contenders[:, 3:], X_s, uv_s, K, scored_valid, cut)
-    return contenders[_leading_distinct(trunc_cut, R_c, n_refined)]
-
-
-def _leading_distinct(cost, R, count):
-    """Indices (count,) of the lowest ``cost`` (m,), each more than DISTINCT_DEG in rotation (R
-    (m, 3, 3)) from the ones before it; the lowest repeated where fewer are distinct."""
-    chosen = [_best(cost)]
-    for _ in range(count - 1):  # static, count is small
-        near = jnp.any(jnp.stack([rotation_angle_deg(R[c][None], R) <= DISTINCT_DEG for c in chosen]), axis=0)
-        rest = jnp.where(near, jnp.inf, cost)
-        chosen.append(jnp.where(jnp.isfinite(jnp.min(rest)), _best(rest), chosen[0]))
-    return jnp.stack(chosen)
+    candidates = jnp.concatenate([top_pose, fits])
+    _, _, trunc = _score(so3_exp(candidates[:, :3]), candidates[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
+    return candidates[_best(trunc)]
 
 
 def ransac_pnp_regions(
@@ -547,45 +452,37 @@ def ransac_pnp_regions(
     lo_steps=3,
     score_points=512,
     lo_candidates=4,
-    refine_passes=2,
+    max_rounds=5,
     chunk=10,
     ambiguous_rot_deg=3.0,
     ambiguous_inlier_frac=0.05,
     borrow=True,
-    refined_contenders=2,
-    batch_axis=None,
+    global_t=None,
 ):
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
     X (N, 3) points in camera i-1, uv (N, 2) their pixels in frame i, region (N,) int region of
     each point (1..k, 0: none), K (3, 3) intrinsics of frame i, keys (k,): one PRNG key per
-    region (same keys, same result), rival_R (3, 3): the rotation the rival starts from (the
-    camera's; None: the identity). Inlier: in front of the camera and reprojection error <
-    inlier_px [px]. Per region (vmapped):
+    region (same keys, same result), rival_R (3, 3): the camera's rotation R_g (None: the
+    identity), global_t (3,): the camera's translation s t_g in the units of X (None: not
+    known). Inlier: in front of the camera and reprojection error < inlier_px [px].
 
-    1. Samples of ``sample_size`` distinct members, ``chunk`` at a time, each giving sample_size
-       + 1 candidate poses (``sample_candidates``: the Gauss-Newton fit of the sample with
-       ``sample_steps`` steps, and its leave-one-out fits), scored on the members (at most
-       ``score_points`` of them: all when they fit, else a stratified random subset); drawing
-       stops after ``hypotheses`` samples, or earlier once RANSAC's adaptive rule
-       (``samples_needed``) is met at ``confidence`` for the best inlier fraction seen.
-    2. The ``lo_candidates`` best (lowest summed truncated squared error, MSAC, then draw order)
-       get one least-squares fit on their inliers (local optimisation, ``lo_steps`` Gauss-Newton
-       steps: it only has to pick the inlier set); the ``refined_contenders`` best of these
-       (at the best one's noise-level cut, DISTINCT_DEG apart) go on.
-    2b. With ``borrow`` (and k > 1), ``borrow_region_poses``: each region also scores the other
-       regions' poses from step 2 on its members and takes the best one in place of its first
-       contender where it scores lower.
-    3. All regions together, ``refine_poses``: ``refine_passes`` least-squares fits (``steps``
-       Gauss-Newton steps each) of each contender on its current inliers, the one of lowest
-       cost kept per region (``lowest_cost_contender``), then its checks and the rival, which
-       replaces it where it fits better and else may make it ambiguous; inliers and n_inliers
-       are those of the final pose.
-    Status: 1 when members < min_points; else 0 when inliers >= max(4, floor(min_inlier_frac *
-    members)), the pose is finite and det(R) ~ 1; else 2. ``batch_axis``: the name of a ``vmap``
-    axis the call is mapped over (``refine_poses``). Shape-like arguments (hypotheses,
-    sample_size, steps, sample_steps, lo_steps, score_points, lo_candidates, refine_passes, chunk,
-    borrow, refined_contenders) must be static under jit.
+    1. Per region (vmapped), ``_region_candidates``: samples of ``sample_size`` distinct
+       members, ``chunk`` at a time, each giving sample_size + 1 candidate poses
+       (``sample_candidates``), scored on the members (at most ``score_points`` of them: all
+       when they fit, else a stratified random subset); drawing stops after ``hypotheses``
+       samples, or earlier once RANSAC's adaptive rule is met at ``confidence``; the
+       ``lo_candidates`` best get one least-squares fit (``lo_steps`` Gauss-Newton steps), and
+       the best of all starts the region's search.
+    2. Starts besides it: with ``borrow`` (and k > 1) the pair's other region pose that fits the
+       region best (``borrow_region_poses``), and the camera's pose (rival_R, global_t).
+    3. All regions together, ``refine_poses``: the coarse optimum, the pose at the noise-level
+       cut and the rival (docs/semantics.md §3.2 step 6, §3.3), each local optimum at most
+       ``max_rounds`` least-squares fits of at most ``steps`` Levenberg-Marquardt steps.
+    Status: 1 when members < min_points; else 0 when inliers (of the final pose) >= max(4,
+    floor(min_inlier_frac * members)), the pose is finite and det(R) ~ 1; else 2. Shape-like
+    arguments (hypotheses, sample_size, steps, sample_steps, lo_steps, score_points,
+    lo_candidates, max_rounds, chunk, borrow) must be static under jit.
     """
     k = keys.shape[0]
     dtype = X.dtype
@@ -596,19 +493,29 @@ def ransac_pnp_regions(
     K = jnp.asarray(K, dtype)
     order, start, n_members = group_by_region(region, k)
 
-    best = jax.vmap(
+    own_best = jax.vmap(
         lambda s, n, key: _region_candidates(
             X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
             sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
-            chunk=chunk, confidence=confidence, n_refined=refined_contenders)
-    )(start, n_members, keys)  # (k, refined_contenders, 6)
+            chunk=chunk, confidence=confidence)
+    )(start, n_members, keys)  # (k, 6)
 
-    if borrow and k > 1:
-        best = best.at[:, 0].set(borrow_region_poses(X, uv, region, K, best[:, 0], inlier_px=inlier_px))
     rival_R = jnp.eye(3, dtype=dtype) if rival_R is None else jnp.asarray(rival_R, dtype)
+    starts = [own_best]
+    if borrow and k > 1:
+        starts.append(borrow_region_poses(X, uv, region, K, own_best, inlier_px=inlier_px))
+    if global_t is not None:
+        # the camera's rotation with the translation of the members the camera's motion explains:
+        # s t_g carries the scale fit's float32 rounding, which a change of units moves; the
+        # members within inlier_px of it, and the linear fit on them, do not move
+        camera = jnp.broadcast_to(jnp.concatenate([so3_log(rival_R), jnp.asarray(global_t, dtype)]), (k, 6))
+        explained = member & (_pose_errors_sq(camera, X, uv, K, region_onehot(region, k, dtype)) < inlier_px**2)
+        t = translation_for_rotation(X, uv, explained, region, K, rival_R, k)
+        t = jnp.where(jnp.all(jnp.isfinite(camera), axis=-1, keepdims=True), t, jnp.nan)  # no global pose: no start
+        starts.append(jnp.concatenate([camera[:, :3], t], axis=-1))
     poses, inliers, n_inliers, ambiguous = refine_poses(
-        X, uv, region, K, jnp.swapaxes(best, 0, 1), rival_R, inlier_px=inlier_px, steps=steps, passes=refine_passes,
-        ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac, batch_axis=batch_axis)
+        X, uv, region, K, jnp.stack(starts), rival_R, inlier_px=inlier_px, steps=steps, max_rounds=max_rounds,
+        ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac)
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
     err = jnp.sqrt(jnp.where(member, _own_pose_errors_sq(poses, X, uv, K, onehot)[0], 0.0))

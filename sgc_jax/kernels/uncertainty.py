@@ -115,46 +115,6 @@ def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
     )
 
 
-def _hat_blocks(jac: InlierJacobians, region):
-    """The 2x2 blocks J_n C J_n^T (h_uu, h_uv, h_vv, each (N,)) of every point against its own
-    region's inlier covariance C = (J^T J)^-1 (0 for points of no region)."""
-    k = jac.covariance.shape[0]
-    C = jac.covariance[jnp.clip(region - 1, 0, k - 1)]  # (N, 6, 6)
-    quad = lambda a, b: jnp.einsum("ni,nij,nj->n", a, C, b, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
-    return quad(jac.J_u, jac.J_u), quad(jac.J_u, jac.J_v), quad(jac.J_v, jac.J_v)
-
-
-def leverage(X, uv, region, K, poses, inliers):
-    """Each inlier's leverage (N,) in [0, 1]: the largest eigenvalue of its 2x2 hat-matrix block
-    J_n (J^T J)^-1 J_n^T, the share of its region's pose information that rests on that one
-    point in its most telling direction (0 for non-inliers). Arguments as ``inlier_jacobians``.
-
-    The blocks of a region sum to 6 (the pose's degrees of freedom) over its inliers. A point
-    near 1 decides the pose alone: its own residual is ~0 whatever its pixel says, so an outlier
-    there is invisible to the residuals and pulls the pose along the region's weak direction.
-    """
-    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
-    h_uu, h_uv, h_vv = _hat_blocks(jac, region)
-    largest = 0.5 * (h_uu + h_vv) + jnp.sqrt(0.25 * (h_uu - h_vv) ** 2 + h_uv**2)
-    return jnp.where(jnp.sum(jac.onehot, axis=0) > 0, jnp.clip(largest, 0.0, 1.0), 0.0)
-
-
-def predicted_residual_chi2(X, uv, region, K, poses, inliers, sigma_sq):
-    """How well each point (N,) fits its region's pose within that pose's uncertainty:
-    r^T (sigma^2 (I + J_n C J_n^T))^-1 r, chi-square with 2 degrees of freedom for a point that
-    moves with the inliers. r: its residual [px]; C = (J^T J)^-1 of the inliers (``inlier_jacobians``
-    arguments); sigma_sq (k,) the inliers' pixel noise variance. Large residuals along a region's
-    weak direction (rotation traded against translation) score low: the inliers do not pin the
-    pose there, so such a point may be the one that does.
-    """
-    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
-    h_uu, h_uv, h_vv = _hat_blocks(jac, region)
-    s = sigma_sq[jnp.clip(region - 1, 0, poses.shape[0] - 1)]
-    a, b, d = s * (1.0 + h_uu), s * h_uv, s * (1.0 + h_vv)
-    det = jnp.maximum(a * d - b * b, 1e-30)
-    return (d * jac.du**2 - 2.0 * b * jac.du * jac.dv + a * jac.dv**2) / det
-
-
 def rule_rot_std_deg(uncertainty: PoseUncertainty, quality_noise_px):
     """The rotation uncertainty the rule judges (k,) [deg]: ``rot_std_deg`` with the residual
     sigma capped at ``quality_noise_px``. Residuals beyond a tracker's noise are misfit (a moving
