@@ -25,6 +25,7 @@ from .pnp import (initial_pose, label_ranks, project_columns, project_pointwise,
                   solve_pnp, solve_pnp_regions, translation_for_rotation)
 from .uncertainty import PoseUncertainty, pose_uncertainty
 
+
 class PnPResult(NamedTuple):
     """Pose (R, t) mapping camera i-1 coordinates to camera i (x_i = R x_{i-1} + t) and diagnostics.
 
