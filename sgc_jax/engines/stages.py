@@ -99,7 +99,7 @@ def local_poses_pair(Z_prev, track_label, n_regions, region_pixels, K_prev, K_cu
     """docs/semantics.md §3.2 steps 3-7 for one pair (frames i-1 -> i), given frame i's regions at the points
     (``frame_regions``), then the region-quality rule (``uncertainty.region_quality``) when the
     config applies it. rival_R (3, 3), global_t (3,): the camera's motion R_g, s t_g (units of D),
-    a start of every region's search, R_g that of its rival (§3.3); the identity and NaN without
+    a start of every region's search, R_g that of its rival (§3.3); the identity and None without
     a global pose."""
     H, W = image_hw[0], image_hw[1]
     X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
@@ -259,7 +259,7 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
             scale = weighted_median(ratios, weights, fallback=scale)
         global_t = scale * t_g
     else:
-        global_t = jnp.full((n_pairs, 3), jnp.nan, x.K.dtype)
+        global_t = None  # no camera start (an empty pytree under vmap)
     poses = jax.vmap(functools.partial(local_poses_pair, config=config),
                      in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0, 0))(
         x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,

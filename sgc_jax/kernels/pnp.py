@@ -390,15 +390,15 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
                              jnp.broadcast_to((K[0, 0] / jnp.maximum(mean_dist, 1e-12))[:, None], (k, 3))],
                             axis=-1)  # (k, 6): pixel-scaled units per parameter unit (finite for an empty region)
     per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
+    chunk_scale = scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
 
     def linearise(R, t):
         """Squared error (k,), J^T J (k, 6, 6) and J^T r (k, 6) in the scaled parameters."""
         (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
-        s = per_chunk(scale)[:, :, 0][..., None]  # (n_chunks, 6, 1)
 
         def rows(g):  # d residual / d (w, dt): w . (RX x g) + dt . g, then scaled
             return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
-                              g[0], g[1], g[2]]) / jnp.moveaxis(s, 1, 0)
+                              g[0], g[1], g[2]]) / chunk_scale
 
         J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
         cost = _block_sums(onehot, (du * du + dv * dv)[None])[:, 0]

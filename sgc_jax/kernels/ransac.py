@@ -509,11 +509,11 @@ def ransac_pnp_regions(
         # the camera's rotation with the translation of the members the camera's motion explains:
         # s t_g carries the scale fit's float32 rounding, which a change of units moves; the
         # members within inlier_px of it, and the linear fit on them, do not move
-        camera = jnp.broadcast_to(jnp.concatenate([so3_log(rival_R), jnp.asarray(global_t, dtype)]), (k, 6))
-        explained = member & (_pose_errors_sq(camera, X, uv, K, region_onehot(region, k, dtype)) < inlier_px**2)
-        t = translation_for_rotation(X, uv, explained, region, K, rival_R, k)
-        t = jnp.where(jnp.all(jnp.isfinite(camera), axis=-1, keepdims=True), t, jnp.nan)  # no global pose: no start
-        starts.append(jnp.concatenate([camera[:, :3], t], axis=-1))
+        global_t = jnp.asarray(global_t, dtype)
+        err, in_front = reprojection_error_px(rival_R, global_t, X, uv, K)
+        t = translation_for_rotation(X, uv, member & in_front & (err < inlier_px), region, K, rival_R, k)
+        t = jnp.where(jnp.all(jnp.isfinite(global_t)), t, jnp.nan)  # no finite camera pose: no start
+        starts.append(jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1))
     poses, inliers, n_inliers, ambiguous = refine_poses(
         X, uv, region, K, jnp.stack(starts), rival_R, inlier_px=inlier_px, steps=steps, max_rounds=max_rounds,
         ambiguous_rot_deg=ambiguous_rot_deg, ambiguous_inlier_frac=ambiguous_inlier_frac)
