@@ -8,9 +8,10 @@ Writes the standard corpus (T=16, 288x512, 4096 tracks per pair, ~10 regions; cl
 ~8 MB) to --dir once (kept for later runs), compiles the bucket's program, then, warm:
 - in memory: ``score_batch`` of --in-memory clips already loaded (the device-only figure);
 - from disk: ``sgc-jax score``'s path, ``score_batch(folder, out=...)``: find, read, hash,
-  validate and pad in reader threads, score, write the CSV as clips finish. Prints clips per
-  second of both, their ratio, and the share of the wall time the scoring thread waited for a
-  clip to be read (an upper bound of the device's idle time for want of input);
+  validate and pad in readers (threads, or processes on a host of many cores), score, write the
+  CSV as clips finish. Prints clips per second of both, their ratio, and the share of the wall
+  time the scoring thread waited for a clip to be read (an upper bound of the device's idle time
+  for want of input);
 - memory: for each of --memory-sizes, a fresh process scores that many files from disk and
   reports its maximum resident set size and what it holds at the end (the results included).
 """
@@ -33,6 +34,7 @@ import jax
 
 from sgc_jax import enable_compilation_cache, save_clip, score_batch
 from sgc_jax.io.loading import load_clips
+from sgc_jax.readers import reading_plan
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.streaming import StreamStats
 
@@ -84,7 +86,10 @@ def main() -> None:
     parser.add_argument("--memory-sizes", type=int, nargs="*", default=[64, 256],
                         help="corpus sizes whose peak memory is measured, each in a fresh process")
     parser.add_argument("--dir", default=os.path.join(tempfile.gettempdir(), "sgc-stream-corpus"))
-    parser.add_argument("--readers", type=int, default=2, help="reader threads")
+    parser.add_argument("--readers", type=int, default=None, help="clip readers (default: the scorer's)")
+    parser.add_argument("--read-in", default="auto", choices=("auto", "threads", "processes"),
+                        help="readers are threads or processes (default: the scorer's choice)")
+    parser.add_argument("--lanes", type=int, default=None, help="clips scored at once (default: the scorer's)")
     args = parser.parse_args()
     enable_compilation_cache()  # the peak-memory processes load the program compiled here
     folder = Path(args.dir)
@@ -92,19 +97,21 @@ def main() -> None:
     paths = write_corpus(folder, max([args.clips, args.in_memory, *args.memory_sizes]))
     print(f"corpus: {len(paths)} standard clips in {folder} ({time.perf_counter() - begin:.0f} s to write the missing)",
           flush=True)
-    print(f"devices: {jax.devices()}; load average {os.getloadavg()[0]:.2f}", flush=True)
+    readers, processes = reading_plan(args.readers, args.read_in)
+    print(f"devices: {jax.devices()}; {readers} reader {'processes' if processes else 'threads'}; load average "
+          f"{os.getloadavg()[0]:.2f}", flush=True)
 
     in_memory = list(load_clips([str(p) for p in paths[:args.in_memory]]))
-    score_batch(in_memory[:1], progress=False)  # compile (or load) the bucket's program
+    score_batch(in_memory[:1], progress=False, lanes=args.lanes)  # compile (or load) the bucket's program
     begin = time.perf_counter()
-    score_batch(in_memory, progress=False)
+    score_batch(in_memory, progress=False, lanes=args.lanes)
     memory_rate = len(in_memory) / (time.perf_counter() - begin)
 
     stats = StreamStats()
     with tempfile.TemporaryDirectory() as out:
         begin = time.perf_counter()
         score_batch([str(p) for p in paths[:args.clips]], out=Path(out) / "scores.csv", progress=False,
-                    readers=args.readers, stats=stats)
+                    readers=args.readers, read_in=args.read_in, lanes=args.lanes, stats=stats)
         disk_rate = args.clips / (time.perf_counter() - begin)
     print(f"in memory: {memory_rate:.3f} clips/s ({len(in_memory)} clips, warm)")
     print(f"from disk: {disk_rate:.3f} clips/s ({args.clips} clips, reading, hashing, validating, writing the CSV)")

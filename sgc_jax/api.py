@@ -40,9 +40,9 @@ def resolve_calibration(calibration: Calibration | str | None, config: SGCConfig
 def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax",
                 progress: bool | None = None, chunk_size: int = 16, out: str | os.PathLike | None = None,
-                pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int = 2,
-                devices: int | None = None, lanes: int | None = None, ray_address: str | None = None,
-                ray_scorers: int | None = None,
+                pairs_out: str | os.PathLike | None = None, resume: bool = False, readers: int | None = None,
+                read_in: str = "auto", devices: int | None = None, lanes: int | None = None,
+                ray_address: str | None = None, ray_scorers: int | None = None,
                 stats: StreamStats | None = None, **overrides: Any) -> BatchResult:
     """Score every clip of ``source`` (path, directory, glob, mapping, Clip or list of them).
 
@@ -51,7 +51,9 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
     ``overrides`` are :class:`SGCConfig` fields (``use_mos=False``, ...).
     ``calibration``: None for the default of ``config.compat`` (see :func:`resolve_calibration`).
     ``progress``: a progress bar on stderr (default: when stderr is a terminal).
-    ``chunk_size``: clips read ahead of the device by ``readers`` threads (memory is bounded by it).
+    ``chunk_size``: clips read ahead of the device (memory is bounded by it) by ``readers``
+    threads or processes (``read_in``: "auto", "threads", "processes"; by default two threads,
+    or on a host of more than 4 cores one process per core but two; docs/semantics.md §4.1).
     ``out`` / ``pairs_out``: per-clip / per-pair tables written as clips finish, CSV or Parquet
     by the suffix (docs/semantics.md §4.1); ``resume``: keep the rows ``out`` already holds for the same input file content and
     run (version, engine, config, calibration) and score only the rest.
@@ -80,7 +82,7 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
             if ray_address is None:
                 stream = stream_scores(entries, config=config, calibration=calibration, engine=engine,
                                        run_id=run_id(run), done=done, read_ahead=chunk_size, readers=readers,
-                                       devices=devices, lanes=lanes, stats=stats)
+                                       read_in=read_in, devices=devices, lanes=lanes, stats=stats)
             else:
                 from .cluster import ray_stream_scores
 
@@ -102,8 +104,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
 
 def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
                 calibration: Calibration | str | None = None, engine: str = "jax", chunk_size: int = 16,
-                readers: int = 2, devices: int | None = None, lanes: int | None = None,
-                **overrides: Any) -> Iterator[ClipResult]:
+                readers: int | None = None, read_in: str = "auto", devices: int | None = None,
+                lanes: int | None = None, **overrides: Any) -> Iterator[ClipResult]:
     """Each clip's :class:`ClipResult` as soon as it is scored, in input order (arguments as
     :func:`score_batch`): for corpora too large to hold every result. ``ecd`` needs the whole
     corpus: compute it afterwards with :func:`~sgc_jax.io.result.camera_dynamics`."""
@@ -112,7 +114,8 @@ def iter_scores(source: Any, *, config: SGCConfig | dict | None = None,
     entries = discover_clips(source, config)
     run = run_id(run_record(config, calibration, engine))
     for item in stream_scores(entries, config=config, calibration=calibration, engine=engine, run_id=run,
-                              read_ahead=chunk_size, readers=readers, devices=devices, lanes=lanes):
+                              read_ahead=chunk_size, readers=readers, read_in=read_in, devices=devices,
+                              lanes=lanes):
         yield item.result
 
 

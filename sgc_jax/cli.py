@@ -225,6 +225,8 @@ def cmd_score(args: argparse.Namespace) -> int:
         raise UsageError(f"--devices must be 0 (all) or more, got {args.devices}")
     if args.lanes < 0:
         raise UsageError(f"--lanes must be 0 (the default) or more, got {args.lanes}")
+    if args.readers < 0:
+        raise UsageError(f"--readers must be 0 (the default) or more, got {args.readers}")
     if args.resume and not out:
         raise UsageError("--resume needs --out: the output of the run to resume")
     if args.ray_scorers < 0 or (args.ray_scorers and args.ray is None):
@@ -239,8 +241,8 @@ def cmd_score(args: argparse.Namespace) -> int:
                   + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
                          progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
-                         devices=args.devices or None, lanes=args.lanes or None, ray_address=args.ray,
-                         ray_scorers=args.ray_scorers or None,
+                         devices=args.devices or None, lanes=args.lanes or None, readers=args.readers or None,
+                         read_in=args.read_in, ray_address=args.ray, ray_scorers=args.ray_scorers or None,
                          stats=stats)
     for clip in result.clips:
         if clip.status == "error":
@@ -295,6 +297,12 @@ def _register_score(sub) -> None:
     score.add_argument("--lanes", type=int, default=0, metavar="N",
                        help="clips scored at once on the devices (default 0: one per core up to two on a CPU, two "
                             "on an accelerator; docs/semantics.md §4.1); the numbers do not depend on it")
+    score.add_argument("--readers", type=int, default=0, metavar="N",
+                       help="clip readers (default 0: two threads; on a host of more than 4 cores one process per "
+                            "core but two)")
+    score.add_argument("--read-in", choices=("auto", "threads", "processes"), default="auto",
+                       help="read the clip files in threads or processes (default auto: processes on a host of more "
+                            "than 4 cores; docs/semantics.md §4.1)")
     score.add_argument("--ray", metavar="ADDRESS",
                        help="score on a Ray cluster: 'auto' (the one this machine belongs to), 'local' (start one "
                             "here) or its address; inputs must be readable from every node: a shared folder or a "

@@ -50,8 +50,9 @@ class ShardScorer:
             from .engines.compile_cache import enable_compilation_cache
 
             enable_compilation_cache()
+        # reader threads: a shard is too short to pay for starting reader processes
         self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices,
-                            lanes=lanes)
+                            lanes=lanes, read_in="threads")
 
     def score(self, entries: list[ClipEntry], done: Mapping[tuple[str, str], Mapping[str, str]]
               ) -> tuple[list[Streamed], StreamStats]:

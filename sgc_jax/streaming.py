@@ -1,7 +1,8 @@
 """Scoring a corpus as a stream (docs/semantics.md §4.1).
 
-Reader threads hash, read, validate and pad the clips ahead of the device, at most ``read_ahead``
-of them at a time (memory does not grow with the corpus); ``lanes`` scoring threads each score
+Readers hash, read, validate and pad the clips ahead of the device, at most ``read_ahead`` of
+them at a time (memory does not grow with the corpus): threads, or on a host of many cores
+processes for the clip files (``reading_plan``); ``lanes`` scoring threads each score
 one clip (with several devices, a group of one clip per device, the clip axis sharded over them)
 at a time, and every finished clip is handed on at once, in input order. Clip ids are claimed in
 input order by the generator's thread, so the first file with an id keeps it whatever order the
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import contextlib
 import dataclasses
 import time
 from typing import Any, Callable, Iterator, Mapping, NamedTuple
@@ -22,6 +24,7 @@ from .io.clip import Clip, ClipFormatError
 from .io.journal import FileDigests
 from .io.loading import ClipEntry
 from .io.result import ClipResult, PairArrays, clip_from_row, failed_clip, summarize_clip
+from .readers import THREAD_READERS, Read, ReaderProcesses, prepare_step, read_entry, reading_plan
 
 
 class Engine(NamedTuple):
@@ -51,7 +54,7 @@ def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes
 
         spread = jax_engine.scoring_devices(devices)
         lanes = lanes or jax_engine.default_lanes(spread)
-        prepare = lambda clip: jax_engine.prepare_clip(clip, config)  # noqa: E731
+        prepare = prepare_step(name, config)
         collect = lambda dispatched: jax_engine.collect(dispatched, config)  # noqa: E731
         if len(spread) == 1:
             return Engine(prepare, lambda group: jax_engine.dispatch(group[0], config), collect, lanes=lanes)
@@ -60,7 +63,7 @@ def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes
     if name == "reference":
         from .engines import reference
 
-        return Engine(lambda clip: clip, lambda group: group[0],
+        return Engine(prepare_step(name, config), lambda group: group[0],
                       lambda clip: [reference.score_pairs(clip, config)], lanes=lanes or 1)
     raise ValueError(f"engine must be one of ('jax', 'reference'), got {name!r}")
 
@@ -98,66 +101,52 @@ def error_result(entry: ClipEntry, error: ClipFormatError, sha256: str, engine: 
     return dataclasses.replace(result, input_sha256=sha256, run_id=run_id)
 
 
-class _Read(NamedTuple):
-    """A reader thread's work on one entry."""
-
-    entry: ClipEntry
-    sha256: str
-    clip: Clip | None = None
-    prepared: Any = None
-    error: ClipFormatError | None = None
-    kept_row: Mapping[str, str] | None = None
-
-
-def _read(entry: ClipEntry, engine: Engine, digests: FileDigests, done: Mapping[tuple[str, str], Any]) -> _Read:
-    try:
-        sha256 = digests.of(entry.path) if entry.path is not None else ""
-    except OSError:  # a dangling link, say: reading the clip names the problem
-        sha256 = ""
-    kept_row = done.get((entry.clip_id, sha256)) if sha256 else None
-    if kept_row is not None:
-        return _Read(entry, sha256, kept_row=kept_row)
-    try:
-        clip = entry.read_clip()
-    except ClipFormatError as exc:
-        return _Read(entry, sha256, error=exc)
-    return _Read(entry, sha256, clip, engine.prepare(clip))
-
-
 def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                   run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
-                  read_ahead: int = 16, readers: int = 2, devices: int | None = None, lanes: int | None = None,
+                  read_ahead: int = 16, readers: int | None = None, read_in: str = "auto",
+                  devices: int | None = None, lanes: int | None = None,
                   stats: StreamStats | None = None) -> Iterator[Streamed]:
     """Every entry's result, in input order, as soon as it is known.
 
     ``done``: rows of an earlier run's output by (clip_id, input_sha256); those inputs are not
     read again and come back with their row (``Streamed.kept_row``). A clip that fails to load
-    (:class:`ClipFormatError`) is an error row; any other exception propagates. ``devices``: the
-    JAX engine spreads clips over the first that many local devices (all when None), one clip
-    per device at a time; ``lanes``: clips (groups) scored at once (``engine_steps``). The
-    results do not depend on either.
+    (:class:`ClipFormatError`) is an error row; any other exception propagates. ``readers`` and
+    ``read_in``: ``reading_plan`` (clips given in memory are always read in threads).
+    ``devices``: the JAX engine spreads clips over the first that many local devices (all when
+    None), one clip per device at a time; ``lanes``: clips (groups) scored at once
+    (``engine_steps``). The results depend on none of these.
     """
+    readers, in_processes = reading_plan(readers, read_in)
     steps = engine_steps(engine, config, devices, lanes)
     digests, done = FileDigests(), done or {}
     stats = stats if stats is not None else StreamStats()
     start = time.perf_counter()
 
-    def finished(read: _Read, pairs: PairArrays) -> Streamed:
-        clip = read.clip
+    def finished(read: Read, pairs: PairArrays) -> Streamed:
+        clip = read.identity
         result = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
                                 mask_source=clip.mask_source, origin=read.entry.origin, compat=config.compat)
         stats.scored += 1
         return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=run_id), None)
 
-    def failed(read: _Read, error: ClipFormatError) -> Streamed:
+    def failed(read: Read, error: ClipFormatError) -> Streamed:
         stats.errors += 1
         return Streamed(error_result(read.entry, error, read.sha256, engine, config, run_id), None,
                         load_failed=read.error is not None)
 
     threads = concurrent.futures.ThreadPoolExecutor
-    with threads(max_workers=max(1, readers), thread_name_prefix="sgc-read") as pool, \
-            threads(max_workers=steps.lanes, thread_name_prefix="sgc-score") as lanes_pool:
-        queue: collections.deque = collections.deque()
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(threads(max_workers=THREAD_READERS if in_processes else readers,
+                                           thread_name_prefix="sgc-read"))
+        lanes_pool = stack.enter_context(threads(max_workers=steps.lanes, thread_name_prefix="sgc-score"))
+        processes = stack.enter_context(ReaderProcesses(readers, engine, config, done)) if in_processes else None
+
+        def submit(entry: ClipEntry) -> concurrent.futures.Future:
+            if processes is not None and entry.path is not None:  # clips given in memory stay here
+                return processes.submit(entry)
+            return pool.submit(read_entry, entry, steps.prepare, digests, done)
+
+        queue: collections.deque = collections.deque()  # (entry, future of its Read), input order
         upcoming = iter(entries)
 
         def fill() -> None:
@@ -165,9 +154,9 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                 entry = next(upcoming, None)
                 if entry is None:
                     return
-                queue.append(pool.submit(_read, entry, steps, digests, done))
+                queue.append((entry, submit(entry)))
 
-        group: list[_Read] = []  # read, waiting to be scored together (one bucket)
+        group: list[Read] = []  # read, waiting to be scored together (one bucket)
         pending: collections.deque = collections.deque()  # (reads, future of their per-pair arrays), input order
 
         def launch() -> Iterator[Streamed]:
@@ -194,7 +183,8 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
             fill()
             while queue:
                 begin = time.perf_counter()
-                read = queue.popleft().result()
+                entry, future = queue.popleft()
+                read = future.result()._replace(entry=entry)  # a reader process returns a copy
                 stats.input_wait_s += time.perf_counter() - begin
                 fill()
                 error = read.error
@@ -203,13 +193,14 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                         read.entry.claim_id()  # in input order: the first file with an id keeps it
                     except ClipFormatError as exc:
                         error = exc
-                if error is not None or read.kept_row is not None:
+                if error is not None or read.resumed:
                     yield from drain()  # results go in input order
                     if error is not None:
                         yield failed(read, error)
                     else:
                         stats.resumed += 1
-                        yield Streamed(clip_from_row(read.kept_row), read.kept_row)
+                        kept_row = done[(entry.clip_id, read.sha256)]
+                        yield Streamed(clip_from_row(kept_row), kept_row)
                     continue
                 if group and steps.group_key(read.prepared) != steps.group_key(group[0].prepared):
                     yield from launch()
@@ -218,6 +209,6 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
                     yield from launch()
             yield from drain()
         finally:
-            for future in [*queue, *(future for _, future in pending)]:
+            for future in [*(future for _, future in queue), *(future for _, future in pending)]:
                 future.cancel()
             stats.wall_s += time.perf_counter() - start

@@ -127,6 +127,7 @@ def test_exit_codes_are_as_documented(scored, tmp_path):
         "an unknown calibration": (run("score", clip, "--calibration", "nope"), "nope"),
         "a malformed option": (run("score", clip, "--partition", "hexagons"), "invalid choice"),
         "a negative lane count": (run("score", clip, "--lanes", "-1"), "--lanes"),
+        "a negative reader count": (run("score", clip, "--readers", "-1"), "--readers"),
     }
     for case, (proc, words) in usage.items():
         assert proc.returncode == EXIT_USAGE and words in proc.stderr, (case, proc.stderr)

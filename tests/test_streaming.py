@@ -246,6 +246,58 @@ def test_a_ray_run_claims_ids_in_input_order_and_resumes_like_one_process(ray_cl
     assert (stats.resumed, stats.scored, stats.errors) == (2, 2, 1)
 
 
+def test_reader_processes_give_the_table_of_reader_threads(clip_files, uninterrupted, tmp_path):
+    whole, whole_out = uninterrupted
+    by_id = {clip.clip_id: clip for clip in whole}
+    folder = tmp_path / "clips"
+    shutil.copytree(clip_files, folder)
+    shutil.copyfile(folder / "rigid.npz", folder / "rigid_again.npz")  # the same id: a duplicate
+    (folder / "broken.npz").write_bytes(b"not a zip file")
+    tables = {}
+    for read_in in ("threads", "processes"):
+        out = tmp_path / read_in / "scores.csv"
+        result = score_batch(folder, out=out, read_in=read_in, readers=2, chunk_size=3, progress=False)
+        tables[read_in] = out.read_text()
+        for clip in result:
+            if clip.status != "error":
+                for a, b in zip(dataclasses.astuple(clip.pairs), dataclasses.astuple(by_id[clip.clip_id].pairs)):
+                    np.testing.assert_array_equal(a, b)
+    assert tables["processes"] == tables["threads"]
+    rows = _rows(tmp_path / "processes" / "scores.csv")
+    assert [r["status"] == "error" for r in rows] == [True, False, False, False, False, True]
+    assert "duplicate: first seen in" in rows[-1]["reason"]
+    # resuming in processes keeps what the output holds, as in threads
+    out = tmp_path / "resumed.csv"
+    out.write_text("".join(whole_out.read_text().splitlines(keepends=True)[:3]))
+    stats = StreamStats()
+    score_batch(clip_files, out=out, resume=True, read_in="processes", readers=2, progress=False, stats=stats)
+    assert (stats.resumed, stats.scored) == (2, 2)
+    assert out.read_text() == whole_out.read_text()
+
+
+def test_reader_processes_do_not_run_the_callers_script_again(clip_files, tmp_path):
+    script = tmp_path / "unguarded.py"  # no `if __name__ == "__main__"`, as many research scripts
+    script.write_text("from sgc_jax import score_batch\n"
+                      f"result = score_batch({str(clip_files / 'rigid.npz')!r}, engine='reference', "
+                      "read_in='processes', readers=2, progress=False)\n"
+                      "print('scored', len(result))\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["scored", "1"]
+
+
+def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch):
+    from sgc_jax.readers import PROCESS_READING_CORES, THREAD_READERS, reading_plan
+
+    for cores, plan in ((2, (THREAD_READERS, False)), (PROCESS_READING_CORES, (THREAD_READERS, False)),
+                        (16, (14, True))):
+        monkeypatch.setattr("sgc_jax.readers.available_cores", lambda n=cores: n)
+        assert reading_plan() == plan, cores
+    assert reading_plan(3, "threads") == (3, False) and reading_plan(None, "processes") == (14, True)
+    with pytest.raises(ValueError, match="read_in must be one of"):
+        reading_plan(None, "fibres")
+
+
 def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_accelerator(monkeypatch):
     from types import SimpleNamespace
 

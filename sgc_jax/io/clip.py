@@ -33,6 +33,9 @@ class ClipFormatError(ValueError):
         message = f"clip {clip_id!r}: array {array!r}: expected {expected}, found {found}"
         super().__init__(message + (f" ({detail})" if detail else ""))
 
+    def __reduce__(self):  # pickled by its fields (a reader process sends it back), not by its message
+        return type(self), (self.clip_id, self.array, self.expected, self.found, self.detail)
+
 
 @dataclasses.dataclass
 class Clip:

@@ -9,6 +9,7 @@ Structural problems (missing arrays, shapes, dtypes, non-finite cameras) are che
 from __future__ import annotations
 
 import dataclasses
+import functools
 import glob
 import json
 import os
@@ -427,7 +428,8 @@ class ClipEntry:
     """A clip to be loaded lazily: its id, where it comes from, and how to read it.
 
     ``read`` returns the clip's arrays (docs/semantics.md §1.2), or the :class:`Clip` given in
-    memory, and raises :class:`ClipFormatError` for a file that cannot give them.
+    memory, and raises :class:`ClipFormatError` for a file that cannot give them. A file's entry
+    pickles (without ``id_owners``), so a reader process can read it.
     """
 
     clip_id: str
@@ -467,10 +469,12 @@ def duplicate_error(clip_id: str, first_origin: str) -> ClipFormatError:
                            "this clip is not scored; give it its own clip_id")
 
 
+def _raise(exc: ClipFormatError) -> Any:
+    raise exc
+
+
 def _failing(exc: ClipFormatError) -> Callable[[], Any]:
-    def fail() -> Any:
-        raise exc
-    return fail
+    return functools.partial(_raise, exc)
 
 
 def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False) -> dict[str, Any]:
@@ -489,17 +493,18 @@ def entries_from_file(path: Path | str, config: SGCConfig) -> list[ClipEntry]:
         headers = _read(path, stem, headers=True)
         if not is_batch(headers):
             clip_id = _meta_id(_read(path, stem, ["meta"]).get("meta")) or stem
-            return [ClipEntry(clip_id, origin, lambda: _read(path, clip_id), config, origin)]
+            return [ClipEntry(clip_id, origin, functools.partial(_read, path, clip_id), config, origin)]
         layout = batch_layout({k: shape for k, (shape, _) in headers.items()}, _read(path, stem, BOOKKEEPING), stem)
     except ClipFormatError as exc:
         return [ClipEntry(stem, origin, _failing(exc), config, origin)]
-
-    def read_member(b: int) -> dict[str, Any]:
-        arrays = _read(path, layout.ids[b])
-        return _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
-
-    return [ClipEntry(layout.ids[b], f"{origin}[{b}]", lambda b=b: read_member(b), config, origin)
+    return [ClipEntry(layout.ids[b], f"{origin}[{b}]",
+                      functools.partial(_read_batch_member, path, b, layout.ids[b], stem), config, origin)
             for b in range(len(layout))]
+
+
+def _read_batch_member(path: Path | str, b: int, clip_id: str, stem: str) -> dict[str, Any]:
+    arrays = _read(path, clip_id)
+    return _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
 
 
 def _entries_from_mapping(source: Mapping[str, Any], config: SGCConfig) -> list[ClipEntry]:

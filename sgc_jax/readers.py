@@ -1,0 +1,189 @@
+"""Reading clips ahead of the device (docs/semantics.md §4.1): hash, read, validate and prepare
+one entry (``read_entry``), in a thread or in a reader process (``ReaderProcesses``).
+
+Reading a standard clip is 60-200 ms of NumPy and zlib, much of it holding Python's GIL, so
+reader threads keep only about four cores busy however many there are (bench/RESULTS.md): too
+few to feed a GPU. Reader processes are plain subprocesses (``serve``) that
+talk pickle over their stdin and stdout, each driven by one thread of a pool. Not
+``multiprocessing``: its spawned children import the caller's ``__main__`` script again, which
+runs a script without an ``if __name__ == "__main__"`` guard once more in every reader, and
+forking would copy a process that runs XLA's threads.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import os
+import pickle
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from typing import Any, BinaryIO, Callable, Container, NamedTuple
+
+from .config import SGCConfig
+from .io.clip import Clip, ClipFormatError
+from .io.journal import FileDigests
+from .io.loading import ClipEntry
+
+READ_IN = ("auto", "threads", "processes")
+# "auto" reads clip files in processes on hosts of more cores than this; on smaller ones (the
+# 2-core box) THREAD_READERS threads keep up with the device.
+PROCESS_READING_CORES = 4
+THREAD_READERS = 2
+
+
+def available_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def reading_plan(readers: int | None = None, read_in: str = "auto") -> tuple[int, bool]:
+    """(how many readers, whether they are processes): ``read_in`` "threads", "processes", or
+    "auto" (processes on hosts of more than PROCESS_READING_CORES cores). ``readers`` by default:
+    THREAD_READERS threads, or one process per core but two (for the scoring threads)."""
+    if read_in not in READ_IN:
+        raise ValueError(f"read_in must be one of {READ_IN}, got {read_in!r}")
+    if readers is not None and readers < 1:
+        raise ValueError(f"readers must be at least 1, got {readers}")
+    cores = available_cores()
+    processes = read_in == "processes" or (read_in == "auto" and cores > PROCESS_READING_CORES)
+    if readers is None:
+        readers = max(1, cores - 2) if processes else THREAD_READERS
+    return readers, processes
+
+
+def prepare_step(engine: str, config: SGCConfig) -> Callable[[Clip], Any]:
+    """The engine's host-side preparation of a clip (NumPy only; touches no device)."""
+    if engine == "jax":
+        from .engines import jax_engine
+
+        return lambda clip: jax_engine.prepare_clip(clip, config)
+    if engine == "reference":
+        return lambda clip: clip
+    raise ValueError(f"engine must be one of ('jax', 'reference'), got {engine!r}")
+
+
+class Identity(NamedTuple):
+    """What a result needs of its clip besides the per-pair arrays."""
+
+    clip_id: str
+    group: str
+    mask_source: str
+
+
+class Read(NamedTuple):
+    """A reader's work on one entry: the file's SHA-256 ("" for a clip given in memory), and the
+    prepared clip, or the reason it cannot be scored, or ``resumed`` (an earlier run scored it)."""
+
+    entry: ClipEntry
+    sha256: str
+    identity: Identity | None = None
+    prepared: Any = None
+    error: ClipFormatError | None = None
+    resumed: bool = False
+
+
+def read_entry(entry: ClipEntry, prepare: Callable[[Clip], Any], digests: FileDigests,
+               done: Container[tuple[str, str]]) -> Read:
+    """Hash, then (unless (clip_id, sha256) is in ``done``) read, validate and prepare one entry.
+    Raises only what is not a :class:`ClipFormatError`."""
+    try:
+        sha256 = digests.of(entry.path) if entry.path is not None else ""
+    except OSError:  # a dangling link, say: reading the clip names the problem
+        sha256 = ""
+    if sha256 and (entry.clip_id, sha256) in done:
+        return Read(entry, sha256, resumed=True)
+    try:
+        clip = entry.read_clip()
+    except ClipFormatError as exc:
+        return Read(entry, sha256, error=exc)
+    return Read(entry, sha256, Identity(clip.clip_id, clip.group, clip.mask_source), prepare(clip))
+
+
+def _send(channel: BinaryIO, value: Any) -> None:
+    data = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)  # whole, so a failure sends nothing
+    channel.write(data)
+    channel.flush()
+
+
+class ReaderProcesses:
+    """``count`` reader processes for clip files, started as they are first needed; ``submit``
+    returns a future of the entry's :class:`Read` (its ``entry`` a copy: the caller's entry
+    holds the run's id registry, which stays here). Use as a context manager."""
+
+    def __init__(self, count: int, engine: str, config: SGCConfig, done: Container[tuple[str, str]]) -> None:
+        self._setup = (engine, config, frozenset(done))
+        self._threads = concurrent.futures.ThreadPoolExecutor(count, thread_name_prefix="sgc-read-process")
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        self._workers: list[subprocess.Popen] = []
+
+    def submit(self, entry: ClipEntry) -> concurrent.futures.Future:
+        return self._threads.submit(self._read, dataclasses.replace(entry, id_owners=None))
+
+    def _worker(self) -> subprocess.Popen:
+        worker = getattr(self._local, "worker", None)
+        if worker is None:
+            # the child imports sgc_jax from where this process did, and keeps off any GPU
+            here = str(Path(__file__).resolve().parents[1])
+            path = os.pathsep.join([here, *filter(None, [os.environ.get("PYTHONPATH")])])
+            worker = subprocess.Popen([sys.executable, "-c", "from sgc_jax.readers import serve; serve()"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
+            with self._lock:
+                self._workers.append(worker)
+            _send(worker.stdin, self._setup)
+            self._local.worker = worker
+        return worker
+
+    def _read(self, entry: ClipEntry) -> Read:
+        worker = self._worker()
+        try:
+            _send(worker.stdin, entry)
+            ok, value = pickle.load(worker.stdout)
+        except (EOFError, BrokenPipeError) as exc:
+            raise RuntimeError(f"a reader process ended (exit code {worker.poll()}) while reading {entry.origin}; "
+                               "its error, if any, is above on stderr") from exc
+        if not ok:
+            raise value
+        return value
+
+    def close(self) -> None:
+        self._threads.shutdown(wait=True, cancel_futures=True)
+        for worker in self._workers:
+            worker.stdin.close()  # the reader's loop ends at the end of its input
+        for worker in self._workers:
+            try:
+                worker.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                worker.kill()
+            worker.stdout.close()
+
+    def __enter__(self) -> "ReaderProcesses":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def serve() -> None:
+    """A reader process: the setup (engine, config, done keys), then one entry after another on
+    stdin; (True, Read) or (False, exception) for each on stdout."""
+    requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)  # anything the reading prints goes to stderr, not into the replies
+    engine, config, done = pickle.load(requests)
+    prepare, digests = prepare_step(engine, config), FileDigests()
+    while True:
+        try:
+            entry = pickle.load(requests)
+        except EOFError:
+            return
+        try:
+            reply = (True, read_entry(entry, prepare, digests, done))
+        except Exception as exc:  # noqa: BLE001  handed to the caller, who raises it
+            reply = (False, exc)
+        try:
+            _send(replies, reply)
+        except (pickle.PicklingError, TypeError, AttributeError) as exc:
+            _send(replies, (False, RuntimeError(f"reading {entry.origin}: {reply[1]!r} ({exc})")))
