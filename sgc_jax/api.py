@@ -88,7 +88,8 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None,
 
                 stream = ray_stream_scores(entries, config=config, calibration=calibration, engine=engine,
                                            run_id=run_id(run), done=done, address=ray_address, scorers=ray_scorers,
-                                           shard_size=chunk_size, devices=devices, lanes=lanes, stats=stats)
+                                           shard_size=chunk_size, devices=devices, lanes=lanes, read_in=read_in,
+                                           stats=stats)
             for item in stream:
                 clips.append(item)
                 if journal is not None and item.kept_row is None:

@@ -20,6 +20,7 @@ from .calibration import Calibration
 from .config import SGCConfig
 from .io.clip import ClipFormatError
 from .io.loading import ClipEntry
+from .readers import ReaderProcesses, reading_plan
 from .streaming import StreamStats, Streamed, error_result, stream_scores
 
 SHARD_SIZE = 16  # clips per task: large enough to keep a scorer's device busy, small enough to spread
@@ -45,14 +46,18 @@ class ShardScorer:
     process would otherwise compile every program), unless ``SGC_JAX_COMPILATION_CACHE=off``."""
 
     def __init__(self, config: SGCConfig, calibration: Calibration, engine: str, run_id: str,
-                 devices: int | None, lanes: int | None = None) -> None:
+                 devices: int | None, lanes: int | None = None, read_in: str = "auto",
+                 readers: int | None = None) -> None:
         if engine == "jax":
             from .engines.compile_cache import enable_compilation_cache
 
             enable_compilation_cache()
-        # reader threads: a shard is too short to pay for starting reader processes
         self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices,
-                            lanes=lanes, read_in="threads")
+                            lanes=lanes, read_in=read_in)
+        # reader processes (where this node reads in processes; ``readers`` of them) kept from shard to shard
+        default_readers, in_processes = reading_plan(None, read_in)
+        self.options["reader_processes"] = (ReaderProcesses(readers or default_readers, engine, config)
+                                            if in_processes else None)
 
     def score(self, entries: list[ClipEntry], done: Mapping[tuple[str, str], Mapping[str, str]]
               ) -> tuple[list[Streamed], StreamStats]:
@@ -75,20 +80,24 @@ def _scorers(ray: Any, count: int | None) -> tuple[int, dict[str, float]]:
 def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                       run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
                       address: str | None = "auto", scorers: int | None = None, shard_size: int = SHARD_SIZE,
-                      devices: int | None = None, lanes: int | None = None,
+                      devices: int | None = None, lanes: int | None = None, read_in: str = "auto",
                       stats: StreamStats | None = None) -> Iterator[Streamed]:
     """:func:`~sgc_jax.streaming.stream_scores` with the clips scored by Ray actors: every
     entry's result in input order. ``scorers``: how many actors (default: one per GPU of the
     cluster, else one per node); ``shard_size``: clips per task at most (fewer when the corpus is
     too small to reach every scorer otherwise); ``devices``: local devices each actor uses (default
-    all it sees); ``lanes``: clips each actor scores at once (``streaming.engine_steps``)."""
+    all it sees); ``lanes``: clips each actor scores at once (``streaming.engine_steps``);
+    ``read_in``: as ``stream_scores``, reader processes being each actor's share of the cluster's
+    cores but two, kept from shard to shard."""
     ray = connect(address)
     stats = stats if stats is not None else StreamStats()
     done = done or {}
     start = time.perf_counter()
     count, resources = _scorers(ray, scorers)
     actor = ray.remote(ShardScorer).options(scheduling_strategy="SPREAD", **resources)
-    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes) for _ in range(count)]
+    # each scorer's readers: its share of the cluster's cores, but two (reading_plan's rule)
+    readers = max(1, int(ray.cluster_resources().get("CPU", 1) // count) - 2)
+    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes, read_in, readers) for _ in range(count)]
     shard_size = max(1, min(shard_size, -(-len(entries) // count)))  # a small corpus still reaches every scorer
     shards = [entries[i:i + shard_size] for i in range(0, len(entries), shard_size)]
 

@@ -108,19 +108,21 @@ def _send(channel: BinaryIO, value: Any) -> None:
 
 
 class ReaderProcesses:
-    """``count`` reader processes for clip files, started as they are first needed; ``submit``
-    returns a future of the entry's :class:`Read` (its ``entry`` a copy: the caller's entry
-    holds the run's id registry, which stays here). Use as a context manager."""
+    """``count`` reader processes of clip files for ``engine`` and ``config``, started as they are
+    first needed and kept until ``close`` (so a Ray scorer reuses them from shard to shard).
+    ``submit`` returns a future of the entry's :class:`Read` (its ``entry`` a copy: the caller's
+    entry holds the run's id registry, which stays here). Use as a context manager."""
 
-    def __init__(self, count: int, engine: str, config: SGCConfig, done: Container[tuple[str, str]]) -> None:
-        self._setup = (engine, config, frozenset(done))
+    def __init__(self, count: int, engine: str, config: SGCConfig) -> None:
+        self.setup = (engine, config)
         self._threads = concurrent.futures.ThreadPoolExecutor(count, thread_name_prefix="sgc-read-process")
         self._local = threading.local()
         self._lock = threading.Lock()
         self._workers: list[subprocess.Popen] = []
 
-    def submit(self, entry: ClipEntry) -> concurrent.futures.Future:
-        return self._threads.submit(self._read, dataclasses.replace(entry, id_owners=None))
+    def submit(self, entry: ClipEntry, done_sha256: frozenset[str] = frozenset()) -> concurrent.futures.Future:
+        """Read ``entry``, unless its file's SHA-256 is among ``done_sha256`` (``Read.resumed``)."""
+        return self._threads.submit(self._read, dataclasses.replace(entry, id_owners=None), done_sha256)
 
     def _worker(self) -> subprocess.Popen:
         worker = getattr(self._local, "worker", None)
@@ -133,14 +135,14 @@ class ReaderProcesses:
                                       env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
             with self._lock:
                 self._workers.append(worker)
-            _send(worker.stdin, self._setup)
+            _send(worker.stdin, self.setup)
             self._local.worker = worker
         return worker
 
-    def _read(self, entry: ClipEntry) -> Read:
+    def _read(self, entry: ClipEntry, done_sha256: frozenset[str]) -> Read:
         worker = self._worker()
         try:
-            _send(worker.stdin, entry)
+            _send(worker.stdin, (entry, done_sha256))
             ok, value = pickle.load(worker.stdout)
         except (EOFError, BrokenPipeError) as exc:
             raise RuntimeError(f"a reader process ended (exit code {worker.poll()}) while reading {entry.origin}; "
@@ -168,18 +170,19 @@ class ReaderProcesses:
 
 
 def serve() -> None:
-    """A reader process: the setup (engine, config, done keys), then one entry after another on
-    stdin; (True, Read) or (False, exception) for each on stdout."""
+    """A reader process: the setup (engine, config), then one (entry, SHA-256s already scored)
+    after another on stdin; (True, Read) or (False, exception) for each on stdout."""
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything the reading prints goes to stderr, not into the replies
-    engine, config, done = pickle.load(requests)
+    engine, config = pickle.load(requests)
     prepare, digests = prepare_step(engine, config), FileDigests()
     while True:
         try:
-            entry = pickle.load(requests)
+            entry, done_sha256 = pickle.load(requests)
         except EOFError:
             return
         try:
+            done = {(entry.clip_id, sha256) for sha256 in done_sha256}
             reply = (True, read_entry(entry, prepare, digests, done))
         except Exception as exc:  # noqa: BLE001  handed to the caller, who raises it
             reply = (False, exc)

@@ -104,8 +104,8 @@ def error_result(entry: ClipEntry, error: ClipFormatError, sha256: str, engine: 
 def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
                   run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
                   read_ahead: int = 16, readers: int | None = None, read_in: str = "auto",
-                  devices: int | None = None, lanes: int | None = None,
-                  stats: StreamStats | None = None) -> Iterator[Streamed]:
+                  devices: int | None = None, lanes: int | None = None, stats: StreamStats | None = None,
+                  reader_processes: ReaderProcesses | None = None) -> Iterator[Streamed]:
     """Every entry's result, in input order, as soon as it is known.
 
     ``done``: rows of an earlier run's output by (clip_id, input_sha256); those inputs are not
@@ -117,6 +117,8 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
     (``engine_steps``). The results depend on none of these.
     """
     readers, in_processes = reading_plan(readers, read_in)
+    if reader_processes is not None and reader_processes.setup != (engine, config):
+        raise ValueError("reader_processes were started for another engine or configuration")
     steps = engine_steps(engine, config, devices, lanes)
     digests, done = FileDigests(), done or {}
     stats = stats if stats is not None else StreamStats()
@@ -136,14 +138,20 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
 
     threads = concurrent.futures.ThreadPoolExecutor
     with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(threads(max_workers=THREAD_READERS if in_processes else readers,
+        processes = reader_processes
+        if processes is None and in_processes:
+            processes = stack.enter_context(ReaderProcesses(readers, engine, config))
+        # with reader processes, threads read only the clips given in memory
+        pool = stack.enter_context(threads(max_workers=THREAD_READERS if processes is not None else readers,
                                            thread_name_prefix="sgc-read"))
         lanes_pool = stack.enter_context(threads(max_workers=steps.lanes, thread_name_prefix="sgc-score"))
-        processes = stack.enter_context(ReaderProcesses(readers, engine, config, done)) if in_processes else None
+        done_sha256 = collections.defaultdict(set)
+        for clip_id, sha256 in done:
+            done_sha256[clip_id].add(sha256)
 
         def submit(entry: ClipEntry) -> concurrent.futures.Future:
             if processes is not None and entry.path is not None:  # clips given in memory stay here
-                return processes.submit(entry)
+                return processes.submit(entry, frozenset(done_sha256.get(entry.clip_id, ())))
             return pool.submit(read_entry, entry, steps.prepare, digests, done)
 
         queue: collections.deque = collections.deque()  # (entry, future of its Read), input order

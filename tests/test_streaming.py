@@ -240,8 +240,9 @@ def test_a_ray_run_claims_ids_in_input_order_and_resumes_like_one_process(ray_cl
     assert out.read_text() == here.read_text()
     assert "duplicate: first seen in" in _rows(out)[-1]["reason"]
     out.write_text("".join(here.read_text().splitlines(keepends=True)[:3]))  # killed after two clips
-    stats = StreamStats()
-    score_batch(inputs, out=out, resume=True, ray_address=ray_cluster, chunk_size=1, progress=False, stats=stats)
+    stats = StreamStats()  # resumed with reader processes, which each scorer keeps from shard to shard
+    score_batch(inputs, out=out, resume=True, ray_address=ray_cluster, chunk_size=1, read_in="processes",
+                progress=False, stats=stats)
     assert out.read_text() == here.read_text()
     assert (stats.resumed, stats.scored, stats.errors) == (2, 2, 1)
 
