@@ -8,7 +8,8 @@ Layers, bottom up:
 - ``kernels/``: JAX kernels, pure functions of arrays; they import only each other, config and codes;
 - ``io/``: clip schema, loading, validation, result tables;
 - ``engines/``: the JAX and reference engines (kernels -> per-pair arrays of io.result);
-- ``api``: score_clip / score_batch, ``streaming`` and ``cluster`` (their scoring loops, in one process or over Ray); ``adapters/``: estimator outputs -> clips;
+- ``api``: score_clip / score_batch, ``streaming``, ``readers`` and ``cluster`` (their scoring loops and
+  readers, in one process or over Ray); ``adapters/``: estimator outputs -> clips;
 - ``research/``: synthetic scenes, perturbations, studies, tables, diagnostics, plots;
 - ``cli`` and the public ``sgc_jax`` namespace on top.
 The source is read, not imported, so the test needs neither JAX nor matplotlib.
@@ -60,7 +61,7 @@ def layer(name: str) -> str:
         return "public"
     if parts[1] in ("calibration", "api", "cli"):
         return parts[1]
-    if parts[1] in ("streaming", "cluster"):  # the scoring loops under score_batch
+    if parts[1] in ("streaming", "readers", "cluster"):  # the scoring loops under score_batch
         return "api"
     if parts[1] in (*SUBPACKAGES, "adapters"):
         return parts[1]
