@@ -16,6 +16,7 @@ import concurrent.futures
 import dataclasses
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import threading
@@ -135,13 +136,16 @@ class ReaderProcesses:
                                       env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
             with self._lock:
                 self._workers.append(worker)
-            _send(worker.stdin, self.setup)
             self._local.worker = worker
+            self._local.fresh = True
         return worker
 
     def _read(self, entry: ClipEntry, done_sha256: frozenset[str]) -> Read:
         worker = self._worker()
         try:
+            if self._local.fresh:
+                _send(worker.stdin, self.setup)
+                self._local.fresh = False
             _send(worker.stdin, (entry, done_sha256))
             ok, value = pickle.load(worker.stdout)
         except (EOFError, BrokenPipeError) as exc:
@@ -172,6 +176,7 @@ class ReaderProcesses:
 def serve() -> None:
     """A reader process: the setup (engine, config), then one (entry, SHA-256s already scored)
     after another on stdin; (True, Read) or (False, exception) for each on stdout."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the caller, which then closes our input
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything the reading prints goes to stderr, not into the replies
     engine, config = pickle.load(requests)
