@@ -287,6 +287,17 @@ def test_reader_processes_do_not_run_the_callers_script_again(clip_files, tmp_pa
     assert done.stdout.split() == ["scored", "1"]
 
 
+def test_the_cli_reads_in_processes_or_threads_as_told(clip_files, tmp_path):
+    outputs = []
+    for read_in in ("processes", "threads"):
+        out = tmp_path / f"{read_in}.csv"
+        done = subprocess.run([*CLI, "score", str(clip_files), "--engine", "reference", "--read-in", read_in,
+                               "--readers", "2", "--out", str(out), "-q"], capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        outputs.append(read_table_text(out))
+    assert outputs[0] == outputs[1]
+
+
 def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch):
     from sgc_jax.readers import PROCESS_READING_CORES, THREAD_READERS, reading_plan
 
