@@ -125,9 +125,9 @@ def stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: C
     start = time.perf_counter()
 
     def finished(read: Read, pairs: PairArrays) -> Streamed:
-        clip = read.identity
-        result = summarize_clip(clip.clip_id, pairs, calibration, group=clip.group, engine=engine,
-                                mask_source=clip.mask_source, origin=read.entry.origin, compat=config.compat)
+        identity = read.identity
+        result = summarize_clip(identity.clip_id, pairs, calibration, group=identity.group, engine=engine,
+                                mask_source=identity.mask_source, origin=read.entry.origin, compat=config.compat)
         stats.scored += 1
         return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=run_id), None)
 
