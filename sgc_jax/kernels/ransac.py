@@ -329,8 +329,8 @@ def refine_poses(X, uv, region, K, starts, rival_R, *, inlier_px, steps, max_rou
     rival = optimise(rival_coarse.poses, tau)
 
     rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
-    pose_cost = truncated_cost(pose.err_sq, tau)
-    lower = rival_finite & _lower(truncated_cost(rival.err_sq, tau), pose_cost)
+    # the rival's cost is at the final cut already; the pose's is re-taken there (the rival's cut may replace it)
+    lower = rival_finite & _lower(rival.cost, truncated_cost(pose.err_sq, tau))
     poses = jnp.where(lower[:, None], rival.poses, pose.poses)
     err_sq = jnp.where(own(lower.astype(dtype)) > 0, rival.err_sq, pose.err_sq)
     near = member & (err_sq < tau)
