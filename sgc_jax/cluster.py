@@ -47,17 +47,16 @@ class ShardScorer:
 
     def __init__(self, config: SGCConfig, calibration: Calibration, engine: str, run_id: str,
                  devices: int | None, lanes: int | None = None, read_in: str = "auto",
-                 readers: int | None = None) -> None:
+                 cores: int | None = None) -> None:
         if engine == "jax":
             from .engines.compile_cache import enable_compilation_cache
 
             enable_compilation_cache()
         self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices,
                             lanes=lanes, read_in=read_in)
-        # reader processes (where this node reads in processes; ``readers`` of them) kept from shard to shard
-        default_readers, in_processes = reading_plan(None, read_in)
-        self.options["reader_processes"] = (ReaderProcesses(readers or default_readers, engine, config)
-                                            if in_processes else None)
+        # reader processes, where this scorer's share of ``cores`` reads in them, kept from shard to shard
+        readers, in_processes = reading_plan(None, read_in, cores)
+        self.options["reader_processes"] = ReaderProcesses(readers, engine, config) if in_processes else None
 
     def score(self, entries: list[ClipEntry], done: Mapping[tuple[str, str], Mapping[str, str]]
               ) -> tuple[list[Streamed], StreamStats]:
@@ -87,17 +86,16 @@ def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibratio
     cluster, else one per node); ``shard_size``: clips per task at most (fewer when the corpus is
     too small to reach every scorer otherwise); ``devices``: local devices each actor uses (default
     all it sees); ``lanes``: clips each actor scores at once (``streaming.engine_steps``);
-    ``read_in``: as ``stream_scores``, reader processes being each actor's share of the cluster's
-    cores but two, kept from shard to shard."""
+    ``read_in``: as ``stream_scores``, with each actor's share of the cluster's cores for the
+    host's (``readers.reading_plan``); reader processes are kept from shard to shard."""
     ray = connect(address)
     stats = stats if stats is not None else StreamStats()
     done = done or {}
     start = time.perf_counter()
     count, resources = _scorers(ray, scorers)
     actor = ray.remote(ShardScorer).options(scheduling_strategy="SPREAD", **resources)
-    # each scorer's readers: its share of the cluster's cores, but two (reading_plan's rule)
-    readers = max(1, int(ray.cluster_resources().get("CPU", 1) // count) - 2)
-    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes, read_in, readers) for _ in range(count)]
+    cores = max(1, int(ray.cluster_resources().get("CPU", 1) // count))  # each scorer's share
+    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes, read_in, cores) for _ in range(count)]
     shard_size = max(1, min(shard_size, -(-len(entries) // count)))  # a small corpus still reaches every scorer
     shards = [entries[i:i + shard_size] for i in range(0, len(entries), shard_size)]
 

@@ -26,6 +26,7 @@ from typing import Any, BinaryIO, Callable, Container, NamedTuple
 from .config import SGCConfig
 from .io.clip import Clip, ClipFormatError
 from .io.journal import FileDigests
+from .engines.jax_engine import host_cores
 from .io.loading import ClipEntry
 
 READ_IN = ("auto", "threads", "processes")
@@ -35,19 +36,16 @@ PROCESS_READING_CORES = 4
 THREAD_READERS = 2
 
 
-def available_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-def reading_plan(readers: int | None = None, read_in: str = "auto") -> tuple[int, bool]:
+def reading_plan(readers: int | None = None, read_in: str = "auto", cores: int | None = None) -> tuple[int, bool]:
     """(how many readers, whether they are processes): ``read_in`` "threads", "processes", or
-    "auto" (processes on hosts of more than PROCESS_READING_CORES cores). ``readers`` by default:
-    THREAD_READERS threads, or one process per core but two (for the scoring threads)."""
+    "auto" (processes with more than PROCESS_READING_CORES ``cores``, by default the host's).
+    ``readers`` by default: THREAD_READERS threads, or one process per core but two (for the
+    scoring threads)."""
     if read_in not in READ_IN:
         raise ValueError(f"read_in must be one of {READ_IN}, got {read_in!r}")
     if readers is not None and readers < 1:
         raise ValueError(f"readers must be at least 1, got {readers}")
-    cores = available_cores()
+    cores = cores or host_cores()
     processes = read_in == "processes" or (read_in == "auto" and cores > PROCESS_READING_CORES)
     if readers is None:
         readers = max(1, cores - 2) if processes else THREAD_READERS

@@ -303,7 +303,7 @@ def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch)
 
     for cores, plan in ((2, (THREAD_READERS, False)), (PROCESS_READING_CORES, (THREAD_READERS, False)),
                         (16, (14, True))):
-        monkeypatch.setattr("sgc_jax.readers.available_cores", lambda n=cores: n)
+        monkeypatch.setattr("sgc_jax.readers.host_cores", lambda n=cores: n)
         assert reading_plan() == plan, cores
     assert reading_plan(3, "threads") == (3, False) and reading_plan(None, "processes") == (14, True)
     with pytest.raises(ValueError, match="read_in must be one of"):

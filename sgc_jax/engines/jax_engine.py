@@ -307,13 +307,17 @@ CPU_LANES = 2
 ACCELERATOR_LANES = 2
 
 
+def host_cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def default_lanes(devices: list) -> int:
     """Clips (or groups of one clip per device) the streaming scorer keeps in flight at once on
     ``devices``: on CPU devices one per core of each device's share, up to CPU_LANES (forced host
     devices share the same cores); on an accelerator ACCELERATOR_LANES."""
     if devices and devices[0].platform == "cpu":
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        return max(1, min(cores // len(devices), CPU_LANES))
+        return max(1, min(host_cores() // len(devices), CPU_LANES))
     return ACCELERATOR_LANES
 
 
