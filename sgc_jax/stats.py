@@ -1,5 +1,5 @@
 """Agreement statistics for score lists (docs/semantics.md §6.5): rank correlations, bootstrap CIs,
-min-max scaling.
+min-max scaling; and the median of a clip's depth values (§4) without a float64 copy.
 
 A thin layer over ``scipy.stats`` that fixes our conventions: every paired function drops the pairs
 where either value is NaN (or missing, ``None``) and returns NaN, without a warning, when fewer than
@@ -107,3 +107,15 @@ def agreement(a: Any, b: Any) -> dict[str, float]:
     pa, _ = paired(a, b)
     return {"n": int(pa.size), "spearman": spearman(a, b), "kendall_tau": kendall_tau(a, b),
             "pearson": pearson(a, b)}
+
+
+def exact_median(values: np.ndarray) -> float:
+    """``np.median(values.astype(np.float64))`` of a non-empty 1-D float array of finite values
+    (the two middle values averaged in float64), without the float64 copy that ``np.median``
+    would partition: float32 values order the same. Partitions ``values`` in place."""
+    half = values.size // 2
+    if values.size % 2:
+        values.partition(half)
+        return float(values[half])
+    values.partition((half - 1, half))
+    return (float(values[half - 1]) + float(values[half])) / 2.0

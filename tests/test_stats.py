@@ -6,7 +6,7 @@ import warnings
 import numpy as np
 import pytest
 
-from sgc_jax.stats import agreement, bootstrap_ci, kendall_tau, min_max, pearson, rankdata, spearman
+from sgc_jax.stats import agreement, bootstrap_ci, exact_median, kendall_tau, min_max, pearson, rankdata, spearman
 
 CORRELATIONS = (pearson, spearman, kendall_tau)
 
@@ -118,3 +118,12 @@ def test_min_max_scales_to_unit_range_and_keeps_nan():
     np.testing.assert_allclose(min_max([2.0, np.nan, 4.0, 3.0]), [0.0, np.nan, 1.0, 0.5])
     np.testing.assert_array_equal(min_max([7.0, 7.0]), [0.0, 0.0])
     assert np.isnan(min_max([np.nan, np.nan])).all()
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 1001, 100_000])
+def test_exact_median_is_numpys_float64_median(n):
+    rng = np.random.default_rng(n)
+    for scale in (1e-3, 1.0, 1e3):
+        values = (rng.lognormal(size=n) * scale).astype(np.float32)
+        values[: n // 3] = values[-1]  # ties across the middle
+        assert exact_median(values.copy()) == float(np.median(values.astype(np.float64)))

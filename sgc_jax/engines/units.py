@@ -16,6 +16,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..io.clip import Clip, without_absurd_depth
+from ..stats import exact_median
 
 PERCENT = 100.0
 
@@ -29,7 +30,8 @@ def depth_unit(clip: Clip, config: SGCConfig) -> float:
     valid = np.isfinite(clip.depth) & (clip.depth > 0)
     static = valid & clip.static_mask if config.use_mos else valid
     values = clip.depth[static] if static.any() else clip.depth[valid]
-    return float(np.median(values.astype(np.float64))) if values.size else 1.0
+    return exact_median(values) if values.size else 1.0
+
 
 
 def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
@@ -42,7 +44,9 @@ def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
     unit = depth_unit(clip, config)
     if unit == 1.0:
         return clip, unit
-    depth = (clip.depth.astype(np.float64) / unit).astype(np.float32)
+    # each element divided in float64 and rounded once to float32, in the ufunc's buffered chunks
+    depth = np.divide(clip.depth, np.float64(unit), out=np.empty_like(clip.depth, dtype=np.float32),
+                      dtype=np.float64, casting="unsafe")
     return dataclasses.replace(clip, depth=depth), unit
 
 

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from ..stats import exact_median
+
 # Values beyond these are not measurements and count as invalid points (docs/semantics.md §1.2):
 # a track position more than TRACK_REACH image sizes outside the image, a depth more than
 # DEPTH_RATIO_LIMIT times larger or smaller than the clip's median depth. They would otherwise
@@ -106,7 +108,7 @@ def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
     lo, hi = depth.min(where=positive, initial=np.inf), depth.max(where=positive, initial=-np.inf)
     if hi <= lo * DEPTH_RATIO_LIMIT:  # lo <= median <= hi: no value can be that far from the median
         return depth
-    median = float(np.median(depth[positive].astype(np.float64)))
+    median = exact_median(depth[positive])
     absurd = positive & ((depth > median * DEPTH_RATIO_LIMIT) | (depth < median / DEPTH_RATIO_LIMIT))
     return np.where(absurd, np.float32(np.nan), depth).astype(depth.dtype) if absurd.any() else depth
 
