@@ -4,6 +4,8 @@ shared by every image size."""
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -97,3 +99,17 @@ def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_cl
     finally:
         monitoring.unregister_event_duration_listener(listener)
     assert compiles == [] and jax_engine.compile_count() == held
+
+
+def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
+    # a loop whose length depends on the lane, as RANSAC's and the least squares' do
+    def steps(args):
+        x, n = args
+        return jax.lax.while_loop(lambda c: c[1] < n, lambda c: (c[0] * 1.5 + 1.0, c[1] + 1), (x, 0))[0], None
+
+    for n_pairs in (1, 4, 5, 6, 7, 15, 16):
+        x = jnp.arange(n_pairs * 3, dtype=jnp.float32).reshape(n_pairs, 3)
+        n = jnp.arange(n_pairs) % 4
+        grouped, _ = stages.pair_groups(steps, (x, n), n_pairs)
+        assert grouped.shape == (n_pairs, 3)
+        np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))

@@ -233,6 +233,27 @@ def weighted_median(values, weights, fallback):
     return jnp.where(total > 0, median, fallback)
 
 
+# Pairs posed at once (vmapped) at most. Every RANSAC and least-squares loop of a vmapped group
+# runs until its slowest pair is done, so fewer pairs at once waste fewer steps; fewer than ~4
+# pay more per-op overhead than they save (bench/RESULTS.md: a clip's 15 pairs in three groups of
+# 5 take ~20% less CPU than all at once).
+PAIRS_AT_ONCE = 5
+
+
+def pair_groups(pose_pair, args, n_pairs: int):
+    """``pose_pair`` over the pairs (leading axis ``n_pairs`` of every leaf of ``args``), vmapped in
+    ceil(n_pairs / PAIRS_AT_ONCE) groups of equal size, one group after another (``lax.map``); the
+    last group is filled up with copies of the last pair, whose results are dropped."""
+    groups = -(-n_pairs // PAIRS_AT_ONCE)
+    if groups <= 1:
+        return jax.vmap(pose_pair)(args)
+    size = -(-n_pairs // groups)
+    pair = jnp.minimum(jnp.arange(groups * size), n_pairs - 1)
+    grouped = jax.tree.map(lambda a: a[pair].reshape((groups, size) + a.shape[1:]), args)
+    out = jax.lax.map(jax.vmap(pose_pair), grouped)
+    return jax.tree.map(lambda a: a.reshape((groups * size,) + a.shape[2:])[:n_pairs], out)
+
+
 def clip_poses(x: PoseInputs, key, config: SGCConfig):
     """Local poses of all pairs of one padded clip (no leading B axis), the reference poses and
     the translation scale -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), scale). The
@@ -260,10 +281,9 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
         global_t = scale * t_g
     else:
         global_t = None  # no camera start (an empty pytree under vmap)
-    poses = jax.vmap(functools.partial(local_poses_pair, config=config),
-                     in_axes=(0, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, 0, 0))(
-        x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev, x.track_curr,
-        usable, x.image_hw, pair_keys, rival_R, global_t)
+    poses = pair_groups(lambda a: local_poses_pair(*a[:9], x.image_hw, *a[9:], config=config),
+                        (x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[prev], x.K[curr], x.track_prev,
+                         x.track_curr, usable, pair_keys, rival_R, global_t), n_pairs)
     accepted = poses.region_status == REGION_OK
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, accepted)
@@ -294,9 +314,9 @@ def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
 
 
 def pose_stage(x: PoseInputs, key, config: SGCConfig) -> dict:
-    """Local poses, reference poses and the scale of the clips (leading axis B), clip by clip.
-    Pairs are vmapped within a clip: RANSAC's loops run until their slowest lane is done, so
-    vmapping every pair of a large bucket at once costs more than it saves."""
+    """Local poses, reference poses and the scale of the clips (leading axis B), clip by clip,
+    each clip's pairs in groups of at most PAIRS_AT_ONCE (``pair_groups``): RANSAC's loops run
+    until their slowest lane is done, so vmapping many pairs at once costs more than it saves."""
     poses, R_g, t_g, scale = jax.lax.map(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x))
     return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)
 
