@@ -312,7 +312,8 @@ def refine_poses(X, uv, region, K, starts, rival_R, *, inlier_px, steps, max_rou
     def truncated_cost(err_sq, tau_sq_point):
         return _region_sums(onehot, jnp.where(member, jnp.minimum(err_sq, tau_sq_point), 0.0))
 
-    coarse_all = jax.vmap(lambda start: optimise(start, at_inlier_px))(starts)
+    # one start after another: vmapped, each fit's loop would run until the slowest start is done
+    coarse_all = jax.lax.map(lambda start: optimise(start, at_inlier_px), starts)
     costs = jnp.where(jnp.isfinite(coarse_all.cost), coarse_all.cost, jnp.inf)
     chosen = jnp.argmax(~_lower(jnp.min(costs, axis=0), costs), axis=0)  # (k,) the first of the lowest
     point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]
