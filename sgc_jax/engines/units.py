@@ -33,7 +33,6 @@ def depth_unit(clip: Clip, config: SGCConfig) -> float:
     return exact_median(values) if values.size else 1.0
 
 
-
 def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
     """(the clip both engines score, D): absurd depth made invalid (NaN, docs/semantics.md §1.2),
     then depth / D. Float64 division, then float32, so that scaling a clip's depth by s gives the
