@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any, BinaryIO, Callable, Container, NamedTuple
 
 from .config import SGCConfig
+from .engines.jax_engine import host_cores
 from .io.clip import Clip, ClipFormatError
 from .io.journal import FileDigests
-from .engines.jax_engine import host_cores
 from .io.loading import ClipEntry
 
 READ_IN = ("auto", "threads", "processes")
