@@ -113,3 +113,15 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
         grouped, _ = stages.pair_groups(steps, (x, n), n_pairs)
         assert grouped.shape == (n_pairs, 3)
         np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
+
+
+def test_padded_host_arrays_are_aligned_for_device_put_to_keep_them():
+    clip = synth_clip(seed=3, clip_id="small-noisy", **SMALL_NOISY)
+    batch = buckets.pad_clip(clip, LARGER["frames"], SGCConfig())
+    for name in ("depth", "static", "K", "R_wc", "t_wc", "track_prev", "track_curr", "usable"):
+        array = getattr(batch, name)
+        assert array.ctypes.data % buckets.HOST_ALIGN == 0, name
+    on_device = jax.device_put(batch.depth)
+    np.testing.assert_array_equal(np.asarray(on_device), batch.depth)
+    if jax.default_backend() == "cpu":  # taken as it is, not copied
+        assert on_device.unsafe_buffer_pointer() == batch.depth.ctypes.data
