@@ -186,3 +186,22 @@ def test_hole_rule_keeps_every_pixel_of_a_smooth_surface():
     plain = np.asarray(warp_depth(depth0, depth0 > 0, K, K, R, t)[1])
     masked = np.asarray(warp_depth(depth0, depth0 > 0, K, K, R, t, mask_holes=True)[1])
     np.testing.assert_array_equal(masked, plain)
+
+
+def test_footprint_cover_is_the_nearest_point_whose_2x2_footprint_covers_each_pixel():
+    rng = np.random.default_rng(5)
+    n = H * W
+    u = rng.uniform(-3.0, W + 2.0, n).astype(np.float32)
+    v = rng.uniform(-3.0, H + 2.0, n).astype(np.float32)
+    u[:4], v[:4] = [-1.0, W - 1e-3, np.nan, -1.5], [-0.5, H - 0.5, 1.0, 2.0]  # edges, NaN, out by one
+    z = rng.uniform(0.1, 5.0, n).astype(np.float32)
+    front = rng.uniform(size=n) > 0.2
+    expected = np.full((H, W), np.inf, np.float32)
+    for ui, vi, zi, fi in zip(u, v, z, front):
+        if fi and np.isfinite(ui) and np.isfinite(vi):
+            for iv in (int(np.floor(vi)), int(np.floor(vi)) + 1):
+                for iu in (int(np.floor(ui)), int(np.floor(ui)) + 1):
+                    if 0 <= iu < W and 0 <= iv < H:
+                        expected[iv, iu] = min(expected[iv, iu], zi)
+    cover = jax.jit(warp._footprint_cover, static_argnums=(4, 5))(u, v, z, front, H, W)
+    np.testing.assert_array_equal(np.asarray(cover).reshape(H, W), expected)

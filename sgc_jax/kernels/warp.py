@@ -63,17 +63,18 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
 
 def _footprint_cover(u_c, v_c, z, front, H, W):
     """(H W,) nearest z of the points whose 2x2 footprint (floor(u) + {0, 1}, floor(v) + {0, 1})
-    covers each pixel; inf where none does. Holes up to a magnification of 2 are covered."""
+    covers each pixel; inf where none does. Holes up to a magnification of 2 are covered.
+
+    One scatter of each point to its footprint's corner (floor(u), floor(v)), on a grid with a
+    row and column before the image's, then the minimum over the 2x2 corners that reach each
+    pixel: the same minimum as four scatters, for one."""
     u0, v0 = jnp.floor(u_c), jnp.floor(v_c)
-    z = z.reshape(-1)
-    cover = jnp.full(H * W, jnp.inf, jnp.float32)
-    for du in (0, 1):  # four scatters of (H W,) points, not a loop over pixels
-        for dv in (0, 1):
-            iu, iv = u0 + du, v0 + dv
-            inside = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # in float: no int overflow
-            index = jnp.where(inside, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W)
-            cover = cover.at[index.reshape(-1)].min(z, mode="drop")
-    return cover
+    inside = front & (u0 >= -1) & (u0 < W) & (v0 >= -1) & (v0 < H)  # in float: no int overflow
+    corner = jnp.where(inside, (v0.astype(jnp.int32) + 1) * (W + 1) + u0.astype(jnp.int32) + 1, (H + 1) * (W + 1))
+    nearest = jnp.full((H + 1) * (W + 1), jnp.inf, jnp.float32).at[corner.reshape(-1)].min(z.reshape(-1), mode="drop")
+    nearest = nearest.reshape(H + 1, W + 1)  # [1 + floor(v), 1 + floor(u)]
+    cover = jnp.minimum(jnp.minimum(nearest[1:, 1:], nearest[1:, :-1]), jnp.minimum(nearest[:-1, 1:], nearest[:-1, :-1]))
+    return cover.reshape(-1)
 
 
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
