@@ -195,3 +195,15 @@ def test_grid_regions_drop_small_cells_and_renumber_in_cell_order():
     assert int(n_regions) == 8
     assert labels[24, 53] == 0 and labels[5, 4] == 1 and labels[5, 24] == 2 and labels[15, 34] == 8
     assert int(grid_regions(np.zeros((30, 60), bool), k=10, min_region_pixels=1)[1]) == 0
+
+
+def test_segment_minimum_of_nonnegative_values_by_their_bits_is_segment_min():
+    rng = np.random.default_rng(2)
+    values = rng.uniform(0.0, 1e3, 200).astype(np.float32)
+    values[:6] = [0.0, -0.0, np.inf, 1.2e-38, 3.4e38, 0.0]  # zeros of both signs, inf, normal extremes
+    segment = rng.integers(0, 40, 200).astype(np.int32)  # some of the 41 segments stay empty
+    segment[:2] = 7  # -0.0 and 0.0 in one segment
+    got = kmeans._segment_min_nonnegative(jnp.asarray(values), jnp.asarray(segment), 41)
+    want = jax.ops.segment_min(jnp.asarray(values), jnp.asarray(segment), num_segments=41)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))  # -0.0 == 0.0; empty: +inf
+    assert np.isinf(np.asarray(got)[40])

@@ -172,6 +172,16 @@ def _search_plan(bins: int) -> tuple[np.ndarray, ...]:
             pad([level[2] for level in levels], -1), pad([level[3] for level in levels], [-1, -1]))
 
 
+def _segment_min_nonnegative(values, segment, num_segments):
+    """``jax.ops.segment_min`` of float32 values >= 0 (or +inf; -0.0 counts as 0; no subnormals,
+    which XLA CPU's float min flushes to 0), as a minimum of their bit patterns, which order as
+    the values do: XLA CPU's integer scatter-min is several times faster than its float one."""
+    bits = jax.lax.bitcast_convert_type(values, jnp.int32) & jnp.int32(0x7FFFFFFF)  # -0.0 -> 0.0
+    low = jax.ops.segment_min(bits, segment, num_segments=num_segments)
+    # an empty segment's int32 maximum reads back as a NaN: +inf, as segment_min of floats gives
+    return jnp.where(low == jnp.iinfo(jnp.int32).max, jnp.inf, jax.lax.bitcast_convert_type(low, jnp.float32))
+
+
 def _dp_step(prev, sums, plan, bins):
     """One k-means DP layer: for every last bin b, min over a of prev[a] + cost(a, b).
 
@@ -197,7 +207,7 @@ def _dp_step(prev, sums, plan, bins):
         seg_id = jnp.where(inside, seg_c, width)
         # A range's last row may lie in the next range too (which then owns it): evaluate it here.
         end = prev[hi] + _range_cost(take(hi), last)
-        low = jnp.minimum(jax.ops.segment_min(tot, seg_id, num_segments=width + 1)[:width], end)
+        low = jnp.minimum(_segment_min_nonnegative(tot, seg_id, width + 1)[:width], end)
         arg = jax.ops.segment_min(jnp.where(tot == low[seg_c], rows, bins + 1), seg_id, num_segments=width + 1)[:width]
         arg = jnp.minimum(jnp.minimum(arg, jnp.where(end == low, hi, bins + 1)), hi).astype(jnp.int32)
         # per column, then gathered per row below: fused there, XLA would redo the columns' costs per row
