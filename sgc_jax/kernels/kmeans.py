@@ -175,7 +175,8 @@ def _search_plan(bins: int) -> tuple[np.ndarray, ...]:
 def _segment_min_nonnegative(values, segment, num_segments):
     """``jax.ops.segment_min`` of float32 values >= 0 (or +inf; -0.0 counts as 0; no subnormals,
     which XLA CPU's float min flushes to 0), as a minimum of their bit patterns, which order as
-    the values do: XLA CPU's integer scatter-min is several times faster than its float one."""
+    the values do: batched over the frames, XLA CPU's integer scatter-min is several times
+    faster than its float one."""
     bits = jax.lax.bitcast_convert_type(values, jnp.int32) & jnp.int32(0x7FFFFFFF)  # -0.0 -> 0.0
     low = jax.ops.segment_min(bits, segment, num_segments=num_segments)
     # an empty segment's int32 maximum reads back as a NaN: +inf, as segment_min of floats gives
