@@ -166,10 +166,10 @@ class NormalCholesky(lx.AbstractLinearSolver):
         b = jnp.concatenate([leaf.reshape(-1) for leaf in jax.tree_util.tree_leaves(vector)])
         if J.shape[0] > _DOT_MIN_ROWS:  # one (batched) matmul; XLA CPU's reduce of J_i J_i^T is slow
             normal = jnp.einsum("ni,nj->ij", J, J, precision=jax.lax.Precision.HIGHEST)
-            J_t_b = lambda v: jnp.einsum("ni,n->i", J, v, precision=jax.lax.Precision.HIGHEST)  # noqa: E731
         else:  # a few rows (minimal samples): fused elementwise sums beat a tiny-matmul call
             normal = jnp.sum(J[:, :, None] * J[:, None, :], axis=0)
-            J_t_b = lambda v: jnp.sum(J * v[:, None], axis=0)  # noqa: E731
+        # J^T b by elementwise sums at any size: XLA CPU's (batched) matrix-vector dot costs more
+        J_t_b = lambda v: jnp.sum(J * v[:, None], axis=0)  # noqa: E731
         if transposed:
             x, structure = J @ solve_spd(normal, b), out_structure
         else:
