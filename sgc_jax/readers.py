@@ -94,7 +94,7 @@ def read_entry(entry: ClipEntry, prepare: Callable[[Clip], Any], digests: FileDi
     if sha256 and (entry.clip_id, sha256) in done:
         return Read(entry, sha256, resumed=True)
     try:
-        clip = entry.read_clip()
+        clip = entry.read_clip(for_scoring=True)
     except ClipFormatError as exc:
         return Read(entry, sha256, error=exc)
     return Read(entry, sha256, Identity(clip.clip_id, clip.group, clip.mask_source), prepare(clip))

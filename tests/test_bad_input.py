@@ -537,3 +537,43 @@ def test_absurd_values_score_as_if_those_points_were_missing(rigid_clip, engine)
     assert absurd_t == hidden_t == "ok"
     np.testing.assert_equal(result["tracks_1e30"], result["tracks_hidden"])
     np.testing.assert_equal(result["depth_1e30"], result["depth_nan"])
+
+
+def _stored_with_broken_frames(path: Path, arrays: dict) -> Path:
+    """``arrays`` as an uncompressed .npz whose ``frames`` data (not its header) is damaged."""
+    np.savez(path, **arrays)
+    with zipfile.ZipFile(path) as archive:
+        info = archive.getinfo("frames.npy")
+    with open(path, "r+b") as f:
+        f.seek(info.header_offset + 26)
+        name_length, extra_length = struct.unpack("<HH", f.read(4))
+        f.seek(info.header_offset + 30 + name_length + extra_length + info.compress_size - 1)  # its last byte
+        last = f.read(1)
+        f.seek(-1, 1)
+        f.write(bytes([last[0] ^ 0xFF]))
+    return path
+
+
+def test_scoring_a_file_reads_the_headers_of_plot_arrays_not_their_data(tmp_path):
+    framed = synth_clip(seed=0, clip_id="framed", **{**TINY, "with_frames": True})
+    path = _stored_with_broken_frames(tmp_path / "framed.npz", clip_to_arrays(framed))
+    (entry,) = discover_clips([path])
+    with pytest.raises(ClipFormatError) as loading:  # loading reads every array
+        entry.read_clip()
+    assert loading.value.array == "frames"
+    scored = entry.read_clip(for_scoring=True)
+    assert scored.frames is None
+    np.testing.assert_array_equal(scored.depth, framed.depth)
+    (result,) = score_batch([path], progress=False).clips
+    assert result.status != "error" and np.isfinite(result.sgc)
+
+
+def test_scoring_a_file_still_checks_the_shape_of_plot_arrays(tmp_path):
+    framed = synth_clip(seed=0, clip_id="framed", **{**TINY, "with_frames": True})
+    arrays = clip_to_arrays(framed)
+    arrays["frames"] = np.zeros(arrays["frames"].shape[:2] + (arrays["frames"].shape[2] + 1, 3), np.uint8)
+    np.savez_compressed(tmp_path / "wide.npz", **arrays)
+    (entry,) = discover_clips([tmp_path / "wide.npz"])
+    with pytest.raises(ClipFormatError) as scoring:
+        entry.read_clip(for_scoring=True)
+    assert scoring.value.array == "frames"

@@ -14,7 +14,7 @@ import glob
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping
+from typing import Any, Callable, Container, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -303,6 +303,8 @@ _PER_FRAME = ("depth", "K", "R_wc", "t_wc", "extrinsic", "static_mask", "dynamic
 _PER_PAIR = ("track_prev", "track_curr", "track_vis", "track_conf")
 _IMAGES = ("depth", "static_mask", "dynamic_mask", "frames")  # (B, T, H, W, ...)
 BOOKKEEPING = ("n_frames", "n_tracks", "heights", "widths", "clip_id", "mask_source", "meta")
+# Arrays only plots use (docs/semantics.md §1.2): scoring a file checks their headers, not their data.
+PLOTS_ONLY = ("frames",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -438,6 +440,8 @@ class ClipEntry:
     config: SGCConfig = dataclasses.field(default_factory=SGCConfig)
     path: str | None = None  # the file it comes from; None for clips given in memory
     id_owners: dict[str, "ClipEntry"] | None = None  # clip id -> the entry that claimed it, shared by a run's files
+    # ``read``, but PLOTS_ONLY arrays from their headers alone (a file's entry; None: ``read``)
+    read_for_scoring: Callable[[], Mapping[str, Any]] | None = None
 
     def load(self) -> Clip:
         """The validated clip with its id claimed for the run (``read_clip``, then ``claim_id``);
@@ -446,13 +450,18 @@ class ClipEntry:
         self.claim_id()
         return clip
 
-    def read_clip(self) -> Clip:
+    def read_clip(self, for_scoring: bool = False) -> Clip:
         """The validated clip, its id not yet claimed: safe to call from several threads, as long
-        as ``claim_id`` is then called in input order (the first file with an id keeps it)."""
-        source = self.read()
+        as ``claim_id`` is then called in input order (the first file with an id keeps it).
+        ``for_scoring``: without PLOTS_ONLY arrays, whose shapes and dtypes are checked as usual
+        but whose data a file's entry does not read."""
+        read = self.read_for_scoring if for_scoring and self.read_for_scoring is not None else self.read
+        source = read()
         if isinstance(source, Clip):
-            return subsample_tracks(source, self.config)
-        return clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
+            clip = subsample_tracks(source, self.config)
+        else:
+            clip = clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
+        return dataclasses.replace(clip, frames=None) if for_scoring else clip
 
     def claim_id(self) -> None:
         """Claim this clip's id for the run; raises :class:`ClipFormatError` when another clip file has it."""
@@ -477,10 +486,11 @@ def _failing(exc: ClipFormatError) -> Callable[[], Any]:
     return functools.partial(_raise, exc)
 
 
-def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False) -> dict[str, Any]:
+def _read(path: Path, clip_id: str, names: Iterable[str] | None = None, headers: bool = False,
+          shape_only: Container[str] = ()) -> dict[str, Any]:
     """:func:`sgc_jax.io.npz.read_npz` (or its headers) with its errors as :class:`ClipFormatError` of ``clip_id``."""
     try:
-        return npz_headers(path) if headers else read_npz(path, names)
+        return npz_headers(path) if headers else read_npz(path, names, shape_only)
     except NpzError as exc:
         raise ClipFormatError(clip_id, exc.array, exc.expected, exc.found, exc.path) from None
 
@@ -493,17 +503,20 @@ def entries_from_file(path: Path | str, config: SGCConfig) -> list[ClipEntry]:
         headers = _read(path, stem, headers=True)
         if not is_batch(headers):
             clip_id = _meta_id(_read(path, stem, ["meta"]).get("meta")) or stem
-            return [ClipEntry(clip_id, origin, functools.partial(_read, path, clip_id), config, origin)]
+            return [ClipEntry(clip_id, origin, functools.partial(_read, path, clip_id), config, origin,
+                              read_for_scoring=functools.partial(_read, path, clip_id, shape_only=PLOTS_ONLY))]
         layout = batch_layout({k: shape for k, (shape, _) in headers.items()}, _read(path, stem, BOOKKEEPING), stem)
     except ClipFormatError as exc:
         return [ClipEntry(stem, origin, _failing(exc), config, origin)]
     return [ClipEntry(layout.ids[b], f"{origin}[{b}]",
-                      functools.partial(_read_batch_member, path, b, layout.ids[b], stem), config, origin)
+                      functools.partial(_read_batch_member, path, b, layout.ids[b], stem), config, origin,
+                      read_for_scoring=functools.partial(_read_batch_member, path, b, layout.ids[b], stem, PLOTS_ONLY))
             for b in range(len(layout))]
 
 
-def _read_batch_member(path: Path | str, b: int, clip_id: str, stem: str) -> dict[str, Any]:
-    arrays = _read(path, clip_id)
+def _read_batch_member(path: Path | str, b: int, clip_id: str, stem: str,
+                       shape_only: Container[str] = ()) -> dict[str, Any]:
+    arrays = _read(path, clip_id, shape_only=shape_only)
     return _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
 
 

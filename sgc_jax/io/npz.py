@@ -16,7 +16,7 @@ import tokenize
 import zipfile
 import zlib
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Container, Iterable
 
 import numpy as np
 
@@ -110,7 +110,8 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, archive_bytes:
         raise NpzError(path, name, "an array readable from the archive", _describe(exc)) from None
 
 
-def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bool) -> dict[str, Any]:
+def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bool,
+          shape_only: Container[str] = ()) -> dict[str, Any]:
     url = is_url(path)
     path = os.fspath(path) if url else Path(path)  # a Path would fold a URL's "//"
     try:
@@ -118,7 +119,9 @@ def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bo
         with stream or contextlib.nullcontext(), zipfile.ZipFile(stream or path) as archive:
             members = {info.filename[:-4]: info for info in archive.infolist() if info.filename.endswith(".npy")}
             wanted = list(members) if names is None else [n for n in names if n in members]
-            return {n: _read_member(archive, members[n], archive_bytes, path, n, headers_only) for n in wanted}
+            return {n: _stand_in(*_read_member(archive, members[n], archive_bytes, path, n, True))
+                    if n in shape_only and not headers_only
+                    else _read_member(archive, members[n], archive_bytes, path, n, headers_only) for n in wanted}
     except NpzError:
         raise
     except _READ_ERRORS as exc:
@@ -129,12 +132,20 @@ def _read(path: str | os.PathLike, names: Iterable[str] | None, headers_only: bo
         raise NpzError(path, FILE, "a readable .npz archive of .npy arrays", found) from None
 
 
-def read_npz(path: str | os.PathLike, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-    """The arrays of an ``.npz`` by name (only ``names`` when given; absent names are skipped).
+def _stand_in(shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    """A read-only array of ``shape`` and ``dtype`` that holds no data (zeros, one element broadcast)."""
+    return np.broadcast_to(np.zeros((), dtype), shape)
+
+
+def read_npz(path: str | os.PathLike, names: Iterable[str] | None = None,
+             shape_only: Container[str] = ()) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` by name (only ``names`` when given; absent names are skipped);
+    those in ``shape_only`` from their headers alone, as zeros of their shape and dtype that hold
+    no memory (their data is neither inflated nor checked).
 
     Raises :class:`NpzError` for anything that cannot be read as plain arrays.
     """
-    return _read(path, names, headers_only=False)
+    return _read(path, names, headers_only=False, shape_only=shape_only)
 
 
 def npz_headers(path: str | os.PathLike) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
