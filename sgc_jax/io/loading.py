@@ -461,7 +461,7 @@ class ClipEntry:
             clip = subsample_tracks(source, self.config)
         else:
             clip = clip_from_arrays(source, clip_id=self.clip_id, config=self.config)
-        return dataclasses.replace(clip, frames=None) if for_scoring else clip
+        return dataclasses.replace(clip, **dict.fromkeys(PLOTS_ONLY)) if for_scoring else clip
 
     def claim_id(self) -> None:
         """Claim this clip's id for the run; raises :class:`ClipFormatError` when another clip file has it."""
