@@ -168,6 +168,9 @@ def _best(trunc):
 # early candidate, so the draws stopped after one chunk while better basins were still to be found
 # (docs/semantics.md §7.1; bench/RESULTS.md).
 ADAPTIVE_PX = 2.0
+# ... and draws this many times the samples its rule needs: one sample of inliers only is not
+# enough where a region's cost has optima of nearly equal cost; its lowest basin must be drawn.
+ADAPTIVE_DRAWS = 3
 
 # One truncated cost is lower than another when by more than this fraction of it, beyond
 # float32's rounding of the sum: two fits that reach the same optimum tie, whatever the order of
@@ -373,17 +376,18 @@ def samples_needed(inlier_frac, sample_size, confidence):
 
 
 def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sample_size, inlier_px,
-                       sample_steps, lo_steps, score_points, lo_candidates, chunk, confidence):
+                       sample_steps, lo_steps, score_points, lo_candidates, fit_points, chunk, confidence):
     """The best pose6 (6,) of one region from minimal samples, scoring and one least-squares fit.
 
     Samples are drawn up front (``hypotheses`` of them) and processed ``chunk`` at a time: each
     gives sample_size + 1 candidates (``sample_candidates``), scored on the region's scoring
     subset; the ``lo_candidates`` best so far are kept (lowest summed truncated squared error,
-    MSAC, then draw order). Drawing stops once ``samples_needed`` for the best fraction of
-    members within ADAPTIVE_PX (at most inlier_px) of a candidate and ``confidence`` are done
-    (confidence 1: all of them). Each kept candidate then gets one least-squares fit (``lo_steps``
-    Gauss-Newton steps) on its inliers; the lowest truncated cost at inlier_px of candidates and
-    fits is returned.
+    MSAC, then draw order). Drawing stops once ADAPTIVE_DRAWS x ``samples_needed`` for the best
+    fraction of members within ADAPTIVE_PX (at most inlier_px) of a candidate and ``confidence``
+    are done (confidence 1: all of them). Each kept candidate then gets one least-squares fit
+    (``lo_steps`` Gauss-Newton steps) on its inliers among at most ``fit_points`` of the scored
+    members, spread evenly; the lowest truncated cost at inlier_px (on all scored members) of
+    candidates and fits is returned.
     """
     N = X.shape[0]
     dtype = X.dtype
@@ -421,14 +425,20 @@ def _region_candidates(X, uv, K, order, start, n_members, key, *, hypotheses, sa
         c, _, _, best_count = state
         close_frac = best_count / jnp.maximum(n_valid_scored, 1).astype(dtype)
         return (c < n_chunks) & (n_members >= sample_size) & (
-            (c * chunk).astype(dtype) < samples_needed(close_frac, sample_size, need_factor))
+            (c * chunk).astype(dtype) < ADAPTIVE_DRAWS * samples_needed(close_frac, sample_size, need_factor))
 
     init = (jnp.int32(0), jnp.zeros((n_keep, 6), dtype), jnp.full(n_keep, -jnp.inf, dtype), jnp.int32(0))
     _, top_pose, _, _ = jax.lax.while_loop(more, draw, init)
 
-    # one least-squares fit of each leading candidate on its inliers among the scored points
-    inl_top, _, _ = _score(so3_exp(top_pose[:, :3]), top_pose[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
-    fits, _ = jax.vmap(lambda p, w: solve_pnp(X_s, uv_s, w, K, steps=lo_steps, pose0=p))(top_pose, inl_top.astype(dtype))
+    # one least-squares fit of each leading candidate on its inliers among fit_points of the
+    # scored members (every m / fit_points-th): enough to tell its basin, a quarter of the cost
+    n_fit = min(fit_points, n_scored)
+    n_valid = jnp.minimum(n_members, n_scored)
+    i = jnp.arange(n_fit)
+    fit_idx = jnp.where(n_valid <= n_fit, i, (i * n_valid) // n_fit)
+    X_f, uv_f = X_s[fit_idx], uv_s[fit_idx]
+    inl_top, _, _ = _score(so3_exp(top_pose[:, :3]), top_pose[:, 3:], X_f, uv_f, K, i < n_valid, inlier_px)
+    fits, _ = jax.vmap(lambda p, w: solve_pnp(X_f, uv_f, w, K, steps=lo_steps, pose0=p))(top_pose, inl_top.astype(dtype))
     fits = jnp.where(jnp.all(jnp.isfinite(fits), axis=-1, keepdims=True), fits, top_pose)
     candidates = jnp.concatenate([top_pose, fits])
     _, _, trunc = _score(so3_exp(candidates[:, :3]), candidates[:, 3:], X_s, uv_s, K, scored_valid, inlier_px)
@@ -453,7 +463,8 @@ def ransac_pnp_regions(
     sample_steps=3,
     lo_steps=3,
     score_points=512,
-    lo_candidates=4,
+    lo_candidates=16,
+    fit_points=128,
     max_rounds=5,
     chunk=10,
     ambiguous_rot_deg=3.0,
@@ -473,9 +484,10 @@ def ransac_pnp_regions(
        members, ``chunk`` at a time, each giving sample_size + 1 candidate poses
        (``sample_candidates``), scored on the members (at most ``score_points`` of them: all
        when they fit, else a stratified random subset); drawing stops after ``hypotheses``
-       samples, or earlier once RANSAC's adaptive rule is met at ``confidence``; the
-       ``lo_candidates`` best get one least-squares fit (``lo_steps`` Gauss-Newton steps), and
-       the best of all starts the region's search.
+       samples, or earlier after ADAPTIVE_DRAWS x the samples RANSAC's adaptive rule needs at
+       ``confidence``; the ``lo_candidates`` best get one least-squares fit (``lo_steps``
+       Gauss-Newton steps, on at most ``fit_points`` of the scored members), and the best of all
+       starts the region's search.
     2. Starts besides it: with ``borrow`` (and k > 1) the pair's other region pose that fits the
        region best (``borrow_region_poses``), and the camera's pose (rival_R, global_t).
     3. All regions together, ``refine_poses``: the coarse optimum, the pose at the noise-level
@@ -484,7 +496,7 @@ def ransac_pnp_regions(
     Status: 1 when members < min_points; else 0 when inliers (of the final pose) >= max(4,
     floor(min_inlier_frac * members)), the pose is finite and det(R) ~ 1; else 2. Shape-like
     arguments (hypotheses, sample_size, steps, sample_steps, lo_steps, score_points,
-    lo_candidates, max_rounds, chunk, borrow) must be static under jit.
+    lo_candidates, fit_points, max_rounds, chunk, borrow) must be static under jit.
     """
     k = keys.shape[0]
     dtype = X.dtype
@@ -499,7 +511,7 @@ def ransac_pnp_regions(
         lambda s, n, key: _region_candidates(
             X, uv, K, order, s, n, key, hypotheses=hypotheses, sample_size=sample_size, inlier_px=inlier_px,
             sample_steps=sample_steps, lo_steps=lo_steps, score_points=score_points, lo_candidates=lo_candidates,
-            chunk=chunk, confidence=confidence)
+            fit_points=fit_points, chunk=chunk, confidence=confidence)
     )(start, n_members, keys)  # (k, 6)
 
     rival_R = jnp.eye(3, dtype=dtype) if rival_R is None else jnp.asarray(rival_R, dtype)
