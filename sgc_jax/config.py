@@ -49,7 +49,9 @@ class SGCConfig:
     min_points: int = _field(4, "tracks a region needs for a local pose (>= 4)")
     inlier_px: float = _field(8.0, "RANSAC inlier threshold on the reprojection error, pixels")
     ransac_hypotheses: int = _field(100, "most minimal samples drawn per region")
-    confidence: float = _field(0.99, "RANSAC confidence of the adaptive stop (both engines), in (0, 1)")
+    confidence: float = _field(0.99, "RANSAC confidence of the adaptive stop, in (0, 1): the JAX engine draws 3x "
+                                     "the samples it asks for, cv2.solvePnPRansac (--compat authors) uses it as is "
+                                     "(docs/semantics.md §2)")
     min_inlier_frac: float = _field(0.3, "a pose is accepted when its inliers >= max(4, floor(frac * n)), "
                                          "n = the region's tracks")
     min_track_conf: float = _field(0.5, "tracks below this confidence are unusable")

@@ -207,13 +207,14 @@ def leading_distinct(costs: np.ndarray, Rs: np.ndarray, ts: np.ndarray, count: i
     """Up to ``count`` poses of lowest cost, each more than DISTINCT_DEG in rotation from the ones
     before it (ties: lower index first)."""
     order = np.argsort(costs, kind="stable")
+    Rs_sorted = Rs[order]
     open_ = np.isfinite(costs[order])  # still eligible, in cost order
     chosen: list[Pose] = []
     while len(chosen) < count and open_.any():
-        i = order[np.argmax(open_)]
-        chosen.append(Pose(Rs[i], ts[i]))
+        j = int(np.argmax(open_))
+        chosen.append(Pose(Rs_sorted[j], ts[order[j]]))
         # every later candidate as close to this one is no longer distinct
-        open_ &= rotation_angles_deg(Rs[i], Rs[order]) > DISTINCT_DEG
+        open_ &= rotation_angles_deg(Rs_sorted[j], Rs_sorted) > DISTINCT_DEG
     return chosen
 
 
