@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from sgc_jax.config import SGCConfig
+from sgc_jax.engines.jax_engine.pose_stage import ransac_options
 from sgc_jax.kernels.ransac import ransac_pnp, ransac_pnp_regions
 
 W, H = 512, 288
@@ -70,6 +72,13 @@ def make_problem(rng, n, outlier_frac, noise_px, K, max_rot_deg=10.0, t_scale=0.
     return X, uv, R, t
 
 
+def options(args, min_inlier_frac: float):
+    """The engine's RANSAC options with this run's hypotheses, threshold and steps."""
+    config = SGCConfig(ransac_hypotheses=args.hypotheses, inlier_px=args.inlier_px, lm_steps=args.steps,
+                       min_inlier_frac=min_inlier_frac)
+    return ransac_options(config)
+
+
 def run_jax(problems, K, args):
     """Batched over trials with one jitted vmap (one compile per point count)."""
     solve = jax.jit(
@@ -80,11 +89,7 @@ def run_jax(problems, K, args):
                 jnp.ones(X.shape[0], bool),
                 jnp.asarray(K, jnp.float32),
                 key,
-                hypotheses=args.hypotheses,
-                inlier_px=args.inlier_px,
-                min_inlier_frac=0.0,
-                min_points=4,
-                steps=args.steps,
+                options(args, min_inlier_frac=0.0),
             )
         )
     )
@@ -142,10 +147,7 @@ def time_pair(args, regions=10, n_points=4096, repeats=20):
     for r, idx in enumerate(np.array_split(order, regions)):
         region[idx] = r + 1
     solve = jax.jit(
-        lambda region, keys: ransac_pnp_regions(
-            X, uv, region, K, keys, hypotheses=args.hypotheses, inlier_px=args.inlier_px,
-            min_inlier_frac=0.3, min_points=4, steps=args.steps,
-        )
+        lambda region, keys: ransac_pnp_regions(X, uv, region, K, keys, options(args, min_inlier_frac=0.3))
     )
     X, uv, K = (jnp.asarray(a, jnp.float32) for a in (X, uv, K))
     region, keys = jnp.asarray(region), jax.random.split(jax.random.key(args.seed), regions)

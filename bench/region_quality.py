@@ -25,8 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.config import SGCConfig
+from sgc_jax.engines.jax_engine.pose_stage import ransac_options
 from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
 from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT
 from sgc_jax.research.study import DEFAULT_SEVERITIES, sensitivity_study
 from sgc_jax.research.synth import synth_clip
@@ -95,8 +97,8 @@ def uncertainty_table(draws: int) -> str:
     K = np.array([[300.0, 0.0, 200.0], [0.0, 300.0, 150.0], [0.0, 0.0, 1.0]], np.float32)
     R = np.asarray(so3_exp(jnp.array([0.01, 0.02, -0.005])), np.float64)
     t = np.array([0.1, -0.05, 0.05])
-    fit = jax.jit(jax.vmap(functools.partial(ransac_pnp, hypotheses=100, inlier_px=8.0, min_inlier_frac=0.3,
-                                             min_points=4, steps=10), in_axes=(None, 0, None, None, 0)))
+    fit = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=ransac_options(SGCConfig())),
+                           in_axes=(None, 0, None, None, 0)))
     rows = ["| region | points | noise px | predicted rot std deg | measured RMS deg | ratio | ambiguous |",
             "|---|---|---|---|---|---|---|"]
     cases = [("wide, curved", 300, 150, 0.3, 1.0), ("wide, curved", 300, 150, 0.3, 0.5),

@@ -1,4 +1,4 @@
-"""components.py: per-pair pose components (SPEC §3 step 8) and the authors' variants (§3a)."""
+"""pose_variances.py: per-pair pose components (SPEC §3 step 8) and the authors' variants (§3a)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from sgc_jax import SGCConfig
 from sgc_jax.engines import reference
-from sgc_jax.kernels import components
-from sgc_jax.kernels.components import masked_mean, rotation_angle_deg_authors
+from sgc_jax.kernels import pose_variances as components
+from sgc_jax.kernels.pose_variances import masked_mean, rotation_angle_deg_authors
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 pair_pose_components = jax.jit(components.pair_pose_components, static_argnames=("compat",))

@@ -1,4 +1,4 @@
-"""sgc_jax.kernels.geometry: SO(3) exp/log, stable rotation angles, nearest rotation, pinhole projection.
+"""sgc_jax.kernels.so3 and camera: SO(3) exp/log, stable rotation angles, nearest rotation, pinhole projection.
 
 float32 (the production path) throughout; float64 NumPy is the reference.
 """
@@ -7,17 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
-from sgc_jax.kernels.geometry import (
-    back_project,
-    nearest_rotation,
-    project,
-    rotation_angle_deg,
-    so3_exp,
-    so3_log,
-)
+from sgc_jax.kernels.camera import back_project, project_floored
+from sgc_jax.kernels.so3 import nearest_rotation, rotation_angle_deg, so3_exp, so3_log
 
 # float32 tolerances: entries of R carry ~1e-7 rounding; the log near pi loses ~sqrt of that
 # in the axis direction, hence the looser near-pi bound.
@@ -144,4 +137,4 @@ def test_back_project_inverts_project():
     X = back_project(K, uv, z)
     assert X.shape == (4, 7, 3)
     np.testing.assert_allclose(np.asarray(X[..., 2]), np.asarray(z))
-    np.testing.assert_allclose(np.asarray(project(K, X)), np.asarray(uv), atol=1e-3)
+    np.testing.assert_allclose(np.stack(project_floored(K, X[..., 0], X[..., 1], X[..., 2])[:2], -1), np.asarray(uv), atol=1e-3)

@@ -1,4 +1,4 @@
-"""kmeans.py: exact histogram k-means (SPEC §3 step 2), depth regions and the grid partition."""
+"""kmeans.py and partitions.py: exact histogram k-means (SPEC §3 step 2), depth regions and the grid partition."""
 
 from __future__ import annotations
 
@@ -7,13 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sgc_jax.kernels import kmeans
-from sgc_jax.kernels.kmeans import cluster_counts, grid_shape
+from sgc_jax.kernels import kmeans, partitions
+from sgc_jax.kernels.partitions import cluster_counts, grid_shape
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 kmeans_1d = jax.jit(kmeans.kmeans_1d, static_argnames=("k", "bins"))
-depth_regions = jax.jit(kmeans.depth_regions, static_argnames=("k", "bins"))
-grid_regions = jax.jit(kmeans.grid_regions, static_argnames=("k",))
+depth_regions = jax.jit(partitions.depth_regions, static_argnames=("k", "bins"))
+grid_regions = jax.jit(partitions.grid_regions, static_argnames=("k",))
 
 # The DP minimises the float32 within-cluster SSE; 1e-6 relative covers float32 round-off in
 # the costs on these small inputs (ties within that band may pick either partition).
@@ -203,7 +203,7 @@ def test_segment_minimum_of_nonnegative_values_by_their_bits_is_segment_min():
     values[:6] = [0.0, -0.0, np.inf, 1.2e-38, 3.4e38, 0.0]  # zeros of both signs, inf, normal extremes
     segment = rng.integers(0, 40, 200).astype(np.int32)  # some of the 41 segments stay empty
     segment[:2] = 7  # -0.0 and 0.0 in one segment
-    got = kmeans._segment_min_nonnegative(jnp.asarray(values), jnp.asarray(segment), 41)
+    got = kmeans.segment_min_nonnegative(jnp.asarray(values), jnp.asarray(segment), 41)
     want = jax.ops.segment_min(jnp.asarray(values), jnp.asarray(segment), num_segments=41)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))  # -0.0 == 0.0; empty: +inf
     assert np.isinf(np.asarray(got)[40])

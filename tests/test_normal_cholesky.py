@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 
-from sgc_jax.kernels.pnp import NormalCholesky
+from sgc_jax.kernels.linalg import NormalCholesky
 
 
 def test_solve_and_transposed_solve_match_the_pseudo_inverse():

@@ -8,12 +8,12 @@ import pytest
 
 from sgc_jax import SGCConfig, score_clip
 from sgc_jax.engines import reference
-from sgc_jax.kernels import kmeans, partition
+from sgc_jax.kernels import partitions
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
-grid_regions = jax.jit(kmeans.grid_regions, static_argnames=("k",))
-connected_components = jax.jit(partition.connected_components)
-spatial_regions = jax.jit(partition.spatial_regions, static_argnames=("k",))
+grid_regions = jax.jit(partitions.grid_regions, static_argnames=("k",))
+connected_components = jax.jit(partitions.connected_components)
+spatial_regions = jax.jit(partitions.spatial_regions, static_argnames=("k",))
 
 CONFIG = SGCConfig(k_seg=3, min_region_pixels=4)
 

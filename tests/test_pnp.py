@@ -1,4 +1,4 @@
-"""sgc_jax.kernels.pnp and sgc_jax.kernels.ransac: PnP solve and PnP-RANSAC on synthetic correspondences (float32).
+"""sgc_jax.kernels.pnp, joint_pnp, regions and ransac: PnP solves and PnP-RANSAC on synthetic correspondences (float32).
 
 Compiled functions are built once at module level and shared across tests (few compiles).
 """
@@ -11,11 +11,15 @@ import numpy as np
 import pytest
 
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
-from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp, so3_log
-from sgc_jax.kernels.pnp import (SLOT_CHUNK, initial_pose, label_ranks, region_slots, reprojection_residuals,
-                                 solve_pnp, solve_pnp_regions)
-from sgc_jax.kernels.ransac import borrow_region_poses, group_by_region, ransac_pnp
+from sgc_jax.engines.jax_engine.pose_stage import ransac_options
+from sgc_jax.kernels.joint_pnp import solve_pnp_regions
+from sgc_jax.kernels.local_optimum import borrow_region_poses
+from sgc_jax.kernels.pnp import initial_pose, reprojection_residuals, solve_pnp
+from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.kernels.regions import SLOT_CHUNK, group_by_region, label_ranks, region_slots
+from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp, so3_log
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
@@ -30,12 +34,12 @@ EXACT_ROT_DEG = 1e-2
 EXACT_T_REL = 1e-3
 NOISY_ROT_DEG = 0.2
 
-CFG = dict(hypotheses=100, inlier_px=8.0, min_inlier_frac=0.3, min_points=4, steps=10)
+OPTIONS = ransac_options(SGCConfig())  # the engine's defaults: 100 hypotheses, 8 px, 30% inliers
 
 solve_batch = jax.jit(jax.vmap(lambda X, uv, w, K: solve_pnp(X, uv, w, K, steps=10), in_axes=(0, 0, 0, None)))
 init_batch = jax.jit(jax.vmap(initial_pose, in_axes=(0, 0, 0, None)))
-ransac_one = jax.jit(functools.partial(ransac_pnp, **CFG))
-ransac_regions = jax.jit(jax.vmap(functools.partial(ransac_pnp, **CFG), in_axes=(None, None, 0, None, 0)))
+ransac_one = jax.jit(functools.partial(ransac_pnp, options=OPTIONS))
+ransac_regions = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=OPTIONS), in_axes=(None, None, 0, None, 0)))
 
 
 def rodrigues(w):

@@ -17,22 +17,22 @@ import pytest
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
 from sgc_jax.engines import reference
-from sgc_jax.io.result import PAIR_COLUMNS
-from sgc_jax.kernels.geometry import rotation_angle_deg, so3_exp
+from sgc_jax.engines.jax_engine.pose_stage import quality_rule, ransac_options
+from sgc_jax.io.tables import PAIR_COLUMNS
 from sgc_jax.kernels.ransac import ransac_pnp
+from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
 from sgc_jax.kernels.uncertainty import PoseUncertainty, region_quality, rot_std_limit_deg
 from sgc_jax.research.synth import synth_clip
 
-RULE = dict(min_region_points=10, max_rot_std_deg=1.0, max_rot_std_px=4.0, min_region_extent=0.02,
-            quality_noise_px=1.0)
+RULE = quality_rule(SGCConfig())  # the defaults: 10 inliers, 1 deg or 4 px, 2% of the diagonal, 1 px
 
 K = np.array([[300.0, 0.0, 200.0], [0.0, 300.0, 150.0], [0.0, 0.0, 1.0]], np.float32)
 R_TRUE = np.asarray(so3_exp(jnp.array([0.01, 0.02, -0.005])), np.float64)  # 1.3 deg
 T_TRUE = np.array([0.1, -0.05, 0.05])
 DRAWS = 64
 
-fit_draws = jax.jit(jax.vmap(functools.partial(ransac_pnp, hypotheses=100, inlier_px=8.0, min_inlier_frac=0.3,
-                                               min_points=4, steps=10), in_axes=(None, 0, None, None, 0)))
+fit_draws = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=ransac_options(SGCConfig())),
+                             in_axes=(None, 0, None, None, 0)))
 
 
 def region_draws(n, half_px, depth, relief, noise_px, seed=0):
@@ -101,7 +101,7 @@ def test_small_planar_patch_is_uncertain_and_always_left_out():
     res, errors = fit(X, uvs)
     assert np.sqrt(np.mean(errors**2)) > 5.0
     assert np.median(np.asarray(res.uncertainty.rot_std_deg)) > SGCConfig().max_rot_std_deg
-    status = region_quality(res.status, res.n_inliers, res.uncertainty, res.ambiguous, 500.0, 300.0, **RULE)
+    status = region_quality(res.status, res.n_inliers, res.uncertainty, res.ambiguous, 500.0, 300.0, RULE)
     assert np.all(np.isin(np.asarray(status), [REGION_ILL_CONDITIONED, REGION_AMBIGUOUS]))
     assert np.mean(np.asarray(status) == REGION_AMBIGUOUS) > 0.1
 
@@ -116,7 +116,7 @@ def test_region_quality_statuses():
     status = jnp.array([0, 0, 0, 0, 0, 2, 0, 0])
     n_inliers = jnp.array([100, 5, 100, 100, 100, 100, 100, 100])
     ambiguous = jnp.array([False, False, False, False, True, True, False, True])
-    out = region_quality(status, n_inliers, unc, ambiguous, 500.0, 400.0, **RULE)
+    out = region_quality(status, n_inliers, unc, ambiguous, 500.0, 400.0, RULE)
     I, A = REGION_ILL_CONDITIONED, REGION_AMBIGUOUS
     assert out.tolist() == [0, I, I, I, A, 2, 0, 0]
     assert (I, A) == (4, 5)  # the codes of docs/semantics.md §3.7
@@ -130,8 +130,8 @@ def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
                           extent_px=jnp.full(3, 50.0), sigma_px=jnp.ones(3))
     args = (jnp.zeros(3, jnp.int32), jnp.full(3, 100), unc, jnp.zeros(3, bool), 500.0)
     I = REGION_ILL_CONDITIONED
-    assert region_quality(*args, 400.0, **RULE).tolist() == [0, I, I]
-    assert region_quality(*args, 100.0, **RULE).tolist() == [0, 0, I]
+    assert region_quality(*args, 400.0, RULE).tolist() == [0, I, I]
+    assert region_quality(*args, 100.0, RULE).tolist() == [0, 0, I]
 
 
 # ----------------------------------------------------------------------------- scenes

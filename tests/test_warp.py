@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from sgc_jax.engines import reference
-from sgc_jax.kernels.geometry import so3_exp
 from sgc_jax.kernels import warp
+from sgc_jax.kernels.so3 import so3_exp
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 warp_depth = jax.jit(warp.warp_depth, static_argnames=("nearest", "mask_holes"))

@@ -1,17 +1,12 @@
-"""Forward depth warp with a z-buffer and the depth error of docs/semantics.md §3.6.
-
-Pixels are (u, v) = (column, row) with centres at integer coordinates; (R, t) maps camera i-1
-coordinates to camera i coordinates (x_i = R x_{i-1} + t); depth is along the optical axis.
-"""
+"""Forward depth warp with a z-buffer, and the depth error of docs/semantics.md §3.6. Pixels and
+poses as in ``camera``."""
 
 from __future__ import annotations
-
 
 import jax.numpy as jnp
 
 from ..config import HOLE_DEPTH_MARGIN
-from .geometry import back_project_xyz, project_xyz
-
+from .camera import back_project_xyz, project_xyz, transform_xyz
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
 
@@ -22,15 +17,12 @@ def _valid_depth(depth, valid):
 
 
 def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
-    """(H, W) depth of frame i-1 -> ((H, W) float32 z in frame i, 0 where nothing lands; (H, W) bool hit).
-
-    Every valid pixel is back-projected with K_prev, moved by (R, t), projected with K_curr and
-    rounded half up to a pixel; z > 1e-5 inside the image is kept. Collisions keep the nearest z
-    (``nearest=True``, a true z-buffer) or the farthest (``nearest=False``, the authors' code).
-    ``mask_holes`` (spec): a pixel is no hit when a point nearer by more than HOLE_DEPTH_MARGIN
-    lands within one pixel of it (on any of the 2x2 pixels around its exact position): what
-    reached it is seen through a gap that a magnified nearer surface leaves between its splats.
-    """
+    """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
+    hit (H, W) bool). Valid pixels are back-projected, moved by (R, t), projected and rounded half
+    up; z > MIN_WARP_Z inside the image is kept. Collisions keep the nearest z (``nearest``, a
+    z-buffer) or the farthest (the authors' code). ``mask_holes`` (spec): no hit where a point
+    nearer by more than HOLE_DEPTH_MARGIN lands within one pixel, since what reached it is seen
+    through a gap between a magnified nearer surface's splats."""
     H, W = depth_prev.shape
     depth_prev = depth_prev.astype(jnp.float32)
     valid = _valid_depth(depth_prev, valid_prev)
@@ -40,9 +32,7 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     v = jnp.arange(H, dtype=jnp.float32)[:, None]
     u = jnp.arange(W, dtype=jnp.float32)[None, :]
     X, Y, Z = back_project_xyz(K_prev, u, v, jnp.where(valid, depth_prev, 1.0))
-    Xc = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]
-    Yc = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]
-    z = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
+    Xc, Yc, z = transform_xyz(R, t, X, Y, Z)
     front = valid & (z > MIN_WARP_Z)
     u_c, v_c = project_xyz(K_curr, Xc, Yc, jnp.where(front, z, 1.0))
     iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
@@ -63,11 +53,9 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
 
 def _footprint_cover(u_c, v_c, z, front, H, W):
     """(H W,) nearest z of the points whose 2x2 footprint (floor(u) + {0, 1}, floor(v) + {0, 1})
-    covers each pixel; inf where none does. Holes up to a magnification of 2 are covered.
-
-    One scatter of each point to its footprint's corner (floor(u), floor(v)), on a grid with a
-    row and column before the image's, then the minimum over the 2x2 corners that reach each
-    pixel: the same minimum as four scatters, for one."""
+    covers each pixel, inf where none does: holes up to a magnification of 2 are covered."""
+    # one scatter to each footprint's corner on a grid with a row and column before the image's,
+    # then the minimum over the 2x2 corners that reach a pixel: four scatters' minimum, for one
     u0, v0 = jnp.floor(u_c), jnp.floor(v_c)
     inside = front & (u0 >= -1) & (u0 < W) & (v0 >= -1) & (v0 < H)  # in float: no int overflow
     corner = jnp.where(inside, (v0.astype(jnp.int32) + 1) * (W + 1) + u0.astype(jnp.int32) + 1, (H + 1) * (W + 1))
@@ -78,11 +66,8 @@ def _footprint_cover(u_c, v_c, z, front, H, W):
 
 
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
-    """Mean |warped - depth_curr| over hit & valid & static (H, W) -> (float32, int32 count): in
-    depth units, or divided by depth_curr pixel by pixel when ``relative`` (AbsRel, a fraction).
-
-    NaN when the count is 0 (no overlap). valid_curr is further restricted to depth > 0 and finite.
-    """
+    """Mean |warped - depth_curr| over hit & valid (depth > 0, finite) & static (H, W) -> (float32,
+    int32 count): in depth units, or relative to depth_curr (AbsRel, a fraction); NaN with no overlap."""
     both = hit & _valid_depth(depth_curr, valid_curr) & static_curr
     n = jnp.sum(both).astype(jnp.int32)
     error = jnp.abs(warped - depth_curr)

@@ -1,19 +1,17 @@
-"""Per-pair pose components (docs/semantics.md §3.5): local and global rotation/translation variances.
+"""The per-pair pose components of docs/semantics.md §3.5: how far the local poses spread about
+their mean and about the camera's pose.
 
-Rotations in degrees (variances in deg^2); translations in the units of the inputs. Local poses
-come as fixed-size arrays over R region slots with an ``accepted`` mask; vmap lifts to pairs/clips.
-``compat="authors"`` reproduces the authors' code (docs/semantics.md §3.9): arccos-of-trace
-distances in float32, and IQR == 0 rejecting every value of the trimmed mean.
+Rotations in degrees (variances in deg^2), translations in the inputs' units. Local poses come as
+R region slots with an ``accepted`` mask. ``compat="authors"`` reproduces the authors' code
+(§3.9): arccos-of-trace distances in float32, and IQR = 0 rejecting every value.
 """
 
 from __future__ import annotations
 
-
 import jax.numpy as jnp
 
-from .geometry import rotation_angle_deg, so3_exp, so3_log
-
-COMPATS = ("spec", "authors")
+from ..config import COMPATS
+from .so3 import rotation_angle_deg, so3_exp, so3_log
 
 
 def _check_compat(compat: str) -> None:
@@ -22,18 +20,14 @@ def _check_compat(compat: str) -> None:
 
 
 def rotation_angle_deg_authors(R_a, R_b):
-    """(..., 3, 3) x2 -> (...) angle of R_a^T R_b in degrees as arccos((trace - 1) / 2), float32."""
+    """Angle of R_a^T R_b [deg] as arccos((trace - 1) / 2) in float32 (the authors' distance)."""
     M = jnp.swapaxes(R_a, -1, -2).astype(jnp.float32) @ R_b.astype(jnp.float32)
     cos = (jnp.trace(M, axis1=-2, axis2=-1) - 1.0) / 2.0
     return jnp.degrees(jnp.arccos(jnp.clip(cos, -1.0, 1.0)))
 
 
-def _angle_fn(compat: str):
-    return rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
-
-
 def masked_mean(values, valid):
-    """Mean over axis 0 of values (R, ...) where valid (R,); NaN where no entry is valid."""
+    """Mean over axis 0 of values (R, ...) where valid (R,); NaN where none is."""
     values = jnp.asarray(values, jnp.float32)
     mask = valid.reshape(valid.shape + (1,) * (values.ndim - 1))
     n = jnp.sum(valid)
@@ -42,11 +36,8 @@ def masked_mean(values, valid):
 
 
 def masked_percentile(values, valid, q: int):
-    """q-th percentile (int 0..100, NumPy's default "linear" method) of values (R,) where valid (R,).
-
-    Sorted valid values s_0..s_{n-1}; position q (n - 1) / 100 split exactly into integer and
-    fraction; interpolated as NumPy's lerp does. Returns +inf when no entry is valid.
-    """
+    """The q-th percentile (int 0..100, NumPy's "linear" method) of values (R,) where valid; +inf
+    with none valid. The position q (n - 1) / 100 is split exactly into integer and fraction."""
     s = jnp.sort(jnp.where(valid, values.astype(jnp.float32), jnp.inf))
     n = jnp.sum(valid).astype(jnp.int32)
     scaled = q * jnp.maximum(n - 1, 0)
@@ -59,12 +50,9 @@ def masked_percentile(values, valid, q: int):
 
 
 def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
-    """Mean of valid v (R,) with q1 - k*IQR <= v <= p98, k = (p98 - q3) / IQR; float32, NaN if none valid.
-
-    IQR == 0 keeps every valid value ("spec") or rejects them all, NaN ("authors"). If the bounds
-    reject every value (only possible with exactly 2 distinct values), "spec" keeps all of them
-    and "authors" gives NaN.
-    """
+    """Mean of the valid v (R,) with q1 - c IQR <= v <= p98, c = (p98 - q3) / IQR; NaN with none
+    valid. IQR = 0, or bounds that reject every value (two distinct values), keep all under
+    "spec" and give NaN under "authors"."""
     _check_compat(compat)
     values = values.astype(jnp.float32)
     q1 = masked_percentile(values, valid, 25)
@@ -72,8 +60,8 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
     p98 = masked_percentile(values, valid, 98)
     iqr = q3 - q1
     iqr_safe = jnp.where(iqr > 0, iqr, 1.0)
-    k = (p98 - q3) / iqr_safe
-    kept = valid & (values >= q1 - k * iqr_safe) & (values <= p98)
+    c = (p98 - q3) / iqr_safe
+    kept = valid & (values >= q1 - c * iqr_safe) & (values <= p98)
     if compat == "authors":
         return jnp.where(iqr > 0, masked_mean(values, kept), jnp.nan)
     keep_all = (iqr == 0) | ~jnp.any(kept)
@@ -81,20 +69,18 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
 
 
 def mean_pose(R_local, t_local, accepted):
-    """Accepted poses (R, 3, 3), (R, 3), (R,) -> (exp of the mean rotation vector (3, 3), mean
-    translation (3,)), float32; NaN with no accepted pose."""
+    """Accepted poses (R, 3, 3), (R, 3), (R,) -> (exp of the mean rotation vector, mean
+    translation), float32; NaN with none accepted."""
     R_mean = so3_exp(masked_mean(so3_log(R_local.astype(jnp.float32)), accepted))
     return R_mean, masked_mean(t_local.astype(jnp.float32), accepted)
 
 
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
-    """Local poses (R, 3, 3), (R, 3), accepted (R,) vs global (3, 3), (3,) -> dict of float32 scalars.
-
-    Keys: local_rot_var, global_rot_var (deg^2), local_trans_var, global_trans_var (translation
-    units^2), n_poses (int32). All four variances NaN with no accepted pose; local ones 0 with one.
-    """
+    """Local poses (R, 3, 3), (R, 3), accepted (R,) against the camera's (3, 3), (3,) -> float32
+    local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
+    All NaN with no accepted pose; the local ones 0 with one."""
     _check_compat(compat)
-    angle = _angle_fn(compat)
+    angle = rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
     R_local = R_local.astype(jnp.float32)
     t_local = t_local.astype(jnp.float32)
     n = jnp.sum(accepted).astype(jnp.int32)
@@ -107,13 +93,8 @@ def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = 
     single = n < 2
     local_rot = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_rot))
     local_trans = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_trans))
-
     global_rot = trimmed_mean_iqr(angle(R_local, R_g.astype(jnp.float32)[None]) ** 2, accepted, compat=compat)
     global_trans = masked_mean(jnp.sum((t_local - t_g.astype(jnp.float32)) ** 2, axis=-1), accepted)
-    return {
-        "local_rot_var": local_rot.astype(jnp.float32),
-        "local_trans_var": local_trans.astype(jnp.float32),
-        "global_rot_var": global_rot.astype(jnp.float32),
-        "global_trans_var": global_trans.astype(jnp.float32),
-        "n_poses": n,
-    }
+    return {"local_rot_var": local_rot.astype(jnp.float32), "local_trans_var": local_trans.astype(jnp.float32),
+            "global_rot_var": global_rot.astype(jnp.float32), "global_trans_var": global_trans.astype(jnp.float32),
+            "n_poses": n}

@@ -1,0 +1,111 @@
+"""Every region's pose of a pair at once: Levenberg-Marquardt on the slot layout, one pass over the
+N points per step (docs/semantics.md §7.1). Poses and pixels as in ``pnp``."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .fence import materialise
+from .linalg import small_matmul, solve_spd
+from .pnp import point_columns, pointwise_residuals
+from .regions import RegionSlots, block_normals, block_sums, region_slots, to_slots
+from .so3 import so3_exp, so3_log
+
+# A region stops once a step would lower its squared error by less than LM_RTOL of it (float32
+# resolves ~1e-7), its damping passes LM_MAX_DAMPING (no step lowers it), or its step is below
+# LM_ATOL_PX in pixel-scaled units.
+LM_RTOL = 1e-6
+LM_ATOL_PX = 1e-4
+LM_MAX_DAMPING = 1e8
+
+
+class Linearisation(NamedTuple):
+    """Per region at a pose, in pixel-scaled parameters: squared error (k,), J^T J (k, 6, 6), J^T r (k, 6)."""
+
+    cost: jax.Array
+    normal: jax.Array
+    grad: jax.Array
+
+
+class LMState(NamedTuple):
+    R: jax.Array  # (k, 3, 3)
+    t: jax.Array  # (k, 3)
+    at: Linearisation  # at (R, t)
+    damping: jax.Array  # (k,) Nielsen's mu
+    growth: jax.Array  # (k,) Nielsen's nu
+    done: jax.Array  # (k,) bool
+    step: jax.Array  # () int32
+
+
+def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSlots | None = None):
+    """Minimise each region's sum weight |project(R X + t) - uv|^2 -> (pose6 (k, 6), converged (k,)).
+
+    X (N, 3), uv (N, 2), weight (N,), region (N,) in 1..k (0: none), pose0 (k, 6) starts; at most
+    ``steps`` steps. Each region has its own damping (Nielsen's update) on the left perturbation
+    exp([w]) R, t + dt in pixel-scaled parameters (w by fx, dt by fx / the region's mean point
+    distance), and takes a step only where it lowers its error, so a start tens of degrees off
+    descends instead of diverging. ``slots``: ``region_slots(region, k)``, made here when not given.
+    Needs >= 3 weighted points per region."""
+    k = pose0.shape[0]
+    dtype = X.dtype
+    slots = region_slots(region, k, dtype) if slots is None else slots
+    onehot = slots.chunk_onehot
+    weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
+    cols = point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
+                         to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
+    x, y, z, _, _, sqrt_w = cols
+    valid = (sqrt_w > 0).astype(dtype)
+    sums = block_sums(onehot, jnp.stack([valid * jnp.sqrt(x * x + y * y + z * z), valid]))
+    mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
+    # (k, 6) pixel-scaled units per parameter unit, finite for an empty region
+    scale = jnp.concatenate([jnp.broadcast_to(K[0, 0], (k, 3)),
+                             jnp.broadcast_to((K[0, 0] / jnp.maximum(mean_dist, 1e-12))[:, None], (k, 3))], axis=-1)
+    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
+    chunk_scale = scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
+
+    def linearise(R, t) -> Linearisation:
+        (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
+
+        def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled
+            return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
+                              g[0], g[1], g[2]]) / chunk_scale
+
+        J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
+        cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
+        return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
+
+    def step(state: LMState) -> LMState:
+        at, damping, growth, done = state.at, state.damping, state.growth, state.done
+        diag = jnp.diagonal(at.normal, axis1=1, axis2=2)
+        damped = at.normal + (damping[:, None] * diag + 1e-12)[:, :, None] * jnp.eye(6, dtype=dtype)
+        delta = -jax.vmap(solve_spd)(damped, at.grad) / scale  # (k, 6) in (w [rad], dt)
+        R_new, t_new = small_matmul(so3_exp(delta[:, :3]), state.R), state.t + delta[:, 3:]
+        new = linearise(R_new, t_new)
+        scaled = delta * scale
+        predicted = -(2.0 * jnp.sum(at.grad * scaled, -1) + jnp.einsum("ki,kij,kj->k", scaled, at.normal, scaled))
+        rho = (at.cost - new.cost) / jnp.maximum(predicted, 1e-30)
+        # taken only where the error drops by more than float32's rounding of the sum, so that
+        # programs fused otherwise (one device or several) take the same steps; settled where the
+        # drop, the model's prediction or the step is below that: nothing is left to gain
+        lower = jnp.isfinite(new.cost) & (new.cost < at.cost)
+        significant = lower & (at.cost - new.cost > LM_RTOL * at.cost + LM_ATOL_PX**2)
+        settled = ~done & ((lower & ~significant) | (predicted <= LM_RTOL * at.cost + LM_ATOL_PX**2)
+                           | (jnp.max(jnp.abs(scaled), -1) < LM_ATOL_PX))
+        accept = ~done & ~settled & significant
+        damping = jnp.where(accept, jnp.maximum(damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12),
+                            jnp.where(done, damping, damping * growth))
+        growth = jnp.where(accept, 2.0, jnp.where(done, growth, growth * 2.0))
+        pick = lambda new, old: jnp.where(accept.reshape((k,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
+        return LMState(pick(R_new, state.R), pick(t_new, state.t), jax.tree.map(pick, new, at), damping, growth,
+                       done | settled | (damping > LM_MAX_DAMPING), state.step + 1)
+
+    R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
+    at0 = linearise(R0, t0)
+    done0 = ~jnp.isfinite(at0.cost) | ~jnp.all(jnp.isfinite(pose0), axis=-1)
+    state = LMState(R0, t0, at0, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype), done0, jnp.int32(0))
+    final = jax.lax.while_loop(lambda s: (s.step < steps) & jnp.any(~s.done), step, state)
+    pose6 = jnp.concatenate([so3_log(final.R), final.t], axis=-1)
+    return pose6, final.done & jnp.all(jnp.isfinite(pose6), axis=-1)

@@ -1,0 +1,160 @@
+"""How a frame's static background splits into regions (docs/semantics.md §3.2 step 2, §6.1):
+depth layers (1-D k-means of the depth), a grid over the background's bounding box, or depth
+layers split into 4-connected components. Regions are numbered 1..N_s, 0 is none.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from .kmeans import bin_of, cluster_of_bins, histogram, kmeans_1d, normalise, unit_values
+
+NO_LABEL = jnp.iinfo(jnp.int32).max  # connected components: outside every cluster
+
+
+def cluster_counts(labels, *, k: int):
+    """(N,) int labels (-1 = none) -> (k,) int32 entries per cluster 0..k-1."""
+    return jax.ops.segment_sum((labels >= 0).astype(jnp.int32), jnp.where(labels >= 0, labels, k), num_segments=k + 1)[:k]
+
+
+def renumber_kept(cluster, counts, min_region_pixels):
+    """Clusters (..., N) with fewer than min_region_pixels (or no) entries dropped, the kept ones
+    numbered 1..N_s in index order -> (regions (..., N) int32, N_s (...)); counts (..., k)."""
+    kept = (counts >= min_region_pixels) & (counts > 0)
+    new_id = jnp.where(kept, jnp.cumsum(kept.astype(jnp.int32), axis=-1), 0)
+    region = jnp.where(cluster >= 0, jnp.take_along_axis(new_id, jnp.maximum(cluster, 0), axis=-1), 0)
+    return region.astype(jnp.int32), jnp.sum(kept, axis=-1).astype(jnp.int32)
+
+
+class DepthPartition(NamedTuple):
+    """Depth regions of frames (leading axis F) as a function of depth: each histogram bin's region."""
+
+    lo: jax.Array  # (F,) depth at the histogram's start
+    span: jax.Array  # (F,) depth range the bins cover
+    region_of_bin: jax.Array  # (F, bins) int32, 0 = none
+    n_regions: jax.Array  # (F,) int32
+
+
+def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels) -> DepthPartition:
+    """Depth layers of frames (F, H, W) over their masks (F, H, W); ``region_of_depth`` labels pixels."""
+    F = depth.shape[0]
+
+    def frame_histogram(frame):  # frame by frame: unbatched scatters are several times faster on CPU
+        u, valid, has_span, (lo, span) = normalise(*frame)
+        sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins)
+        return sums, n_bin, has_span, lo, span
+
+    sums, n_bin, has_span, lo, span = lax.map(frame_histogram, (depth.reshape(F, -1), region_mask.reshape(F, -1)))
+    cluster = jax.vmap(lambda s, h: cluster_of_bins(s, h, k, bins))(sums, has_span)  # the DP gains from batching
+    counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster)
+    region_of_bin, n_regions = renumber_kept(cluster, counts, min_region_pixels)
+    return DepthPartition(lo, span, region_of_bin, n_regions)
+
+
+def region_of_depth(partition: DepthPartition, depth, region_mask):
+    """Region (...) int32 of depths (...) in one frame's partition (no F axis); 0 off the mask or
+    for a non-finite depth."""
+    u, valid = unit_values(depth, region_mask, (partition.lo, partition.span))
+    bins = partition.region_of_bin.shape[-1]
+    return jnp.where(valid, partition.region_of_bin[bin_of(u, bins)], 0).astype(jnp.int32)
+
+
+def depth_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels):
+    """One frame (H, W) -> (regions (H, W) int32 by increasing depth, N_s)."""
+    partition = depth_partition(depth[None], region_mask[None], k=k, bins=bins, min_region_pixels=min_region_pixels)
+    frame = jax.tree.map(lambda x: x[0], partition)
+    return region_of_depth(frame, depth, region_mask), frame.n_regions
+
+
+def grid_shape(k: int) -> tuple[tuple[int, int], ...]:
+    """Every (rows, cols) with rows * cols = k, by increasing rows (grid_regions' tie-break order)."""
+    return tuple((r, k // r) for r in range(1, k + 1) if k % r == 0)
+
+
+def grid_regions(region_mask, *, k: int, min_region_pixels):
+    """(H, W) mask -> (cells (H, W) int32 in row-major order, N_s): rows x cols = k cells over the
+    mask's bounding box (h x w), the factorisation whose cells are closest to square
+    (min max(cols h, rows w) / min(...), ties to fewer rows); pixel (y, x) is in cell row
+    (y - y0) rows // h, column (x - x0) cols // w."""
+    H, W = region_mask.shape
+    any_row = jnp.any(region_mask, axis=1)
+    any_col = jnp.any(region_mask, axis=0)
+    y0 = jnp.argmax(any_row).astype(jnp.int32)
+    x0 = jnp.argmax(any_col).astype(jnp.int32)
+    h = jnp.maximum(H - jnp.argmax(any_row[::-1]).astype(jnp.int32) - y0, 1)
+    w = jnp.maximum(W - jnp.argmax(any_col[::-1]).astype(jnp.int32) - x0, 1)
+    shapes = jnp.array(grid_shape(k), jnp.int32)  # (n_shapes, 2)
+    cols_h = (shapes[:, 1] * h).astype(jnp.float32)
+    rows_w = (shapes[:, 0] * w).astype(jnp.float32)
+    choice = jnp.argmin(jnp.maximum(cols_h, rows_w) / jnp.minimum(cols_h, rows_w))
+    rows, cols = shapes[choice, 0], shapes[choice, 1]
+    y = jnp.arange(H, dtype=jnp.int32)[:, None]
+    x = jnp.arange(W, dtype=jnp.int32)[None, :]
+    cell_row = jnp.clip((y - y0) * rows // h, 0, rows - 1)
+    cell_col = jnp.clip((x - x0) * cols // w, 0, cols - 1)
+    cell = jnp.where(region_mask, cell_row * cols + cell_col, -1).reshape(-1)
+    region, n_regions = renumber_kept(cell, cluster_counts(cell, k=k), min_region_pixels)
+    return region.reshape(H, W), n_regions
+
+
+def _neighbour_min(label, cluster):
+    """Each pixel's label lowered to the smallest label of its 4-neighbours in the same cluster."""
+    def shifted(a, fill, dy, dx):
+        pad = jnp.pad(a, ((1, 1), (1, 1)), constant_values=fill)
+        H, W = a.shape
+        return pad[1 + dy: 1 + dy + H, 1 + dx: 1 + dx + W]
+
+    out = label
+    for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):  # four static shifts
+        same = shifted(cluster, -1, dy, dx) == cluster
+        out = jnp.minimum(out, jnp.where(same & (cluster >= 0), shifted(label, NO_LABEL, dy, dx), NO_LABEL))
+    return out
+
+
+class Propagation(NamedTuple):
+    label: jax.Array  # (H, W) smallest raster index reached so far
+    changed: jax.Array  # () bool
+
+
+def connected_components(cluster):
+    """(H, W) int32 cluster ids (-1 = none) -> (H, W) int32 component root: the raster index of the
+    component's first pixel, NO_LABEL outside every cluster. Min-label propagation with pointer
+    jumping until nothing changes."""
+    H, W = cluster.shape
+    valid = cluster >= 0
+    start = jnp.where(valid, jnp.arange(H * W, dtype=jnp.int32).reshape(H, W), NO_LABEL)
+
+    def step(state: Propagation) -> Propagation:
+        new = _neighbour_min(state.label, cluster)
+        jumped = jnp.where(valid, new.reshape(-1)[jnp.minimum(new, H * W - 1)].reshape(H, W), NO_LABEL)
+        new = jnp.minimum(new, jumped)
+        return Propagation(new, jnp.any(new != state.label))
+
+    return jax.lax.while_loop(lambda s: s.changed, step, Propagation(start, jnp.bool_(True))).label
+
+
+def spatial_regions(cluster, *, k: int, min_region_pixels):
+    """(H, W) int32 depth clusters (-1 = none) -> (regions (H, W) int32, N_s): 4-connected
+    components of one cluster, those under min_region_pixels dropped, the k largest numbered
+    1..N_s by decreasing size, ties to the first pixel in raster order."""
+    H, W = cluster.shape
+    root = connected_components(cluster).reshape(-1)
+    valid = root != NO_LABEL
+    sizes = jax.ops.segment_sum(valid.astype(jnp.int32), jnp.where(valid, root, 0), num_segments=H * W)
+    eligible = jnp.where(sizes >= jnp.maximum(min_region_pixels, 1), sizes, 0).astype(jnp.float32)
+    top_size, top_root = jax.lax.top_k(eligible, k)  # equal sizes: lower raster index first
+    kept = top_size > 0
+    new_id = jnp.zeros(H * W, jnp.int32).at[top_root].set(jnp.where(kept, jnp.arange(1, k + 1), 0))
+    region = jnp.where(valid, new_id[jnp.where(valid, root, 0)], 0)
+    return region.reshape(H, W).astype(jnp.int32), jnp.sum(kept).astype(jnp.int32)
+
+
+def depth_spatial_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels):
+    """One frame (H, W) -> (regions (H, W) int32, N_s) of the ``depth+spatial`` partition: depth
+    clusters split into connected components."""
+    cluster = kmeans_1d(depth.reshape(-1), region_mask.reshape(-1), k=k, bins=bins)
+    return spatial_regions(cluster.reshape(depth.shape), k=k, min_region_pixels=min_region_pixels)

@@ -1,0 +1,27 @@
+"""The frozen options of a pair's pose search (RANSAC, local optima, the rival pose): the engine
+builds them from ``SGCConfig`` (docs/semantics.md §2, §7.1). Static fields shape the program;
+the others are values, traced where the caller traces them."""
+
+from __future__ import annotations
+
+import equinox as eqx
+
+
+class RansacOptions(eqx.Module):
+    inlier_px: float  # inlier threshold on the reprojection error [px]
+    min_inlier_frac: float  # a pose is accepted with >= max(4, floor(frac m)) inliers of m members
+    min_points: int  # members a region needs for a pose
+    confidence: float  # of RANSAC's adaptive stop, in (0, 1)
+    ambiguous_rot_deg: float  # a rival this far away in rotation [deg] ...
+    ambiguous_inlier_frac: float  # ... that loses at most this share of the members makes a pose ambiguous
+    hypotheses: int = eqx.field(static=True)  # most minimal samples per region
+    lm_steps: int = eqx.field(static=True)  # most Levenberg-Marquardt steps per least-squares fit
+    borrow: bool = eqx.field(static=True, default=True)  # also start from the pair's other regions' poses
+    sample_size: int = eqx.field(static=True, default=4)  # points per minimal sample
+    chunk: int = eqx.field(static=True, default=10)  # samples drawn between two checks of the adaptive stop
+    sample_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps on a minimal sample
+    score_points: int = eqx.field(static=True, default=512)  # members candidates are scored on, at most
+    lo_candidates: int = eqx.field(static=True, default=16)  # best candidates given a least-squares fit
+    fit_points: int = eqx.field(static=True, default=128)  # scored members that fit uses, at most
+    lo_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps of that fit
+    max_rounds: int = eqx.field(static=True, default=5)  # least-squares fits per local optimum, at most
