@@ -15,8 +15,9 @@ import jax.extend as jex
 import numpy as np
 
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.buckets import STAGES, Bucket, PaddedClips, stage_inputs
-from sgc_jax.engines.stages import run_stage
+from sgc_jax.engines.jax_engine.buckets import Bucket, PaddedClips
+from sgc_jax.engines.jax_engine.stages import STAGES, stage_inputs
+from sgc_jax.engines.jax_engine.trace import run_stage
 
 
 def count_equations(jaxpr) -> int:

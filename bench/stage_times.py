@@ -34,19 +34,21 @@ def main() -> None:
 
     import sgc_jax
     from sgc_jax import SGCConfig, enable_compilation_cache
-    from sgc_jax.engines import jax_engine
-    from sgc_jax.engines.buckets import STAGES, PaddedClips, stage_inputs
+    from sgc_jax.engines.jax_engine.buckets import PaddedClips
+    from sgc_jax.engines.jax_engine.dispatch import prepare_clip
+    from sgc_jax.engines.jax_engine.programs import compiled_program
+    from sgc_jax.engines.jax_engine.stages import STAGES, program_values, stage_inputs
     from sgc_jax.io.loading import load_clips
 
     enable_compilation_cache()
     config = SGCConfig()
-    prepared = [jax_engine.prepare_clip(clip, config) for clip in load_clips(write_corpus(args.corpus, args.clips))]
-    key, values = jax.random.PRNGKey(0), jax_engine.program_values(config)
+    prepared = [prepare_clip(clip, config) for clip in load_clips(write_corpus(args.corpus, args.clips))]
+    key, values = jax.random.PRNGKey(0), program_values(config)
     times: dict[str, list[float]] = {stage: [] for stage in STAGES}
     cpu: dict[str, list[float]] = {stage: [] for stage in STAGES}  # process CPU time: all threads
     for round_ in range(args.repeat):
         for i, clip in enumerate(prepared):
-            program = jax_engine.compiled_program(config, clip.bucket, clip.batch)
+            program = compiled_program(config, clip.bucket, clip.batch)
             batch = PaddedClips(*jax.device_put(tuple(clip.batch)))
             out = None
             for stage, stage_program in zip(STAGES, program.stages):

@@ -34,9 +34,9 @@ import jax
 
 from sgc_jax import enable_compilation_cache, save_clip, score_batch
 from sgc_jax.io.loading import load_clips
-from sgc_jax.readers import reading_plan
 from sgc_jax.research.synth import synth_clip
-from sgc_jax.streaming import StreamStats
+from sgc_jax.scoring.readers import reading_plan
+from sgc_jax.scoring.streaming import StreamStats
 
 SCENE = dict(n_frames=16, height=288, width=512, n_tracks=4096, n_layers=4, static_spheres=3, noise_px=0.5,
              outlier_frac=0.1)

@@ -11,12 +11,13 @@ import tempfile
 import tomllib
 import traceback
 import typing
+import warnings
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .version import __version__
 from .calibration import COMPONENTS
-from .config import SGCConfig, cli_flag
+from .config import SGCConfig, cli_flag, renamed_fields
+from .version import __version__
 
 EXIT_OK = 0  # every input processed
 EXIT_SOME_FAILED = 1  # the command ran to the end and wrote its outputs; some inputs were reported as errors
@@ -142,7 +143,7 @@ def _use_compilation_cache(engine: str) -> None:
     """The JAX engine's compiled programs persist between runs (``compile_cache``; off with
     ``SGC_JAX_COMPILATION_CACHE=off``)."""
     if engine == "jax":
-        from .engines.compile_cache import enable_compilation_cache
+        from .engines.jax_engine.compile_cache import enable_compilation_cache
 
         enable_compilation_cache()
 
@@ -160,6 +161,14 @@ def _read_config_file(path: str) -> dict[str, Any]:
                          f"file: {exc}") from None
     if not isinstance(values, dict):
         raise UsageError(f"--config {path}: expected an object of SGCConfig fields, got {type(values).__name__}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DeprecationWarning)
+        try:
+            values = renamed_fields(values)
+        except TypeError as exc:
+            raise UsageError(f"--config {path}: {exc}") from None
+    for warning in caught:
+        print(f"sgc-jax: --config {path}: {warning.message}", file=sys.stderr)
     hints = typing.get_type_hints(SGCConfig)
     for field in dataclasses.fields(SGCConfig):
         if field.name not in values:
@@ -179,7 +188,7 @@ def _read_config_file(path: str) -> dict[str, Any]:
 def _config_and_calibration(args: argparse.Namespace):
     """The SGCConfig and Calibration of the algorithm flags over ``--config``, resolved before any
     clip is read (so that only a bad flag, never an engine's exception, becomes a usage error)."""
-    from .api import resolve_calibration
+    from .scoring.api import resolve_calibration
 
     values = _read_config_file(args.config) if args.config else {}
     given = {f.name: getattr(args, f.name) for f in dataclasses.fields(SGCConfig) if hasattr(args, f.name)}
@@ -202,7 +211,7 @@ def _summary_line(result) -> str:
 
 def _connect_ray(address: str) -> None:
     """``--ray``: join (or start) the cluster now, so that a missing extra or cluster is a usage error."""
-    from .cluster import connect
+    from .scoring.cluster import connect
 
     try:
         connect(address)
@@ -213,8 +222,8 @@ def _connect_ray(address: str) -> None:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from .api import score_batch
-    from .streaming import StreamStats
+    from .scoring.api import score_batch
+    from .scoring.streaming import StreamStats
 
     out = args.out or (Path(args.pairs).with_name("scores.csv") if args.pairs else None)
     inputs = clip_input_files(args.paths)
@@ -268,14 +277,15 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .api import score_batch
     from .research.synth import demo_claims, write_demo_corpus
+    from .scoring.api import score_batch
 
     _use_compilation_cache(args.engine)
     with tempfile.TemporaryDirectory() as tmp:
         out_dir = Path(args.out) if args.out else Path(tmp)
         paths = write_demo_corpus(out_dir, seed=args.seed)
-        print(f"synthesised {len(paths)} demo clips in {out_dir}", file=sys.stderr)
+        where = f"in {out_dir}" if args.out else "for this run only (--out DIR keeps them)"
+        print(f"synthesised {len(paths)} demo clips {where}", file=sys.stderr)
         result = score_batch(out_dir, engine=args.engine, progress=not args.quiet)
     print(result.table(("clip_id", "group", "status", "sgc", *COMPONENTS, "n_pairs_scored")))
     print(_summary_line(result), file=sys.stderr)
@@ -336,7 +346,7 @@ def _register_synth(sub) -> None:
 
 def _read_scores(paths) -> list[dict]:
     """Rows of the scores CSVs named on the command line (UsageError for anything else)."""
-    from .io.result import read_scores
+    from .io.tables import read_scores
 
     records = []
     for path in table_input_files(paths):
@@ -353,7 +363,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     import warnings
 
     from .calibration import calibrate, kfold_stability
-    from .io.result import rescore_records, write_scores
+    from .io.tables import write_scores
+    from .scoring.result import rescore_records
 
     guard_outputs(table_input_files(args.scores), out=args.out, rescored=args.rescored)
     records = _read_scores(args.scores)
@@ -392,7 +403,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_rescore(args: argparse.Namespace) -> int:
-    from .io.result import format_table, rescore_records, write_scores
+    from .io.tables import format_table, write_scores
+    from .scoring.result import rescore_records
 
     guard_outputs([*table_input_files(args.scores), _calibration_file(args.calibration)], out=args.out)
     records = _read_scores(args.scores)
@@ -418,10 +430,19 @@ def _require_matplotlib() -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .io.result import format_table, write_csv
-    from .research.compare import (CLIP_TABLE_COLUMNS, GROUP_COLUMNS, MIN_N, agreement_between, clip_table,
-                                   format_group_table, format_ranking, group_table, motion_dependence,
-                                   ranking_table)
+    from .io.tables import format_table, write_csv
+    from .research.compare import (
+        CLIP_TABLE_COLUMNS,
+        GROUP_COLUMNS,
+        MIN_N,
+        agreement_between,
+        clip_table,
+        format_group_table,
+        format_ranking,
+        group_table,
+        motion_dependence,
+        ranking_table,
+    )
 
     if args.plot:
         _require_matplotlib()
@@ -519,6 +540,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     inputs = [p for p in (args.cameras, args.depth, args.tracks, args.masks, args.frames) if p]
     guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
+    if args.depth_kind is None and not args.reference_compat:
+        raise UsageError("--depth-kind disparity|metric is required: disparity for Video Depth Anything's relative "
+                         "models, metric for its metric ones (or --reference-compat, the SGC authors' pipeline)")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -595,18 +619,33 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_SOME_FAILED if errors or (args.strict and warned) else EXIT_OK
 
 
+IMPORT_EXAMPLE = """\
+example (one clip; docs/semantics.md §1.5):
+  sgc-jax import --cameras vggt/predictions.npz --depth vda/clip_depths.npz --depth-kind disparity \\
+                 --tracks delta/ --masks seganymo/clip/ --frames frames/ --out clips/clip.npz --group mymodel
+  sgc-jax validate clips/ && sgc-jax score clips/ --out scores.csv"""
+
+
 def _register_import(sub) -> None:
-    imp = sub.add_parser("import", help="estimator outputs (VGGT, Video Depth Anything, DELTA, SegAnyMo) -> clip .npz")
-    inputs = imp.add_argument_group("inputs")
-    inputs.add_argument("--cameras", required=True, help="VGGT predictions .npz with extrinsic (S,3,4), intrinsic (S,3,3)")
-    inputs.add_argument("--depth", required=True, help="Video Depth Anything *_depths.npz (array 'depths')")
-    inputs.add_argument("--tracks", required=True,
+    imp = sub.add_parser(
+        "import", help="estimator outputs (VGGT, Video Depth Anything, DELTA, SegAnyMo) -> clip .npz",
+        usage="sgc-jax import --cameras NPZ --depth NPZ --depth-kind {disparity,metric} --tracks PATH --out NPZ "
+              "[--masks DIR] [--frames PATH] [options]",
+        epilog=IMPORT_EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    inputs = imp.add_argument_group("required")
+    inputs.add_argument("--cameras", required=True, metavar="NPZ",
+                        help="VGGT predictions .npz with extrinsic (S,3,4), intrinsic (S,3,3)")
+    inputs.add_argument("--depth", required=True, metavar="NPZ", help="Video Depth Anything *_depths.npz (array 'depths')")
+    inputs.add_argument("--depth-kind", choices=("disparity", "metric"),
+                        help="disparity: VDA relative models (depth = scale / disparity); metric: metric models "
+                             "(required unless --reference-compat)")
+    inputs.add_argument("--tracks", required=True, metavar="PATH",
                         help="DELTA folder of per-pair {a}_{a}.npy/{a}_{b}.npy, or dense coords/vis/conf .pkl/.npz")
-    inputs.add_argument("--masks", help="SegAnyMo folder of palette PNGs (absent: nothing moves)")
-    inputs.add_argument("--frames", help="frames folder or video file (names frames; optional RGB for plots)")
+    inputs.add_argument("--out", required=True, metavar="NPZ", help="clip .npz to write")
+    inputs = imp.add_argument_group("optional inputs")
+    inputs.add_argument("--masks", metavar="DIR", help="SegAnyMo folder of palette PNGs (absent: nothing moves)")
+    inputs.add_argument("--frames", metavar="PATH", help="frames folder or video file (names frames; optional RGB for plots)")
     conversion = imp.add_argument_group("conversion")
-    conversion.add_argument("--depth-kind", choices=("disparity", "metric"),
-                            help="disparity: VDA relative models (depth = scale / disparity); metric: metric models")
     conversion.add_argument("--depth-scale", type=float,
                             help="depth = scale / disparity, or scale * metric (default 1; unused when the disparity "
                                  "is aligned to VGGT's depth)")
@@ -625,10 +664,9 @@ def _register_import(sub) -> None:
     conversion.add_argument("--vis-threshold", type=float, default=0.8,
                             help="DELTA visibility above this is visible (default 0.8, DELTA's own)")
     conversion.add_argument("--reference-compat", action="store_true",
-                            help="the SGC authors' choices (README): K at VGGT's 518-px scale, depth = VDA / 1000, "
+                            help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")
     output = imp.add_argument_group("output")
-    output.add_argument("--out", required=True, help="clip .npz to write")
     output.add_argument("--clip-id", help="clip id (default: the output file name)")
     output.add_argument("--group", default="", help="group stored in meta (e.g. the generator's name)")
     imp.set_defaults(func=cmd_import)

@@ -7,10 +7,13 @@ a new compile.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, Mapping
 
 PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
+
+# Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
 # nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
 # depth edge, not the slope of one surface).
@@ -19,13 +22,16 @@ HOLE_DEPTH_MARGIN = 0.05
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
+# Field names of earlier releases that config files and ``SGCConfig.from_dict`` still accept, with
+# a DeprecationWarning: old name -> field.
+DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 
 
 # How the JAX engine uses each field (docs/semantics.md §2). STATIC fields shape its compiled
 # program (array sizes, loop counts, branches): a new value compiles a new program. VALUE fields
 # enter the program as traced scalars and HOST fields act before it (loading, padding), so
 # changing either reuses the program.
-STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "gn_steps", "partition", "compat", "global_pose",
+STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "compat", "global_pose",
                  "align_scale", "quality_rule", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
 VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed",
@@ -71,7 +77,7 @@ class SGCConfig:
     compat: str = _field("spec", "authors: reproduce the paper code's choices (docs/semantics.md §3.9)",
                          choices=COMPATS)
     kmeans_bins: int = _field(1024, "histogram resolution of the exact 1-D k-means")
-    gn_steps: int = _field(10, "most Levenberg-Marquardt steps per least-squares fit of a local optimum "
+    lm_steps: int = _field(10, "most Levenberg-Marquardt steps per least-squares fit of a local optimum "
                                 "(JAX engine, docs/semantics.md §7.1)")
     quality_rule: bool = _field(True, "leave the accepted local poses that the data do not pin down out of the "
                                       "variances (status ill_conditioned / ambiguous, docs/semantics.md §3.3); "
@@ -97,7 +103,7 @@ class SGCConfig:
             raise ValueError(f"partition must be one of {PARTITIONS}, got {self.partition!r}")
         if self.compat not in COMPATS:
             raise ValueError(f"compat must be one of {COMPATS}, got {self.compat!r}")
-        for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "gn_steps"):
+        for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "lm_steps"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if self.min_points < 4:
@@ -131,8 +137,9 @@ class SGCConfig:
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "SGCConfig":
-        """Build a config from a mapping; unknown keys raise instead of being ignored."""
-        return cls().replace(**values)
+        """Build a config from a mapping (a config file's); unknown keys raise instead of being
+        ignored, deprecated names (DEPRECATED_FIELDS) are renamed with a warning."""
+        return cls().replace(**renamed_fields(values))
 
     def replace(self, **changes: Any) -> "SGCConfig":
         """A copy with some fields changed; a misspelled field name raises ``TypeError``."""
@@ -144,6 +151,19 @@ class SGCConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def renamed_fields(values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` with deprecated field names (DEPRECATED_FIELDS) renamed, each with a DeprecationWarning."""
+    out = dict(values)
+    for old, new in DEPRECATED_FIELDS.items():
+        if old in out:
+            warnings.warn(f"SGCConfig field {old!r} is now {new!r}; the old name goes in a later release",
+                          DeprecationWarning, stacklevel=3)
+            if new in out:
+                raise TypeError(f"both {old!r} (deprecated) and {new!r} given; keep {new!r}")
+            out[new] = out.pop(old)
+    return out
 
 
 def cli_flag(field: dataclasses.Field) -> str:

@@ -73,7 +73,7 @@ def release_compiled_programs_when_mappings_run_high():
         return
     limit = int(_MAX_MAP_COUNT.read_text()) if _MAX_MAP_COUNT.exists() else 65530
     if _memory_mappings() > limit // 2:
-        from sgc_jax.engines.jax_engine import release_programs
+        from sgc_jax.engines.jax_engine.programs import release_programs
 
         release_programs()
         jax.clear_caches()
@@ -87,7 +87,7 @@ _COMPILES_BY_MODULE: dict[str, list[tuple[str, dict, float]]] = {}
 
 @pytest.fixture(scope="module", autouse=True)
 def record_compiles(request):
-    from sgc_jax.engines.jax_engine import compile_log
+    from sgc_jax.engines.jax_engine.programs import compile_log
 
     before = len(compile_log())
     yield

@@ -8,13 +8,35 @@ import warnings
 import cv2
 import numpy as np
 import pytest
-from estimator_fixtures import (DAVIS_PALETTE, delta_vis, frame_names, vggt_intrinsics,
-                                vggt_preprocess, write_all, write_delta_dense, write_delta_pairs, write_frames,
-                                write_palette_png, write_seganymo, write_vda, write_vggt)
+from estimator_fixtures import (
+    DAVIS_PALETTE,
+    delta_vis,
+    frame_names,
+    vggt_intrinsics,
+    vggt_preprocess,
+    write_all,
+    write_delta_dense,
+    write_delta_pairs,
+    write_frames,
+    write_palette_png,
+    write_seganymo,
+    write_vda,
+    write_vggt,
+)
 
 from sgc_jax import score_batch
-from sgc_jax.adapters import (EstimatorFormatError, MaskFormatWarning, import_clip, read_delta, read_frames,
-                              read_mask_labels, read_seganymo, read_vggt, read_video_depth, vggt_grid)
+from sgc_jax.adapters import (
+    EstimatorFormatError,
+    MaskFormatWarning,
+    import_clip,
+    read_delta,
+    read_frames,
+    read_mask_labels,
+    read_seganymo,
+    read_vggt,
+    read_video_depth,
+    vggt_grid,
+)
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.research.synth import synth_clip
 

@@ -12,8 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from sgc_jax import ClipFormatError, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays

@@ -11,7 +11,15 @@ import pytest
 from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
 from sgc_jax import Calibration, SGCConfig, save_clip, score_batch
-from sgc_jax.cli import EXIT_INTERNAL, EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE, _config_and_calibration, build_parser, main
+from sgc_jax.cli import (
+    EXIT_INTERNAL,
+    EXIT_OK,
+    EXIT_SOME_FAILED,
+    EXIT_USAGE,
+    _config_and_calibration,
+    build_parser,
+    main,
+)
 from sgc_jax.config import cli_flag
 from sgc_jax.research.synth import synth_clip
 

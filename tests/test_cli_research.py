@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sgc_jax.api
 import sgc_jax.engines.reference
-import sgc_jax.streaming
+import sgc_jax.scoring.api
+import sgc_jax.scoring.streaming
 from sgc_jax import COMPONENTS, Calibration, calibrate, save_clip, sgc_score
 from sgc_jax.calibration import kfold_stability
 from sgc_jax.cli import main
-from sgc_jax.io.result import read_scores
+from sgc_jax.io.tables import read_scores
 from sgc_jax.research.compare import GROUP_COLUMNS
 from sgc_jax.research.synth import synth_clip
 
@@ -91,8 +91,8 @@ def test_rescore_reads_components_and_never_runs_geometry(scores_csv, tmp_path, 
     def refuse(*_args, **_kwargs):
         raise AssertionError("geometry was re-run")
 
-    monkeypatch.setattr(sgc_jax.api, "engine_steps", refuse)
-    monkeypatch.setattr(sgc_jax.streaming, "engine_steps", refuse)
+    monkeypatch.setattr(sgc_jax.scoring.api, "engine_steps", refuse)
+    monkeypatch.setattr(sgc_jax.scoring.streaming, "engine_steps", refuse)
     monkeypatch.setattr(sgc_jax.engines.reference, "score_pairs", refuse)
     assert main(["rescore", str(scores_csv), "--calibration", "sgc-spec-2026", "--out", str(tmp_path / "r.csv")]) == 0
     np.testing.assert_allclose(column(tmp_path / "r.csv", "sgc"), column(scores_csv, "sgc"), rtol=1e-12)

@@ -8,9 +8,18 @@ from scipy import stats as scipy_stats
 
 from sgc_jax import COMPONENTS
 from sgc_jax.cli import main
-from sgc_jax.io.result import write_scores
-from sgc_jax.research.compare import (GROUP_COLUMNS, MIN_N, agreement_between, clip_table, format_group_table,
-                                      format_ranking, group_table, motion_dependence, ranking_table)
+from sgc_jax.io.tables import write_scores
+from sgc_jax.research.compare import (
+    GROUP_COLUMNS,
+    MIN_N,
+    agreement_between,
+    clip_table,
+    format_group_table,
+    format_ranking,
+    group_table,
+    motion_dependence,
+    ranking_table,
+)
 
 NAN = math.nan
 

@@ -1,13 +1,18 @@
-"""sgc_jax.engines.compile_cache: the CLI's compiled programs persist between runs, per machine."""
+"""sgc_jax.engines.jax_engine.compile_cache: compiled programs persist between processes, per machine, for
+the CLI and the Python API alike."""
 
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+import jax
+from scenes import SCENE
+
 from sgc_jax import save_clip
-from sgc_jax.engines import compile_cache
+from sgc_jax.engines.jax_engine import compile_cache
 from sgc_jax.research.synth import synth_clip
 
 
@@ -23,28 +28,31 @@ def test_cache_directory_follows_the_environment(monkeypatch, tmp_path):
     assert default.name == compile_cache.host_key()  # one cache per kind of CPU
 
 
-def _score_in_a_fresh_process(clip_path, out_csv, cache_dir):
-    # Every program is cached (no 1 s minimum), so a second run must compile nothing new.
-    env = dict(os.environ, SGC_JAX_COMPILATION_CACHE=str(cache_dir), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+def _fresh_process(code: str, cache_dir) -> str:
+    """stderr of ``python -c code`` in a new process whose program cache is ``cache_dir``, as a user's is."""
+    env = dict(os.environ, SGC_JAX_COMPILATION_CACHE=str(cache_dir))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    done = subprocess.run([sys.executable, "-m", "sgc_jax.cli", "score", str(clip_path), "--out", str(out_csv), "-q"],
-                          env=env, capture_output=True, text=True, timeout=900)
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
-    return done.stderr, {p.relative_to(cache_dir).as_posix(): p.stat().st_mtime_ns for p in cache_dir.rglob("*")}
+    return done.stderr
 
 
 @pytest.mark.slow
-def test_a_second_cli_run_loads_every_program_from_the_cache(tmp_path):
-    clip_path = save_clip(tmp_path / "tiny.npz", synth_clip(seed=5, clip_id="tiny", height=48, width=64, n_tracks=256,
-                                                            n_frames=3, n_layers=2, static_spheres=2))
-    cache_dir = tmp_path / "cache"
-    said, first = _score_in_a_fresh_process(clip_path, tmp_path / "first.csv", cache_dir)
-    assert any(name.startswith("jit_") for name in first) and "compiling the JAX program" in said
-    assert any(name.endswith(".jaxexport") for name in first)  # the traced program, kept
-    said, second = _score_in_a_fresh_process(clip_path, tmp_path / "second.csv", cache_dir)
-    assert second == first  # nothing traced or compiled anew, nothing rewritten
+def test_a_python_process_after_the_cli_loads_every_program_from_the_cache(tmp_path):
+    """The CLI and the Python API share the persistent cache by default: once `sgc-jax score` ran
+    (compiling or loading), a new process calling score_batch loads every program, traced and
+    compiled, without calling enable_compilation_cache. The suite's run cache stands for the
+    user's, so a bucket compiled by an earlier test is not compiled again here."""
+    cache_dir = jax.config.jax_compilation_cache_dir
+    clip_path = save_clip(tmp_path / "scene.npz", synth_clip(seed=5, clip_id="scene", **SCENE))
+    _fresh_process(f"from sgc_jax.cli import main; main(['score', {str(clip_path)!r}, '-q', "
+                   f"'--out', {str(tmp_path / 'cli.csv')!r}])", cache_dir)
+    assert list(Path(cache_dir).glob("sgc_programs/*.jaxexport"))  # the traced programs, kept
+    said = _fresh_process(f"import sgc_jax; sgc_jax.score_batch({str(clip_path)!r}, progress=False)"
+                          f".to_csv({str(tmp_path / 'python.csv')!r})", cache_dir)
     assert "loading the JAX program" in said and "compiling" not in said
-    assert (tmp_path / "second.csv").read_text() == (tmp_path / "first.csv").read_text()
+    assert (tmp_path / "python.csv").read_text().split("run_id")[0] == (tmp_path / "cli.csv").read_text().split(
+        "run_id")[0]
 
 
 def test_a_program_being_compiled_is_locked_against_other_processes(tmp_path):
@@ -76,7 +84,7 @@ class _Lowered:
 
 
 def test_the_pose_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lacks_them():
-    from sgc_jax.engines.jax_engine import CPU_COMPILER_OPTIONS, compile_stage
+    from sgc_jax.engines.jax_engine.programs import CPU_COMPILER_OPTIONS, compile_stage
 
     options = CPU_COMPILER_OPTIONS["pose"]
     knows = _Lowered(options)

@@ -11,12 +11,25 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from estimator_fixtures import (to_vggt_grid, upsample_nearest, vggt_depth_maps, vggt_preprocess, write_all, write_vda,
-                                write_vggt)
+from estimator_fixtures import (
+    to_vggt_grid,
+    upsample_nearest,
+    vggt_depth_maps,
+    vggt_preprocess,
+    write_all,
+    write_vda,
+    write_vggt,
+)
 
 from sgc_jax import load_clip, score_clip
-from sgc_jax.adapters import (DepthAlignmentWarning, EstimatorFormatError, VGGTDepth, fit_inverse_depth_affine,
-                              import_clip, vggt_grid)
+from sgc_jax.adapters import (
+    DepthAlignmentWarning,
+    EstimatorFormatError,
+    VGGTDepth,
+    fit_inverse_depth_affine,
+    import_clip,
+    vggt_grid,
+)
 from sgc_jax.adapters.depth_alignment import CONF_QUANTILE, MIN_FIT_PIXELS, vggt_depth_on_clip_grid
 from sgc_jax.io.validate import ClipWarning
 from sgc_jax.research.synth import synth_clip

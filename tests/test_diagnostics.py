@@ -103,6 +103,10 @@ def test_rigid_depth_warp_errs_only_at_occlusion_edges(rigid_clip):
     relative = warp.error[warp.compared] / 100  # percent of depth (docs/semantics.md §3.6)
     assert np.median(relative) < 1e-3  # rounding to the nearest pixel on slanted surfaces
     assert np.mean(relative > 1e-2) < 0.05  # the rest: occlusion edges
+    assert warp.error_unit == "% of depth"
+    # the warped depth is in the clip's own depth units, as its depth maps are shown beside it
+    ratio = warp.warped[warp.compared] / rigid_clip.depth[PAIR][warp.compared]
+    assert np.median(ratio) == pytest.approx(1.0, abs=1e-3)
 
 
 def test_region_reprojection_means_are_the_scored_ones(drift_clip):
@@ -144,7 +148,7 @@ def test_a_label_map_that_does_not_match_the_result_warns(rigid_clip, rigid_pair
 
 
 def test_a_failed_clip_has_nothing_to_diagnose(rigid_clip):
-    from sgc_jax.io.result import failed_clip
+    from sgc_jax.scoring.result import failed_clip
 
     with pytest.raises(ValueError, match="no per-pair arrays"):
         diagnostics.pose_flow(rigid_clip, failed_clip("rigid", "broken"), PAIR)

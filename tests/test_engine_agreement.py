@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
-from sgc_jax.engines import reference, stages
+from sgc_jax.engines import reference
+from sgc_jax.engines.jax_engine import pose_stage
 from sgc_jax.research.agreement import agreement_corpus, compare, within_by_family, within_tolerance
 
 CONFIG = SGCConfig()
@@ -222,6 +223,6 @@ def test_both_engines_back_project_and_project_through_the_whole_K_skew_included
     uv, Z = rng.uniform([0.0, 0.0], [320.0, 240.0], (50, 2)), rng.uniform(1.0, 5.0, 50)
     X = reference.back_project(K, uv, Z)
     np.testing.assert_allclose(X, Z[:, None] * np.linalg.solve(K, np.c_[uv, np.ones(50)].T).T, rtol=1e-12)
-    X_jax, _ = stages.points_prev(*(np.asarray(a, np.float32) for a in (Z, K, uv)), np.ones(50, bool))
+    X_jax, _ = pose_stage.points_prev(*(np.asarray(a, np.float32) for a in (Z, K, uv)), np.ones(50, bool))
     np.testing.assert_allclose(np.asarray(X_jax), X, rtol=1e-5)  # float32
     assert reference.reprojection_errors(X, uv, K, np.eye(3), np.zeros(3)).max() < 1e-9

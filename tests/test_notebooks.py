@@ -1,15 +1,20 @@
-"""The research notebooks: stored as built by notebooks/build.py, executed, and each runs clean top
-to bottom in a fresh kernel (nbclient), with its figures saved as PNG."""
+"""The research notebooks: stored as built by notebooks/build.py, executed, true to the code: each runs
+clean top to bottom in a fresh kernel (nbclient), its figures saved as PNG, and its stored text
+outputs are those of the fresh run up to float noise; its prose names the default calibration and
+units of the default semantics."""
 
 import base64
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import jax
 import nbformat
 import pytest
 from nbclient.exceptions import CellExecutionError
+
+from sgc_jax.calibration import BUILTIN, default_calibration
 
 NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
 _spec = importlib.util.spec_from_file_location("notebook_build", NOTEBOOKS_DIR / "build.py")
@@ -60,6 +65,53 @@ def test_notebook_uses_only_the_public_api(name):
         assert private not in source, f"{name} reaches into {private}"
 
 
+CALIBRATION_NAME = re.compile(r"sgc-[a-z]+-\d{4}")
+DEFAULT_CLAIM = re.compile(r"(?:default|shipped) calibration\W+([a-z0-9-]+)")
+# The units of compat="authors"; the default semantics are scale-free (docs/semantics.md §4), so a
+# notebook speaks of these only where it speaks of compat="authors".
+AUTHORS_UNITS = ("depth units", "pose units")
+
+
+def _text(cell) -> str:
+    """A cell's prose (markdown) or its text outputs (code)."""
+    if cell.cell_type == "markdown":
+        return cell.source
+    return "".join(o.get("text", "") if o["output_type"] == "stream" else o.get("data", {}).get("text/plain", "")
+                   for o in cell.get("outputs", []) if o["output_type"] != "error")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_notebook_names_the_default_calibration_and_units(name):
+    stored = nbformat.read(NOTEBOOKS_DIR / f"{name}.ipynb", as_version=4)
+    for cell in stored.cells:
+        text = " ".join(_text(cell).split())
+        assert set(CALIBRATION_NAME.findall(text)) <= set(BUILTIN), text[:200]
+        for claimed in DEFAULT_CLAIM.findall(text.replace("`", "").replace("(", " ")):
+            assert claimed == default_calibration("spec"), f"{name}: {text[:200]}"
+        if any(unit in text for unit in AUTHORS_UNITS):
+            assert "authors" in text, f"{name} speaks of the authors' units outside compat='authors': {text[:200]}"
+
+
+# A number of a stored output and of a fresh run agree up to float noise: one unit in the last digit
+# shown (pandas shows 4), 1e-3 of the value, or 1e-6 (float32 sums fused otherwise on another CPU;
+# a rigid clip's variances of ~1e-10 deg^2 are that noise itself).
+NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
+
+
+def _last_digit(number: str) -> float:
+    mantissa, _, exponent = number.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
+    return 10.0 ** (-decimals + (int(exponent) if exponent else 0))
+
+
+def assert_same_up_to_float_noise(stored: str, fresh: str, where: str) -> None:
+    words = lambda text: " ".join(NUMBER.sub("#", text).split())  # noqa: E731
+    assert words(stored) == words(fresh), f"{where}: the text differs\nstored: {stored[:300]}\nfresh: {fresh[:300]}"
+    for a, b in zip(NUMBER.findall(stored), NUMBER.findall(fresh)):
+        x, y = float(a), float(b)
+        assert abs(x - y) <= max(_last_digit(a), _last_digit(b), 1e-3 * abs(x), 1e-6), f"{where}: {a} stored, {b} now"
+
+
 @pytest.fixture(scope="session")
 def jax_cache(tmp_path_factory):
     """The test run's compilation cache (tests/conftest.py), so the notebook kernels load the demo
@@ -79,6 +131,11 @@ def test_notebook_runs_clean_top_to_bottom(name, jax_cache, tmp_path, monkeypatc
     for cell in nb.cells:
         if cell.cell_type == "code":
             assert not [o for o in cell.outputs if o["output_type"] == "error"]
+    stored = nbformat.read(NOTEBOOKS_DIR / f"{name}.ipynb", as_version=4)
+    for i, (old, new) in enumerate(zip(stored.cells, nb.cells)):
+        if new.cell_type == "code":
+            assert_same_up_to_float_noise(_text(old), _text(new), f"{name}.ipynb cell {i} (rebuild it: "
+                                          f"python notebooks/build.py {name})")
     figures = _figure_cells(nb)
     assert figures, f"{name} draws no figure"
     for i, cell in enumerate(figures):

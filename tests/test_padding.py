@@ -11,7 +11,7 @@ import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig
 from sgc_jax.config import STATIC_FIELDS
-from sgc_jax.engines import buckets, jax_engine, stages
+from sgc_jax.engines.jax_engine import buckets, dispatch, pose_stage, programs, stages
 from sgc_jax.research.synth import synth_clip
 
 
@@ -37,24 +37,24 @@ LARGER = {"frames": buckets.Bucket(T=8, H=128, W=128, P=1024),
 def test_padding_to_a_larger_bucket_does_not_change_the_score(larger, monkeypatch):
     clip = synth_clip(seed=3, clip_id="small-noisy", **SMALL_NOISY)
     config = SGCConfig()
-    assert jax_engine.bucket_for(clip) == buckets.Bucket(T=4, H=128, W=128, P=1024)
-    [as_is] = jax_engine.score_pairs_batch([clip], config)
-    monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: LARGER[larger])
-    [padded] = jax_engine.score_pairs_batch([clip], config)
+    assert buckets.bucket_for(clip) == buckets.Bucket(T=4, H=128, W=128, P=1024)
+    [as_is] = dispatch.score_pairs_batch([clip], config)
+    monkeypatch.setattr(dispatch, "bucket_for", lambda clip: LARGER[larger])
+    [padded] = dispatch.score_pairs_batch([clip], config)
     assert_same_pairs(padded, as_is)
 
 
 def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatch, capsys):
     """docs/semantics.md §7.1: the pose stage (most of the compile) depends on T and P only."""
     config = SGCConfig()
-    natural = jax_engine.bucket_for(noisy_clip)
-    [as_is] = jax_engine.score_pairs_batch([noisy_clip], config)
-    before = len(jax_engine.compile_log())
+    natural = buckets.bucket_for(noisy_clip)
+    [as_is] = dispatch.score_pairs_batch([noisy_clip], config)
+    before = len(programs.compile_log())
     taller = dataclasses.replace(natural, H=natural.H + 64)
-    monkeypatch.setattr(jax_engine, "bucket_for", lambda clip: taller)
+    monkeypatch.setattr(dispatch, "bucket_for", lambda clip: taller)
     capsys.readouterr()
-    [padded] = jax_engine.score_pairs_batch([noisy_clip], config)
-    assert [key.stage for key, _ in jax_engine.compile_log()[before:]] == ["pixel", "finish"]
+    [padded] = dispatch.score_pairs_batch([noisy_clip], config)
+    assert [key.stage for key, _ in programs.compile_log()[before:]] == ["pixel", "finish"]
     # a bucket no other test uses: its compile is announced on stderr, once, naming the bucket and stages
     assert capsys.readouterr().err.count(f"compiling the JAX program for clips of up to {taller.T} frames, "
                                          f"{taller.H}x{taller.W} px, {taller.P} tracks per pair (pixel, finish;") == 1
@@ -63,16 +63,16 @@ def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatc
 
 def test_each_stage_reads_only_the_static_fields_its_program_is_keyed_on():
     bucket = buckets.Bucket(T=4, H=128, W=192, P=2048)
-    assert set().union(*buckets.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
+    assert set().union(*stages.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
     finish = stages.ProgramConfig(SGCConfig(), {}, "finish")
     assert finish.compat == "spec" and finish.scale_free
     with pytest.raises(AttributeError, match="ransac_hypotheses"):
         finish.ransac_hypotheses
     # configs that differ in another stage's field share the stage's program
-    assert (jax_engine.stage_key(SGCConfig(partition="grid"), "pose", bucket)
-            == jax_engine.stage_key(SGCConfig(), "pose", bucket))
-    assert (jax_engine.stage_key(SGCConfig(quality_rule=False), "pixel", bucket)
-            == jax_engine.stage_key(SGCConfig(), "pixel", bucket))
+    assert (stages.stage_key(SGCConfig(partition="grid"), "pose", bucket)
+            == stages.stage_key(SGCConfig(), "pose", bucket))
+    assert (stages.stage_key(SGCConfig(quality_rule=False), "pixel", bucket)
+            == stages.stage_key(SGCConfig(), "pixel", bucket))
 
 
 def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_clip, moving_clip):
@@ -83,22 +83,22 @@ def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_cl
     from sgc_jax import perturb_clip, score_batch
 
     config = SGCConfig()
-    jax_engine.score_pairs_batch([rigid_clip], config)  # the program of this bucket, compiled here or earlier
-    held = jax_engine.compile_count()
+    dispatch.score_pairs_batch([rigid_clip], config)  # the program of this bucket, compiled here or earlier
+    held = programs.compile_count()
     compiles = []
     listener = lambda event, duration, **kw: compiles.append(kw.get("fun_name")) if "backend_compile" in event else None  # noqa: E731
     monitoring.register_event_duration_secs_listener(listener)
     try:
         other = dataclasses.replace(drift_clip, clip_id="other")
-        assert jax_engine.bucket_for(other) == jax_engine.bucket_for(moving_clip) == jax_engine.bucket_for(rigid_clip)
-        jax_engine.score_pairs_batch([other, moving_clip], config)
+        assert buckets.bucket_for(other) == buckets.bucket_for(moving_clip) == buckets.bucket_for(rigid_clip)
+        dispatch.score_pairs_batch([other, moving_clip], config)
         for changes in (dict(inlier_px=6.0, min_inlier_frac=0.4, confidence=0.95), dict(seed=7), dict(use_mos=False),
                         dict(min_track_conf=0.9, max_rot_std_deg=2.0, min_region_pixels=50, ambiguous_rot_deg=5.0)):
-            jax_engine.score_pairs_batch([moving_clip], config.replace(**changes))
+            dispatch.score_pairs_batch([moving_clip], config.replace(**changes))
         score_batch([perturb_clip(rigid_clip, kind, 0.5, seed=0) for kind in ("warp", "depth_warp")], progress=False)
     finally:
         monitoring.unregister_event_duration_listener(listener)
-    assert compiles == [] and jax_engine.compile_count() == held
+    assert compiles == [] and programs.compile_count() == held
 
 
 def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
@@ -110,7 +110,7 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
     for n_pairs in (1, 4, 5, 6, 7, 15, 16):
         x = jnp.arange(n_pairs * 3, dtype=jnp.float32).reshape(n_pairs, 3)
         n = jnp.arange(n_pairs) % 4
-        grouped, _ = stages.pair_groups(steps, (x, n), n_pairs)
+        grouped, _ = pose_stage.pair_groups(steps, (x, n), n_pairs)
         assert grouped.shape == (n_pairs, 3)
         np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
 

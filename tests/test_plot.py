@@ -4,10 +4,9 @@ legends or colour bars, and draws the numbers it is given."""
 import subprocess
 import sys
 
+import matplotlib  # the viz extra (the dev extra installs it)
 import numpy as np
 import pytest
-
-import matplotlib  # the viz extra (the dev extra installs it)
 
 matplotlib.use("Agg")
 import matplotlib.figure  # noqa: E402
@@ -149,12 +148,12 @@ def test_depth_warp_error_map_shows_the_pairs_depth_error(clips, scored, tmp_pat
     check_figure(fig, tmp_path / "warp.png", units=False)
     axes = _data_axes(fig)
     expected = scored.clip("drift").pairs.depth_error[PAIR - 1]
-    assert f"mean {expected:.3g} depth units" in axes[2].get_title()
+    assert f"mean {expected:.3g} % of depth" in axes[2].get_title()  # compat="spec": the error in % (docs §3.6)
     shown = np.ma.filled(axes[2].get_images()[0].get_array(), np.nan)
     np.testing.assert_allclose(shown, diagnostics.depth_warp_error(clip, PAIR).error, equal_nan=True)
-    assert _colorbar_labels(fig) == ["depth [depth units]", "|warped − depth| [depth units], log scale"]
+    assert _colorbar_labels(fig) == ["depth [depth units]", "|warped − depth| [% of depth], log scale"]
     linear = plot.plot_depth_warp_error(clip, PAIR, log=False, vmax=1.0)
-    assert _colorbar_labels(linear)[-1] == "|warped − depth| [depth units]"
+    assert _colorbar_labels(linear)[-1] == "|warped − depth| [% of depth]"
 
 
 def test_region_reprojection_shows_local_and_global_errors(clips, scored, tmp_path):
@@ -206,7 +205,7 @@ def test_group_violins_order_groups_and_colour_clips_by_ecd(corpus, tmp_path):
 def test_group_violins_from_a_dataframe_and_for_a_component(corpus, tmp_path):
     fig = plot.plot_group_violins(corpus.to_pandas(), "depth_error")
     check_figure(fig, tmp_path / "violins-depth.png")
-    assert _data_axes(fig)[0].get_ylabel() == "depth_error [depth units]"
+    assert _data_axes(fig)[0].get_ylabel() == "depth_error [% of depth]"
     with pytest.raises(ValueError, match="no clip with a finite"):
         plot.plot_group_violins([{**r, "sgc": float("nan")} for r in corpus.to_records()])
 

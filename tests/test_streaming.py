@@ -15,9 +15,9 @@ import pytest
 from conftest import SCENE
 
 from sgc_jax import CLIP_COLUMNS, iter_scores, read_scores, save_clip, score_batch
-from sgc_jax.io.result import read_table_text
+from sgc_jax.io.tables import read_table_text
 from sgc_jax.research.synth import synth_clip
-from sgc_jax.streaming import StreamStats
+from sgc_jax.scoring.streaming import StreamStats
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
 # slow enough under the reference engine (about a second each on the 2-core box) to kill a run
@@ -299,11 +299,11 @@ def test_the_cli_reads_in_processes_or_threads_as_told(clip_files, tmp_path):
 
 
 def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch):
-    from sgc_jax.readers import PROCESS_READING_CORES, THREAD_READERS, reading_plan
+    from sgc_jax.scoring.readers import PROCESS_READING_CORES, THREAD_READERS, reading_plan
 
     for cores, plan in ((2, (THREAD_READERS, False)), (PROCESS_READING_CORES, (THREAD_READERS, False)),
                         (16, (14, True))):
-        monkeypatch.setattr("sgc_jax.readers.host_cores", lambda n=cores: n)
+        monkeypatch.setattr("sgc_jax.scoring.readers.host_cores", lambda n=cores: n)
         assert reading_plan() == plan, cores
     assert reading_plan(3, "threads") == (3, False) and reading_plan(None, "processes") == (14, True)
     with pytest.raises(ValueError, match="read_in must be one of"):
@@ -313,7 +313,7 @@ def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch)
 def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_accelerator(monkeypatch):
     from types import SimpleNamespace
 
-    from sgc_jax.engines.jax_engine import ACCELERATOR_LANES, CPU_LANES, default_lanes
+    from sgc_jax.scoring.devices import ACCELERATOR_LANES, CPU_LANES, default_lanes
 
     cpu, gpu = SimpleNamespace(platform="cpu"), SimpleNamespace(platform="gpu")
     assert default_lanes([gpu]) == default_lanes([gpu, gpu]) == ACCELERATOR_LANES == 2

@@ -13,7 +13,7 @@ import pytest
 from sgc_jax import SGCConfig, save_clip
 from sgc_jax.engines import reference
 from sgc_jax.engines.units import in_depth_units
-from sgc_jax.io.result import CLIP_COLUMNS
+from sgc_jax.io.tables import CLIP_COLUMNS
 from sgc_jax.research import study as study_module
 from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_clip
 from sgc_jax.research.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study

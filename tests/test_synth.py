@@ -7,8 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import clip_from_arrays, load_clip

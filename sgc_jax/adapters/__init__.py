@@ -12,18 +12,17 @@
 - :func:`read_frames`: a frames folder or a video file.
 """
 
-from .assemble import import_clip
+from .assemble import ImportOptions, import_clip
 from .common import EstimatorFormatError
 from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta, read_delta_dense, read_delta_pairs
 from .depth_alignment import DepthAlignmentWarning, DisparityFit, align_depth_to_vggt, fit_inverse_depth_affine
 from .frames import Frames, read_frames
 from .seganymo import MaskFormatWarning, Masks, read_mask_labels, read_seganymo
-from .video_depth_anything import KINDS as DEPTH_KINDS
-from .video_depth_anything import Depth, read_video_depth
 from .vggt import Cameras, VGGTDepth, VGGTGrid, read_vggt, vggt_grid
+from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
-    "Cameras", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit",
+    "ImportOptions", "Cameras", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit",
     "EstimatorFormatError", "Frames", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth", "VGGTGrid",
     "align_depth_to_vggt", "fit_inverse_depth_affine", "import_clip", "read_delta", "read_delta_dense",
     "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo", "read_vggt", "read_video_depth",

@@ -8,9 +8,9 @@ depth is fitted to VGGT's depth map when the cameras file has one (:mod:`.depth_
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import Any
-
 
 from ..config import SGCConfig
 from ..io.clip import Clip
@@ -28,23 +28,38 @@ def _label(source: Any) -> str:
     return os.fspath(source) if isinstance(source, (str, os.PathLike)) else "<arrays>"
 
 
+@dataclasses.dataclass(frozen=True)
+class ImportOptions:
+    """How estimator outputs are read and brought to the clip grid (docs/semantics.md §1.5)."""
+
+    depth_kind: str | None = None  # "disparity" (relative VDA models) or "metric"; required unless reference_compat
+    depth_scale: float | None = None  # depth = scale / disparity, or scale * metric (default 1)
+    depth_key: str = "depths"  # array name in the depth file
+    size: tuple[int, int] | str | None = None  # clip grid HxW (default: frames, else masks, else depth)
+    vggt_mode: str = "crop"  # VGGT's load_and_preprocess_images mode: "crop" or "pad"
+    vggt_source_size: tuple[int, int] | str | None = None  # HxW of the frames VGGT saw, when not the clip grid
+    track_size: tuple[int, int] | str | None = None  # HxW of the frames DELTA saw, when not the clip grid
+    vis_threshold: float = DELTA_VIS_THRESHOLD  # DELTA visibility above this is visible
+    reference_compat: bool = False  # the SGC authors' pipeline (K at 518 px, depth = VDA / 1000, no threshold)
+    align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
+
+
 def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, frames: Any = None,
-                depth_kind: str | None = None, depth_scale: float | None = None, depth_key: str = "depths",
-                size: tuple[int, int] | str | None = None, vggt_mode: str = "crop",
-                vggt_source_size: tuple[int, int] | str | None = None,
-                track_size: tuple[int, int] | str | None = None, vis_threshold: float = DELTA_VIS_THRESHOLD,
-                reference_compat: bool = False, align_depth: bool = True, clip_id: str | None = None,
-                group: str = "", meta: dict | None = None) -> Clip:
+                clip_id: str | None = None, group: str = "", meta: dict | None = None,
+                options: ImportOptions | None = None, **option_fields: Any) -> Clip:
     """VGGT ``cameras``, Video Depth Anything ``depth``, DELTA ``tracks``, SegAnyMo ``masks`` -> a Clip.
 
-    Paths or mappings of arrays (see :mod:`sgc_jax.adapters`). ``reference_compat`` reproduces the SGC
-    authors' pipeline (K on VGGT's 518-px grid, depth = VDA output / 1000, DELTA visibility not
-    thresholded) so that the paper calibration applies; the choices are recorded in
-    ``meta["import"]``. ``align_depth``: with ``depth_kind="disparity"`` and a ``depth`` map in the
-    VGGT file, fit the disparity's scale and shift to it so that depth and cameras share units
-    (``depth_scale`` then goes unused); the fit, or what was assumed instead, is
-    ``meta["import"]["depth_alignment"]``. The clip is validated like a loaded one (problems raise or warn).
+    Paths or mappings of arrays (see :mod:`sgc_jax.adapters`); ``options`` (or its fields as
+    keywords, e.g. ``depth_kind="disparity"``): an ImportOptions. ``reference_compat`` reproduces
+    the SGC authors' pipeline so the paper calibration applies; ``align_depth``, with
+    ``depth_kind="disparity"`` and a ``depth`` map in the VGGT file, fits the disparity's scale and
+    shift to it so depth and cameras share units. Every choice is recorded in ``meta["import"]``;
+    the clip is validated like a loaded one (problems raise or warn).
     """
+    o = dataclasses.replace(options or ImportOptions(), **option_fields)
+    depth_kind, depth_scale, depth_key, size = o.depth_kind, o.depth_scale, o.depth_key, o.size
+    vggt_mode, vggt_source_size, track_size = o.vggt_mode, o.vggt_source_size, o.track_size
+    vis_threshold, reference_compat, align_depth = o.vis_threshold, o.reference_compat, o.align_depth
     size, vggt_source_size, track_size = parse_size(size), parse_size(vggt_source_size), parse_size(track_size)
     loaded_frames = read_frames(frames) if frames is not None else None
     names = loaded_frames.names if loaded_frames is not None else None

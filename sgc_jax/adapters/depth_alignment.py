@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from .common import resize_factors
-from .video_depth_anything import Depth
 from .vggt import VGGTDepth, VGGTGrid
+from .video_depth_anything import Depth
 
 METHOD = "IRLS with Tukey's biweight on relative inverse-depth residuals, from a median/MAD start"
 # VGGT's confidence is 1 + exp(.): unbounded, with a scale that changes from clip to clip, so only a

@@ -1,4 +1,4 @@
-"""The two engines of docs/semantics.md §7 (``jax_engine``: jitted kernels; ``reference``: NumPy +
-OpenCV), the scale-free units both share, and JAX's persistent compilation cache. An engine turns
-clips into per-pair arrays (``sgc_jax.io.result.PairArrays``); scoring them is ``sgc_jax.api``'s job.
+"""The two engines of docs/semantics.md §7, each turning a clip into per-pair arrays (``pairs``):
+the JAX engine (``jax_engine/``: stages, compiled programs, dispatch) and the NumPy + OpenCV
+reference (``reference``, ``reference_pose``), with the scale-free units both share (``units``).
 """

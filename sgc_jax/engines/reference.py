@@ -19,8 +19,8 @@ import numpy as np
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import HOLE_DEPTH_MARGIN, SGCConfig
 from ..io.clip import Clip
-from ..io.result import PairArrays, empty_pair_arrays
 from . import reference_pose as reference_pose_search
+from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian
 from .units import PERCENT, in_depth_units, translation_factor
 

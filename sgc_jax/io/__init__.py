@@ -1,5 +1,4 @@
-"""Clip and result I/O: the clip schema and its files (``clip``, ``loading``, ``npz``), content checks
-(``validate``) and the per-pair, per-clip and batch result tables (``result``). Imports only
-``sgc_jax.config``, ``sgc_jax.codes``, the score formula (``sgc_jax.calibration``), ``sgc_jax.stats``
-and each other.
+"""Clip files and score tables: the clip schema and writing (``clip``), reading and clip sources
+(``loading``, ``npz``, ``remote``), content checks (``validate``), and tables on disk and on screen
+(``tables``, ``parquet``). Nothing here computes a score.
 """

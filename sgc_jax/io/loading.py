@@ -156,22 +156,8 @@ def _meta_id(raw: Any) -> str | None:
     return None if value is None or str(value) == "" else str(value)
 
 
-def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
-                     config: SGCConfig | None = None, validate: bool = True) -> Clip:
-    """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
-
-    Raises :class:`ClipFormatError` for structural problems (docs/semantics.md §1.4). ``validate``:
-    also run the content checks of :mod:`sgc_jax.io.validate` (K against the grid, rotations, tracks
-    on the grid, depth vs disparity): errors raise ``ClipValidationError``, warnings are issued as
-    ``ClipWarning``. Tracks beyond ``config.max_tracks`` are sub-sampled deterministically (see
-    :func:`subsample_tracks`).
-    """
-    config = config or SGCConfig()
-    meta = _parse_meta(arrays.get("meta"))
-    clip_id = str(clip_id or meta.get("clip_id") or _text(arrays.get("clip_id")) or "clip")
-    meta.setdefault("clip_id", clip_id)
-    typed = _typed_arrays(arrays, clip_id)
-
+def _checked_depth(typed: Mapping[str, np.ndarray], clip_id: str) -> tuple[np.ndarray, int, int, int]:
+    """(depth float32 (T, H, W), T, H, W): the sizes most arrays agree on, depth's shape checked against them."""
     depth = _require(typed, "depth", clip_id, "shape (T, H, W)")
     if depth.ndim != 3:
         raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {shape_text(depth.shape)}")
@@ -189,15 +175,18 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
         raise ClipFormatError(clip_id, "depth", f"shape ({T}, {H}, {W}), the T of {', '.join(agree_T)} and the "
                               f"H x W of {', '.join(agree_HW)}", f"shape {shape_text(depth.shape)}")
     with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: invalid depth
-        depth = depth.astype(np.float32)
+        return depth.astype(np.float32), T, H, W
 
+
+def _checked_cameras(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any], clip_id: str,
+                     T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K (T, 3, 3), R_wc (T, 3, 3), t_wc (T, 3)) float64, from K and R_wc / t_wc or extrinsic."""
     K = _require(typed, "K", clip_id, f"shape ({T}, 3, 3) or (3, 3)").astype(np.float64)
     if K.shape == (3, 3):
         K = np.broadcast_to(K, (T, 3, 3)).copy()
     _check_shape(clip_id, "K", K, (T, 3, 3))
     _check_finite(clip_id, "K", K)
     _check_invertible(clip_id, K)
-
     if "R_wc" in typed or "t_wc" in typed:
         R_wc = _require(typed, "R_wc", clip_id, f"shape ({T}, 3, 3)").astype(np.float64)
         t_wc = _require(typed, "t_wc", clip_id, f"shape ({T}, 3)").astype(np.float64)
@@ -212,18 +201,22 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
                               "no such array", f"present: {sorted(arrays)}")
     _check_finite(clip_id, "R_wc", R_wc)
     _check_finite(clip_id, "t_wc", t_wc)
+    return K, R_wc, t_wc
 
+
+def _checked_mask(typed: Mapping[str, np.ndarray], clip_id: str, shape: tuple[int, int, int]) -> tuple[np.ndarray, str]:
+    """(static mask (T, H, W) bool, its source: "static_mask", "dynamic_mask" or "none")."""
     if "static_mask" in typed:
-        static_mask = typed["static_mask"]
-        _check_shape(clip_id, "static_mask", static_mask, (T, H, W))
-        static_mask, mask_source = static_mask.astype(bool), "static_mask"
-    elif "dynamic_mask" in typed:
-        dynamic_mask = typed["dynamic_mask"]
-        _check_shape(clip_id, "dynamic_mask", dynamic_mask, (T, H, W))
-        static_mask, mask_source = ~dynamic_mask.astype(bool), "dynamic_mask"
-    else:
-        static_mask, mask_source = np.ones((T, H, W), bool), "none"
+        _check_shape(clip_id, "static_mask", typed["static_mask"], shape)
+        return typed["static_mask"].astype(bool), "static_mask"
+    if "dynamic_mask" in typed:
+        _check_shape(clip_id, "dynamic_mask", typed["dynamic_mask"], shape)
+        return ~typed["dynamic_mask"].astype(bool), "dynamic_mask"
+    return np.ones(shape, bool), "none"
 
+
+def _checked_tracks(typed: Mapping[str, np.ndarray], clip_id: str, T: int) -> tuple[np.ndarray, ...]:
+    """(track_prev, track_curr (T-1, P, 2), track_vis, track_conf (T-1, P)), each as stored."""
     track_prev = _require(typed, "track_prev", clip_id, f"shape ({T - 1}, P, 2)")
     _check_shape(clip_id, "track_prev", track_prev, (T - 1, None, 2))
     P = track_prev.shape[1]
@@ -239,27 +232,36 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
         _check_shape(clip_id, "track_conf", track_conf, (T - 1, P))
     else:
         track_conf = np.ones((T - 1, P), np.float32)
+    return track_prev, track_curr, track_vis, track_conf
 
+
+def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
+                     config: SGCConfig | None = None, validate: bool = True) -> Clip:
+    """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
+
+    Raises :class:`ClipFormatError` for structural problems (docs/semantics.md §1.4). ``validate``:
+    also run the content checks of :mod:`sgc_jax.io.validate` (errors raise ClipValidationError,
+    warnings are ClipWarning). Tracks beyond ``config.max_tracks`` are sub-sampled
+    deterministically (:func:`subsample_tracks`).
+    """
+    config = config or SGCConfig()
+    meta = _parse_meta(arrays.get("meta"))
+    clip_id = str(clip_id or meta.get("clip_id") or _text(arrays.get("clip_id")) or "clip")
+    meta.setdefault("clip_id", clip_id)
+    typed = _typed_arrays(arrays, clip_id)
+    depth, T, H, W = _checked_depth(typed, clip_id)
+    K, R_wc, t_wc = _checked_cameras(typed, arrays, clip_id, T)
+    static_mask, mask_source = _checked_mask(typed, clip_id, (T, H, W))
+    track_prev, track_curr, track_vis, track_conf = _checked_tracks(typed, clip_id, T)
     frames = typed.get("frames")
     if frames is not None:
         _check_shape(clip_id, "frames", frames, (T, H, W, 3))
-
     with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32's range becomes inf: invalid
-        clip = Clip(
-            clip_id=clip_id,
-            depth=depth,
-            K=K,
-            R_wc=R_wc,
-            t_wc=t_wc,
-            static_mask=static_mask,
-            track_prev=np.asarray(track_prev, np.float32),
-            track_curr=np.asarray(track_curr, np.float32),
-            track_vis=(track_vis > 0) if track_vis.dtype != bool else track_vis.copy(),
-            track_conf=np.nan_to_num(np.asarray(track_conf, np.float32), nan=0.0),
-            mask_source=mask_source,
-            frames=frames,
-            meta=meta,
-        )
+        clip = Clip(clip_id=clip_id, depth=depth, K=K, R_wc=R_wc, t_wc=t_wc, static_mask=static_mask,
+                    track_prev=np.asarray(track_prev, np.float32), track_curr=np.asarray(track_curr, np.float32),
+                    track_vis=(track_vis > 0) if track_vis.dtype != bool else track_vis.copy(),
+                    track_conf=np.nan_to_num(np.asarray(track_conf, np.float32), nan=0.0),
+                    mask_source=mask_source, frames=frames, meta=meta)
     if validate:
         enforce(clip, config, arrays)
     return subsample_tracks(clip, config)

@@ -18,7 +18,7 @@ from ..codes import REGION_EMPTY
 from ..config import SGCConfig
 from ..engines import reference, reference_pose
 from ..engines.units import in_depth_units
-from ..io.result import BatchResult
+from ..scoring.result import BatchResult
 from ..stats import spearman
 from .perturb import perturb_clip
 from .synth import synth_clip

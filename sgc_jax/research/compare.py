@@ -14,7 +14,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io.result import add_ecd, format_table
+from ..io.tables import format_table
+from ..scoring.result import add_ecd
 from ..stats import agreement, bootstrap_ci, paired, pearson, rankdata, spearman
 
 #: The fewest values (clips of a group, matched keys, clips with ECD) that get a CI or a correlation.

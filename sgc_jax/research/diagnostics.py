@@ -19,10 +19,11 @@ import numpy as np
 from ..codes import REGION_STATUS
 from ..config import SGCConfig
 from ..engines import reference
+from ..engines.pairs import PairArrays
 from ..engines.units import PERCENT, in_depth_units
 from ..io.clip import Clip
 from ..io.loading import load_clip
-from ..io.result import ClipResult, PairArrays
+from ..scoring.result import ClipResult
 
 
 def _prepare(clip: Clip | Any, pair: int, config: SGCConfig | None) -> tuple[Clip, SGCConfig]:
@@ -204,15 +205,17 @@ def region_reprojection(clip: Clip | Any, scored: ClipResult | PairArrays, pair:
 
 @dataclasses.dataclass(frozen=True)
 class DepthWarpError:
-    """The depth check of one pair (docs/semantics.md §3.6): ``warped`` (H, W) depth of frame pair-1 forward-
-    warped into frame pair with the global pose (0 where nothing lands), ``error`` (H, W)
-    |warped - depth[pair]| in depth units where compared (NaN elsewhere), ``mean`` its mean
-    (the pair's ``depth_error``)."""
+    """The depth check of one pair (docs/semantics.md §3.6): ``warped`` (H, W) depth of frame pair-1
+    forward-warped into frame pair with the global pose, in the clip's depth units (0 where nothing
+    lands); ``error`` (H, W) |warped - depth[pair]| where compared (NaN elsewhere), in
+    ``error_unit`` (% of depth under compat="spec", depth units under "authors"); ``mean`` its
+    mean (the pair's ``depth_error``)."""
 
     pair: int
     warped: np.ndarray
     error: np.ndarray
     mean: float
+    error_unit: str = "% of depth"
 
     @property
     def compared(self) -> np.ndarray:
@@ -226,7 +229,7 @@ def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = Non
     ``pairs.scale`` (depth units per pose unit). Under compat="spec" depths are in units of D and
     the error in percent of depth; under "authors" both in depth units."""
     original = clip
-    clip, config = _prepare(clip, pair, config)
+    clip, config, unit = _prepare_with_unit(clip, pair, config)
     R_g, t_g = global_pose(original, pair, config, scale=scale)
     warped, mean = reference.pair_depth_error(clip, pair, R_g, t_g, config)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
@@ -236,4 +239,5 @@ def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = Non
     if config.scale_free:
         difference = PERCENT * difference / np.where(compared, depth, 1.0)
     error = np.where(compared, difference, np.nan)
-    return DepthWarpError(pair=pair, warped=warped, error=error, mean=mean)
+    return DepthWarpError(pair=pair, warped=warped * unit, error=error, mean=mean,
+                          error_unit="% of depth" if config.scale_free else "depth units")

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..calibration import COMPONENTS
 from ..codes import REGION_STATUS_NAMES
+from ..io.tables import COLUMN_UNITS
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -23,11 +24,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..calibration import Calibration, KFoldStability
     from ..config import SGCConfig
     from ..io.clip import Clip
-    from ..io.result import BatchResult, ClipResult
+    from ..scoring.result import BatchResult, ClipResult
     from .study import StudyResult
 
-_UNITS = {"local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth units²",
-          "global_trans_var": "pose units²", "depth_error": "depth units"}
+
+
+def _units(compats) -> dict[str, str]:
+    """Axis units of the columns under the semantics of ``compats`` (the clips' ``compat``
+    values; the default's when they are none or mixed)."""
+    found = {c for c in compats if c in COLUMN_UNITS}
+    return COLUMN_UNITS[found.pop() if len(found) == 1 else "spec"]
 
 
 def import_pyplot():
@@ -49,6 +55,7 @@ def plot_sensitivity(study: "StudyResult", *, references: Mapping[str, float] | 
     severities = np.asarray(study.severities)
     summary = study.summary()
     rho = {(c["kind"], column): c[f"rho_{column}"] for c in study.correlations() for column in panels}
+    units = _units(r.get("compat") for r in study.rows)
     for ax, column in zip(axes.ravel(), panels):
         for kind in study.kinds:
             rows = [s for s in summary if s["kind"] == kind]
@@ -66,7 +73,7 @@ def plot_sensitivity(study: "StudyResult", *, references: Mapping[str, float] | 
             ax.set_ylabel("SGC")
         else:
             ax.set_title(column)
-            ax.set_ylabel(f"{column} [{_UNITS[column]}]")
+            ax.set_ylabel(f"{column} [{units[column]}]")
         ax.set_xlabel("severity")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
@@ -81,7 +88,7 @@ _LOCAL_COLOUR, _GLOBAL_COLOUR = "tab:blue", "tab:red"
 
 
 def _clip_results(results: "ClipResult | BatchResult | Sequence[ClipResult]") -> list["ClipResult"]:
-    from ..io.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
+    from ..scoring.result import BatchResult, ClipResult  # noqa: PLC0415 - matplotlib-only module, flat imports
 
     if isinstance(results, ClipResult):
         return [results]
@@ -107,7 +114,7 @@ def plot_pair_components(results: "ClipResult | BatchResult | Sequence[ClipResul
         raise ValueError("no clip with per-pair arrays to plot (did every clip fail?)")
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), constrained_layout=True, sharex=True)
     panels = (*COMPONENTS, "reproj_error")
-    units = {**_UNITS, "reproj_error": "px"}
+    units = _units(c.compat for c in clips)
     for ax, column in zip(axes.ravel(), panels):
         for i, clip in enumerate(clips):
             values = getattr(clip.pairs, column)
@@ -152,8 +159,9 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
     Each region is labelled with its depth range and, with ``scored`` (the clip's result), its
     point count and pose status; ``show_tracks`` dots the usable tracks by region.
     """
-    from . import diagnostics  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
+
+    from . import diagnostics  # noqa: PLC0415
 
     plt = import_pyplot()
     tracks = diagnostics.region_tracks(clip, pair, config)
@@ -203,8 +211,9 @@ def plot_pose_arrows(clip: "Clip", scored: "ClipResult", pair: int, *, config: "
     predicts; a rigid scene gives equal arrows. Arrows share one magnification (in the title), so
     lengths compare; ``normalize=True`` draws unit directions as in the paper.
     """
-    from . import diagnostics  # noqa: PLC0415
     from matplotlib.lines import Line2D  # noqa: PLC0415
+
+    from . import diagnostics  # noqa: PLC0415
 
     plt = import_pyplot()
     flow = diagnostics.pose_flow(clip, scored, pair, config)
@@ -261,9 +270,10 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
     The error colour scale runs to ``vmax`` (default: the largest error); ``log``: a log scale over
     three decades below it, so small errors over whole surfaces show next to occlusion edges.
     """
-    from . import diagnostics  # noqa: PLC0415
     from matplotlib.colors import LogNorm, Normalize  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
+
+    from . import diagnostics  # noqa: PLC0415
 
     plt = import_pyplot()
     result = diagnostics.depth_warp_error(clip, pair, config, scale=scale)
@@ -285,10 +295,11 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
     ax = axes[2]
     ax.set_facecolor("0.5")
     shown = ax.imshow(error, cmap="magma", norm=norm)
-    fig.colorbar(shown, ax=ax, label="|warped − depth| [depth units]" + (", log scale" if log else ""), shrink=0.85)
+    fig.colorbar(shown, ax=ax, label=f"|warped − depth| [{result.error_unit}]" + (", log scale" if log else ""),
+                 shrink=0.85)
     ax.legend(handles=[Patch(color="0.5", label="not compared (dynamic, invalid or no warp)")],
               fontsize="x-small", loc="lower right")
-    _image_axes(ax, f"depth-warp error, mean {result.mean:.3g} depth units")
+    _image_axes(ax, f"depth-warp error, mean {result.mean:.3g} {result.error_unit}")
     fig.suptitle(f"{clip.clip_id}, pair {pair}: depth warped with the global pose")
     return fig
 
@@ -297,9 +308,10 @@ def plot_region_reprojection(clip: "Clip", scored: "ClipResult", pair: int, *,
                              config: "SGCConfig | None" = None) -> "Figure":
     """Reprojection error of each region's points under its own local pose and under the global
     pose (log y axis), with the RANSAC inlier threshold; x ticks give point counts and status."""
-    from . import diagnostics  # noqa: PLC0415
     from matplotlib.lines import Line2D  # noqa: PLC0415
     from matplotlib.patches import Patch  # noqa: PLC0415
+
+    from . import diagnostics  # noqa: PLC0415
 
     plt = import_pyplot()
     reproj = diagnostics.region_reprojection(clip, scored, pair, config)
@@ -360,8 +372,8 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
         ax.fill_between(severities, mean - std, mean + std, color=colour, alpha=0.15)
         if 0.0 in study.severities:
             ax.axhline(mean[list(study.severities).index(0.0)], color="grey", ls="--", lw=1, label="clean")
-        unit = _UNITS.get(column)
-        ax.set_ylabel(f"{column} [{unit}]" if unit else column)
+        unit = _units(r.get("compat") for r in study.rows).get(column)
+        ax.set_ylabel(f"{column} [{unit}]" if unit and column != "sgc" else column)
         ax.set_xlabel("severity")
         ax.set_title(f"{kind} → {column}")
         ax.grid(alpha=0.3)
@@ -372,7 +384,7 @@ def plot_component_response(study: "StudyResult", targets: Mapping[str, str] | N
 
 def _rows(rows: Any) -> list[dict[str, Any]]:
     """Per-clip dicts from a BatchResult, a DataFrame or a sequence of dicts."""
-    from ..io.result import BatchResult  # noqa: PLC0415
+    from ..scoring.result import BatchResult  # noqa: PLC0415
 
     if isinstance(rows, BatchResult):
         return rows.to_records()
@@ -388,7 +400,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ``rows``: a BatchResult, per-clip records or a DataFrame with ``group``, ``column``,
     ``ecd_trans`` and ``ecd_rot``; failed clips and NaN values are left out.
     """
-    from ..io.result import add_ecd  # noqa: PLC0415
+    from ..scoring.result import add_ecd  # noqa: PLC0415
 
     plt = import_pyplot()
     records = [r for r in add_ecd(_rows(rows)) if r.get("status", "ok") != "error" and np.isfinite(float(r[column]))]
@@ -416,7 +428,7 @@ def plot_group_violins(rows: Any, column: str = "sgc", *, seed: int = 0) -> "Fig
     ax.set_xticks(np.arange(len(order)))
     ax.set_xticklabels([f"{g}\n(n={len(groups[g])})" for g in order])
     ax.set_xlabel("group")
-    unit = _UNITS.get(column)
+    unit = _units(r.get("compat") for r in records).get(column)
     ax.set_ylabel("SGC (lower is better)" if column == "sgc" else f"{column} [{unit}]" if unit else column)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize="small", loc="upper left")

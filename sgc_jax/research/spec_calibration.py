@@ -109,8 +109,8 @@ def corpus_description() -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from ..api import score_batch
-    from ..engines.compile_cache import enable_compilation_cache
+    from ..engines.jax_engine.compile_cache import enable_compilation_cache
+    from ..scoring.api import score_batch
 
     parser = argparse.ArgumentParser(prog="python -m sgc_jax.research.spec_calibration", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -134,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     calibration = fit_spec_calibration(matrix, [k for _, k, _ in corpus], [s for _, _, s in corpus])
     calibration.save(args.out)
     if args.scores:
-        from ..io.result import write_scores
+        from ..io.tables import write_scores
 
         rows = [{**r, "kind": k, "severity": s} for r, (_, k, s) in zip(result.rescore(calibration).to_records(), corpus)]
         write_scores(args.scores, rows)

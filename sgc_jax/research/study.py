@@ -19,14 +19,14 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..api import resolve_calibration, resolve_config, score_batch
 from ..calibration import COMPONENTS, Calibration
 from ..codes import CLIP_STATUSES
 from ..config import SGCConfig
 from ..io.clip import Clip, ClipFormatError
 from ..io.loading import discover_clips
-from ..io.result import (CLIP_COLUMNS, BatchResult, ClipResult, failed_clip, format_counts, format_table,
-                         records_frame, write_csv)
+from ..io.tables import CLIP_COLUMNS, format_counts, format_table, records_frame, write_csv
+from ..scoring.api import resolve_calibration, resolve_config, score_batch
+from ..scoring.result import BatchResult, ClipResult, failed_clip
 from ..stats import spearman
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
 

@@ -1,7 +1,7 @@
 """Scoring a corpus across machines with Ray (docs/semantics.md §4.2; ``sgc-jax score --ray auto``).
 
 This process (the driver) lists the clips and owns the output; scorer actors, one per worker
-process, each score shards of the file list with :func:`~sgc_jax.streaming.stream_scores` on
+process, each score shards of the file list with :func:`~sgc_jax.scoring.streaming.stream_scores` on
 their own devices and send the results back. The driver hands them on in input order as the
 shards finish, claims clip ids in input order (the first file with an id keeps it, as in one
 process) and resumes the same way. Input paths must be readable from every node (a shared
@@ -14,16 +14,14 @@ import collections
 import dataclasses
 import math
 import time
-from typing import Any, Iterator, Mapping
+from typing import Any, Iterator
 
-from .calibration import Calibration
-from .config import SGCConfig
-from .io.clip import ClipFormatError
-from .io.loading import ClipEntry
+from ..io.clip import ClipFormatError
+from ..io.loading import ClipEntry
+from .options import RunOptions
 from .readers import ReaderProcesses, reading_plan
-from .streaming import StreamStats, Streamed, error_result, stream_scores
+from .streaming import Done, Scoring, Streamed, StreamStats, error_result, stream_scores
 
-SHARD_SIZE = 16  # clips per task: large enough to keep a scorer's device busy, small enough to spread
 SHARDS_PER_SCORER = 2  # tasks queued per scorer, so it starts the next shard as soon as one ends
 
 
@@ -42,26 +40,21 @@ def connect(address: str | None) -> Any:
 
 class ShardScorer:
     """A Ray actor's state: one engine (its compiled programs kept between shards) on the devices
-    of its worker process. The JAX engine's persistent compilation cache is on (each worker
-    process would otherwise compile every program), unless ``SGC_JAX_COMPILATION_CACHE=off``."""
+    of its worker process, and its reader processes, where its share of ``cores`` reads in them."""
 
-    def __init__(self, config: SGCConfig, calibration: Calibration, engine: str, run_id: str,
-                 devices: int | None, lanes: int | None = None, read_in: str = "auto",
-                 cores: int | None = None) -> None:
-        if engine == "jax":
-            from .engines.compile_cache import enable_compilation_cache
+    def __init__(self, scoring: Scoring, options: RunOptions, cores: int | None = None) -> None:
+        if scoring.engine == "jax":  # each worker process would otherwise compile every program
+            from ..engines.jax_engine.compile_cache import enable_compilation_cache
 
             enable_compilation_cache()
-        self.options = dict(config=config, calibration=calibration, engine=engine, run_id=run_id, devices=devices,
-                            lanes=lanes, read_in=read_in)
-        # reader processes, where this scorer's share of ``cores`` reads in them, kept from shard to shard
-        readers, in_processes = reading_plan(None, read_in, cores)
-        self.options["reader_processes"] = ReaderProcesses(readers, engine, config) if in_processes else None
+        self.scoring, self.options = scoring, options
+        readers, in_processes = reading_plan(None, options.read_in, cores)
+        self.readers = ReaderProcesses(readers, scoring.engine, scoring.config) if in_processes else None
 
-    def score(self, entries: list[ClipEntry], done: Mapping[tuple[str, str], Mapping[str, str]]
-              ) -> tuple[list[Streamed], StreamStats]:
+    def score(self, entries: list[ClipEntry], done: Done) -> tuple[list[Streamed], StreamStats]:
         stats = StreamStats()
-        return list(stream_scores(entries, done=done, stats=stats, **self.options)), stats
+        return list(stream_scores(entries, self.scoring, done=done, options=self.options, stats=stats,
+                                  reader_processes=self.readers)), stats
 
 
 def _scorers(ray: Any, count: int | None) -> tuple[int, dict[str, float]]:
@@ -76,27 +69,23 @@ def _scorers(ray: Any, count: int | None) -> tuple[int, dict[str, float]]:
     return count, ({"num_gpus": share(gpus)} if gpus else {"num_cpus": share(cpus)})
 
 
-def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibration: Calibration, engine: str,
-                      run_id: str = "", done: Mapping[tuple[str, str], Mapping[str, str]] | None = None,
-                      address: str | None = "auto", scorers: int | None = None, shard_size: int = SHARD_SIZE,
-                      devices: int | None = None, lanes: int | None = None, read_in: str = "auto",
+def ray_stream_scores(entries: list[ClipEntry], scoring: Scoring, *, done: Done | None = None,
+                      options: RunOptions = RunOptions(ray_address="auto"),
                       stats: StreamStats | None = None) -> Iterator[Streamed]:
-    """:func:`~sgc_jax.streaming.stream_scores` with the clips scored by Ray actors: every
-    entry's result in input order. ``scorers``: how many actors (default: one per GPU of the
-    cluster, else one per node); ``shard_size``: clips per task at most (fewer when the corpus is
-    too small to reach every scorer otherwise); ``devices``: local devices each actor uses (default
-    all it sees); ``lanes``: clips each actor scores at once (``streaming.engine_steps``);
-    ``read_in``: as ``stream_scores``, with each actor's share of the cluster's cores for the
-    host's (``readers.reading_plan``); reader processes are kept from shard to shard."""
-    ray = connect(address)
+    """:func:`~sgc_jax.scoring.streaming.stream_scores` with the clips scored by Ray actors, every
+    entry's result in input order. ``options``: ``ray_address`` and ``ray_scorers`` (default one
+    actor per GPU of the cluster, else per node); ``chunk_size`` clips per task at most (fewer
+    when the corpus would not reach every scorer); ``devices``, ``lanes`` and ``read_in`` for each
+    actor, with its share of the cluster's cores for the host's."""
+    ray = connect(options.ray_address)
     stats = stats if stats is not None else StreamStats()
     done = done or {}
     start = time.perf_counter()
-    count, resources = _scorers(ray, scorers)
+    count, resources = _scorers(ray, options.ray_scorers)
     actor = ray.remote(ShardScorer).options(scheduling_strategy="SPREAD", **resources)
     cores = max(1, int(ray.cluster_resources().get("CPU", 1) // count))  # each scorer's share
-    pool = [actor.remote(config, calibration, engine, run_id, devices, lanes, read_in, cores) for _ in range(count)]
-    shard_size = max(1, min(shard_size, -(-len(entries) // count)))  # a small corpus still reaches every scorer
+    pool = [actor.remote(scoring, options, cores) for _ in range(count)]
+    shard_size = max(1, min(options.chunk_size, -(-len(entries) // count)))
     shards = [entries[i:i + shard_size] for i in range(0, len(entries), shard_size)]
 
     def submit(k: int):
@@ -114,22 +103,31 @@ def ray_stream_scores(entries: list[ClipEntry], *, config: SGCConfig, calibratio
                 in_flight.append((following, submit(following)))
                 following += 1
             items, shard_stats = ray.get(ref)
-            stats.scored += shard_stats.scored
-            stats.resumed += shard_stats.resumed
-            stats.errors += shard_stats.errors
-            stats.input_wait_s += shard_stats.input_wait_s  # summed over the scorers, which wait in parallel
+            _add_stats(stats, shard_stats)
             for entry, item in zip(shards[k], items):
-                if not item.load_failed:
-                    try:
-                        entry.claim_id()
-                    except ClipFormatError as exc:
-                        stats.errors += 1
-                        stats.resumed -= item.kept_row is not None
-                        stats.scored -= item.kept_row is None
-                        item = Streamed(error_result(entry, exc, item.result.input_sha256, engine, config, run_id),
-                                        None)
-                yield item
+                yield _claimed(entry, item, scoring, stats)
     finally:
         for scorer in pool:
             ray.kill(scorer)
         stats.wall_s += time.perf_counter() - start
+
+
+def _add_stats(stats: StreamStats, shard: StreamStats) -> None:
+    stats.scored += shard.scored
+    stats.resumed += shard.resumed
+    stats.errors += shard.errors
+    stats.input_wait_s += shard.input_wait_s  # summed over the scorers, which wait in parallel
+
+
+def _claimed(entry: ClipEntry, item: Streamed, scoring: Scoring, stats: StreamStats) -> Streamed:
+    """The item, or an error row when another file claimed its id first (in input order)."""
+    if item.load_failed:
+        return item
+    try:
+        entry.claim_id()
+    except ClipFormatError as exc:
+        stats.errors += 1
+        stats.resumed -= item.kept_row is not None
+        stats.scored -= item.kept_row is None
+        return Streamed(error_result(entry, exc, item.result.input_sha256, scoring), None)
+    return item

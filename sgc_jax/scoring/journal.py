@@ -21,10 +21,11 @@ from typing import Any, Iterable, Mapping
 
 from ..calibration import Calibration
 from ..config import SGCConfig
+from ..io.parquet import is_parquet, typed_cell
+from ..io.remote import is_url, open_file, version_key
+from ..io.tables import CLIP_COLUMNS, PAIR_COLUMNS, read_table_text, write_csv_rows, write_table
 from ..version import __version__
-from .parquet import is_parquet, typed_cell
-from .remote import is_url, open_file, version_key
-from .result import CLIP_COLUMNS, PAIR_COLUMNS, ClipResult, add_ecd, read_table_text, write_csv_rows, write_table
+from .result import ClipResult, add_ecd
 
 RUN_ID_LENGTH = 16
 

@@ -23,13 +23,14 @@ import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Container, NamedTuple
 
-from .config import SGCConfig
-from .engines.jax_engine import host_cores
-from .io.clip import Clip, ClipFormatError
-from .io.journal import FileDigests
-from .io.loading import ClipEntry
+from ..config import SGCConfig
+from ..io.clip import Clip, ClipFormatError
+from ..io.loading import ClipEntry
+from .devices import host_cores
+from .engine_steps import prepare_step
+from .journal import FileDigests
+from .options import READ_IN
 
-READ_IN = ("auto", "threads", "processes")
 # "auto" reads clip files in processes on hosts of more cores than this; on smaller ones (the
 # 2-core box) THREAD_READERS threads keep up with the device.
 PROCESS_READING_CORES = 4
@@ -50,17 +51,6 @@ def reading_plan(readers: int | None = None, read_in: str = "auto", cores: int |
     if readers is None:
         readers = max(1, cores - 2) if processes else THREAD_READERS
     return readers, processes
-
-
-def prepare_step(engine: str, config: SGCConfig) -> Callable[[Clip], Any]:
-    """The engine's host-side preparation of a clip (NumPy only; touches no device)."""
-    if engine == "jax":
-        from .engines import jax_engine
-
-        return lambda clip: jax_engine.prepare_clip(clip, config)
-    if engine == "reference":
-        return lambda clip: clip
-    raise ValueError(f"engine must be one of ('jax', 'reference'), got {engine!r}")
 
 
 class Identity(NamedTuple):
@@ -127,9 +117,9 @@ class ReaderProcesses:
         worker = getattr(self._local, "worker", None)
         if worker is None:
             # the child imports sgc_jax from where this process did, and keeps off any GPU
-            here = str(Path(__file__).resolve().parents[1])
+            here = str(Path(__file__).resolve().parents[2])
             path = os.pathsep.join([here, *filter(None, [os.environ.get("PYTHONPATH")])])
-            worker = subprocess.Popen([sys.executable, "-c", "from sgc_jax.readers import serve; serve()"],
+            worker = subprocess.Popen([sys.executable, "-c", "from sgc_jax.scoring.readers import serve; serve()"],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
             with self._lock:

@@ -1,18 +1,15 @@
-"""Shape buckets and padding for the JAX engine (docs/semantics.md §7.1), and what each compiled
-stage takes: plain NumPy and tuples, so scoring from already compiled programs never imports the
-kernels.
-"""
+"""Shape buckets and padding (docs/semantics.md §7.1): a clip's arrays padded on the host to the
+next bucket's (T, H, W, P), so clips of nearby shapes share one compiled program. NumPy only."""
 
 from __future__ import annotations
 
 import dataclasses
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
-from ..config import SGCConfig
-from ..io.clip import Clip
+from ...config import SGCConfig
+from ...io.clip import Clip
 
 FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
@@ -102,60 +99,3 @@ def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 
     return PaddedClips(depth[None], static[None], K[None], R_wc[None], t_wc[None], track_prev[None],
                        track_curr[None], usable[None], pair_valid[None], np.array([[H, W]], np.int32),
                        np.array([depth_unit], np.float32))
-
-
-# ----------------------------------------------------------------------------- stages
-#
-# A clip is scored by three programs, each compiled for the shapes it touches: the pixel stage
-# (regions at the tracks; T, H, W, P), the pose stage (RANSAC, the scale; T, P: most of the
-# compile, shared by clips of every image size) and the finish (depth warp, components; T, H, W).
-# Their inputs and outputs are flat tuples and dicts (what ``jax.export`` keeps).
-
-
-class PixelInputs(NamedTuple):
-    depth: jax.Array  # (B, T, H, W)
-    static: jax.Array  # (B, T, H, W)
-    track_prev: jax.Array  # (B, T-1, P, 2)
-    track_curr: jax.Array  # (B, T-1, P, 2)
-    image_hw: jax.Array  # (B, 2)
-
-
-class PoseInputs(NamedTuple):
-    Z_prev: jax.Array  # (B, T-1, P) depth of frame i-1 at the tracks (``depth_at_tracks``)
-    track_labels: jax.Array  # (B, T-1, P) region of each track in frame i
-    n_regions: jax.Array  # (B, T-1)
-    region_pixels: jax.Array  # (B, T-1)
-    K: jax.Array
-    R_wc: jax.Array
-    t_wc: jax.Array
-    track_prev: jax.Array
-    track_curr: jax.Array
-    usable: jax.Array
-    pair_valid: jax.Array
-    image_hw: jax.Array
-    depth_unit: jax.Array
-
-
-STAGES = ("pixel", "pose", "finish")
-
-
-def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple:
-    """The flat inputs of ``stage`` for a padded batch, given the previous stage's output."""
-    if stage == "pixel":
-        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.image_hw))
-    if stage == "pose":
-        return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
-                                previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
-                                batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
-    return (previous, batch.depth, batch.static, batch.K)
-
-
-# The static config fields each stage reads (``ProgramConfig`` refuses the others): a stage's
-# program is shared by configs that differ elsewhere. The config's properties used in a stage
-# must derive from its fields (scale_free, fits_translation_scale, applies_quality_rule do).
-STAGE_FIELDS = {
-    "pixel": ("k_seg", "kmeans_bins", "partition", "compat"),
-    "pose": ("k_seg", "ransac_hypotheses", "gn_steps", "compat", "global_pose", "align_scale", "quality_rule",
-             "borrow_region_poses"),
-    "finish": ("k_seg", "compat", "global_pose"),
-}

@@ -1,17 +1,15 @@
-"""The persistent cache of compiled programs, per machine, so a later run starts in seconds.
+"""The persistent cache of compiled programs, one per kind of CPU, so a later process starts in
+seconds (docs/semantics.md §7.1).
 
-The JAX engine compiles its stage programs per shape bucket and static config (tens of seconds
-on a small CPU). With the cache on, each traced program is kept as a ``jax.export`` file under
-``sgc_programs/`` and its executable in JAX's persistent compilation cache beside it, so a later
-process neither traces nor compiles. The ``sgc-jax`` commands turn it on by default; library
-users call ``enable_compilation_cache()`` once, before scoring (a process-wide JAX setting, so the
-library does not change it unasked; the first compile says how).
+Each traced stage is kept as a ``jax.export`` file under ``sgc_programs/`` and its executable in
+JAX's persistent compilation cache beside it, so a later process neither traces nor compiles. The
+scoring entry points and the ``sgc-jax`` commands turn it on (``enable_compilation_cache``).
 
-Where: ``$SGC_JAX_COMPILATION_CACHE`` if set (``off`` disables it), else
-``$XDG_CACHE_HOME/sgc_jax/xla/<host>`` (``~/.cache`` without XDG). ``<host>`` names the
-architecture and a hash of the CPU's feature flags: XLA:CPU executables are native code, and one
-built for another CPU of a shared home directory may not run here. A cache directory someone
-else can write to lets them run code as you (JAX's warning): keep it private.
+Where: ``$SGC_JAX_COMPILATION_CACHE`` if set (``off`` turns it off), else
+``$XDG_CACHE_HOME/sgc_jax/xla/<host>`` (``~/.cache`` without XDG), ``<host>`` the architecture
+and a hash of the CPU's feature flags: XLA:CPU executables are native code, and one built for
+another CPU of a shared home directory may not run here. A directory set through JAX's own
+``JAX_COMPILATION_CACHE_DIR`` wins. Keep it private: JAX runs what it finds there.
 """
 
 from __future__ import annotations
@@ -85,19 +83,13 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     return target
 
 
-def compile_messages_on() -> bool:
-    """The compile lines on stderr, unless ``$SGC_JAX_COMPILE_MESSAGES`` turns them off."""
-    return os.environ.get("SGC_JAX_COMPILE_MESSAGES", "").strip().lower() not in _OFF
-
-
 def cache_hint() -> str:
-    """A clause for the compile message: how to keep compiled programs between runs, or "" when
-    the persistent cache is on."""
+    """A clause for the compile message: how to keep compiled programs, or "" when the cache is on."""
     import jax
 
     if jax.config.jax_compilation_cache_dir:
         return ""
-    return "; sgc_jax.enable_compilation_cache() keeps them for later runs"
+    return "; the cache is off (SGC_JAX_COMPILATION_CACHE)"
 
 
 # ----------------------------------------------------------------------------- traced programs
@@ -113,7 +105,7 @@ def code_fingerprint() -> str:
     import jaxlib
 
     digest = hashlib.sha256(f"{jax.__version__} {jaxlib.__version__}".encode())
-    package = Path(__file__).resolve().parents[1]
+    package = Path(__file__).resolve().parents[2]
     for source in sorted(package.rglob("*.py")):
         digest.update(source.relative_to(package).as_posix().encode())
         digest.update(source.read_bytes())

@@ -1,0 +1,106 @@
+"""Scoring clips with the compiled programs: a clip prepared on the host (``prepare_clip``), its
+program called without waiting (``dispatch``, or ``dispatch_group`` for one clip per device), and
+its outputs turned into per-pair arrays (``collect``)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from ...codes import EXCLUDED_STATUSES, PAIR_REASONS, REGION_OK
+from ...config import SGCConfig
+from ...io.clip import Clip
+from ..pairs import PairArrays
+from ..units import in_depth_units
+from .buckets import Bucket, PaddedClips, bucket_for, pad_clip
+from .programs import compiled_program, sharded_program
+from .stages import program_values
+
+COMPONENT_OUTPUTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error",
+                     "reproj_error", "t_g_norm", "R_g_angle_deg")
+
+
+class PreparedClip(NamedTuple):
+    """A clip ready for the device: padded to its bucket (host arrays)."""
+
+    n_pairs: int
+    bucket: Bucket
+    batch: PaddedClips
+    depth_unit: float
+
+
+def prepare_clip(clip: Clip, config: SGCConfig) -> PreparedClip:
+    """The host side of scoring a clip: depth units and padding (NumPy only, safe in a thread)."""
+    clip, unit = in_depth_units(clip, config)
+    bucket = bucket_for(clip)
+    return PreparedClip(clip.n_pairs, bucket, pad_clip(clip, bucket, config, unit), unit)
+
+
+class Dispatched(NamedTuple):
+    """Clips whose program has been called: ``out`` holds device arrays still being computed, clip b at index b."""
+
+    prepared: list[PreparedClip]
+    out: dict
+
+
+def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
+    """Start scoring a prepared clip on the default device; returns without waiting (a bucket's
+    first clip compiles its program first)."""
+    program = compiled_program(config, prepared.bucket, prepared.batch)
+    return Dispatched([prepared], program(prepared.batch, jax.random.PRNGKey(config.seed), program_values(config)))
+
+
+def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list) -> Dispatched:
+    """Start scoring up to len(devices) prepared clips of one bucket, one per device; a short group
+    is filled with copies of its last clip, which ``collect`` leaves out."""
+    fill = [group[-1].batch] * (len(devices) - len(group))
+    stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
+    program, sharding = sharded_program(config, group[0].bucket, devices, stacked)
+    batch = PaddedClips(*jax.device_put(tuple(stacked), sharding))
+    return Dispatched(group, program(batch, jax.random.PRNGKey(config.seed), program_values(config)))
+
+
+def pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float) -> PairArrays:
+    """Clip b's per-pair arrays, with its depth unit D and the scale to report (depth units per pose unit)."""
+    take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
+    status = take("region_status")
+    posed = (status == REGION_OK) | np.isin(status, EXCLUDED_STATUSES)
+    per_region = lambda name: np.where(posed, take(name), np.nan).astype(np.float64)  # noqa: E731
+    return PairArrays(
+        **{name: take(name).astype(np.float64) for name in COMPONENT_OUTPUTS},
+        n_tracks=take("n_tracks"), n_regions=take("n_regions"), n_poses=take("n_poses"),
+        n_ill_conditioned=take("n_ill_conditioned"),
+        reason=np.array([PAIR_REASONS[c] for c in take("reason")], dtype=object),
+        R_local=np.where(posed[..., None, None], take("R_local"), np.nan).astype(np.float64),
+        t_local=np.where(posed[..., None], take("t_local"), np.nan).astype(np.float64),
+        region_status=status, region_points=take("region_points"), region_reproj=per_region("region_reproj"),
+        region_rot_std=per_region("region_rot_std"), region_trans_std=per_region("region_trans_std"),
+        scale=scale, depth_unit=depth_unit)
+
+
+def collect(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
+    """Wait for dispatched clips -> their per-pair arrays, in order (a filled group's copies dropped)."""
+    out = jax.device_get(dispatched.out)
+    results = []
+    for b, prepared in enumerate(dispatched.prepared):
+        # s (per unit of D inside) reported in depth units per pose unit; 1 without a global translation
+        scale = float(np.asarray(out["scale"][b])) * prepared.depth_unit if config.global_pose else 1.0
+        results.append(pair_arrays(out, b, prepared.n_pairs, prepared.depth_unit, scale))
+    return results
+
+
+def score_pairs_batch(clips: list[Clip], config: SGCConfig | None = None) -> list[PairArrays]:
+    """Per-pair arrays of every clip, one program call per clip on the default device, the next
+    clip dispatched before the previous one's outputs are fetched."""
+    config = config or SGCConfig()
+    results, pending = [], None
+    for clip in clips:
+        current = dispatch(prepare_clip(clip, config), config)
+        if pending is not None:
+            results.extend(collect(pending, config))
+        pending = current
+    if pending is not None:
+        results.extend(collect(pending, config))
+    return results

@@ -1,0 +1,62 @@
+"""The pixel stage (docs/semantics.md §3.2 steps 1-2 and 5): frame i's region of every track, and
+frame i-1's depth at every track, for every pair of the clips of a bucket."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ...config import SGCConfig
+from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_regions, region_of_depth
+from .stages import PixelInputs
+
+
+def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConfig):
+    """Frames i (F, H, W), their pairs' points in them (F, P, 2) and true sizes (F, 2) -> (region
+    at each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S_i| (F,))."""
+    region_mask = static_curr if config.compat == "authors" else static_curr & (depth_curr > 0)
+    H_pad, W_pad = depth_curr.shape[1:]
+    col, row = jnp.floor(track_curr[..., 0]).astype(jnp.int32), jnp.floor(track_curr[..., 1]).astype(jnp.int32)
+    inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
+    pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
+    at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
+    regions = dict(k=config.k_seg, min_region_pixels=config.min_region_pixels)
+    if config.partition == "depth":  # the points labelled from each bin's region, never whole label maps
+        partition = depth_partition(depth_curr, region_mask, bins=config.kmeans_bins, **regions)
+        labels = jax.vmap(region_of_depth)(partition, at_points(depth_curr, pixel), at_points(region_mask, pixel))
+        n_regions = partition.n_regions
+    else:  # frame by frame: unbatched scatters run several times faster on CPU
+        if config.partition == "grid":
+            label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
+        else:
+            label_frame = lambda frame: depth_spatial_regions(*frame, bins=config.kmeans_bins, **regions)  # noqa: E731
+        labels, n_regions = jax.lax.map(label_frame, (depth_curr, region_mask))
+        labels = at_points(labels, pixel)
+    return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
+            jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
+
+
+def depth_at_tracks(depth_prev, track_prev, image_hw):
+    """Depth (P,) of frame i-1 (H, W) at each track's floor pixel, clamped to the true image (2,)."""
+    H, W = image_hw[0], image_hw[1]
+    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
+    return depth_prev[row, col]
+
+
+def pairs_flat(B, T):
+    """(flat, unflat): (B, T-1, ...) <-> (B (T-1), ...)."""
+    return (lambda x: x.reshape((B * (T - 1),) + x.shape[2:]),
+            lambda x: x.reshape((B, T - 1) + x.shape[1:]))
+
+
+def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
+    """Clips (leading axis B) -> track_labels (B, T-1, P), n_regions, region_pixels (B, T-1) and
+    Z_prev (B, T-1, P), frame by frame over the B (T-1) frames."""
+    B, T = x.depth.shape[:2]
+    flat, unflat = pairs_flat(B, T)
+    image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
+    labels, n_regions, region_pixels = map(unflat, frame_regions(
+        flat(x.depth[:, 1:]), flat(x.static[:, 1:]), flat(x.track_curr), image_hw, config))
+    Z_prev = unflat(jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw))
+    return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

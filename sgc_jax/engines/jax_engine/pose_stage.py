@@ -1,0 +1,172 @@
+"""The pose stage (docs/semantics.md §3.2 steps 3-7, §3.3, §3.4): every pair's local poses, the
+camera's relative poses and the clip's translation scale."""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ...codes import REGION_EMPTY, REGION_OK
+from ...config import SGCConfig
+from ...kernels.camera import back_project
+from ...kernels.pose_variances import mean_pose
+from ...kernels.ransac import ransac_pnp_regions
+from ...kernels.ransac_options import RansacOptions
+from ...kernels.scale import scale_equations, weighted_median
+from ...kernels.so3 import nearest_rotation
+from ...kernels.uncertainty import QualityRule, region_quality
+from .stages import PoseInputs
+
+# Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
+# is done, and fewer than ~4 pay more per-op overhead than they save (bench/RESULTS.md).
+PAIRS_AT_ONCE = 5
+
+
+class LocalPoses(NamedTuple):
+    """A pair's regions and their poses (k region slots)."""
+
+    R_local: jax.Array  # (k, 3, 3)
+    t_local: jax.Array  # (k, 3) units of D
+    region_status: jax.Array  # (k,) int32, codes.REGION_STATUS
+    region_points: jax.Array  # (k,) int32
+    region_reproj: jax.Array  # (k,) px
+    region_rot_std: jax.Array  # (k,) deg, RMS rotation uncertainty
+    region_trans_std: jax.Array  # (k,) units of D
+    n_tracks: jax.Array  # () usable tracks
+    n_regions: jax.Array  # ()
+    region_pixels: jax.Array  # () pixels of S_i
+
+
+class PairInputs(NamedTuple):
+    """One pair's share of the pose stage's inputs (frames i-1 -> i)."""
+
+    Z_prev: jax.Array  # (P,) depth of frame i-1 at the tracks
+    track_label: jax.Array  # (P,) region of each track in frame i
+    n_regions: jax.Array  # ()
+    region_pixels: jax.Array  # ()
+    K_prev: jax.Array  # (3, 3)
+    K_curr: jax.Array
+    track_prev: jax.Array  # (P, 2)
+    track_curr: jax.Array
+    usable: jax.Array  # (P,) bool
+    key: jax.Array  # RANSAC's key of the pair
+    rival_R: jax.Array  # (3, 3) R_g, the identity without a global pose
+    global_t: jax.Array | None  # (3,) s t_g in units of D; None without a global pose
+
+
+def ransac_options(config: SGCConfig) -> RansacOptions:
+    return RansacOptions(inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
+                         min_points=config.min_points, confidence=config.confidence,
+                         ambiguous_rot_deg=config.ambiguous_rot_deg, ambiguous_inlier_frac=config.ambiguous_inlier_frac,
+                         hypotheses=config.ransac_hypotheses, lm_steps=config.lm_steps,
+                         borrow=config.borrow_region_poses)
+
+
+def quality_rule(config: SGCConfig) -> QualityRule:
+    return QualityRule(min_region_points=config.min_region_points, max_rot_std_deg=config.max_rot_std_deg,
+                       max_rot_std_px=config.max_rot_std_px, min_region_extent=config.min_region_extent,
+                       quality_noise_px=config.quality_noise_px)
+
+
+def points_prev(Z, K_prev, track_prev, usable):
+    """Tracks (P, 2) of frame i-1 back-projected at their pixel's depth Z (P,) -> (X (P, 3) in
+    camera i-1, usable with depth > 0 (P,))."""
+    return back_project(K_prev, track_prev, Z), usable & (Z > 0)
+
+
+def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPoses:
+    """One pair's local poses, then the region-quality rule where the config applies it."""
+    H, W = image_hw[0], image_hw[1]
+    X, has_depth = points_prev(pair.Z_prev, pair.K_prev, pair.track_prev, pair.usable)
+    n_tracks = jnp.sum(pair.usable)
+    enough_tracks = n_tracks >= 4
+    regions = jnp.arange(1, config.k_seg + 1)
+    point_region = jnp.where(has_depth, pair.track_label, 0)
+    point_region = jnp.where((point_region <= pair.n_regions) & enough_tracks, point_region, 0)
+    keys = jax.vmap(lambda r: jax.random.fold_in(pair.key, r))(regions)
+    fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
+                             pair.rival_R, global_t=pair.global_t)
+    status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
+    if config.applies_quality_rule:
+        diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
+        focal = 0.5 * (pair.K_curr[0, 0] + pair.K_curr[1, 1])
+        status = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
+                                quality_rule(config))
+    return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
+                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std,
+                      n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels)
+
+
+def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
+    """(R_g, t_g) from camera i-1 to camera i; authors: t from the raw product."""
+    product = R_curr @ R_prev.T
+    R_g = nearest_rotation(product)
+    R_for_t = product if config.compat == "authors" else R_g
+    return R_g, t_curr - R_for_t @ t_prev
+
+
+def pair_groups(pose_pair, args, n_pairs: int):
+    """``pose_pair`` over the pairs (leading axis n_pairs of every leaf of ``args``), vmapped in
+    ceil(n_pairs / PAIRS_AT_ONCE) equal groups one after another; the last group is filled with
+    copies of the last pair, whose results are dropped."""
+    groups = -(-n_pairs // PAIRS_AT_ONCE)
+    if groups <= 1:
+        return jax.vmap(pose_pair)(args)
+    size = -(-n_pairs // groups)
+    pair = jnp.minimum(jnp.arange(groups * size), n_pairs - 1)
+    grouped = jax.tree.map(lambda a: a[pair].reshape((groups, size) + a.shape[1:]), args)
+    out = jax.lax.map(jax.vmap(pose_pair), grouped)
+    return jax.tree.map(lambda a: a.reshape((groups * size,) + a.shape[2:])[:n_pairs], out)
+
+
+def translation_scale(x: PoseInputs, usable, R_g, t_g, config: SGCConfig):
+    """s (units of D per pose unit): the weighted median of every pair's scale equations, or 1 / D
+    (the units taken as shared) where it is not fitted or undefined."""
+    scale = 1.0 / x.depth_unit
+    if not config.fits_translation_scale:
+        return scale
+
+    def equations(Z_prev, label, K_prev, K_curr, track_prev, track_curr, usable, R_g, t_g):
+        X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
+        return scale_equations(X, has_depth & (label > 0), K_curr, track_curr, R_g, t_g)
+
+    ratios, weights = jax.vmap(equations)(x.Z_prev, x.track_labels, x.K[:-1], x.K[1:], x.track_prev, x.track_curr,
+                                          usable, R_g, t_g)
+    return weighted_median(ratios, weights, fallback=scale)
+
+
+def clip_poses(x: PoseInputs, key, config: SGCConfig):
+    """One padded clip (no B axis) -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), s).
+    Without a global pose each pair's mean local pose (NaN without one) stands for the camera's."""
+    n_pairs = x.pair_valid.shape[0]
+    pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(n_pairs) + 1)
+    usable = x.usable & x.pair_valid[:, None]
+    if config.global_pose:
+        R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
+            x.R_wc[:-1], x.t_wc[:-1], x.R_wc[1:], x.t_wc[1:])
+        # the rivals' rotation (docs/semantics.md §3.3): the camera's, the identity where it is not finite
+        rival_R = jnp.where(jnp.all(jnp.isfinite(R_g), axis=(1, 2))[:, None, None], R_g, jnp.eye(3, dtype=R_g.dtype))
+        # s does not depend on the local poses, which start from the camera's pose (R_g, s t_g)
+        scale = translation_scale(x, usable, R_g, t_g, config)
+        global_t = scale * t_g
+    else:
+        rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
+        global_t = None  # no camera start (an empty pytree under vmap)
+    pairs = PairInputs(x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[:-1], x.K[1:], x.track_prev,
+                       x.track_curr, usable, pair_keys, rival_R, global_t)
+    poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, config), pairs, n_pairs)
+    if not config.global_pose:
+        R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
+        return poses, R_g, t_g, jnp.float32(1.0)
+    return poses, R_g, t_g, scale
+
+
+def pose_stage(x: PoseInputs, key, config: SGCConfig) -> dict:
+    """Clips (leading axis B), one after another (``lax.map``), each clip's pairs in groups of at
+    most PAIRS_AT_ONCE: RANSAC's loops run until their slowest lane is done, so vmapping many
+    pairs at once costs more than it saves."""
+    poses, R_g, t_g, scale = jax.lax.map(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x))
+    return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)

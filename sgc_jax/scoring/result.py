@@ -1,0 +1,272 @@
+"""The result model of a run: per-clip summaries of the engines' per-pair arrays and the batch
+table (docs/semantics.md §3.8, §4). ``ecd`` is a corpus column: each clip's ``ecd_trans`` and
+``ecd_rot`` min-max normalised over the clips of the table, then the larger of the two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
+from ..codes import CLIP_STATUSES
+from ..engines.pairs import PairArrays
+from ..io.parquet import typed_cell
+from ..io.tables import (
+    CLIP_COLUMNS,
+    COLUMN_UNITS,
+    PAIR_COLUMNS,
+    column_kind,
+    format_counts,
+    format_table,
+    records_frame,
+    write_csv,
+)
+from ..stats import min_max
+
+
+def _nanmean(values: np.ndarray) -> float:
+    values = np.asarray(values, np.float64)
+    finite = ~np.isnan(values)
+    return float(values[finite].mean()) if finite.any() else float("nan")
+
+
+@dataclasses.dataclass
+class ClipResult:
+    """One clip's score, components (NaN-ignoring means over pairs), diagnostics and pairs."""
+
+    clip_id: str
+    group: str = ""
+    status: str = "error"  # "ok" | "partial" | "error"
+    reason: str = ""
+    sgc: float = float("nan")
+    components: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in COMPONENTS})
+    reproj_error: float = float("nan")
+    ecd_trans: float = float("nan")  # mean ||s t_g|| over pairs (% of D under spec, pose units under authors)
+    ecd_rot: float = float("nan")  # mean rotation angle of R_g over pairs (deg)
+    n_pairs: int = 0
+    n_pairs_scored: int = 0
+    engine: str = ""
+    mask_source: str = ""
+    scale: float = 1.0  # translation scale s (docs/semantics.md §4)
+    depth_unit: float = float("nan")  # D, input depth units
+    n_ill_conditioned: int = 0  # local poses left out by the region-quality rule, all pairs
+    compat: str = ""  # the semantics the components were computed with: "spec" | "authors"
+    origin: str = ""  # the file (file[member] in a batch file) or <memory>
+    input_sha256: str = ""  # SHA-256 of the input file's bytes ("" for clips given in memory)
+    run_id: str = ""  # the run that scored it (docs/semantics.md §4.1; "" once re-scored)
+    pairs: PairArrays | None = None
+
+    def __repr__(self) -> str:  # the per-pair arrays would run to thousands of lines
+        reason = self.reason if len(self.reason) <= 80 else self.reason[:77] + "..."
+        return (f"ClipResult({self.clip_id!r}, group={self.group!r}, status={self.status!r}, sgc={self.sgc:.4g}, "
+                f"pairs scored {self.n_pairs_scored}/{self.n_pairs}, engine={self.engine!r}"
+                + (f", reason={reason!r}" if reason else "") + "; .record() for every column)")
+
+    def record(self, ecd: float = float("nan")) -> dict[str, Any]:
+        """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
+        row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
+               "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
+               "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
+               "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
+               "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
+               "n_ill_conditioned": self.n_ill_conditioned, "compat": self.compat, "origin": self.origin,
+               "input_sha256": self.input_sha256, "run_id": self.run_id}
+        return {k: row[k] for k in CLIP_COLUMNS}
+
+    def pair_records(self) -> list[dict[str, Any]]:
+        if self.pairs is None:
+            return []
+        p = self.pairs
+        return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
+                 **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, "reproj_error": float(p.reproj_error[i]),
+                 "n_tracks": int(p.n_tracks[i]), "n_regions": int(p.n_regions[i]), "n_poses": int(p.n_poses[i]),
+                 "n_ill_conditioned": int(p.n_ill_conditioned[i]),
+                 "t_g_norm": float(p.t_g_norm[i]), "R_g_angle_deg": float(p.R_g_angle_deg[i]),
+                 "engine": self.engine} for i in range(p.n_pairs)]
+
+
+def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
+                   engine: str = "", mask_source: str = "", origin: str = "", compat: str = "") -> ClipResult:
+    """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
+    components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
+    sgc = float(sgc_score(components, calibration))
+    reasons = Counter(str(r) for r in pairs.reason)
+    scored = reasons.get("ok", 0)
+    problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
+    if math.isnan(sgc):
+        status, reason = "error", f"no pair could be scored ({problems})" if problems else "no pair could be scored"
+    elif scored < pairs.n_pairs:
+        status, reason = "partial", problems
+    else:
+        status, reason = "ok", ""
+    return ClipResult(
+        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
+        reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
+        ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
+        engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
+        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs)
+
+
+def clip_from_row(row: Mapping[str, str]) -> ClipResult:
+    """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
+    every column but ``ecd``; no per-pair arrays."""
+    cell = {name: typed_cell(column_kind(name), row[name]) for name in CLIP_COLUMNS if name != "ecd"}
+    return ClipResult(components={k: cell.pop(k) for k in COMPONENTS}, **cell)
+
+
+def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
+    """ECD (docs/semantics.md §4) per clip: max of min-max(mean ||t_g||) and min-max(mean angle of R_g) over the corpus.
+
+    (n,) x2 -> (n,) in [0, 1]; NaN inputs are ignored by the scaling; a clip with one NaN input
+    takes the other; a constant column scales to 0.
+    """
+    trans, rot = min_max(ecd_trans), min_max(ecd_rot)
+    both = np.stack([trans, rot])
+    return np.where(np.isnan(both).all(axis=0), np.nan, np.nanmax(np.where(np.isnan(both), -np.inf, both), axis=0))
+
+
+def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "", compat: str = "") -> ClipResult:
+    """The row of a clip that could not be loaded or scored."""
+    return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin, compat=compat)
+
+
+# ----------------------------------------------------------------------------- batch table
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, (float, np.floating)):
+        return None if math.isnan(value) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration | str) -> list[dict[str, Any]]:
+    """Copies of per-clip rows with ``sgc`` recomputed from their stored components under
+    ``calibration`` (no geometry: the per-clip components are all the score needs) and ``ecd``
+    recomputed over these rows; ``run_id`` is emptied (no run scored them so)."""
+    calibration = Calibration.load(calibration)
+    calibration.check_compat(rows_compat(records), "the rows")
+    components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
+    sgc = sgc_score(components, calibration) if records else np.array([])
+    out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {})} for r, v in zip(records, sgc)]
+    return add_ecd(out) if any("ecd_trans" in r for r in out) else out
+
+
+def add_ecd(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Copies of per-clip rows with ``ecd`` (docs/semantics.md §4) normalised over these rows; rows without
+    ``ecd_trans`` / ``ecd_rot`` get NaN."""
+    nan = float("nan")
+    ecd = camera_dynamics([r.get("ecd_trans", nan) for r in records], [r.get("ecd_rot", nan) for r in records])
+    return [{**r, "ecd": float(e)} for r, e in zip(records, ecd)]
+
+
+@dataclasses.dataclass
+class BatchResult:
+    """Scores of many clips, in input order; ``result["sgc"]`` gives a column as an array."""
+
+    clips: list[ClipResult]
+    calibration: Calibration | None = None
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    def __repr__(self) -> str:  # a summary: the default repr of thousands of clips floods a notebook
+        return (f"BatchResult: {self._summary()}\n"
+                "  .table() prints them; .to_records(), .to_pandas(), .to_csv(path) give every column")
+
+    def _summary(self) -> str:
+        """``"8 clips (ok 7, error 1), engine jax, calibration 'sgc-spec-2026'"``."""
+        statuses = format_counts((c.status for c in self.clips), CLIP_STATUSES) or "none"
+        engines = "/".join(dict.fromkeys(c.engine for c in self.clips if c.engine)) or "none"
+        calibration = repr(self.calibration.name) if self.calibration else "none"
+        return f"{len(self.clips)} clips ({statuses}), engine {engines}, calibration {calibration}"
+
+    def __iter__(self) -> Iterator[ClipResult]:
+        return iter(self.clips)
+
+    def __getitem__(self, key: str | int) -> Any:
+        if isinstance(key, int):
+            return self.clips[key]
+        if key not in CLIP_COLUMNS:
+            raise KeyError(f"unknown column {key!r}; columns: {CLIP_COLUMNS}")
+        values = [r[key] for r in self.to_records()]
+        return np.array(values, dtype=np.float64 if isinstance(values[0], float) else object) if values else np.array([])
+
+    def clip(self, clip_id: str) -> ClipResult:
+        for c in self.clips:
+            if c.clip_id == clip_id:
+                return c
+        raise KeyError(f"no clip {clip_id!r} in this result")
+
+    @property
+    def clip_ids(self) -> list[str]:
+        return [c.clip_id for c in self.clips]
+
+    @property
+    def sgc(self) -> np.ndarray:
+        return self["sgc"]
+
+    @property
+    def ecd(self) -> np.ndarray:
+        """Estimated camera dynamics (docs/semantics.md §4) of each clip, normalised over this batch."""
+        return camera_dynamics([c.ecd_trans for c in self.clips], [c.ecd_rot for c in self.clips])
+
+    def to_records(self) -> list[dict[str, Any]]:
+        """One dict per clip with :data:`CLIP_COLUMNS` (``ecd`` normalised over this batch)."""
+        return [c.record(float(e)) for c, e in zip(self.clips, self.ecd)]
+
+    def pair_records(self) -> list[dict[str, Any]]:
+        """One dict per pair with :data:`PAIR_COLUMNS`."""
+        return [row for c in self.clips for row in c.pair_records()]
+
+    def to_csv(self, path: str | os.PathLike, pairs_path: str | os.PathLike | None = None) -> Path:
+        if pairs_path is not None:
+            write_csv(pairs_path, self.pair_records(), PAIR_COLUMNS)
+        return write_csv(path, self.to_records(), CLIP_COLUMNS)
+
+    def to_json(self, path: str | os.PathLike | None = None, *, pairs: bool = True) -> str:
+        """JSON text ``{"clips": [...], "pairs": [...]}`` (NaN -> null); written when ``path``."""
+        payload = {"calibration": self.calibration.name if self.calibration else None,
+                   "clips": [{k: _json_value(v) for k, v in r.items()} for r in self.to_records()]}
+        if pairs:
+            payload["pairs"] = [{k: _json_value(v) for k, v in r.items()} for r in self.pair_records()]
+        text = json.dumps(payload, indent=1)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def to_pandas(self, pairs: bool = False):
+        """A DataFrame of the clips (or of the pairs); needs pandas."""
+        if pairs:
+            return records_frame(self.pair_records(), PAIR_COLUMNS)
+        return records_frame(self.to_records(), CLIP_COLUMNS)
+
+    def rescore(self, calibration: Calibration | str) -> "BatchResult":
+        """The same components under another calibration (no geometry is recomputed: the score
+        is a function of the stored per-pair components)."""
+        calibration = Calibration.load(calibration)
+        for c in self.clips:
+            calibration.check_compat(c.compat, f"the scores of clip {c.clip_id!r}")
+        clips = [dataclasses.replace(summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
+                                                    mask_source=c.mask_source, origin=c.origin, compat=c.compat),
+                                     input_sha256=c.input_sha256)
+                 if c.pairs is not None else c
+                 for c in self.clips]
+        return BatchResult(clips, calibration)
+
+    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *COMPONENTS)) -> str:
+        """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4)."""
+        compats = {c.compat for c in self.clips if c.compat}
+        units = COLUMN_UNITS[compats.pop()] if len(compats) == 1 else None
+        return format_table(self.to_records(), columns, units)
+
+
