@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -41,8 +40,8 @@ pd.set_option("display.width", 160)
 # One small scene recipe for every notebook: 2 planar layers and 4 static spheres in front of a back
 # wall, 8 frames of 120x160 pixels, 2048 tracks per frame pair.
 SCENE = dict(n_layers=2, static_spheres=4, n_frames=8, height=120, width=160, n_tracks=2048)
-# Clips are scored 4 at a time: every call then has the same padded shape, and the JAX engine
-# compiles once (per session; with JAX_COMPILATION_CACHE_DIR set, once per machine).
+# Clips are read 4 at a time ahead of the scorer; they share one padded shape, so the JAX engine
+# compiles once (once per machine: compiled programs are kept on disk).
 CHUNK = 4"""
 
 
@@ -56,11 +55,10 @@ def _code(text: str) -> tuple[str, str]:
 
 ENGINE_NOTE = _md("""
     **Compilation.** The default `engine="jax"` pads clips to a shape bucket (frames, pixels,
-    tracks) and compiles one kernel per bucket and batch size: the first call below takes tens of
-    seconds on a laptop CPU, later calls of the same shape take about a second. Setting the
-    environment variable `JAX_COMPILATION_CACHE_DIR` keeps compiled kernels across sessions.
-    `engine="reference"` (NumPy + OpenCV) needs no compilation but is slower per clip, and
-    OpenCV's adaptive RANSAC now and then accepts a wrong pose on a small region.
+    tracks) and compiles its programs once per bucket: the first call of a new shape takes about a
+    minute on a laptop CPU, later calls take about a second per clip. Compiled programs are kept on
+    disk (`~/.cache/sgc_jax`, docs/semantics.md §7.1), so a later session loads them in seconds.
+    `engine="reference"` (NumPy + OpenCV) needs no compilation but is slower per clip.
 """)
 
 QUICKSTART = [
@@ -94,20 +92,22 @@ QUICKSTART = [
         ## Score them
 
         `score_batch` takes paths, directories, globs, mappings of arrays or `Clip` objects and
-        returns a `BatchResult`: one row per clip with the SGC, its five components (rotation
-        variances in deg², translation variances in depth / pose units², depth error in depth
-        units) and diagnostics.
+        returns a `BatchResult`: one row per clip with the SGC, its five components and
+        diagnostics. Units (docs/semantics.md §4): rotation variances in deg², translation variances
+        in (% of D)², D being the clip's median static depth, and the depth error in % of the depth;
+        scaling a clip's depth or camera translations changes none of them.
     """),
     ENGINE_NOTE,
     _code("""\
         result = sgc_jax.score_batch(clips, chunk_size=CHUNK)
         result.to_pandas()[["clip_id", "group", "status", "sgc", *sgc_jax.COMPONENTS, "n_pairs_scored"]]"""),
     _md("""
-        The rigid clip's pose variances vanish to float precision. Its SGC is not zero: the shipped
-        calibration (`sgc-paper-2026`) was fitted on real estimator outputs, where a depth error
-        of about 0.05 is typical, and the forward warp of a synthetic scene with occlusions leaves
-        errors at occlusion edges (see `04_diagnostics`). Unmasked moving objects and the squeeze
-        raise the local and global pose variances.
+        The rigid clip's pose variances vanish to float precision, and its SGC is 0: the default
+        calibration, `sgc-spec-2026`, puts 0 at the 90th percentile of clean synthetic clips
+        (docs/semantics.md §5.4), and the depth error the forward warp leaves at occlusion edges
+        (a few tenths of a percent, see `04_diagnostics`) is within it. Masked moving objects
+        barely move the score; unmasked ones and the squeeze raise the local and global pose
+        variances.
 
         `score_clip` scores one clip and returns a `ClipResult`; here with the reference engine,
         which agrees with the JAX engine on this clip:
@@ -211,10 +211,9 @@ SENSITIVITY = [
 
         The same machinery corrupts the moving-object masks: `erode` shrinks them
         (under-segmentation: moving pixels called static), `dilate` grows them
-        (over-segmentation). Under-segmentation lets object motion into the background poses.
-        Over-segmentation only removes background support; it can even lower the score, as the
-        pixels it removes around an object include the occlusion edges where the depth warp errs.
-        `rel_change` is the mean relative change of the SGC vs the clean clips.
+        (over-segmentation). Under-segmentation lets object motion into the background poses and
+        the score rises; over-segmentation only removes background support, and the score barely
+        moves. `rel_change` is the mean relative change of the SGC vs the clean clips.
     """),
     _code("""\
         movers = [synth_clip(seed=seed, clip_id=f"moving{seed}", moving_objects=2, **SCENE) for seed in range(4)]
@@ -341,7 +340,7 @@ DIAGNOSTICS = [
     """),
     _code(SETUP),
     _md("""
-        Four clips of one scene: rigid; with one static layer that drifts (0.2 depth units per
+        Four clips of one scene: rigid; with one static layer that drifts (0.2 scene units per
         frame, unmasked: a non-rigid background); and the rigid clip under two perturbations, a
         squeeze of the tracks and a spatial remap of the depth maps (`depth_warp`).
     """),
@@ -394,7 +393,7 @@ DIAGNOSTICS = [
     _code("fig = plot.plot_depth_warp_error(drift, PAIR)"),
     _code("""\
         warp = diagnostics.depth_warp_error(drift, PAIR)
-        print(f"mean {warp.mean:.4f} depth units over {warp.compared.sum()} pixels; "
+        print(f"mean {warp.mean:.4f} {warp.error_unit} over {warp.compared.sum()} pixels; "
               f"the pair's depth_error: {result.clip('layer-drift').pairs.depth_error[PAIR - 1]:.4f}")"""),
     _md("""
         The `depth_warp` perturbation remaps the depth maps differently in every frame, so the
@@ -453,9 +452,6 @@ def main(argv: list[str]) -> int:
     if unknown:
         print(f"unknown notebook(s) {unknown}; notebooks: {list(NOTEBOOKS)}", file=sys.stderr)
         return 2
-    # The notebooks share one batch shape; a persistent cache lets the later kernels reuse the
-    # first one's compilation.
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(tempfile.gettempdir()) / "sgc_jax-notebook-jax-cache"))
     os.environ.setdefault("SGC_JAX_COMPILE_MESSAGES", "off")  # the stored notebooks show results only
     for name in names:
         start = time.perf_counter()
