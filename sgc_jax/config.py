@@ -32,9 +32,9 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 # enter the program as traced scalars and HOST fields act before it (loading, padding), so
 # changing either reuses the program.
 STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "compat", "global_pose",
-                 "align_scale", "quality_rule", "borrow_region_poses")
+                 "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
-VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed",
+VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed", "quality_rule",
                 "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "min_region_extent",
                 "ambiguous_rot_deg", "ambiguous_inlier_frac")
 

@@ -90,11 +90,12 @@ def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPose
     fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
                              pair.rival_R, global_t=pair.global_t)
     status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
-    if config.applies_quality_rule:
+    if config.compat != "authors":  # the rule is never applied there; on or off is a value, one program for both
         diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
         focal = 0.5 * (pair.K_curr[0, 0] + pair.K_curr[1, 1])
-        status = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
+        judged = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
                                 quality_rule(config))
+        status = jnp.where(config.quality_rule != 0, judged, status)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
                       fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std,
                       n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels)

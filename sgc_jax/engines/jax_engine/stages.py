@@ -24,11 +24,10 @@ STAGES = ("pixel", "pose", "finish")
 
 # The static config fields each stage reads (ProgramConfig refuses the others), so a stage's
 # program is shared by configs that differ elsewhere. Properties of the config used in a stage
-# must derive from these (scale_free, fits_translation_scale, applies_quality_rule do).
+# must derive from these (scale_free and fits_translation_scale do).
 STAGE_FIELDS = {
     "pixel": ("k_seg", "kmeans_bins", "partition", "compat"),
-    "pose": ("k_seg", "ransac_hypotheses", "lm_steps", "compat", "global_pose", "align_scale", "quality_rule",
-             "borrow_region_poses"),
+    "pose": ("k_seg", "ransac_hypotheses", "lm_steps", "compat", "global_pose", "align_scale", "borrow_region_poses"),
     "finish": ("k_seg", "compat", "global_pose"),
 }
 
