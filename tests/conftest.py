@@ -21,16 +21,14 @@ if "SGC_JAX_COMPILATION_CACHE" not in os.environ:
     atexit.register(shutil.rmtree, _RUN_CACHE, ignore_errors=True)
     os.environ["SGC_JAX_COMPILATION_CACHE"] = _RUN_CACHE
 
+from scenes import SCENE  # noqa: E402
+
 from sgc_jax import enable_compilation_cache  # noqa: E402
 from sgc_jax.config import STATIC_FIELDS, SGCConfig  # noqa: E402
 from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 enable_compilation_cache()
 
-# Well-conditioned scenes: two planar layers (one slanted) plus four static spheres, so every
-# depth region is a curved 3D point set. Small planar patches are the ill-posed case where any
-# PnP-RANSAC (OpenCV's included) may return the planar-ambiguity twin pose (docs/semantics.md §3.3).
-SCENE = dict(n_layers=2, static_spheres=4, height=120, width=160, n_tracks=2048, n_frames=4)
 
 
 @pytest.fixture(scope="session")

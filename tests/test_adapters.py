@@ -23,6 +23,7 @@ from estimator_fixtures import (
     write_vda,
     write_vggt,
 )
+from scenes import SCENE
 
 from sgc_jax import score_batch
 from sgc_jax.adapters import (
@@ -42,7 +43,6 @@ from sgc_jax.research.synth import synth_clip
 
 # tests/conftest.py's SCENE (T, H, W, P), so the scoring test reuses the engine compiled for the
 # other tests. Portrait grids (VGGT's crop mode really crops) are checked array by array below.
-SCENE = dict(n_layers=2, static_spheres=4, height=120, width=160, n_tracks=2048, n_frames=4)
 # Float32 storage in the estimators' files moves K and depth by ~1e-7 relative; scores move by
 # ~1e-5 relative (measured 4e-6). 1% is the required agreement.
 SCORE_RTOL = 0.01

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
+from scenes import MICRO
 
 from sgc_jax import ClipFormatError, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
@@ -20,7 +21,7 @@ from sgc_jax.io.loading import discover_clips, validate_paths
 from sgc_jax.research.synth import synth_clip
 
 # Tiny scenes: loading takes milliseconds and the reference engine scores one in ~0.3 s.
-TINY = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)
+TINY = MICRO
 VICTIM = synth_clip(seed=0, clip_id="victim", **TINY)
 PARTNER = synth_clip(seed=1, clip_id="partner", **TINY)
 CONTROLS = [synth_clip(seed=10 + i, clip_id=f"ctrl{i}", **TINY) for i in range(2)]
@@ -563,7 +564,7 @@ def test_scoring_a_file_reads_the_headers_of_plot_arrays_not_their_data(tmp_path
     scored = entry.read_clip(for_scoring=True)
     assert scored.frames is None
     np.testing.assert_array_equal(scored.depth, framed.depth)
-    (result,) = score_batch([path], progress=False).clips
+    (result,) = score_batch([path], engine="reference", progress=False).clips
     assert result.status != "error" and np.isfinite(result.sgc)
 
 

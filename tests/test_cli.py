@@ -8,6 +8,7 @@ import sys
 import typing
 
 import pytest
+from scenes import TINY
 from test_bad_input import CONTROLS, write_controls, write_every_broken_kind
 
 from sgc_jax import Calibration, SGCConfig, save_clip, score_batch
@@ -33,8 +34,7 @@ def run(*args, cwd=None):
 def test_score_reports_broken_clip_and_scores_the_others(tmp_path):
     clips = tmp_path / "clips"
     for seed in (0, 1):
-        save_clip(clips / f"good{seed}.npz", synth_clip(seed=seed, clip_id=f"good{seed}", n_frames=3, height=64, width=80,
-                                                        n_tracks=256, n_layers=1, static_spheres=2))
+        save_clip(clips / f"good{seed}.npz", synth_clip(seed=seed, clip_id=f"good{seed}", **TINY))
     (clips / "broken.npz").write_bytes(b"not an npz file")
     out, pairs = tmp_path / "scores.csv", tmp_path / "pairs.csv"
     proc = run("score", clips, "--out", out, "--pairs", pairs, "--engine", "reference", "-q")
@@ -58,9 +58,10 @@ def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):
 def test_synth_and_demo(tmp_path):
     proc = run("synth", "--out", tmp_path / "demo")
     assert proc.returncode == 0 and len(list((tmp_path / "demo").glob("*.npz"))) == 8
-    demo = run("demo", "--engine", "reference", "-q")
+    demo = run("demo", "-q")  # the JAX engine: the demo bucket's programs come from the suite's cache
     assert demo.returncode == 0, demo.stderr
-    assert "rigid-a" in demo.stdout and "sgc" in demo.stdout
+    assert "rigid-a" in demo.stdout and "sgc" in demo.stdout and "(% of D)²" in demo.stdout  # a row of units
+    assert "for this run only (--out DIR keeps them)" in demo.stderr
 
 
 def test_version_names_the_package_version():

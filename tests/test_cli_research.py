@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import TINY
 
 import sgc_jax.engines.reference
 import sgc_jax.scoring.api
@@ -21,7 +22,6 @@ from sgc_jax.research.synth import synth_clip
 
 CLI = [sys.executable, "-m", "sgc_jax.cli"]
 GROUPS_CSV = Path(__file__).parent / "data" / "sgc-paper-2026-groups.csv"
-TINY = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
 
 
 def run(*args):

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import SCENE
+from scenes import SCENE, TINY
 
 import sgc_jax.engines.reference as reference
 from sgc_jax import score_batch
@@ -159,7 +159,7 @@ def test_reference_local_poses_are_opencv_ransac_with_the_authors_settings_under
         return real(*args, **kwargs)
 
     monkeypatch.setattr(reference.cv2, "solvePnPRansac", spy)
-    clip = synth_clip(seed=0, n_frames=2, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
+    clip = synth_clip(seed=0, **dict(TINY, n_frames=2))
     reference.score_pairs(clip, AUTHORS)
     assert calls and all(c["flags"] == reference.cv2.SOLVEPNP_ITERATIVE and c["iterationsCount"] == 100
                          and c["reprojectionError"] == 8.0 and c["confidence"] == 0.99 for c in calls)

@@ -6,9 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 import jax
+import pytest
 from scenes import SCENE
 
 from sgc_jax import save_clip

@@ -4,6 +4,8 @@ and a progress bar whose rate starts after the compile."""
 import io
 import time
 
+import pytest
+
 from sgc_jax.engines.jax_engine import compile_notice
 from sgc_jax.engines.jax_engine.compile_notice import CompileNotice
 from sgc_jax.scoring.progress import Progress
@@ -12,6 +14,11 @@ from sgc_jax.scoring.progress import Progress
 class Terminal(io.StringIO):
     def isatty(self) -> bool:
         return True
+
+
+@pytest.fixture(autouse=True)
+def messages_on(monkeypatch):
+    monkeypatch.delenv("SGC_JAX_COMPILE_MESSAGES", raising=False)
 
 
 def test_on_a_terminal_the_elapsed_seconds_count_up():

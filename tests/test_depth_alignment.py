@@ -20,6 +20,7 @@ from estimator_fixtures import (
     write_vda,
     write_vggt,
 )
+from scenes import DEMO_SCENE
 
 from sgc_jax import load_clip, score_clip
 from sgc_jax.adapters import (
@@ -36,7 +37,7 @@ from sgc_jax.research.synth import synth_clip
 
 # 8 frames, 96x128, 1024 tracks: the shape other tests (the demo corpus) already compile the JAX
 # engine for, so the scoring test costs no compile in CI.
-SCENE = dict(n_layers=2, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)
+SCENE = dict(DEMO_SCENE, n_layers=2)
 VGGT_UNITS = 0.37  # VGGT normalises its scene: its depth and translations are the true ones x a factor
 VDA_GAIN, VDA_SHIFT = 37.0, 2.0  # disparity = gain / depth + shift; the shift is ~40% of the far wall's
 TRUE_SCALE, TRUE_SHIFT = 1 / (VGGT_UNITS * VDA_GAIN), -VDA_SHIFT / (VGGT_UNITS * VDA_GAIN)  # 1/depth_vggt = a d + b

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from estimator_fixtures import vggt_intrinsics, write_all
+from scenes import IMPORT_SCENE
 
 from sgc_jax import load_clip, load_clips
 from sgc_jax.io.clip import clip_to_arrays, save_clip
@@ -16,7 +17,7 @@ from sgc_jax.research.synth import synth_clip
 
 _SCRIPT = Path(sys.executable).with_name("sgc-jax")
 CLI = [str(_SCRIPT)] if _SCRIPT.exists() else [shutil.which("sgc-jax") or "sgc-jax"]
-SMALL = dict(n_layers=2, static_spheres=2, height=96, width=128, n_tracks=512, n_frames=4)
+SMALL = IMPORT_SCENE
 
 
 def run(*args):

@@ -73,11 +73,11 @@ AUTHORS_UNITS = ("depth units", "pose units")
 
 
 def _text(cell) -> str:
-    """A cell's prose (markdown) or its text outputs (code)."""
+    """A cell's prose (markdown) or its text outputs (code; stdout and results, not stderr)."""
     if cell.cell_type == "markdown":
         return cell.source
     return "".join(o.get("text", "") if o["output_type"] == "stream" else o.get("data", {}).get("text/plain", "")
-                   for o in cell.get("outputs", []) if o["output_type"] != "error")
+                   for o in cell.get("outputs", []) if o["output_type"] != "error" and o.get("name") != "stderr")
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -13,6 +13,7 @@ import matplotlib.figure  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.collections import PathCollection  # noqa: E402
 from matplotlib.quiver import Quiver  # noqa: E402
+from scenes import SCENE  # noqa: E402
 
 import sgc_jax  # noqa: E402
 from sgc_jax import COMPONENTS  # noqa: E402
@@ -30,23 +31,22 @@ def clips(rigid_clip, drift_clip, moving_clip):
 
 @pytest.fixture(scope="module")
 def scored(clips):
-    return sgc_jax.score_batch(list(clips.values()), engine="reference")
+    return sgc_jax.score_batch(list(clips.values()))
 
 
 @pytest.fixture(scope="module")
 def study(rigid_clip):
-    return sgc_jax.sensitivity_study([rigid_clip], severities=(0, 0.5, 1), engine="reference")
+    return sgc_jax.sensitivity_study([rigid_clip], severities=(0, 0.5, 1))
 
 
 @pytest.fixture(scope="module")
 def corpus():
-    """Three groups of three tiny clips (reference engine), flaws growing by group."""
-    tiny = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
+    """Three groups of three clips, flaws growing by group."""
     drift = {"clean": 0.0, "mild": 0.05, "strong": 0.3}
     clips = [synth_clip(seed=10 * g + i, clip_id=f"{name}-{i}", group=name, layer_drift=d,
-                        rot_deg_per_frame=0.5 + i, **tiny)
+                        rot_deg_per_frame=0.5 + i, **{**SCENE, "n_frames": 3})
              for g, (name, d) in enumerate(drift.items()) for i in range(3)]
-    return sgc_jax.score_batch(clips, engine="reference")
+    return sgc_jax.score_batch(clips)
 
 
 @pytest.fixture(autouse=True)

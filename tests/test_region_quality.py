@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scenes import SPARSE_SCENE
 
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
@@ -136,15 +137,12 @@ def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
 
 # ----------------------------------------------------------------------------- scenes
 
-# Six small planar layers and 400 tracks per pair: the near layers carry 6-30 tracks each, over a
-# few percent of the image, with 1 px noise (bench/region_quality.py runs the full-size version).
-SPARSE_SCENE = dict(n_layers=6, static_spheres=0, n_tracks=400, height=192, width=320, n_frames=4,
-                    noise_px=1.0, with_frames=False)
+SPARSE = dict(SPARSE_SCENE, noise_px=1.0, with_frames=False)
 
 
 @pytest.fixture(scope="module")
 def sparse_clips():
-    return [synth_clip(seed=s, clip_id=f"sparse{s}", **SPARSE_SCENE) for s in range(2)]
+    return [synth_clip(seed=s, clip_id=f"sparse{s}", **SPARSE) for s in range(2)]
 
 
 @pytest.fixture(scope="module")

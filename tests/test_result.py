@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import TINY
 
 import sgc_jax.engines.reference
 import sgc_jax.scoring.api
@@ -26,8 +27,6 @@ from sgc_jax import (
 from sgc_jax.io.tables import read_scores, write_scores
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.result import camera_dynamics, rescore_records
-
-TINY = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2)
 
 
 def clip_result(clip_id, ecd_trans, ecd_rot, group="g", status="ok", components=None):

@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import SCENE
+from scenes import SCENE
 
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import SCENE
+from scenes import SCENE
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch, score_clip
 from sgc_jax.research.synth import synth_clip

@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scenes import DEMO_SCENE
 
 from sgc_jax import Calibration, CalibrationMismatchError, default_calibration, rescore_records, score_batch
 from sgc_jax.calibration import COMPONENTS, calibrate
@@ -13,7 +14,6 @@ from sgc_jax.research.spec_calibration import CLEAN_QUANTILE, corpus_description
 from sgc_jax.research.synth import synth_clip
 
 # The demo's clip size (96x128, 8 frames, 1024 tracks): its bucket is compiled by the CLI tests too.
-DEMO_SCENE = dict(n_layers=3, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)
 SEVERITIES = (0.25, 0.5, 0.75, 1.0)
 # A rigid static scene must not score above this merely because its depth is large.
 RIGID_BAR = 0.05

@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from scenes import SMALL_SCENE, TINY
 
 from sgc_jax import SGCConfig, save_clip
 from sgc_jax.engines import reference
@@ -19,10 +20,8 @@ from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT, perturb_cl
 from sgc_jax.research.study import DEFAULT_SEVERITIES, STUDY_COLUMNS, SUMMARY_COLUMNS, sensitivity_study
 from sgc_jax.research.synth import synth_clip
 
-# Four rigid base scenes like conftest.SCENE (two planar layers and four static spheres: curved
-# regions, so PnP is well posed), smaller so that the 4 + 4 x 3 x 4 = 52 clips of the study are
-# scored in one JAX call within the test budget.
-BASE_SCENE = dict(n_layers=2, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=4)
+# Four rigid base scenes, small so that the 4 + 4 x 3 x 4 = 52 clips of the study score within the budget.
+BASE_SCENE = SMALL_SCENE
 BASE_SEEDS = (10, 11, 12, 13)
 
 
@@ -36,7 +35,7 @@ def ladder():
 
 
 def tiny_clips(n=2, **changes):
-    scene = dict(n_frames=3, height=64, width=80, n_tracks=256, n_layers=1, static_spheres=2, **changes)
+    scene = dict(TINY, **changes)
     return [synth_clip(seed=s, clip_id=f"tiny{s}", **scene) for s in range(n)]
 
 

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
+from scenes import SYNTH_SCENE
 
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import clip_from_arrays, load_clip
@@ -15,7 +16,7 @@ from sgc_jax.research.synth import SceneSpec, demo_corpus, relative_poses, synth
 
 # float32 track storage rounds positions to ~1e-5 px at these image sizes; the SPEC check is 1e-3.
 REPROJ_TOL_PX = 1e-3
-SMALL = dict(n_frames=4, height=48, width=64, n_tracks=256)
+SMALL = SYNTH_SCENE
 
 ARRAYS = ("depth", "K", "R_wc", "t_wc", "static_mask", "track_prev", "track_curr", "track_vis",
           "track_conf", "frames")

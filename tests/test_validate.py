@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 from estimator_fixtures import vggt_intrinsics
+from scenes import IMPORT_SCENE
 
 from sgc_jax import ClipFormatError, clip_from_arrays, load_clip, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
@@ -14,7 +15,7 @@ from sgc_jax.io.loading import validate_paths
 from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.synth import synth_clip
 
-SMALL = dict(n_layers=2, static_spheres=2, height=96, width=128, n_tracks=512, n_frames=4, with_frames=False)
+SMALL = dict(IMPORT_SCENE, with_frames=False)
 
 
 @pytest.fixture(scope="module")
