@@ -267,11 +267,18 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     return subsample_tracks(clip, config)
 
 
+def evenly_spaced_ranks(n: int, limit: int) -> np.ndarray:
+    """The ranks floor(k (n - 1) / (limit - 1)), k < limit, of ``limit`` of ``n > limit`` items, in
+    integers (the device form, ``device_prepare``, computes the same in int32)."""
+    return (np.arange(limit, dtype=np.int64) * (n - 1)) // max(limit - 1, 1)
+
+
 def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
     """Keep at most ``config.max_tracks`` tracks per pair, deterministically.
 
     Per pair, usable tracks (docs/semantics.md §1.2) come first in their original order; when there are more
-    than ``max_tracks`` of them, evenly spaced ones are kept. Clips within the limit are unchanged.
+    than ``max_tracks`` of them, the evenly spaced ranks of ``evenly_spaced_ranks`` are kept. Clips
+    within the limit are unchanged.
     """
     P, limit = clip.n_tracks, config.max_tracks
     if P <= limit:
@@ -281,7 +288,7 @@ def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
     for pair, usable_row in enumerate(usable):
         kept = np.flatnonzero(usable_row)
         if kept.size > limit:
-            kept = kept[np.linspace(0, kept.size - 1, limit).astype(np.int64)]
+            kept = kept[evenly_spaced_ranks(kept.size, limit)]
         rest = np.flatnonzero(~usable_row)[: limit - kept.size]
         index[pair] = np.concatenate([kept, rest])
     take2 = lambda a: np.take_along_axis(a, index[..., None], axis=1)  # noqa: E731
