@@ -32,3 +32,10 @@ REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
 
 #: Clip status codes.
 CLIP_STATUSES = ("ok", "partial", "error")
+#: The Scorer's clip status (docs/semantics.md §9.3), an int code per clip: ``ok`` and ``partial``
+#: as in the tables; a clip with no pair scored says why when every pair shares the reason
+#: (``no_tracks``: no pair has 4 usable tracks; ``no_static``: no pair has static valid depth, e.g.
+#: an all-dynamic mask), else ``error``; ``static_camera``: scored, but the camera moves less than
+#: the reward's full-motion level (§9.4).
+SCORER_STATUSES = ("ok", "partial", "error", "no_tracks", "no_static", "static_camera")
+SCORER_STATUS_CODE = {name: i for i, name in enumerate(SCORER_STATUSES)}

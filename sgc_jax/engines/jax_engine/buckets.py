@@ -31,11 +31,16 @@ def _round_up(value: int, multiple: int) -> int:
 
 
 def bucket_for(clip: Clip) -> Bucket:
-    """The bucket a clip is padded to: T to the next of FRAME_BUCKETS, H and W to a multiple of
-    64, P to the next power of two (at least 64)."""
-    T = next((b for b in FRAME_BUCKETS if b >= clip.n_frames), _round_up(clip.n_frames, 64))
-    H, W = (_round_up(s, PIXEL_MULTIPLE) for s in clip.image_size)
-    P = max(MIN_TRACK_BUCKET, 1 << max(clip.n_tracks - 1, 0).bit_length())
+    """The bucket a clip is padded to (``bucket_for_shape``)."""
+    return bucket_for_shape(clip.n_frames, *clip.image_size, clip.n_tracks)
+
+
+def bucket_for_shape(T: int, H: int, W: int, P: int) -> Bucket:
+    """The bucket of clips of T frames, H x W pixels and P tracks per pair: T to the next of
+    FRAME_BUCKETS, H and W to a multiple of 64, P to the next power of two (at least 64)."""
+    T = next((b for b in FRAME_BUCKETS if b >= T), _round_up(T, 64))
+    H, W = (_round_up(s, PIXEL_MULTIPLE) for s in (H, W))
+    P = max(MIN_TRACK_BUCKET, 1 << max(P - 1, 0).bit_length())
     return Bucket(T, H, W, P)
 
 

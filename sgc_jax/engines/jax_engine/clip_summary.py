@@ -1,0 +1,63 @@
+"""Per-clip summaries on the device (docs/semantics.md §9.3): the finish stage's per-pair arrays
+-> the columns ``scoring.result.summarize_clip`` and ``camera_dynamics`` give, in float32."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from ...calibration import COMPONENTS, Calibration, sgc_score
+from ...codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
+
+
+def nanmean(values, mask):
+    """Mean over the last axis of the non-NaN values where ``mask`` (NaN when there are none)."""
+    keep = mask & ~jnp.isnan(values)
+    count = jnp.sum(keep, axis=-1)
+    total = jnp.sum(jnp.where(keep, values, 0.0), axis=-1)
+    return jnp.where(count > 0, total / jnp.maximum(count, 1), jnp.nan)
+
+
+def min_max(values):
+    """``stats.min_max`` over the batch: (v - min) / (max - min) of the non-NaN values."""
+    finite = ~jnp.isnan(values)
+    lo = jnp.min(jnp.where(finite, values, jnp.inf))
+    hi = jnp.max(jnp.where(finite, values, -jnp.inf))
+    scaled = jnp.where(hi > lo, (values - lo) / jnp.where(hi > lo, hi - lo, 1.0), 0.0)
+    return jnp.where(finite, scaled, jnp.nan)
+
+
+def camera_dynamics(ecd_trans, ecd_rot):
+    """ECD over the batch (``scoring.result.camera_dynamics``): the larger of the two min-max scaled inputs."""
+    trans, rot = min_max(ecd_trans), min_max(ecd_rot)
+    return jnp.where(jnp.isnan(trans), rot, jnp.where(jnp.isnan(rot), trans, jnp.maximum(trans, rot)))
+
+
+def clip_status(reason, pair_valid, sgc):
+    """(B,) SCORER_STATUS codes from the pairs' reasons (B, T-1): why no pair was scored when
+    every pair says the same (no usable tracks, no static depth; the tables call such a clip
+    partial when its depth error alone gives a score), else ok, partial or error as the tables."""
+    n_pairs = jnp.sum(pair_valid, axis=-1)
+    every = lambda code: jnp.all(jnp.where(pair_valid, reason == code, True), axis=-1) & (n_pairs > 0)  # noqa: E731
+    scored = jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1)
+    return jnp.select(
+        [every(PAIR_REASON_CODE["too_few_tracks"]), every(PAIR_REASON_CODE["no_static"]),
+         ~jnp.isnan(sgc) & (scored == n_pairs), ~jnp.isnan(sgc)],
+        [SCORER_STATUS_CODE[s] for s in ("no_tracks", "no_static", "ok", "partial")],
+        SCORER_STATUS_CODE["error"]).astype(jnp.int32)
+
+
+def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration) -> dict:
+    """The finish stage's output (leading axes B, T-1), the pairs each clip has (B, T-1) and its D
+    (B,) -> per-clip arrays (B,): the components, sgc, ecd_trans, ecd_rot, ecd, status and counts."""
+    mean = lambda name: nanmean(out[name], pair_valid)  # noqa: E731
+    components = {k: mean(k) for k in COMPONENTS}
+    sgc = sgc_score(components, calibration, xp=jnp)
+    ecd_trans, ecd_rot = mean("t_g_norm"), mean("R_g_angle_deg")
+    reason = out["reason"]
+    return dict(
+        sgc=sgc, **components, reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
+        ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
+        n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),
+        n_pairs_scored=jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1, dtype=jnp.int32),
+        n_ill_conditioned=jnp.sum(jnp.where(pair_valid, out["n_ill_conditioned"], 0), axis=-1, dtype=jnp.int32),
+        depth_unit=depth_unit)

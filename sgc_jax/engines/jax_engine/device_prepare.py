@@ -1,0 +1,157 @@
+"""The host's clip preparation written for the device (docs/semantics.md §9.2): absurd depth made
+invalid, depth in units of D, usable tracks, the ``max_tracks`` selection and padding to the
+bucket, with the numbers of ``units.in_depth_units``, ``loading.subsample_tracks`` and
+``buckets.pad_clip``. Traceable: no host round-trip, so a user's ``jax.jit`` can hold it."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ...config import SGCConfig
+from ...io.clip import DEPTH_RATIO_LIMIT, TRACK_REACH
+from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
+from .buckets import Bucket, PaddedClips
+
+
+class ClipArrays(NamedTuple):
+    """B clips as the caller gives them, one shape for all (T, H, W, P); the true sizes say how
+    much of it each clip fills (the rest is padding)."""
+
+    depth: jax.Array  # (B, T, H, W) float32, input depth units
+    K: jax.Array  # (B, T, 3, 3)
+    R_wc: jax.Array  # (B, T, 3, 3)
+    t_wc: jax.Array  # (B, T, 3)
+    static_mask: jax.Array  # (B, T, H, W) bool
+    track_prev: jax.Array  # (B, T-1, P, 2) px
+    track_curr: jax.Array  # (B, T-1, P, 2) px
+    track_vis: jax.Array  # (B, T-1, P) bool
+    track_conf: jax.Array  # (B, T-1, P) float32
+    n_frames: jax.Array  # (B,) int32
+    n_tracks: jax.Array  # (B,) int32
+    heights: jax.Array  # (B,) int32
+    widths: jax.Array  # (B,) int32
+
+
+def masked_median(values, mask):
+    """The median of values[mask] as a double-float (hi, lo): the middle value, or the two middle
+    values averaged exactly (as ``stats.exact_median`` does in float64); (1, 0) when mask is empty."""
+    ordered = jnp.sort(jnp.where(mask, values, jnp.inf).ravel())
+    n = jnp.sum(mask, dtype=jnp.int32)
+    upper = ordered[jnp.maximum(n // 2, 0)]
+    lower = ordered[jnp.maximum((n - 1) // 2, 0)]
+    total, error = two_sum(lower, upper)  # lower + upper exactly; halving is exact
+    hi, lo = jnp.where(n % 2 == 1, upper, 0.5 * total), jnp.where(n % 2 == 1, 0.0, 0.5 * error)
+    return jnp.where(n > 0, hi, 1.0), jnp.where(n > 0, lo, 0.0)
+
+
+def greater_than(x, df):
+    """x > hi + lo exactly, for float32 x and a double-float with |lo| below half an ulp of hi."""
+    return (x > df[0]) | ((x == df[0]) & (df[1] < 0))
+
+
+def divide_rounded(x, divisor):
+    """float32(x / (hi + lo)) correctly rounded (what float64 division then rounding to float32
+    gives), for a double-float divisor > 0: of the floats within 2 ulps of x / hi, the one whose
+    product with the divisor lies nearest x."""
+    q = x / divisor[0]
+    steps = [jnp.nextafter(q, -jnp.inf), q, jnp.nextafter(q, jnp.inf)]
+    candidates = [jnp.nextafter(steps[0], -jnp.inf), *steps, jnp.nextafter(steps[2], jnp.inf)]
+    misses = [jnp.abs(df_sub((x, jnp.zeros_like(x)), df_mul((c, jnp.zeros_like(c)), divisor))[0]) for c in candidates]
+    best = jnp.argmin(jnp.stack(misses), axis=0)
+    rounded = jnp.take_along_axis(jnp.stack(candidates), best[None], axis=0)[0]
+    return jnp.where(jnp.isfinite(q), rounded, q)
+
+
+def without_absurd_depth(depth, positive):
+    """``positive`` less the absurd depth (beyond DEPTH_RATIO_LIMIT of the median of the positive
+    values; docs/semantics.md §1.2), compared as float64 would."""
+    median = masked_median(depth, positive)
+    too_far = greater_than(depth, df_mul(median, (jnp.float32(DEPTH_RATIO_LIMIT), jnp.float32(0.0))))
+    low = df_div(median, jnp.float32(DEPTH_RATIO_LIMIT))
+    too_near = (depth < low[0]) | ((depth == low[0]) & (low[1] > 0))
+    return positive & ~too_far & ~too_near
+
+
+def evenly_spaced_ranks(n, limit: int):
+    """floor(k (n - 1) / (limit - 1)) for k < limit in int32 (``loading.evenly_spaced_ranks``):
+    n - 1 = q (limit - 1) + r, so no product exceeds limit^2."""
+    k = jnp.arange(limit, dtype=jnp.int32)
+    span = max(limit - 1, 1)
+    q, r = (n - 1) // span, (n - 1) % span
+    return k * q + (k * r) // span
+
+
+def select_tracks(usable, limit: int):
+    """(P,) usable -> (limit,) indices of the kept tracks (``loading.subsample_tracks``): usable
+    ones first in their order, evenly spaced when more than ``limit``; then unusable ones."""
+    order = jnp.argsort(~usable, stable=True)
+    n = jnp.sum(usable, dtype=jnp.int32)
+    spaced = order[evenly_spaced_ranks(n, limit)]
+    return jnp.where(n > limit, spaced, order[:limit])
+
+
+def within_reach(track, height, width):
+    """``io.clip.within_reach``: finite and at most TRACK_REACH image sizes outside the image."""
+    x, y = track[..., 0], track[..., 1]
+    w, h = width.astype(track.dtype), height.astype(track.dtype)
+    return (x >= -TRACK_REACH * w) & (x <= (1 + TRACK_REACH) * w) & (y >= -TRACK_REACH * h) & (y <= (1 + TRACK_REACH) * h)
+
+
+def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
+    """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them."""
+    T, H, W = clip.depth.shape
+    P = clip.track_prev.shape[1]
+    frame = jnp.arange(T) < clip.n_frames
+    inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
+    positive = inside & jnp.isfinite(clip.depth) & (clip.depth > 0)
+    valid = without_absurd_depth(clip.depth, positive)
+    static = clip.static_mask if config.use_mos else jnp.ones_like(clip.static_mask)
+    depth = clip.depth
+    if config.scale_free:  # D: the median static valid depth, of all valid depth when none is static
+        chosen = valid & static
+        unit = masked_median(depth, jnp.where(jnp.any(chosen), chosen, valid))
+        depth = jnp.where(valid, divide_rounded(jnp.where(valid, depth, 1.0), unit), 0.0)
+        depth_unit = unit[0] + unit[1]  # float32(D): hi, as lo is below half its ulp
+    else:
+        depth_unit = jnp.float32(1.0)
+    depth = jnp.where(valid & jnp.isfinite(depth) & (depth > 0), depth, 0.0)
+
+    last = jnp.maximum(clip.n_frames - 1, 0)
+    K = jnp.where(frame[:, None, None], clip.K, clip.K[last])
+    R_wc = jnp.where(frame[:, None, None], clip.R_wc, jnp.eye(3, dtype=clip.R_wc.dtype))
+    t_wc = jnp.where(frame[:, None], clip.t_wc, 0.0)
+
+    pair = jnp.arange(T - 1) < clip.n_frames - 1
+    usable = (clip.track_vis & (jnp.nan_to_num(clip.track_conf, nan=0.0) >= config.min_track_conf)
+              & within_reach(clip.track_prev, clip.heights, clip.widths)
+              & within_reach(clip.track_curr, clip.heights, clip.widths)
+              & pair[:, None] & (jnp.arange(P) < clip.n_tracks))
+    track_prev, track_curr = clip.track_prev, clip.track_curr
+    if P > config.max_tracks:
+        index = jax.vmap(lambda row: select_tracks(row, config.max_tracks))(usable)
+        keep = jnp.where(clip.n_tracks > config.max_tracks, index, jnp.arange(config.max_tracks))
+        usable = jnp.take_along_axis(usable, keep, axis=1)
+        track_prev = jnp.take_along_axis(track_prev, keep[..., None], axis=1)
+        track_curr = jnp.take_along_axis(track_curr, keep[..., None], axis=1)
+    track_prev = jnp.where(usable[..., None], track_prev, 0.0)
+    track_curr = jnp.where(usable[..., None], track_curr, 0.0)
+
+    grow = lambda a, sizes: jnp.pad(a, [(0, s - n) for s, n in zip(sizes, a.shape)])  # noqa: E731
+    Tb, Hb, Wb, Pb = bucket.T, bucket.H, bucket.W, bucket.P
+    pad_frames = jnp.arange(Tb) >= T
+    return PaddedClips(
+        depth=grow(depth, (Tb, Hb, Wb)), static=grow(static & inside, (Tb, Hb, Wb)),
+        K=jnp.where(pad_frames[:, None, None], K[last], grow(K, (Tb, 3, 3))),
+        R_wc=jnp.where(pad_frames[:, None, None], jnp.eye(3, dtype=R_wc.dtype), grow(R_wc, (Tb, 3, 3))),
+        t_wc=grow(t_wc, (Tb, 3)), track_prev=grow(track_prev, (Tb - 1, Pb, 2)),
+        track_curr=grow(track_curr, (Tb - 1, Pb, 2)), usable=grow(usable, (Tb - 1, Pb)),
+        pair_valid=jnp.arange(Tb - 1) < clip.n_frames - 1,
+        image_hw=jnp.stack([clip.heights, clip.widths]).astype(jnp.int32), depth_unit=depth_unit)
+
+
+def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
+    """B clips -> the padded batch (leading axis B) the stages take."""
+    return jax.vmap(lambda clip: prepare_one(clip, bucket, config))(clips)

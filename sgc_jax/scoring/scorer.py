@@ -1,0 +1,189 @@
+"""``Scorer``: SGC of a batch of clips already in memory or on a device, as one set of compiled
+programs for a fixed shape, with no host round-trip (docs/semantics.md §9). For training and
+sampling loops; ``score_batch`` stays the way to score files."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..calibration import Calibration, default_calibration
+from ..config import SGCConfig
+from ..engines.jax_engine.buckets import bucket_for_shape
+from ..engines.jax_engine.clip_summary import summarize_on_device
+from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
+from ..engines.jax_engine.compile_notice import CompileNotice
+from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
+from ..engines.jax_engine.programs import compile_stage
+from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
+from ..io.clip import Clip, ClipFormatError
+from ..io.npz import shape_text
+from .reward import RewardOptions, reward
+
+#: name -> (its shape in terms of B, T, H, W, P; its kind: float, mask or count)
+BATCH_ARRAYS = {
+    "depth": (("B", "T", "H", "W"), "float"), "K": (("B", "T", 3, 3), "float"),
+    "R_wc": (("B", "T", 3, 3), "float"), "t_wc": (("B", "T", 3), "float"),
+    "static_mask": (("B", "T", "H", "W"), "mask"), "track_prev": (("B", "T-1", "P", 2), "float"),
+    "track_curr": (("B", "T-1", "P", 2), "float"), "track_vis": (("B", "T-1", "P"), "mask"),
+    "track_conf": (("B", "T-1", "P"), "float"), "n_frames": (("B",), "count"), "n_tracks": (("B",), "count"),
+    "heights": (("B",), "count"), "widths": (("B",), "count"),
+}
+OPTIONAL = {"track_conf": 1.0, "n_frames": "T", "n_tracks": "P", "heights": "H", "widths": "W"}
+# max_tracks beyond this would overflow the int32 arithmetic of the track selection
+MAX_SELECTED_TRACKS = 46340
+
+
+def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
+    """Clips stacked into a Scorer's batch (NumPy), each padded with zeros to ``shape`` = (T, H, W,
+    P) (default: the largest of each size) and its true sizes given."""
+    T, H, W, P = shape or tuple(max(sizes) for sizes in zip(*[(c.n_frames, *c.image_size, c.n_tracks) for c in clips]))
+    fields = {"depth": (T, H, W), "K": (T, 3, 3), "R_wc": (T, 3, 3), "t_wc": (T, 3), "static_mask": (T, H, W),
+              "track_prev": (T - 1, P, 2), "track_curr": (T - 1, P, 2), "track_vis": (T - 1, P),
+              "track_conf": (T - 1, P)}
+    batch = {}
+    for name, full in fields.items():
+        stacked = np.zeros((len(clips), *full), getattr(clips[0], name).dtype)
+        for b, clip in enumerate(clips):
+            value = getattr(clip, name)
+            stacked[(b, *(slice(0, n) for n in value.shape))] = value
+        batch[name] = stacked
+    batch.update(n_frames=np.array([c.n_frames for c in clips], np.int32),
+                 n_tracks=np.array([c.n_tracks for c in clips], np.int32),
+                 heights=np.array([c.image_size[0] for c in clips], np.int32),
+                 widths=np.array([c.image_size[1] for c in clips], np.int32))
+    return batch
+
+
+def _dtype_kind(array) -> str:
+    dtype = np.dtype(array.dtype)
+    return "bool" if dtype == bool else dtype.kind  # f float, i/u integer
+
+
+class Scorer:
+    """SGC of batches of B clips of one shape: ``Scorer((B, T, H, W, P))(batch)`` -> a dict of
+    ``jax.Array`` (B,) (docs/semantics.md §9). ``batch`` holds the clip arrays of §1.2 stacked on
+    a leading B axis (NumPy or ``jax.Array``); a clip smaller than the shape gives its true sizes
+    in ``n_frames``, ``n_tracks``, ``heights``, ``widths`` and pads the rest with anything.
+    Compiled when constructed; callable inside ``jax.jit``."""
+
+    def __init__(self, shape: tuple[int, int, int, int, int], config: SGCConfig | None = None,
+                 calibration: Calibration | str | None = None, reward_options: RewardOptions | None = None):
+        if len(shape) != 5 or not all(isinstance(s, (int, np.integer)) and s >= 1 for s in shape) or shape[1] < 2:
+            raise ValueError(f"shape must be (B, T, H, W, P) of positive ints with T >= 2, got {shape!r}")
+        self.shape = B, T, H, W, P = tuple(int(s) for s in shape)
+        self.config = config = config or SGCConfig()
+        if P > config.max_tracks > MAX_SELECTED_TRACKS:
+            raise ValueError(f"max_tracks={config.max_tracks}: the Scorer selects at most {MAX_SELECTED_TRACKS}")
+        self.calibration = Calibration.load(calibration or default_calibration(config.compat))
+        self.calibration.check_compat(config.compat, "the Scorer's components")
+        self.reward_options = reward_options or RewardOptions()
+        self.bucket = bucket_for_shape(T, H, W, min(P, config.max_tracks))
+        self._key = jax.random.PRNGKey(config.seed)
+        self._values = program_values(config)
+        self._traced = self._traceable_programs()
+        enable_compilation_cache()
+        self._compiled = self._compile()
+
+    def __repr__(self) -> str:
+        return f"Scorer(shape={self.shape}, compat={self.config.compat!r}, calibration={self.calibration.name!r})"
+
+    # ------------------------------------------------------------------ programs
+
+    def _traceable_programs(self) -> dict:
+        """Each step as a jitted function: prepare, the three stages, summarize."""
+        from ..engines.jax_engine.trace import stage_program  # the kernels: imported to trace only
+
+        bucket, config = self.bucket, self.config
+        programs = {"prepare": jax.jit(lambda clips: prepare_on_device(clips, bucket, config))}
+        for stage in STAGES:
+            static = stage_key(config, stage, bucket).static
+            programs[stage] = jax.jit(lambda inputs, key, values, stage=stage, static=static:
+                                      stage_program(inputs, key, values, stage, static))
+        programs["summarize"] = jax.jit(self._summarize)
+        return programs
+
+    def _summarize(self, out: dict, pair_valid, depth_unit) -> dict:
+        summary = summarize_on_device(out, pair_valid, depth_unit, self.calibration)
+        return {**summary, **reward(summary, self.calibration, self.reward_options)}
+
+    def _compile(self) -> dict:
+        """Each step compiled for the Scorer's shape, the stages with their CPU options (as ``score_batch``'s)."""
+        spec = lambda tree: jax.tree.map(lambda a: jax.ShapeDtypeStruct(jnp.shape(a), a.dtype), tree)  # noqa: E731
+        platform = jax.default_backend()
+        B, T, H, W, P = self.shape
+        what = f"{B} clips of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
+        compiled = {}
+        with CompileNotice(what, "prepare, " + ", ".join(STAGES) + ", summarize", loading=False, hint=cache_hint()):
+            lowered = self._traced["prepare"].lower(self._example())
+            compiled["prepare"], padded, out = lowered.compile(), lowered.out_info, None
+            for stage in STAGES:
+                lowered = self._traced[stage].lower(stage_inputs(stage, padded, out), spec(self._key),
+                                                    spec(self._values))
+                compiled[stage], out = compile_stage(lowered, stage, platform), lowered.out_info
+            lowered = self._traced["summarize"].lower(out, padded.pair_valid, padded.depth_unit)
+            compiled["summarize"] = lowered.compile()
+        return compiled
+
+    def _example(self) -> ClipArrays:
+        B, T, H, W, P = self.shape
+        f32, i32 = jnp.float32, jnp.int32
+        shapes = dict(depth=((B, T, H, W), f32), K=((B, T, 3, 3), f32), R_wc=((B, T, 3, 3), f32),
+                      t_wc=((B, T, 3), f32), static_mask=((B, T, H, W), bool), track_prev=((B, T - 1, P, 2), f32),
+                      track_curr=((B, T - 1, P, 2), f32), track_vis=((B, T - 1, P), bool),
+                      track_conf=((B, T - 1, P), f32), n_frames=((B,), i32), n_tracks=((B,), i32),
+                      heights=((B,), i32), widths=((B,), i32))
+        return ClipArrays(**{name: jax.ShapeDtypeStruct(*shapes[name]) for name in ClipArrays._fields})
+
+    # ------------------------------------------------------------------ calls
+
+    def clip_arrays(self, batch: Mapping[str, Any]) -> ClipArrays:
+        """``batch`` checked against the Scorer's shape (``ClipFormatError`` naming the array) and
+        cast to the dtypes the programs take; works on tracers."""
+        if not isinstance(batch, Mapping):
+            raise TypeError(f"a Scorer takes a dict of clip arrays, got {type(batch).__name__}")
+        B, T, H, W, P = self.shape
+        sizes = {"B": B, "T": T, "T-1": T - 1, "H": H, "W": W, "P": P}
+        unknown = sorted(set(batch) - set(BATCH_ARRAYS))
+        if unknown:
+            raise ClipFormatError("<batch>", unknown[0], f"one of {sorted(BATCH_ARRAYS)}", "an unknown name")
+        arrays = {}
+        for name, (dims, kind) in BATCH_ARRAYS.items():
+            expected = tuple(sizes.get(d, d) for d in dims)
+            if name not in batch:
+                if name not in OPTIONAL:
+                    raise ClipFormatError("<batch>", name, f"shape {shape_text(expected)}", "no such array")
+                default = OPTIONAL[name]
+                arrays[name] = jnp.full(expected, sizes[default] if isinstance(default, str) else default,
+                                        jnp.int32 if kind == "count" else jnp.float32)
+                continue
+            value = batch[name]
+            if not hasattr(value, "shape") or not hasattr(value, "dtype"):
+                value = np.asarray(value)
+            if tuple(value.shape) != expected:
+                raise ClipFormatError("<batch>", name, f"shape {shape_text(expected)} for the Scorer's "
+                                      f"(B, T, H, W, P) = {self.shape}", f"shape {shape_text(value.shape)}")
+            found = _dtype_kind(value)
+            allowed = {"float": "f", "mask": "bfiu", "count": "iu"}[kind]
+            if found == "bool" and "b" not in allowed or found != "bool" and found not in allowed:
+                raise ClipFormatError("<batch>", name, {"float": "a float dtype", "mask": "bool or numbers",
+                                                        "count": "an integer dtype"}[kind], f"dtype {value.dtype}")
+            if kind == "mask":
+                arrays[name] = value if found == "bool" else jnp.asarray(value) != 0
+            else:
+                arrays[name] = jnp.asarray(value, jnp.float32 if kind == "float" else jnp.int32)
+        return ClipArrays(**arrays)
+
+    def __call__(self, batch: Mapping[str, Any]) -> dict[str, jax.Array]:
+        """The per-clip outputs (B,) of docs/semantics.md §9.3, as device arrays (not waited for)."""
+        clips = self.clip_arrays(batch)
+        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in clips)
+        programs = self._traced if traced else self._compiled
+        padded = programs["prepare"](clips)
+        out = None
+        for stage in STAGES:
+            out = programs[stage](stage_inputs(stage, padded, out), self._key, self._values)
+        return programs["summarize"](out, padded.pair_valid, padded.depth_unit)

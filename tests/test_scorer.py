@@ -1,0 +1,182 @@
+"""The Scorer (docs/semantics.md §9): score_batch's numbers for clips in memory, the same whatever
+batch a clip sits in, inside a user's jit too; a status for every degenerate clip, and a reward
+that ranks the clips the calibration scores 0 and pays nothing for a still camera."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scenes import DEMO_SCENE
+
+from sgc_jax import COMPONENTS, ClipFormatError, Scorer, SGCConfig, score_batch
+from sgc_jax.codes import SCORER_STATUS_CODE
+from sgc_jax.engines.jax_engine import device_prepare
+from sgc_jax.io.clip import without_absurd_depth
+from sgc_jax.io.loading import subsample_tracks
+from sgc_jax.research.synth import demo_corpus, synth_clip
+from sgc_jax.scoring.result import camera_dynamics
+from sgc_jax.scoring.scorer import batch_of
+from sgc_jax.stats import exact_median
+
+# The Scorer's per-pair arrays are score_batch's, bit for bit; its per-clip means over at most T-1
+# pairs and the score formula run in float32 where the tables use float64: a few float32 roundings
+# (2^-24 ~ 6e-8 each) of values of order 1-100.
+CLIP_RTOL, CLIP_ATOL = 1e-5, 1e-6
+# Inside a user's jit the steps fuse into one program that rounds differently, and a local optimum
+# settles once a step lowers its cost by less than LM_RTOL = 1e-6 of it (kernels/joint_pnp.py):
+# two roundings of one fit may stop sqrt(1e-6) = 1e-3 apart, relative, in the pose.
+FUSED_RTOL, FUSED_ATOL = 2e-3, 1e-5
+PER_CLIP = ("sgc", *COMPONENTS, "reproj_error", "ecd_trans", "ecd_rot", "sgc_unclipped", "camera_motion", "reward",
+            "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
+SHAPE = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
+
+
+@pytest.fixture(scope="module")
+def corpus():
+    return demo_corpus()
+
+
+@pytest.fixture(scope="module")
+def scorer():
+    return Scorer(SHAPE)
+
+
+@pytest.fixture(scope="module")
+def single():
+    return Scorer((1, *SHAPE[1:]))
+
+
+@pytest.fixture(scope="module")
+def expected(corpus):
+    return score_batch(corpus, progress=False)
+
+
+def outputs(scorer, clips, **sizes) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in scorer(batch_of(clips, **sizes)).items()}
+
+
+def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, expected):
+    for start in range(0, len(corpus), SHAPE[0]):
+        out = outputs(scorer, corpus[start:start + SHAPE[0]])
+        rows = expected.clips[start:start + SHAPE[0]]
+        for name in ("sgc", *COMPONENTS, "reproj_error", "ecd_trans", "ecd_rot"):
+            want = [r.sgc if name == "sgc" else r.components[name] if name in COMPONENTS else getattr(r, name)
+                    for r in rows]
+            np.testing.assert_allclose(out[name], want, rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
+        np.testing.assert_allclose(out["ecd"], camera_dynamics([r.ecd_trans for r in rows], [r.ecd_rot for r in rows]),
+                                   rtol=CLIP_RTOL, atol=CLIP_ATOL)
+        np.testing.assert_array_equal(out["n_pairs_scored"], [r.n_pairs_scored for r in rows])
+        np.testing.assert_array_equal(out["n_ill_conditioned"], [r.n_ill_conditioned for r in rows])
+        np.testing.assert_allclose(out["depth_unit"], [r.depth_unit for r in rows], rtol=1e-7)
+        assert [s in (SCORER_STATUS_CODE[r.status], SCORER_STATUS_CODE["static_camera"])
+                for s, r in zip(out["status"], rows)] == [True] * len(rows)
+
+
+def test_a_clips_outputs_do_not_depend_on_its_place_or_neighbours_in_the_batch(scorer, corpus):
+    a, b, c, d = corpus[0], corpus[3], corpus[5], corpus[7]
+    forward, backward, alone = outputs(scorer, [a, b, c, d]), outputs(scorer, [d, c, b, a]), outputs(scorer, [a] * 4)
+    for name in PER_CLIP:
+        np.testing.assert_array_equal(forward[name], backward[name][::-1], err_msg=name)
+        np.testing.assert_array_equal(alone[name], np.repeat(forward[name][0], 4), err_msg=name)
+
+
+def test_a_clips_outputs_do_not_depend_on_the_batch_size(scorer, single, corpus):
+    batch, one = outputs(scorer, corpus[4:8]), outputs(single, corpus[5:6])
+    for name in PER_CLIP:
+        np.testing.assert_array_equal(one[name], batch[name][1:2], err_msg=name)
+
+
+def test_the_scorer_runs_inside_a_users_jit(single, corpus):
+    batch = batch_of(corpus[6:7])
+    inside = jax.jit(lambda b: single(b))(batch)
+    outside = single(batch)
+    for name in PER_CLIP:
+        np.testing.assert_allclose(np.asarray(inside[name]), np.asarray(outside[name]), rtol=FUSED_RTOL,
+                                   atol=FUSED_ATOL, err_msg=name)
+
+
+def test_a_smaller_clip_padded_into_the_batch_scores_as_itself(scorer, corpus):
+    """7 of 8 frames and 1000 of 1024 tracks: the same shape bucket, so score_batch's numbers."""
+    short = dataclasses.replace(corpus[1], depth=corpus[1].depth[:7], K=corpus[1].K[:7], R_wc=corpus[1].R_wc[:7],
+                                t_wc=corpus[1].t_wc[:7], static_mask=corpus[1].static_mask[:7],
+                                track_prev=corpus[1].track_prev[:6, :1000], track_curr=corpus[1].track_curr[:6, :1000],
+                                track_vis=corpus[1].track_vis[:6, :1000], track_conf=corpus[1].track_conf[:6, :1000],
+                                frames=None)
+    want = score_batch([short], progress=False).clips[0]
+    out = outputs(scorer, [short, *corpus[:3]])
+    assert out["n_pairs"][0] == 6
+    np.testing.assert_allclose(out["sgc"][0], want.sgc, rtol=CLIP_RTOL, atol=CLIP_ATOL)
+    for name in COMPONENTS:
+        np.testing.assert_allclose(out[name][0], want.components[name], rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
+
+
+def test_degenerate_clips_get_a_status_and_never_the_best_reward(scorer, corpus):
+    rigid = corpus[0]
+    no_tracks = dataclasses.replace(rigid, track_vis=np.zeros_like(rigid.track_vis))
+    all_dynamic = dataclasses.replace(rigid, static_mask=np.zeros_like(rigid.static_mask))
+    still = synth_clip(seed=3, **{**DEMO_SCENE, "rot_deg_per_frame": 0.0, "trans_per_frame": 0.0})
+    out = outputs(scorer, [rigid, no_tracks, all_dynamic, still])
+    assert list(out["status"]) == [SCORER_STATUS_CODE[s] for s in ("ok", "no_tracks", "no_static", "static_camera")]
+    assert out["reward"][0] > 0 and out["reward"][0] == out["reward"].max()
+    assert out["reward"][1] == out["reward"][2] == 0.0
+    assert out["camera_motion"][3] < 0.05 and out["reward"][3] < 0.05 * out["reward"][0]
+    assert not np.isnan(out["reward"]).any()
+
+
+def test_the_reward_ranks_clips_the_calibration_scores_zero(scorer, corpus):
+    by_id = {c.clip_id: c for c in corpus}
+    out = outputs(scorer, [by_id[name] for name in ("rigid-a", "rigid-b", "drift-0.05", "drift-0.20")])
+    assert out["sgc"][0] == out["sgc"][1] == 0.0  # a tie in the score ...
+    assert out["sgc_unclipped"][0] != out["sgc_unclipped"][1] and out["reward"][0] != out["reward"][1]  # ... not here
+    assert out["reward"][3] < out["reward"][2] < min(out["reward"][:2])
+    order = np.argsort(out["sgc_unclipped"])
+    assert np.all(np.diff(out["reward"][order]) < 0)  # higher reward, lower unclipped score
+
+
+def test_a_wrong_shape_or_dtype_raises_clip_format_error_at_the_call(scorer, corpus):
+    batch = batch_of(corpus[:4])
+    with pytest.raises(ClipFormatError, match="'depth'.*shape \\(4, 8, 96, 128\\)"):
+        scorer({**batch, "depth": batch["depth"][:, :, :90]})
+    with pytest.raises(ClipFormatError, match="'track_prev'.*float"):
+        scorer({**batch, "track_prev": batch["track_prev"].astype(np.int32)})
+    with pytest.raises(ClipFormatError, match="'K'.*no such array"):
+        scorer({k: v for k, v in batch.items() if k != "K"})
+
+
+# ----------------------------------------------------------------------------- the host's preparation on the device
+
+
+def test_device_depth_units_divide_as_float64_then_float32():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.1, 50, 20000).astype(np.float32)
+    a, b = np.float32(3.7), np.float32(3.7000003)  # their mean is no float32
+    unit = (np.float64(a) + np.float64(b)) / 2
+    want = (x.astype(np.float64) / unit).astype(np.float32)
+    total, error = device_prepare.two_sum(jnp.float32(a), jnp.float32(b))
+    got = jax.jit(device_prepare.divide_rounded)(jnp.asarray(x), (0.5 * total, 0.5 * error))
+    np.testing.assert_array_equal(np.asarray(got), want)
+
+
+def test_device_median_and_absurd_depth_match_the_hosts():
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(1, 10, (3, 8, 10)).astype(np.float32)
+    depth[0, 0, :3] = [1e9, 1e-8, np.nan]
+    depth[1, 2, 4] = -1.0
+    positive = np.isfinite(depth) & (depth > 0)
+    hi, lo = jax.jit(device_prepare.masked_median)(jnp.asarray(depth), jnp.asarray(positive))
+    assert np.float64(hi) + np.float64(lo) == exact_median(depth[positive].copy())
+    valid = jax.jit(device_prepare.without_absurd_depth)(jnp.asarray(depth), jnp.asarray(positive))
+    host = without_absurd_depth(depth)
+    np.testing.assert_array_equal(np.asarray(valid), np.isfinite(host) & (host > 0))
+
+
+def test_device_track_selection_matches_the_hosts(corpus):
+    clip = corpus[2]  # 10 % low-confidence tracks: unusable ones in between
+    config = SGCConfig(max_tracks=300)
+    host = subsample_tracks(clip, config)
+    usable = clip.usable_tracks(config.min_track_conf)
+    index = jax.jit(jax.vmap(lambda row: device_prepare.select_tracks(row, 300)))(jnp.asarray(usable))
+    np.testing.assert_array_equal(np.take_along_axis(clip.track_prev, np.asarray(index)[..., None], axis=1),
+                                  host.track_prev)
