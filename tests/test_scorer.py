@@ -15,6 +15,7 @@ from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
+from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
 from sgc_jax.scoring.scorer import batch_of
@@ -53,8 +54,8 @@ def expected(corpus):
     return score_batch(corpus, progress=False)
 
 
-def outputs(scorer, clips, **sizes) -> dict[str, np.ndarray]:
-    return {k: np.asarray(v) for k, v in scorer(batch_of(clips, **sizes)).items()}
+def outputs(scorer, clips, shape=None) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in scorer(batch_of(clips, shape)).items()}
 
 
 def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, expected):
@@ -72,6 +73,27 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
         np.testing.assert_allclose(out["depth_unit"], [r.depth_unit for r in rows], rtol=1e-7)
         assert [s in (SCORER_STATUS_CODE[r.status], SCORER_STATUS_CODE["static_camera"])
                 for s, r in zip(out["status"], rows)] == [True] * len(rows)
+
+
+def test_scorer_gives_score_batchs_numbers_on_the_agreement_corpus():
+    """Its two sizes in one Scorer of the larger: the smaller clips pad to another bucket than
+    score_batch's, whose sums round differently (the fused tolerance: the optimum's settling)."""
+    clips = agreement_corpus()
+    want = score_batch(clips, progress=False).clips
+    shape = (4, 120, 160, 2048)
+    agreement_scorer = Scorer((8, *shape))
+    out = {}
+    for start in range(0, len(clips), 8):
+        part = clips[start:start + 8]
+        for name, values in outputs(agreement_scorer, part + part[-1:] * (8 - len(part)), shape=shape).items():
+            out.setdefault(name, []).extend(values[:len(part)])
+    for i, (clip, row) in enumerate(zip(clips, want)):
+        rtol, atol = (CLIP_RTOL, CLIP_ATOL) if clip.n_tracks == shape[3] else (FUSED_RTOL, FUSED_ATOL)
+        np.testing.assert_allclose(out["sgc"][i], row.sgc, rtol=rtol, atol=atol, err_msg=clip.clip_id)
+        for name in COMPONENTS:
+            np.testing.assert_allclose(out[name][i], row.components[name], rtol=rtol, atol=atol,
+                                       err_msg=f"{clip.clip_id} {name}")
+        assert out["n_pairs_scored"][i] == row.n_pairs_scored
 
 
 def test_a_clips_outputs_do_not_depend_on_its_place_or_neighbours_in_the_batch(scorer, corpus):
