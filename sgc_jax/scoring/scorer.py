@@ -4,6 +4,7 @@ sampling loops; ``score_batch`` stays the way to score files."""
 
 from __future__ import annotations
 
+import concurrent.futures
 from typing import Any, Mapping, Sequence
 
 import jax
@@ -13,7 +14,7 @@ import numpy as np
 from ..calibration import Calibration, default_calibration
 from ..config import SGCConfig
 from ..engines.jax_engine.buckets import bucket_for_shape
-from ..engines.jax_engine.clip_summary import summarize_on_device
+from ..engines.jax_engine.clip_summary import camera_dynamics, summarize_on_device
 from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
@@ -21,6 +22,7 @@ from ..engines.jax_engine.programs import compile_stage
 from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
+from .devices import default_lanes
 from .reward import RewardOptions, reward
 
 #: name -> (its shape in terms of B, T, H, W, P; its kind: float, mask or count)
@@ -58,6 +60,9 @@ def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = No
     return batch
 
 
+batch_camera_dynamics = jax.jit(camera_dynamics)
+
+
 def _dtype_kind(array) -> str:
     dtype = np.dtype(array.dtype)
     return "bool" if dtype == bool else dtype.kind  # f float, i/u integer
@@ -84,9 +89,15 @@ class Scorer:
         self.bucket = bucket_for_shape(T, H, W, min(P, config.max_tracks))
         self._key = jax.random.PRNGKey(config.seed)
         self._values = program_values(config)
+        # on CPU, the batch in lanes: sub-batches run at once in threads, as score_batch's clips
+        # do (one program keeps ~1.5 of 2 cores busy; docs/semantics.md §9.3)
+        cpu = jax.default_backend() == "cpu"
+        self.lanes = min(B, default_lanes(jax.local_devices())) if cpu else 1
+        self.lane_size = -(-B // self.lanes)
         self._traced = self._traceable_programs()
         enable_compilation_cache()
         self._compiled = self._compile()
+        self._pool = concurrent.futures.ThreadPoolExecutor(self.lanes, "sgc-scorer") if self.lanes > 1 else None
 
     def __repr__(self) -> str:
         return f"Scorer(shape={self.shape}, compat={self.config.compat!r}, calibration={self.calibration.name!r})"
@@ -115,7 +126,8 @@ class Scorer:
         spec = lambda tree: jax.tree.map(lambda a: jax.ShapeDtypeStruct(jnp.shape(a), a.dtype), tree)  # noqa: E731
         platform = jax.default_backend()
         B, T, H, W, P = self.shape
-        what = f"{B} clips of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
+        lanes = f" in {self.lanes} lanes of {self.lane_size}" if self.lanes > 1 else ""
+        what = f"{B} clips{lanes} of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
         compiled = {}
         with CompileNotice(what, "prepare, " + ", ".join(STAGES) + ", summarize", loading=False, hint=cache_hint()):
             lowered = self._traced["prepare"].lower(self._example())
@@ -129,7 +141,8 @@ class Scorer:
         return compiled
 
     def _example(self) -> ClipArrays:
-        B, T, H, W, P = self.shape
+        _, T, H, W, P = self.shape
+        B = self.lane_size
         f32, i32 = jnp.float32, jnp.int32
         shapes = dict(depth=((B, T, H, W), f32), K=((B, T, 3, 3), f32), R_wc=((B, T, 3, 3), f32),
                       t_wc=((B, T, 3), f32), static_mask=((B, T, H, W), bool), track_prev=((B, T - 1, P, 2), f32),
@@ -178,10 +191,24 @@ class Scorer:
         return ClipArrays(**arrays)
 
     def __call__(self, batch: Mapping[str, Any]) -> dict[str, jax.Array]:
-        """The per-clip outputs (B,) of docs/semantics.md §9.3, as device arrays (not waited for)."""
+        """The per-clip outputs (B,) of docs/semantics.md §9.3, as device arrays (not waited for;
+        on CPU lanes, once the lanes are done)."""
         clips = self.clip_arrays(batch)
-        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in clips)
-        programs = self._traced if traced else self._compiled
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in clips):  # inside a user's jit: one program
+            return self._run(self._traced, clips)
+        if self._pool is None:
+            return self._run(self._compiled, clips)
+        B = self.shape[0]
+        parts = []
+        for start in range(0, B, self.lane_size):  # the last lane filled with copies of its last clip
+            index = np.minimum(np.arange(start, start + self.lane_size), B - 1)
+            parts.append(jax.tree.map(lambda a, index=index: a[index], clips))
+        # each lane waits for its programs, so that the lanes' work overlaps
+        lanes = list(self._pool.map(lambda part: jax.block_until_ready(self._run(self._compiled, part)), parts))
+        out = {name: jnp.concatenate([lane[name] for lane in lanes])[:B] for name in lanes[0]}
+        return {**out, "ecd": batch_camera_dynamics(out["ecd_trans"], out["ecd_rot"])}
+
+    def _run(self, programs: dict, clips: ClipArrays) -> dict:
         padded = programs["prepare"](clips)
         out = None
         for stage in STAGES:

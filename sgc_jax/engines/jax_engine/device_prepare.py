@@ -35,13 +35,36 @@ class ClipArrays(NamedTuple):
     widths: jax.Array  # (B,) int32
 
 
+class RankSearch(NamedTuple):
+    """Bisection bounds on the float32 bit patterns of the wanted order statistics."""
+
+    lo: jax.Array  # (2,) int32
+    hi: jax.Array  # (2,) int32
+
+
+def order_statistics(values, mask, ranks):
+    """The ranks (2,)-th smallest (0-based) of the positive finite values[mask]: bisection on their
+    bit patterns, which order as the values do; 31 counting passes, where XLA CPU's sort of a
+    clip's pixels costs ~10x more."""
+    bits = jax.lax.bitcast_convert_type(jnp.where(mask, values, jnp.inf), jnp.int32).ravel()
+    inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
+
+    def halve(_, search: RankSearch) -> RankSearch:
+        mid = search.lo + (search.hi - search.lo) // 2
+        enough = jnp.sum(bits[None, :] <= mid[:, None], axis=1) > ranks
+        return RankSearch(jnp.where(enough, search.lo, mid + 1), jnp.where(enough, mid, search.hi))
+
+    start = RankSearch(jnp.zeros(2, jnp.int32), jnp.full(2, inf_bits, jnp.int32))
+    found = jax.lax.fori_loop(0, 31, halve, start)
+    return jax.lax.bitcast_convert_type(found.lo, jnp.float32)
+
+
 def masked_median(values, mask):
-    """The median of values[mask] as a double-float (hi, lo): the middle value, or the two middle
-    values averaged exactly (as ``stats.exact_median`` does in float64); (1, 0) when mask is empty."""
-    ordered = jnp.sort(jnp.where(mask, values, jnp.inf).ravel())
+    """The median of the positive finite values[mask] as a double-float (hi, lo): the middle value,
+    or the two middle values averaged exactly (as ``stats.exact_median`` does in float64); (1, 0)
+    when mask is empty."""
     n = jnp.sum(mask, dtype=jnp.int32)
-    upper = ordered[jnp.maximum(n // 2, 0)]
-    lower = ordered[jnp.maximum((n - 1) // 2, 0)]
+    lower, upper = order_statistics(values, mask, jnp.stack([jnp.maximum((n - 1) // 2, 0), n // 2]))
     total, error = two_sum(lower, upper)  # lower + upper exactly; halving is exact
     hi, lo = jnp.where(n % 2 == 1, upper, 0.5 * total), jnp.where(n % 2 == 1, 0.0, 0.5 * error)
     return jnp.where(n > 0, hi, 1.0), jnp.where(n > 0, lo, 0.0)
