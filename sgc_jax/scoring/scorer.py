@@ -34,6 +34,7 @@ BATCH_ARRAYS = {
     "track_conf": (("B", "T-1", "P"), "float"), "n_frames": (("B",), "count"), "n_tracks": (("B",), "count"),
     "heights": (("B",), "count"), "widths": (("B",), "count"),
 }
+PROGRAM_DTYPES = {"float": jnp.float32, "mask": jnp.bool_, "count": jnp.int32}
 OPTIONAL = {"track_conf": 1.0, "n_frames": "T", "n_tracks": "P", "heights": "H", "widths": "W"}
 # max_tracks beyond this would overflow the int32 arithmetic of the track selection
 MAX_SELECTED_TRACKS = 46340
@@ -141,15 +142,14 @@ class Scorer:
         return compiled
 
     def _example(self) -> ClipArrays:
+        """A lane's ClipArrays as shapes and the dtypes ``clip_arrays`` casts to."""
+        sizes = self._sizes(self.lane_size)
+        return ClipArrays(**{name: jax.ShapeDtypeStruct(tuple(sizes.get(d, d) for d in dims), PROGRAM_DTYPES[kind])
+                             for name, (dims, kind) in BATCH_ARRAYS.items()})
+
+    def _sizes(self, B: int) -> dict[str, int]:
         _, T, H, W, P = self.shape
-        B = self.lane_size
-        f32, i32 = jnp.float32, jnp.int32
-        shapes = dict(depth=((B, T, H, W), f32), K=((B, T, 3, 3), f32), R_wc=((B, T, 3, 3), f32),
-                      t_wc=((B, T, 3), f32), static_mask=((B, T, H, W), bool), track_prev=((B, T - 1, P, 2), f32),
-                      track_curr=((B, T - 1, P, 2), f32), track_vis=((B, T - 1, P), bool),
-                      track_conf=((B, T - 1, P), f32), n_frames=((B,), i32), n_tracks=((B,), i32),
-                      heights=((B,), i32), widths=((B,), i32))
-        return ClipArrays(**{name: jax.ShapeDtypeStruct(*shapes[name]) for name in ClipArrays._fields})
+        return {"B": B, "T": T, "T-1": T - 1, "H": H, "W": W, "P": P}
 
     # ------------------------------------------------------------------ calls
 
@@ -158,8 +158,7 @@ class Scorer:
         cast to the dtypes the programs take; works on tracers."""
         if not isinstance(batch, Mapping):
             raise TypeError(f"a Scorer takes a dict of clip arrays, got {type(batch).__name__}")
-        B, T, H, W, P = self.shape
-        sizes = {"B": B, "T": T, "T-1": T - 1, "H": H, "W": W, "P": P}
+        sizes = self._sizes(self.shape[0])
         unknown = sorted(set(batch) - set(BATCH_ARRAYS))
         if unknown:
             raise ClipFormatError("<batch>", unknown[0], f"one of {sorted(BATCH_ARRAYS)}", "an unknown name")
@@ -171,7 +170,7 @@ class Scorer:
                     raise ClipFormatError("<batch>", name, f"shape {shape_text(expected)}", "no such array")
                 default = OPTIONAL[name]
                 arrays[name] = jnp.full(expected, sizes[default] if isinstance(default, str) else default,
-                                        jnp.int32 if kind == "count" else jnp.float32)
+                                        PROGRAM_DTYPES[kind])
                 continue
             value = batch[name]
             if not hasattr(value, "shape") or not hasattr(value, "dtype"):
@@ -187,7 +186,7 @@ class Scorer:
             if kind == "mask":
                 arrays[name] = value if found == "bool" else jnp.asarray(value) != 0
             else:
-                arrays[name] = jnp.asarray(value, jnp.float32 if kind == "float" else jnp.int32)
+                arrays[name] = jnp.asarray(value, PROGRAM_DTYPES[kind])
         return ClipArrays(**arrays)
 
     def __call__(self, batch: Mapping[str, Any]) -> dict[str, jax.Array]:

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from ...config import SGCConfig
-from ...io.clip import DEPTH_RATIO_LIMIT, TRACK_REACH
+from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
 from .buckets import Bucket, PaddedClips
 
@@ -114,13 +114,6 @@ def select_tracks(usable, limit: int):
     n = jnp.sum(usable, dtype=jnp.int32)
     spaced = order[evenly_spaced_ranks(n, limit)]
     return jnp.where(n > limit, spaced, order[:limit])
-
-
-def within_reach(track, height, width):
-    """``io.clip.within_reach``: finite and at most TRACK_REACH image sizes outside the image."""
-    x, y = track[..., 0], track[..., 1]
-    w, h = width.astype(track.dtype), height.astype(track.dtype)
-    return (x >= -TRACK_REACH * w) & (x <= (1 + TRACK_REACH) * w) & (y >= -TRACK_REACH * h) & (y <= (1 + TRACK_REACH) * h)
 
 
 def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
