@@ -149,6 +149,16 @@ QUICKSTART = [
         result.to_csv(out / "scores.csv", pairs_path=out / "pairs.csv")
         rows = sgc_jax.read_scores(out / "scores.csv")
         [(r["clip_id"], round(r["sgc"], 4)) for r in rows]"""),
+    _md("""
+        ## In a training or sampling loop
+
+        Clips already in memory or on a device, scored in batches with no file and no host
+        round-trip: `sgc_jax.Scorer((B, T, H, W, P))` compiles once for that shape, and
+        `scorer(batch)` takes the clip arrays stacked on a leading B axis (NumPy or `jax.Array`;
+        `sgc_jax.scoring.scorer.batch_of(clips)` stacks `Clip`s) and returns `sgc`, the components,
+        a status and a `reward` per clip as device arrays, also inside a `jax.jit`
+        (docs/semantics.md §9).
+    """),
 ]
 
 SENSITIVITY = [
