@@ -110,9 +110,10 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
     for n_pairs in (1, 4, 5, 6, 7, 15, 16):
         x = jnp.arange(n_pairs * 3, dtype=jnp.float32).reshape(n_pairs, 3)
         n = jnp.arange(n_pairs) % 4
-        grouped, _ = pose_stage.pair_groups(steps, (x, n), n_pairs)
-        assert grouped.shape == (n_pairs, 3)
-        np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
+        for vectorized in (False, True):
+            grouped, _ = pose_stage.pair_groups(steps, (x, n), n_pairs, vectorized)
+            assert grouped.shape == (n_pairs, 3)
+            np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
 
 
 def test_padded_host_arrays_are_aligned_for_device_put_to_keep_them():

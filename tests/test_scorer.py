@@ -3,6 +3,11 @@ batch a clip sits in, inside a user's jit too; a status for every degenerate cli
 that ranks the clips the calibration scores 0 and pays nothing for a still camera."""
 
 import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -132,6 +137,49 @@ def test_a_smaller_clip_padded_into_the_batch_scores_as_itself(scorer, corpus):
     np.testing.assert_allclose(out["sgc"][0], want.sgc, rtol=CLIP_RTOL, atol=CLIP_ATOL)
     for name in COMPONENTS:
         np.testing.assert_allclose(out[name][0], want.components[name], rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
+
+
+# The accelerator form (docs/semantics.md §9.3) on two forced host devices, in a process of its own:
+# the Scorer's batch of 3 filled to 4 and split over both, and score_batch's group path on the same
+# clips, both vectorized (which shares their stage programs).
+ACCELERATOR_FORM = """
+import json, sys
+sys.path.insert(0, {tests!r})
+import jax
+from scenes import DEMO_SCENE
+from sgc_jax import Scorer, SGCConfig
+from sgc_jax.engines.jax_engine import dispatch
+from sgc_jax.research.synth import demo_corpus
+from sgc_jax.scoring.result import summarize_clip
+from sgc_jax.scoring.scorer import batch_of
+from sgc_jax.calibration import Calibration, default_calibration
+clips, config, devices = demo_corpus()[{first}:{first} + 3], SGCConfig(), jax.local_devices()
+scorer = Scorer((3, *{shape!r}), devices=devices, vectorized=True)
+out = scorer(batch_of(clips))
+group = dispatch.dispatch_group([dispatch.prepare_clip(c, config) for c in clips], config, devices, 4, vectorized=True)
+calibration = Calibration.load(default_calibration(config.compat))
+rows = [summarize_clip(c.clip_id, pairs, calibration) for c, pairs in zip(clips, dispatch.collect(group, config))]
+print(json.dumps(dict(devices=len(devices), scorer={{k: out[k].tolist() for k in ("sgc", "local_rot_var", "status")}},
+                      grouped=[r.sgc for r in rows])))
+"""
+
+
+def test_vectorized_programs_over_two_devices_give_the_numbers_of_one(expected):
+    first = 4
+    code = ACCELERATOR_FORM.format(tests=str(Path(__file__).parent), first=first, shape=SHAPE[1:])
+    env = {**os.environ, "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    assert done.returncode == 0, done.stderr
+    assert "2 clips at once on each of 2 devices" in done.stderr
+    got = json.loads(done.stdout.strip().splitlines()[-1])
+    rows = expected.clips[first:first + 3]
+    assert got["devices"] == 2
+    np.testing.assert_allclose(got["scorer"]["sgc"], [r.sgc for r in rows], rtol=FUSED_RTOL, atol=FUSED_ATOL)
+    np.testing.assert_allclose(got["scorer"]["local_rot_var"], [r.components["local_rot_var"] for r in rows],
+                               rtol=FUSED_RTOL, atol=FUSED_ATOL)
+    assert [s in (SCORER_STATUS_CODE[r.status], SCORER_STATUS_CODE["static_camera"])
+            for s, r in zip(got["scorer"]["status"], rows)] == [True] * 3
+    np.testing.assert_allclose(got["grouped"], [r.sgc for r in rows], rtol=FUSED_RTOL, atol=FUSED_ATOL)
 
 
 def test_degenerate_clips_get_a_status_and_never_the_best_reward(scorer, corpus):

@@ -13,6 +13,9 @@ CPU_LANES = 2
 # On an accelerator: one clip computes while another lane fetches the last clip's results and
 # sends the next clip's arrays.
 ACCELERATOR_LANES = 2
+# Clips per program call on each accelerator: one vectorized program poses all their pairs at
+# once (docs/semantics.md §9.3); not yet tuned on a GPU.
+ACCELERATOR_CLIPS_PER_DEVICE = 16
 
 
 def host_cores() -> int:
@@ -26,6 +29,13 @@ def default_lanes(devices: list) -> int:
     if devices and devices[0].platform == "cpu":
         return max(1, min(host_cores() // len(devices), CPU_LANES))
     return ACCELERATOR_LANES
+
+
+def clips_per_call(devices: list) -> int:
+    """Clips scored by one program call over ``devices``: one per device on CPU (each clip's loops
+    stop at its own end), ACCELERATOR_CLIPS_PER_DEVICE per device on accelerators."""
+    per_device = 1 if devices and devices[0].platform == "cpu" else ACCELERATOR_CLIPS_PER_DEVICE
+    return per_device * len(devices)
 
 
 def scoring_devices(limit: int | None = None) -> list:

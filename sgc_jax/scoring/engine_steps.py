@@ -7,7 +7,7 @@ from typing import Any, Callable, NamedTuple
 from ..config import SGCConfig
 from ..engines.pairs import PairArrays
 from ..io.clip import Clip
-from .devices import default_lanes, scoring_devices
+from .devices import clips_per_call, default_lanes, scoring_devices
 
 ENGINES = ("jax", "reference")
 
@@ -38,8 +38,8 @@ def prepare_step(engine: str, config: SGCConfig) -> Callable[[Clip], Any]:
 
 
 def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes: int | None = None) -> Engine:
-    """The steps of ``"jax"`` (clips one per device over the first ``devices`` local devices, all
-    when None) or ``"reference"`` (which computes in ``collect``, one clip at a time unless
+    """The steps of ``"jax"`` (over the first ``devices`` local devices, all when None: on CPU one
+    clip per program call on each, on accelerators groups of one bucket in one call) or ``"reference"`` (which computes in ``collect``, one clip at a time unless
     ``lanes`` says otherwise)."""
     if name == "jax":
         from ..engines.jax_engine import dispatch
@@ -47,11 +47,12 @@ def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes
         spread = scoring_devices(devices)
         lanes = lanes or default_lanes(spread)
         collect = lambda dispatched: dispatch.collect(dispatched, config)  # noqa: E731
-        if len(spread) == 1:
+        size = clips_per_call(spread)
+        if size == 1:
             return Engine(prepare_step(name, config), lambda group: dispatch.dispatch(group[0], config), collect,
                           lanes=lanes)
-        return Engine(prepare_step(name, config), lambda group: dispatch.dispatch_group(group, config, spread),
-                      collect, len(spread), lambda prepared: prepared.bucket, lanes)
+        return Engine(prepare_step(name, config), lambda group: dispatch.dispatch_group(group, config, spread, size),
+                      collect, size, lambda prepared: prepared.bucket, lanes)
     if name == "reference":
         from ..engines import reference
 

@@ -13,12 +13,12 @@ import numpy as np
 
 from ..calibration import Calibration, default_calibration
 from ..config import SGCConfig
-from ..engines.jax_engine.buckets import bucket_for_shape
+from ..engines.jax_engine.buckets import PaddedClips, bucket_for_shape
 from ..engines.jax_engine.clip_summary import camera_dynamics, summarize_on_device
 from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
-from ..engines.jax_engine.programs import compile_stage
+from ..engines.jax_engine.programs import sharded_program, spread_stage
 from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
@@ -77,7 +77,8 @@ class Scorer:
     Compiled when constructed; callable inside ``jax.jit``."""
 
     def __init__(self, shape: tuple[int, int, int, int, int], config: SGCConfig | None = None,
-                 calibration: Calibration | str | None = None, reward_options: RewardOptions | None = None):
+                 calibration: Calibration | str | None = None, reward_options: RewardOptions | None = None,
+                 *, devices: Sequence[jax.Device] | None = None, vectorized: bool | None = None):
         if len(shape) != 5 or not all(isinstance(s, (int, np.integer)) and s >= 1 for s in shape) or shape[1] < 2:
             raise ValueError(f"shape must be (B, T, H, W, P) of positive ints with T >= 2, got {shape!r}")
         self.shape = B, T, H, W, P = tuple(int(s) for s in shape)
@@ -90,11 +91,18 @@ class Scorer:
         self.bucket = bucket_for_shape(T, H, W, min(P, config.max_tracks))
         self._key = jax.random.PRNGKey(config.seed)
         self._values = program_values(config)
-        # on CPU, the batch in lanes: sub-batches run at once in threads, as score_batch's clips
-        # do (one program keeps ~1.5 of 2 cores busy; docs/semantics.md §9.3)
+        # where the batch runs (docs/semantics.md §9.3): an accelerator's clips in one vectorized
+        # program sharded over the local devices; on CPU one clip after another, the batch split
+        # into lanes that run at once in threads (one program keeps ~1.5 of 2 cores busy)
         cpu = jax.default_backend() == "cpu"
-        self.lanes = min(B, default_lanes(jax.local_devices())) if cpu else 1
-        self.lane_size = -(-B // self.lanes)
+        self.devices = list(devices) if devices else jax.local_devices()[:1 if cpu else None]
+        self.vectorized = self.devices[0].platform != "cpu" if vectorized is None else bool(vectorized)
+        one_cpu = self.devices[0].platform == "cpu" and len(self.devices) == 1
+        self.lanes = min(B, default_lanes(self.devices)) if one_cpu else 1
+        # the clips of one program call: a lane's share, or B filled up to a multiple of the devices
+        n = len(self.devices)
+        self.call_size = -(-B // self.lanes) if self.lanes > 1 else -(-B // n) * n
+        self._mesh = jax.sharding.Mesh(np.array(self.devices), ("clips",))
         self._traced = self._traceable_programs()
         enable_compilation_cache()
         self._compiled = self._compile()
@@ -106,46 +114,54 @@ class Scorer:
     # ------------------------------------------------------------------ programs
 
     def _traceable_programs(self) -> dict:
-        """Each step as a jitted function: prepare, the three stages, summarize."""
-        from ..engines.jax_engine.trace import stage_program  # the kernels: imported to trace only
-
-        bucket, config = self.bucket, self.config
-        programs = {"prepare": jax.jit(lambda clips: prepare_on_device(clips, bucket, config))}
+        """Each step as a jitted function: prepare, the three stages (each device runs them on its
+        share of the clips, as ``score_batch``'s groups do), summarize."""
+        bucket, config, mesh = self.bucket, self.config, self._mesh
+        steps = {"prepare": lambda clips: prepare_on_device(clips, bucket, config), "summarize": self._summarize}
+        if len(self.devices) == 1:
+            steps = {name: jax.jit(step) for name, step in steps.items()}
+        else:
+            clips = jax.sharding.PartitionSpec("clips")
+            in_specs = {"prepare": (clips,), "summarize": (clips, clips, clips)}
+            steps = {name: jax.jit(jax.shard_map(step, mesh=mesh, in_specs=in_specs[name], out_specs=clips,
+                                                 check_vma=False))
+                     for name, step in steps.items()}
         for stage in STAGES:
-            static = stage_key(config, stage, bucket).static
-            programs[stage] = jax.jit(lambda inputs, key, values, stage=stage, static=static:
-                                      stage_program(inputs, key, values, stage, static))
-        programs["summarize"] = jax.jit(self._summarize)
-        return programs
+            steps[stage] = spread_stage(stage_key(config, stage, bucket, self.vectorized), mesh)
+        return steps
 
     def _summarize(self, out: dict, pair_valid, depth_unit) -> dict:
         summary = summarize_on_device(out, pair_valid, depth_unit, self.calibration)
         return {**summary, **reward(summary, self.calibration, self.reward_options)}
 
     def _compile(self) -> dict:
-        """Each step compiled for the Scorer's shape, the stages with their CPU options (as ``score_batch``'s)."""
-        spec = lambda tree: jax.tree.map(lambda a: jax.ShapeDtypeStruct(jnp.shape(a), a.dtype), tree)  # noqa: E731
-        platform = jax.default_backend()
+        """Each step compiled for one call's clips; the stages are ``score_batch``'s programs for
+        groups of this size (shared with it in this process)."""
         B, T, H, W, P = self.shape
-        lanes = f" in {self.lanes} lanes of {self.lane_size}" if self.lanes > 1 else ""
-        what = f"{B} clips{lanes} of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
-        compiled = {}
-        with CompileNotice(what, "prepare, " + ", ".join(STAGES) + ", summarize", loading=False, hint=cache_hint()):
-            lowered = self._traced["prepare"].lower(self._example())
-            compiled["prepare"], padded, out = lowered.compile(), lowered.out_info, None
-            for stage in STAGES:
-                lowered = self._traced[stage].lower(stage_inputs(stage, padded, out), spec(self._key),
-                                                    spec(self._values))
-                compiled[stage], out = compile_stage(lowered, stage, platform), lowered.out_info
-            lowered = self._traced["summarize"].lower(out, padded.pair_valid, padded.depth_unit)
-            compiled["summarize"] = lowered.compile()
-        return compiled
+        n = len(self.devices)
+        spread = f" in {self.lanes} lanes of {self.call_size}" if self.lanes > 1 else \
+            f" over {n} devices" if n > 1 else ""
+        what = f"{B} clips{spread} of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
+        with CompileNotice(what, "prepare", loading=False, hint=cache_hint()):
+            prepare = self._traced["prepare"].lower(self._example()).compile()
+        padded = PaddedClips(*prepare.out_info)
+        program, _ = sharded_program(self.config, self.bucket, self.devices, padded, self.vectorized)
+        out = program.stages[-1].out_info
+        summarize = self._traced["summarize"].lower(out, padded.pair_valid, padded.depth_unit).compile()  # small
+        return {"prepare": prepare, **dict(zip(STAGES, program.stages)), "summarize": summarize}
 
     def _example(self) -> ClipArrays:
-        """A lane's ClipArrays as shapes and the dtypes ``clip_arrays`` casts to."""
-        sizes = self._sizes(self.lane_size)
-        return ClipArrays(**{name: jax.ShapeDtypeStruct(tuple(sizes.get(d, d) for d in dims), PROGRAM_DTYPES[kind])
+        """One call's ClipArrays as shapes, the dtypes ``clip_arrays`` casts to and the sharding
+        the call puts them in."""
+        sizes = self._sizes(self.call_size)
+        return ClipArrays(**{name: jax.ShapeDtypeStruct(tuple(sizes.get(d, d) for d in dims), PROGRAM_DTYPES[kind],
+                                                        sharding=self._sharding())
                              for name, (dims, kind) in BATCH_ARRAYS.items()})
+
+    def _sharding(self):
+        if len(self.devices) == 1:
+            return jax.sharding.SingleDeviceSharding(self.devices[0])
+        return jax.sharding.NamedSharding(self._mesh, jax.sharding.PartitionSpec("clips"))
 
     def _sizes(self, B: int) -> dict[str, int]:
         _, T, H, W, P = self.shape
@@ -193,18 +209,29 @@ class Scorer:
         """The per-clip outputs (B,) of docs/semantics.md §9.3, as device arrays (not waited for;
         on CPU lanes, once the lanes are done)."""
         clips = self.clip_arrays(batch)
+        B, n = self.shape[0], len(self.devices)
         if any(isinstance(leaf, jax.core.Tracer) for leaf in clips):  # inside a user's jit: one program
-            return self._run(self._traced, clips)
+            return self._whole(self._run(self._traced, self._rows(clips, 0, -(-B // n) * n)))
+        parts = [jax.device_put(self._rows(clips, start, self.call_size), self._sharding())
+                 for start in range(0, B, self.call_size)]
         if self._pool is None:
-            return self._run(self._compiled, clips)
-        B = self.shape[0]
-        parts = []
-        for start in range(0, B, self.lane_size):  # the last lane filled with copies of its last clip
-            index = np.minimum(np.arange(start, start + self.lane_size), B - 1)
-            parts.append(jax.tree.map(lambda a, index=index: a[index], clips))
+            return self._whole(self._run(self._compiled, parts[0]))
         # each lane waits for its programs, so that the lanes' work overlaps
         lanes = list(self._pool.map(lambda part: jax.block_until_ready(self._run(self._compiled, part)), parts))
-        out = {name: jnp.concatenate([lane[name] for lane in lanes])[:B] for name in lanes[0]}
+        return self._whole({name: jnp.concatenate([lane[name] for lane in lanes]) for name in lanes[0]})
+
+    def _rows(self, clips: ClipArrays, start: int, size: int) -> ClipArrays:
+        """Clips start .. start + size - 1 of the batch, those past its end copies of its last clip."""
+        B = self.shape[0]
+        if start == 0 and size == B:
+            return clips
+        index = np.minimum(np.arange(start, start + size), B - 1)
+        return ClipArrays(*(leaf[index] for leaf in clips))
+
+    def _whole(self, out: dict) -> dict:
+        """The outputs of the batch's B clips, without filled copies, ECD over exactly them."""
+        B = self.shape[0]
+        out = {name: value[:B] for name, value in out.items()}
         return {**out, "ecd": batch_camera_dynamics(out["ecd_trans"], out["ecd_rot"])}
 
     def _run(self, programs: dict, clips: ClipArrays) -> dict:

@@ -100,7 +100,7 @@ class _Stream:
         return self.pool.submit(read_entry, entry, self.steps.prepare, self.digests, self.done)
 
     def _fill(self) -> None:
-        while len(self.queue) < max(1, self.options.chunk_size):
+        while len(self.queue) < max(1, self.options.chunk_size, self.steps.group_size):
             entry = next(self.upcoming, None)
             if entry is None:
                 return

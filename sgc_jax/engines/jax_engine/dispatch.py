@@ -1,5 +1,5 @@
 """Scoring clips with the compiled programs: a clip prepared on the host (``prepare_clip``), its
-program called without waiting (``dispatch``, or ``dispatch_group`` for one clip per device), and
+program called without waiting (``dispatch``, or ``dispatch_group`` for many clips at once), and
 its outputs turned into per-pair arrays (``collect``)."""
 
 from __future__ import annotations
@@ -52,12 +52,16 @@ def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
     return Dispatched([prepared], program(prepared.batch, jax.random.PRNGKey(config.seed), program_values(config)))
 
 
-def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list) -> Dispatched:
-    """Start scoring up to len(devices) prepared clips of one bucket, one per device; a short group
-    is filled with copies of its last clip, which ``collect`` leaves out."""
-    fill = [group[-1].batch] * (len(devices) - len(group))
+def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, size: int,
+                   vectorized: bool | None = None) -> Dispatched:
+    """Start scoring up to ``size`` (a multiple of len(devices)) prepared clips of one bucket in one
+    program sharded over ``devices``, vectorized on accelerators unless ``vectorized`` says
+    otherwise (docs/semantics.md §9.3); a short group is filled with copies of its last clip, which
+    ``collect`` leaves out."""
+    fill = [group[-1].batch] * (size - len(group))
     stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
-    program, sharding = sharded_program(config, group[0].bucket, devices, stacked)
+    vectorized = devices[0].platform != "cpu" if vectorized is None else vectorized
+    program, sharding = sharded_program(config, group[0].bucket, devices, stacked, vectorized)
     batch = PaddedClips(*jax.device_put(tuple(stacked), sharding))
     return Dispatched(group, program(batch, jax.random.PRNGKey(config.seed), program_values(config)))
 

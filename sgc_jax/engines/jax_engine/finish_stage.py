@@ -16,12 +16,13 @@ from ...kernels.warp import depth_error, warp_depth
 from ..units import PERCENT, translation_factor
 from .pixel_stage import pairs_flat
 from .pose_stage import LocalPoses
+from .stages import each
 
 
 def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
                       config: SGCConfig):
     """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
-    (AbsRel in %), under authors every valid one (depth units). One pair at a time, for the
+    (AbsRel in %), under authors every valid one (depth units). One pair at a time on CPU, for the
     unbatched z-buffer scatter."""
     authors = config.compat == "authors"
 
@@ -32,7 +33,7 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
                                  mask_holes=not authors)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=config.scale_free)[0]
 
-    errors = jax.lax.map(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g))
+    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g), config)
     return errors * (PERCENT if config.scale_free else 1.0)
 
 

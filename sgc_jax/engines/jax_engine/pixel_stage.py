@@ -8,7 +8,7 @@ import jax.numpy as jnp
 
 from ...config import SGCConfig
 from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_regions, region_of_depth
-from .stages import PixelInputs
+from .stages import PixelInputs, each
 
 
 def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConfig):
@@ -25,12 +25,12 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
         partition = depth_partition(depth_curr, region_mask, bins=config.kmeans_bins, **regions)
         labels = jax.vmap(region_of_depth)(partition, at_points(depth_curr, pixel), at_points(region_mask, pixel))
         n_regions = partition.n_regions
-    else:  # frame by frame: unbatched scatters run several times faster on CPU
+    else:  # frame by frame on CPU: unbatched scatters run several times faster there
         if config.partition == "grid":
             label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
         else:
             label_frame = lambda frame: depth_spatial_regions(*frame, bins=config.kmeans_bins, **regions)  # noqa: E731
-        labels, n_regions = jax.lax.map(label_frame, (depth_curr, region_mask))
+        labels, n_regions = each(label_frame, (depth_curr, region_mask), config)
         labels = at_points(labels, pixel)
     return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))

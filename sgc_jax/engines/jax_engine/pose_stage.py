@@ -18,7 +18,7 @@ from ...kernels.ransac_options import RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
 from ...kernels.so3 import nearest_rotation
 from ...kernels.uncertainty import QualityRule, region_quality
-from .stages import PoseInputs
+from .stages import PoseInputs, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
 # is done, and fewer than ~4 pay more per-op overhead than they save (bench/RESULTS.md).
@@ -109,12 +109,12 @@ def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
     return R_g, t_curr - R_for_t @ t_prev
 
 
-def pair_groups(pose_pair, args, n_pairs: int):
-    """``pose_pair`` over the pairs (leading axis n_pairs of every leaf of ``args``), vmapped in
-    ceil(n_pairs / PAIRS_AT_ONCE) equal groups one after another; the last group is filled with
-    copies of the last pair, whose results are dropped."""
+def pair_groups(pose_pair, args, n_pairs: int, vectorized: bool):
+    """``pose_pair`` over the pairs (leading axis n_pairs of every leaf of ``args``): all at once
+    in a vectorized program, else vmapped in ceil(n_pairs / PAIRS_AT_ONCE) equal groups one after
+    another, the last group filled with copies of the last pair, whose results are dropped."""
     groups = -(-n_pairs // PAIRS_AT_ONCE)
-    if groups <= 1:
+    if groups <= 1 or vectorized:
         return jax.vmap(pose_pair)(args)
     size = -(-n_pairs // groups)
     pair = jnp.minimum(jnp.arange(groups * size), n_pairs - 1)
@@ -158,7 +158,7 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
         global_t = None  # no camera start (an empty pytree under vmap)
     pairs = PairInputs(x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[:-1], x.K[1:], x.track_prev,
                        x.track_curr, usable, pair_keys, rival_R, global_t)
-    poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, config), pairs, n_pairs)
+    poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, config), pairs, n_pairs, config.vectorized)
     if not config.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
         return poses, R_g, t_g, jnp.float32(1.0)
@@ -166,8 +166,8 @@ def clip_poses(x: PoseInputs, key, config: SGCConfig):
 
 
 def pose_stage(x: PoseInputs, key, config: SGCConfig) -> dict:
-    """Clips (leading axis B), one after another (``lax.map``), each clip's pairs in groups of at
-    most PAIRS_AT_ONCE: RANSAC's loops run until their slowest lane is done, so vmapping many
-    pairs at once costs more than it saves."""
-    poses, R_g, t_g, scale = jax.lax.map(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x))
+    """Clips (leading axis B). On CPU one after another, each clip's pairs in groups of at most
+    PAIRS_AT_ONCE: RANSAC's loops run until their slowest lane is done, so vmapping many pairs at
+    once costs more than it saves there. Vectorized (accelerators): every pair of every clip at once."""
+    poses, R_g, t_g, scale = each(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x), config)
     return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)

@@ -1,5 +1,5 @@
 """The compiled stage programs this process holds: compiled once per ``StageKey`` (or loaded from
-the persistent cache), for one device or for a batch spread one clip per device."""
+the persistent cache), for one device or for a batch spread over devices."""
 
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def _spec(tree):
 def _traced(key: StageKey):
     from .trace import stage_program  # only tracing imports the stages' modules and the kernels
 
-    return jax.jit(functools.partial(stage_program, stage=key.stage, static=key.static))
+    return jax.jit(functools.partial(stage_program, stage=key.stage, static=key.static, vectorized=key.vectorized))
 
 
 def _lower(key: StageKey, path, args: tuple):
@@ -131,17 +131,20 @@ def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, ke
             _compiles.append((key, seconds))
 
 
-def _bucket_text(bucket: Bucket, devices: int = 1) -> str:
+def _bucket_text(bucket: Bucket, devices: int = 1, clips: int = 1) -> str:
     text = f"clips of up to {bucket.T} frames, {bucket.H}x{bucket.W} px, {bucket.P} tracks per pair"
-    return text if devices == 1 else f"{text}, one clip on each of {devices} devices"
+    if devices == 1:
+        return text if clips == 1 else f"{text}, {clips} at once"
+    return f"{text}, {'one clip' if clips == 1 else f'{clips} clips at once'} on each of {devices} devices"
 
 
-def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips) -> tuple:
-    """The three stages over a batch of one clip per device (leading axis B = len(devices)), the
-    clip axis sharded over ``devices`` (``shard_map``): each device runs the one-clip programs on
-    its clip, so the numbers are those of one device -> (BucketProgram, the batch's sharding)."""
-    keys = tuple(stage_key(config, stage, bucket) for stage in STAGES)
-    cache_key = (keys, tuple(d.id for d in devices))
+def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips,
+                    vectorized: bool = False) -> tuple:
+    """The three stages over a batch whose leading axis B (a multiple of len(devices)) is sharded
+    over ``devices`` (``shard_map``): each device runs the programs on its B / len(devices) clips,
+    so the numbers are those of one device -> (BucketProgram, the batch's sharding)."""
+    keys = tuple(stage_key(config, stage, bucket, vectorized) for stage in STAGES)
+    cache_key = (keys, tuple(d.id for d in devices), np.shape(example.depth)[0])
     if cache_key not in _sharded:
         with _compiling:
             if cache_key not in _sharded:
@@ -149,24 +152,35 @@ def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: P
     return _sharded[cache_key]
 
 
-def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips, keys: tuple) -> tuple:
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+def spread_stage(key: StageKey, mesh):
+    """The stage's traced program over a batch whose clip axis is sharded over ``mesh``'s devices:
+    each runs the one-device program on its share, so the numbers are those of one device."""
+    from jax.sharding import PartitionSpec
 
     from .trace import stage_program
 
-    mesh = Mesh(np.array(devices), ("clips",))
     clips, replicated = PartitionSpec("clips"), PartitionSpec()
-    sharding = NamedSharding(mesh, clips)
+    run = functools.partial(stage_program, stage=key.stage, static=key.static, vectorized=key.vectorized)
+    # check_vma off: the kernels' loops start from constants the per-device clip makes
+    # device-varying, which the check would have every loop annotate
+    return jax.jit(jax.shard_map(run, mesh=mesh, in_specs=(clips, replicated, replicated), out_specs=clips,
+                                 check_vma=False))
+
+
+def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips, keys: tuple) -> tuple:
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    mesh = Mesh(np.array(devices), ("clips",))
+    sharding = NamedSharding(mesh, PartitionSpec("clips"))
     batch_spec = PaddedClips(*(jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding) for a in example))
     key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
     stages, previous = [], None
-    with CompileNotice(_bucket_text(bucket, len(devices)), ", ".join(STAGES), loading=False, hint=cache_hint()):
+    per_device = np.shape(example.depth)[0] // len(devices)
+    with CompileNotice(_bucket_text(bucket, len(devices), per_device), ", ".join(STAGES), loading=False,
+                       hint=cache_hint()):
         for key in keys:  # one program per stage, as on one device: the same fusions, the same numbers
-            # check_vma off: the kernels' loops start from constants the per-device clip makes
-            # device-varying, which the check would have every loop annotate
-            spread = jax.shard_map(functools.partial(stage_program, stage=key.stage, static=key.static), mesh=mesh,
-                                   in_specs=(clips, replicated, replicated), out_specs=clips, check_vma=False)
-            lowered = jax.jit(spread).lower(stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec)
+            lowered = spread_stage(key, mesh).lower(stage_inputs(key.stage, batch_spec, previous), key_spec,
+                                                    values_spec)
             previous = lowered.out_info
             stages.append(compile_stage(lowered, key.stage, devices[0].platform))
     return BucketProgram(tuple(stages)), sharding

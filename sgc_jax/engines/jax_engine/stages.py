@@ -69,15 +69,16 @@ def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple
 
 @dataclasses.dataclass(frozen=True)
 class StageKey:
-    """One compiled program: a stage, its static config (``stage_config``) and the bucket sizes it
-    reads (pixel: T, H, W, P; pose: T, P; finish: T, H, W)."""
+    """One compiled program: a stage, its static config (``stage_config``), the bucket sizes it
+    reads (pixel: T, H, W, P; pose: T, P; finish: T, H, W) and whether it is ``vectorized``."""
 
     stage: str
     static: SGCConfig
     shape: tuple[int, ...]
+    vectorized: bool = False
 
     def __str__(self) -> str:
-        return f"{self.stage} {'x'.join(map(str, self.shape))}"
+        return f"{self.stage} {'x'.join(map(str, self.shape))}{' vectorized' if self.vectorized else ''}"
 
 
 def stage_config(config: SGCConfig, stage: str) -> SGCConfig:
@@ -87,11 +88,11 @@ def stage_config(config: SGCConfig, stage: str) -> SGCConfig:
                              if f.name not in keep})
 
 
-def stage_key(config: SGCConfig, stage: str, bucket: Bucket) -> StageKey:
+def stage_key(config: SGCConfig, stage: str, bucket: Bucket, vectorized: bool = False) -> StageKey:
     """The program that runs ``stage`` for clips of ``bucket`` under ``config``."""
     T, H, W, P = bucket.T, bucket.H, bucket.W, bucket.P
     shape = {"pixel": (T, H, W, P), "pose": (T, P), "finish": (T, H, W)}[stage]
-    return StageKey(stage, stage_config(config, stage), shape)
+    return StageKey(stage, stage_config(config, stage), shape, vectorized)
 
 
 def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
@@ -103,10 +104,12 @@ def program_values(config: SGCConfig) -> dict[str, np.ndarray]:
 class ProgramConfig:
     """The config as a stage's trace sees it: its static fields (and properties) as Python values,
     VALUE_FIELDS as traced scalars; reading another stage's static field raises (it would not be
-    part of the program's key)."""
+    part of the program's key). ``vectorized``: how the program runs its clips, frames and pairs
+    (``each``)."""
 
-    def __init__(self, static: SGCConfig, values: Mapping[str, Any], stage: str):
+    def __init__(self, static: SGCConfig, values: Mapping[str, Any], stage: str, vectorized: bool = False):
         self._static, self._values, self._stage = static, values, stage
+        self.vectorized = vectorized
 
     def __getattr__(self, name: str):
         values, stage = self.__dict__["_values"], self.__dict__["_stage"]
@@ -115,3 +118,10 @@ class ProgramConfig:
         if name in STATIC_FIELDS and name not in STAGE_FIELDS[stage]:
             raise AttributeError(f"the {stage} stage reads config.{name}, which is not in STAGE_FIELDS[{stage!r}]")
         return getattr(self.__dict__["_static"], name)
+
+
+def each(fn, items, config: ProgramConfig):
+    """``fn`` over the leading axis of ``items``: in one wide vmapped step in a vectorized program
+    (accelerators, where lanes are plentiful), else one item after another (``lax.map``: on CPU,
+    unbatched scatters run faster and each item's loops stop at its own end; docs/semantics.md §9.3)."""
+    return jax.vmap(fn)(items) if config.vectorized else jax.lax.map(fn, items)

@@ -18,7 +18,7 @@ def run_stage(stage: str, inputs: tuple, key, config) -> dict:
     return finish_stage(*inputs, config)
 
 
-def stage_program(inputs: tuple, key, values, stage: str, static: SGCConfig) -> dict:
+def stage_program(inputs: tuple, key, values, stage: str, static: SGCConfig, vectorized: bool = False) -> dict:
     """A stage as its compiled program runs it: flat inputs, the RANSAC key, the value fields
-    (``stages.program_values``) and the static config (jit-static)."""
-    return run_stage(stage, inputs, key, ProgramConfig(static, values, stage))
+    (``stages.program_values``), the static config and ``vectorized`` (both jit-static)."""
+    return run_stage(stage, inputs, key, ProgramConfig(static, values, stage, vectorized))
