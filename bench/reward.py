@@ -3,7 +3,7 @@ already on the device, forward only; against ``score_batch``'s one clip per prog
 the same run; then, optionally, a corpus scored from disk through ``score_batch``.
 
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
-                           [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
+                           [--vectorized] [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs
@@ -11,7 +11,8 @@ scene); --shape scores smaller ones. Each B compiles its programs once (timed ap
 same clips, held in memory, with ``score_batch`` (host preparation and padding per clip, one
 program call each). --disk-clips N > 0 writes (once) and scores N standard clip files with
 ``score_batch(folder, out=...)`` and reports clips per second and the share of the wall time the
-scorer waited for input.
+scorer waited for input. --vectorized runs the Scorer's accelerator form (docs/semantics.md §9.3)
+on any device; it is the default on accelerators.
 """
 
 from __future__ import annotations
@@ -42,9 +43,9 @@ def clips_of(shape: tuple[int, int, int, int], n: int) -> list:
             for i in range(min(n, DISTINCT))]
 
 
-def scorer_rate(clips: list, B: int, shape: tuple, repeats: int) -> dict:
+def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: bool | None) -> dict:
     begin = time.perf_counter()
-    scorer = Scorer((B, *shape))
+    scorer = Scorer((B, *shape), vectorized=vectorized)
     compile_s = time.perf_counter() - begin
     batch = jax.device_put(batch_of([clips[i % len(clips)] for i in range(B)], shape))
     jax.block_until_ready(scorer(batch))  # warm
@@ -82,6 +83,7 @@ def main() -> None:
     parser.add_argument("--shape", type=int, nargs=4, default=[SCENE["n_frames"], SCENE["height"], SCENE["width"],
                                                                 SCENE["n_tracks"]], metavar=("T", "H", "W", "P"))
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--vectorized", action="store_true", default=None)
     parser.add_argument("--disk-clips", type=int, default=0)
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
     args = parser.parse_args()
@@ -96,7 +98,7 @@ def main() -> None:
     print("| B | compile s | call s | clips/s | vs one clip per call |")
     print("|---|---|---|---|---|")
     for B in args.batch_sizes:
-        row = scorer_rate(clips, B, shape, args.repeats)
+        row = scorer_rate(clips, B, shape, args.repeats, args.vectorized)
         print(f"| {B} | {row['compile_s']:.0f} | {row['call_s']:.3f} | {row['clips_per_s']:.2f} | "
               f"{row['clips_per_s'] / baseline:.2f}x |", flush=True)
     if args.disk_clips > 0:

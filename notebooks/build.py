@@ -53,6 +53,11 @@ def _code(text: str) -> tuple[str, str]:
     return "code", textwrap.dedent(text).strip("\n")
 
 
+def _timing(text: str) -> tuple[str, str]:
+    """A code cell whose output is a time: tagged ``timing``, so tests run it but do not compare it."""
+    return "timing", textwrap.dedent(text).strip("\n")
+
+
 ENGINE_NOTE = _md("""
     **Compilation.** The default `engine="jax"` pads clips to a shape bucket (frames, pixels,
     tracks) and compiles its programs once per bucket: the first call of a new shape takes about a
@@ -421,11 +426,100 @@ DIAGNOSTICS = [
     _code('fig = plot.plot_region_reprojection(drift, result.clip("layer-drift"), PAIR)'),
 ]
 
+BEST_OF_N = [
+    _md("""
+        # Best-of-N with the Scorer's reward
+
+        A sampler draws N candidate videos for one prompt and keeps the best. `sgc_jax.Scorer`
+        scores a batch of clips already in memory (or on a device) in one set of compiled programs
+        and returns, besides the SGC, a **reward** (docs/semantics.md §9.4): higher is better, it
+        keeps ranking clips the calibration scores 0, and it pays nothing for what would make a
+        geometric score look perfect without a consistent 3D world: a still camera, a mask that
+        hides everything, no usable tracks.
+
+        Here the N = 8 candidates are variants of one synthetic scene: the clean clip, four
+        perturbed ones (docs/semantics.md §8; severities 0.25 and 0.5) and three decoys.
+    """),
+    _code(SETUP),
+    _code("""\
+        import dataclasses
+
+        import jax
+
+        from sgc_jax.codes import SCORER_STATUSES
+        from sgc_jax.scoring.scorer import batch_of
+
+        clean = synth_clip(seed=0, clip_id="clean", **SCENE)
+        candidates = [
+            clean,
+            sgc_jax.perturb_clip(clean, "depth_warp", 0.25),
+            sgc_jax.perturb_clip(clean, "depth_warp", 0.5),
+            sgc_jax.perturb_clip(clean, "squeeze", 0.25),
+            sgc_jax.perturb_clip(clean, "squeeze", 0.5),
+            synth_clip(seed=0, clip_id="decoy: still camera", rot_deg_per_frame=0.0, trans_per_frame=0.0, **SCENE),
+            dataclasses.replace(clean, clip_id="decoy: all masked", static_mask=np.zeros_like(clean.static_mask)),
+            dataclasses.replace(clean, clip_id="decoy: no tracks", track_vis=np.zeros_like(clean.track_vis)),
+        ]
+        labels = [c.clip_id for c in candidates]"""),
+    _md("""
+        ## Score the candidates
+
+        A Scorer is built for one shape (B, T, H, W, P) and compiled once (about a minute on a CPU
+        the first time; later sessions load it from the on-disk cache). Here B = 4, the test
+        suite's shape, and the 8 candidates go in two calls; `batch_of` stacks `Clip`s into the
+        dict of arrays a call takes. Each call returns a dict of `jax.Array`s (B,).
+    """),
+    _code("""\
+        T, H, W, P = SCENE["n_frames"], SCENE["height"], SCENE["width"], SCENE["n_tracks"]
+        scorer = sgc_jax.Scorer((4, T, H, W, P))
+        calls = [scorer(batch_of(candidates[i:i + 4])) for i in (0, 4)]
+        out = {name: np.concatenate([np.asarray(call[name]) for call in calls]) for name in calls[0]}
+        table = pd.DataFrame({"candidate": labels, "status": [SCORER_STATUSES[s] for s in out["status"]],
+                              **{k: out[k] for k in ("sgc", "sgc_unclipped", "camera_motion", "n_pairs_scored",
+                                                     "reward")}})
+        table.sort_values("reward", ascending=False)"""),
+    _md("""
+        The clean clip earns the highest reward and is the one best-of-N keeps; the perturbed
+        clips follow in the order of their scores. Two decoys tie with the clean clip at `sgc` = 0:
+        the still camera, whose local poses all agree because nothing moves, and the track-less
+        clip, scored on its depth error alone. Neither earns anything: the still camera's motion
+        is far below the full-motion level (1 % of D or 0.5° per pair), which scales its reward to
+        0 and gives it the status `static_camera`; the track-less and all-masked clips are
+        measured on nothing (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
+        floor at 0 (which sits at the 90th percentile of clean clips), so clips better than that
+        still rank among themselves.
+    """),
+    _code("""\
+        best = labels[int(np.argmax(out["reward"]))]
+        print(f"best of {len(candidates)}: {best}")"""),
+    _code("fig = plot.plot_rewards(labels, out)"),
+    _md("""
+        ## Time per batch
+
+        A warm call on this machine (the figure varies from run to run and machine to machine;
+        bench/reward.py measures standard clips and batch sizes). On a CPU the Scorer runs a batch
+        in two lanes of clips at once; on an accelerator in one vectorized program
+        (docs/semantics.md §9.3).
+    """),
+    _timing("""\
+        import time
+
+        batch = batch_of(candidates[:4])
+        seconds = []
+        for _ in range(5):
+            start = time.perf_counter()
+            jax.block_until_ready(scorer(batch))
+            seconds.append(time.perf_counter() - start)
+        per_batch = float(np.median(seconds))
+        print(f"{1000 * per_batch:.0f} ms per batch of 4 on {jax.devices()[0].device_kind}: {4 / per_batch:.1f} clips/s")"""),
+]
+
 NOTEBOOKS = {
     "01_quickstart": QUICKSTART,
     "02_sensitivity": SENSITIVITY,
     "03_calibration": CALIBRATION,
     "04_diagnostics": DIAGNOSTICS,
+    "05_best_of_n": BEST_OF_N,
 }
 
 
@@ -440,7 +534,10 @@ def build(name: str):
     })
     for i, (kind, source) in enumerate(NOTEBOOKS[name]):
         make = nbformat.v4.new_markdown_cell if kind == "markdown" else nbformat.v4.new_code_cell
-        nb.cells.append(make(source, id=f"{name[:2]}-{i:02d}"))
+        cell = make(source, id=f"{name[:2]}-{i:02d}")
+        if kind == "timing":
+            cell.metadata["tags"] = ["timing"]
+        nb.cells.append(cell)
     return nb
 
 

@@ -21,7 +21,7 @@ _spec = importlib.util.spec_from_file_location("notebook_build", NOTEBOOKS_DIR /
 build = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(build)
 NAMES = list(build.NOTEBOOKS)
-ISSUE_NAMES = ["01_quickstart", "02_sensitivity", "03_calibration", "04_diagnostics"]
+ISSUE_NAMES = ["01_quickstart", "02_sensitivity", "03_calibration", "04_diagnostics", "05_best_of_n"]
 PRIVATE = ("sgc_jax._", "sgc_jax.engines", "sgc_jax.kernels",
            "plot._", "diagnostics._")
 
@@ -34,7 +34,7 @@ def _images(cell):
     return [o["data"]["image/png"] for o in cell.get("outputs", []) if "image/png" in o.get("data", {})]
 
 
-def test_the_four_notebooks_of_the_issue_exist():
+def test_the_notebooks_of_the_issues_exist():
     assert NAMES == ISSUE_NAMES
     assert sorted(p.stem for p in NOTEBOOKS_DIR.glob("*.ipynb")) == ISSUE_NAMES
 
@@ -133,7 +133,7 @@ def test_notebook_runs_clean_top_to_bottom(name, jax_cache, tmp_path, monkeypatc
             assert not [o for o in cell.outputs if o["output_type"] == "error"]
     stored = nbformat.read(NOTEBOOKS_DIR / f"{name}.ipynb", as_version=4)
     for i, (old, new) in enumerate(zip(stored.cells, nb.cells)):
-        if new.cell_type == "code":
+        if new.cell_type == "code" and "timing" not in new.metadata.get("tags", []):  # a time differs run to run
             assert_same_up_to_float_noise(_text(old), _text(new), f"{name}.ipynb cell {i} (rebuild it: "
                                           f"python notebooks/build.py {name})")
     figures = _figure_cells(nb)

@@ -5,7 +5,7 @@ Sensitivity studies (paper Figures 6 and 8): :func:`plot_sensitivity`, :func:`pl
 Corpora (Figures 7 and 8a): :func:`plot_group_violins`, :func:`plot_component_correlation`,
 :func:`plot_calibration_weights`. One clip: :func:`plot_pair_components`, :func:`plot_region_map`.
 One pair (Figure 4 and the depth check, via :mod:`sgc_jax.research.diagnostics`): :func:`plot_pose_arrows`,
-:func:`plot_depth_warp_error`, :func:`plot_region_reprojection`.
+:func:`plot_depth_warp_error`, :func:`plot_region_reprojection`. The Scorer's reward: :func:`plot_rewards`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from ..calibration import COMPONENTS
-from ..codes import REGION_STATUS_NAMES
+from ..codes import REGION_STATUS_NAMES, SCORER_STATUSES
 from ..io.tables import COLUMN_UNITS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -491,4 +491,31 @@ def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
     ax.set_xlabel("component")
     ax.set_ylabel("component")
     ax.set_title(f"Component correlations over {len(records)} clips" + (" (log1p of variances)" if log1p else ""))
+    return fig
+
+
+def plot_rewards(labels: Sequence[str], outputs: Mapping[str, Any]) -> "Figure":
+    """Candidate clips as a Scorer scored them (docs/semantics.md §9.4), best reward on top: the
+    reward, the unclipped score behind it and the camera-motion gate, each clip's status named
+    where it is not ``ok``. ``outputs``: the Scorer's dict (arrays (N,), one per label)."""
+    plt = import_pyplot()
+    reward, unclipped = np.asarray(outputs["reward"], float), np.asarray(outputs["sgc_unclipped"], float)
+    motion, status = np.asarray(outputs["camera_motion"], float), np.asarray(outputs["status"])
+    order = np.argsort(-reward, kind="stable")[::-1]  # best at the top of the bars
+    y = np.arange(len(order))
+    fig, axes = plt.subplots(1, 3, figsize=(11, 0.45 * len(order) + 1.6), sharey=True, constrained_layout=True)
+    colours = np.where(status[order] == SCORER_STATUSES.index("ok"), "tab:green", "tab:red")
+    axes[0].barh(y, reward[order], color=colours)
+    for yi, i in zip(y, order):
+        if SCORER_STATUSES[status[i]] != "ok":
+            axes[0].text(0.01, yi, SCORER_STATUSES[status[i]], va="center", fontsize="small")
+    axes[0].set(xlim=(0, 1), xlabel="reward (higher is better)", yticks=y, yticklabels=[labels[i] for i in order])
+    axes[1].scatter(unclipped[order], y, color="black", zorder=3)
+    axes[1].axvline(0.0, color="0.5", linestyle="--", linewidth=1)
+    axes[1].set(xlabel="sgc_unclipped (lower is better;\nsgc = 0 left of the dashed line)")
+    axes[2].barh(y, np.minimum(motion[order], 1.0), color="tab:blue")
+    axes[2].set(xlim=(0, 1.05), xlabel="camera-motion gate\nmin(1, m)")
+    for ax in axes:
+        ax.grid(alpha=0.3, axis="x")
+    fig.suptitle("candidates ranked by the Scorer's reward")
     return fig
