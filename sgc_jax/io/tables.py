@@ -13,10 +13,12 @@ from typing import Any, Iterable, Sequence
 from ..calibration import COMPONENTS
 from .parquet import is_parquet, read_parquet_text, write_parquet
 
-CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, "reproj_error", "ecd_trans",
+# Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
+FLOOR_COLUMNS = tuple(f"{c}_floor" for c in COMPONENTS if c != "depth_error")
+CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
                 "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
                 "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
-PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, "reproj_error", "n_tracks", "n_regions",
+PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, *FLOOR_COLUMNS, "reproj_error", "n_tracks", "n_regions",
                 "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
 
 
@@ -125,6 +127,10 @@ COLUMN_UNITS = {
                 "global_trans_var": "pose²", "depth_error": "depth", "reproj_error": "px", "ecd_trans": "pose",
                 "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth"},
 }
+
+
+for _units in COLUMN_UNITS.values():  # a floor has its component's unit
+    _units.update({f"{c}_floor": _units[c] for c in COMPONENTS if c != "depth_error"}, sgc_floor=_units["sgc"])
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str], units: dict[str, str] | None = None) -> str:

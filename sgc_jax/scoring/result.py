@@ -22,6 +22,7 @@ from ..io.parquet import typed_cell
 from ..io.tables import (
     CLIP_COLUMNS,
     COLUMN_UNITS,
+    FLOOR_COLUMNS,
     PAIR_COLUMNS,
     column_kind,
     format_counts,
@@ -30,6 +31,7 @@ from ..io.tables import (
     write_csv,
 )
 from ..stats import min_max
+from .noise_floors import pair_floors
 
 
 def _nanmean(values: np.ndarray) -> float:
@@ -48,6 +50,8 @@ class ClipResult:
     reason: str = ""
     sgc: float = float("nan")
     components: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in COMPONENTS})
+    floors: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in FLOOR_COLUMNS})
+    sgc_floor: float = float("nan")  # the score of the floors, the depth error counted as 0 (§3.10)
     reproj_error: float = float("nan")
     ecd_trans: float = float("nan")  # mean ||s t_g|| over pairs (% of D under spec, pose units under authors)
     ecd_rot: float = float("nan")  # mean rotation angle of R_g over pairs (deg)
@@ -73,7 +77,8 @@ class ClipResult:
     def record(self, ecd: float = float("nan")) -> dict[str, Any]:
         """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
         row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
-               "sgc": self.sgc, **self.components, "reproj_error": self.reproj_error,
+               "sgc": self.sgc, **self.components, **self.floors, "sgc_floor": self.sgc_floor,
+               "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
                "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
@@ -85,8 +90,10 @@ class ClipResult:
         if self.pairs is None:
             return []
         p = self.pairs
+        floors = pair_floors(p, self.compat)
         return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
-                 **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, "reproj_error": float(p.reproj_error[i]),
+                 **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, **{k: float(v[i]) for k, v in floors.items()},
+                 "reproj_error": float(p.reproj_error[i]),
                  "n_tracks": int(p.n_tracks[i]), "n_regions": int(p.n_regions[i]), "n_poses": int(p.n_poses[i]),
                  "n_ill_conditioned": int(p.n_ill_conditioned[i]),
                  "t_g_norm": float(p.t_g_norm[i]), "R_g_angle_deg": float(p.R_g_angle_deg[i]),
@@ -98,6 +105,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
+    floors = {k: _nanmean(v) for k, v in pair_floors(pairs, compat).items()}
     reasons = Counter(str(r) for r in pairs.reason)
     scored = reasons.get("ok", 0)
     problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
@@ -109,17 +117,28 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         status, reason = "ok", ""
     return ClipResult(
         clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
+        floors=floors, sgc_floor=floor_score(floors, calibration),
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
         n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs)
 
 
+def floor_score(floors: Mapping[str, float], calibration: Calibration) -> float:
+    """``sgc_floor``: the score formula on the pose components' floors, the depth error counted as 0
+    (its floor is not available, docs/semantics.md §3.10); NaN when no floor is known."""
+    if all(math.isnan(v) for v in floors.values()):
+        return float("nan")
+    return float(sgc_score({**{k.removesuffix("_floor"): v for k, v in floors.items()}, "depth_error": 0.0},
+                           calibration))
+
+
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
     """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
     every column but ``ecd``; no per-pair arrays."""
     cell = {name: typed_cell(column_kind(name), row[name]) for name in CLIP_COLUMNS if name != "ecd"}
-    return ClipResult(components={k: cell.pop(k) for k in COMPONENTS}, **cell)
+    return ClipResult(components={k: cell.pop(k) for k in COMPONENTS},
+                      floors={k: cell.pop(k) for k in FLOOR_COLUMNS}, **cell)
 
 
 def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:

@@ -1,0 +1,91 @@
+"""Noise floors (docs/semantics.md §3.10): each pose component's floor is what that component's own
+formula gives on independent errors of the regions' fitted sizes, and on a consistent scene seen
+through a noisy tracker the components sit near their floors."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scenes import DEMO_SCENE
+from scipy.spatial.transform import Rotation
+
+from sgc_jax import SGCConfig, score_batch
+from sgc_jax.codes import REGION_EMPTY, REGION_OK
+from sgc_jax.engines.pairs import PairArrays
+from sgc_jax.engines.reference import global_variances, local_variances
+from sgc_jax.io.tables import FLOOR_COLUMNS
+from sgc_jax.research.synth import synth_clip
+from sgc_jax.scoring.noise_floors import pair_floors
+
+# Monte Carlo of the formulas: DRAWS sets of 6 poses; the mean of a squared Gaussian size over
+# DRAWS * 6 draws has a relative standard error sqrt(2/3) / sqrt(6 DRAWS) = 0.4 %, the floors' own
+# draws under 3 %: 5 % is beyond both, and beyond the small-angle terms (sigma <= 0.8 deg: 1e-4).
+DRAWS, MONTE_CARLO_RTOL = 4000, 0.05
+# One clip of 7 pairs, about 8 regions each: the issue's bar for the median clip (observed / floor
+# between 0.5 and 2); consistent scenes at 0.25-1 px measure 0.8-1.5 (bench/noise_floors.py).
+FLOOR_RATIO_RANGE = (0.5, 2.0)
+
+
+def one_pair(rot_std_deg, trans_std) -> PairArrays:
+    """A pair of len(rot_std_deg) accepted regions with these uncertainties (translations in units of D)."""
+    k = len(rot_std_deg)
+    row = lambda values: np.asarray(values, np.float64)[None]  # noqa: E731
+    scalar = np.zeros(1)
+    return PairArrays(local_rot_var=scalar, local_trans_var=scalar, global_rot_var=scalar, global_trans_var=scalar,
+                      depth_error=scalar, reproj_error=scalar, n_tracks=np.array([100]), n_regions=np.array([k]),
+                      n_poses=np.array([k]), n_ill_conditioned=np.zeros(1, int), t_g_norm=scalar, R_g_angle_deg=scalar,
+                      reason=np.array(["ok"], dtype=object), R_local=np.tile(np.eye(3), (1, k, 1, 1)),
+                      t_local=np.zeros((1, k, 3)), region_status=np.full((1, k), REGION_OK),
+                      region_points=np.full((1, k), 50), region_reproj=np.zeros((1, k)),
+                      region_rot_std=row(rot_std_deg), region_trans_std=row(trans_std))
+
+
+def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitted_sizes():
+    rot_std = np.array([0.1, 0.2, 0.3, 0.4, 0.6, 0.8])  # deg, RMS over the three axes
+    trans_std = np.array([0.001, 0.002, 0.002, 0.003, 0.005, 0.008])  # units of D
+    floors = {k: v[0] for k, v in pair_floors(one_pair(rot_std, trans_std), "spec").items()}
+    rng = np.random.default_rng(0)
+    config, sums = SGCConfig(), dict.fromkeys(FLOOR_COLUMNS, 0.0)
+    for _ in range(DRAWS):
+        rotvecs = np.deg2rad(rng.standard_normal((6, 3)) * (rot_std / np.sqrt(3))[:, None])
+        R = list(Rotation.from_rotvec(rotvecs).as_matrix())
+        t = list(100.0 * rng.standard_normal((6, 3)) * (trans_std / np.sqrt(3))[:, None])  # % of D
+        local = local_variances(R, t, config)
+        glob = global_variances(R, t, np.eye(3), np.zeros(3), config)
+        for name, value in zip(FLOOR_COLUMNS, (local[0], local[1], glob[0], glob[1])):
+            sums[name] += value / DRAWS
+    for name in FLOOR_COLUMNS:
+        assert floors[name] == pytest.approx(sums[name], rel=MONTE_CARLO_RTOL), name
+
+
+def test_floors_are_nan_without_a_pose_and_under_authors():
+    pair = one_pair([0.2, 0.3], [0.01, 0.01])
+    no_pose = dataclasses.replace(pair, region_status=np.full_like(pair.region_status, REGION_EMPTY))
+    assert all(np.isnan(v).all() for v in pair_floors(no_pose, "spec").values())
+    assert all(np.isnan(v).all() for v in pair_floors(pair, "authors").values())
+    one = pair_floors(one_pair([0.2], [0.01]), "spec")
+    assert one["local_rot_var_floor"][0] == one["local_trans_var_floor"][0] == 0.0  # one pose cannot disagree
+
+
+@pytest.fixture(scope="module")
+def scored():
+    clips = [synth_clip(seed=7, clip_id="consistent-1px", noise_px=1.0, **DEMO_SCENE),
+             synth_clip(seed=7, clip_id="consistent-exact", **DEMO_SCENE)]
+    return score_batch(clips, progress=False)
+
+
+def test_a_consistent_scene_through_a_noisy_tracker_sits_near_its_floors(scored):
+    noisy = scored.clip("consistent-1px")
+    for name in FLOOR_COLUMNS:
+        ratio = noisy.components[name.removesuffix("_floor")] / noisy.floors[name]
+        assert FLOOR_RATIO_RANGE[0] <= ratio <= FLOOR_RATIO_RANGE[1], (name, ratio)
+    assert 0 <= noisy.sgc_floor <= noisy.sgc + 0.05
+
+
+def test_exact_tracks_have_floors_of_float_noise_and_the_tables_carry_them(scored):
+    exact = scored.clip("consistent-exact")
+    assert all(0 <= v < 1e-6 for v in exact.floors.values()) and exact.sgc_floor == 0.0
+    frame = scored.to_pandas()
+    assert list(frame[list(FLOOR_COLUMNS)].iloc[1]) == [exact.floors[k] for k in FLOOR_COLUMNS]
+    pairs = scored.to_pandas(pairs=True)
+    assert not pairs[pairs.clip_id == "consistent-1px"][list(FLOOR_COLUMNS)].isna().any().any()
