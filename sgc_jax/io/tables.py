@@ -15,11 +15,11 @@ from .parquet import is_parquet, read_parquet_text, write_parquet
 
 # Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
 FLOOR_COLUMNS = tuple(f"{c}_floor" for c in COMPONENTS if c != "depth_error")
-CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
-                "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source", "scale",
-                "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
-PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, *FLOOR_COLUMNS, "reproj_error", "n_tracks", "n_regions",
-                "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
+CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
+                "reproj_error", "ecd_trans", "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source",
+                "scale", "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
+PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, *FLOOR_COLUMNS, "reproj_error", "n_tracks",
+                "n_regions", "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
 
 
 def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[str]) -> Path:
@@ -129,8 +129,8 @@ COLUMN_UNITS = {
 }
 
 
-for _units in COLUMN_UNITS.values():  # a floor has its component's unit
-    _units.update({f"{c}_floor": _units[c] for c in COMPONENTS if c != "depth_error"}, sgc_floor=_units["sgc"])
+COLUMN_UNITS = {compat: {**units, **{floor: units[floor.removesuffix("_floor")] for floor in (*FLOOR_COLUMNS, "sgc_floor")}}
+                for compat, units in COLUMN_UNITS.items()}  # a floor has its component's unit
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str], units: dict[str, str] | None = None) -> str:

@@ -31,11 +31,16 @@ def default_lanes(devices: list) -> int:
     return ACCELERATOR_LANES
 
 
+def vectorizes(devices: list) -> bool:
+    """Whether programs on ``devices`` run their clips, frames and pairs at once (accelerators) or
+    one after another (CPU: unbatched scatters are faster, each loop stops at its own end)."""
+    return bool(devices) and devices[0].platform != "cpu"
+
+
 def clips_per_call(devices: list) -> int:
-    """Clips scored by one program call over ``devices``: one per device on CPU (each clip's loops
-    stop at its own end), ACCELERATOR_CLIPS_PER_DEVICE per device on accelerators."""
-    per_device = 1 if devices and devices[0].platform == "cpu" else ACCELERATOR_CLIPS_PER_DEVICE
-    return per_device * len(devices)
+    """Clips scored by one program call over ``devices``: one per device on CPU,
+    ACCELERATOR_CLIPS_PER_DEVICE per device where programs are vectorized."""
+    return (ACCELERATOR_CLIPS_PER_DEVICE if vectorizes(devices) else 1) * len(devices)
 
 
 def scoring_devices(limit: int | None = None) -> list:

@@ -7,7 +7,7 @@ from typing import Any, Callable, NamedTuple
 from ..config import SGCConfig
 from ..engines.pairs import PairArrays
 from ..io.clip import Clip
-from .devices import clips_per_call, default_lanes, scoring_devices
+from .devices import clips_per_call, default_lanes, scoring_devices, vectorizes
 
 ENGINES = ("jax", "reference")
 
@@ -39,19 +39,21 @@ def prepare_step(engine: str, config: SGCConfig) -> Callable[[Clip], Any]:
 
 def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes: int | None = None) -> Engine:
     """The steps of ``"jax"`` (over the first ``devices`` local devices, all when None: on CPU one
-    clip per program call on each, on accelerators groups of one bucket in one call) or ``"reference"`` (which computes in ``collect``, one clip at a time unless
-    ``lanes`` says otherwise)."""
+    clip per program call on each, on accelerators groups of one bucket in one call) or
+    ``"reference"`` (which computes in ``collect``, one clip at a time unless ``lanes`` says
+    otherwise)."""
     if name == "jax":
         from ..engines.jax_engine import dispatch
 
         spread = scoring_devices(devices)
         lanes = lanes or default_lanes(spread)
         collect = lambda dispatched: dispatch.collect(dispatched, config)  # noqa: E731
-        size = clips_per_call(spread)
+        size, vectorized = clips_per_call(spread), vectorizes(spread)
         if size == 1:
             return Engine(prepare_step(name, config), lambda group: dispatch.dispatch(group[0], config), collect,
                           lanes=lanes)
-        return Engine(prepare_step(name, config), lambda group: dispatch.dispatch_group(group, config, spread, size),
+        return Engine(prepare_step(name, config),
+                      lambda group: dispatch.dispatch_group(group, config, spread, size, vectorized),
                       collect, size, lambda prepared: prepared.bucket, lanes)
     if name == "reference":
         from ..engines import reference

@@ -67,6 +67,7 @@ class ClipResult:
     input_sha256: str = ""  # SHA-256 of the input file's bytes ("" for clips given in memory)
     run_id: str = ""  # the run that scored it (docs/semantics.md §4.1; "" once re-scored)
     pairs: PairArrays | None = None
+    pair_floors: dict[str, np.ndarray] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:  # the per-pair arrays would run to thousands of lines
         reason = self.reason if len(self.reason) <= 80 else self.reason[:77] + "..."
@@ -90,7 +91,7 @@ class ClipResult:
         if self.pairs is None:
             return []
         p = self.pairs
-        floors = pair_floors(p, self.compat)
+        floors = self.pair_floors if self.pair_floors is not None else pair_floors(p, self.compat)
         return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
                  **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, **{k: float(v[i]) for k, v in floors.items()},
                  "reproj_error": float(p.reproj_error[i]),
@@ -105,7 +106,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
-    floors = {k: _nanmean(v) for k, v in pair_floors(pairs, compat).items()}
+    per_pair = pair_floors(pairs, compat)
+    floors = {k: _nanmean(v) for k, v in per_pair.items()}
     reasons = Counter(str(r) for r in pairs.reason)
     scored = reasons.get("ok", 0)
     problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
@@ -121,7 +123,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
-        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs)
+        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs,
+        pair_floors=per_pair)
 
 
 def floor_score(floors: Mapping[str, float], calibration: Calibration) -> float:

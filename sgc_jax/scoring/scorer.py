@@ -22,7 +22,7 @@ from ..engines.jax_engine.programs import sharded_program, spread_stage
 from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
-from .devices import default_lanes
+from .devices import default_lanes, vectorizes
 from .reward import RewardOptions, reward
 
 #: name -> (its shape in terms of B, T, H, W, P; its kind: float, mask or count)
@@ -96,12 +96,14 @@ class Scorer:
         # into lanes that run at once in threads (one program keeps ~1.5 of 2 cores busy)
         cpu = jax.default_backend() == "cpu"
         self.devices = list(devices) if devices else jax.local_devices()[:1 if cpu else None]
-        self.vectorized = self.devices[0].platform != "cpu" if vectorized is None else bool(vectorized)
+        self.vectorized = vectorizes(self.devices) if vectorized is None else bool(vectorized)
         one_cpu = self.devices[0].platform == "cpu" and len(self.devices) == 1
         self.lanes = min(B, default_lanes(self.devices)) if one_cpu else 1
         # the clips of one program call: a lane's share, or B filled up to a multiple of the devices
         n = len(self.devices)
         self.call_size = -(-B // self.lanes) if self.lanes > 1 else -(-B // n) * n
+        # one program over exactly the B clips: its outputs, ECD included, need no mending
+        self._one_program = self.lanes == 1 and n == 1
         self._mesh = jax.sharding.Mesh(np.array(self.devices), ("clips",))
         self._traced = self._traceable_programs()
         enable_compilation_cache()
@@ -229,7 +231,10 @@ class Scorer:
         return ClipArrays(*(leaf[index] for leaf in clips))
 
     def _whole(self, out: dict) -> dict:
-        """The outputs of the batch's B clips, without filled copies, ECD over exactly them."""
+        """The outputs of the batch's B clips, without filled copies, ECD over exactly them (not
+        over a lane's or a device's share)."""
+        if self._one_program:
+            return out
         B = self.shape[0]
         out = {name: value[:B] for name, value in out.items()}
         return {**out, "ecd": batch_camera_dynamics(out["ecd_trans"], out["ecd_rot"])}

@@ -53,14 +53,12 @@ def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
 
 
 def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, size: int,
-                   vectorized: bool | None = None) -> Dispatched:
+                   vectorized: bool) -> Dispatched:
     """Start scoring up to ``size`` (a multiple of len(devices)) prepared clips of one bucket in one
-    program sharded over ``devices``, vectorized on accelerators unless ``vectorized`` says
-    otherwise (docs/semantics.md §9.3); a short group is filled with copies of its last clip, which
-    ``collect`` leaves out."""
+    program sharded over ``devices``, ``vectorized`` or one clip after another (docs/semantics.md
+    §9.3); a short group is filled with copies of its last clip, which ``collect`` leaves out."""
     fill = [group[-1].batch] * (size - len(group))
     stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
-    vectorized = devices[0].platform != "cpu" if vectorized is None else vectorized
     program, sharding = sharded_program(config, group[0].bucket, devices, stacked, vectorized)
     batch = PaddedClips(*jax.device_put(tuple(stacked), sharding))
     return Dispatched(group, program(batch, jax.random.PRNGKey(config.seed), program_values(config)))
