@@ -105,14 +105,16 @@ QUICKSTART = [
     ENGINE_NOTE,
     _code("""\
         result = sgc_jax.score_batch(clips, chunk_size=CHUNK)
-        result.to_pandas()[["clip_id", "group", "status", "sgc", *sgc_jax.COMPONENTS, "n_pairs_scored"]]"""),
+        result.to_pandas()[["clip_id", "group", "status", "sgc", "sgc_lo", "sgc_hi", *sgc_jax.COMPONENTS,
+                            "n_pairs_scored"]]"""),
     _md("""
         The rigid clip's pose variances vanish to float precision, and its SGC is 0: the default
         calibration, `sgc-spec-2026`, puts 0 at the 90th percentile of clean synthetic clips
         (docs/semantics.md §5.4), and the depth error the forward warp leaves at occlusion edges
         (a few tenths of a percent, see `04_diagnostics`) is within it. Masked moving objects
         barely move the score; unmasked ones and the squeeze raise the local and global pose
-        variances.
+        variances. `sgc_lo` and `sgc_hi` bracket each score at 90 %: how far it could move were the
+        same world tracked again (a bootstrap over the clip's frame pairs, docs/semantics.md §5.6).
 
         `score_clip` scores one clip and returns a `ClipResult`; here with the reference engine,
         which agrees with the JAX engine on this clip:

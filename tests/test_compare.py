@@ -69,6 +69,13 @@ def test_clip_table_ranks_scored_clips():
     assert len(table) == 7 and {t["rank"] for t in table if t["value"] == 0.25} == {3.0}  # three tied: ranks 2-4
 
 
+def test_clip_table_carries_each_clips_score_interval():
+    rows = [{**r, "sgc_lo": r["sgc"] - 0.1, "sgc_hi": r["sgc"] + 0.1} for r in corpus()]
+    assert all(t["lo"] == pytest.approx(t["value"] - 0.1) and t["hi"] == pytest.approx(t["value"] + 0.1)
+               for t in clip_table(rows))
+    assert all(np.isnan(t["lo"]) for t in clip_table(rows, "ecd_trans"))  # only the score has one
+
+
 def test_agreement_by_clip_and_by_group_matches_scipy():
     a = corpus()
     rng = np.random.default_rng(0)

@@ -15,7 +15,9 @@ from .parquet import is_parquet, read_parquet_text, write_parquet
 
 # Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
 FLOOR_COLUMNS = tuple(f"{c}_floor" for c in COMPONENTS if c != "depth_error")
-CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
+# The score's 90 % interval (docs/semantics.md §5.6)
+INTERVAL_COLUMNS = ("sgc_lo", "sgc_hi")
+CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
                 "reproj_error", "ecd_trans", "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source",
                 "scale", "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, *FLOOR_COLUMNS, "reproj_error", "n_tracks",
@@ -129,8 +131,10 @@ COLUMN_UNITS = {
 }
 
 
-COLUMN_UNITS = {compat: {**units, **{floor: units[floor.removesuffix("_floor")] for floor in (*FLOOR_COLUMNS, "sgc_floor")}}
-                for compat, units in COLUMN_UNITS.items()}  # a floor has its component's unit
+_BASE_COLUMN = {**{floor: floor.removesuffix("_floor") for floor in (*FLOOR_COLUMNS, "sgc_floor")},
+                **dict.fromkeys(INTERVAL_COLUMNS, "sgc")}
+COLUMN_UNITS = {compat: {**units, **{name: units[base] for name, base in _BASE_COLUMN.items()}}
+                for compat, units in COLUMN_UNITS.items()}  # a floor or bound has its component's unit
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str], units: dict[str, str] | None = None) -> str:

@@ -22,7 +22,7 @@ from ..stats import agreement, bootstrap_ci, paired, pearson, rankdata, spearman
 MIN_N = 3
 GROUP_COLUMNS = ("group", "n", "mean", "median", "ci_low", "ci_high", "rank", "ecd_mean", "r_ecd")
 RANKING_COLUMNS = ("variant", "key", "value", "rank", "spearman_vs_first")
-CLIP_TABLE_COLUMNS = ("clip_id", "group", "value", "ecd", "rank")
+CLIP_TABLE_COLUMNS = ("clip_id", "group", "value", "lo", "hi", "ecd", "rank")
 
 
 def _scored(records: Sequence[dict[str, Any]], column: str) -> list[dict[str, Any]]:
@@ -72,11 +72,15 @@ def format_group_table(table: Sequence[dict[str, Any]], columns: Sequence[str] =
 
 
 def clip_table(records: Sequence[dict[str, Any]], column: str = "sgc") -> list[dict[str, Any]]:
-    """One row per scored clip (sorted by rank): clip_id, group, value of ``column``, ECD, rank."""
+    """One row per scored clip (sorted by rank): clip_id, group, value of ``column``, its 90 %
+    interval ``lo``, ``hi`` (``sgc_lo``, ``sgc_hi`` of docs/semantics.md §5.6 for ``sgc``; NaN for
+    other columns), ECD, rank."""
     rows = _scored(add_ecd(records), column)
     ranks = rankdata([float(r[column]) for r in rows])
+    bound = lambda r, name: float(r.get(name, "nan")) if column == "sgc" else float("nan")  # noqa: E731
     table = [{"clip_id": r["clip_id"], "group": r.get("group", ""), "value": float(r[column]),
-              "ecd": float(r["ecd"]), "rank": float(rank)} for r, rank in zip(rows, ranks)]
+              "lo": bound(r, "sgc_lo"), "hi": bound(r, "sgc_hi"), "ecd": float(r["ecd"]), "rank": float(rank)}
+             for r, rank in zip(rows, ranks)]
     return sorted(table, key=lambda t: t["rank"])
 
 

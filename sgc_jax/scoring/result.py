@@ -16,6 +16,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
+from ..calibration.interval import score_interval
 from ..codes import CLIP_STATUSES
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
@@ -23,6 +24,7 @@ from ..io.tables import (
     CLIP_COLUMNS,
     COLUMN_UNITS,
     FLOOR_COLUMNS,
+    INTERVAL_COLUMNS,
     PAIR_COLUMNS,
     column_kind,
     format_counts,
@@ -49,6 +51,8 @@ class ClipResult:
     status: str = "error"  # "ok" | "partial" | "error"
     reason: str = ""
     sgc: float = float("nan")
+    sgc_lo: float = float("nan")  # the score's 90 % interval, a bootstrap over pairs (§5.6)
+    sgc_hi: float = float("nan")
     components: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in COMPONENTS})
     floors: dict[str, float] = dataclasses.field(default_factory=lambda: {k: float("nan") for k in FLOOR_COLUMNS})
     sgc_floor: float = float("nan")  # the score of the floors, the depth error counted as 0 (§3.10)
@@ -78,8 +82,8 @@ class ClipResult:
     def record(self, ecd: float = float("nan")) -> dict[str, Any]:
         """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
         row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
-               "sgc": self.sgc, **self.components, **self.floors, "sgc_floor": self.sgc_floor,
-               "reproj_error": self.reproj_error,
+               "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi, **self.components, **self.floors,
+               "sgc_floor": self.sgc_floor, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
                "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
@@ -106,6 +110,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
+    usable = ~np.all([np.isnan(np.asarray(v, np.float64)) for v in pairs.components().values()], axis=0)
+    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), usable, sgc, calibration))
     per_pair = pair_floors(pairs, compat)
     floors = {k: _nanmean(v) for k, v in per_pair.items()}
     reasons = Counter(str(r) for r in pairs.reason)
@@ -118,7 +124,8 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     else:
         status, reason = "ok", ""
     return ClipResult(
-        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, components=components,
+        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi,
+        components=components,
         floors=floors, sgc_floor=floor_score(floors, calibration),
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
@@ -172,14 +179,20 @@ def _json_value(value: Any) -> Any:
 
 
 def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration | str) -> list[dict[str, Any]]:
-    """Copies of per-clip rows with ``sgc`` recomputed from their stored components under
-    ``calibration`` (no geometry: the per-clip components are all the score needs) and ``ecd``
-    recomputed over these rows; ``run_id`` is emptied (no run scored them so)."""
+    """Copies of per-clip rows with ``sgc`` (and ``sgc_floor``) recomputed from their stored
+    components (floors) under ``calibration`` (no geometry: the per-clip components are all the
+    score needs) and ``ecd`` recomputed over these rows; ``run_id`` is emptied (no run scored them
+    so), and so are ``sgc_lo`` / ``sgc_hi`` (NaN: the interval needs the per-pair components)."""
     calibration = Calibration.load(calibration)
     calibration.check_compat(rows_compat(records), "the rows")
     components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
     sgc = sgc_score(components, calibration) if records else np.array([])
-    out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {})} for r, v in zip(records, sgc)]
+    nan = float("nan")
+    out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {}),
+            **({k: nan for k in INTERVAL_COLUMNS if k in r}),
+            **({"sgc_floor": floor_score({k: float(r[k]) for k in FLOOR_COLUMNS}, calibration)}
+               if "sgc_floor" in r else {})}
+           for r, v in zip(records, sgc)]
     return add_ecd(out) if any("ecd_trans" in r for r in out) else out
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ...calibration import COMPONENTS, Calibration, sgc_score
+from ...calibration.interval import score_interval
 from ...codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
 
 
@@ -48,14 +49,16 @@ def clip_status(reason, pair_valid, sgc):
 
 def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration) -> dict:
     """The finish stage's output (leading axes B, T-1), the pairs each clip has (B, T-1) and its D
-    (B,) -> per-clip arrays (B,): the components, sgc, ecd_trans, ecd_rot, ecd, status and counts."""
+    (B,) -> per-clip arrays (B,): the components, sgc and its interval, ecd_trans, ecd_rot, ecd, status and counts."""
     mean = lambda name: nanmean(out[name], pair_valid)  # noqa: E731
     components = {k: mean(k) for k in COMPONENTS}
     sgc = sgc_score(components, calibration, xp=jnp)
+    usable = pair_valid & ~jnp.all(jnp.stack([jnp.isnan(out[k]) for k in COMPONENTS]), axis=0)
+    sgc_lo, sgc_hi = score_interval({k: out[k] for k in COMPONENTS}, usable, sgc, calibration, xp=jnp)
     ecd_trans, ecd_rot = mean("t_g_norm"), mean("R_g_angle_deg")
     reason = out["reason"]
     return dict(
-        sgc=sgc, **components, reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
+        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
         ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
         n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),
         n_pairs_scored=jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1, dtype=jnp.int32),

@@ -1,0 +1,69 @@
+"""The score's confidence interval (docs/semantics.md §5.6), written once for NumPy (the tables) and
+``jax.numpy`` (the Scorer): a bootstrap over a clip's frame pairs, each resample scored as the clip
+is, its spread about the clip's score widened for the few pairs a clip has (Student's t)."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Mapping
+
+import numpy as np
+from scipy.special import ndtri, stdtrit
+
+from .formula import sgc_score
+from .model import COMPONENTS, Calibration
+
+INTERVAL_LEVEL = 0.90
+INTERVAL_DRAWS = 2000  # resamples per clip
+INTERVAL_SEED = 0
+MIN_PAIRS = 2  # fewer scored pairs give no interval: one pair says nothing of another
+
+
+@functools.lru_cache(maxsize=256)
+def _uniform_column(j: int) -> np.ndarray:
+    return np.random.default_rng((INTERVAL_SEED, j)).random(INTERVAL_DRAWS, dtype=np.float32)
+
+
+def resample_uniforms(n_columns: int) -> np.ndarray:
+    """(INTERVAL_DRAWS, n_columns) float32 uniforms in [0, 1), column j seeded alone, so a clip's
+    resamples do not depend on the padding around it."""
+    return np.stack([_uniform_column(j) for j in range(n_columns)], axis=1)
+
+
+def small_sample_widening(n: int, level: float = INTERVAL_LEVEL) -> float:
+    """t_{n-1} / z at ``level``, times sqrt(n / (n - 1)): how much a bootstrap over n values
+    understates the spread of their mean (5.4 for 2 pairs, 2.2 for 3, 1.3 for 7, 1.1 for 15)."""
+    tail = 0.5 * (1.0 + level)
+    return float(stdtrit(n - 1, tail) / ndtri(tail) * np.sqrt(n / (n - 1)))
+
+
+def score_interval(pair_components: Mapping[str, Any], usable: Any, score: Any, calibration: Calibration,
+                   xp=np) -> tuple[Any, Any]:
+    """(sgc_lo, sgc_hi) (...,) from each component's per-pair values (..., n_pairs), the pairs that
+    count (..., n_pairs) bool (a pair of the clip with a component) and the clip's score (...,);
+    NaN where fewer than MIN_PAIRS pairs count."""
+    n_pairs = usable.shape[-1]
+    n = xp.sum(usable, axis=-1)  # (...,)
+    # the counted pairs first, in order: resample position i draws the floor(u n)-th of them
+    order = xp.argsort(xp.where(usable, 0, n_pairs) + xp.arange(n_pairs), axis=-1)
+    n_float = xp.asarray(n, xp.float32)[..., None, None]
+    drawn = xp.minimum(xp.floor(xp.asarray(resample_uniforms(n_pairs)) * n_float), n_float - 1)
+    drawn = xp.take_along_axis(order[..., None, :], xp.maximum(drawn, 0).astype(xp.int32), axis=-1)
+    in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, n_pairs): the first n positions
+    means = {}
+    for k in COMPONENTS:
+        values = xp.take_along_axis(xp.asarray(pair_components[k])[..., None, :], drawn, axis=-1)
+        keep = in_resample & ~xp.isnan(values)
+        count = xp.sum(keep, axis=-1)
+        total = xp.sum(xp.where(keep, values, 0.0), axis=-1)
+        means[k] = xp.where(count > 0, total / xp.maximum(count, 1), np.nan)  # (..., draws)
+    scores = sgc_score(means, calibration, xp=xp)
+    tail = 50.0 * (1.0 - INTERVAL_LEVEL)
+    q_lo = xp.percentile(scores, tail, axis=-1)
+    q_hi = xp.percentile(scores, 100.0 - tail, axis=-1)
+    widenings = np.array([small_sample_widening(m) if m >= MIN_PAIRS else np.nan for m in range(n_pairs + 1)])
+    widen = xp.asarray(widenings)[n]
+    lo = xp.maximum(0.0, score - widen * xp.maximum(score - q_lo, 0.0))
+    hi = score + widen * xp.maximum(q_hi - score, 0.0)
+    enough = n >= MIN_PAIRS
+    return xp.where(enough, lo, np.nan), xp.where(enough, hi, np.nan)

@@ -1,0 +1,86 @@
+"""The score's confidence interval (docs/semantics.md §5.6): a bootstrap over the clip's frame pairs,
+widened for few pairs, that covers the score a clip would get on average over tracker noise."""
+
+import numpy as np
+import pytest
+from scenes import DEMO_SCENE
+
+from sgc_jax import COMPONENTS, score_batch
+from sgc_jax.calibration import Calibration, sgc_score
+from sgc_jax.calibration.interval import score_interval
+from sgc_jax.engines.pairs import PairArrays, empty_pair_arrays
+from sgc_jax.io.tables import INTERVAL_COLUMNS
+from sgc_jax.research.synth import synth_clip
+from sgc_jax.scoring.result import rescore_records
+
+CALIBRATION = Calibration.load("sgc-spec-2026")
+# The issue's bar: one draw's 90 % interval holds the median score of repeated draws in >= 80 % of
+# draws. Per-pair components drawn as scaled chi-square(6) values of the spec calibration's range;
+# CLIPS draws put the coverage's standard error near 0.02 (measured: 0.83 at 3 pairs, 0.90 at 7).
+COVERAGE_MIN, CLIPS = 0.80, 300
+
+
+def pairs_with(values: dict[str, np.ndarray]) -> PairArrays:
+    """A clip's pairs whose components are ``values`` (name -> (n_pairs,)); the rest empty."""
+    n_pairs = len(next(iter(values.values())))
+    pairs = empty_pair_arrays(n_pairs, 2)
+    for name, column in values.items():
+        setattr(pairs, name, np.asarray(column, np.float64))
+    return pairs
+
+
+def clip_score(pairs: PairArrays) -> float:
+    return float(sgc_score({k: np.nanmean(getattr(pairs, k)) for k in COMPONENTS}, CALIBRATION))
+
+
+def interval(pairs: PairArrays) -> tuple[float, float]:
+    components = pairs.components()
+    usable = ~np.all([np.isnan(v) for v in components.values()], axis=0)
+    return tuple(float(v) for v in score_interval(components, usable, clip_score(pairs), CALIBRATION))
+
+
+def random_pairs(rng: np.random.Generator, n_pairs: int, level: float) -> PairArrays:
+    return pairs_with({k: level * rng.chisquare(6, n_pairs) / 6 for k in COMPONENTS})
+
+
+def test_pairs_that_agree_give_an_interval_of_zero_width_at_the_score():
+    pairs = pairs_with({k: np.full(5, 2.0) for k in COMPONENTS})
+    lo, hi = interval(pairs)
+    assert lo == pytest.approx(clip_score(pairs), abs=1e-12) and hi == pytest.approx(lo, abs=1e-12)
+
+
+def test_one_scored_pair_gives_no_interval():
+    pairs = pairs_with({k: np.array([1.0, np.nan, np.nan]) for k in COMPONENTS})
+    assert all(np.isnan(interval(pairs)))
+
+
+def test_the_interval_is_reproducible_brackets_the_score_and_stays_at_or_above_zero():
+    pairs = random_pairs(np.random.default_rng(1), 7, 2.0)
+    lo, hi = interval(pairs)
+    assert interval(pairs) == (lo, hi)
+    assert 0.0 <= lo <= clip_score(pairs) <= hi
+
+
+@pytest.mark.parametrize("n_pairs", [3, 7])
+def test_the_90_percent_interval_covers_the_median_score_of_repeated_draws(n_pairs):
+    rng = np.random.default_rng(n_pairs)
+    clips = [random_pairs(rng, n_pairs, 2.0) for _ in range(CLIPS)]
+    median = np.median([clip_score(p) for p in clips])
+    bounds = np.array([interval(p) for p in clips])
+    assert np.mean((bounds[:, 0] <= median) & (median <= bounds[:, 1])) >= COVERAGE_MIN
+
+
+@pytest.fixture(scope="module")
+def scored():
+    return score_batch([synth_clip(seed=7, clip_id="consistent-1px", noise_px=1.0, **DEMO_SCENE)], progress=False)
+
+
+def test_scored_clips_carry_their_interval_and_a_rescore_without_pairs_drops_it(scored):
+    clip = scored.clips[0]
+    assert 0.0 <= clip.sgc_lo <= clip.sgc <= clip.sgc_hi and clip.sgc_hi > clip.sgc_lo
+    assert list(scored.to_pandas()[list(INTERVAL_COLUMNS)].iloc[0]) == [clip.sgc_lo, clip.sgc_hi]
+    again = scored.rescore("sgc-spec-2026").clips[0]
+    assert (again.sgc_lo, again.sgc_hi) == (clip.sgc_lo, clip.sgc_hi)  # the pairs are kept in memory
+    from_rows = rescore_records(scored.to_records(), "sgc-spec-2026")[0]
+    assert np.isnan(from_rows["sgc_lo"]) and np.isnan(from_rows["sgc_hi"])
+    assert from_rows["sgc_floor"] == pytest.approx(clip.sgc_floor)
