@@ -11,11 +11,11 @@ from scipy.spatial.transform import Rotation
 
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_EMPTY, REGION_OK
+from sgc_jax.engines.noise_floors import pair_floors
 from sgc_jax.engines.pairs import PairArrays
 from sgc_jax.engines.reference import global_variances, local_variances
 from sgc_jax.io.tables import FLOOR_COLUMNS
 from sgc_jax.research.synth import synth_clip
-from sgc_jax.scoring.noise_floors import pair_floors
 
 # Monte Carlo of the formulas: DRAWS sets of 6 poses; the mean of a squared Gaussian size over
 # DRAWS * 6 draws has a relative standard error sqrt(2/3) / sqrt(6 DRAWS) = 0.4 %, the floors' own

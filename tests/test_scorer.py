@@ -20,6 +20,7 @@ from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
+from sgc_jax.io.tables import FLOOR_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
@@ -34,8 +35,8 @@ CLIP_RTOL, CLIP_ATOL = 1e-5, 1e-6
 # settles once a step lowers its cost by less than LM_RTOL = 1e-6 of it (kernels/joint_pnp.py):
 # two roundings of one fit may stop sqrt(1e-6) = 1e-3 apart, relative, in the pose.
 FUSED_RTOL, FUSED_ATOL = 2e-3, 1e-5
-PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, "reproj_error", "ecd_trans", "ecd_rot", "sgc_unclipped",
-            "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
+PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
+            "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
 SHAPE = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
 
 
@@ -67,8 +68,10 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
     for start in range(0, len(corpus), SHAPE[0]):
         out = outputs(scorer, corpus[start:start + SHAPE[0]])
         rows = expected.clips[start:start + SHAPE[0]]
-        for name in ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, "reproj_error", "ecd_trans", "ecd_rot"):
-            want = [r.components[name] if name in COMPONENTS else getattr(r, name) for r in rows]
+        for name in ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error",
+                     "ecd_trans", "ecd_rot"):
+            want = [r.components[name] if name in COMPONENTS else r.floors[name] if name in FLOOR_COLUMNS
+                    else getattr(r, name) for r in rows]
             np.testing.assert_allclose(out[name], want, rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
         np.testing.assert_allclose(out["ecd"], camera_dynamics([r.ecd_trans for r in rows], [r.ecd_rot for r in rows]),
                                    rtol=CLIP_RTOL, atol=CLIP_ATOL)

@@ -18,6 +18,7 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..calibration.interval import score_interval
 from ..codes import CLIP_STATUSES
+from ..engines.noise_floors import pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
 from ..io.tables import (
@@ -33,7 +34,6 @@ from ..io.tables import (
     write_csv,
 )
 from ..stats import min_max
-from .noise_floors import pair_floors
 
 
 def _nanmean(values: np.ndarray) -> float:

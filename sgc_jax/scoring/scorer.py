@@ -133,7 +133,7 @@ class Scorer:
         return steps
 
     def _summarize(self, out: dict, pair_valid, depth_unit) -> dict:
-        summary = summarize_on_device(out, pair_valid, depth_unit, self.calibration)
+        summary = summarize_on_device(out, pair_valid, depth_unit, self.calibration, self.config.compat)
         return {**summary, **reward(summary, self.calibration, self.reward_options)}
 
     def _compile(self) -> dict:

@@ -8,6 +8,9 @@ import jax.numpy as jnp
 from ...calibration import COMPONENTS, Calibration, sgc_score
 from ...calibration.interval import score_interval
 from ...codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
+from ...io.tables import FLOOR_COLUMNS
+from ..noise_floors import floors_of
+from ..units import PERCENT
 
 
 def nanmean(values, mask):
@@ -47,9 +50,25 @@ def clip_status(reason, pair_valid, sgc):
         SCORER_STATUS_CODE["error"]).astype(jnp.int32)
 
 
-def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration) -> dict:
+def clip_floors(out: dict, pair_valid, calibration: Calibration, compat: str) -> dict:
+    """The noise floors (docs/semantics.md §3.10) of each clip (B,), means over its pairs, and
+    ``sgc_floor``; NaN under compat="authors"."""
+    B = pair_valid.shape[0]
+    if compat == "authors":
+        return {name: jnp.full(B, jnp.nan) for name in (*FLOOR_COLUMNS, "sgc_floor")}
+    per_pair = floors_of(out["region_status"], out["region_rot_std"], PERCENT * out["region_trans_std"],
+                         {k: out[k] for k in COMPONENTS}, xp=jnp)
+    floors = {name: nanmean(value, pair_valid) for name, value in per_pair.items()}
+    score = sgc_score({**{name.removesuffix("_floor"): value for name, value in floors.items()},
+                       "depth_error": jnp.zeros(B)}, calibration, xp=jnp)
+    known = ~jnp.all(jnp.stack([jnp.isnan(v) for v in floors.values()]), axis=0)
+    return {**floors, "sgc_floor": jnp.where(known, score, jnp.nan)}
+
+
+def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration, compat: str) -> dict:
     """The finish stage's output (leading axes B, T-1), the pairs each clip has (B, T-1) and its D
-    (B,) -> per-clip arrays (B,): the components, sgc and its interval, ecd_trans, ecd_rot, ecd, status and counts."""
+    (B,) -> per-clip arrays (B,): the components, sgc and its interval, the noise floors, ecd_trans,
+    ecd_rot, ecd, status and counts."""
     mean = lambda name: nanmean(out[name], pair_valid)  # noqa: E731
     components = {k: mean(k) for k in COMPONENTS}
     sgc = sgc_score(components, calibration, xp=jnp)
@@ -58,7 +77,7 @@ def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibrat
     ecd_trans, ecd_rot = mean("t_g_norm"), mean("R_g_angle_deg")
     reason = out["reason"]
     return dict(
-        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
+        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **clip_floors(out, pair_valid, calibration, compat), reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
         ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
         n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),
         n_pairs_scored=jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1, dtype=jnp.int32),

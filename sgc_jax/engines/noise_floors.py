@@ -1,0 +1,84 @@
+"""Noise floors (docs/semantics.md §3.10): per frame pair, the value each pose component would take
+if the world were perfectly consistent and every accepted local pose missed it only by its own
+fit's noise (the region uncertainties of §3.3). Written once for NumPy (the tables) and
+``jax.numpy`` (the Scorer)."""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from typing import Any
+
+import numpy as np
+
+from ..codes import REGION_OK
+from ..io.tables import FLOOR_COLUMNS
+from .pairs import PairArrays
+from .units import PERCENT
+
+# Draws of the parametric floor of the trimmed global_rot_var: its relative sampling error is about
+# sqrt(2/3) / sqrt(FLOOR_DRAWS n) for n regions, under 3 % for every pair.
+FLOOR_DRAWS = 1024
+FLOOR_SEED = 0
+
+
+@functools.lru_cache(maxsize=256)
+def _unit_square_column(j: int) -> np.ndarray:
+    normal = np.random.default_rng((FLOOR_SEED, j)).standard_normal((FLOOR_DRAWS, 3))
+    return np.sum(normal ** 2, axis=1) / 3.0
+
+
+def unit_squares(k: int) -> np.ndarray:
+    """(FLOOR_DRAWS, k) |z|^2 / 3 for standard normal z in 3-D: the squared size of an isotropic
+    error of RMS size 1; column j seeded alone (the j-th accepted pose of any pair)."""
+    return np.stack([_unit_square_column(j) for j in range(k)], axis=1)
+
+
+def trimmed_means(values: Any, xp=np) -> Any:
+    """The trimmed mean of docs/semantics.md §3.5 (``global_rot_var``, spec) over the last axis of
+    ``values``, NaN entries left out: keep q1 - k IQR <= v <= p98, k = (p98 - q3) / IQR; all of
+    them when IQR = 0 or the bounds keep nothing."""
+    q1, q3, p98 = (xp.nanpercentile(values, q, axis=-1, keepdims=True) for q in (25, 75, 98))
+    iqr = q3 - q1
+    spread = xp.where(iqr > 0, iqr, 1.0)
+    kept = (values >= q1 - (p98 - q3) / spread * iqr) & (values <= p98) & (iqr > 0)
+    count = xp.sum(kept, axis=-1)
+    present = ~xp.isnan(values)
+    mean = xp.sum(xp.where(present, values, 0.0), axis=-1) / xp.maximum(xp.sum(present, axis=-1), 1)
+    return xp.where(count > 0, xp.sum(xp.where(kept, values, 0.0), axis=-1) / xp.maximum(count, 1), mean)
+
+
+def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, components: dict[str, Any],
+              xp=np) -> dict[str, Any]:
+    """FLOOR_COLUMNS -> (...,) from each pair's region statuses, rotation uncertainties [deg] and
+    translation uncertainties [% of D] (..., k), and its components (...,): NaN where the pair has
+    no accepted pose or the component is NaN (no global pose)."""
+    k = region_status.shape[-1]
+    accepted = region_status == REGION_OK
+    n = xp.sum(accepted, axis=-1)
+    mean_square = lambda std: (xp.sum(xp.where(accepted, std, 0.0) ** 2, axis=-1)  # noqa: E731
+                               / xp.maximum(n, 1))
+    spread = 1.0 - 1.0 / xp.maximum(n, 1)  # E[mean_j |e_j - mean e|^2] = (1 - 1/n) mean_j sigma_j^2
+    # the trim has no closed form: the accepted poses first, each with its column of seeded draws
+    order = xp.argsort(xp.where(accepted, 0, k) + xp.arange(k), axis=-1)
+    rot_sorted = xp.take_along_axis(rot_std, order, axis=-1)[..., None, :]  # (..., 1, k)
+    first_n = (xp.arange(k) < n[..., None])[..., None, :]
+    draws = xp.where(first_n, xp.asarray(unit_squares(k)) * rot_sorted ** 2, np.nan)  # (..., draws, k)
+    trimmed = xp.mean(trimmed_means(draws, xp), axis=-1)
+    floors = {"local_rot_var_floor": spread * mean_square(rot_std),
+              "local_trans_var_floor": spread * mean_square(trans_std_percent),
+              "global_rot_var_floor": trimmed,
+              "global_trans_var_floor": mean_square(trans_std_percent)}
+    return {name: xp.where((n > 0) & ~xp.isnan(components[name.removesuffix("_floor")]), value, np.nan)
+            for name, value in floors.items()}
+
+
+def pair_floors(pairs: PairArrays, compat: str) -> dict[str, np.ndarray]:
+    """FLOOR_COLUMNS -> (n_pairs,) of a clip's pairs in the components' units; NaN everywhere under
+    compat="authors", whose translation units differ between terms."""
+    if compat == "authors":
+        return {name: np.full(pairs.n_pairs, np.nan) for name in FLOOR_COLUMNS}
+    with warnings.catch_warnings():  # a pair without a pose: all-NaN percentiles, masked above
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return floors_of(pairs.region_status, np.asarray(pairs.region_rot_std, np.float64),
+                         PERCENT * np.asarray(pairs.region_trans_std, np.float64), pairs.components())
