@@ -6,7 +6,6 @@ fit's noise (the region uncertainties of §3.3). Written once for NumPy (the tab
 from __future__ import annotations
 
 import functools
-import warnings
 from typing import Any
 
 import numpy as np
@@ -34,17 +33,29 @@ def unit_squares(k: int) -> np.ndarray:
     return np.stack([_unit_square_column(j) for j in range(k)], axis=1)
 
 
-def trimmed_means(values: Any, xp=np) -> Any:
-    """The trimmed mean of docs/semantics.md §3.5 (``global_rot_var``, spec) over the last axis of
-    ``values``, NaN entries left out: keep q1 - k IQR <= v <= p98, k = (p98 - q3) / IQR; all of
-    them when IQR = 0 or the bounds keep nothing."""
-    q1, q3, p98 = (xp.nanpercentile(values, q, axis=-1, keepdims=True) for q in (25, 75, 98))
+def _percentile(ordered: Any, n: Any, q: float, xp) -> Any:
+    """The q-th percentile (linear interpolation) of the first n entries of ``ordered``, sorted
+    along the last axis; n >= 1 broadcasts against its other axes. A gather where NumPy's
+    ``nanpercentile`` would loop over rows."""
+    position = (q / 100.0) * (n - 1)
+    below = xp.floor(position)
+    lo = xp.take_along_axis(ordered, below.astype(xp.int32)[..., None], axis=-1)[..., 0]
+    hi = xp.take_along_axis(ordered, xp.minimum(below + 1, n - 1).astype(xp.int32)[..., None], axis=-1)[..., 0]
+    return lo + (position - below) * (hi - lo)
+
+
+def trimmed_means(values: Any, n: Any, xp=np) -> Any:
+    """The trimmed mean of docs/semantics.md §3.5 (``global_rot_var``, spec) of the first n entries
+    of the last axis of ``values`` (n broadcasts against its other axes): keep q1 - k IQR <= v <= p98, k = (p98 - q3) / IQR; all
+    of them when IQR = 0 or the bounds keep nothing."""
+    n = xp.maximum(n, 1)
+    ordered = xp.sort(values, axis=-1)  # NaN (the entries past n) sorts last
+    q1, q3, p98 = (_percentile(ordered, n, q, xp)[..., None] for q in (25, 75, 98))
     iqr = q3 - q1
-    spread = xp.where(iqr > 0, iqr, 1.0)
-    kept = (values >= q1 - (p98 - q3) / spread * iqr) & (values <= p98) & (iqr > 0)
+    present = xp.arange(values.shape[-1]) < n[..., None]
+    kept = present & (values >= q1 - (p98 - q3)) & (values <= p98) & (iqr > 0)
     count = xp.sum(kept, axis=-1)
-    present = ~xp.isnan(values)
-    mean = xp.sum(xp.where(present, values, 0.0), axis=-1) / xp.maximum(xp.sum(present, axis=-1), 1)
+    mean = xp.sum(xp.where(present, values, 0.0), axis=-1) / n
     return xp.where(count > 0, xp.sum(xp.where(kept, values, 0.0), axis=-1) / xp.maximum(count, 1), mean)
 
 
@@ -64,7 +75,7 @@ def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, componen
     rot_sorted = xp.take_along_axis(rot_std, order, axis=-1)[..., None, :]  # (..., 1, k)
     first_n = (xp.arange(k) < n[..., None])[..., None, :]
     draws = xp.where(first_n, xp.asarray(unit_squares(k)) * rot_sorted ** 2, np.nan)  # (..., draws, k)
-    trimmed = xp.mean(trimmed_means(draws, xp), axis=-1)
+    trimmed = xp.mean(trimmed_means(draws, n[..., None], xp), axis=-1)
     floors = {"local_rot_var_floor": spread * mean_square(rot_std),
               "local_trans_var_floor": spread * mean_square(trans_std_percent),
               "global_rot_var_floor": trimmed,
@@ -78,7 +89,6 @@ def pair_floors(pairs: PairArrays, compat: str) -> dict[str, np.ndarray]:
     compat="authors", whose translation units differ between terms."""
     if compat == "authors":
         return {name: np.full(pairs.n_pairs, np.nan) for name in FLOOR_COLUMNS}
-    with warnings.catch_warnings():  # a pair without a pose: all-NaN percentiles, masked above
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with np.errstate(invalid="ignore"):  # a pair without a pose: NaN draws, masked in floors_of
         return floors_of(pairs.region_status, np.asarray(pairs.region_rot_std, np.float64),
                          PERCENT * np.asarray(pairs.region_trans_std, np.float64), pairs.components())
