@@ -34,9 +34,7 @@ def clip_score(pairs: PairArrays) -> float:
 
 
 def interval(pairs: PairArrays) -> tuple[float, float]:
-    components = pairs.components()
-    usable = ~np.all([np.isnan(v) for v in components.values()], axis=0)
-    return tuple(float(v) for v in score_interval(components, usable, clip_score(pairs), CALIBRATION))
+    return tuple(float(v) for v in score_interval(pairs.components(), clip_score(pairs), CALIBRATION))
 
 
 def random_pairs(rng: np.random.Generator, n_pairs: int, level: float) -> PairArrays:

@@ -37,11 +37,19 @@ def small_sample_widening(n: int, level: float = INTERVAL_LEVEL) -> float:
     return float(stdtrit(n - 1, tail) / ndtri(tail) * np.sqrt(n / (n - 1)))
 
 
-def score_interval(pair_components: Mapping[str, Any], usable: Any, score: Any, calibration: Calibration,
-                   xp=np) -> tuple[Any, Any]:
-    """(sgc_lo, sgc_hi) (...,) from each component's per-pair values (..., n_pairs), the pairs that
-    count (..., n_pairs) bool (a pair of the clip with a component) and the clip's score (...,);
-    NaN where fewer than MIN_PAIRS pairs count."""
+@functools.lru_cache(maxsize=64)
+def _widenings(n_pairs: int) -> np.ndarray:
+    """(n_pairs + 1,) small_sample_widening(n) by n, NaN below MIN_PAIRS."""
+    return np.array([small_sample_widening(m) if m >= MIN_PAIRS else np.nan for m in range(n_pairs + 1)])
+
+
+def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: Calibration,
+                   valid: Any = True, xp=np) -> tuple[Any, Any]:
+    """(sgc_lo, sgc_hi) (...,) from each component's per-pair values (..., n_pairs) and the clip's
+    score (...,); the pairs that count are the ``valid`` ones (..., n_pairs; padding excluded) with
+    a component. NaN where fewer than MIN_PAIRS pairs count."""
+    values = [xp.asarray(pair_components[k]) for k in COMPONENTS]
+    usable = valid & ~xp.all(xp.stack([xp.isnan(v) for v in values]), axis=0)
     n_pairs = usable.shape[-1]
     n = xp.sum(usable, axis=-1)  # (...,)
     # the counted pairs first, in order: resample position i draws the floor(u n)-th of them
@@ -51,18 +59,17 @@ def score_interval(pair_components: Mapping[str, Any], usable: Any, score: Any, 
     drawn = xp.take_along_axis(order[..., None, :], xp.maximum(drawn, 0).astype(xp.int32), axis=-1)
     in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, n_pairs): the first n positions
     means = {}
-    for k in COMPONENTS:
-        values = xp.take_along_axis(xp.asarray(pair_components[k])[..., None, :], drawn, axis=-1)
-        keep = in_resample & ~xp.isnan(values)
+    for k, per_pair in zip(COMPONENTS, values):
+        resampled = xp.take_along_axis(per_pair[..., None, :], drawn, axis=-1)
+        keep = in_resample & ~xp.isnan(resampled)
         count = xp.sum(keep, axis=-1)
-        total = xp.sum(xp.where(keep, values, 0.0), axis=-1)
+        total = xp.sum(xp.where(keep, resampled, 0.0), axis=-1)
         means[k] = xp.where(count > 0, total / xp.maximum(count, 1), np.nan)  # (..., draws)
     scores = sgc_score(means, calibration, xp=xp)
     tail = 50.0 * (1.0 - INTERVAL_LEVEL)
     q_lo = xp.percentile(scores, tail, axis=-1)
     q_hi = xp.percentile(scores, 100.0 - tail, axis=-1)
-    widenings = np.array([small_sample_widening(m) if m >= MIN_PAIRS else np.nan for m in range(n_pairs + 1)])
-    widen = xp.asarray(widenings)[n]
+    widen = xp.asarray(_widenings(n_pairs))[n]
     lo = xp.maximum(0.0, score - widen * xp.maximum(score - q_lo, 0.0))
     hi = score + widen * xp.maximum(q_hi - score, 0.0)
     enough = n >= MIN_PAIRS

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..calibration import Calibration, sgc_score
 from ..codes import REGION_OK
 from ..io.tables import FLOOR_COLUMNS
 from .pairs import PairArrays
@@ -46,8 +47,8 @@ def _percentile(ordered: Any, n: Any, q: float, xp) -> Any:
 
 def trimmed_means(values: Any, n: Any, xp=np) -> Any:
     """The trimmed mean of docs/semantics.md §3.5 (``global_rot_var``, spec) of the first n entries
-    of the last axis of ``values`` (n broadcasts against its other axes): keep q1 - k IQR <= v <= p98, k = (p98 - q3) / IQR; all
-    of them when IQR = 0 or the bounds keep nothing."""
+    of the last axis of ``values`` (n broadcasts against its other axes): keep q1 - k IQR <= v <=
+    p98, k = (p98 - q3) / IQR; all of them when IQR = 0 or the bounds keep nothing."""
     n = xp.maximum(n, 1)
     ordered = xp.sort(values, axis=-1)  # NaN (the entries past n) sorts last
     q1, q3, p98 = (_percentile(ordered, n, q, xp)[..., None] for q in (25, 75, 98))
@@ -82,6 +83,15 @@ def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, componen
               "global_trans_var_floor": mean_square(trans_std_percent)}
     return {name: xp.where((n > 0) & ~xp.isnan(components[name.removesuffix("_floor")]), value, np.nan)
             for name, value in floors.items()}
+
+
+def floor_score(floors: dict[str, Any], calibration: Calibration, xp=np) -> Any:
+    """``sgc_floor`` (...,): the score formula on the pose components' floors, the depth error
+    counted as 0 (its floor is not available, docs/semantics.md §3.10); NaN when no floor is known."""
+    values = [xp.asarray(floors[name]) for name in FLOOR_COLUMNS]
+    score = sgc_score({**{name.removesuffix("_floor"): v for name, v in zip(FLOOR_COLUMNS, values)},
+                       "depth_error": xp.zeros_like(values[0])}, calibration, xp=xp)
+    return xp.where(xp.all(xp.stack([xp.isnan(v) for v in values]), axis=0), np.nan, score)
 
 
 def pair_floors(pairs: PairArrays, compat: str) -> dict[str, np.ndarray]:

@@ -18,7 +18,7 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..calibration.interval import score_interval
 from ..codes import CLIP_STATUSES
-from ..engines.noise_floors import pair_floors
+from ..engines.noise_floors import floor_score, pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
 from ..io.tables import (
@@ -110,8 +110,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     sgc = float(sgc_score(components, calibration))
-    usable = ~np.all([np.isnan(np.asarray(v, np.float64)) for v in pairs.components().values()], axis=0)
-    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), usable, sgc, calibration))
+    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration))
     per_pair = pair_floors(pairs, compat)
     floors = {k: _nanmean(v) for k, v in per_pair.items()}
     reasons = Counter(str(r) for r in pairs.reason)
@@ -126,21 +125,12 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     return ClipResult(
         clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi,
         components=components,
-        floors=floors, sgc_floor=floor_score(floors, calibration),
+        floors=floors, sgc_floor=float(floor_score(floors, calibration)),
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
         n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs,
         pair_floors=per_pair)
-
-
-def floor_score(floors: Mapping[str, float], calibration: Calibration) -> float:
-    """``sgc_floor``: the score formula on the pose components' floors, the depth error counted as 0
-    (its floor is not available, docs/semantics.md §3.10); NaN when no floor is known."""
-    if all(math.isnan(v) for v in floors.values()):
-        return float("nan")
-    return float(sgc_score({**{k.removesuffix("_floor"): v for k, v in floors.items()}, "depth_error": 0.0},
-                           calibration))
 
 
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
@@ -190,7 +180,7 @@ def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration 
     nan = float("nan")
     out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {}),
             **({k: nan for k in INTERVAL_COLUMNS if k in r}),
-            **({"sgc_floor": floor_score({k: float(r[k]) for k in FLOOR_COLUMNS}, calibration)}
+            **({"sgc_floor": float(floor_score({k: float(r[k]) for k in FLOOR_COLUMNS}, calibration))}
                if "sgc_floor" in r else {})}
            for r, v in zip(records, sgc)]
     return add_ecd(out) if any("ecd_trans" in r for r in out) else out

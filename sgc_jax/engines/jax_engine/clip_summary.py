@@ -9,7 +9,7 @@ from ...calibration import COMPONENTS, Calibration, sgc_score
 from ...calibration.interval import score_interval
 from ...codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
 from ...io.tables import FLOOR_COLUMNS
-from ..noise_floors import floors_of
+from ..noise_floors import floor_score, floors_of
 from ..units import PERCENT
 
 
@@ -59,10 +59,7 @@ def clip_floors(out: dict, pair_valid, calibration: Calibration, compat: str) ->
     per_pair = floors_of(out["region_status"], out["region_rot_std"], PERCENT * out["region_trans_std"],
                          {k: out[k] for k in COMPONENTS}, xp=jnp)
     floors = {name: nanmean(value, pair_valid) for name, value in per_pair.items()}
-    score = sgc_score({**{name.removesuffix("_floor"): value for name, value in floors.items()},
-                       "depth_error": jnp.zeros(B)}, calibration, xp=jnp)
-    known = ~jnp.all(jnp.stack([jnp.isnan(v) for v in floors.values()]), axis=0)
-    return {**floors, "sgc_floor": jnp.where(known, score, jnp.nan)}
+    return {**floors, "sgc_floor": floor_score(floors, calibration, xp=jnp)}
 
 
 def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration, compat: str) -> dict:
@@ -72,12 +69,12 @@ def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibrat
     mean = lambda name: nanmean(out[name], pair_valid)  # noqa: E731
     components = {k: mean(k) for k in COMPONENTS}
     sgc = sgc_score(components, calibration, xp=jnp)
-    usable = pair_valid & ~jnp.all(jnp.stack([jnp.isnan(out[k]) for k in COMPONENTS]), axis=0)
-    sgc_lo, sgc_hi = score_interval({k: out[k] for k in COMPONENTS}, usable, sgc, calibration, xp=jnp)
+    sgc_lo, sgc_hi = score_interval(out, sgc, calibration, pair_valid, xp=jnp)
     ecd_trans, ecd_rot = mean("t_g_norm"), mean("R_g_angle_deg")
     reason = out["reason"]
     return dict(
-        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **clip_floors(out, pair_valid, calibration, compat), reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
+        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **clip_floors(out, pair_valid, calibration, compat),
+        reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
         ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
         n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),
         n_pairs_scored=jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1, dtype=jnp.int32),
