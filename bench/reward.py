@@ -1,9 +1,10 @@
 """The Scorer's throughput (docs/semantics.md §9): clips per second for each batch size B, arrays
-already on the device, forward only; against ``score_batch``'s one clip per program call, in
+already on the device, forward only; against ``score_batch`` on the same clips in memory, in
 the same run; then, optionally, a corpus scored from disk through ``score_batch``.
 
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
-                           [--vectorized] [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
+                           [--vectorized] [--no-baseline] [--profile DIR]
+                           [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs
@@ -11,13 +12,21 @@ scene); --shape scores smaller ones. Each B compiles its programs once (timed ap
 same clips, held in memory, with ``score_batch`` (host preparation and padding per clip, one
 program call each). --disk-clips N > 0 writes (once) and scores N standard clip files with
 ``score_batch(folder, out=...)`` and reports clips per second and the share of the wall time the
-scorer waited for input. --vectorized runs the Scorer's accelerator form (docs/semantics.md §9.3)
-on any device; it is the default on accelerators.
+scorer waited for input and summarised clips. --vectorized runs the Scorer's accelerator form
+(docs/semantics.md §9.3) on any device; it is the default on accelerators. --profile DIR times each
+step of each B's call apart (waited for one by one) and writes a Perfetto trace of one call into
+DIR/B<B> (and the optimized HLO of the first B's pose program); on a GPU it prints, per step, the kernels
+launched, the time the device was busy and the most launched kernels (a while loop's body is
+launched once per iteration, so their counts are the loops' iteration counts).
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import gzip
+import json
+import shutil
 import statistics
 import sys
 import tempfile
@@ -27,6 +36,7 @@ from pathlib import Path
 import jax
 
 from sgc_jax import Scorer, enable_compilation_cache, score_batch
+from sgc_jax.engines.jax_engine.stages import STAGES, stage_inputs
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.scoring.streaming import StreamStats
@@ -43,7 +53,8 @@ def clips_of(shape: tuple[int, int, int, int], n: int) -> list:
             for i in range(min(n, DISTINCT))]
 
 
-def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: bool | None) -> dict:
+def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: bool | None,
+                profile: Path | None = None, with_hlo: bool = False) -> dict:
     begin = time.perf_counter()
     scorer = Scorer((B, *shape), vectorized=vectorized)
     compile_s = time.perf_counter() - begin
@@ -55,10 +66,86 @@ def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: boo
         jax.block_until_ready(scorer(batch))
         calls.append(time.perf_counter() - begin)
     call = statistics.median(calls)
+    if profile is not None:
+        profile_steps(scorer, batch, repeats, profile, with_hlo)
     return {"B": B, "compile_s": compile_s, "call_s": call, "clips_per_s": B / call}
 
 
-def one_clip_per_call_rate(clips: list, repeats: int) -> float:
+def timed_steps(scorer: Scorer, batch: dict) -> dict[str, float]:
+    """Seconds of each step of one program call (the first lane's clips on a CPU), each waited for."""
+    clips = scorer._rows(scorer.clip_arrays(batch), 0, scorer.call_size)
+    programs, clips = scorer._compiled, jax.device_put(clips, scorer._sharding())
+    seconds, out = {}, None
+
+    def step(name, *args):
+        begin = time.perf_counter()
+        value = jax.block_until_ready(programs[name](*args))
+        seconds[name] = time.perf_counter() - begin
+        return value
+
+    padded = step("prepare", clips)
+    for stage in STAGES:
+        out = step(stage, stage_inputs(stage, padded, out), scorer._key, scorer._values)
+    step("summarize", out, padded.pair_valid, padded.depth_unit)
+    return seconds
+
+
+def profile_steps(scorer: Scorer, batch: dict, repeats: int, folder: Path, with_hlo: bool) -> None:
+    """Each step's median time; a trace of one call (steps waited for one by one) and, with_hlo,
+    the pose program's optimized HLO into ``folder``; on a GPU, what the trace says of each step's kernels."""
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = [timed_steps(scorer, batch) for _ in range(repeats)]
+    B = scorer.shape[0]
+    print(f"steps of one call, B={B} (median of {repeats}, each waited for): " + ", ".join(
+        f"{name} {1000 * statistics.median(r[name] for r in runs):.1f} ms" for name in runs[0]), flush=True)
+    if with_hlo:
+        with gzip.open(folder / "pose_hlo.txt.gz", "wt") as f:
+            f.write(scorer._compiled["pose"].as_text())
+    trace_dir = folder / "trace"
+    with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
+        jax.block_until_ready(timed_steps(scorer, batch))
+    [trace] = trace_dir.glob("**/perfetto_trace.json.gz")
+    trace.rename(folder / "perfetto_trace.json.gz")
+    shutil.rmtree(trace_dir)
+    print(kernel_summary(folder / "perfetto_trace.json.gz"), flush=True)
+
+
+def kernel_summary(trace: Path, top: int = 8) -> str:
+    """Per step of the traced call, the kernels run on the accelerator: how many, the time the
+    device was busy (overlaps merged) within the step's window, and the most launched kernels."""
+    with gzip.open(trace, "rt") as f:
+        events = json.load(f)
+    events = events["traceEvents"] if isinstance(events, dict) else events
+    devices = {e["pid"] for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
+               and "/device:" in str(e.get("args", {}).get("name", "")) and "CPU" not in str(e["args"]["name"])}
+    kernels = [e for e in events if e.get("ph") == "X" and e.get("pid") in devices]
+    if not kernels:
+        return "no accelerator kernels in the trace (a CPU run)"
+    # the steps' windows: the Python tracer's events of timed_steps' ``step``, in call order
+    calls = sorted((float(e["ts"]), float(e["ts"]) + float(e["dur"])) for e in events
+                   if e.get("ph") == "X" and str(e.get("name", "")).startswith("$reward.py")
+                   and str(e["name"]).endswith(" step"))
+    windows = [(name, *call) for name, call in zip(("prepare", *STAGES, "summarize"), calls)]
+    lines = []
+    for name, start, stop in windows:
+        inside = [e for e in kernels if start <= float(e["ts"]) < stop]
+        spans = sorted((float(e["ts"]), float(e["ts"]) + float(e.get("dur", 0))) for e in inside)
+        busy, end = 0.0, -1.0
+        for begin, finish in spans:
+            busy += max(0.0, finish - max(begin, end))
+            end = max(end, finish)
+        lines.append(f"{name}: {(stop - start) / 1000:.1f} ms, {len(inside)} kernels, device busy "
+                     f"{busy / 1000:.1f} ms ({100 * busy / max(stop - start, 1e-9):.0f} %)")
+        by_name = collections.defaultdict(lambda: [0, 0.0])
+        for e in inside:
+            by_name[e["name"]][0] += 1
+            by_name[e["name"]][1] += float(e.get("dur", 0))
+        for kernel, (count, total) in sorted(by_name.items(), key=lambda kv: -kv[1][0])[:top]:
+            lines.append(f"  {count:7d} x, {total / 1000:8.2f} ms  {kernel[:80]}")
+    return "\n".join(lines)
+
+
+def score_batch_rate(clips: list, repeats: int) -> float:
     score_batch(clips[:1], progress=False)  # compile
     times = []
     for _ in range(repeats):
@@ -69,7 +156,9 @@ def one_clip_per_call_rate(clips: list, repeats: int) -> float:
 
 
 def disk_rate(folder: Path, n: int) -> StreamStats:
+    begin = time.perf_counter()
     paths = write_corpus(folder, n)
+    print(f"corpus of {n} clips ready in {time.perf_counter() - begin:.0f} s", flush=True)
     score_batch(paths[:1], progress=False)  # compile
     stats = StreamStats()
     with tempfile.TemporaryDirectory() as out:
@@ -84,6 +173,9 @@ def main() -> None:
                                                                 SCENE["n_tracks"]], metavar=("T", "H", "W", "P"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--vectorized", action="store_true", default=None)
+    parser.add_argument("--no-baseline", dest="baseline", action="store_false",
+                        help="skip score_batch's in-memory rate (on accelerators it compiles groups of 16)")
+    parser.add_argument("--profile", type=Path, default=None, metavar="DIR")
     parser.add_argument("--disk-clips", type=int, default=0)
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
     args = parser.parse_args()
@@ -93,19 +185,24 @@ def main() -> None:
     print(f"device: {device.device_kind} ({jax.default_backend()}), {jax.device_count()} device(s); "
           f"clips of {shape[0]} frames, {shape[1]}x{shape[2]} px, {shape[3]} tracks per pair")
     clips = clips_of(shape, max(args.batch_sizes))
-    baseline = one_clip_per_call_rate(clips, args.repeats)
-    print(f"score_batch, one clip per program call, in memory: {baseline:.2f} clips/s")
-    print("| B | compile s | call s | clips/s | vs one clip per call |")
-    print("|---|---|---|---|---|")
-    for B in args.batch_sizes:
-        row = scorer_rate(clips, B, shape, args.repeats, args.vectorized)
+    baseline = float("nan")
+    if args.baseline:
+        baseline = score_batch_rate(clips, args.repeats)
+        how = "one clip per program call" if jax.default_backend() == "cpu" else "groups of a bucket per call"
+        print(f"score_batch, in memory ({how}): {baseline:.2f} clips/s", flush=True)
+    print("| B | compile s | call s | clips/s | vs score_batch |")
+    print("|---|---|---|---|---|", flush=True)
+    for i, B in enumerate(args.batch_sizes):
+        row = scorer_rate(clips, B, shape, args.repeats, args.vectorized,
+                          args.profile / f"B{B}" if args.profile else None, with_hlo=i == 0)
         print(f"| {B} | {row['compile_s']:.0f} | {row['call_s']:.3f} | {row['clips_per_s']:.2f} | "
               f"{row['clips_per_s'] / baseline:.2f}x |", flush=True)
     if args.disk_clips > 0:
         stats = disk_rate(Path(args.dir), args.disk_clips)
         print(f"from disk, score_batch: {stats.scored} clips in {stats.wall_s:.1f} s = "
-              f"{stats.scored / stats.wall_s:.2f} clips/s; waited for input {100 * stats.input_wait_share:.0f} % "
-              "of the wall time")
+              f"{stats.scored / stats.wall_s:.2f} clips/s; the scoring thread waited for input "
+              f"{100 * stats.input_wait_share:.0f} % of the wall time and summarised clips "
+              f"{100 * stats.summary_s / stats.wall_s:.0f} %", flush=True)
 
 
 if __name__ == "__main__":

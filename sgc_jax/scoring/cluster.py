@@ -117,6 +117,7 @@ def _add_stats(stats: StreamStats, shard: StreamStats) -> None:
     stats.resumed += shard.resumed
     stats.errors += shard.errors
     stats.input_wait_s += shard.input_wait_s  # summed over the scorers, which wait in parallel
+    stats.summary_s += shard.summary_s
 
 
 def _claimed(entry: ClipEntry, item: Streamed, scoring: Scoring, stats: StreamStats) -> Streamed:

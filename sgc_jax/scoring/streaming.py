@@ -33,14 +33,15 @@ Done = Mapping[tuple[str, str], Mapping[str, str]]  # rows of an earlier run's o
 @dataclasses.dataclass
 class StreamStats:
     """What a stream did: clips handed on (``scored``, ``resumed`` from an earlier output,
-    ``errors``), its wall time, and the time the scoring thread waited for a clip to be read (an
-    upper bound of the device's wait for input)."""
+    ``errors``), its wall time, the time the scoring thread waited for a clip to be read (an
+    upper bound of the device's wait for input) and the time it spent summarising scored clips."""
 
     scored: int = 0
     resumed: int = 0
     errors: int = 0
     wall_s: float = 0.0
     input_wait_s: float = 0.0
+    summary_s: float = 0.0
 
     @property
     def input_wait_share(self) -> float:
@@ -108,9 +109,11 @@ class _Stream:
 
     def _finished(self, read: Read, pairs: PairArrays) -> Streamed:
         s, identity = self.scoring, read.identity
+        begin = time.perf_counter()
         result = summarize_clip(identity.clip_id, pairs, s.calibration, group=identity.group, engine=s.engine,
                                 mask_source=identity.mask_source, origin=read.entry.origin, compat=s.config.compat)
         self.stats.scored += 1
+        self.stats.summary_s += time.perf_counter() - begin
         return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=s.run_id), None)
 
     def _launch(self) -> Iterator[Streamed]:
