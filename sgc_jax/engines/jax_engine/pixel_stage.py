@@ -22,7 +22,8 @@ def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConf
     at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
     regions = dict(k=config.k_seg, min_region_pixels=config.min_region_pixels)
     if config.partition == "depth":  # the points labelled from each bin's region, never whole label maps
-        partition = depth_partition(depth_curr, region_mask, bins=config.kmeans_bins, **regions)
+        partition = depth_partition(depth_curr, region_mask, bins=config.kmeans_bins, **regions,
+                                    frames_at_once=config.vectorized)
         labels = jax.vmap(region_of_depth)(partition, at_points(depth_curr, pixel), at_points(region_mask, pixel))
         n_regions = partition.n_regions
     else:  # frame by frame on CPU: unbatched scatters run several times faster there
