@@ -3,6 +3,7 @@ synthetic scenes, consistent and perturbed at severity 0.5, across tracker noise
 the default SGC beside trial "excess" SGCs.
 
     python bench/excess_score.py [--scenes 3] [--draws 3] [--tracks 200 1000 4000] [--bands 1 2] [--out excess.csv]
+                                 [--quality-noise-px 1.0]
 
 Each scene's geometry is fixed; its tracks get ``--draws`` independent draws of Gaussian noise
 (bench/intervals.py's) after the perturbation. A trial score is the spec formula (docs/semantics.md
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgc_jax import COMPONENTS, score_batch
+from sgc_jax import COMPONENTS, SGCConfig, score_batch
 from sgc_jax.calibration import Calibration, sgc_score
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.synth import synth_clip
@@ -59,7 +60,10 @@ def main() -> None:
     parser.add_argument("--tracks", type=int, nargs="+", default=[200, 1000, 4000])
     parser.add_argument("--bands", type=float, nargs="+", default=[1.0, 2.0])
     parser.add_argument("--out", default=None, help="CSV of every clip's scores, components and floors")
+    parser.add_argument("--quality-noise-px", type=float, default=SGCConfig().quality_noise_px,
+                        help="the region-quality rule's cap on the residual sigma (a value: no recompile)")
     args = parser.parse_args()
+    config = SGCConfig(quality_noise_px=args.quality_noise_px)
     trial = excess_calibration(Calibration.load("sgc-spec-2026"))
     rows = []
     for tracks, (s, scene) in itertools.product(args.tracks, enumerate(SCENES[:args.scenes])):
@@ -68,7 +72,7 @@ def main() -> None:
         bases = {"none": clean, **{kind: perturb_clip(clean, kind, SEVERITY, seed=s) for kind in PERTURBATIONS}}
         cells = list(itertools.product(bases, NOISE_PX, range(args.draws)))
         clips = [with_track_noise(bases[kind], noise, draw) for kind, noise, draw in cells]
-        for (kind, noise, draw), result in zip(cells, score_batch(clips, progress=False).clips):
+        for (kind, noise, draw), result in zip(cells, score_batch(clips, config=config, progress=False).clips):
             rows.append(dict(scene=s, tracks=tracks, kind=kind, noise_px=noise, draw=draw, sgc=result.sgc,
                              **result.components, **result.floors))
         print(f"scene {s}, {tracks} tracks: scored {len(clips)} clips", flush=True)
