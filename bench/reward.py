@@ -36,7 +36,6 @@ from pathlib import Path
 import jax
 
 from sgc_jax import Scorer, enable_compilation_cache, score_batch
-from sgc_jax.engines.jax_engine.stages import STAGES, stage_inputs
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.scoring.streaming import StreamStats
@@ -72,21 +71,20 @@ def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: boo
 
 
 def timed_steps(scorer: Scorer, batch: dict) -> dict[str, float]:
-    """Seconds of each step of one program call (the first lane's clips on a CPU), each waited for."""
-    clips = scorer._rows(scorer.clip_arrays(batch), 0, scorer.call_size)
-    programs, clips = scorer._compiled, jax.device_put(clips, scorer._sharding())
-    seconds, out = {}, None
+    """Seconds of each step of one program call (the first lane's clips on a CPU), each waited
+    for, in the order the Scorer runs them."""
+    clips = jax.device_put(scorer._rows(scorer.clip_arrays(batch), 0, scorer.call_size), scorer._sharding())
+    seconds = {}
 
-    def step(name, *args):
-        begin = time.perf_counter()
-        value = jax.block_until_ready(programs[name](*args))
-        seconds[name] = time.perf_counter() - begin
-        return value
+    def waited(name, program):
+        def timed_call(*args):  # the trace's window of the step (kernel_summary)
+            begin = time.perf_counter()
+            value = jax.block_until_ready(program(*args))
+            seconds[name] = time.perf_counter() - begin
+            return value
+        return timed_call
 
-    padded = step("prepare", clips)
-    for stage in STAGES:
-        out = step(stage, stage_inputs(stage, padded, out), scorer._key, scorer._values)
-    step("summarize", out, padded.pair_valid, padded.depth_unit)
+    scorer._run({name: waited(name, program) for name, program in scorer._compiled.items()}, clips)
     return seconds
 
 
@@ -103,16 +101,17 @@ def profile_steps(scorer: Scorer, batch: dict, repeats: int, folder: Path, with_
             f.write(scorer._compiled["pose"].as_text())
     trace_dir = folder / "trace"
     with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
-        jax.block_until_ready(timed_steps(scorer, batch))
+        steps = list(timed_steps(scorer, batch))
     [trace] = trace_dir.glob("**/perfetto_trace.json.gz")
     trace.rename(folder / "perfetto_trace.json.gz")
     shutil.rmtree(trace_dir)
-    print(kernel_summary(folder / "perfetto_trace.json.gz"), flush=True)
+    print(kernel_summary(folder / "perfetto_trace.json.gz", steps), flush=True)
 
 
-def kernel_summary(trace: Path, top: int = 8) -> str:
-    """Per step of the traced call, the kernels run on the accelerator: how many, the time the
-    device was busy (overlaps merged) within the step's window, and the most launched kernels."""
+def kernel_summary(trace: Path, steps: list[str], top: int = 8) -> str:
+    """Per step of the traced call (``steps`` in call order), the kernels run on the accelerator:
+    how many, the time the device was busy (overlaps merged) within the step's window, and the most
+    launched kernels."""
     with gzip.open(trace, "rt") as f:
         events = json.load(f)
     events = events["traceEvents"] if isinstance(events, dict) else events
@@ -121,11 +120,11 @@ def kernel_summary(trace: Path, top: int = 8) -> str:
     kernels = [e for e in events if e.get("ph") == "X" and e.get("pid") in devices]
     if not kernels:
         return "no accelerator kernels in the trace (a CPU run)"
-    # the steps' windows: the Python tracer's events of timed_steps' ``step``, in call order
+    # the steps' windows: the Python tracer's events of timed_steps' ``timed_call``, in call order
     calls = sorted((float(e["ts"]), float(e["ts"]) + float(e["dur"])) for e in events
                    if e.get("ph") == "X" and str(e.get("name", "")).startswith("$reward.py")
-                   and str(e["name"]).endswith(" step"))
-    windows = [(name, *call) for name, call in zip(("prepare", *STAGES, "summarize"), calls)]
+                   and str(e["name"]).endswith(" timed_call"))
+    windows = [(name, *call) for name, call in zip(steps, calls)]
     lines = []
     for name, start, stop in windows:
         inside = [e for e in kernels if start <= float(e["ts"]) < stop]
