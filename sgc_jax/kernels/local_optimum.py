@@ -35,12 +35,14 @@ def noise_cut_sq(sigma_sq, inlier_px):
 
 
 class LocalOptima(NamedTuple):
-    """Poses (k, 6), each point's squared error under its region's pose (N,) [px^2], and each
-    region's truncated cost (k,) at the cut it was optimised at."""
+    """Poses (k, 6), each point's squared error under its region's pose (N,) [px^2], each
+    region's truncated cost (k,) at the cut it was optimised at, and the points (N,) bool its
+    pose is the least-squares fit of (the start's within-cut points where no fit was kept)."""
 
     poses: jax.Array
     err_sq: jax.Array
     cost: jax.Array
+    fitted_on: jax.Array
 
 
 class Fit(NamedTuple):
@@ -53,13 +55,16 @@ class Fit(NamedTuple):
     n_within: jax.Array  # (k,)
     done: jax.Array  # (k,) bool
     rounds: jax.Array  # () int32
+    fitted_on: jax.Array  # (N,) bool: the points the kept pose was fitted on
 
 
-def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds, slots=None) -> LocalOptima:
+def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds, slots=None,
+                 start_fitted_on=None) -> LocalOptima:
     """Every region's local optimum of the truncated cost at its cut (``cut_sq_point`` (N,): each
     point's region's squared cut) from ``start`` (k, 6): least squares on the members within the
     cut, again on the new ones, each fit kept only when it lowers the cost; a region stops at its
-    first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits."""
+    first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits.
+    ``start_fitted_on`` (N,): the points the start was fitted on (default: those within its cut)."""
     k = start.shape[0]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -82,13 +87,15 @@ def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds,
         return Fit(jnp.where(better[:, None], fitted, state.poses), jnp.where(point_better, err_sq, state.err_sq),
                    jnp.where(better, cost, state.cost), jnp.where(point_better, within, state.within),
                    jnp.where(better, n_within, state.n_within),
-                   state.done | ~better | ~changed | (n_within < 4), state.rounds + 1)
+                   state.done | ~better | ~changed | (n_within < 4), state.rounds + 1,
+                   jnp.where(point_better, weight > 0, state.fitted_on))
 
     err_sq, within, cost, n_within = evaluate(start)
     done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
     final = jax.lax.while_loop(lambda s: (s.rounds < max_rounds) & jnp.any(~s.done), refit,
-                               Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0)))
-    return LocalOptima(final.poses, final.err_sq, final.cost)
+                               Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0),
+                                   within if start_fitted_on is None else start_fitted_on))
+    return LocalOptima(final.poses, final.err_sq, final.cost, final.fitted_on)
 
 
 class RefinedPoses(NamedTuple):
@@ -96,6 +103,7 @@ class RefinedPoses(NamedTuple):
     inliers: jax.Array  # (N,) bool: within inlier_px of its own region's final pose
     n_inliers: jax.Array  # (k,) int32
     ambiguous: jax.Array  # (k,) bool
+    fitted: jax.Array  # (N,) bool: the points each region's pose is the least-squares fit of
 
 
 def _lowest(optima: LocalOptima, region) -> LocalOptima:
@@ -106,7 +114,8 @@ def _lowest(optima: LocalOptima, region) -> LocalOptima:
     point_chosen = chosen[jnp.clip(region - 1, 0, k - 1)]
     return LocalOptima(jnp.take_along_axis(optima.poses, chosen[None, :, None], axis=0)[0],
                        jnp.take_along_axis(optima.err_sq, point_chosen[None], axis=0)[0],
-                       jnp.take_along_axis(optima.cost, chosen[None], axis=0)[0])
+                       jnp.take_along_axis(optima.cost, chosen[None], axis=0)[0],
+                       jnp.take_along_axis(optima.fitted_on, point_chosen[None], axis=0)[0])
 
 
 def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> RefinedPoses:
@@ -136,19 +145,20 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
     # one start after another: vmapped, each fit's loop would run until the slowest start is done
     coarse = _lowest(jax.lax.map(lambda start: optimise(start, at_inlier_px), starts), region)
     cut = cut_of(coarse.err_sq)
-    pose = optimise(coarse.poses, cut)
+    pose = optimise(coarse.poses, cut, start_fitted_on=coarse.fitted_on)
 
     t = translation_for_rotation(X, uv, member & (pose.err_sq < cut), region, K, rival_R, k)
     rival_coarse = optimise(jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1), at_inlier_px)
     rival_wins = point_values(onehot, is_lower(rival_coarse.cost, coarse.cost).astype(dtype)) > 0
     cut = jnp.where(rival_wins, cut_of(rival_coarse.err_sq), cut)
-    rival = optimise(rival_coarse.poses, cut)
+    rival = optimise(rival_coarse.poses, cut, start_fitted_on=rival_coarse.fitted_on)
 
     rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
     # the rival's cost is at the final cut already; the pose's is taken again there
     lower = rival_finite & is_lower(rival.cost, region_truncated_cost(pose.err_sq, member, cut, onehot))
     poses = jnp.where(lower[:, None], rival.poses, pose.poses)
-    err_sq = jnp.where(point_values(onehot, lower.astype(dtype)) > 0, rival.err_sq, pose.err_sq)
+    point_lower = point_values(onehot, lower.astype(dtype)) > 0
+    err_sq = jnp.where(point_lower, rival.err_sq, pose.err_sq)
     near = member & (err_sq < cut)
     m = region_sums(onehot, near.astype(dtype))
     shared = region_sums(onehot, (near & (rival.err_sq < cut)).astype(dtype))
@@ -156,7 +166,8 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
     apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival.poses[:, :3])) > options.ambiguous_rot_deg
     inliers = member & (err_sq < thr_sq)
     return RefinedPoses(poses, inliers, region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32),
-                        rival_finite & apart & (shared >= m - margin))
+                        rival_finite & apart & (shared >= m - margin),
+                        jnp.where(point_lower, rival.fitted_on, pose.fitted_on))
 
 
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):

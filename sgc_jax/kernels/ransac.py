@@ -44,6 +44,7 @@ class PnPResult(NamedTuple):
     reproj_px: jax.Array  # (k,) mean reprojection error over the members [px]
     ambiguous: jax.Array  # (k,) bool: a rival pose fits the same members (docs/semantics.md §3.3)
     uncertainty: PoseUncertainty
+    fitted: jax.Array  # (N,) bool: the points its region's final pose is the least-squares fit of
 
 
 def sample_distinct(key, n, hypotheses, sample_size):
@@ -215,10 +216,10 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
     status = jnp.where(n_members < options.min_points, REGION_TOO_FEW_POINTS, jnp.where(good, REGION_OK, REGION_REJECTED))
     uncertainty = pose_uncertainty(X, uv, region, K, refined.poses, refined.inliers)
     return PnPResult(R, t, status.astype(jnp.int32), n_members, refined.n_inliers, refined.inliers, reproj_px,
-                     refined.ambiguous, uncertainty)
+                     refined.ambiguous, uncertainty, refined.fitted)
 
 
 def ransac_pnp(X, uv, member, K, key, options: RansacOptions, rival_R=None) -> PnPResult:
     """Robust pose of one region (``member`` (N,) bool) -> PnPResult without the region axis."""
     res = ransac_pnp_regions(X, uv, jnp.asarray(member).astype(jnp.int32), K, key[None], options, rival_R)
-    return jax.tree.map(lambda field: field[0], res)._replace(inliers=res.inliers)
+    return jax.tree.map(lambda field: field[0], res)._replace(inliers=res.inliers, fitted=res.fitted)

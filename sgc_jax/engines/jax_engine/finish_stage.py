@@ -15,7 +15,7 @@ from ...kernels.so3 import rotation_angle_deg
 from ...kernels.warp import depth_error, warp_depth
 from ..units import PERCENT, translation_factor
 from .pixel_stage import pairs_flat
-from .pose_stage import LocalPoses
+from .pose_stage import PER_TRACK, LocalPoses
 from .stages import each
 
 
@@ -79,4 +79,5 @@ def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if config.scale_free else t_g
     comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(config)
-    return dict(comps, **poses._asdict(), scale=scale)
+    regions = {name: value for name, value in poses._asdict().items() if name not in PER_TRACK}
+    return dict(comps, **regions, scale=scale)

@@ -38,6 +38,11 @@ class LocalPoses(NamedTuple):
     n_tracks: jax.Array  # () usable tracks
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # () pixels of S_i
+    track_fitted: jax.Array  # (P,) bool: the tracks its region's pose is the least-squares fit of
+
+
+# per-track fields, which the finish stage does not pass on
+PER_TRACK = ("track_fitted",)
 
 
 class PairInputs(NamedTuple):
@@ -98,7 +103,7 @@ def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPose
         status = jnp.where(config.quality_rule != 0, judged, status)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
                       fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std,
-                      n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels)
+                      n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels, fit.fitted)
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
