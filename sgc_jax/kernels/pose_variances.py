@@ -14,6 +14,12 @@ from ..config import COMPATS
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 
 
+def at_least_float32(x):
+    """x as float32, or as given where it is wider (float64 gradient checks)."""
+    x = jnp.asarray(x)
+    return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+
+
 def _check_compat(compat: str) -> None:
     if compat not in COMPATS:
         raise ValueError(f"compat must be one of {COMPATS}, got {compat!r}")
@@ -28,21 +34,22 @@ def rotation_angle_deg_authors(R_a, R_b):
 
 def masked_mean(values, valid):
     """Mean over axis 0 of values (R, ...) where valid (R,); NaN where none is."""
-    values = jnp.asarray(values, jnp.float32)
+    values = at_least_float32(values)
     mask = valid.reshape(valid.shape + (1,) * (values.ndim - 1))
     n = jnp.sum(valid)
     total = jnp.sum(jnp.where(mask, values, 0.0), axis=0)
-    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(jnp.float32), jnp.nan)
+    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(values.dtype), jnp.nan)
 
 
 def masked_percentile(values, valid, q: int):
     """The q-th percentile (int 0..100, NumPy's "linear" method) of values (R,) where valid; +inf
     with none valid. The position q (n - 1) / 100 is split exactly into integer and fraction."""
-    s = jnp.sort(jnp.where(valid, values.astype(jnp.float32), jnp.inf))
+    values = at_least_float32(values)
+    s = jnp.sort(jnp.where(valid, values, jnp.inf))
     n = jnp.sum(valid).astype(jnp.int32)
     scaled = q * jnp.maximum(n - 1, 0)
     lo = scaled // 100
-    frac = (scaled % 100).astype(jnp.float32) / 100.0
+    frac = (scaled % 100).astype(values.dtype) / 100.0
     hi = jnp.minimum(lo + 1, jnp.maximum(n - 1, 0))
     a, b = s[lo], s[hi]
     diff = jnp.where(hi > lo, b - a, 0.0)  # never inf - inf
@@ -54,7 +61,7 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
     valid. IQR = 0, or bounds that reject every value (two distinct values), keep all under
     "spec" and give NaN under "authors"."""
     _check_compat(compat)
-    values = values.astype(jnp.float32)
+    values = at_least_float32(values)
     q1 = masked_percentile(values, valid, 25)
     q3 = masked_percentile(values, valid, 75)
     p98 = masked_percentile(values, valid, 98)
@@ -71,8 +78,8 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
 def mean_pose(R_local, t_local, accepted):
     """Accepted poses (R, 3, 3), (R, 3), (R,) -> (exp of the mean rotation vector, mean
     translation), float32; NaN with none accepted."""
-    R_mean = so3_exp(masked_mean(so3_log(R_local.astype(jnp.float32)), accepted))
-    return R_mean, masked_mean(t_local.astype(jnp.float32), accepted)
+    R_mean = so3_exp(masked_mean(so3_log(at_least_float32(R_local)), accepted))
+    return R_mean, masked_mean(at_least_float32(t_local), accepted)
 
 
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
@@ -81,20 +88,20 @@ def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = 
     All NaN with no accepted pose; the local ones 0 with one."""
     _check_compat(compat)
     angle = rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
-    R_local = R_local.astype(jnp.float32)
-    t_local = t_local.astype(jnp.float32)
+    R_local, t_local = at_least_float32(R_local), at_least_float32(t_local)
+    R_g, t_g = at_least_float32(R_g), at_least_float32(t_g)
     n = jnp.sum(accepted).astype(jnp.int32)
     none = n == 0
 
     R_mean, t_mean = mean_pose(R_local, t_local, accepted)
-    R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=jnp.float32), R_mean), jnp.nan_to_num(t_mean)
+    R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=R_local.dtype), R_mean), jnp.nan_to_num(t_mean)
     local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted)
     local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted)
     single = n < 2
     local_rot = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_rot))
     local_trans = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_trans))
-    global_rot = trimmed_mean_iqr(angle(R_local, R_g.astype(jnp.float32)[None]) ** 2, accepted, compat=compat)
-    global_trans = masked_mean(jnp.sum((t_local - t_g.astype(jnp.float32)) ** 2, axis=-1), accepted)
-    return {"local_rot_var": local_rot.astype(jnp.float32), "local_trans_var": local_trans.astype(jnp.float32),
-            "global_rot_var": global_rot.astype(jnp.float32), "global_trans_var": global_trans.astype(jnp.float32),
+    global_rot = trimmed_mean_iqr(angle(R_local, R_g[None]) ** 2, accepted, compat=compat)
+    global_trans = masked_mean(jnp.sum((t_local - t_g) ** 2, axis=-1), accepted)
+    return {"local_rot_var": at_least_float32(local_rot), "local_trans_var": at_least_float32(local_trans),
+            "global_rot_var": at_least_float32(global_rot), "global_trans_var": at_least_float32(global_trans),
             "n_poses": n}

@@ -97,3 +97,12 @@ def nearest_rotation(M):
     d = jnp.where(d == 0, 1.0, d)
     D = jnp.ones(M.shape[:-1], M.dtype).at[..., 2].set(d)
     return (U * D[..., None, :]) @ Vt
+
+
+def polar_rotation(M, steps: int = 6):
+    """(..., 3, 3) near a rotation -> its nearest rotation by Higham's polar iteration (M + M^-T) / 2,
+    unrolled ``steps`` times (quadratic convergence). ``nearest_rotation``'s value without its SVD,
+    whose gradient is undefined where singular values repeat (every rotation)."""
+    for _ in range(steps):  # static and small
+        M = 0.5 * (M + jnp.swapaxes(jnp.linalg.inv(M), -1, -2))
+    return M

@@ -3,6 +3,9 @@ poses as in ``camera``."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 
 from ..config import HOLE_DEPTH_MARGIN
@@ -16,13 +19,19 @@ def _valid_depth(depth, valid):
     return valid & (depth > 0) & jnp.isfinite(depth)
 
 
-def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
-    """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
-    hit (H, W) bool). Valid pixels are back-projected, moved by (R, t), projected and rounded half
-    up; z > MIN_WARP_Z inside the image is kept. Collisions keep the nearest z (``nearest``, a
-    z-buffer) or the farthest (the authors' code). ``mask_holes`` (spec): no hit where a point
-    nearer by more than HOLE_DEPTH_MARGIN lands within one pixel, since what reached it is seen
-    through a gap between a magnified nearer surface's splats."""
+class Splat(NamedTuple):
+    """Frame i-1's pixels moved into frame i, flattened (H W,)."""
+
+    target: jax.Array  # int32 pixel of frame i each lands on, H W where it is dropped
+    z: jax.Array  # its depth in camera i
+    u: jax.Array  # its pixel coordinates in frame i, unrounded
+    v: jax.Array
+    front: jax.Array  # bool: valid and z > MIN_WARP_Z
+
+
+def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
+    """Valid pixels of frame i-1 (H, W) back-projected, moved by (R, t), projected into frame i and
+    rounded half up; those with z > MIN_WARP_Z inside the image keep their target."""
     H, W = depth_prev.shape
     depth_prev = depth_prev.astype(jnp.float32)
     valid = _valid_depth(depth_prev, valid_prev)
@@ -38,17 +47,47 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
     keep = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
     target = jnp.where(keep, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W).reshape(-1)
-    z = z.reshape(-1)
+    return Splat(target, z.reshape(-1), u_c.reshape(-1), v_c.reshape(-1), front.reshape(-1))
+
+
+def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool):
+    """The z-buffer (H W,) of the nearest z landing on each pixel (inf where none) and hit (H W,)."""
+    buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[points.target].min(points.z, mode="drop")
+    hit = buffer < jnp.inf
+    if mask_holes:
+        cover = _footprint_cover(points.u, points.v, points.z, points.front, H, W)
+        hit = hit & (buffer <= (1.0 + HOLE_DEPTH_MARGIN) * cover)
+    return buffer, hit
+
+
+def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
+    """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
+    hit (H, W) bool) (``splat``). Collisions keep the nearest z (``nearest``, a z-buffer) or the
+    farthest (the authors' code). ``mask_holes`` (spec): no hit where a point nearer by more than
+    HOLE_DEPTH_MARGIN lands within one pixel, since what reached it is seen through a gap between
+    a magnified nearer surface's splats."""
+    H, W = depth_prev.shape
+    points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
     if nearest:
-        buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[target].min(z, mode="drop")
-        hit = buffer < jnp.inf
-        if mask_holes:
-            hit = hit & (buffer <= (1.0 + HOLE_DEPTH_MARGIN) * _footprint_cover(u_c, v_c, z, front, H, W))
+        buffer, hit = nearest_hits(points, H, W, mask_holes)
     else:
-        buffer = jnp.full(H * W, -jnp.inf, jnp.float32).at[target].max(z, mode="drop")
+        buffer = jnp.full(H * W, -jnp.inf, jnp.float32).at[points.target].max(points.z, mode="drop")
         hit = buffer > -jnp.inf
     warped = jnp.where(hit, buffer, 0.0)
     return warped.reshape(H, W), hit.reshape(H, W)
+
+
+def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bool = True):
+    """The nearest-z warp's choice: (source (H W,) int32, the pixel of frame i-1 whose point each
+    pixel of frame i keeps (the first of equal z), H W where none; hit (H, W) bool)."""
+    H, W = depth_prev.shape
+    points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
+    buffer, hit = nearest_hits(points, H, W, mask_holes)
+    won = points.target < H * W
+    won = won & (points.z == buffer[jnp.minimum(points.target, H * W - 1)])
+    index = jnp.arange(H * W, dtype=jnp.int32)
+    source = jnp.full(H * W, H * W, jnp.int32).at[jnp.where(won, points.target, H * W)].min(index, mode="drop")
+    return jnp.where(hit, source, H * W), hit.reshape(H, W)
 
 
 def _footprint_cover(u_c, v_c, z, front, H, W):
