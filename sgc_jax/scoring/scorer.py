@@ -19,6 +19,7 @@ from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_ca
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
 from ..engines.jax_engine.programs import sharded_program, spread_stage
+from ..engines.jax_engine.smooth_stage import check_differentiable, frozen_choices, smooth_stage
 from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
@@ -64,6 +65,10 @@ def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = No
 batch_camera_dynamics = jax.jit(camera_dynamics)
 
 
+def _traced(clips: ClipArrays) -> bool:
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in clips)
+
+
 def _dtype_kind(array) -> str:
     dtype = np.dtype(array.dtype)
     return "bool" if dtype == bool else dtype.kind  # f float, i/u integer
@@ -78,7 +83,8 @@ class Scorer:
 
     def __init__(self, shape: tuple[int, int, int, int, int], config: SGCConfig | None = None,
                  calibration: Calibration | str | None = None, reward_options: RewardOptions | None = None,
-                 *, devices: Sequence[jax.Device] | None = None, vectorized: bool | None = None):
+                 *, devices: Sequence[jax.Device] | None = None, vectorized: bool | None = None,
+                 differentiable: bool = False):
         if len(shape) != 5 or not all(isinstance(s, (int, np.integer)) and s >= 1 for s in shape) or shape[1] < 2:
             raise ValueError(f"shape must be (B, T, H, W, P) of positive ints with T >= 2, got {shape!r}")
         self.shape = B, T, H, W, P = tuple(int(s) for s in shape)
@@ -88,6 +94,9 @@ class Scorer:
         self.calibration = Calibration.load(calibration or default_calibration(config.compat))
         self.calibration.check_compat(config.compat, "the Scorer's components")
         self.reward_options = reward_options or RewardOptions()
+        self.differentiable = bool(differentiable)
+        if self.differentiable:
+            check_differentiable(config)
         self.bucket = bucket_for_shape(T, H, W, min(P, config.max_tracks))
         self._key = jax.random.PRNGKey(config.seed)
         self._values = program_values(config)
@@ -98,7 +107,8 @@ class Scorer:
         self.devices = list(devices) if devices else jax.local_devices()[:1 if cpu else None]
         self.vectorized = vectorizes(self.devices) if vectorized is None else bool(vectorized)
         one_cpu = self.devices[0].platform == "cpu" and len(self.devices) == 1
-        self.lanes = min(B, default_lanes(self.devices)) if one_cpu else 1
+        # lanes are threads of compiled programs; a differentiable batch runs as one program
+        self.lanes = min(B, default_lanes(self.devices)) if one_cpu and not self.differentiable else 1
         # the clips of one program call: a lane's share, or B filled up to a multiple of the devices
         n = len(self.devices)
         self.call_size = -(-B // self.lanes) if self.lanes > 1 else -(-B // n) * n
@@ -130,6 +140,9 @@ class Scorer:
                      for name, step in steps.items()}
         for stage in STAGES:
             steps[stage] = spread_stage(stage_key(config, stage, bucket, self.vectorized), mesh)
+        if self.differentiable:
+            steps["smooth"] = jax.jit(lambda clips, frozen: smooth_stage(clips, frozen, bucket, config,
+                                                                         self.calibration))
         return steps
 
     def _summarize(self, out: dict, pair_valid, depth_unit) -> dict:
@@ -150,7 +163,13 @@ class Scorer:
         program, _ = sharded_program(self.config, self.bucket, self.devices, padded, self.vectorized)
         out = program.stages[-1].out_info
         summarize = self._traced["summarize"].lower(out, padded.pair_valid, padded.depth_unit).compile()  # small
-        return {"prepare": prepare, **dict(zip(STAGES, program.stages)), "summarize": summarize}
+        compiled = {"prepare": prepare, **dict(zip(STAGES, program.stages)), "summarize": summarize}
+        if self.differentiable:
+            with CompileNotice(what, "differentiable score", loading=False, hint=cache_hint()):
+                frozen = jax.eval_shape(frozen_choices, *(stage.out_info for stage in program.stages),
+                                        padded.pair_valid)
+                compiled["smooth"] = self._traced["smooth"].lower(self._example(), frozen).compile()
+        return compiled
 
     def _example(self) -> ClipArrays:
         """One call's ClipArrays as shapes, the dtypes ``clip_arrays`` casts to and the sharding
@@ -212,7 +231,13 @@ class Scorer:
         on CPU lanes, once the lanes are done)."""
         clips = self.clip_arrays(batch)
         B, n = self.shape[0], len(self.devices)
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in clips):  # inside a user's jit: one program
+        if self.differentiable:  # the forward pass makes the choices; only sgc_smooth carries gradients
+            live = self._rows(clips, 0, self.call_size)
+            if not _traced(live):
+                live = jax.device_put(live, self._sharding())
+            programs = self._traced if _traced(live) else self._compiled
+            return self._whole(self._run(programs, jax.lax.stop_gradient(live), live))
+        if _traced(clips):  # inside a user's jit: one program
             return self._whole(self._run(self._traced, self._rows(clips, 0, -(-B // n) * n)))
         parts = [jax.device_put(self._rows(clips, start, self.call_size), self._sharding())
                  for start in range(0, B, self.call_size)]
@@ -221,6 +246,14 @@ class Scorer:
         # each lane waits for its programs, so that the lanes' work overlaps
         lanes = list(self._pool.map(lambda part: jax.block_until_ready(self._run(self._compiled, part)), parts))
         return self._whole({name: jnp.concatenate([lane[name] for lane in lanes]) for name in lanes[0]})
+
+    def choices(self, batch: Mapping[str, Any]):
+        """What the forward pass of ``batch`` chose (``smooth_stage.Frozen``, leading axis B), the
+        choices ``sgc_smooth`` holds fixed (docs/semantics.md §10.1)."""
+        clips = jax.device_put(self._rows(self.clip_arrays(batch), 0, self.call_size), self._sharding())
+        padded, outs = self._stages(self._compiled, clips)
+        frozen = frozen_choices(*outs, padded.pair_valid)
+        return jax.tree.map(lambda leaf: leaf[:self.shape[0]], frozen)
 
     def _rows(self, clips: ClipArrays, start: int, size: int) -> ClipArrays:
         """Clips start .. start + size - 1 of the batch, those past its end copies of its last clip."""
@@ -239,9 +272,20 @@ class Scorer:
         out = {name: value[:B] for name, value in out.items()}
         return {**out, "ecd": batch_camera_dynamics(out["ecd_trans"], out["ecd_rot"])}
 
-    def _run(self, programs: dict, clips: ClipArrays) -> dict:
+    def _stages(self, programs: dict, clips: ClipArrays) -> tuple:
+        """(the padded clips, the three stages' outputs)."""
         padded = programs["prepare"](clips)
-        out = None
+        outs, out = [], None
         for stage in STAGES:
             out = programs[stage](stage_inputs(stage, padded, out), self._key, self._values)
-        return programs["summarize"](out, padded.pair_valid, padded.depth_unit)
+            outs.append(out)
+        return padded, outs
+
+    def _run(self, programs: dict, clips: ClipArrays, live: ClipArrays | None = None) -> dict:
+        """The steps on one call's clips; with ``live`` (the differentiable form: the same clips
+        with their gradients), sgc_smooth from the stages' choices."""
+        padded, outs = self._stages(programs, clips)
+        summary = programs["summarize"](outs[-1], padded.pair_valid, padded.depth_unit)
+        if live is None:
+            return summary
+        return {**summary, "sgc_smooth": programs["smooth"](live, frozen_choices(*outs, padded.pair_valid))}

@@ -70,6 +70,19 @@ def masked_median(values, mask):
     return jnp.where(n > 0, hi, 1.0), jnp.where(n > 0, lo, 0.0)
 
 
+def pixel_median(values, mask):
+    """The median of values[mask] (what ``masked_median`` gives, to float rounding) as the value
+    of its one or two middle pixels, so that its gradient reaches them; 1 when mask is empty. The
+    pixels are chosen on the values as float32, held fixed."""
+    n = jnp.sum(mask, dtype=jnp.int32)
+    chosen = jax.lax.stop_gradient(values).astype(jnp.float32)
+    lower, upper = order_statistics(chosen, mask, jnp.stack([jnp.maximum((n - 1) // 2, 0), n // 2]))
+    flat, pick = values.reshape(-1), mask.reshape(-1)
+    at_lower = flat[jnp.argmax(pick & (chosen.reshape(-1) == lower))]
+    at_upper = flat[jnp.argmax(pick & (chosen.reshape(-1) == upper))]
+    return jnp.where(n > 0, jnp.where(n % 2 == 1, at_upper, 0.5 * (at_lower + at_upper)), 1.0)
+
+
 def greater_than(x, df):
     """x > hi + lo exactly, for float32 x and a double-float with |lo| below half an ulp of hi."""
     return (x > df[0]) | ((x == df[0]) & (df[1] < 0))
@@ -166,6 +179,27 @@ def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedCl
         track_curr=grow(track_curr, (Tb - 1, Pb, 2)), usable=grow(usable, (Tb - 1, Pb)),
         pair_valid=jnp.arange(Tb - 1) < clip.n_frames - 1,
         image_hw=jnp.stack([clip.heights, clip.widths]).astype(jnp.int32), depth_unit=depth_unit)
+
+
+def prepare_differentiable(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> tuple[PaddedClips, PaddedClips]:
+    """``prepare_one`` with gradients (docs/semantics.md §10.1) -> (the padded clip with gradients,
+    the forward pass's padded clip). Every choice (valid depth, usable and kept tracks) is made on
+    the float32 depth as ``prepare_one`` makes it; the depth is divided by a D that is the value of
+    its median pixels, the rest gathered from the live arrays."""
+    depth32 = jax.lax.stop_gradient(clip.depth).astype(jnp.float32)
+    fixed = prepare_one(clip._replace(depth=depth32), bucket, config)
+    T, H, W = clip.depth.shape
+    valid = fixed.depth[:T, :H, :W] > 0
+    depth = clip.depth
+    if config.scale_free:
+        chosen = valid & fixed.static[:T, :H, :W]
+        unit = pixel_median(depth, jnp.where(jnp.any(chosen), chosen, valid))
+        depth = jnp.where(valid, jnp.where(valid, depth, 1.0) / unit, 0.0)
+    else:
+        unit = jnp.ones((), depth.dtype)
+        depth = jnp.where(valid, depth, 0.0)
+    grown = jnp.pad(depth, [(0, s - n) for s, n in zip(fixed.depth.shape, depth.shape)])
+    return fixed._replace(depth=grown, depth_unit=unit), jax.lax.stop_gradient(fixed)
 
 
 def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:

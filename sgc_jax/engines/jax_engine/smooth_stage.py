@@ -1,0 +1,163 @@
+"""The differentiable score (docs/semantics.md §10): ``sgc_smooth`` of B clips as a function of
+their depth, tracks, cameras and intrinsics, with every discrete choice of the forward pass held
+fixed (regions, the points each local pose was fitted on, the region statuses, the scale fit's
+equation, the depth warp's z-buffer winners, the median pixels of D) and everything continuous
+recomputed so that ``jax.grad`` reaches the inputs."""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ...calibration import COMPONENTS, Calibration
+from ...calibration.formula import sgc_smooth_score
+from ...codes import REGION_OK
+from ...config import SGCConfig
+from ...kernels.camera import back_project, back_project_xyz
+from ...kernels.implicit_pose import least_squares_pose
+from ...kernels.pose_variances import pair_pose_components
+from ...kernels.scale import scale_equations
+from ...kernels.so3 import polar_rotation, so3_exp, so3_log
+from ...kernels.warp import warp_sources
+from ..units import PERCENT
+from .buckets import Bucket, PaddedClips
+from .device_prepare import ClipArrays, prepare_differentiable
+from .pixel_stage import depth_at_tracks
+
+
+class Frozen(NamedTuple):
+    """What the forward pass chose for one clip (leading axis T-1), held fixed."""
+
+    track_labels: jax.Array  # (T-1, P) int32 region of each track in frame i (pixel stage)
+    track_fitted: jax.Array  # (T-1, P) bool: the tracks its region's pose was fitted on
+    region_status: jax.Array  # (T-1, k) int32
+    R_local: jax.Array  # (T-1, k, 3, 3) the local poses, where their Newton polish starts
+    t_local: jax.Array  # (T-1, k, 3) units of D
+    R_g: jax.Array  # (T-1, 3, 3) the camera's relative poses, for the depth warp's and the scale's choices
+    t_g: jax.Array  # (T-1, 3) pose units
+    scale: jax.Array  # () s, units of D per pose unit
+    present: jax.Array  # (T-1, 5) bool: the pair has the component (COMPONENTS' order)
+
+
+def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid) -> Frozen:
+    """The stage outputs of B clips (leading axis B) -> their Frozen (leading axis B)."""
+    present = jnp.stack([pair_valid & ~jnp.isnan(finish[k]) for k in COMPONENTS], axis=-1)
+    return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
+                                        pose["R_local"], pose["t_local"], pose["R_g"], pose["t_g"], pose["scale"],
+                                        present))
+
+
+def check_differentiable(config: SGCConfig) -> None:
+    """The differentiable form is defined for the default semantics with a camera pose."""
+    if config.compat != "spec" or not config.global_pose:
+        raise ValueError("the differentiable score needs compat='spec' and global_pose=True "
+                         f"(got compat={config.compat!r}, global_pose={config.global_pose})")
+
+
+def camera_poses(R_wc, t_wc):
+    """(R_g, t_g) of each pair (T-1, ...) from the cameras (T, ...), as ``global_relative_pose``
+    under spec, the nearest rotation by ``polar_rotation``."""
+    R_g = polar_rotation(R_wc[1:] @ jnp.swapaxes(R_wc[:-1], -1, -2))
+    return R_g, t_wc[1:] - jnp.einsum("pij,pj->pi", R_g, t_wc[:-1])
+
+
+def pair_points(clip: PaddedClips, track_labels):
+    """Every pair's tracks of frame i-1 back-projected (T-1, P, 3) and which have depth and a
+    region (T-1, P) (the pose stage's points)."""
+    Z = jax.vmap(depth_at_tracks, in_axes=(0, 0, None))(clip.depth[:-1], clip.track_prev, clip.image_hw)
+    X = jax.vmap(back_project)(clip.K[:-1], clip.track_prev, Z)
+    return X, clip.usable & clip.pair_valid[:, None] & (Z > 0) & (track_labels > 0)
+
+
+def translation_scale(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, R_g, t_g, config: SGCConfig):
+    """s: the equation the forward weighted median chose (of the forward's equations, the one whose
+    ratio lies nearest the forward s), recomputed; 1 / D where the scale is not fitted or had none."""
+    fallback = 1.0 / clip.depth_unit
+    if not config.fits_translation_scale:
+        return fallback
+    X, used = pair_points(fixed, frozen.track_labels)
+    ratios, weights = jax.vmap(scale_equations)(X, used, fixed.K[1:], fixed.track_curr, frozen.R_g, frozen.t_g)
+    chosen = jnp.argmin(jnp.where(weights > 0, jnp.abs(ratios - frozen.scale), jnp.inf).reshape(-1))
+    X, used = pair_points(clip, frozen.track_labels)
+    ratios, _ = jax.vmap(scale_equations)(X, used, clip.K[1:], clip.track_curr, R_g, t_g)
+    return jnp.where(jnp.any(weights > 0), ratios.reshape(-1)[chosen], fallback)
+
+
+def local_poses(clip: PaddedClips, X, frozen: Frozen):
+    """Every region's pose (T-1, k, 3, 3), (T-1, k, 3), its least-squares optimum on the tracks it
+    was fitted on (``least_squares_pose``); the identity where it was not accepted."""
+    k = frozen.region_status.shape[-1]
+    accepted = frozen.region_status == REGION_OK
+    pose0 = jnp.concatenate([so3_log(frozen.R_local), frozen.t_local], axis=-1)
+    pose0 = jnp.where(accepted[..., None] & jnp.isfinite(pose0), pose0, 0.0).astype(X.dtype)
+    region = jnp.where(frozen.track_fitted, frozen.track_labels, 0)
+    weight = (region[:, None, :] == jnp.arange(1, k + 1)[None, :, None]).astype(X.dtype)  # (T-1, k, P)
+
+    def pair(pose0, X, uv, K, weight, accepted):
+        return jax.vmap(least_squares_pose, in_axes=(0, None, None, None, 0, 0))(pose0, X, uv, K, weight, accepted)
+
+    poses = jax.vmap(pair)(pose0, X, clip.track_curr, clip.K[1:], weight, accepted)
+    return so3_exp(poses[..., :3]), poses[..., 3:], accepted
+
+
+def depth_error(depth_prev, depth_curr, K_prev, R, t, source, hit, static_curr):
+    """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
+    (H W,), ``hit`` (H, W) from ``warp_sources``): each hit pixel's warped depth is the z in
+    camera i of the pixel of frame i-1 that won it."""
+    H, W = depth_prev.shape
+    both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
+    source = jnp.minimum(source, H * W - 1)
+    x, y, z = back_project_xyz(K_prev, (source % W).astype(depth_prev.dtype), (source // W).astype(depth_prev.dtype),
+                               depth_prev.reshape(-1)[source])
+    warped = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    target = jnp.where(both, depth_curr.reshape(-1), 1.0)
+    error = jnp.where(both, jnp.abs(warped - target) / target, 0.0)
+    n = jnp.sum(both)
+    return PERCENT * jnp.sum(error) / jnp.maximum(n, 1)
+
+
+def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, config: SGCConfig) -> dict:
+    """One padded clip's per-pair components (T-1,) in the units of docs/semantics.md §4; ``fixed``:
+    the forward pass's padded clip, on which the depth warp's and the scale's choices are made."""
+    R_g, t_g = camera_poses(clip.R_wc, clip.t_wc)
+    scale = translation_scale(clip, fixed, frozen, R_g, t_g, config)
+    t_scaled = scale * t_g
+    X, _ = pair_points(clip, frozen.track_labels)
+    R_local, t_local, accepted = local_poses(clip, X, frozen)
+    comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled)
+    source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
+        fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
+        frozen.scale * frozen.t_g)
+    errors = jax.vmap(depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
+                                   fixed.static[1:])
+    return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
+                global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * PERCENT**2,
+                depth_error=errors)
+
+
+def smooth_components(clip: ClipArrays, frozen: Frozen, bucket: Bucket, config: SGCConfig) -> tuple[dict, dict]:
+    """One clip (no B axis) -> (its components (), each the mean over the pairs that have it; whether
+    it has any ()), differentiable."""
+    per_pair = clip_components(*prepare_differentiable(clip, bucket, config), frozen, config)
+    components, present = {}, {}
+    for i, name in enumerate(COMPONENTS):
+        keep = frozen.present[:, i]
+        count = jnp.sum(keep)
+        components[name] = jnp.sum(jnp.where(keep, per_pair[name], 0.0)) / jnp.maximum(count, 1)
+        present[name] = count > 0
+    return components, present
+
+
+def smooth_stage(clips: ClipArrays, frozen: Frozen, bucket: Bucket, config: SGCConfig,
+                 calibration: Calibration):
+    """B clips (leading axis B) and their Frozen -> sgc_smooth (B,) (``sgc_smooth_score`` of
+    ``smooth_components``)."""
+    check_differentiable(config)
+
+    def one(clip, choices):
+        return sgc_smooth_score(*smooth_components(clip, choices, bucket, config), calibration, xp=jnp)
+
+    return jax.vmap(one)(clips, frozen)
