@@ -21,7 +21,7 @@ _spec = importlib.util.spec_from_file_location("notebook_build", NOTEBOOKS_DIR /
 build = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(build)
 NAMES = list(build.NOTEBOOKS)
-ISSUE_NAMES = ["01_quickstart", "02_sensitivity", "03_calibration", "04_diagnostics", "05_best_of_n"]
+ISSUE_NAMES = ["01_quickstart", "02_sensitivity", "03_calibration", "04_diagnostics", "05_best_of_n", "06_gradients"]
 PRIVATE = ("sgc_jax._", "sgc_jax.engines", "sgc_jax.kernels",
            "plot._", "diagnostics._")
 
