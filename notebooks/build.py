@@ -536,7 +536,6 @@ GRADIENTS = [
 
         import jax
         import jax.numpy as jnp
-        import matplotlib.pyplot as plt
 
         from sgc_jax.scoring.scorer import batch_of
 
@@ -591,14 +590,8 @@ GRADIENTS = [
         descent = pd.DataFrame(history, columns=["step", "sgc", "depth error to truth (%)"])
         descent.iloc[[0, -1]].round(1)  # one decimal: a descent's last digits depend on the CPU's rounding"""),
     _code("""\
-        fig, (ax_score, ax_error) = plt.subplots(1, 2, figsize=(9, 3))
-        ax_score.plot(descent["step"], descent["sgc"])
-        ax_score.axhline(float(scorer(batch_of([clean]))["sgc"][0]), color="grey", ls="--", label="clean clip")
-        ax_score.set(xlabel="step", ylabel="SGC (sgc-spec-2026)", title="score")
-        ax_score.legend()
-        ax_error.plot(descent["step"], descent["depth error to truth (%)"])
-        ax_error.set(xlabel="step", ylabel="mean |d - d_true| / d_true (%)", title="error to the true depth")
-        fig.tight_layout()"""),
+        clean_sgc = float(scorer(batch_of([clean]))["sgc"][0])
+        fig = plot.plot_descent(descent["step"], descent["sgc"], descent["depth error to truth (%)"], reference_sgc=clean_sgc)"""),
     _md("""
         The score falls towards the clean clip's and the depth towards the truth, from the score's
         gradient alone: nothing in the descent sees the true depth. The error stops near 1 %:
@@ -625,16 +618,7 @@ GRADIENTS = [
         print(f"sgc {float(scorer(moving)['sgc'][0]):.2f}; mean gradient norm per track: "
               f"moving sphere {norm[on_object].mean():.2e}, static scene {norm[static].mean():.2e} "
               f"({norm[on_object].mean() / norm[static].mean():.0f}x)")"""),
-    _code("""\
-        pair = 3
-        fig, ax = plt.subplots(figsize=(5, 4))
-        ax.imshow(unmasked.depth[pair + 1], cmap="gray")
-        shown = unmasked.track_vis[pair]
-        dots = ax.scatter(unmasked.track_curr[pair, shown, 0], unmasked.track_curr[pair, shown, 1],
-                          c=norm[pair, shown], s=6, cmap="magma", norm=matplotlib.colors.LogNorm())
-        fig.colorbar(dots, label="|d sgc_smooth / d track| (per px)")
-        ax.set(title=f"pair {pair}: gradient per track over frame {pair + 1}'s depth")
-        ax.set_axis_off()"""),
+    _code("fig = plot.plot_track_gradients(unmasked, 3, norm)"),
 ]
 
 NOTEBOOKS = {

@@ -241,3 +241,20 @@ def test_compare_cli_writes_the_violin_plot(corpus, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert f"wrote {out}" in proc.stderr
+
+
+def test_descent_draws_the_score_and_the_depth_error_per_step(tmp_path):
+    steps = np.arange(5)
+    fig = plot.plot_descent(steps, [1.1, 0.6, 0.4, 0.2, 0.16], [4.0, 2.2, 1.6, 1.1, 1.2], reference_sgc=0.09)
+    check_figure(fig, tmp_path / "descent.png")
+    score, error = _data_axes(fig)
+    assert len(score.get_lines()) == 2 and len(error.get_lines()) == 1  # the clean clip's line dashed
+
+
+def test_track_gradients_colour_each_visible_track(rigid_clip, tmp_path):
+    norm = np.abs(np.random.default_rng(0).normal(size=rigid_clip.track_vis.shape))
+    norm[0, :10] = 0.0  # tracks without a gradient are drawn too
+    fig = plot.plot_track_gradients(rigid_clip, 0, norm)
+    check_figure(fig, tmp_path / "tracks.png")
+    dots = [c for c in _data_axes(fig)[0].collections if isinstance(c, PathCollection)]
+    assert len(dots) == 1 and len(dots[0].get_offsets()) == rigid_clip.track_vis[0].sum()

@@ -6,6 +6,7 @@ Corpora (Figures 7 and 8a): :func:`plot_group_violins`, :func:`plot_component_co
 :func:`plot_calibration_weights`. One clip: :func:`plot_pair_components`, :func:`plot_region_map`.
 One pair (Figure 4 and the depth check, via :mod:`sgc_jax.research.diagnostics`): :func:`plot_pose_arrows`,
 :func:`plot_depth_warp_error`, :func:`plot_region_reprojection`. The Scorer's reward: :func:`plot_rewards`.
+Gradients (docs/semantics.md §10): :func:`plot_descent`, :func:`plot_track_gradients`.
 """
 
 from __future__ import annotations
@@ -518,4 +519,41 @@ def plot_rewards(labels: Sequence[str], outputs: Mapping[str, Any]) -> "Figure":
     for ax in axes:
         ax.grid(alpha=0.3, axis="x")
     fig.suptitle("candidates ranked by the Scorer's reward")
+    return fig
+
+
+def plot_descent(steps: Sequence[int], sgc: Sequence[float], depth_error_pct: Sequence[float], *,
+                 reference_sgc: float | None = None) -> "Figure":
+    """A descent on ``sgc_smooth`` (docs/semantics.md §10): SGC and the depth's error to the truth
+    [%] per step; ``reference_sgc`` (e.g. the clean clip's) dashed."""
+    plt = import_pyplot()
+    fig, (ax_score, ax_error) = plt.subplots(1, 2, figsize=(9, 3), constrained_layout=True)
+    ax_score.plot(steps, sgc)
+    if reference_sgc is not None:
+        ax_score.axhline(reference_sgc, color="0.5", linestyle="--", label="clean clip")
+        ax_score.legend()
+    ax_score.set(xlabel="step", ylabel="SGC (lower is better)", title="score")
+    ax_error.plot(steps, depth_error_pct)
+    ax_error.set(xlabel="step", ylabel="mean |d - d_true| / d_true [%]", title="error to the true depth")
+    for ax in (ax_score, ax_error):
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def plot_track_gradients(clip: "Clip", pair: int, gradient_norm) -> "Figure":
+    """Each visible track of ``pair`` at its pixel in frame pair + 1, over that frame's depth,
+    coloured by its gradient norm (``gradient_norm`` (T-1, P), e.g. |d sgc_smooth / d track_curr|)."""
+    plt = import_pyplot()
+    from matplotlib.colors import LogNorm
+
+    fig, ax = plt.subplots(figsize=(5, 4), constrained_layout=True)
+    ax.imshow(clip.depth[pair + 1], cmap="gray")
+    shown = clip.track_vis[pair]
+    values = np.asarray(gradient_norm, float)[pair, shown]
+    positive = values[values > 0]
+    floor = positive.min() if positive.size else 1e-12  # tracks without a gradient at the colour map's bottom
+    dots = ax.scatter(clip.track_curr[pair, shown, 0], clip.track_curr[pair, shown, 1], c=np.maximum(values, floor),
+                      s=6, cmap="magma", norm=LogNorm(vmin=floor))
+    fig.colorbar(dots, ax=ax, label="gradient norm per track [1/px]")
+    _image_axes(ax, f"pair {pair}: tracks by gradient norm, over frame {pair + 1}'s depth")
     return fig
