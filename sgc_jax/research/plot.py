@@ -555,5 +555,5 @@ def plot_track_gradients(clip: "Clip", pair: int, gradient_norm) -> "Figure":
     dots = ax.scatter(clip.track_curr[pair, shown, 0], clip.track_curr[pair, shown, 1], c=np.maximum(values, floor),
                       s=6, cmap="magma", norm=LogNorm(vmin=floor))
     fig.colorbar(dots, ax=ax, label="gradient norm per track [1/px]")
-    _image_axes(ax, f"pair {pair}: tracks by gradient norm, over frame {pair + 1}'s depth")
+    _image_axes(ax, f"pair {pair}: gradient norm per track")
     return fig
