@@ -143,6 +143,7 @@ def test_least_squares_pose_gradient_is_the_implicit_one():
         uv = uv + jnp.asarray(rng.normal(0, 0.5, uv.shape))
         weight = jnp.ones(40)
 
+        @jax.jit
         def solved(uv, start):  # many Newton steps from a start away from the optimum
             return least_squares_pose(start, X, uv, K, weight, jnp.bool_(True), steps=20)
 
