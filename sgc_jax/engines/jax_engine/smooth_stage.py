@@ -72,16 +72,18 @@ def pair_points(clip: PaddedClips, track_labels):
     return X, clip.usable & clip.pair_valid[:, None] & (Z > 0) & (track_labels > 0)
 
 
-def translation_scale(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, R_g, t_g, config: SGCConfig):
-    """s: the equation the forward weighted median chose (of the forward's equations, the one whose
-    ratio lies nearest the forward s), recomputed; 1 / D where the scale is not fitted or had none."""
+def held_translation_scale(clip: PaddedClips, X, used, fixed: PaddedClips, frozen: Frozen, R_g, t_g,
+                           config: SGCConfig):
+    """s from the clip's points X, used (T-1, P, ...; ``pair_points``): the equation the forward
+    weighted median chose (of the forward's equations, the one whose ratio lies nearest the forward
+    s), recomputed; 1 / D where the scale is not fitted or had none."""
     fallback = 1.0 / clip.depth_unit
     if not config.fits_translation_scale:
         return fallback
-    X, used = pair_points(fixed, frozen.track_labels)
-    ratios, weights = jax.vmap(scale_equations)(X, used, fixed.K[1:], fixed.track_curr, frozen.R_g, frozen.t_g)
+    X_fixed, used_fixed = pair_points(fixed, frozen.track_labels)
+    ratios, weights = jax.vmap(scale_equations)(X_fixed, used_fixed, fixed.K[1:], fixed.track_curr, frozen.R_g,
+                                                frozen.t_g)
     chosen = jnp.argmin(jnp.where(weights > 0, jnp.abs(ratios - frozen.scale), jnp.inf).reshape(-1))
-    X, used = pair_points(clip, frozen.track_labels)
     ratios, _ = jax.vmap(scale_equations)(X, used, clip.K[1:], clip.track_curr, R_g, t_g)
     return jnp.where(jnp.any(weights > 0), ratios.reshape(-1)[chosen], fallback)
 
@@ -103,7 +105,7 @@ def local_poses(clip: PaddedClips, X, frozen: Frozen):
     return so3_exp(poses[..., :3]), poses[..., 3:], accepted
 
 
-def depth_error(depth_prev, depth_curr, K_prev, R, t, source, hit, static_curr):
+def held_warp_depth_error(depth_prev, depth_curr, K_prev, R, t, source, hit, static_curr):
     """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
     (H W,), ``hit`` (H, W) from ``warp_sources``): each hit pixel's warped depth is the z in
     camera i of the pixel of frame i-1 that won it."""
@@ -123,15 +125,14 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     """One padded clip's per-pair components (T-1,) in the units of docs/semantics.md §4; ``fixed``:
     the forward pass's padded clip, on which the depth warp's and the scale's choices are made."""
     R_g, t_g = camera_poses(clip.R_wc, clip.t_wc)
-    scale = translation_scale(clip, fixed, frozen, R_g, t_g, config)
-    t_scaled = scale * t_g
-    X, _ = pair_points(clip, frozen.track_labels)
+    X, used = pair_points(clip, frozen.track_labels)
+    t_scaled = held_translation_scale(clip, X, used, fixed, frozen, R_g, t_g, config) * t_g
     R_local, t_local, accepted = local_poses(clip, X, frozen)
     comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled)
     source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
         fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
         frozen.scale * frozen.t_g)
-    errors = jax.vmap(depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
+    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
                                    fixed.static[1:])
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
                 global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * PERCENT**2,
