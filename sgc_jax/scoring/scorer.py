@@ -235,8 +235,8 @@ class Scorer:
             live = self._rows(clips, 0, self.call_size)
             if not _traced(live):
                 live = jax.device_put(live, self._sharding())
-            programs = self._traced if _traced(live) else self._compiled
-            return self._whole(self._run(programs, jax.lax.stop_gradient(live), live))
+            fixed = jax.lax.stop_gradient(live)  # concrete under an eager jax.grad: the compiled forward runs
+            return self._whole(self._run(self._traced if _traced(fixed) else self._compiled, fixed, live))
         if _traced(clips):  # inside a user's jit: one program
             return self._whole(self._run(self._traced, self._rows(clips, 0, -(-B // n) * n)))
         parts = [jax.device_put(self._rows(clips, start, self.call_size), self._sharding())
@@ -288,4 +288,5 @@ class Scorer:
         summary = programs["summarize"](outs[-1], padded.pair_valid, padded.depth_unit)
         if live is None:
             return summary
-        return {**summary, "sgc_smooth": programs["smooth"](live, frozen_choices(*outs, padded.pair_valid))}
+        smooth = self._traced["smooth"] if _traced(live) else programs["smooth"]
+        return {**summary, "sgc_smooth": smooth(live, frozen_choices(*outs, padded.pair_valid))}
