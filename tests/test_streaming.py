@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,14 +150,16 @@ SHARDED_POSE_ROUNDOFF = 1e-6
 SHARDED_ROUNDOFF = 1e-10
 TWO_DEVICES = """
 import json, sys
+sys.path.insert(0, sys.argv[1])  # the tests folder: scenes.py
 import numpy as np
+from scenes import SCENE
 from sgc_jax import enable_compilation_cache, score_batch
 from sgc_jax.research.synth import synth_clip
 import jax
-# the smallest bucket: the two-device programs cost least to compile (the one-device ones compile here too)
+# the suite's main bucket: its one-device programs load from the run's cache (a compile costs the
+# same at any size), so only the two-device ones compile here
 assert len(jax.devices()) == 2, jax.devices()
-micro = dict(height=24, width=32, n_tracks=64, n_frames=3, n_layers=1, static_spheres=1, with_frames=False)  # scenes.MICRO
-clips = [synth_clip(seed=s, clip_id=f"c{s}", **micro) for s in range(3)]  # odd: the last group is filled
+clips = [synth_clip(seed=s, clip_id=f"c{s}", **SCENE) for s in range(3)]  # odd: the last group is filled
 spread, single = score_batch(clips, progress=False), score_batch(clips, progress=False, devices=1)
 rows = lambda result: [[float(v) for v in (c.sgc, *c.pairs.region_status.ravel())] for c in result]
 poses = lambda result: [[float(v) for v in (*c.pairs.R_local.ravel(), *c.pairs.t_local.ravel())] for c in result]
@@ -169,7 +172,8 @@ print(json.dumps({"spread": rows(spread), "single": rows(single),  # NaN as NaN
 
 def test_two_forced_host_devices_give_the_numbers_of_one():
     env = {**os.environ, "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"}
-    done = subprocess.run([sys.executable, "-c", TWO_DEVICES], capture_output=True, text=True, env=env, timeout=900)
+    done = subprocess.run([sys.executable, "-c", TWO_DEVICES, str(Path(__file__).parent)], capture_output=True,
+                          text=True, env=env, timeout=900)
     assert done.returncode == 0, done.stderr
     assert "one clip on each of 2 devices" in done.stderr
     rows = json.loads(done.stdout.strip().splitlines()[-1])
