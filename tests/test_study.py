@@ -174,12 +174,11 @@ def test_study_scores_in_one_engine_call_per_chunk(monkeypatch):
 
     real = study_module.score_batch
     monkeypatch.setattr(study_module, "score_batch", counting)
-    clips = tiny_clips()
-    whole = sensitivity_study(clips, ["warp", "squeeze"], (0, 0.5, 1), engine="reference", progress=False)
+    clips = ladder_bases()[:2]  # the ladder's bucket: its programs are compiled already
+    whole = sensitivity_study(clips, ["warp", "squeeze"], (0, 0.5, 1), progress=False)
     assert calls == [2 * (1 + 2 * 2)]
     calls.clear()
-    chunked = sensitivity_study(clips, ["warp", "squeeze"], (0, 0.5, 1), engine="reference", progress=False,
-                                chunk_size=4)
+    chunked = sensitivity_study(clips, ["warp", "squeeze"], (0, 0.5, 1), progress=False, chunk_size=4)
     assert calls == [4, 4, 2]
     assert [r["sgc"] for r in chunked.rows] == [r["sgc"] for r in whole.rows]
 
@@ -204,18 +203,20 @@ def test_broken_base_gives_error_rows_and_bad_arguments_raise(tmp_path):
 
 
 def test_perturb_command_writes_rows_summary_and_plot(tmp_path):
-    for clip in tiny_clips(moving_objects=1):
+    # the ladder's bucket, scored by the default engine: the command loads its programs from the run's cache
+    for seed in (0, 1):
+        clip = synth_clip(seed=seed, clip_id=f"base{seed}", moving_objects=1, **BASE_SCENE)
         save_clip(tmp_path / "clips" / f"{clip.clip_id}.npz", clip)
     out, summary, plot = tmp_path / "study.csv", tmp_path / "summary.csv", tmp_path / "study.png"
     proc = subprocess.run(
         [sys.executable, "-m", "sgc_jax.cli", "perturb", str(tmp_path / "clips"), "--kinds", "warp,squeeze,erode",
          "--severities", "0,0.5,1", "--out", str(out), "--summary", str(summary), "--plot", str(plot),
-         "--engine", "reference", "-q"], capture_output=True, text=True, timeout=600)
+         "-q"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 2 * 3 * 3 and tuple(rows[0]) == STUDY_COLUMNS
     assert {(r["base"], r["kind"], float(r["severity"])) for r in rows} == {
-        (b, k, s) for b in ("tiny0", "tiny1") for k in ("warp", "squeeze", "erode") for s in (0, 0.5, 1)}
+        (b, k, s) for b in ("base0", "base1") for k in ("warp", "squeeze", "erode") for s in (0, 0.5, 1)}
     assert len(list(csv.DictReader(summary.open()))) == 3 * 3
     assert plot.stat().st_size > 10_000 and plot.read_bytes()[:4] == b"\x89PNG"
     assert "rho_sgc" in proc.stdout and "squeeze" in proc.stdout
@@ -239,10 +240,10 @@ def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
 
 
 def test_repr_of_a_study_is_a_short_summary():
-    study = sensitivity_study(tiny_clips(1), ["warp", "squeeze"], (0, 0.5, 1), engine="reference", progress=False)
+    study = sensitivity_study(ladder_bases()[:1], ["warp", "squeeze"], (0, 0.5, 1), progress=False)
     many = dataclasses.replace(study, rows=study.rows * 500,
                                batch=dataclasses.replace(study.batch, clips=study.batch.clips * 500))
     text = repr(many)
     assert len(text) < 500 and len(text.splitlines()) <= 3, text
     assert "3000 rows" in text and "2 kinds (warp, squeeze)" in text and "3 severities (0..1)" in text
-    assert "engine reference" in text and ".table()" in text and ".to_pandas()" in text
+    assert "engine jax" in text and ".table()" in text and ".to_pandas()" in text
