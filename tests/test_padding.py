@@ -26,11 +26,13 @@ def assert_same_pairs(padded, as_is):
 
 # A noisy clip (30% outlier tracks: RANSAC's sampling must not depend on the padded track count)
 # of the suite's 4 x 128 x 128 x 1024 bucket, padded to buckets other tests score anyway: more
-# frames (the demo corpus's) and more tracks and columns (conftest.SCENE's).
+# frames (the demo corpus's) and more tracks and columns (conftest.SCENE's); and more tracks alone,
+# which shares the finish stage's program (keyed on T, H, W) with the clip's own bucket.
 SMALL_NOISY = dict(n_layers=2, static_spheres=4, height=100, width=120, n_tracks=1000, n_frames=3, noise_px=1.0,
                    outlier_frac=0.3)
 LARGER = {"frames": buckets.Bucket(T=8, H=128, W=128, P=1024),
-          "tracks_and_columns": buckets.Bucket(T=4, H=128, W=192, P=2048)}
+          "tracks_and_columns": buckets.Bucket(T=4, H=128, W=192, P=2048),
+          "tracks": buckets.Bucket(T=4, H=128, W=128, P=2048)}
 
 
 @pytest.mark.parametrize("larger", sorted(LARGER))
@@ -39,9 +41,12 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(larger, monkeypatc
     config = SGCConfig()
     assert buckets.bucket_for(clip) == buckets.Bucket(T=4, H=128, W=128, P=1024)
     [as_is] = dispatch.score_pairs_batch([clip], config)
+    before = len(programs.compile_log())
     monkeypatch.setattr(dispatch, "bucket_for", lambda clip: LARGER[larger])
     [padded] = dispatch.score_pairs_batch([clip], config)
     assert_same_pairs(padded, as_is)
+    if larger == "tracks":
+        assert "finish" not in [key.stage for key, _ in programs.compile_log()[before:]]
 
 
 def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatch, capsys):

@@ -15,8 +15,8 @@ from ...kernels.so3 import rotation_angle_deg
 from ...kernels.warp import depth_error, warp_depth
 from ..units import PERCENT, translation_factor
 from .pixel_stage import pairs_flat
-from .pose_stage import PER_TRACK, LocalPoses
-from .stages import each
+from .pose_stage import LocalPoses
+from .stages import POSE_PER_TRACK, each
 
 
 def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
@@ -65,11 +65,11 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig) -> dict
 
 
 def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
-    """The pose stage's output and the clips' depth (B, T, H, W), masks and K -> per-clip,
+    """The pose stage's per-region output and the clips' depth (B, T, H, W), masks and K -> per-clip,
     per-pair and per-region arrays (leading axes B, T-1)."""
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
-    poses = LocalPoses(**{name: pose[name] for name in LocalPoses._fields})
+    poses = LocalPoses(**{name: pose.get(name) for name in LocalPoses._fields})  # per-track fields: None
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
     err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
@@ -79,5 +79,5 @@ def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if config.scale_free else t_g
     comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(config)
-    regions = {name: value for name, value in poses._asdict().items() if name not in PER_TRACK}
+    regions = {name: value for name, value in poses._asdict().items() if name not in POSE_PER_TRACK}
     return dict(comps, **regions, scale=scale)

@@ -41,9 +41,6 @@ class LocalPoses(NamedTuple):
     track_fitted: jax.Array  # (P,) bool: the tracks its region's pose is the least-squares fit of
 
 
-# per-track fields, which the finish stage does not pass on
-PER_TRACK = ("track_fitted",)
-
 
 class PairInputs(NamedTuple):
     """One pair's share of the pose stage's inputs (frames i-1 -> i)."""

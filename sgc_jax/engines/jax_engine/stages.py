@@ -21,6 +21,9 @@ from ...config import STATIC_FIELDS, VALUE_FIELDS, SGCConfig
 from .buckets import Bucket, PaddedClips
 
 STAGES = ("pixel", "pose", "finish")
+# The pose stage's per-track outputs (P axis): read by the differentiable score, not passed to the
+# finish stage, whose program must not depend on the track count (its key holds T, H, W only).
+POSE_PER_TRACK = ("track_fitted",)
 
 # The static config fields each stage reads (ProgramConfig refuses the others), so a stage's
 # program is shared by configs that differ elsewhere. Properties of the config used in a stage
@@ -64,7 +67,8 @@ def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple
         return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
                                 previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
                                 batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
-    return (previous, batch.depth, batch.static, batch.K)
+    regions = {name: value for name, value in previous.items() if name not in POSE_PER_TRACK}
+    return (regions, batch.depth, batch.static, batch.K)
 
 
 @dataclasses.dataclass(frozen=True)
