@@ -69,7 +69,8 @@ def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
     per-pair and per-region arrays (leading axes B, T-1)."""
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
-    poses = LocalPoses(**{name: pose.get(name) for name in LocalPoses._fields})  # per-track fields: None
+    regions = {name: pose[name] for name in LocalPoses._fields if name not in POSE_PER_TRACK}
+    poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # stage_inputs keeps the per-track fields back
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
     err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
@@ -79,5 +80,4 @@ def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if config.scale_free else t_g
     comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(config)
-    regions = {name: value for name, value in poses._asdict().items() if name not in POSE_PER_TRACK}
     return dict(comps, **regions, scale=scale)

@@ -41,7 +41,6 @@ class LocalPoses(NamedTuple):
     track_fitted: jax.Array  # (P,) bool: the tracks its region's pose is the least-squares fit of
 
 
-
 class PairInputs(NamedTuple):
     """One pair's share of the pose stage's inputs (frames i-1 -> i)."""
 
