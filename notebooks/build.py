@@ -626,7 +626,7 @@ GRADIENTS = [
         strong = [p for p in range(T - 1) if ratio[p] > 10]
         print(f"pairs where they carry > 10x the static gradient: {strong} "
               f"({', '.join(f'{ratio[p]:.0f}x' for p in strong)}); elsewhere at most "
-              f"{max(r for p, r in enumerate(ratio) if p not in strong):.0f}x; shown: pair {pair}")"""),
+              f"{max((r for p, r in enumerate(ratio) if p not in strong), default=0.0):.0f}x; shown: pair {pair}")"""),
     _md("""
         Per pair the picture is sharper than the mean: where the sphere's tracks form a region of
         their own, its pose disagrees with the others and its tracks carry tens of times the
