@@ -3,7 +3,7 @@ synthetic scenes, consistent and perturbed at severity 0.5, across tracker noise
 the default SGC beside trial "excess" SGCs.
 
     python bench/excess_score.py [--scenes 3] [--draws 3] [--tracks 200 1000 4000] [--bands 1 2] [--out excess.csv]
-                                 [--quality-noise-px 1.0]
+                                 [--quality-noise-px 1.0] [--region-frame current|previous] [--k-seg 10]
 
 Each scene's geometry is fixed; its tracks get ``--draws`` independent draws of Gaussian noise
 (bench/intervals.py's) after the perturbation. A trial score is the spec formula (docs/semantics.md
@@ -62,8 +62,11 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="CSV of every clip's scores, components and floors")
     parser.add_argument("--quality-noise-px", type=float, default=SGCConfig().quality_noise_px,
                         help="the region-quality rule's cap on the residual sigma (a value: no recompile)")
+    parser.add_argument("--region-frame", default=SGCConfig().region_frame, choices=("current", "previous"),
+                        help="the frame whose partition gives a pair's regions (docs/semantics.md §3.2 step 5)")
+    parser.add_argument("--k-seg", type=int, default=SGCConfig().k_seg, help="region slots per frame")
     args = parser.parse_args()
-    config = SGCConfig(quality_noise_px=args.quality_noise_px)
+    config = SGCConfig(quality_noise_px=args.quality_noise_px, region_frame=args.region_frame, k_seg=args.k_seg)
     trial = excess_calibration(Calibration.load("sgc-spec-2026"))
     rows = []
     for tracks, (s, scene) in itertools.product(args.tracks, enumerate(SCENES[:args.scenes])):

@@ -12,6 +12,7 @@ from typing import Any, Mapping
 
 PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
+REGION_FRAMES = ("current", "previous")
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
@@ -31,8 +32,8 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 # program (array sizes, loop counts, branches): a new value compiles a new program. VALUE fields
 # enter the program as traced scalars and HOST fields act before it (loading, padding), so
 # changing either reuses the program.
-STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "compat", "global_pose",
-                 "align_scale", "borrow_region_poses")
+STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "region_frame", "compat",
+                 "global_pose", "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
 VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed", "quality_rule",
                 "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "min_region_extent",
@@ -66,6 +67,10 @@ class SGCConfig:
     partition: str = _field("depth", "how the static background is split into regions: depth layers, a k_seg "
                                      "grid over its bounding box, or depth layers split into connected parts "
                                      "(docs/semantics.md §3.2, §6.1)", choices=PARTITIONS)
+    region_frame: str = _field("current", "the frame whose background is partitioned and where each track's region "
+                                          "is read: current (frame i, the paper's) or previous (frame i-1, the "
+                                          "track's query point, where its depth is read; docs/semantics.md §3.2)",
+                               choices=REGION_FRAMES)
     use_mos: bool = _field(True, "use the static masks; --no-mos ignores them (the paper's no-MOS ablation, "
                                  "docs/semantics.md §6.2)", flag="--mos")
     # None: on under compat="spec" (docs/semantics.md §3.4), off under compat="authors".
@@ -101,6 +106,8 @@ class SGCConfig:
     def __post_init__(self) -> None:
         if self.partition not in PARTITIONS:
             raise ValueError(f"partition must be one of {PARTITIONS}, got {self.partition!r}")
+        if self.region_frame not in REGION_FRAMES:
+            raise ValueError(f"region_frame must be one of {REGION_FRAMES}, got {self.region_frame!r}")
         if self.compat not in COMPATS:
             raise ValueError(f"compat must be one of {COMPATS}, got {self.compat!r}")
         for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "lm_steps"):

@@ -1,14 +1,18 @@
 """The partitions of docs/semantics.md §3.2 and §6.1: ``grid`` and ``depth+spatial`` region
-structure, identical in both engines, and scored end to end."""
+structure, identical in both engines, and scored end to end; the frame whose partition a pair's
+regions are (``region_frame``)."""
+
+import dataclasses
 
 import cv2
 import jax
 import numpy as np
 import pytest
 
-from sgc_jax import SGCConfig, score_clip
+from sgc_jax import COMPONENTS, SGCConfig, score_clip
 from sgc_jax.engines import reference
 from sgc_jax.kernels import partitions
+from sgc_jax.research.agreement import within_tolerance
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 grid_regions = jax.jit(partitions.grid_regions, static_argnames=("k",))
@@ -110,3 +114,31 @@ def test_depth_spatial_scores_a_rigid_clip_near_zero(rigid_clip):
     # on some of the smaller, flatter components (tens of deg^2), which is why only JAX is bounded.
     ref = score_clip(rigid_clip, engine="reference", partition="depth+spatial")
     np.testing.assert_array_equal(ref.pairs.n_regions, result.pairs.n_regions)
+
+
+PREVIOUS = SGCConfig(region_frame="previous")
+
+
+def test_previous_region_frame_keeps_the_trackers_frame_i_error_out_of_membership(rigid_clip):
+    rng = np.random.default_rng(0)
+    noisy = dataclasses.replace(rigid_clip, track_curr=rigid_clip.track_curr + rng.normal(
+        0.0, 2.0, rigid_clip.track_curr.shape).astype(np.float32))
+    moved_under_current = 0
+    for pair in range(1, rigid_clip.n_frames):
+        exact, tracked = reference.pair_points(rigid_clip, pair, PREVIOUS), reference.pair_points(noisy, pair, PREVIOUS)
+        np.testing.assert_array_equal(exact.labels, reference.partition_regions(rigid_clip, pair - 1, PREVIOUS))
+        np.testing.assert_array_equal(exact.region, tracked.region)
+        moved_under_current += int(np.sum(reference.pair_points(rigid_clip, pair, SGCConfig()).region
+                                          != reference.pair_points(noisy, pair, SGCConfig()).region))
+    assert moved_under_current > 0  # read at frame i, the same noise moves points across borders
+
+
+def test_both_engines_pose_the_same_regions_of_the_previous_frame(rigid_clip):
+    jx = score_clip(rigid_clip, engine="jax", region_frame="previous")
+    ref = score_clip(rigid_clip, engine="reference", region_frame="previous")
+    for field in ("n_regions", "region_points", "region_status"):
+        np.testing.assert_array_equal(getattr(jx.pairs, field), getattr(ref.pairs, field), err_msg=field)
+    for k in COMPONENTS:
+        assert within_tolerance(ref.components[k], jx.components[k], k), (k, ref.components[k], jx.components[k])
+    current = score_clip(rigid_clip, engine="reference")
+    assert not np.array_equal(current.pairs.region_points, ref.pairs.region_points)

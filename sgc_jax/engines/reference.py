@@ -191,9 +191,18 @@ def spatial_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfi
 # ----------------------------------------------------------------------------- tracks
 
 
-def usable_points(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Usable tracks of a pair with valid depth: (X (n,3) in camera pair-1, uv (n,2) in frame pair,
-    n_usable) following docs/semantics.md §3.2 steps 3-4."""
+class UsablePoints(NamedTuple):
+    """A pair's usable tracks with valid depth (docs/semantics.md §3.2 steps 3-4): X (n, 3) in camera
+    pair-1, uv (n, 2) in frame pair, uv_prev (n, 2) in frame pair-1, and n_usable, the usable
+    tracks with or without depth."""
+
+    X: np.ndarray
+    uv: np.ndarray
+    uv_prev: np.ndarray
+    n_usable: int
+
+
+def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
     usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
     prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
     H, W = clip.image_size
@@ -202,7 +211,13 @@ def usable_points(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.ndarray,
     Z = clip.depth[pair - 1][row, col].astype(np.float64)
     has_depth = np.isfinite(Z) & (Z > 0)
     X = back_project(clip.K[pair - 1], prev, Z)
-    return X[has_depth], curr[has_depth], int(usable.sum())
+    return UsablePoints(X[has_depth], curr[has_depth], prev[has_depth], int(usable.sum()))
+
+
+def region_frame(pair: int, config: SGCConfig) -> int:
+    """The frame whose partition gives pair ``pair``'s regions: pair (frame i) or, under
+    ``region_frame="previous"``, pair - 1 (docs/semantics.md §3.2 steps 2 and 5)."""
+    return pair - 1 if config.region_frame == "previous" else pair
 
 
 def back_project(K: np.ndarray, uv: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -220,7 +235,7 @@ def project(K: np.ndarray, cam: np.ndarray) -> np.ndarray:
 
 
 def point_regions(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Region label (n,) at floor(track_curr); 0 outside the image or outside every region."""
+    """Region label (n,) at the floor pixels of uv (n, 2); 0 outside the image or outside every region."""
     H, W = labels.shape
     col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
     inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
@@ -457,7 +472,7 @@ def region_seed(config: SGCConfig, pair: int, region: int) -> int:
 
 
 class PairPoints(NamedTuple):
-    """A pair's points (docs/semantics.md §3.2 steps 1-5): labels (H, W) of frame pair's regions,
+    """A pair's points (docs/semantics.md §3.2 steps 1-5): labels (H, W) of the region frame's regions,
     X (n, 3) in camera pair-1 and uv (n, 2) in frame pair of the usable tracks with depth, their
     region (n,) (0: none) and n_usable, the usable tracks with or without depth."""
 
@@ -469,9 +484,10 @@ class PairPoints(NamedTuple):
 
 
 def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
-    labels = partition_regions(clip, pair, config)
-    X, uv, n_usable = usable_points(clip, pair, config)
-    return PairPoints(labels, X, uv, point_regions(labels, uv), n_usable)
+    labels = partition_regions(clip, region_frame(pair, config), config)
+    points = usable_points(clip, pair, config)
+    where = points.uv_prev if config.region_frame == "previous" else points.uv
+    return PairPoints(labels, points.X, points.uv, point_regions(labels, where), points.n_usable)
 
 
 class RegionPose(NamedTuple):
@@ -685,7 +701,7 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         out.n_poses[p] = len(R_list)
         out.n_ill_conditioned[p] = int(np.isin(poses["region_status"][p], EXCLUDED_STATUSES).sum())
         out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
-        out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, pair, config).sum()),
+        out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, region_frame(pair, config), config).sum()),
                                     int(out.n_regions[p]), len(R_list), out.depth_error[p],
                                     int(out.n_ill_conditioned[p]))
     return out

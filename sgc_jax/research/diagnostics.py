@@ -59,22 +59,24 @@ def _check_regions(labels: np.ndarray, pairs: PairArrays, pair: int, clip_id: st
 
 
 def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> np.ndarray:
-    """(H, W) int32 region label map of frame ``pair`` for ``config.partition``: 0 = no region,
-    1..N_s = regions (with the default ``"depth"``: depth layers, nearest first; docs/semantics.md §3.2)."""
+    """(H, W) int32 region label map of pair ``pair``'s regions (frame pair, or pair - 1 under
+    ``region_frame="previous"``) for ``config.partition``: 0 = no region, 1..N_s = regions (with the
+    default ``"depth"``: depth layers, nearest first; docs/semantics.md §3.2)."""
     clip, config = _prepare(clip, pair, config)
-    return reference.partition_regions(clip, pair, config)
+    return reference.partition_regions(clip, reference.region_frame(pair, config), config)
 
 
 @dataclasses.dataclass(frozen=True)
 class RegionTracks:
     """The usable tracks of a pair with depth: X (n, 3) in camera pair-1, uv (n, 2) px in frame
-    pair, region (n,) label at uv (0 = none), uv_prev (n, 2) px in frame pair-1."""
+    pair, region (n,) label at uv (at uv_prev under ``region_frame="previous"``; 0 = none), uv_prev
+    (n, 2) px in frame pair-1."""
 
     X: np.ndarray
     uv: np.ndarray
     uv_prev: np.ndarray
     region: np.ndarray
-    labels: np.ndarray  # (H, W) region label map of frame pair
+    labels: np.ndarray  # (H, W) region label map of the pair's regions (region_labels)
 
 
 def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> RegionTracks:
@@ -84,11 +86,11 @@ def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) 
 
 def _region_tracks(clip: Clip, config: SGCConfig, pair: int) -> RegionTracks:
     """``region_tracks`` of a clip already in the engines' units (``_prepare``)."""
-    labels = reference.partition_regions(clip, pair, config)
-    X, uv, _ = reference.usable_points(clip, pair, config)
-    K = clip.K[pair - 1]
-    uv_prev = X[:, :2] / X[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
-    return RegionTracks(X=X, uv=uv, uv_prev=uv_prev, region=reference.point_regions(labels, uv), labels=labels)
+    labels = reference.partition_regions(clip, reference.region_frame(pair, config), config)
+    points = reference.usable_points(clip, pair, config)
+    where = points.uv_prev if config.region_frame == "previous" else points.uv
+    return RegionTracks(X=points.X, uv=points.uv, uv_prev=points.uv_prev, region=reference.point_regions(labels, where),
+                        labels=labels)
 
 
 def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,

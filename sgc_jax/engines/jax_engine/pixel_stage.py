@@ -1,5 +1,6 @@
-"""The pixel stage (docs/semantics.md §3.2 steps 1-2 and 5): frame i's region of every track, and
-frame i-1's depth at every track, for every pair of the clips of a bucket."""
+"""The pixel stage (docs/semantics.md §3.2 steps 1-2 and 5): the region of every track (in frame i's
+partition, or frame i-1's under ``region_frame="previous"``), and frame i-1's depth at every track,
+for every pair of the clips of a bucket."""
 
 from __future__ import annotations
 
@@ -11,27 +12,27 @@ from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_r
 from .stages import PixelInputs, each
 
 
-def frame_regions(depth_curr, static_curr, track_curr, image_hw, config: SGCConfig):
-    """Frames i (F, H, W), their pairs' points in them (F, P, 2) and true sizes (F, 2) -> (region
-    at each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S_i| (F,))."""
-    region_mask = static_curr if config.compat == "authors" else static_curr & (depth_curr > 0)
-    H_pad, W_pad = depth_curr.shape[1:]
-    col, row = jnp.floor(track_curr[..., 0]).astype(jnp.int32), jnp.floor(track_curr[..., 1]).astype(jnp.int32)
+def frame_regions(depth, static, points, image_hw, config: SGCConfig):
+    """Frames (F, H, W), their pairs' points in them (F, P, 2) and true sizes (F, 2) -> (region at
+    each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S| (F,))."""
+    region_mask = static if config.compat == "authors" else static & (depth > 0)
+    H_pad, W_pad = depth.shape[1:]
+    col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
     inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
     pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
     at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
     regions = dict(k=config.k_seg, min_region_pixels=config.min_region_pixels)
     if config.partition == "depth":  # the points labelled from each bin's region, never whole label maps
-        partition = depth_partition(depth_curr, region_mask, bins=config.kmeans_bins, **regions,
+        partition = depth_partition(depth, region_mask, bins=config.kmeans_bins, **regions,
                                     frames_at_once=config.vectorized)
-        labels = jax.vmap(region_of_depth)(partition, at_points(depth_curr, pixel), at_points(region_mask, pixel))
+        labels = jax.vmap(region_of_depth)(partition, at_points(depth, pixel), at_points(region_mask, pixel))
         n_regions = partition.n_regions
     else:  # frame by frame on CPU: unbatched scatters run several times faster there
         if config.partition == "grid":
             label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
         else:
             label_frame = lambda frame: depth_spatial_regions(*frame, bins=config.kmeans_bins, **regions)  # noqa: E731
-        labels, n_regions = each(label_frame, (depth_curr, region_mask), config)
+        labels, n_regions = each(label_frame, (depth, region_mask), config)
         labels = at_points(labels, pixel)
     return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
@@ -57,7 +58,9 @@ def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
     B, T = x.depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
+    # frame i-1 and the tracks' query points, or frame i and where the tracker put them
+    frames, points = (slice(None, -1), x.track_prev) if config.region_frame == "previous" else (slice(1, None), x.track_curr)
     labels, n_regions, region_pixels = map(unflat, frame_regions(
-        flat(x.depth[:, 1:]), flat(x.static[:, 1:]), flat(x.track_curr), image_hw, config))
+        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), image_hw, config))
     Z_prev = unflat(jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw))
     return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

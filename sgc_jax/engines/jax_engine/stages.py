@@ -29,7 +29,7 @@ POSE_PER_TRACK = ("track_fitted",)
 # program is shared by configs that differ elsewhere. Properties of the config used in a stage
 # must derive from these (scale_free and fits_translation_scale do).
 STAGE_FIELDS = {
-    "pixel": ("k_seg", "kmeans_bins", "partition", "compat"),
+    "pixel": ("k_seg", "kmeans_bins", "partition", "region_frame", "compat"),
     "pose": ("k_seg", "ransac_hypotheses", "lm_steps", "compat", "global_pose", "align_scale", "borrow_region_poses"),
     "finish": ("k_seg", "compat", "global_pose"),
 }
