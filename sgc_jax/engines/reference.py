@@ -473,21 +473,23 @@ def region_seed(config: SGCConfig, pair: int, region: int) -> int:
 
 class PairPoints(NamedTuple):
     """A pair's points (docs/semantics.md §3.2 steps 1-5): labels (H, W) of the region frame's regions,
-    X (n, 3) in camera pair-1 and uv (n, 2) in frame pair of the usable tracks with depth, their
-    region (n,) (0: none) and n_usable, the usable tracks with or without depth."""
+    X (n, 3) in camera pair-1, uv (n, 2) in frame pair and uv_prev (n, 2) in frame pair-1 of the
+    usable tracks with depth, their region (n,) (0: none) and n_usable, the usable tracks with or
+    without depth."""
 
     labels: np.ndarray
     X: np.ndarray
     uv: np.ndarray
+    uv_prev: np.ndarray
     region: np.ndarray
     n_usable: int
 
 
 def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
     labels = partition_regions(clip, region_frame(pair, config), config)
-    points = usable_points(clip, pair, config)
-    where = points.uv_prev if config.region_frame == "previous" else points.uv
-    return PairPoints(labels, points.X, points.uv, point_regions(labels, where), points.n_usable)
+    X, uv, uv_prev, n_usable = usable_points(clip, pair, config)
+    region = point_regions(labels, uv_prev if config.region_frame == "previous" else uv)
+    return PairPoints(labels, X, uv, uv_prev, region, n_usable)
 
 
 class RegionPose(NamedTuple):

@@ -86,11 +86,8 @@ def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) 
 
 def _region_tracks(clip: Clip, config: SGCConfig, pair: int) -> RegionTracks:
     """``region_tracks`` of a clip already in the engines' units (``_prepare``)."""
-    labels = reference.partition_regions(clip, reference.region_frame(pair, config), config)
-    points = reference.usable_points(clip, pair, config)
-    where = points.uv_prev if config.region_frame == "previous" else points.uv
-    return RegionTracks(X=points.X, uv=points.uv, uv_prev=points.uv_prev, region=reference.point_regions(labels, where),
-                        labels=labels)
+    points = reference.pair_points(clip, pair, config)
+    return RegionTracks(X=points.X, uv=points.uv, uv_prev=points.uv_prev, region=points.region, labels=points.labels)
 
 
 def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
