@@ -4,6 +4,7 @@ the default SGC beside trial "excess" SGCs.
 
     python bench/excess_score.py [--scenes 3] [--draws 3] [--tracks 200 1000 4000] [--bands 1 2] [--out excess.csv]
                                  [--quality-noise-px 1.0] [--region-frame current|previous] [--k-seg 10]
+                                 [--tracks-per-layer 0]
 
 Each scene's geometry is fixed; its tracks get ``--draws`` independent draws of Gaussian noise
 (bench/intervals.py's) after the perturbation. A trial score is the spec formula (docs/semantics.md
@@ -65,8 +66,11 @@ def main() -> None:
     parser.add_argument("--region-frame", default=SGCConfig().region_frame, choices=("current", "previous"),
                         help="the frame whose partition gives a pair's regions (docs/semantics.md §3.2 step 5)")
     parser.add_argument("--k-seg", type=int, default=SGCConfig().k_seg, help="region slots per frame")
+    parser.add_argument("--tracks-per-layer", type=int, default=SGCConfig().tracks_per_layer,
+                        help="at most one depth layer per this many tracks on the background (0: k_seg layers)")
     args = parser.parse_args()
-    config = SGCConfig(quality_noise_px=args.quality_noise_px, region_frame=args.region_frame, k_seg=args.k_seg)
+    config = SGCConfig(quality_noise_px=args.quality_noise_px, region_frame=args.region_frame, k_seg=args.k_seg,
+                       tracks_per_layer=args.tracks_per_layer)
     trial = excess_calibration(Calibration.load("sgc-spec-2026"))
     rows = []
     for tracks, (s, scene) in itertools.product(args.tracks, enumerate(SCENES[:args.scenes])):

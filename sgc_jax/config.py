@@ -35,7 +35,7 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "region_frame", "compat",
                  "global_pose", "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
-VALUE_FIELDS = ("min_region_pixels", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed", "quality_rule",
+VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed", "quality_rule",
                 "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "min_region_extent",
                 "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
@@ -53,6 +53,9 @@ class SGCConfig:
 
     k_seg: int = _field(10, "region slots per frame: depth clusters, grid cells or components")
     min_region_pixels: int = _field(200, "clusters, cells or components with fewer pixels are dropped")
+    tracks_per_layer: int = _field(0, "depth layers follow the tracks: a pair's background gets at most one layer "
+                                      "per this many of its tracks on it (and at most k_seg); 0: always k_seg "
+                                      "(depth partition only; docs/semantics.md §3.2)")
     min_points: int = _field(4, "tracks a region needs for a local pose (>= 4)")
     inlier_px: float = _field(8.0, "RANSAC inlier threshold on the reprojection error, pixels")
     ransac_hypotheses: int = _field(100, "most minimal samples drawn per region")
@@ -113,6 +116,11 @@ class SGCConfig:
         for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "lm_steps"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if int(self.tracks_per_layer) < 0:
+            raise ValueError(f"tracks_per_layer must be >= 0 (0: always k_seg layers), got {self.tracks_per_layer!r}")
+        if self.tracks_per_layer and self.partition != "depth":
+            raise ValueError(f"tracks_per_layer applies to depth layers (partition='depth'), not partition="
+                             f"{self.partition!r}; set it to 0")
         if self.min_points < 4:
             raise ValueError(f"min_points must be >= 4 (PnP needs 4 points), got {self.min_points}")
         if not 0.0 < self.confidence < 1.0:

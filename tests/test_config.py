@@ -49,3 +49,11 @@ def test_every_field_is_an_option_as_documented(command):
 
 def test_every_field_has_help_text():
     assert all(f.metadata.get("help") for f in dataclasses.fields(SGCConfig))
+
+
+def test_a_layer_count_that_follows_the_tracks_is_refused_outside_depth_layers():
+    with pytest.raises(ValueError, match="tracks_per_layer"):
+        SGCConfig(tracks_per_layer=-1)
+    for partition in ("grid", "depth+spatial"):
+        with pytest.raises(ValueError, match="partition='depth'"):
+            SGCConfig(tracks_per_layer=100, partition=partition)

@@ -100,6 +100,16 @@ def test_labels_increase_with_value():
     assert np.all(np.diff(labels[order]) >= 0)
 
 
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fewer_clusters_of_the_same_programme_equal_a_run_with_that_many(seed):
+    rng = np.random.default_rng(seed)
+    values = lattice_values(rng, 40)
+    valid = np.ones(values.size, bool)
+    for k_used in (1, 2, 3, 5):
+        np.testing.assert_array_equal(kmeans_1d(values, valid, k=5, bins=256, k_used=np.int32(k_used)),
+                                      kmeans_1d(values, valid, k=k_used, bins=256))
+
 @pytest.mark.slow
 def test_quality_at_least_ten_restart_lloyd_on_layered_depth():
     KMeans = pytest.importorskip("sklearn.cluster").KMeans

@@ -113,10 +113,11 @@ def kmeans_1d(values: np.ndarray, k: int, bins: int) -> np.ndarray:
     return cluster_of_bin[bin_of]
 
 
-def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
-    """Label map (H, W): 1..N_s depth clusters of the masked pixels, 0 = no region (docs/semantics.md §3.2)."""
+def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig, layers: int | None = None) -> np.ndarray:
+    """Label map (H, W): 1..N_s depth clusters (``layers`` of them, default k_seg) of the masked
+    pixels, 0 = no region (docs/semantics.md §3.2)."""
     labels = np.zeros(depth.shape, np.int32)
-    cluster = kmeans_1d(depth[region_mask], config.k_seg, config.kmeans_bins)
+    cluster = kmeans_1d(depth[region_mask], config.k_seg if layers is None else layers, config.kmeans_bins)
     counts = np.bincount(cluster, minlength=config.k_seg)
     kept = np.flatnonzero(counts >= config.min_region_pixels)
     renumber = np.zeros(config.k_seg, np.int32)
@@ -133,15 +134,25 @@ def pair_region_mask(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
     return static & valid_depth(clip.depth[pair])
 
 
-def partition_regions(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
-    """Region label map (H, W) of frame ``pair`` for the configured partition."""
+def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> int:
+    """Depth layers of a frame whose background (H, W) holds the points uv (n, 2) at their floor
+    pixels: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0 (docs/semantics.md §3.2)."""
+    if config.tracks_per_layer <= 0:
+        return config.k_seg
+    on_mask = int((point_regions(region_mask.astype(np.int32), uv) > 0).sum())
+    return int(np.clip(on_mask // config.tracks_per_layer, 1, config.k_seg))
+
+
+def partition_regions(clip: Clip, pair: int, config: SGCConfig, layers: int | None = None) -> np.ndarray:
+    """Region label map (H, W) of frame ``pair`` for the configured partition; ``layers``: depth
+    layers (partition ``depth``; default k_seg)."""
     region_mask = pair_region_mask(clip, pair, config)
     depth = np.where(valid_depth(clip.depth[pair]), clip.depth[pair], 0.0)
     if config.partition == "grid":
         return grid_regions(region_mask, config)
     if config.partition == "depth+spatial":
         return spatial_regions(depth, region_mask, config)
-    return depth_regions(depth, region_mask, config)
+    return depth_regions(depth, region_mask, config, layers)
 
 
 def grid_regions(region_mask: np.ndarray, config: SGCConfig) -> np.ndarray:
@@ -486,10 +497,11 @@ class PairPoints(NamedTuple):
 
 
 def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
-    labels = partition_regions(clip, region_frame(pair, config), config)
     X, uv, uv_prev, n_usable = usable_points(clip, pair, config)
-    region = point_regions(labels, uv_prev if config.region_frame == "previous" else uv)
-    return PairPoints(labels, X, uv, uv_prev, region, n_usable)
+    frame, where = region_frame(pair, config), uv_prev if config.region_frame == "previous" else uv
+    layers = layer_count(pair_region_mask(clip, frame, config), where, config)
+    labels = partition_regions(clip, frame, config, layers)
+    return PairPoints(labels, X, uv, uv_prev, point_regions(labels, where), n_usable)
 
 
 class RegionPose(NamedTuple):

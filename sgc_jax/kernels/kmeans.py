@@ -180,10 +180,13 @@ def dp_step(prev, sums: Histogram, plan: SearchPlan, bins):
     return final.best, final.first
 
 
-def cluster_of_bins(sums: Histogram, has_span, k, bins):
-    """The k-layer DP, then the backtrack -> cluster 0..k-1 of each bin (bins,), by increasing
-    value; every bin in cluster 0 when the values span no range."""
+def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
+    """The k-layer DP, then the backtrack -> cluster 0..k_used-1 of each bin (bins,), by increasing
+    value; every bin in cluster 0 when the values span no range. ``k_used`` (traced, 1..k; default
+    k): the DP's row j holds the optimum for j + 1 clusters, so fewer clusters is a backtrack from
+    an earlier row, the same program."""
     plan = search_plan(bins)
+    k_used = k if k_used is None else k_used
 
     def forward(prev, _):  # prev[a] = D_{j-1}(a - 1) for a = 0..bins, D(-1) = 0
         best, first = dp_step(prev, sums, plan, bins)
@@ -193,19 +196,23 @@ def cluster_of_bins(sums: Histogram, has_span, k, bins):
     _, first_bin = lax.scan(forward, prev0, None, length=k)  # (k, bins): A_j(b) at row j - 1
     bin_ids = jnp.arange(bins, dtype=jnp.int32)
 
-    def backward(carry, j):
+    def backward(carry, step):
         last, cluster = carry
-        first = jnp.where(last >= 0, first_bin[j, jnp.maximum(last, 0)], last + 1)
-        return (first - 1, jnp.where((bin_ids >= first) & (bin_ids <= last), j, cluster)), None
+        j = k_used - 1 - step  # rows k_used-1 .. 0; steps past row 0 change nothing
+        row = jnp.maximum(j, 0)
+        first = jnp.where(last >= 0, first_bin[row, jnp.maximum(last, 0)], last + 1)
+        spanned = (bin_ids >= first) & (bin_ids <= last) & (j >= 0)
+        return (jnp.where(j >= 0, first - 1, last), jnp.where(spanned, row, cluster)), None
 
     init = (jnp.int32(bins - 1), jnp.zeros(bins, jnp.int32))
-    (_, cluster), _ = lax.scan(backward, init, jnp.arange(k - 1, -1, -1, dtype=jnp.int32))
+    (_, cluster), _ = lax.scan(backward, init, jnp.arange(k, dtype=jnp.int32))
     return jnp.where(has_span, cluster, 0)
 
 
-def kmeans_1d(values, valid, *, k: int, bins: int):
-    """(N,) values, (N,) bool valid -> (N,) int32 cluster 0..k-1 by increasing value, -1 invalid."""
+def kmeans_1d(values, valid, *, k: int, bins: int, k_used=None):
+    """(N,) values, (N,) bool valid -> (N,) int32 cluster 0..k_used-1 by increasing value, -1
+    invalid; ``k_used`` (traced, 1..k) defaults to k."""
     u, valid, has_span, _ = normalise(values, valid)
     bins_of = bin_of(u, bins)
     sums, _ = histogram(u * bins, bins_of, valid, bins)
-    return jnp.where(valid, cluster_of_bins(sums, has_span, k, bins)[bins_of], -1).astype(jnp.int32)
+    return jnp.where(valid, cluster_of_bins(sums, has_span, k, bins, k_used)[bins_of], -1).astype(jnp.int32)

@@ -39,10 +39,10 @@ class DepthPartition(NamedTuple):
     n_regions: jax.Array  # (F,) int32
 
 
-def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels,
+def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels, layers=None,
                     frames_at_once: bool = False) -> DepthPartition:
-    """Depth layers of frames (F, H, W) over their masks (F, H, W); ``region_of_depth`` labels
-    pixels. The histograms are built frame by frame (unbatched scatters are several times faster
+    """Depth layers of frames (F, H, W) over their masks (F, H, W), ``layers`` (F,) int32 in 1..k
+    per frame (default k); ``region_of_depth`` labels pixels. The histograms are built frame by frame (unbatched scatters are several times faster
     on a CPU) or, ``frames_at_once``, all in one batched step (an accelerator would otherwise run
     F loop iterations of tiny kernels)."""
     F = depth.shape[0]
@@ -54,7 +54,8 @@ def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels,
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
     sums, n_bin, has_span, lo, span = over_frames((depth.reshape(F, -1), region_mask.reshape(F, -1)))
-    cluster = jax.vmap(lambda s, h: cluster_of_bins(s, h, k, bins))(sums, has_span)  # the DP gains from batching
+    layers = jnp.full(F, k, jnp.int32) if layers is None else layers
+    cluster = jax.vmap(lambda s, h, n: cluster_of_bins(s, h, k, bins, n))(sums, has_span, layers)  # the DP gains from batching
     counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster)
     region_of_bin, n_regions = renumber_kept(cluster, counts, min_region_pixels)
     return DepthPartition(lo, span, region_of_bin, n_regions)

@@ -63,7 +63,7 @@ def region_labels(clip: Clip | Any, pair: int, config: SGCConfig | None = None) 
     ``region_frame="previous"``) for ``config.partition``: 0 = no region, 1..N_s = regions (with the
     default ``"depth"``: depth layers, nearest first; docs/semantics.md §3.2)."""
     clip, config = _prepare(clip, pair, config)
-    return reference.partition_regions(clip, reference.region_frame(pair, config), config)
+    return reference.pair_points(clip, pair, config).labels
 
 
 @dataclasses.dataclass(frozen=True)

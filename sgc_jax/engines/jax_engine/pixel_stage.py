@@ -12,9 +12,18 @@ from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_r
 from .stages import PixelInputs, each
 
 
-def frame_regions(depth, static, points, image_hw, config: SGCConfig):
-    """Frames (F, H, W), their pairs' points in them (F, P, 2) and true sizes (F, 2) -> (region at
-    each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S| (F,))."""
+def layer_count(tracks_on_mask, config: SGCConfig):
+    """Depth layers (F,) int32 of frames whose backgrounds hold ``tracks_on_mask`` (F,) of their
+    pairs' tracks: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0."""
+    per_layer = config.tracks_per_layer
+    return jnp.where(per_layer > 0, jnp.clip(tracks_on_mask // jnp.maximum(per_layer, 1), 1, config.k_seg),
+                     config.k_seg).astype(jnp.int32)
+
+
+def frame_regions(depth, static, points, counted, image_hw, config: SGCConfig):
+    """Frames (F, H, W), their pairs' points in them (F, P, 2), the points that count towards the
+    layer count (F, P) and true sizes (F, 2) -> (region at each point's floor pixel (F, P) int32,
+    0 = none or outside; N_s (F,); |S| (F,))."""
     region_mask = static if config.compat == "authors" else static & (depth > 0)
     H_pad, W_pad = depth.shape[1:]
     col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
@@ -23,7 +32,9 @@ def frame_regions(depth, static, points, image_hw, config: SGCConfig):
     at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
     regions = dict(k=config.k_seg, min_region_pixels=config.min_region_pixels)
     if config.partition == "depth":  # the points labelled from each bin's region, never whole label maps
-        partition = depth_partition(depth, region_mask, bins=config.kmeans_bins, **regions,
+        on_mask = inside & at_points(region_mask, pixel)
+        layers = layer_count(jnp.sum(counted & on_mask, axis=1), config)
+        partition = depth_partition(depth, region_mask, bins=config.kmeans_bins, **regions, layers=layers,
                                     frames_at_once=config.vectorized)
         labels = jax.vmap(region_of_depth)(partition, at_points(depth, pixel), at_points(region_mask, pixel))
         n_regions = partition.n_regions
@@ -60,7 +71,9 @@ def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
     frames, points = (slice(None, -1), x.track_prev) if config.region_frame == "previous" else (slice(1, None), x.track_curr)
+    Z_prev = jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw)
+    counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
     labels, n_regions, region_pixels = map(unflat, frame_regions(
-        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), image_hw, config))
-    Z_prev = unflat(jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw))
+        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), counted, image_hw, config))
+    Z_prev = unflat(Z_prev)
     return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

@@ -40,6 +40,7 @@ class PixelInputs(NamedTuple):
     static: jax.Array  # (B, T, H, W)
     track_prev: jax.Array  # (B, T-1, P, 2)
     track_curr: jax.Array  # (B, T-1, P, 2)
+    usable: jax.Array  # (B, T-1, P)
     image_hw: jax.Array  # (B, 2)
 
 
@@ -62,7 +63,8 @@ class PoseInputs(NamedTuple):
 def stage_inputs(stage: str, batch: PaddedClips, previous: dict | None) -> tuple:
     """The flat inputs of ``stage`` for a padded batch, given the previous stage's output."""
     if stage == "pixel":
-        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.image_hw))
+        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.usable,
+                                 batch.image_hw))
     if stage == "pose":
         return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
                                 previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
