@@ -10,8 +10,9 @@ import pytest
 from scenes import DEMO_SCENE
 
 from sgc_jax.calibration import COMPONENTS, Calibration, default_calibration, normalise, sgc_score
-from sgc_jax.calibration.formula import SMOOTH_FLOOR_WIDTH, sgc_smooth_score, smooth_floor
+from sgc_jax.calibration.formula import SMOOTH_FLOOR_WIDTH, scored_values, sgc_smooth_score, smooth_floor
 from sgc_jax.engines.jax_engine.smooth_stage import smooth_components, smooth_stage
+from sgc_jax.io.tables import FLOOR_COLUMNS
 from sgc_jax.kernels.implicit_pose import least_squares_pose
 from sgc_jax.kernels.so3 import so3_exp
 from sgc_jax.research.perturb import perturb_clip
@@ -62,8 +63,9 @@ def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
         np.testing.assert_allclose(np.asarray(components[k]), np.asarray(out[k]), rtol=FORWARD_RTOL, err_msg=k)
     forward = {k: np.asarray(out[k], np.float64) for k in COMPONENTS}
     present = {k: ~np.isnan(forward[k]) for k in COMPONENTS}
-    np.testing.assert_allclose(np.asarray(out["sgc_smooth"]), sgc_smooth_score(forward, present, scorer.calibration),
-                               rtol=FORWARD_RTOL)
+    floors = {name: np.asarray(out[name], np.float64) for name in FLOOR_COLUMNS}
+    np.testing.assert_allclose(np.asarray(out["sgc_smooth"]),
+                               sgc_smooth_score(forward, present, scorer.calibration, floors=floors), rtol=FORWARD_RTOL)
 
 
 def test_smooth_score_equals_sgc_where_no_bound_is_active():
@@ -73,9 +75,10 @@ def test_smooth_score_equals_sgc_where_no_bound_is_active():
     components = {k: np.exp(rng.uniform(-4, 4, 2000)) for k in COMPONENTS}
     present = {k: rng.uniform(size=2000) > 0.1 for k in COMPONENTS}
     components = {k: np.where(present[k], components[k], np.nan) for k in COMPONENTS}
-    scaled = normalise(components, calibration, floor_at_zero=False)
-    sgc = sgc_score(components, calibration)
-    smooth = sgc_smooth_score(components, present, calibration)
+    floors = {f"{k}_floor": np.exp(rng.uniform(-4, 4, 2000)) for k in COMPONENTS[:4]}
+    scaled = normalise(scored_values(components, calibration, floors), calibration, floor_at_zero=False)
+    sgc = sgc_score(components, calibration, floors=floors)
+    smooth = sgc_smooth_score(components, present, calibration, floors=floors)
     unbounded = np.all([~present[k] | (scaled[k] >= SMOOTH_FLOOR_WIDTH) for k in COMPONENTS], axis=0)
     any_present = np.any([present[k] for k in COMPONENTS], axis=0)
     assert 0 < unbounded.sum() < len(sgc)

@@ -9,7 +9,7 @@ from sgc_jax import COMPONENTS, score_batch
 from sgc_jax.calibration import Calibration, sgc_score
 from sgc_jax.calibration.interval import score_interval
 from sgc_jax.engines.pairs import PairArrays, empty_pair_arrays
-from sgc_jax.io.tables import INTERVAL_COLUMNS
+from sgc_jax.io.tables import FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.result import rescore_records
 
@@ -18,6 +18,9 @@ CALIBRATION = Calibration.load("sgc-spec-2026")
 # draws. Per-pair components drawn as scaled chi-square(6) values of the spec calibration's range;
 # CLIPS draws put the coverage's standard error near 0.02 (measured: 0.83 at 3 pairs, 0.90 at 7).
 COVERAGE_MIN, CLIPS = 0.80, 300
+# Every pair's noise floors (the calibration scores the excess over them), a quarter of the level
+# the components are drawn at.
+FLOOR = 0.5
 
 
 def pairs_with(values: dict[str, np.ndarray]) -> PairArrays:
@@ -29,12 +32,18 @@ def pairs_with(values: dict[str, np.ndarray]) -> PairArrays:
     return pairs
 
 
+def pair_floors(pairs: PairArrays) -> dict[str, np.ndarray]:
+    return {name: np.full(pairs.n_pairs, FLOOR) for name in FLOOR_COLUMNS}
+
+
 def clip_score(pairs: PairArrays) -> float:
-    return float(sgc_score({k: np.nanmean(getattr(pairs, k)) for k in COMPONENTS}, CALIBRATION))
+    floors = {name: FLOOR for name in FLOOR_COLUMNS}
+    return float(sgc_score({k: np.nanmean(getattr(pairs, k)) for k in COMPONENTS}, CALIBRATION, floors=floors))
 
 
 def interval(pairs: PairArrays) -> tuple[float, float]:
-    return tuple(float(v) for v in score_interval(pairs.components(), clip_score(pairs), CALIBRATION))
+    return tuple(float(v) for v in score_interval(pairs.components(), clip_score(pairs), CALIBRATION,
+                                                  pair_floors=pair_floors(pairs)))
 
 
 def random_pairs(rng: np.random.Generator, n_pairs: int, level: float) -> PairArrays:

@@ -20,6 +20,31 @@ def _as_float(m, xp) -> Any:
     return m.astype(np.float64) if xp is np else m.astype(xp.promote_types(m.dtype, xp.float32))
 
 
+POSE_COMPONENTS = COMPONENTS[:4]  # the components with a noise floor (docs/semantics.md §3.10)
+# float32's own floor under an excess calibration, in the components' units (deg^2, (% of D)^2): a
+# noise-free rigid clip's poses disagree by 1e-10 to 1e-9 in float32 arithmetic, which no floor
+# from the fits' residuals describes; 1e-6 deg^2 is a spread of 0.001 deg.
+NUMERICAL_FLOOR = 1e-6
+
+
+def scored_values(components: Mapping[str, Any], calibration: Calibration, floors: Mapping[str, Any] | None,
+                  xp=np) -> Mapping[str, Any]:
+    """What the formula reads: the components, or under an ``excess`` calibration each pose
+    component's excess over its band, max(0, m_k - floor_band * floor_k - NUMERICAL_FLOOR) (a NaN
+    floor counts as 0; the depth error as it is). ``floors``: "<component>_floor" -> arrays like the components'."""
+    if not calibration.excess:
+        return components
+    if floors is None:
+        raise ValueError(f"calibration {calibration.name!r} scores the pose components' excess over their noise "
+                         "floors (docs/semantics.md §5.1): the floors are needed (columns <component>_floor)")
+    out = dict(components)
+    for k in POSE_COMPONENTS:
+        floor = _as_float(floors[f"{k}_floor"], xp)
+        band = calibration.floor_band * xp.where(xp.isnan(floor), 0.0, floor)
+        out[k] = xp.maximum(_as_float(components[k], xp) - band - NUMERICAL_FLOOR, 0.0)
+    return out
+
+
 def transform(components: Mapping[str, Any], calibration: Calibration, xp=np) -> dict[str, Any]:
     """p_k: log1p(max(0, m_k)) for flagged components, m_k otherwise; arrays broadcast."""
     out = {}
@@ -40,15 +65,24 @@ def normalise(components: Mapping[str, Any], calibration: Calibration, xp=np,
     out = {}
     for k in COMPONENTS:
         sigma, span = calibration.sigma[k], calibration.z_max[k] - calibration.z_min[k]
-        z = (p[k] - calibration.mu[k]) / sigma if sigma != 0 else xp.where(xp.isnan(p[k]), np.nan, 0.0)
-        scaled = (z - calibration.z_min[k]) / span if span != 0 else xp.where(xp.isnan(z), np.nan, 0.0)
+        if sigma == 0:
+            z_above = xp.where(xp.isnan(p[k]), np.nan, 0.0 - calibration.z_min[k])
+        elif calibration.excess and k in POSE_COMPONENTS:
+            # z - z_min as p / sigma - (z_min + mu / sigma): the offset (0 when z_min is the z of no
+            # excess) is a float64 constant, so no excess gives exactly 0 in float32 too
+            z_above = p[k] / sigma - (calibration.z_min[k] + calibration.mu[k] / sigma)
+        else:
+            z_above = (p[k] - calibration.mu[k]) / sigma - calibration.z_min[k]
+        scaled = z_above / span if span != 0 else xp.where(xp.isnan(z_above), np.nan, 0.0)
         out[k] = xp.where(xp.isnan(scaled), np.nan, xp.maximum(scaled, 0.0) if floor_at_zero else scaled)
     return out
 
 
-def sgc_score(components: Mapping[str, Any], calibration: Calibration, xp=np, floor_at_zero: bool = True) -> Any:
-    """SGC = sum_k w_k M''_k / sum_k w_k over the non-NaN M''_k (NaN when all are NaN). Lower is better."""
-    normalised = normalise(components, calibration, xp, floor_at_zero)
+def sgc_score(components: Mapping[str, Any], calibration: Calibration, xp=np, floor_at_zero: bool = True,
+              floors: Mapping[str, Any] | None = None) -> Any:
+    """SGC = sum_k w_k M''_k / sum_k w_k over the non-NaN M''_k (NaN when all are NaN). Lower is
+    better. ``floors``: the pose components' noise floors, needed by an ``excess`` calibration."""
+    normalised = normalise(scored_values(components, calibration, floors, xp), calibration, xp, floor_at_zero)
     stacked = xp.stack([normalised[k] for k in COMPONENTS], axis=-1)
     weights = xp.asarray([calibration.weight[k] for k in COMPONENTS], _float(xp))
     present = ~xp.isnan(stacked)
@@ -70,11 +104,12 @@ def smooth_floor(x, width: float = SMOOTH_FLOOR_WIDTH, xp=np):
 
 
 def sgc_smooth_score(components: Mapping[str, Any], present: Mapping[str, Any], calibration: Calibration,
-                     xp=np, width: float = SMOOTH_FLOOR_WIDTH) -> Any:
+                     xp=np, width: float = SMOOTH_FLOOR_WIDTH, floors: Mapping[str, Any] | None = None) -> Any:
     """The score with each M''_k's floor at 0 replaced by ``smooth_floor``, over the components
     where ``present`` (bool, same shapes); NaN where none is present, with a zero (not NaN)
     gradient. Equals ``sgc_score`` where every present M''_k >= width."""
     safe = {k: xp.where(present[k], components[k], 0.0) for k in COMPONENTS}  # no NaN enters the formula
+    safe = scored_values(safe, calibration, floors, xp)
     normalised = normalise(safe, calibration, xp, floor_at_zero=False)
     weights = [calibration.weight[k] * xp.asarray(present[k], normalised[k].dtype) for k in COMPONENTS]
     total_weight = sum(weights)

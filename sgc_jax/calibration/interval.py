@@ -44,10 +44,11 @@ def _widenings(n_pairs: int) -> np.ndarray:
 
 
 def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: Calibration,
-                   valid: Any = True, xp=np) -> tuple[Any, Any]:
+                   valid: Any = True, xp=np, pair_floors: Mapping[str, Any] | None = None) -> tuple[Any, Any]:
     """(sgc_lo, sgc_hi) (...,) from each component's per-pair values (..., n_pairs) and the clip's
     score (...,); the pairs that count are the ``valid`` ones (..., n_pairs; padding excluded) with
-    a component. NaN where fewer than MIN_PAIRS pairs count."""
+    a component. NaN where fewer than MIN_PAIRS pairs count. ``pair_floors`` ("<component>_floor"
+    -> (..., n_pairs)): resampled with the components, for an ``excess`` calibration."""
     values = [xp.asarray(pair_components[k]) for k in COMPONENTS]
     usable = valid & ~xp.all(xp.stack([xp.isnan(v) for v in values]), axis=0)
     n_pairs = usable.shape[-1]
@@ -58,14 +59,18 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     drawn = xp.minimum(xp.floor(xp.asarray(resample_uniforms(n_pairs)) * n_float), n_float - 1)
     drawn = xp.take_along_axis(order[..., None, :], xp.maximum(drawn, 0).astype(xp.int32), axis=-1)
     in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, n_pairs): the first n positions
+    resampled_columns = dict(zip(COMPONENTS, values))
+    if calibration.excess and pair_floors is not None:
+        resampled_columns.update({name: xp.asarray(v) for name, v in pair_floors.items()})
     means = {}
-    for k, per_pair in zip(COMPONENTS, values):
+    for k, per_pair in resampled_columns.items():
         resampled = xp.take_along_axis(per_pair[..., None, :], drawn, axis=-1)
         keep = in_resample & ~xp.isnan(resampled)
         count = xp.sum(keep, axis=-1)
         total = xp.sum(xp.where(keep, resampled, 0.0), axis=-1)
         means[k] = xp.where(count > 0, total / xp.maximum(count, 1), np.nan)  # (..., draws)
-    scores = sgc_score(means, calibration, xp=xp)
+    floors = {name: means[name] for name in means if name not in COMPONENTS} if pair_floors is not None else None
+    scores = sgc_score({k: means[k] for k in COMPONENTS}, calibration, xp=xp, floors=floors)
     tail = 50.0 * (1.0 - INTERVAL_LEVEL)
     q_lo = xp.percentile(scores, tail, axis=-1)
     q_hi = xp.percentile(scores, 100.0 - tail, axis=-1)

@@ -50,12 +50,19 @@ class Calibration:
     description: str = ""
     rows: str = ""
     compat: str = ""  # semantics of the components it was fitted on: "spec" | "authors" ("" = unknown)
+    # > 0: the pose components enter as their excess over this many times their noise floors (§5.1)
+    floor_band: float = 0.0
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __repr__(self) -> str:  # the five dicts, description and corpus record run to thousands of characters
         weights = ", ".join(f"{k} {self.weight[k]:.3f}" for k in COMPONENTS)
         return (f"Calibration({self.name!r}, compat={self.compat!r}, rows={self.rows!r}; weights {weights}"
                 "; .to_dict() for every field)")
+
+    @property
+    def excess(self) -> bool:
+        """The pose components enter as their excess over ``floor_band`` times their floors."""
+        return self.floor_band > 0
 
     def check_compat(self, compat: str, what: str = "these scores") -> None:
         """Raise :class:`CalibrationMismatchError` when ``compat`` is known and differs from the
@@ -77,6 +84,8 @@ class Calibration:
         out = {"name": self.name, "description": self.description, "rows": self.rows}
         if self.compat:
             out.update(compat=self.compat, units=UNITS[self.compat])
+        if self.floor_band:
+            out["floor_band"] = self.floor_band
         out["components"] = components
         out.update(self.extra)
         return out
@@ -92,12 +101,15 @@ class Calibration:
             missing = [f for f in fields if f not in comps[k]]
             if missing:
                 raise ValueError(f"calibration component {k!r} lacks {missing}")
-        known = {"name", "description", "rows", "components", "compat", "units"}
+        known = {"name", "description", "rows", "components", "compat", "units", "floor_band"}
         compat = str(data.get("compat", ""))
         if compat and compat not in UNITS:
             raise ValueError(f"calibration compat must be one of {tuple(UNITS)}, got {compat!r}")
+        band = data.get("floor_band", 0.0)
+        if isinstance(band, bool) or not isinstance(band, (int, float)) or not band >= 0:
+            raise ValueError(f"calibration key 'floor_band' must be a number >= 0, got {band!r}")
         return cls(
-            compat=compat,
+            compat=compat, floor_band=float(band),
             name=str(data.get("name", "custom")),
             description=str(data.get("description", "")),
             rows=str(data.get("rows", "")),

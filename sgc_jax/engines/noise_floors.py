@@ -87,10 +87,11 @@ def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, componen
 
 def floor_score(floors: dict[str, Any], calibration: Calibration, xp=np) -> Any:
     """``sgc_floor`` (...,): the score formula on the pose components' floors, the depth error
-    counted as 0 (its floor is not available, docs/semantics.md §3.10); NaN when no floor is known."""
+    counted as 0 (its floor is not available, docs/semantics.md §3.10); NaN when no floor is known.
+    0 under an ``excess`` calibration, whose zero is the floor."""
     values = [xp.asarray(floors[name]) for name in FLOOR_COLUMNS]
     score = sgc_score({**{name.removesuffix("_floor"): v for name, v in zip(FLOOR_COLUMNS, values)},
-                       "depth_error": xp.zeros_like(values[0])}, calibration, xp=xp)
+                       "depth_error": xp.zeros_like(values[0])}, calibration, xp=xp, floors=floors)
     return xp.where(xp.all(xp.stack([xp.isnan(v) for v in values]), axis=0), np.nan, score)
 
 

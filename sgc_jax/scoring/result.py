@@ -109,10 +109,10 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
                    engine: str = "", mask_source: str = "", origin: str = "", compat: str = "") -> ClipResult:
     """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
-    sgc = float(sgc_score(components, calibration))
-    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration))
     per_pair = pair_floors(pairs, compat)
     floors = {k: _nanmean(v) for k, v in per_pair.items()}
+    sgc = float(sgc_score(components, calibration, floors=floors))
+    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration, pair_floors=per_pair))
     reasons = Counter(str(r) for r in pairs.reason)
     scored = reasons.get("ok", 0)
     problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
@@ -176,7 +176,9 @@ def rescore_records(records: Sequence[dict[str, Any]], calibration: Calibration 
     calibration = Calibration.load(calibration)
     calibration.check_compat(rows_compat(records), "the rows")
     components = {k: np.array([float(r[k]) for r in records]) for k in COMPONENTS}
-    sgc = sgc_score(components, calibration) if records else np.array([])
+    floors = ({k: np.array([float(r.get(k, "nan")) for r in records]) for k in FLOOR_COLUMNS}
+              if all(k in r for r in records for k in FLOOR_COLUMNS) else None)
+    sgc = sgc_score(components, calibration, floors=floors) if records else np.array([])
     nan = float("nan")
     out = [{**r, "sgc": float(v), **({"run_id": ""} if "run_id" in r else {}),
             **({k: nan for k in INTERVAL_COLUMNS if k in r}),

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from ..calibration import COMPONENTS, Calibration, sgc_score
 from ..codes import SCORER_STATUS_CODE
+from ..io.tables import FLOOR_COLUMNS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,7 +25,8 @@ class RewardOptions:
 def reward(summary: dict, calibration: Calibration, options: RewardOptions) -> dict:
     """Per clip (B,): ``sgc_unclipped``, ``camera_motion``, ``reward``, and the status
     ``static_camera`` for a scored clip whose camera moves less than the full-motion level."""
-    unclipped = sgc_score({k: summary[k] for k in COMPONENTS}, calibration, xp=jnp, floor_at_zero=False)
+    unclipped = sgc_score({k: summary[k] for k in COMPONENTS}, calibration, xp=jnp, floor_at_zero=False,
+                          floors={k: summary[k] for k in FLOOR_COLUMNS})
     motion = jnp.fmax(summary["ecd_trans"] / options.full_motion_trans, summary["ecd_rot"] / options.full_motion_rot_deg)
     motion = jnp.where(jnp.isnan(motion), 0.0, motion)
     gate = jnp.clip(motion, 0.0, 1.0)

@@ -50,16 +50,12 @@ def clip_status(reason, pair_valid, sgc):
         SCORER_STATUS_CODE["error"]).astype(jnp.int32)
 
 
-def clip_floors(out: dict, pair_valid, calibration: Calibration, compat: str) -> dict:
-    """The noise floors (docs/semantics.md §3.10) of each clip (B,), means over its pairs, and
-    ``sgc_floor``; NaN under compat="authors"."""
-    B = pair_valid.shape[0]
+def pair_floors(out: dict, pair_valid, compat: str) -> dict:
+    """The noise floors (docs/semantics.md §3.10) of each pair (B, T-1); NaN under compat="authors"."""
     if compat == "authors":
-        return {name: jnp.full(B, jnp.nan) for name in (*FLOOR_COLUMNS, "sgc_floor")}
-    per_pair = floors_of(out["region_status"], out["region_rot_std"], PERCENT * out["region_trans_std"],
-                         {k: out[k] for k in COMPONENTS}, xp=jnp)
-    floors = {name: nanmean(value, pair_valid) for name, value in per_pair.items()}
-    return {**floors, "sgc_floor": floor_score(floors, calibration, xp=jnp)}
+        return {name: jnp.full(pair_valid.shape, jnp.nan) for name in FLOOR_COLUMNS}
+    return floors_of(out["region_status"], out["region_rot_std"], PERCENT * out["region_trans_std"],
+                     {k: out[k] for k in COMPONENTS}, xp=jnp)
 
 
 def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibration, compat: str) -> dict:
@@ -68,12 +64,15 @@ def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibrat
     ecd_rot, ecd, status and counts."""
     mean = lambda name: nanmean(out[name], pair_valid)  # noqa: E731
     components = {k: mean(k) for k in COMPONENTS}
-    sgc = sgc_score(components, calibration, xp=jnp)
-    sgc_lo, sgc_hi = score_interval(out, sgc, calibration, pair_valid, xp=jnp)
+    per_pair_floors = pair_floors(out, pair_valid, compat)
+    floors = {name: nanmean(value, pair_valid) for name, value in per_pair_floors.items()}
+    sgc = sgc_score(components, calibration, xp=jnp, floors=floors)
+    sgc_lo, sgc_hi = score_interval(out, sgc, calibration, pair_valid, xp=jnp, pair_floors=per_pair_floors)
     ecd_trans, ecd_rot = mean("t_g_norm"), mean("R_g_angle_deg")
     reason = out["reason"]
     return dict(
-        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **clip_floors(out, pair_valid, calibration, compat),
+        sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **floors,
+        sgc_floor=floor_score(floors, calibration, xp=jnp),
         reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
         ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
         n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),

@@ -16,6 +16,7 @@ from ...calibration import COMPONENTS, Calibration
 from ...calibration.formula import sgc_smooth_score
 from ...codes import REGION_OK
 from ...config import SGCConfig
+from ...io.tables import FLOOR_COLUMNS
 from ...kernels.camera import back_project, back_project_xyz
 from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
@@ -24,6 +25,7 @@ from ...kernels.so3 import polar_rotation, so3_exp, so3_log
 from ...kernels.warp import warp_sources
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
+from .clip_summary import nanmean, pair_floors
 from .device_prepare import ClipArrays, prepare_differentiable
 from .pixel_stage import depth_at_tracks
 
@@ -40,14 +42,17 @@ class Frozen(NamedTuple):
     t_g: jax.Array  # (T-1, 3) pose units
     scale: jax.Array  # () s, units of D per pose unit
     present: jax.Array  # (T-1, 5) bool: the pair has the component (COMPONENTS' order)
+    floors: jax.Array  # (4,) the clip's noise floors (FLOOR_COLUMNS' order), for an excess calibration
 
 
 def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid) -> Frozen:
     """The stage outputs of B clips (leading axis B) -> their Frozen (leading axis B)."""
     present = jnp.stack([pair_valid & ~jnp.isnan(finish[k]) for k in COMPONENTS], axis=-1)
+    per_pair = pair_floors(finish, pair_valid, "spec")
+    floors = jnp.stack([nanmean(per_pair[name], pair_valid) for name in FLOOR_COLUMNS], axis=-1)
     return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
                                         pose["R_local"], pose["t_local"], pose["R_g"], pose["t_g"], pose["scale"],
-                                        present))
+                                        present, floors))
 
 
 def check_differentiable(config: SGCConfig) -> None:
@@ -159,6 +164,7 @@ def smooth_stage(clips: ClipArrays, frozen: Frozen, bucket: Bucket, config: SGCC
     check_differentiable(config)
 
     def one(clip, choices):
-        return sgc_smooth_score(*smooth_components(clip, choices, bucket, config), calibration, xp=jnp)
+        floors = {name: choices.floors[i] for i, name in enumerate(FLOOR_COLUMNS)}
+        return sgc_smooth_score(*smooth_components(clip, choices, bucket, config), calibration, xp=jnp, floors=floors)
 
     return jax.vmap(one)(clips, frozen)
