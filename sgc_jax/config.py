@@ -13,6 +13,9 @@ from typing import Any, Mapping
 PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
+# Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers at 200 tracks,
+# k_seg from about 700 (bench/RESULTS.md, "Depth layers that follow the tracks").
+TRACKS_PER_LAYER = 70
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
@@ -53,9 +56,10 @@ class SGCConfig:
 
     k_seg: int = _field(10, "region slots per frame: depth clusters, grid cells or components")
     min_region_pixels: int = _field(200, "clusters, cells or components with fewer pixels are dropped")
-    tracks_per_layer: int = _field(0, "depth layers follow the tracks: a pair's background gets at most one layer "
-                                      "per this many of its tracks on it (and at most k_seg); 0: always k_seg "
-                                      "(depth partition only; docs/semantics.md §3.2)")
+    tracks_per_layer: int = _field(TRACKS_PER_LAYER, "depth layers follow the tracks: a pair's background gets at "
+                                                     "most one layer per this many of its tracks on it (and at "
+                                                     "most k_seg); 0: always k_seg; depth partition only, not "
+                                                     "under compat='authors' (docs/semantics.md §3.2)")
     min_points: int = _field(4, "tracks a region needs for a local pose (>= 4)")
     inlier_px: float = _field(8.0, "RANSAC inlier threshold on the reprojection error, pixels")
     ransac_hypotheses: int = _field(100, "most minimal samples drawn per region")
@@ -70,10 +74,10 @@ class SGCConfig:
     partition: str = _field("depth", "how the static background is split into regions: depth layers, a k_seg "
                                      "grid over its bounding box, or depth layers split into connected parts "
                                      "(docs/semantics.md §3.2, §6.1)", choices=PARTITIONS)
-    region_frame: str = _field("current", "the frame whose background is partitioned and where each track's region "
-                                          "is read: current (frame i, the paper's) or previous (frame i-1, the "
-                                          "track's query point, where its depth is read; docs/semantics.md §3.2)",
-                               choices=REGION_FRAMES)
+    region_frame: str = _field("previous", "the frame whose background is partitioned and where each track's "
+                                           "region is read: previous (frame i-1, the track's query point, where its "
+                                           "depth is read) or current (frame i, the paper's); compat='authors' always "
+                                           "reads frame i (docs/semantics.md §3.2)", choices=REGION_FRAMES)
     use_mos: bool = _field(True, "use the static masks; --no-mos ignores them (the paper's no-MOS ablation, "
                                  "docs/semantics.md §6.2)", flag="--mos")
     # None: on under compat="spec" (docs/semantics.md §3.4), off under compat="authors".
@@ -118,9 +122,6 @@ class SGCConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if int(self.tracks_per_layer) < 0:
             raise ValueError(f"tracks_per_layer must be >= 0 (0: always k_seg layers), got {self.tracks_per_layer!r}")
-        if self.tracks_per_layer and self.partition != "depth":
-            raise ValueError(f"tracks_per_layer applies to depth layers (partition='depth'), not partition="
-                             f"{self.partition!r}; set it to 0")
         if self.min_points < 4:
             raise ValueError(f"min_points must be >= 4 (PnP needs 4 points), got {self.min_points}")
         if not 0.0 < self.confidence < 1.0:
@@ -144,6 +145,18 @@ class SGCConfig:
         """Depth in units of the clip's median static depth, translations and depth error in
         percent of it (``compat="spec"``); raw units under ``compat="authors"``."""
         return self.compat == "spec"
+
+    @property
+    def reads_previous_frame(self) -> bool:
+        """A pair's regions are frame i-1's, read at each track's frame i-1 position (``region_frame``
+        "previous" and not ``compat="authors"``, which reads frame i)."""
+        return self.region_frame == "previous" and self.compat != "authors"
+
+    @property
+    def layers_follow_tracks(self) -> bool:
+        """The depth layers' count follows the tracks (``tracks_per_layer`` > 0, ``partition="depth"``
+        and not ``compat="authors"``, which always has k_seg)."""
+        return self.tracks_per_layer > 0 and self.partition == "depth" and self.compat != "authors"
 
     @property
     def applies_quality_rule(self) -> bool:

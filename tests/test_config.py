@@ -51,9 +51,6 @@ def test_every_field_has_help_text():
     assert all(f.metadata.get("help") for f in dataclasses.fields(SGCConfig))
 
 
-def test_a_layer_count_that_follows_the_tracks_is_refused_outside_depth_layers():
+def test_a_negative_layer_count_rule_is_refused():
     with pytest.raises(ValueError, match="tracks_per_layer"):
         SGCConfig(tracks_per_layer=-1)
-    for partition in ("grid", "depth+spatial"):
-        with pytest.raises(ValueError, match="partition='depth'"):
-            SGCConfig(tracks_per_layer=100, partition=partition)

@@ -116,7 +116,7 @@ def test_depth_spatial_scores_a_rigid_clip_near_zero(rigid_clip):
     np.testing.assert_array_equal(ref.pairs.n_regions, result.pairs.n_regions)
 
 
-PREVIOUS = SGCConfig(region_frame="previous")
+PREVIOUS, CURRENT = SGCConfig(region_frame="previous"), SGCConfig(region_frame="current")
 
 
 def test_previous_region_frame_keeps_the_trackers_frame_i_error_out_of_membership(rigid_clip):
@@ -128,8 +128,8 @@ def test_previous_region_frame_keeps_the_trackers_frame_i_error_out_of_membershi
         exact, tracked = reference.pair_points(rigid_clip, pair, PREVIOUS), reference.pair_points(noisy, pair, PREVIOUS)
         np.testing.assert_array_equal(exact.labels, reference.partition_regions(rigid_clip, pair - 1, PREVIOUS))
         np.testing.assert_array_equal(exact.region, tracked.region)
-        moved_under_current += int(np.sum(reference.pair_points(rigid_clip, pair, SGCConfig()).region
-                                          != reference.pair_points(noisy, pair, SGCConfig()).region))
+        moved_under_current += int(np.sum(reference.pair_points(rigid_clip, pair, CURRENT).region
+                                          != reference.pair_points(noisy, pair, CURRENT).region))
     assert moved_under_current > 0  # read at frame i, the same noise moves points across borders
 
 
@@ -140,7 +140,7 @@ def test_both_engines_pose_the_same_regions_of_the_previous_frame(rigid_clip):
         np.testing.assert_array_equal(getattr(jx.pairs, field), getattr(ref.pairs, field), err_msg=field)
     for k in COMPONENTS:
         assert within_tolerance(ref.components[k], jx.components[k], k), (k, ref.components[k], jx.components[k])
-    current = score_clip(rigid_clip, engine="reference")
+    current = score_clip(rigid_clip, engine="reference", config=CURRENT)
     assert not np.array_equal(current.pairs.region_points, ref.pairs.region_points)
 
 

@@ -74,10 +74,11 @@ def test_content_problem_gives_nan_and_reason_for_that_pair_only(rigid_clip, eng
     broken.static_mask[2] = False  # pair 2 (frames 1 -> 2): empty static mask in frame 2
     result = pairs_of(broken, engine)
     reasons = list(result.pairs.reason)
-    # pair 3 warps frame 2's static pixels (docs/semantics.md §3.6): none, so only its depth error is missing
-    assert reasons == ["too_few_tracks", "no_static", "no_depth_overlap"]
-    assert np.isnan(result.pairs.local_rot_var[:2]).all() and np.isnan(result.pairs.depth_error[1:]).all()
-    assert np.isfinite([result.pairs.__getattribute__(k)[2] for k in COMPONENTS if k != "depth_error"]).all()
+    # pair 2 partitions frame 1 (docs/semantics.md §3.2 step 5) and compares depth on frame 2's static
+    # pixels (§3.6): none, so only its depth error is missing; pair 3 partitions frame 2: no region
+    assert reasons == ["too_few_tracks", "no_depth_overlap", "no_static"]
+    assert np.isnan(result.pairs.local_rot_var[[0, 2]]).all() and np.isnan(result.pairs.depth_error[1:]).all()
+    assert np.isfinite([result.pairs.__getattribute__(k)[1] for k in COMPONENTS if k != "depth_error"]).all()
     assert np.isfinite(result.pairs.depth_error[0])  # the depth check needs no tracks
     assert result.status == "partial" and result.n_pairs_scored == 0 and np.isfinite(result.sgc)
     assert "too_few_tracks x1" in result.reason

@@ -10,7 +10,7 @@ from scenes import DEMO_SCENE
 from sgc_jax import Calibration, CalibrationMismatchError, default_calibration, rescore_records, score_batch
 from sgc_jax.calibration import COMPONENTS, calibrate
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.spec_calibration import CLEAN_QUANTILE, corpus_description, fit_spec_calibration
+from sgc_jax.research.spec_calibration import CLEAN_QUANTILE, FLOOR_BAND, corpus_description, fit_spec_calibration
 from sgc_jax.research.synth import synth_clip
 
 # The demo's clip size (96x128, 8 frames, 1024 tracks): its bucket is compiled by the CLI tests too.
@@ -46,19 +46,27 @@ def test_a_calibration_of_the_other_semantics_is_refused(rigid_clip):
     assert np.isfinite(result.rescore(unknown).clips[0].sgc)
 
 
-def test_fit_rule_puts_clean_rows_at_zero_and_full_severity_at_one():
+def test_fit_rule_puts_no_excess_at_zero_and_full_severity_at_one():
     rng = np.random.default_rng(0)
     clean = rng.gamma(2.0, 0.05, size=(40, 5))
+    floors = rng.gamma(2.0, 0.05, size=(70, 4))
     perturbed = clean[:30] + np.repeat(np.array([0.5, 1.0, 2.0, 4.0, 8.0]), 6)[:, None] * [1, 2, 1, 2, 0.1]
     matrix = np.vstack([clean, perturbed])
     kinds = [""] * 40 + ["warp"] * 30
     severities = [0.0] * 40 + list(np.repeat([0.25, 0.5, 0.75, 1.0, 1.0], 6))
-    calibration = fit_spec_calibration(matrix, kinds, severities)
+    calibration = fit_spec_calibration(matrix, floors, kinds, severities)
+    assert calibration.excess
     columns = {k: matrix[:, j] for j, k in enumerate(COMPONENTS)}
     from sgc_jax.calibration import normalise
+    from sgc_jax.calibration.formula import scored_values
 
-    normalised = np.column_stack([normalise(columns, calibration)[k] for k in COMPONENTS])
-    assert np.mean(normalised[:40] == 0) >= CLEAN_QUANTILE / 100 - 0.05
+    floor_columns = {f"{k}_floor": floors[:, j] for j, k in enumerate(COMPONENTS[:4])}
+    normalised = np.column_stack([normalise(scored_values(columns, calibration, floor_columns), calibration)[k]
+                                  for k in COMPONENTS])
+    within_band = matrix[:, :4] <= FLOOR_BAND * floors
+    assert within_band.any() and (normalised[:, :4][within_band] == 0).all()
+    assert (normalised[:, :4][~within_band] > 0).all()  # any excess counts
+    assert np.mean(normalised[:40, 4] == 0) >= CLEAN_QUANTILE / 100 - 0.05  # the depth error: no floor
     assert np.allclose(np.median(normalised[-12:], axis=0).max(), 1.0)
 
 

@@ -136,8 +136,9 @@ def pair_region_mask(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
 
 def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> int:
     """Depth layers of a frame whose background (H, W) holds the points uv (n, 2) at their floor
-    pixels: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0 (docs/semantics.md §3.2)."""
-    if config.tracks_per_layer <= 0:
+    pixels: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg unless ``layers_follow_tracks``
+    (docs/semantics.md §3.2)."""
+    if not config.layers_follow_tracks:
         return config.k_seg
     on_mask = int((point_regions(region_mask.astype(np.int32), uv) > 0).sum())
     return int(np.clip(on_mask // config.tracks_per_layer, 1, config.k_seg))
@@ -228,7 +229,7 @@ def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
 def region_frame(pair: int, config: SGCConfig) -> int:
     """The frame whose partition gives pair ``pair``'s regions: pair (frame i) or, under
     ``region_frame="previous"``, pair - 1 (docs/semantics.md §3.2 steps 2 and 5)."""
-    return pair - 1 if config.region_frame == "previous" else pair
+    return pair - 1 if config.reads_previous_frame else pair
 
 
 def back_project(K: np.ndarray, uv: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -498,7 +499,7 @@ class PairPoints(NamedTuple):
 
 def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
     X, uv, uv_prev, n_usable = usable_points(clip, pair, config)
-    frame, where = region_frame(pair, config), uv_prev if config.region_frame == "previous" else uv
+    frame, where = region_frame(pair, config), uv_prev if config.reads_previous_frame else uv
     layers = layer_count(pair_region_mask(clip, frame, config), where, config)
     labels = partition_regions(clip, frame, config, layers)
     return PairPoints(labels, X, uv, uv_prev, point_regions(labels, where), n_usable)

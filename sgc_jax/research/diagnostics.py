@@ -77,6 +77,13 @@ class RegionTracks:
     uv_prev: np.ndarray
     region: np.ndarray
     labels: np.ndarray  # (H, W) region label map of the pair's regions (region_labels)
+    pair: int
+    frame: int  # the frame those regions partition: pair, or pair - 1 under region_frame="previous"
+
+    @property
+    def uv_member(self) -> np.ndarray:
+        """(n, 2) px: where each track's region is read, in ``frame``."""
+        return self.uv_prev if self.frame != self.pair else self.uv
 
 
 def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) -> RegionTracks:
@@ -87,7 +94,8 @@ def region_tracks(clip: Clip | Any, pair: int, config: SGCConfig | None = None) 
 def _region_tracks(clip: Clip, config: SGCConfig, pair: int) -> RegionTracks:
     """``region_tracks`` of a clip already in the engines' units (``_prepare``)."""
     points = reference.pair_points(clip, pair, config)
-    return RegionTracks(X=points.X, uv=points.uv, uv_prev=points.uv_prev, region=points.region, labels=points.labels)
+    return RegionTracks(X=points.X, uv=points.uv, uv_prev=points.uv_prev, region=points.region, labels=points.labels,
+                        pair=pair, frame=reference.region_frame(pair, config))
 
 
 def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,

@@ -155,7 +155,9 @@ def _image_axes(ax, title: str) -> None:
 
 def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = None,
                     scored: "ClipResult | None" = None, show_tracks: bool = False) -> "Figure":
-    """The depth layers of frame ``pair`` (docs/semantics.md §3.2) over the frame, next to its depth map.
+    """The depth layers that give pair ``pair`` its regions (docs/semantics.md §3.2: frame pair-1's
+    under the default ``region_frame="previous"``, frame pair's otherwise) over that frame, next to
+    its depth map.
 
     Each region is labelled with its depth range and, with ``scored`` (the clip's result), its
     point count and pose status; ``show_tracks`` dots the usable tracks by region.
@@ -166,18 +168,18 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
 
     plt = import_pyplot()
     tracks = diagnostics.region_tracks(clip, pair, config)
-    labels = tracks.labels
+    labels, frame = tracks.labels, tracks.frame
     n = int(labels.max())
     colours = _region_colours(n)
     fig, (ax, ax_depth) = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
-    image, kwargs = _background(clip, pair)
+    image, kwargs = _background(clip, frame)
     ax.imshow(image, **kwargs)
     overlay = np.zeros((*labels.shape, 4))
     overlay[labels == 0] = (0, 0, 0, 0.55)
     for j in range(1, n + 1):
         overlay[labels == j] = (*colours[j - 1][:3], 0.6)
     ax.imshow(overlay)
-    depth = np.where(np.isfinite(clip.depth[pair]) & (clip.depth[pair] > 0), clip.depth[pair], np.nan)
+    depth = np.where(np.isfinite(clip.depth[frame]) & (clip.depth[frame] > 0), clip.depth[frame], np.nan)
     pairs = scored.pairs if scored is not None else None
     handles = []
     for j in range(1, n + 1):
@@ -190,16 +192,16 @@ def plot_region_map(clip: "Clip", pair: int, *, config: "SGCConfig | None" = Non
     handles.append(Patch(color="black", alpha=0.55, label="no region (dynamic, invalid or small)"))
     if show_tracks and len(tracks.uv):
         inside = tracks.region > 0
-        ax.scatter(tracks.uv[inside, 0], tracks.uv[inside, 1], s=3, c=colours[tracks.region[inside] - 1],
+        ax.scatter(tracks.uv_member[inside, 0], tracks.uv_member[inside, 1], s=3, c=colours[tracks.region[inside] - 1],
                    edgecolors="none")
     ax.set_xlim(-0.5, labels.shape[1] - 0.5)
     ax.set_ylim(labels.shape[0] - 0.5, -0.5)
     ax.legend(handles=handles, fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0),
               title="region (depth units)", title_fontsize="small")
-    _image_axes(ax, f"{clip.clip_id}: {n} depth layers of frame {pair} (pair {pair})")
+    _image_axes(ax, f"{clip.clip_id}: {n} depth layers of frame {frame} (pair {pair})")
     shown = ax_depth.imshow(depth, cmap="viridis")
     fig.colorbar(shown, ax=ax_depth, label="depth [depth units]", shrink=0.85)
-    _image_axes(ax_depth, f"depth of frame {pair}")
+    _image_axes(ax_depth, f"depth of frame {frame}")
     return fig
 
 

@@ -14,7 +14,10 @@ from .stages import PixelInputs, each
 
 def layer_count(tracks_on_mask, config: SGCConfig):
     """Depth layers (F,) int32 of frames whose backgrounds hold ``tracks_on_mask`` (F,) of their
-    pairs' tracks: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0."""
+    pairs' tracks: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0 or under
+    compat="authors"."""
+    if config.compat == "authors":
+        return jnp.full(tracks_on_mask.shape, config.k_seg, jnp.int32)
     per_layer = config.tracks_per_layer
     return jnp.where(per_layer > 0, jnp.clip(tracks_on_mask // jnp.maximum(per_layer, 1), 1, config.k_seg),
                      config.k_seg).astype(jnp.int32)
@@ -70,7 +73,7 @@ def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
-    frames, points = (slice(None, -1), x.track_prev) if config.region_frame == "previous" else (slice(1, None), x.track_curr)
+    frames, points = (slice(None, -1), x.track_prev) if config.reads_previous_frame else (slice(1, None), x.track_curr)
     Z_prev = jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw)
     counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
     labels, n_regions, region_pixels = map(unflat, frame_regions(
