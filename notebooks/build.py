@@ -109,9 +109,11 @@ QUICKSTART = [
                             "n_pairs_scored"]]"""),
     _md("""
         The rigid clip's pose variances vanish to float precision, and its SGC is 0: the default
-        calibration, `sgc-spec-2026`, puts 0 at the 90th percentile of clean synthetic clips
-        (docs/semantics.md §5.4), and the depth error the forward warp leaves at occlusion edges
-        (a few tenths of a percent, see `04_diagnostics`) is within it. Masked moving objects
+        calibration, `sgc-spec-2026`, counts a pose component only where it exceeds 1.25 times its
+        noise floor, what the tracker's noise alone would give (`*_floor`, docs/semantics.md §3.10,
+        §5.1), and puts the depth error's 0 at the 90th percentile of clean synthetic clips (§5.4):
+        the depth error the forward warp leaves at occlusion edges (a few tenths of a percent, see
+        `04_diagnostics`) is within it. Masked moving objects
         barely move the score; unmasked ones and the squeeze raise the local and global pose
         variances. `sgc_lo` and `sgc_hi` bracket each score at 90 %: how far it could move were the
         same world tracked again (a bootstrap over the clip's frame pairs, docs/semantics.md §5.6).
@@ -136,10 +138,12 @@ QUICKSTART = [
     _md("""
         ## Depth layers over a frame
 
-        Each frame's static background (static mask and valid depth) is split into up to
-        `k_seg = 10` depth layers by 1-D k-means; every layer with enough tracks gets its own PnP
-        pose. Black: no region (the masked moving spheres, or clusters under 200 pixels). The
-        legend gives each layer's depth range, its track count and its pose status.
+        A pair's regions are the depth layers of its first frame's static background (static mask
+        and valid depth; each track's region is read where it starts, docs/semantics.md §3.2): up
+        to `k_seg = 10` layers by 1-D k-means, one per 70 of the pair's tracks on the background,
+        and every layer with enough tracks gets its own PnP pose. Black: no region (the masked
+        moving spheres, or clusters under 200 pixels). The legend gives each layer's depth range,
+        its track count and its pose status.
     """),
     _code('fig = plot.plot_region_map(clips[1], pair=3, scored=result.clip("moving-masked"))'),
     _md("""
@@ -488,8 +492,9 @@ BEST_OF_N = [
         is far below the full-motion level (1 % of D or 0.5° per pair), which scales its reward to
         0 and gives it the status `static_camera`; the track-less and all-masked clips are
         measured on nothing (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
-        floor at 0 (which sits at the 90th percentile of clean clips), so clips better than that
-        still rank among themselves.
+        floor at 0 of each normalised component, so clips whose depth error is below the clean
+        clips' 90th percentile still rank among themselves; a pose component within its noise band
+        counts 0 in both (below the noise there is nothing to rank).
     """),
     _code("""\
         best = labels[int(np.argmax(out["reward"]))]
@@ -525,7 +530,8 @@ GRADIENTS = [
         intrinsics (docs/semantics.md §10). The forward pass makes every discrete choice (regions,
         RANSAC's inliers, the warp's z-buffer) and those are held fixed; local poses are
         differentiated at their least-squares optimum; the calibration's floor at 0 becomes a
-        smooth bound, so a clip that scores 0 still has a gradient. Lower is better.
+        smooth bound, so a clip that scores 0 still has a gradient (from its depth error, and from
+        each pose component above its noise band). Lower is better.
 
         Two uses: repairing a clip's depth by descending the score, and finding the tracks that
         break a clip's consistency.
