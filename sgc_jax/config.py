@@ -14,7 +14,7 @@ PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
 # Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers at 200 tracks,
-# k_seg from about 700 (bench/RESULTS.md, "Depth layers that follow the tracks").
+# k_seg from about 700 (bench/RESULTS.md, "The excess score, the default").
 TRACKS_PER_LAYER = 70
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
@@ -38,9 +38,9 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "region_frame", "compat",
                  "global_pose", "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
-VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac", "seed", "quality_rule",
-                "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "min_region_extent",
-                "ambiguous_rot_deg", "ambiguous_inlier_frac")
+VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
+                "seed", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px",
+                "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
 def _field(default: Any, help: str, *, flag: str | None = None, choices: tuple[str, ...] | None = None) -> Any:

@@ -147,7 +147,8 @@ def test_both_engines_pose_the_same_regions_of_the_previous_frame(rigid_clip):
 def test_depth_layers_follow_the_tracks_in_both_engines(rigid_clip):
     # ~1,900 of the clip's 2,048 tracks lie on the background: one layer per 400 of them is 4
     config = SGCConfig(tracks_per_layer=400)
-    jx, ref = score_clip(rigid_clip, engine="jax", config=config), score_clip(rigid_clip, engine="reference", config=config)
+    jx = score_clip(rigid_clip, engine="jax", config=config)
+    ref = score_clip(rigid_clip, engine="reference", config=config)
     for field in ("n_regions", "region_points", "region_status"):
         np.testing.assert_array_equal(getattr(jx.pairs, field), getattr(ref.pairs, field), err_msg=field)
     for k in COMPONENTS:

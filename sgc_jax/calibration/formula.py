@@ -31,7 +31,8 @@ def scored_values(components: Mapping[str, Any], calibration: Calibration, floor
                   xp=np) -> Mapping[str, Any]:
     """What the formula reads: the components, or under an ``excess`` calibration each pose
     component's excess over its band, max(0, m_k - floor_band * floor_k - NUMERICAL_FLOOR) (a NaN
-    floor counts as 0; the depth error as it is). ``floors``: "<component>_floor" -> arrays like the components'."""
+    floor counts as 0; the depth error as it is). ``floors``: "<component>_floor" -> arrays like
+    the components'."""
     if not calibration.excess:
         return components
     if floors is None:

@@ -113,7 +113,8 @@ def kmeans_1d(values: np.ndarray, k: int, bins: int) -> np.ndarray:
     return cluster_of_bin[bin_of]
 
 
-def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig, layers: int | None = None) -> np.ndarray:
+def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig,
+                  layers: int | None = None) -> np.ndarray:
     """Label map (H, W): 1..N_s depth clusters (``layers`` of them, default k_seg) of the masked
     pixels, 0 = no region (docs/semantics.md §3.2)."""
     labels = np.zeros(depth.shape, np.int32)

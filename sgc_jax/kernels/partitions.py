@@ -55,7 +55,8 @@ def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels,
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
     sums, n_bin, has_span, lo, span = over_frames((depth.reshape(F, -1), region_mask.reshape(F, -1)))
     layers = jnp.full(F, k, jnp.int32) if layers is None else layers
-    cluster = jax.vmap(lambda s, h, n: cluster_of_bins(s, h, k, bins, n))(sums, has_span, layers)  # the DP gains from batching
+    # the DP gains from batching
+    cluster = jax.vmap(lambda s, h, n: cluster_of_bins(s, h, k, bins, n))(sums, has_span, layers)
     counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster)
     region_of_bin, n_regions = renumber_kept(cluster, counts, min_region_pixels)
     return DepthPartition(lo, span, region_of_bin, n_regions)
