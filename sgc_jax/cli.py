@@ -369,7 +369,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     guard_outputs(table_input_files(args.scores), out=args.out, rescored=args.rescored)
     records = _read_scores(args.scores)
     try:
-        calibration = calibrate(records, by=args.by, name=args.name)
+        calibration = calibrate(records, by=args.by, name=args.name, floor_band=args.floor_band)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     print(f"calibration {calibration.name!r}: {calibration.description}")
@@ -383,7 +383,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed)
+                stability = kfold_stability(records, k=args.folds, by=args.by, seed=args.seed,
+                                            floor_band=args.floor_band)
         except ValueError as exc:
             print(f"k-fold stability not computed: {exc}", file=sys.stderr)
         else:
@@ -503,6 +504,9 @@ def _register_calibrate(sub) -> None:
                            help="fit on clips, or on per-group means (the paper's way)")
     algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip; above the number of clips: leave-one-out)")
     algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed")
+    algorithm.add_argument("--floor-band", type=float, default=0.0,
+                           help="fit an excess calibration: the pose components above this many times their noise "
+                                "floors, as sgc-spec-2026 (1.25; docs/semantics.md §5.1, §5.5); 0: as they are")
     output = cal.add_argument_group("output")
     output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`)")
     output.add_argument("--name", default="custom", help="name stored in the calibration")

@@ -221,3 +221,27 @@ def test_repr_of_calibrations_and_stability_is_a_short_summary():
     for obj, expected in ((shipped, "sgc-spec-2026"), (loo, "k=13")):
         assert len(repr(obj)) < 300 and "\n" not in repr(obj) and expected in repr(obj), repr(obj)
     assert shipped == Calibration.load("sgc-spec-2026")  # equality still compares every field
+
+
+def test_an_excess_fit_scores_nothing_within_the_noise_band_and_everything_above_it():
+    rng = np.random.default_rng(0)
+    matrix = rng.gamma(2.0, 1.0, size=(40, len(COMPONENTS)))
+    floors = rng.gamma(2.0, 1.0, size=(40, 4))
+    rows = [{**dict(zip(COMPONENTS, m)), **{f"{k}_floor": f for k, f in zip(COMPONENTS[:4], fl)}}
+            for m, fl in zip(matrix, floors)]
+    fitted = calibrate(rows, floor_band=1.25)
+    assert fitted.excess and Calibration.from_dict(fitted.to_dict()).floor_band == 1.25
+    from sgc_jax.calibration import normalise
+    from sgc_jax.calibration.formula import scored_values
+
+    columns = {k: matrix[:, j] for j, k in enumerate(COMPONENTS)}
+    floor_columns = {f"{k}_floor": floors[:, j] for j, k in enumerate(COMPONENTS[:4])}
+    scaled = normalise(scored_values(columns, fitted, floor_columns), fitted)
+    within = matrix[:, :4] <= 1.25 * floors
+    assert within.any() and (~within).any()
+    for j, k in enumerate(COMPONENTS[:4]):
+        assert (scaled[k][within[:, j]] == 0).all() and (scaled[k][~within[:, j]] > 0).all(), k
+    with pytest.raises(ValueError, match="noise-floor columns"):
+        calibrate([{k: 1.0 for k in COMPONENTS}] * 3, floor_band=1.25)
+    stability = kfold_stability(rows, k=4, floor_band=1.25)
+    assert stability.spearman_mean > 0.5

@@ -10,8 +10,19 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..stats import spearman
-from .formula import sgc_score
+from .formula import POSE_COMPONENTS, scored_values, sgc_score
 from .model import COMPONENTS, LOG1P_COMPONENTS, Calibration, CalibrationMismatchError
+
+FLOOR_KEYS = tuple(f"{k}_floor" for k in POSE_COMPONENTS)
+
+
+def _as_records(rows: Any) -> Any:
+    """Per-clip rows as records (a list of dicts), or the (n, 5) array they were given as."""
+    if hasattr(rows, "clips") and hasattr(rows, "to_records"):  # BatchResult
+        return rows.to_records()
+    if hasattr(rows, "columns") and hasattr(rows, "to_dict"):  # DataFrame
+        return rows.to_dict("records")
+    return rows if isinstance(rows, np.ndarray) else list(rows)
 
 
 def component_rows(rows: Any) -> tuple[np.ndarray, list[str]]:
@@ -20,16 +31,30 @@ def component_rows(rows: Any) -> tuple[np.ndarray, list[str]]:
     ``rows``: records (dicts with the component keys and optionally ``group``), a ``BatchResult``,
     a pandas DataFrame, or an (n, 5) array (groups all empty).
     """
-    if hasattr(rows, "clips") and hasattr(rows, "to_records"):  # BatchResult
-        rows = rows.to_records()
-    elif hasattr(rows, "columns") and hasattr(rows, "to_dict"):  # DataFrame
-        rows = rows.to_dict("records")
+    rows = _as_records(rows)
     if isinstance(rows, np.ndarray):
         matrix = np.asarray(rows, np.float64).reshape(-1, len(COMPONENTS))
         return matrix, [""] * matrix.shape[0]
     records = list(rows)
     matrix = np.array([[float(r[k]) for k in COMPONENTS] for r in records], np.float64).reshape(-1, len(COMPONENTS))
     return matrix, [str(r.get("group", "") or "") for r in records]
+
+
+def excess_rows(rows: Any, matrix: np.ndarray, floor_band: float) -> np.ndarray:
+    """``matrix`` (n, 5) with each pose component replaced by its excess over ``floor_band`` times
+    its floor (docs/semantics.md §5.1), the floors read from the rows' <component>_floor columns."""
+    rows = _as_records(rows)
+    if isinstance(rows, np.ndarray):
+        raise ValueError("floor_band needs rows with the noise-floor columns (<component>_floor), not a bare array")
+    records = list(rows)
+    missing = [k for k in FLOOR_KEYS if any(k not in r for r in records)]
+    if missing:
+        raise ValueError(f"floor_band needs the noise-floor columns {missing} in every row (sgc-jax score writes them)")
+    floors = {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in records], np.float64)
+              for k in FLOOR_KEYS}
+    band = Calibration(name="band", mu={}, sigma={}, z_min={}, z_max={}, weight={}, log1p={}, floor_band=floor_band)
+    excess = scored_values({k: matrix[:, j] for j, k in enumerate(COMPONENTS)}, band, floors)
+    return np.column_stack([excess[k] for k in COMPONENTS])
 
 
 def _fit_matrix(matrix: np.ndarray, groups: Sequence[str], by: str) -> np.ndarray:
@@ -79,10 +104,7 @@ def _as_dict(values: np.ndarray) -> dict[str, float]:
 
 def rows_compat(rows: Any) -> str:
     """The one ``compat`` of per-clip rows ("" when no row says); mixed semantics raise."""
-    if hasattr(rows, "clips") and hasattr(rows, "to_records"):
-        rows = rows.to_records()
-    elif hasattr(rows, "columns") and hasattr(rows, "to_dict"):
-        rows = rows.to_dict("records")
+    rows = _as_records(rows)
     if isinstance(rows, np.ndarray):
         return ""
     found = sorted({str(r.get("compat") or "") for r in rows} - {"", "nan"})
@@ -92,7 +114,8 @@ def rows_compat(rows: Any) -> str:
 
 
 def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
-              log1p: Sequence[str] = LOG1P_COMPONENTS, compat: str | None = None) -> Calibration:
+              log1p: Sequence[str] = LOG1P_COMPONENTS, compat: str | None = None,
+              floor_band: float = 0.0) -> Calibration:
     """Fit (mu, sigma, z_min, z_max, w) on a corpus (docs/semantics.md §5).
 
     ``rows``: per-clip records (dicts with the component keys and ``group``), a ``BatchResult``,
@@ -100,10 +123,15 @@ def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
     paper's way). mu, sigma with ddof 0; weights = |PC1 loadings| of the M'' matrix (NaN -> column
     mean), sum 1. Failed clips (every component NaN) are left out. ``extra`` records PC1's
     explained-variance ratio and the number of rows fitted. ``compat``: the semantics of the rows,
-    recorded in the calibration (default: the rows' ``compat`` column).
+    recorded in the calibration (default: the rows' ``compat`` column). ``floor_band`` > 0 fits an
+    excess calibration: the pose components' excess over that many times their noise floors (the
+    rows' <component>_floor columns), as ``sgc-spec-2026`` scores them.
     """
+    rows = _as_records(rows)
     compat = rows_compat(rows) if compat is None else compat
     matrix, groups = component_rows(rows)
+    if floor_band:
+        matrix = excess_rows(rows, matrix, floor_band)
     if by == "group" and isinstance(rows, np.ndarray):
         raise ValueError("by='group' needs rows with a 'group' field, not a bare array")
     matrix = _fit_matrix(matrix, groups, by)
@@ -111,8 +139,9 @@ def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
     fitted, explained = _fit(matrix, flags)
     return Calibration(
         name=name, log1p=flags, **{f: _as_dict(v) for f, v in fitted.items()},
-        rows="dataset-group means" if by == "group" else "clips", compat=compat,
-        description=f"fitted by sgc_jax.calibrate on {matrix.shape[0]} rows (by={by})",
+        rows="dataset-group means" if by == "group" else "clips", compat=compat, floor_band=float(floor_band),
+        description=f"fitted by sgc_jax.calibrate on {matrix.shape[0]} rows (by={by}"
+                    + (f", excess over {floor_band:g} floors)" if floor_band else ")"),
         extra={"pc1_explained_variance_ratio": explained, "n_rows": int(matrix.shape[0])},
     )
 
@@ -174,7 +203,7 @@ class KFoldStability:
 
 
 def kfold_stability(rows: Any, k: int = 5, *, by: str = "clip", seed: int = 0,
-                    log1p: Sequence[str] = LOG1P_COMPONENTS) -> KFoldStability:
+                    log1p: Sequence[str] = LOG1P_COMPONENTS, floor_band: float = 0.0) -> KFoldStability:
     """k-fold stability of a calibration (paper appendix C.1, Table "Stability of PCA weights").
 
     The rows (clips; for ``by="group"`` clips with a ``group``) are shuffled with ``seed`` and cut
@@ -182,9 +211,12 @@ def kfold_stability(rows: Any, k: int = 5, *, by: str = "clip", seed: int = 0,
     (grouped first when ``by="group"``) and scores every row; its Spearman rho against the scores
     under the full-data calibration measures how much the ranking depends on the sample.
     A k above the number of scored rows n becomes n (leave-one-out) with a warning; the result's
-    ``k`` is the number of folds used.
+    ``k`` is the number of folds used. ``floor_band``: as :func:`calibrate`'s.
     """
+    rows = _as_records(rows)
     matrix, groups = component_rows(rows)
+    if floor_band:  # the excess enters each fold's fit and score alike
+        matrix = excess_rows(rows, matrix, floor_band)
     keep = ~np.isnan(matrix).all(axis=1)
     matrix, groups = matrix[keep], [g for g, kept in zip(groups, keep) if kept]
     n = matrix.shape[0]
