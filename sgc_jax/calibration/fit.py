@@ -43,6 +43,8 @@ def component_rows(rows: Any) -> tuple[np.ndarray, list[str]]:
 def excess_rows(rows: Any, matrix: np.ndarray, floor_band: float) -> np.ndarray:
     """``matrix`` (n, 5) with each pose component replaced by its excess over ``floor_band`` times
     its floor (docs/semantics.md §5.1), the floors read from the rows' <component>_floor columns."""
+    if not floor_band > 0:
+        raise ValueError(f"floor_band must be > 0 (0: fit the components as they are), got {floor_band!r}")
     rows = _as_records(rows)
     if isinstance(rows, np.ndarray):
         raise ValueError("floor_band needs rows with the noise-floor columns (<component>_floor), not a bare array")
@@ -130,7 +132,7 @@ def calibrate(rows: Any, *, by: str = "clip", name: str = "custom",
     rows = _as_records(rows)
     compat = rows_compat(rows) if compat is None else compat
     matrix, groups = component_rows(rows)
-    if floor_band:
+    if floor_band != 0:
         matrix = excess_rows(rows, matrix, floor_band)
     if by == "group" and isinstance(rows, np.ndarray):
         raise ValueError("by='group' needs rows with a 'group' field, not a bare array")
@@ -215,7 +217,7 @@ def kfold_stability(rows: Any, k: int = 5, *, by: str = "clip", seed: int = 0,
     """
     rows = _as_records(rows)
     matrix, groups = component_rows(rows)
-    if floor_band:  # the excess enters each fold's fit and score alike
+    if floor_band != 0:  # the excess enters each fold's fit and score alike
         matrix = excess_rows(rows, matrix, floor_band)
     keep = ~np.isnan(matrix).all(axis=1)
     matrix, groups = matrix[keep], [g for g, kept in zip(groups, keep) if kept]
