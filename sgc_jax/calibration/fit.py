@@ -10,7 +10,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..stats import spearman
-from .formula import POSE_COMPONENTS, scored_values, sgc_score
+from .formula import POSE_COMPONENTS, excess_over_floors, sgc_score
 from .model import COMPONENTS, LOG1P_COMPONENTS, Calibration, CalibrationMismatchError
 
 FLOOR_KEYS = tuple(f"{k}_floor" for k in POSE_COMPONENTS)
@@ -54,8 +54,7 @@ def excess_rows(rows: Any, matrix: np.ndarray, floor_band: float) -> np.ndarray:
         raise ValueError(f"floor_band needs the noise-floor columns {missing} in every row (sgc-jax score writes them)")
     floors = {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in records], np.float64)
               for k in FLOOR_KEYS}
-    band = Calibration(name="band", mu={}, sigma={}, z_min={}, z_max={}, weight={}, log1p={}, floor_band=floor_band)
-    excess = scored_values({k: matrix[:, j] for j, k in enumerate(COMPONENTS)}, band, floors)
+    excess = excess_over_floors({k: matrix[:, j] for j, k in enumerate(COMPONENTS)}, floors, floor_band)
     return np.column_stack([excess[k] for k in COMPONENTS])
 
 

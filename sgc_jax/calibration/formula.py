@@ -27,23 +27,29 @@ POSE_COMPONENTS = COMPONENTS[:4]  # the components with a noise floor (docs/sema
 NUMERICAL_FLOOR = 1e-6
 
 
+def excess_over_floors(components: Mapping[str, Any], floors: Mapping[str, Any], floor_band: float,
+                       xp=np) -> dict[str, Any]:
+    """The components with each pose component replaced by its excess over its band,
+    max(0, m_k - floor_band * floor_k - NUMERICAL_FLOOR) (a NaN floor counts as 0; the depth error
+    as it is). ``floors``: "<component>_floor" -> arrays like the components'."""
+    out = dict(components)
+    for k in POSE_COMPONENTS:
+        floor = _as_float(floors[f"{k}_floor"], xp)
+        band = floor_band * xp.where(xp.isnan(floor), 0.0, floor)
+        out[k] = xp.maximum(_as_float(components[k], xp) - band - NUMERICAL_FLOOR, 0.0)
+    return out
+
+
 def scored_values(components: Mapping[str, Any], calibration: Calibration, floors: Mapping[str, Any] | None,
                   xp=np) -> Mapping[str, Any]:
-    """What the formula reads: the components, or under an ``excess`` calibration each pose
-    component's excess over its band, max(0, m_k - floor_band * floor_k - NUMERICAL_FLOOR) (a NaN
-    floor counts as 0; the depth error as it is). ``floors``: "<component>_floor" -> arrays like
-    the components'."""
+    """What the formula reads: the components, or under an ``excess`` calibration their
+    ``excess_over_floors``."""
     if not calibration.excess:
         return components
     if floors is None:
         raise ValueError(f"calibration {calibration.name!r} scores the pose components' excess over their noise "
                          "floors (docs/semantics.md §5.1): the floors are needed (columns <component>_floor)")
-    out = dict(components)
-    for k in POSE_COMPONENTS:
-        floor = _as_float(floors[f"{k}_floor"], xp)
-        band = calibration.floor_band * xp.where(xp.isnan(floor), 0.0, floor)
-        out[k] = xp.maximum(_as_float(components[k], xp) - band - NUMERICAL_FLOOR, 0.0)
-    return out
+    return excess_over_floors(components, floors, calibration.floor_band, xp)
 
 
 def transform(components: Mapping[str, Any], calibration: Calibration, xp=np) -> dict[str, Any]:

@@ -59,8 +59,9 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     drawn = xp.minimum(xp.floor(xp.asarray(resample_uniforms(n_pairs)) * n_float), n_float - 1)
     drawn = xp.take_along_axis(order[..., None, :], xp.maximum(drawn, 0).astype(xp.int32), axis=-1)
     in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, n_pairs): the first n positions
+    with_floors = calibration.excess and pair_floors is not None
     resampled_columns = dict(zip(COMPONENTS, values))
-    if calibration.excess and pair_floors is not None:
+    if with_floors:
         resampled_columns.update({name: xp.asarray(v) for name, v in pair_floors.items()})
     means = {}
     for k, per_pair in resampled_columns.items():
@@ -69,7 +70,7 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
         count = xp.sum(keep, axis=-1)
         total = xp.sum(xp.where(keep, resampled, 0.0), axis=-1)
         means[k] = xp.where(count > 0, total / xp.maximum(count, 1), np.nan)  # (..., draws)
-    floors = {name: means[name] for name in means if name not in COMPONENTS} if pair_floors is not None else None
+    floors = {name: means[name] for name in pair_floors} if with_floors else None
     scores = sgc_score({k: means[k] for k in COMPONENTS}, calibration, xp=xp, floors=floors)
     tail = 50.0 * (1.0 - INTERVAL_LEVEL)
     q_lo = xp.percentile(scores, tail, axis=-1)

@@ -29,7 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from ..calibration import COMPONENTS, LOG1P_COMPONENTS, Calibration
-from ..calibration.formula import POSE_COMPONENTS
+from ..calibration.formula import POSE_COMPONENTS, excess_over_floors
 from ..io.clip import Clip
 from ..io.tables import FLOOR_COLUMNS
 from .perturb import PERTURBATIONS, perturb_clip
@@ -82,8 +82,9 @@ def fit_spec_calibration(matrix: np.ndarray, floors: np.ndarray, kinds: Sequence
     (n, 4) noise floors (FLOOR_COLUMNS order), each row's perturbation kind ("" = clean) and
     severity, by the rule in the module docstring."""
     kinds, severities = np.asarray(kinds), np.asarray(severities, np.float64)
-    values = np.array(matrix, np.float64)
-    values[:, :4] = np.maximum(values[:, :4] - FLOOR_BAND * np.nan_to_num(np.asarray(floors, np.float64)), 0.0)
+    excess = excess_over_floors({k: np.asarray(matrix, np.float64)[:, j] for j, k in enumerate(COMPONENTS)},
+                                dict(zip(FLOOR_COLUMNS, np.asarray(floors, np.float64).T)), FLOOR_BAND)
+    values = np.column_stack([excess[k] for k in COMPONENTS])
     flags = {k: k in LOG1P_COMPONENTS for k in COMPONENTS}
     p = np.column_stack([np.log1p(np.maximum(values[:, j], 0.0)) if flags[k] else values[:, j]
                          for j, k in enumerate(COMPONENTS)])

@@ -167,7 +167,7 @@ class Scorer:
         if self.differentiable:
             with CompileNotice(what, "differentiable score", loading=False, hint=cache_hint()):
                 frozen = jax.eval_shape(frozen_choices, *(stage.out_info for stage in program.stages),
-                                        padded.pair_valid)
+                                        padded.pair_valid, summarize.out_info)
                 compiled["smooth"] = self._traced["smooth"].lower(self._example(), frozen).compile()
         return compiled
 
@@ -252,7 +252,8 @@ class Scorer:
         choices ``sgc_smooth`` holds fixed (docs/semantics.md §10.1)."""
         clips = jax.device_put(self._rows(self.clip_arrays(batch), 0, self.call_size), self._sharding())
         padded, outs = self._stages(self._compiled, clips)
-        frozen = frozen_choices(*outs, padded.pair_valid)
+        summary = self._compiled["summarize"](outs[-1], padded.pair_valid, padded.depth_unit)
+        frozen = frozen_choices(*outs, padded.pair_valid, summary)
         return jax.tree.map(lambda leaf: leaf[:self.shape[0]], frozen)
 
     def _rows(self, clips: ClipArrays, start: int, size: int) -> ClipArrays:
@@ -289,4 +290,4 @@ class Scorer:
         if live is None:
             return summary
         smooth = self._traced["smooth"] if _traced(live) else programs["smooth"]
-        return {**summary, "sgc_smooth": smooth(live, frozen_choices(*outs, padded.pair_valid))}
+        return {**summary, "sgc_smooth": smooth(live, frozen_choices(*outs, padded.pair_valid, summary))}

@@ -25,7 +25,6 @@ from ...kernels.so3 import polar_rotation, so3_exp, so3_log
 from ...kernels.warp import warp_sources
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
-from .clip_summary import nanmean, pair_floors
 from .device_prepare import ClipArrays, prepare_differentiable
 from .pixel_stage import depth_at_tracks
 
@@ -45,11 +44,11 @@ class Frozen(NamedTuple):
     floors: jax.Array  # (4,) the clip's noise floors (FLOOR_COLUMNS' order), for an excess calibration
 
 
-def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid) -> Frozen:
-    """The stage outputs of B clips (leading axis B) -> their Frozen (leading axis B)."""
+def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: dict) -> Frozen:
+    """The stage outputs of B clips (leading axis B) and their summary (``summarize_on_device``, whose
+    noise floors they reuse) -> their Frozen (leading axis B)."""
     present = jnp.stack([pair_valid & ~jnp.isnan(finish[k]) for k in COMPONENTS], axis=-1)
-    per_pair = pair_floors(finish, pair_valid, "spec")
-    floors = jnp.stack([nanmean(per_pair[name], pair_valid) for name in FLOOR_COLUMNS], axis=-1)
+    floors = jnp.stack([summary[name] for name in FLOOR_COLUMNS], axis=-1)
     return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
                                         pose["R_local"], pose["t_local"], pose["R_g"], pose["t_g"], pose["scale"],
                                         present, floors))
