@@ -62,9 +62,10 @@ def trimmed_means(values: Any, n: Any, xp=np) -> Any:
 
 def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, components: dict[str, Any],
               xp=np) -> dict[str, Any]:
-    """FLOOR_COLUMNS -> (...,) from each pair's region statuses, rotation uncertainties [deg] and
-    translation uncertainties [% of D] (..., k), and its components (...,): NaN where the pair has
-    no accepted pose or the component is NaN (no global pose)."""
+    """FLOOR_COLUMNS -> (...,) from each pair's region statuses, RMS rotation noise [deg] and
+    translation noise [% of D] of its poses (..., k; ``region_rot_noise``, ``region_trans_noise``),
+    and its components (...,): NaN where the pair has no accepted pose or the component is NaN (no
+    global pose)."""
     k = region_status.shape[-1]
     accepted = region_status == REGION_OK
     n = xp.sum(accepted, axis=-1)
@@ -101,5 +102,5 @@ def pair_floors(pairs: PairArrays, compat: str) -> dict[str, np.ndarray]:
     if compat == "authors":
         return {name: np.full(pairs.n_pairs, np.nan) for name in FLOOR_COLUMNS}
     with np.errstate(invalid="ignore"):  # a pair without a pose: NaN draws, masked in floors_of
-        return floors_of(pairs.region_status, np.asarray(pairs.region_rot_std, np.float64),
-                         PERCENT * np.asarray(pairs.region_trans_std, np.float64), pairs.components())
+        return floors_of(pairs.region_status, np.asarray(pairs.region_rot_noise, np.float64),
+                         PERCENT * np.asarray(pairs.region_trans_noise, np.float64), pairs.components())

@@ -19,6 +19,7 @@ import numpy as np
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import HOLE_DEPTH_MARGIN, SGCConfig
 from ..io.clip import Clip
+from ..kernels.uncertainty import BLOCKS_PER_AXIS, NOISE_BLOCK_FRAC
 from . import reference_pose as reference_pose_search
 from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian
@@ -308,6 +309,30 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
             float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
 
 
+def pose_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+               block_px: float) -> tuple[float, float]:
+    """(RMS rotation error deg, RMS translation error) the noise floors count for a pose fitted to
+    X (n, 3), uv (n, 2): the larger of the usual covariance's and the block covariance's
+    A (sum_b g_b g_b^T) A G / (G - 1) (2n - 1) / (2n - 6), A = (J^T J)^-1, g_b = J_b^T e_b over
+    the points in each square of block_px (``kernels.uncertainty.pose_noise``). NaN under 4 points."""
+    n = len(X)
+    if n < 4:
+        return float("nan"), float("nan")
+    residuals, J = residual_jacobian(X, uv, K, R, t)
+    A = np.linalg.pinv(J.T @ J)
+    dof = max(2 * n - 6, 1)
+    usual = residuals @ residuals / dof * A
+    cell = np.clip(np.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(np.int64)
+    block = np.unique(cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0], return_inverse=True)[1].ravel()
+    G = int(block.max()) + 1
+    g = np.zeros((G, 6))
+    np.add.at(g, block, J[:n] * residuals[:n, None] + J[n:] * residuals[n:, None])
+    blocks = A @ (g.T @ g) @ A * G / max(G - 1, 1) * (2 * n - 1) / dof
+    rot_var = max(np.trace(usual[:3, :3]), np.trace(blocks[:3, :3]), 0.0)
+    trans_var = max(np.trace(usual[3:, 3:]), np.trace(blocks[3:, 3:]), 0.0)
+    return float(np.degrees(np.sqrt(rot_var))), float(np.sqrt(trans_var))
+
+
 def pixel_extent(uv: np.ndarray) -> float:
     """RMS distance [px] of pixels uv (n, 2) from their centroid."""
     return float(np.sqrt(np.mean(np.sum((uv - uv.mean(axis=0)) ** 2, axis=1)))) if len(uv) else float("nan")
@@ -336,6 +361,13 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
     return good, sigma, rot_std, trans_std
+
+
+def floor_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                image_size: tuple[int, int], config: SGCConfig) -> tuple[float, float]:
+    """``pose_noise`` on the inliers of an accepted pose, blocks NOISE_BLOCK_FRAC of the diagonal."""
+    inliers = pose_inliers(X, uv, K, R, t, config.inlier_px)
+    return pose_noise(X[inliers], uv[inliers], K, R, t, NOISE_BLOCK_FRAC * float(np.hypot(*image_size)))
 
 
 def pose_inliers(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
@@ -594,6 +626,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
         "region_status": np.full((n_pairs, k), REGION_STATUS["empty"], np.int32),
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
         "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
+        "region_rot_noise": np.full((n_pairs, k), np.nan), "region_trans_noise": np.full((n_pairs, k), np.nan),
         "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
         "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
@@ -612,6 +645,9 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
             if status == REGION_STATUS["ok"]:
                 good, sigma, out["region_rot_std"][p, j], out["region_trans_std"][p, j] = region_quality(
                     X, uv, K, pose.R, pose.t, clip.image_size, config)
+                if config.compat != "authors":  # no floors there
+                    out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
+                        X, uv, K, pose.R, pose.t, clip.image_size, config)
                 if config.applies_quality_rule and pose.ambiguous and sigma <= config.quality_noise_px:
                     status = REGION_STATUS["ambiguous"]
                 elif config.applies_quality_rule and not good:
@@ -699,7 +735,7 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     # reported in depth units per pose unit (1 when no global translation is scaled)
     out.scale, out.depth_unit = scale * unit if config.global_pose else 1.0, unit
     for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "region_rot_std",
-                "region_trans_std", "n_tracks", "n_regions"):
+                "region_trans_std", "region_rot_noise", "region_trans_noise", "n_tracks", "n_regions"):
         setattr(out, key, poses[key])
     for pair in range(1, clip.n_frames):
         p = pair - 1

@@ -19,7 +19,7 @@ from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
 from .fence import materialise
 from .linalg import solve_spd
 from .pnp import point_columns, pointwise_residuals
-from .regions import block_normals, region_onehot
+from .regions import HIGHEST, block_normals, region_onehot
 from .so3 import so3_exp
 
 
@@ -91,6 +91,59 @@ def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
         extent_px=jnp.where(enough, jnp.sqrt(jnp.maximum(spread, 0.0)), nan),
         sigma_px=jnp.where(enough, jnp.sqrt(sigma_sq), nan),
     )
+
+
+# Blocks of the floors' pose noise (docs/semantics.md §3.10): squares of this fraction of the image
+# diagonal, so at most BLOCKS_PER_AXIS along either side (W, H <= diagonal).
+NOISE_BLOCK_FRAC = 0.05
+BLOCKS_PER_AXIS = 21
+
+
+class PoseNoise(NamedTuple):
+    """Per region (k,): the RMS pose error the noise floors count, the larger of the usual
+    covariance's and the block covariance's (which counts errors nearby tracks share); NaN with
+    fewer than 4 inliers."""
+
+    rot_deg: jax.Array  # [deg]
+    trans: jax.Array  # [units of X]
+
+
+def block_of(uv, block_px):
+    """(N, 2) pixels -> (N,) int32 block index on a grid of squares block_px wide, clamped to
+    BLOCKS_PER_AXIS per side."""
+    cell = jnp.clip(jnp.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(jnp.int32)
+    return cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0]
+
+
+def pose_noise(X, uv, region, K, poses, inliers, block_px) -> PoseNoise:
+    """The floors' pose noise of each region (arguments as ``inlier_jacobians``; block_px the block
+    side [px]). Block covariance: A (sum_b g_b g_b^T) A G / (G - 1) (2n - 1) / (2n - 6) with
+    A = (J^T J)^-1, g_b = J_b^T e_b over the inliers in block b and G the blocks holding any (the
+    cluster-robust covariance)."""
+    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
+    k, dtype = poses.shape[0], X.dtype
+    n = jnp.sum(jac.onehot, axis=1)
+    weight = jnp.sum(jac.onehot, axis=0)  # (N,) 1 for an inlier of its region's pose
+    blocks = BLOCKS_PER_AXIS * BLOCKS_PER_AXIS
+    key = jnp.clip(region - 1, 0, k - 1) * blocks + block_of(uv, block_px)
+    gradient = weight[:, None] * (jac.J_u * jac.du[:, None] + jac.J_v * jac.dv[:, None])  # (N, 6)
+    g = jax.ops.segment_sum(gradient, key, num_segments=k * blocks).reshape(k, blocks, 6)
+    held = jax.ops.segment_sum(weight, key, num_segments=k * blocks).reshape(k, blocks) > 0
+    G = jnp.sum(held, axis=1).astype(dtype)
+    dof = jnp.maximum(2.0 * n - 6.0, 1.0)
+    correction = G / jnp.maximum(G - 1.0, 1.0) * (2.0 * n - 1.0) / dof
+    meat = jnp.einsum("kbi,kbj->kij", g, g, precision=HIGHEST)
+    block_cov = jac.covariance @ meat @ jac.covariance * correction[:, None, None]
+    sigma_sq = (jac.onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / dof
+    trace = lambda cov, part: jnp.trace(cov[:, part, part], axis1=-2, axis2=-1)  # noqa: E731
+    rot, trans = slice(0, 3), slice(3, 6)
+    rot_var = jnp.maximum(sigma_sq * trace(jac.covariance, rot), trace(block_cov, rot)) / jac.fx**2
+    trans_var = (jnp.maximum(sigma_sq * trace(jac.covariance, trans), trace(block_cov, trans))
+                 * (jac.mean_depth / jac.fx) ** 2)
+    enough = n >= 4
+    nan = jnp.asarray(jnp.nan, dtype)
+    return PoseNoise(rot_deg=jnp.where(enough, jnp.degrees(jnp.sqrt(jnp.maximum(rot_var, 0.0))), nan),
+                     trans=jnp.where(enough, jnp.sqrt(jnp.maximum(trans_var, 0.0)), nan))
 
 
 class QualityRule(eqx.Module):

@@ -54,7 +54,7 @@ def pair_floors(out: dict, pair_valid, compat: str) -> dict:
     """The noise floors (docs/semantics.md §3.10) of each pair (B, T-1); NaN under compat="authors"."""
     if compat == "authors":
         return {name: jnp.full(pair_valid.shape, jnp.nan) for name in FLOOR_COLUMNS}
-    return floors_of(out["region_status"], out["region_rot_std"], PERCENT * out["region_trans_std"],
+    return floors_of(out["region_status"], out["region_rot_noise"], PERCENT * out["region_trans_noise"],
                      {k: out[k] for k in COMPONENTS}, xp=jnp)
 
 

@@ -79,6 +79,7 @@ def pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float
         t_local=np.where(posed[..., None], take("t_local"), np.nan).astype(np.float64),
         region_status=status, region_points=take("region_points"), region_reproj=per_region("region_reproj"),
         region_rot_std=per_region("region_rot_std"), region_trans_std=per_region("region_trans_std"),
+        region_rot_noise=per_region("region_rot_noise"), region_trans_noise=per_region("region_trans_noise"),
         scale=scale, depth_unit=depth_unit)
 
 

@@ -16,8 +16,8 @@ from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
-from ...kernels.so3 import nearest_rotation
-from ...kernels.uncertainty import QualityRule, region_quality
+from ...kernels.so3 import nearest_rotation, so3_log
+from ...kernels.uncertainty import NOISE_BLOCK_FRAC, PoseNoise, QualityRule, pose_noise, region_quality
 from .stages import PoseInputs, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
@@ -35,6 +35,8 @@ class LocalPoses(NamedTuple):
     region_reproj: jax.Array  # (k,) px
     region_rot_std: jax.Array  # (k,) deg, RMS rotation uncertainty
     region_trans_std: jax.Array  # (k,) units of D
+    region_rot_noise: jax.Array  # (k,) deg, the RMS rotation error the noise floors count
+    region_trans_noise: jax.Array  # (k,) units of D
     n_tracks: jax.Array  # () usable tracks
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # () pixels of S_i
@@ -91,14 +93,18 @@ def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPose
     fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
                              pair.rival_R, global_t=pair.global_t)
     status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
+    noise = PoseNoise(*(jnp.full(config.k_seg, jnp.nan, X.dtype) for _ in PoseNoise._fields))  # no floors there
     if config.compat != "authors":  # the rule is never applied there; on or off is a value, one program for both
         diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
         focal = 0.5 * (pair.K_curr[0, 0] + pair.K_curr[1, 1])
         judged = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
                                 quality_rule(config))
         status = jnp.where(config.quality_rule != 0, judged, status)
+        poses6 = jnp.concatenate([so3_log(fit.R), fit.t], axis=-1)
+        noise = pose_noise(X, pair.track_curr, point_region, pair.K_curr, poses6, fit.inliers,
+                           NOISE_BLOCK_FRAC * diagonal)
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
-                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std,
+                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, noise.rot_deg, noise.trans,
                       n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels, fit.fitted)
 
 
