@@ -9,7 +9,7 @@ tracker noise by construction) and these perturbed at severity 0.5:
 1. for every two accepted poses of a pair, their squared rotation difference over the sum of their
    squared RMS rotation errors (1 on average when the errors are right), by the usual covariance
    (``region_rot_std``) and by the floors' pose noise with blocks of ``--block-frac`` x the image
-   diagonal (``reference.pose_noise``; 0.05 is the engines'; under 1/21 the grid's last row and
+   diagonal (``reference.floor_noise``; 0.05 is the engines'; under 1/21 the grid's last row and
    column take the rest);
 2. per clip, SGC (default calibration) and observed / floor of each pose component with the floors
    of either;
@@ -29,10 +29,9 @@ import numpy as np
 from sgc_jax import Calibration, SGCConfig, default_calibration
 from sgc_jax.codes import REGION_OK
 from sgc_jax.engines.reference import (
+    floor_noise,
     global_relative_pose,
     pair_points,
-    pose_inliers,
-    pose_noise,
     project,
     reprojection_errors,
     score_pairs,
@@ -83,9 +82,9 @@ def analyse(clip, config: SGCConfig, block_fracs, calibration):
             for j in accepted:
                 member = pp.region == j + 1
                 X, uv = pp.X[member], pp.uv[member]
-                inl = pose_inliers(X, uv, K, pairs.R_local[p, j], pairs.t_local[p, j], config.inlier_px)
-                noise[f][0][p, j], noise[f][1][p, j] = pose_noise(
-                    X[inl], uv[inl], K, pairs.R_local[p, j], pairs.t_local[p, j], f * diagonal)
+                usual = (pairs.region_rot_std[p, j], pairs.region_trans_std[p, j])
+                noise[f][0][p, j], noise[f][1][p, j] = floor_noise(
+                    X, uv, K, pairs.R_local[p, j], pairs.t_local[p, j], usual, f * diagonal, config.inlier_px)
             ratios[f] += scatter_ratios(R, [noise[f][0][p, j] for j in accepted])
         if accepted and not clip.clip_id.startswith("synth"):
             outliers += outlying_regions(clip, scaled, pairs, pair, pp, accepted, config)

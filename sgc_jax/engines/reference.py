@@ -309,28 +309,33 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
             float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
 
 
-def pose_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-               block_px: float) -> tuple[float, float]:
-    """(RMS rotation error deg, RMS translation error) the noise floors count for a pose fitted to
-    X (n, 3), uv (n, 2): the larger of the usual covariance's and the block covariance's
-    A (sum_b g_b g_b^T) A G / (G - 1) (2n - 1) / (2n - 6), A = (J^T J)^-1, g_b = J_b^T e_b over
-    the points in each square of block_px (``kernels.uncertainty.pose_noise``). NaN under 4 points."""
+def block_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                     block_px: float) -> np.ndarray:
+    """The cluster-robust covariance (6, 6) of the left-perturbed pose (w, dt) fitted to X (n, 3),
+    uv (n, 2) over squares of side block_px (``kernels.uncertainty.block_covariance``): A (sum_b g_b
+    g_b^T) A G/(G-1) (2n-1)/(2n-6), A = (J^T J)^-1, g_b = J_b^T e_b. NaN under 4 points."""
     n = len(X)
     if n < 4:
-        return float("nan"), float("nan")
+        return np.full((6, 6), np.nan)
     residuals, J = residual_jacobian(X, uv, K, R, t)
     A = np.linalg.pinv(J.T @ J)
-    dof = max(2 * n - 6, 1)
-    usual = residuals @ residuals / dof * A
     cell = np.clip(np.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(np.int64)
     block = np.unique(cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0], return_inverse=True)[1].ravel()
     G = int(block.max()) + 1
     g = np.zeros((G, 6))
     np.add.at(g, block, J[:n] * residuals[:n, None] + J[n:] * residuals[n:, None])
-    blocks = A @ (g.T @ g) @ A * G / max(G - 1, 1) * (2 * n - 1) / dof
-    rot_var = max(np.trace(usual[:3, :3]), np.trace(blocks[:3, :3]), 0.0)
-    trans_var = max(np.trace(usual[3:, 3:]), np.trace(blocks[3:, 3:]), 0.0)
-    return float(np.degrees(np.sqrt(rot_var))), float(np.sqrt(trans_var))
+    return A @ (g.T @ g) @ A * G / max(G - 1, 1) * (2 * n - 1) / max(2 * n - 6, 1)
+
+
+def floor_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                usual: tuple[float, float], block_px: float, inlier_px: float) -> tuple[float, float]:
+    """(RMS rotation error deg, RMS translation error) the noise floors count for an accepted pose
+    (docs/semantics.md §3.10): each the larger of ``usual`` (``pose_uncertainty``'s) and the block
+    covariance's on the pose's inliers."""
+    inliers = pose_inliers(X, uv, K, R, t, inlier_px)
+    blocks = block_covariance(X[inliers], uv[inliers], K, R, t, block_px)
+    return (float(np.maximum(usual[0], np.degrees(np.sqrt(max(np.trace(blocks[:3, :3]), 0.0))))),
+            float(np.maximum(usual[1], np.sqrt(max(np.trace(blocks[3:, 3:]), 0.0)))))
 
 
 def pixel_extent(uv: np.ndarray) -> float:
@@ -361,13 +366,6 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
     return good, sigma, rot_std, trans_std
-
-
-def floor_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                image_size: tuple[int, int], config: SGCConfig) -> tuple[float, float]:
-    """``pose_noise`` on the inliers of an accepted pose, blocks NOISE_BLOCK_FRAC of the diagonal."""
-    inliers = pose_inliers(X, uv, K, R, t, config.inlier_px)
-    return pose_noise(X[inliers], uv[inliers], K, R, t, NOISE_BLOCK_FRAC * float(np.hypot(*image_size)))
 
 
 def pose_inliers(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
@@ -630,6 +628,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
         "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
         "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
+    block_px = NOISE_BLOCK_FRAC * float(np.hypot(*clip.image_size))  # the floors' squares
     for pair in range(1, clip.n_frames):
         p, pp, K = pair - 1, points[pair - 1], clip.K[pair]
         if pp.n_usable < 4:
@@ -643,11 +642,11 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
             X, uv = pp.X[member], pp.uv[member]
             status = pose.status
             if status == REGION_STATUS["ok"]:
-                good, sigma, out["region_rot_std"][p, j], out["region_trans_std"][p, j] = region_quality(
-                    X, uv, K, pose.R, pose.t, clip.image_size, config)
+                good, sigma, *usual = region_quality(X, uv, K, pose.R, pose.t, clip.image_size, config)
+                out["region_rot_std"][p, j], out["region_trans_std"][p, j] = usual
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
-                        X, uv, K, pose.R, pose.t, clip.image_size, config)
+                        X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)
                 if config.applies_quality_rule and pose.ambiguous and sigma <= config.quality_noise_px:
                     status = REGION_STATUS["ambiguous"]
                 elif config.applies_quality_rule and not good:

@@ -30,6 +30,14 @@ class PoseUncertainty(NamedTuple):
     trans_std: jax.Array  # RMS translation error [units of X]
     extent_px: jax.Array  # RMS distance of the inlier pixels from their centroid [px]
     sigma_px: jax.Array  # inlier residual standard deviation per image coordinate [px]
+    rot_noise_deg: jax.Array  # RMS rotation error the noise floors count (``block_covariance``) [deg]
+    trans_noise: jax.Array  # RMS translation error the noise floors count [units of X]
+
+
+# The floors' squares (docs/semantics.md §3.10): this fraction of the image diagonal a side, so at
+# most BLOCKS_PER_AXIS along either side of the image (W, H <= diagonal).
+NOISE_BLOCK_FRAC = 0.05
+BLOCKS_PER_AXIS = 21
 
 
 class InlierJacobians(NamedTuple):
@@ -72,78 +80,52 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_depth, fx)
 
 
-def pose_uncertainty(X, uv, region, K, poses, inliers) -> PoseUncertainty:
-    """Covariance sigma^2 (J^T J)^-1 of each region's pose6 (k, 6), sigma^2 = sum e^2 / (2 n - 6)
-    over its n inliers (arguments as ``inlier_jacobians``)."""
-    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
-    onehot, covariance, mean_depth, fx = jac.onehot, jac.covariance, jac.mean_depth, jac.fx
-    n = jnp.sum(onehot, axis=1)
-    sigma_sq = (onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / jnp.maximum(2.0 * n - 6.0, 1.0)
-    rot_var = sigma_sq * jnp.trace(covariance[:, :3, :3], axis1=-2, axis2=-1) / fx**2
-    trans_var = sigma_sq * jnp.trace(covariance[:, 3:, 3:], axis1=-2, axis2=-1) * (mean_depth / fx) ** 2
-    centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
-    spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
-    enough = n >= 4
-    nan = jnp.asarray(jnp.nan, X.dtype)
-    return PoseUncertainty(
-        rot_std_deg=jnp.where(enough, jnp.degrees(jnp.sqrt(jnp.maximum(rot_var, 0.0))), nan),
-        trans_std=jnp.where(enough, jnp.sqrt(jnp.maximum(trans_var, 0.0)), nan),
-        extent_px=jnp.where(enough, jnp.sqrt(jnp.maximum(spread, 0.0)), nan),
-        sigma_px=jnp.where(enough, jnp.sqrt(sigma_sq), nan),
-    )
-
-
-# Blocks of the floors' pose noise (docs/semantics.md §3.10): squares of this fraction of the image
-# diagonal, so at most BLOCKS_PER_AXIS along either side (W, H <= diagonal).
-NOISE_BLOCK_FRAC = 0.05
-BLOCKS_PER_AXIS = 21
-
-
-class PoseNoise(NamedTuple):
-    """Per region (k,): the RMS pose error the noise floors count, the larger of the usual
-    covariance's and the block covariance's (which counts errors nearby tracks share); NaN with
-    fewer than 4 inliers."""
-
-    rot_deg: jax.Array  # [deg]
-    trans: jax.Array  # [units of X]
-
-
 def block_of(uv, block_px):
-    """(N, 2) pixels -> (N,) int32 block index on a grid of squares block_px wide, clamped to
-    BLOCKS_PER_AXIS per side."""
+    """(N, 2) pixels -> (N,) int32 square on a grid of side block_px, clamped to BLOCKS_PER_AXIS a side."""
     cell = jnp.clip(jnp.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(jnp.int32)
     return cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0]
 
 
-def pose_noise(X, uv, region, K, poses, inliers, block_px) -> PoseNoise:
-    """The floors' pose noise of each region (arguments as ``inlier_jacobians``; block_px the block
-    side [px]). Block covariance: A (sum_b g_b g_b^T) A G / (G - 1) (2n - 1) / (2n - 6) with
-    A = (J^T J)^-1, g_b = J_b^T e_b over the inliers in block b and G the blocks holding any (the
-    cluster-robust covariance)."""
-    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
-    k, dtype = poses.shape[0], X.dtype
+def block_covariance(jac: InlierJacobians, uv, region, block_px):
+    """The cluster-robust covariance (k, 6, 6) of each region's pose over squares of side block_px,
+    which counts errors the inliers of one square share: A (sum_b g_b g_b^T) A G/(G-1) (2n-1)/(2n-6),
+    A = (J^T J)^-1, g_b = J_b^T e_b over the inliers in square b, G the squares holding any."""
+    k = jac.onehot.shape[0]
     n = jnp.sum(jac.onehot, axis=1)
     weight = jnp.sum(jac.onehot, axis=0)  # (N,) 1 for an inlier of its region's pose
-    blocks = BLOCKS_PER_AXIS * BLOCKS_PER_AXIS
-    key = jnp.clip(region - 1, 0, k - 1) * blocks + block_of(uv, block_px)
+    segments = k * BLOCKS_PER_AXIS * BLOCKS_PER_AXIS
+    key = jnp.clip(region - 1, 0, k - 1) * BLOCKS_PER_AXIS * BLOCKS_PER_AXIS + block_of(uv, block_px)
     gradient = weight[:, None] * (jac.J_u * jac.du[:, None] + jac.J_v * jac.dv[:, None])  # (N, 6)
-    g = jax.ops.segment_sum(gradient, key, num_segments=k * blocks).reshape(k, blocks, 6)
-    held = jax.ops.segment_sum(weight, key, num_segments=k * blocks).reshape(k, blocks) > 0
-    G = jnp.sum(held, axis=1).astype(dtype)
-    dof = jnp.maximum(2.0 * n - 6.0, 1.0)
-    correction = G / jnp.maximum(G - 1.0, 1.0) * (2.0 * n - 1.0) / dof
+    g = jax.ops.segment_sum(gradient, key, num_segments=segments).reshape(k, -1, 6)
+    G = jnp.sum(jax.ops.segment_sum(weight, key, num_segments=segments).reshape(k, -1) > 0, axis=1).astype(n.dtype)
+    correction = G / jnp.maximum(G - 1.0, 1.0) * (2.0 * n - 1.0) / jnp.maximum(2.0 * n - 6.0, 1.0)
     meat = jnp.einsum("kbi,kbj->kij", g, g, precision=HIGHEST)
-    block_cov = jac.covariance @ meat @ jac.covariance * correction[:, None, None]
-    sigma_sq = (jac.onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / dof
+    return jac.covariance @ meat @ jac.covariance * correction[:, None, None]
+
+
+def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> PoseUncertainty:
+    """Covariance sigma^2 (J^T J)^-1 of each region's pose6 (k, 6), sigma^2 = sum e^2 / (2 n - 6)
+    over its n inliers (arguments as ``inlier_jacobians``); the noise the floors count is the larger
+    of it and ``block_covariance`` over squares of side block_px (inf: one square, the usual)."""
+    jac = inlier_jacobians(X, uv, region, K, poses, inliers)
+    onehot, covariance, mean_depth, fx = jac.onehot, jac.covariance, jac.mean_depth, jac.fx
+    n = jnp.sum(onehot, axis=1)
+    sigma_sq = (onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / jnp.maximum(2.0 * n - 6.0, 1.0)
+    blocks = block_covariance(jac, uv, region, block_px)
     trace = lambda cov, part: jnp.trace(cov[:, part, part], axis1=-2, axis2=-1)  # noqa: E731
     rot, trans = slice(0, 3), slice(3, 6)
-    rot_var = jnp.maximum(sigma_sq * trace(jac.covariance, rot), trace(block_cov, rot)) / jac.fx**2
-    trans_var = (jnp.maximum(sigma_sq * trace(jac.covariance, trans), trace(block_cov, trans))
-                 * (jac.mean_depth / jac.fx) ** 2)
+    rot_var = sigma_sq * trace(covariance, rot) / fx**2
+    trans_var = sigma_sq * trace(covariance, trans) * (mean_depth / fx) ** 2
+    rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
+    trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_depth / fx) ** 2)
+    centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
+    spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
     enough = n >= 4
-    nan = jnp.asarray(jnp.nan, dtype)
-    return PoseNoise(rot_deg=jnp.where(enough, jnp.degrees(jnp.sqrt(jnp.maximum(rot_var, 0.0))), nan),
-                     trans=jnp.where(enough, jnp.sqrt(jnp.maximum(trans_var, 0.0)), nan))
+    nan = jnp.asarray(jnp.nan, X.dtype)
+    root = lambda v: jnp.where(enough, jnp.sqrt(jnp.maximum(v, 0.0)), nan)  # noqa: E731
+    return PoseUncertainty(rot_std_deg=jnp.degrees(root(rot_var)), trans_std=root(trans_var),
+                           extent_px=root(spread), sigma_px=root(sigma_sq),
+                           rot_noise_deg=jnp.degrees(root(rot_noise)), trans_noise=root(trans_noise))
 
 
 class QualityRule(eqx.Module):

@@ -16,8 +16,8 @@ from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
-from ...kernels.so3 import nearest_rotation, so3_log
-from ...kernels.uncertainty import NOISE_BLOCK_FRAC, PoseNoise, QualityRule, pose_noise, region_quality
+from ...kernels.so3 import nearest_rotation
+from ...kernels.uncertainty import NOISE_BLOCK_FRAC, QualityRule, region_quality
 from .stages import PoseInputs, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
@@ -90,21 +90,20 @@ def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPose
     point_region = jnp.where(has_depth, pair.track_label, 0)
     point_region = jnp.where((point_region <= pair.n_regions) & enough_tracks, point_region, 0)
     keys = jax.vmap(lambda r: jax.random.fold_in(pair.key, r))(regions)
+    diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
     fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
-                             pair.rival_R, global_t=pair.global_t)
+                             pair.rival_R, global_t=pair.global_t, noise_block_px=NOISE_BLOCK_FRAC * diagonal)
     status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
-    noise = PoseNoise(*(jnp.full(config.k_seg, jnp.nan, X.dtype) for _ in PoseNoise._fields))  # no floors there
+    nan = jnp.full(config.k_seg, jnp.nan, X.dtype)
+    rot_noise, trans_noise = nan, nan  # no floors under compat="authors"
     if config.compat != "authors":  # the rule is never applied there; on or off is a value, one program for both
-        diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
         focal = 0.5 * (pair.K_curr[0, 0] + pair.K_curr[1, 1])
         judged = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
                                 quality_rule(config))
         status = jnp.where(config.quality_rule != 0, judged, status)
-        poses6 = jnp.concatenate([so3_log(fit.R), fit.t], axis=-1)
-        noise = pose_noise(X, pair.track_curr, point_region, pair.K_curr, poses6, fit.inliers,
-                           NOISE_BLOCK_FRAC * diagonal)
+        rot_noise, trans_noise = fit.uncertainty.rot_noise_deg, fit.uncertainty.trans_noise
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
-                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, noise.rot_deg, noise.trans,
+                      fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, rot_noise, trans_noise,
                       n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels, fit.fitted)
 
 
