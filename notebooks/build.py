@@ -583,14 +583,17 @@ GRADIENTS = [
             d, truth = np.asarray(depth)[0][valid], clean.depth[valid]
             return 100 * np.mean(np.abs(d / np.median(d / truth) - truth) / truth)
 
-        value_and_grad = jax.value_and_grad(lambda theta: scorer({**batch, "depth": repaired(theta)})["sgc_smooth"][0])
+        def gradient(clips):  # d sgc_smooth / d (depth, track_curr) of a one-clip batch: one program, two uses
+            floats = {"depth": clips["depth"], "track_curr": clips["track_curr"]}
+            return jax.grad(lambda f: scorer({**clips, **f})["sgc_smooth"][0])(floats)
+
         theta = jnp.zeros((T, 6), jnp.float32)
         moment, second = jnp.zeros_like(theta), jnp.zeros_like(theta)
         history = []
         for step in range(30):
-            depth = repaired(theta)
+            depth, pullback = jax.vjp(repaired, theta)
             history.append((step, float(scorer({**batch, "depth": depth})["sgc"][0]), error_to_truth(depth)))
-            _, grad = value_and_grad(theta)
+            (grad,) = pullback(gradient({**batch, "depth": depth})["depth"])
             moment, second = 0.9 * moment + 0.1 * grad, 0.999 * second + 0.001 * grad**2
             theta = theta - 0.01 * (moment / (1 - 0.9 ** (step + 1))) / (jnp.sqrt(second / (1 - 0.999 ** (step + 1))) + 1e-8)
         descent = pd.DataFrame(history, columns=["step", "sgc", "depth error to truth (%)"])
@@ -615,7 +618,7 @@ GRADIENTS = [
         masked = synth_clip(seed=1, **spec)  # the same scene with its mask: which pixels move
         unmasked = synth_clip(seed=1, with_mask=False, **spec)
         moving = batch_of([unmasked])
-        grad = jax.grad(lambda tracks: scorer({**moving, "track_curr": tracks})["sgc_smooth"][0])(moving["track_curr"])
+        grad = gradient(moving)["track_curr"]
         norm = np.linalg.norm(np.asarray(grad)[0], axis=-1)  # (T-1, P)
         col = np.clip(unmasked.track_prev[..., 0].astype(int), 0, W - 1)
         row = np.clip(unmasked.track_prev[..., 1].astype(int), 0, H - 1)

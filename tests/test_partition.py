@@ -3,6 +3,7 @@ structure, identical in both engines, and scored end to end; the frame whose par
 regions are (``region_frame``)."""
 
 import dataclasses
+import functools
 
 import cv2
 import jax
@@ -55,10 +56,13 @@ def test_depth_spatial_keeps_the_largest_k_components_above_the_size_floor():
 def test_jax_depth_spatial_matches_the_reference_on_the_hand_built_map():
     from sgc_jax.kernels.kmeans import kmeans_1d
     depth, mask = two_depth_map()
+    @functools.partial(jax.jit, static_argnames=("k", "bins"))
+    def depth_spatial(depth, mask, min_region_pixels, *, k, bins):
+        cluster = kmeans_1d(depth.reshape(-1), mask.reshape(-1), k=k, bins=bins)
+        return spatial_regions(cluster.reshape(depth.shape), k=k, min_region_pixels=min_region_pixels)
+
     for config in (CONFIG, CONFIG.replace(k_seg=2), CONFIG.replace(min_region_pixels=70)):
-        cluster = kmeans_1d(depth.reshape(-1), mask.reshape(-1), k=config.k_seg, bins=config.kmeans_bins)
-        jx, n = spatial_regions(cluster.reshape(depth.shape), k=config.k_seg,
-                                min_region_pixels=config.min_region_pixels)
+        jx, n = depth_spatial(depth, mask, config.min_region_pixels, k=config.k_seg, bins=config.kmeans_bins)
         ref = reference.spatial_regions(depth, mask, config)
         np.testing.assert_array_equal(np.asarray(jx), ref)
         assert int(n) == ref.max()
