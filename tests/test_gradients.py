@@ -58,7 +58,8 @@ def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
     out = scorer(batch)
     arrays = scorer.clip_arrays(batch)
     frozen = scorer.choices(batch)
-    components = jax.jit(jax.vmap(lambda c, f: smooth_components(c, f, scorer.bucket, scorer.config)[0]))(arrays, frozen)
+    per_clip = jax.vmap(lambda c, f: smooth_components(c, f, scorer.bucket, scorer.config)[0])
+    components = jax.jit(per_clip)(arrays, frozen)
     for k in COMPONENTS:
         np.testing.assert_allclose(np.asarray(components[k]), np.asarray(out[k]), rtol=FORWARD_RTOL, err_msg=k)
     forward = {k: np.asarray(out[k], np.float64) for k in COMPONENTS}
