@@ -96,11 +96,16 @@ def test_smooth_floor_is_continuous_with_a_continuous_slope():
     assert np.all(y > 0) and np.all(slope > 0)
 
 
-def test_jax_grad_reaches_every_input_kind(scorer, batch):
-    """As a user writes it: jax.grad through the Scorer's call, with respect to every float input
-    at once (one backward program; one per input would compile six)."""
+def smooth_score_gradients(scorer, batch):
+    """d sum(sgc_smooth) / d every float input of the batch, as a user writes it: jax.grad through
+    the Scorer's call, all inputs at once (one backward program for this file; one per input would
+    compile six). Clips are independent, so clip b's slices are d sgc_smooth[b]."""
     floats = {name: batch[name] for name in FLOATS}
-    grads = jax.grad(lambda x: scorer({**batch, **x})["sgc_smooth"].sum())(floats)
+    return jax.grad(lambda x: scorer({**batch, **x})["sgc_smooth"].sum())(floats)
+
+
+def test_jax_grad_reaches_every_input_kind(scorer, batch):
+    grads = smooth_score_gradients(scorer, batch)
     for name in FLOATS:
         grad = np.asarray(grads[name])
         assert grad.shape == batch[name].shape and np.all(np.isfinite(grad)), name
@@ -111,8 +116,8 @@ def test_a_clip_scoring_zero_still_has_a_depth_gradient(scorer):
     batch = batch_of([synth_clip(seed=seed, noise_px=0.5, **DEMO_SCENE) for seed in (3, 4)])
     out = scorer(batch)
     assert float(out["sgc"][0]) == 0.0  # a consistent scene below the calibration's zero
-    grad = jax.grad(lambda d: scorer({**batch, "depth": d})["sgc_smooth"][0])(batch["depth"])
-    assert np.all(np.isfinite(grad)) and np.any(np.asarray(grad)[0] != 0)
+    grad = np.asarray(smooth_score_gradients(scorer, batch)["depth"])
+    assert np.all(np.isfinite(grad)) and np.any(grad[0] != 0)
 
 
 def test_gradients_agree_with_finite_differences_in_float64(scorer, batch):
@@ -152,7 +157,7 @@ def test_least_squares_pose_gradient_is_the_implicit_one():
             return least_squares_pose(start, X, uv, K, weight, jnp.bool_(True), steps=20)
 
         optimum = solved(uv, pose)
-        jacobian = jax.jacobian(lambda u: solved(u, optimum))(uv)
+        jacobian = jax.jit(jax.jacobian(lambda u: solved(u, optimum)))(uv)
         direction = jnp.asarray(rng.normal(0, 1, uv.shape))
         h = 1e-6
         finite = (solved(uv + h * direction, pose) - solved(uv - h * direction, pose)) / (2 * h)
