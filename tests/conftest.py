@@ -51,6 +51,18 @@ def drift_clip():
     return synth_clip(seed=1, clip_id="drift", group="drift", layer_drift=0.15, **SCENE)
 
 
+# The notebook kernels load from the run's cache what other files compile (the demo corpus's stages,
+# test_scorer's Scorer of the demo bucket): xdist hands whole files out in this order, so the
+# notebooks go right after test_scorer.py, not first, and the files after them keep the other
+# worker busy meanwhile.
+def pytest_collection_modifyitems(items):
+    notebooks = [item for item in items if item.path.name == "test_notebooks.py"]
+    rest = [item for item in items if item.path.name != "test_notebooks.py"]
+    scorer = [k for k, item in enumerate(rest) if item.path.name == "test_scorer.py"]
+    after = scorer[-1] + 1 if scorer else len(rest)
+    items[:] = rest[:after] + notebooks + rest[after:]
+
+
 # Each XLA:CPU executable maps its machine code into a few dozen memory regions, and the suite
 # compiles hundreds of programs (one scorer per config and bucket). Past the kernel's
 # vm.max_map_count (65530 by default) the next compile segfaults inside XLA. Release the compiled
