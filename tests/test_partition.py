@@ -56,6 +56,7 @@ def test_depth_spatial_keeps_the_largest_k_components_above_the_size_floor():
 def test_jax_depth_spatial_matches_the_reference_on_the_hand_built_map():
     from sgc_jax.kernels.kmeans import kmeans_1d
     depth, mask = two_depth_map()
+
     @functools.partial(jax.jit, static_argnames=("k", "bins"))
     def depth_spatial(depth, mask, min_region_pixels, *, k, bins):
         cluster = kmeans_1d(depth.reshape(-1), mask.reshape(-1), k=k, bins=bins)
