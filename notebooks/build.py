@@ -546,13 +546,14 @@ GRADIENTS = [
         from sgc_jax.scoring.scorer import batch_of
 
         T, H, W, P = SCENE["n_frames"], SCENE["height"], SCENE["width"], SCENE["n_tracks"]
-        scorer = sgc_jax.Scorer((1, T, H, W, P), differentiable=True)"""),
+        scorer = sgc_jax.Scorer((2, T, H, W, P), differentiable=True)  # two clips per batch"""),
     _md("""
         ## Repairing a corrupted depth
 
         A consistent scene (0.5 px of track noise) whose depth alone is corrupted: each frame's
         depth multiplied by its own smooth field of up to ±10 % (a random quadratic surface over
         the image). Tracks and cameras are untouched, so the depth no longer agrees with them.
+        The batch holds the clean clip beside the corrupted one.
     """),
     _code("""\
         clean = synth_clip(seed=0, clip_id="clean", noise_px=0.5, **SCENE)
@@ -563,9 +564,9 @@ GRADIENTS = [
         field = np.einsum("tk,khw->thw", rng.normal(0, 1, (T, 6)), basis)
         field = 0.1 * field / np.abs(field).max(axis=(1, 2), keepdims=True)
         corrupted = dataclasses.replace(clean, clip_id="corrupted", depth=(clean.depth * (1 + field)).astype(np.float32))
-        batch = batch_of([corrupted])
-        for clip in (clean, corrupted):
-            print(f"{clip.clip_id:>9}: sgc {float(scorer(batch_of([clip]))['sgc'][0]):.2f}")"""),
+        batch = batch_of([clean, corrupted])
+        clean_sgc, corrupted_sgc = np.asarray(scorer(batch)["sgc"])
+        print(f"clean: sgc {clean_sgc:.2f}; corrupted: sgc {corrupted_sgc:.2f}")"""),
     _md("""
         Gradient descent on `sgc_smooth` with respect to the depth alone, through a correction of
         the same family: each frame's depth times exp of a quadratic surface, its 6 coefficients
@@ -576,30 +577,31 @@ GRADIENTS = [
     _code("""\
         valid = clean.depth > 0
 
-        def repaired(theta):
-            return batch["depth"] * jnp.exp(jnp.einsum("tk,khw->thw", theta, basis))[None]
+        def repaired(theta):  # the batch's depth, the corrupted clip's corrected
+            correction = jnp.exp(jnp.einsum("tk,khw->thw", theta, basis))
+            return jnp.asarray(batch["depth"]).at[1].multiply(correction)
 
         def error_to_truth(depth):
-            d, truth = np.asarray(depth)[0][valid], clean.depth[valid]
+            d, truth = np.asarray(depth)[1][valid], clean.depth[valid]
             return 100 * np.mean(np.abs(d / np.median(d / truth) - truth) / truth)
 
-        def gradient(clips):  # d sgc_smooth / d (depth, track_curr) of a one-clip batch: one program, two uses
-            floats = {"depth": clips["depth"], "track_curr": clips["track_curr"]}
-            return jax.grad(lambda f: scorer({**clips, **f})["sgc_smooth"][0])(floats)
+        def gradient(clips):  # d sum(sgc_smooth) / d every float input; clip b's slice is d sgc_smooth[b]
+            floats = {name: clips[name] for name in ("depth", "track_prev", "track_curr", "R_wc", "t_wc", "K")}
+            return jax.grad(lambda f: scorer({**clips, **f})["sgc_smooth"].sum())(floats)
 
         theta = jnp.zeros((T, 6), jnp.float32)
         moment, second = jnp.zeros_like(theta), jnp.zeros_like(theta)
         history = []
         for step in range(30):
             depth, pullback = jax.vjp(repaired, theta)
-            history.append((step, float(scorer({**batch, "depth": depth})["sgc"][0]), error_to_truth(depth)))
+            history.append((step, float(scorer({**batch, "depth": depth})["sgc"][1]), error_to_truth(depth)))
             (grad,) = pullback(gradient({**batch, "depth": depth})["depth"])
+            grad = np.asarray(grad)  # on the host, so each step places its depth alike (one program)
             moment, second = 0.9 * moment + 0.1 * grad, 0.999 * second + 0.001 * grad**2
             theta = theta - 0.01 * (moment / (1 - 0.9 ** (step + 1))) / (jnp.sqrt(second / (1 - 0.999 ** (step + 1))) + 1e-8)
         descent = pd.DataFrame(history, columns=["step", "sgc", "depth error to truth (%)"])
         descent.iloc[[0, -1]].round(1)  # one decimal: a descent's last digits depend on the CPU's rounding"""),
     _code("""\
-        clean_sgc = float(scorer(batch_of([clean]))["sgc"][0])
         fig = plot.plot_descent(descent["step"], descent["sgc"], descent["depth error to truth (%)"], reference_sgc=clean_sgc)"""),
     _md("""
         The score falls towards the clean clip's and the depth towards the truth, from the score's
@@ -617,7 +619,7 @@ GRADIENTS = [
         spec = dict(SCENE, moving_objects=1)
         masked = synth_clip(seed=1, **spec)  # the same scene with its mask: which pixels move
         unmasked = synth_clip(seed=1, with_mask=False, **spec)
-        moving = batch_of([unmasked])
+        moving = batch_of([unmasked, masked])
         grad = gradient(moving)["track_curr"]
         norm = np.linalg.norm(np.asarray(grad)[0], axis=-1)  # (T-1, P)
         col = np.clip(unmasked.track_prev[..., 0].astype(int), 0, W - 1)
