@@ -79,19 +79,20 @@ def residual_jacobian(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarra
     """Residuals (2n,) (u errors, then v errors) and their Jacobian (2n, 6) in the left perturbation
     (w, dt): exp([w]) R X + t + dt, through the whole K."""
     RX = X @ R.T
-    Y = RX + t
+    return _residual_jacobian(RX, RX + t, uv, K)
+
+
+def _residual_jacobian(RX: np.ndarray, Y: np.ndarray, uv: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``residual_jacobian`` from the rotated points RX = R X and the camera points Y = RX + t (n, 3)."""
     z = Y[:, 2]
     proj = (Y / z[:, None]) @ K.T
-    n = len(X)
+    n = len(Y)
     grad_u = np.stack([K[0, 0] / z, K[0, 1] / z, -(K[0, 0] * Y[:, 0] + K[0, 1] * Y[:, 1]) / z**2], axis=1)
     grad_v = np.stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2], axis=1)
     # d residual = grad . (w x RX + dt) = w . (RX x grad) + dt . grad
-    J = np.empty((2 * n, 6))
-    for rows, g in ((slice(0, n), grad_u), (slice(n, 2 * n), grad_v)):
-        J[rows, 0] = RX[:, 1] * g[:, 2] - RX[:, 2] * g[:, 1]
-        J[rows, 1] = RX[:, 2] * g[:, 0] - RX[:, 0] * g[:, 2]
-        J[rows, 2] = RX[:, 0] * g[:, 1] - RX[:, 1] * g[:, 0]
-        J[rows, 3:] = g
+    grad = np.concatenate([grad_u, grad_v])
+    (ax, ay, az), (gx, gy, gz) = np.concatenate([RX, RX]).T, grad.T
+    J = np.column_stack([ay * gz - az * gy, az * gx - ax * gz, ax * gy - ay * gx, grad])
     return np.concatenate([proj[:, 0] - uv[:, 0], proj[:, 1] - uv[:, 1]]), J
 
 
@@ -106,12 +107,13 @@ def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose
     cost, damping, growth = r @ r, 1e-3, 2.0
     for _ in range(steps):
         H, g = J.T @ J, J.T @ r
-        D = np.diag(np.diag(H) + 1e-12)
-        delta = -np.linalg.solve(H + damping * D, g)
+        delta = -np.linalg.solve(H + np.diag(damping * (np.diag(H) + 1e-12)), g)
         step = cv2.Rodrigues(delta[:3])[0]
         R_new, t_new = step @ R, step @ t + delta[3:]
-        if np.all((X @ R_new.T + t_new)[:, 2] > 0):
-            r_new, J_new = residual_jacobian(X, uv, K, R_new, t_new)
+        RX = X @ R_new.T
+        Y = RX + t_new
+        if np.all(Y[:, 2] > 0):
+            r_new, J_new = _residual_jacobian(RX, Y, uv, K)
             cost_new = r_new @ r_new
         else:
             cost_new = np.inf
@@ -178,9 +180,9 @@ def p3p_candidates(X: np.ndarray, uv: np.ndarray, K: np.ndarray, samples: np.nda
     rays = np.linalg.solve(K, np.column_stack([uv, np.ones(len(uv))]).T).T
     uv0 = (rays @ K0.T)[:, :2]
     rvecs, tvecs = [], []
-    for sample in samples:
+    for points, pixels in zip(X[samples], uv0[samples]):
         try:
-            n_sol, rv, tv = cv2.solveP3P(X[sample], uv0[sample], K0, None, flags=cv2.SOLVEPNP_AP3P)
+            n_sol, rv, tv = cv2.solveP3P(points, pixels, K0, None, flags=cv2.SOLVEPNP_AP3P)
         except cv2.error:
             continue
         rvecs.extend(rv[:n_sol])
@@ -207,14 +209,14 @@ def leading_distinct(costs: np.ndarray, Rs: np.ndarray, ts: np.ndarray, count: i
     """Up to ``count`` poses of lowest cost, each more than DISTINCT_DEG in rotation from the ones
     before it (ties: lower index first)."""
     order = np.argsort(costs, kind="stable")
-    Rs_sorted = Rs[order]
-    open_ = np.isfinite(costs[order])  # still eligible, in cost order
+    order = order[np.isfinite(costs[order])]
+    eligible = np.arange(len(order))  # positions in ``order`` still eligible, in cost order
     chosen: list[Pose] = []
-    while len(chosen) < count and open_.any():
-        j = int(np.argmax(open_))
-        chosen.append(Pose(Rs_sorted[j], ts[order[j]]))
+    while len(chosen) < count and eligible.size:
+        j = order[eligible[0]]
+        chosen.append(Pose(Rs[j], ts[j]))
         # every later candidate as close to this one is no longer distinct
-        open_ &= rotation_angles_deg(Rs_sorted[j], Rs_sorted) > DISTINCT_DEG
+        eligible = eligible[rotation_angles_deg(Rs[j], Rs[order[eligible]]) > DISTINCT_DEG]
     return chosen
 
 
