@@ -30,7 +30,6 @@ from sgc_jax.research.synth import synth_clip  # noqa: E402
 enable_compilation_cache()
 
 
-
 @pytest.fixture(scope="session")
 def rigid_clip():
     return synth_clip(seed=1, clip_id="rigid", group="rigid", **SCENE)
@@ -51,16 +50,19 @@ def drift_clip():
     return synth_clip(seed=1, clip_id="drift", group="drift", layer_drift=0.15, **SCENE)
 
 
-# The notebook kernels load from the run's cache what other files compile (the demo corpus's stages,
-# test_scorer's Scorer of the demo bucket): xdist hands whole files out in this order, so the
-# notebooks go right after test_scorer.py, not first, and the files after them keep the other
-# worker busy meanwhile.
+# The suite's schedule. xdist hands whole files to its workers in collection order
+# (pyproject.toml: --no-loadscope-reorder), so the longest files go first and the short ones fill
+# in at the end; a file that compiles a program comes before the files that load it from the
+# run's cache (the notebooks build the demo corpus's programs and the Scorers of test_scorer.py
+# and test_gradients.py). The rest keep their order.
+SCHEDULE = ("test_scorer.py", "test_engine_agreement.py", "test_gradients.py", "test_streaming.py",
+            "test_notebooks.py", "test_scale_free.py", "test_cli.py", "test_demo.py", "test_study.py",
+            "test_pnp.py", "test_region_quality.py", "test_compat.py")
+
+
 def pytest_collection_modifyitems(items):
-    notebooks = [item for item in items if item.path.name == "test_notebooks.py"]
-    rest = [item for item in items if item.path.name != "test_notebooks.py"]
-    scorer = [k for k, item in enumerate(rest) if item.path.name == "test_scorer.py"]
-    after = scorer[-1] + 1 if scorer else len(rest)
-    items[:] = rest[:after] + notebooks + rest[after:]
+    rank = {name: i for i, name in enumerate(SCHEDULE)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(SCHEDULE)))  # stable: a file's tests keep their order
 
 
 # Each XLA:CPU executable maps its machine code into a few dozen memory regions, and the suite
