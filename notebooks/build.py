@@ -596,7 +596,6 @@ GRADIENTS = [
             depth, pullback = jax.vjp(repaired, theta)
             history.append((step, float(scorer({**batch, "depth": depth})["sgc"][1]), error_to_truth(depth)))
             (grad,) = pullback(gradient({**batch, "depth": depth})["depth"])
-            grad = np.asarray(grad)  # on the host, so each step places its depth alike (one program)
             moment, second = 0.9 * moment + 0.1 * grad, 0.999 * second + 0.001 * grad**2
             theta = theta - 0.01 * (moment / (1 - 0.9 ** (step + 1))) / (jnp.sqrt(second / (1 - 0.999 ** (step + 1))) + 1e-8)
         descent = pd.DataFrame(history, columns=["step", "sgc", "depth error to truth (%)"])

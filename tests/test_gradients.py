@@ -2,6 +2,7 @@
 active, and its gradients agree with central finite differences in float64."""
 
 import dataclasses
+import logging
 
 import jax
 import jax.numpy as jnp
@@ -110,6 +111,16 @@ def test_jax_grad_reaches_every_input_kind(scorer, batch):
         grad = np.asarray(grads[name])
         assert grad.shape == batch[name].shape and np.all(np.isfinite(grad)), name
         assert np.any(grad[0] != 0) and np.any(grad[1] != 0), f"{name}: each clip has a gradient"
+
+
+def test_inputs_made_from_the_scorers_outputs_run_the_programs_plain_arrays_compiled(scorer, batch, caplog):
+    """A descent step feeds the Scorer arrays made from its outputs, which carry its mesh's
+    sharding: they are placed as plain arrays are, so no step compiles again."""
+    grads = smooth_score_gradients(scorer, batch)
+    stepped = {**batch, "depth": batch["depth"] - 1e-3 * grads["depth"]}
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        smooth_score_gradients(scorer, stepped)
+    assert not [r for r in caplog.records if "compilation of jit(<lambda>)" in r.getMessage()]
 
 
 def test_a_clip_scoring_zero_still_has_a_depth_gradient(scorer):

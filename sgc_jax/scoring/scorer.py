@@ -232,9 +232,9 @@ class Scorer:
         clips = self.clip_arrays(batch)
         B, n = self.shape[0], len(self.devices)
         if self.differentiable:  # the forward pass makes the choices; only sgc_smooth carries gradients
-            live = self._rows(clips, 0, self.call_size)
-            if not _traced(live):
-                live = jax.device_put(live, self._sharding())
+            # placed alike whatever the caller's arrays carry (a descent's inputs come from earlier
+            # outputs, which hold the mesh's sharding): one program for every call
+            live = jax.device_put(self._rows(clips, 0, self.call_size), self._sharding())
             fixed = jax.lax.stop_gradient(live)  # concrete under an eager jax.grad: the compiled forward runs
             return self._whole(self._run(self._traced if _traced(fixed) else self._compiled, fixed, live))
         if _traced(clips):  # inside a user's jit: one program
