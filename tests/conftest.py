@@ -60,6 +60,9 @@ SCHEDULE = ("test_scorer.py", "test_engine_agreement.py", "test_gradients.py", "
             "test_pnp.py", "test_region_quality.py", "test_compat.py")
 
 
+assert all((Path(__file__).parent / name).is_file() for name in SCHEDULE), "SCHEDULE names a file that is gone"
+
+
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(SCHEDULE)}
     items.sort(key=lambda item: rank.get(item.path.name, len(SCHEDULE)))  # stable: a file's tests keep their order
