@@ -105,19 +105,23 @@ def smooth_score_gradients(scorer, batch):
     return jax.grad(lambda x: scorer({**batch, **x})["sgc_smooth"].sum())(floats)
 
 
-def test_jax_grad_reaches_every_input_kind(scorer, batch):
-    grads = smooth_score_gradients(scorer, batch)
+@pytest.fixture(scope="module")
+def gradients(scorer, batch):
+    return smooth_score_gradients(scorer, batch)
+
+
+def test_jax_grad_reaches_every_input_kind(batch, gradients):
     for name in FLOATS:
-        grad = np.asarray(grads[name])
+        grad = np.asarray(gradients[name])
         assert grad.shape == batch[name].shape and np.all(np.isfinite(grad)), name
         assert np.any(grad[0] != 0) and np.any(grad[1] != 0), f"{name}: each clip has a gradient"
 
 
-def test_inputs_made_from_the_scorers_outputs_run_the_programs_plain_arrays_compiled(scorer, batch, caplog):
+def test_inputs_made_from_the_scorers_outputs_run_the_programs_plain_arrays_compiled(scorer, batch, gradients,
+                                                                                      caplog):
     """A descent step feeds the Scorer arrays made from its outputs, which carry its mesh's
     sharding: they are placed as plain arrays are, so no step compiles again."""
-    grads = smooth_score_gradients(scorer, batch)
-    stepped = {**batch, "depth": batch["depth"] - 1e-3 * grads["depth"]}
+    stepped = {**batch, "depth": batch["depth"] - 1e-3 * gradients["depth"]}
     with jax.log_compiles(True), caplog.at_level(logging.WARNING):
         smooth_score_gradients(scorer, stepped)
     assert not [r for r in caplog.records if "compilation of jit(<lambda>)" in r.getMessage()]
