@@ -1,16 +1,33 @@
 #!/bin/bash
-# Issue 40's GPU figures in one device lease (~8 minutes on a fresh H100, compiles included):
-# the Scorer's clips/s per B with a step profile and kernel traces, then 1,000 standard clips
-# from disk through score_batch. Run from the repository root on the device machine; logs and
-# traces go to $OUT (or ./gpu-figures). bench/RESULTS.md, 2026-11-27, has the first figures.
+# GPU figures in one device lease, logs and traces into $OUT (or ./gpu-figures). Run from the
+# repository root on the device machine:
+#   bench/gpu_figures.sh reward      issue 40: the Scorer's clips/s per B with a step profile and
+#                                    kernel traces, then 1,000 standard clips from disk (~8 min)
+#   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
+#                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
+# Each step has its own time limit, so a slow compile loses that step's figure, not the others'.
+# bench/RESULTS.md has the figures of each lease.
 set -o pipefail
 OUT=${OUT:-gpu-figures}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 python3 -c "import jax, optimistix; print('jax', jax.__version__, jax.devices(), 'optimistix', optimistix.__version__)"
-timeout 300 python3 bench/reward.py --batch-sizes 64 1 8 32 --no-baseline --repeats 5 --profile "$OUT/profile" 2>&1 \
-    | tee "$OUT/reward.log"
-# B=16 compiles score_batch's group program (16 clips per device) before the disk run reuses it
-timeout 210 python3 bench/reward.py --batch-sizes 16 --no-baseline --repeats 3 --disk-clips 1000 --dir /tmp/corpus 2>&1 \
-    | tee "$OUT/disk.log"
+case "${1:-reward}" in
+reward)
+    timeout 300 python3 bench/reward.py --batch-sizes 64 1 8 32 --no-baseline --repeats 5 --profile "$OUT/profile" 2>&1 \
+        | tee "$OUT/reward.log"
+    # B=16 compiles score_batch's group program (16 clips per device) before the disk run reuses it
+    timeout 210 python3 bench/reward.py --batch-sizes 16 --no-baseline --repeats 3 --disk-clips 1000 --dir /tmp/corpus 2>&1 \
+        | tee "$OUT/disk.log"
+    ;;
+gradients)
+    timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
+    timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
+    timeout 300 python3 bench/gradients.py --batch-size 8 --repeats 3 2>&1 | tee "$OUT/gradients-b8.log"
+    ;;
+*)
+    echo "usage: bench/gpu_figures.sh [reward|gradients]" >&2
+    exit 2
+    ;;
+esac

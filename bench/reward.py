@@ -194,8 +194,9 @@ def main() -> None:
     for i, B in enumerate(args.batch_sizes):
         row = scorer_rate(clips, B, shape, args.repeats, args.vectorized,
                           args.profile / f"B{B}" if args.profile else None, with_hlo=i == 0)
-        print(f"| {B} | {row['compile_s']:.0f} | {row['call_s']:.3f} | {row['clips_per_s']:.2f} | "
-              f"{row['clips_per_s'] / baseline:.2f}x |", flush=True)
+        ratio = f"{row['clips_per_s'] / baseline:.2f}x" if args.baseline else "not run"
+        print(f"| {B} | {row['compile_s']:.0f} | {row['call_s']:.3f} | {row['clips_per_s']:.2f} | {ratio} |",
+              flush=True)
     if args.disk_clips > 0:
         stats = disk_rate(Path(args.dir), args.disk_clips)
         print(f"from disk, score_batch: {stats.scored} clips in {stats.wall_s:.1f} s = "
