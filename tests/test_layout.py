@@ -201,3 +201,25 @@ def test_pyproject_ships_every_subpackage_and_the_calibrations():
     assert set(setuptools["packages"]) == packages
     assert list((PACKAGE / "calibration").glob("*.json"))
     assert setuptools["package-data"]["sgc_jax.calibration"] == ["*.json"]
+
+
+# issue 39's bar for a function a newcomer reads at once
+MAX_FUNCTION_LINES = 80
+MAX_PARAMETERS = 12
+
+
+def test_no_function_is_longer_than_80_lines_or_takes_more_than_12_parameters():
+    """Lines from ``def`` to the last line of the body; parameters counted without ``self``/``cls``,
+    ``*args`` and ``**kwargs`` as one each."""
+    too_big = []
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            args = node.args
+            params = [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg]
+            params = [p for p in params if p is not None and p.arg not in ("self", "cls")]
+            lines = node.end_lineno - node.lineno + 1
+            if lines > MAX_FUNCTION_LINES or len(params) > MAX_PARAMETERS:
+                too_big.append(f"{name}:{node.lineno} {node.name}: {lines} lines, {len(params)} parameters")
+    assert not too_big, "\n".join(too_big)
