@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from ..calibration import COMPONENTS
+from ..calibration.interval import INTERVAL_LEVEL
 from .parquet import is_parquet, read_parquet_text, write_parquet
 
 # Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
@@ -131,10 +132,10 @@ COLUMN_UNITS = {
 }
 
 
-_BASE_COLUMN = {**{floor: floor.removesuffix("_floor") for floor in (*FLOOR_COLUMNS, "sgc_floor")},
-                **dict.fromkeys(INTERVAL_COLUMNS, "sgc")}
-COLUMN_UNITS = {compat: {**units, **{name: units[base] for name, base in _BASE_COLUMN.items()}}
-                for compat, units in COLUMN_UNITS.items()}  # a floor or bound has its component's unit
+_BASE_COLUMN = {floor: floor.removesuffix("_floor") for floor in (*FLOOR_COLUMNS, "sgc_floor")}
+COLUMN_UNITS = {compat: {**units, **{name: units[base] for name, base in _BASE_COLUMN.items()},
+                         **dict.fromkeys(INTERVAL_COLUMNS, f"{INTERVAL_LEVEL:.0%} interval")}
+                for compat, units in COLUMN_UNITS.items()}  # a floor has its component's unit
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str], units: dict[str, str] | None = None) -> str:

@@ -290,8 +290,9 @@ class BatchResult:
                  for c in self.clips]
         return BatchResult(clips, calibration)
 
-    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *COMPONENTS)) -> str:
-        """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4)."""
+    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS)) -> str:
+        """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4):
+        the score, its 90 % interval over tracker noise (§5.6) and the components."""
         compats = {c.compat for c in self.clips if c.compat}
         units = COLUMN_UNITS[compats.pop()] if len(compats) == 1 else None
         return format_table(self.to_records(), columns, units)
