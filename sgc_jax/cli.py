@@ -498,7 +498,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def _register_calibrate(sub) -> None:
     cal = sub.add_parser("calibrate", help="fit a calibration (mu, sigma, z bounds, PC1 weights) on scores CSVs")
-    cal.add_argument("scores", nargs="+", help="per-clip CSVs from `sgc-jax score --out`")
+    cal.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
                            help="fit on clips, or on per-group means (the paper's way)")
@@ -516,7 +516,7 @@ def _register_calibrate(sub) -> None:
 
 def _register_rescore(sub) -> None:
     res = sub.add_parser("rescore", help="recompute sgc of scores CSVs under another calibration (no geometry)")
-    res.add_argument("scores", nargs="+", help="per-clip CSVs from `sgc-jax score --out`")
+    res.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
     res.add_argument("--calibration", required=True, help="shipped calibration name or a calibration JSON file")
     res.add_argument("--out", help="re-scored CSV (default: print the table)")
     res.set_defaults(func=cmd_rescore)
@@ -524,11 +524,11 @@ def _register_rescore(sub) -> None:
 
 def _register_compare(sub) -> None:
     cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files")
-    cmp_.add_argument("scores", nargs="+", help="per-clip CSVs (read together as one corpus)")
+    cmp_.add_argument("scores", nargs="+", help="per-clip tables, CSV or .parquet (read together as one corpus)")
     cmp_.add_argument("--by", choices=("group", "clip"), default="group",
                       help="one row per group (default) or per clip")
     cmp_.add_argument("--column", default="sgc", help="score column to summarise (default: sgc)")
-    cmp_.add_argument("--against", nargs="+", help="other per-clip CSVs: rank agreement per clip or group mean")
+    cmp_.add_argument("--against", nargs="+", help="other per-clip tables: rank agreement per clip or group mean")
     cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI")
     cmp_.add_argument("--seed", type=int, default=0, help="bootstrap seed")
     cmp_.add_argument("--out", help="write the table as CSV")
