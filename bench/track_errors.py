@@ -2,7 +2,7 @@
 ``../shared/realdata/`` scored with its own tracks and with frame-i positions built from its ground
 truth, under the default config and calibration.
 
-    python bench/track_errors.py [--dir ../shared/realdata] [--seed 0]
+    python bench/track_errors.py [--dir ../shared/realdata] [--seed 0] [--scale-fits]
 
 Every variant keeps the clip's frame i-1 positions and its usable tracks that have a ground truth
 (valid depth at frame i-1's floor pixel, in front of camera i); per pair, with e = real - exact:
@@ -16,7 +16,10 @@ Every variant keeps the clip's frame i-1 positions and its usable tracks that ha
   outliers included, without their places).
 
 Printed per clip and variant: SGC, its 90 % interval, and each pose component over its floor
-(under ``exact`` both are near zero and their ratio says nothing).
+(under ``exact`` both are near zero and their ratio says nothing). ``--scale-fits`` also prints the
+translation scale s (docs/semantics.md §3.4's equations, an L1 fit by reweighted least squares)
+with R_g held, as the engines fit it, and with a small rotation correction per pair fitted
+together with s (linearised), to see whether that would make s robust on these clips.
 """
 
 from __future__ import annotations
@@ -70,10 +73,62 @@ def variants(clip, rng: np.random.Generator) -> dict:
             for name in VARIANTS}
 
 
+def scale_equations(clip, pair: int, usable: np.ndarray, with_rotation: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (m, 1 or 4) and right-hand sides (m,) of pair ``pair``'s equations a s (+ c . w) = b in
+    pixels (§3.4; w the pair's rotation correction [rad], R_g -> (I + [w]x) R_g)."""
+    H, W = clip.image_size
+    prev, curr = clip.track_prev[pair - 1].astype(np.float64), clip.track_curr[pair - 1].astype(np.float64)
+    col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
+    row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
+    z = clip.depth[pair - 1][row, col].astype(np.float64)
+    X = np.linalg.solve(clip.K[pair - 1], np.column_stack([prev, np.ones(len(prev))]).T).T * z[:, None]
+    U, _, Vt = np.linalg.svd(clip.R_wc[pair] @ clip.R_wc[pair - 1].T)
+    R_g = U @ Vt
+    t_g = clip.t_wc[pair] - R_g @ clip.t_wc[pair - 1]
+    Y = X @ R_g.T
+    n = np.linalg.solve(clip.K[pair], np.column_stack([curr, np.ones(len(curr))]).T).T
+    keep = usable[pair - 1] & np.isfinite(z) & (z > 0) & (Y[:, 2] > 0)
+    Y, n = Y[keep], n[keep]
+    zero = np.zeros(len(Y))
+    d_cross_z = np.stack([Y[:, 1], -Y[:, 0], zero], -1)  # d (w x Y)_z / dw
+    d_cross = (np.stack([zero, Y[:, 2], -Y[:, 1]], -1), np.stack([-Y[:, 2], zero, Y[:, 0]], -1))
+    rows, rhs = [], []
+    for k in (0, 1):
+        px = clip.K[pair][k, k] / Y[:, 2]
+        columns = [(n[:, k] * t_g[2] - t_g[k])[:, None]]
+        if with_rotation:
+            columns.append(n[:, k, None] * d_cross_z - d_cross[k])
+        rows.append(np.concatenate(columns, axis=1) * px[:, None])
+        rhs.append((Y[:, k] - n[:, k] * Y[:, 2]) * px)
+    return np.concatenate(rows), np.concatenate(rhs)
+
+
+def fitted_scale(clip, with_rotation: bool) -> float:
+    """s by the L1 fit of every pair's equations (iteratively reweighted least squares), R_g held
+    or corrected per pair."""
+    usable = clip.usable_tracks(SGCConfig().min_track_conf)
+    blocks = [scale_equations(clip, pair, usable, with_rotation) for pair in range(1, clip.n_frames)]
+    width = 1 + 3 * len(blocks) * with_rotation
+    A = np.zeros((sum(len(b) for _, b in blocks), width))
+    b = np.concatenate([rhs for _, rhs in blocks])
+    start = 0
+    for i, (rows, rhs) in enumerate(blocks):
+        A[start:start + len(rhs), 0] = rows[:, 0]
+        if with_rotation:
+            A[start:start + len(rhs), 1 + 3 * i:4 + 3 * i] = rows[:, 1:]
+        start += len(rhs)
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    for _ in range(100):
+        root_w = 1.0 / np.sqrt(np.maximum(np.abs(A @ theta - b), 1e-3))
+        theta = np.linalg.lstsq(A * root_w[:, None], b * root_w, rcond=None)[0]
+    return float(theta[0])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scale-fits", action="store_true")
     args = parser.parse_args()
     paths = sorted(Path(args.dir).glob("*.npz"))
     if not paths:
@@ -87,6 +142,12 @@ def main() -> None:
         ratios = [clip.components[k] / clip.floors[f"{k}_floor"] for k in POSE_COMPONENTS]
         print(f"| {clip.clip_id} | {clip.sgc:.3f} | {clip.sgc_lo:.3f}-{clip.sgc_hi:.3f} | "
               + " | ".join(f"{r:.2f}" for r in ratios) + " |")
+    if args.scale_fits:
+        print("\n| clip | s, the engine's | s, R_g held (this fit) | s, with a rotation correction per pair |")
+        print("|---|---|---|---|")
+        for clip, scored in zip(clips, result.clips):
+            print(f"| {clip.clip_id} | {scored.scale:.3f} | {fitted_scale(clip, False):.3f} | "
+                  f"{fitted_scale(clip, True):.3f} |")
 
 
 if __name__ == "__main__":
