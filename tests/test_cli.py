@@ -60,7 +60,8 @@ def test_synth_and_demo(tmp_path):
     assert proc.returncode == 0 and len(list((tmp_path / "demo").glob("*.npz"))) == 8
     demo = run("demo", "-q")  # the JAX engine: the demo bucket's programs come from the suite's cache
     assert demo.returncode == 0, demo.stderr
-    assert "rigid-a" in demo.stdout and "sgc" in demo.stdout and "(% of D)²" in demo.stdout  # a row of units
+    assert "rigid-a" in demo.stdout and "sgc_lo" in demo.stdout and "(% of D)²" in demo.stdout  # a row of units
+    assert "90% interval" in demo.stdout
     assert "for this run only (--out DIR keeps them)" in demo.stderr
 
 
