@@ -3,6 +3,7 @@
 truth, under the default config and calibration.
 
     python bench/track_errors.py [--dir ../shared/realdata] [--seed 0] [--scale-fits]
+                                 [--lk-windows 7 11 21 31]
 
 Every variant keeps the clip's frame i-1 positions and its usable tracks that have a ground truth
 (valid depth at frame i-1's floor pixel, in front of camera i); per pair, with e = real - exact:
@@ -20,6 +21,9 @@ Printed per clip and variant: SGC, its 90 % interval, and each pose component ov
 translation scale s (docs/semantics.md §3.4's equations, an L1 fit by reweighted least squares)
 with R_g held, as the engines fit it, and with a small rotation correction per pair fitted
 together with s (linearised), to see whether that would make s robust on these clips.
+``--lk-windows W ...`` adds the clip retracked from its frames by pyramidal Lucas-Kanade with W x W
+windows (3 pyramid levels, forward-backward check under 0.5 px) from the same frame i-1 positions:
+the same tracker with more or less overlap between neighbouring tracks' windows.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
@@ -71,6 +76,20 @@ def variants(clip, rng: np.random.Generator) -> dict:
     return {name: dataclasses.replace(clip, clip_id=f"{clip.clip_id}/{name}", track_vis=vis,
                                       track_curr=curr[name].astype(np.float32))
             for name in VARIANTS}
+
+
+def retracked(clip, window: int):
+    """The clip with frame-i positions from pyramidal LK (``window`` px square windows) on its frames."""
+    gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in clip.frames]
+    curr, vis = clip.track_curr.copy(), clip.track_vis.copy()
+    lk = {"winSize": (window, window), "maxLevel": 3}
+    for i in range(clip.n_pairs):
+        start = clip.track_prev[i].astype(np.float32).reshape(-1, 1, 2)
+        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[i], gray[i + 1], start, None, **lk)
+        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[i + 1], gray[i], ahead, None, **lk)
+        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < 0.5
+        curr[i], vis[i] = ahead[:, 0], vis[i] & (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
+    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}/lk{window}", track_curr=curr, track_vis=vis)
 
 
 def scale_equations(clip, pair: int, usable: np.ndarray, with_rotation: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -129,19 +148,24 @@ def main() -> None:
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--scale-fits", action="store_true")
+    parser.add_argument("--lk-windows", type=int, nargs="*", default=[])
     args = parser.parse_args()
     paths = sorted(Path(args.dir).glob("*.npz"))
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
     rng = np.random.default_rng(args.seed)
-    clips = [c for p in paths for c in variants(load_clip(str(p)), rng).values()]
+    clips = []
+    for path in paths:
+        clip = load_clip(str(path))
+        clips += [*variants(clip, rng).values(), *(retracked(clip, w) for w in args.lk_windows)]
     result = score_batch(clips, progress=False)
-    print("| clip | SGC | 90 % interval | " + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " |")
-    print("|---|---|---|" + "---|" * len(POSE_COMPONENTS))
+    print("| clip | tracks per pair | SGC | 90 % interval | "
+          + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " |")
+    print("|---|---|---|---|" + "---|" * len(POSE_COMPONENTS))
     for clip in result.clips:
         ratios = [clip.components[k] / clip.floors[f"{k}_floor"] for k in POSE_COMPONENTS]
-        print(f"| {clip.clip_id} | {clip.sgc:.3f} | {clip.sgc_lo:.3f}-{clip.sgc_hi:.3f} | "
-              + " | ".join(f"{r:.2f}" for r in ratios) + " |")
+        print(f"| {clip.clip_id} | {clip.pairs.n_tracks.mean():.0f} | {clip.sgc:.3f} | "
+              f"{clip.sgc_lo:.3f}-{clip.sgc_hi:.3f} | " + " | ".join(f"{r:.2f}" for r in ratios) + " |")
     if args.scale_fits:
         print("\n| clip | s, the engine's | s, R_g held (this fit) | s, with a rotation correction per pair |")
         print("|---|---|---|---|")
