@@ -277,6 +277,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from .io.tables import INTERVAL_COLUMNS
     from .research.synth import demo_claims, write_demo_corpus
     from .scoring.api import score_batch
 
@@ -287,7 +288,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         where = f"in {out_dir}" if args.out else "for this run only (--out DIR keeps them)"
         print(f"synthesised {len(paths)} demo clips {where}", file=sys.stderr)
         result = score_batch(out_dir, engine=args.engine, progress=not args.quiet)
-    print(result.table(("clip_id", "group", "status", "sgc", "sgc_lo", "sgc_hi", *COMPONENTS, "n_pairs_scored")))
+    print(result.table(("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, "n_pairs_scored")))
     print(_summary_line(result), file=sys.stderr)
     print("lower SGC = more consistent (units and calibration: docs/semantics.md §4-5); in this corpus:",
           file=sys.stderr)
