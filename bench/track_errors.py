@@ -36,27 +36,32 @@ import cv2
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
+from sgc_jax.engines.reference import back_project, global_relative_pose, project
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 VARIANTS = ("real", "exact", "iid", "shuffled")
 
 
-def exact_positions(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth frame-i positions (P, 2) of pair ``pair``'s tracks, and where they exist (P,)."""
+def points_prev(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every track of pair ``pair`` back-projected from frame i-1's depth at its floor pixel (X (P, 3),
+    camera i-1; docs/semantics.md §3.2 step 3), and where that depth is valid (P,)."""
     H, W = clip.image_size
     prev = clip.track_prev[pair - 1].astype(np.float64)
     col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
     row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
-    z = clip.depth[pair - 1][row, col].astype(np.float64)
-    rays = np.linalg.solve(clip.K[pair - 1], np.column_stack([prev, np.ones(len(prev))]).T).T
-    X = rays * z[:, None]
-    R = clip.R_wc[pair] @ clip.R_wc[pair - 1].T
-    t = clip.t_wc[pair] - R @ clip.t_wc[pair - 1]
+    Z = clip.depth[pair - 1][row, col].astype(np.float64)
+    valid = np.isfinite(Z) & (Z > 0)
+    return back_project(clip.K[pair - 1], prev, np.where(valid, Z, 1.0)), valid
+
+
+def exact_positions(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth frame-i positions (P, 2) of pair ``pair``'s tracks, and where they exist (P,)."""
+    X, valid = points_prev(clip, pair)
+    R, t = global_relative_pose(clip, pair, SGCConfig())
     Y = X @ R.T + t
-    front = np.isfinite(z) & (z > 0) & (Y[:, 2] > 1e-6)
-    proj = (np.where(front[:, None], Y, 1.0) / np.where(front, Y[:, 2], 1.0)[:, None]) @ clip.K[pair].T
-    return proj[:, :2], front
+    front = valid & (Y[:, 2] > 1e-6)
+    return project(clip.K[pair], Y), front
 
 
 def variants(clip, rng: np.random.Generator) -> dict:
@@ -95,18 +100,12 @@ def retracked(clip, window: int):
 def scale_equations(clip, pair: int, usable: np.ndarray, with_rotation: bool) -> tuple[np.ndarray, np.ndarray]:
     """Rows (m, 1 or 4) and right-hand sides (m,) of pair ``pair``'s equations a s (+ c . w) = b in
     pixels (§3.4; w the pair's rotation correction [rad], R_g -> (I + [w]x) R_g)."""
-    H, W = clip.image_size
-    prev, curr = clip.track_prev[pair - 1].astype(np.float64), clip.track_curr[pair - 1].astype(np.float64)
-    col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
-    row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
-    z = clip.depth[pair - 1][row, col].astype(np.float64)
-    X = np.linalg.solve(clip.K[pair - 1], np.column_stack([prev, np.ones(len(prev))]).T).T * z[:, None]
-    U, _, Vt = np.linalg.svd(clip.R_wc[pair] @ clip.R_wc[pair - 1].T)
-    R_g = U @ Vt
-    t_g = clip.t_wc[pair] - R_g @ clip.t_wc[pair - 1]
+    X, valid = points_prev(clip, pair)
+    R_g, t_g = global_relative_pose(clip, pair, SGCConfig())
     Y = X @ R_g.T
-    n = np.linalg.solve(clip.K[pair], np.column_stack([curr, np.ones(len(curr))]).T).T
-    keep = usable[pair - 1] & np.isfinite(z) & (z > 0) & (Y[:, 2] > 0)
+    curr = clip.track_curr[pair - 1].astype(np.float64)
+    n = back_project(clip.K[pair], curr, np.ones(len(curr)))  # K^-1 (u, v, 1)
+    keep = usable[pair - 1] & valid & (Y[:, 2] > 0)
     Y, n = Y[keep], n[keep]
     zero = np.zeros(len(Y))
     d_cross_z = np.stack([Y[:, 1], -Y[:, 0], zero], -1)  # d (w x Y)_z / dw
