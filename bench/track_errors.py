@@ -3,7 +3,7 @@
 truth, under the default config and calibration.
 
     python bench/track_errors.py [--dir ../shared/realdata] [--seed 0] [--scale-fits]
-                                 [--lk-windows 7 11 21 31]
+                                 [--lk-windows 7 11 21 31] [--coherence]
 
 Every variant keeps the clip's frame i-1 positions and its usable tracks that have a ground truth
 (valid depth at frame i-1's floor pixel, in front of camera i); per pair, with e = real - exact:
@@ -24,6 +24,10 @@ together with s (linearised), to see whether that would make s robust on these c
 ``--lk-windows W ...`` adds the clip retracked from its frames by pyramidal Lucas-Kanade with W x W
 windows (3 pyramid levels, forward-backward check under 0.5 px) from the same frame i-1 positions:
 the same tracker with more or less overlap between neighbouring tracks' windows.
+``--coherence`` prints, instead of scores, how e is shared: between two tracks of a pair by their
+distance in frame i-1, and at one scene point between consecutive pairs; for the real clips and
+for a synthetic scene of their size under ``warp``, ``squeeze`` and ``depth_warp`` at 0.25 (there e
+is the perturbation's own displacement: the synthetic tracks are exact).
 """
 
 from __future__ import annotations
@@ -34,13 +38,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.engines.reference import back_project, global_relative_pose, project
+from sgc_jax.research.perturb import perturb_clip
+from sgc_jax.research.synth import synth_clip
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 VARIANTS = ("real", "exact", "iid", "shuffled")
+DISTANCE_BINS_PX = (0, 8, 32, 64, 128, np.inf)
+CLIP_ERROR_PX = 5.0  # e clipped per axis: tartan_000080's 37 px failures would swamp the sums
+SAME_POINT_PX = 1.5  # a pair's track starts at the scene point another ended at (frame i positions)
 
 
 def points_prev(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
@@ -142,16 +152,90 @@ def fitted_scale(clip, with_rotation: bool) -> float:
     return float(theta[0])
 
 
+# ----------------------------------------------------------------------------- coherence
+
+
+@dataclasses.dataclass
+class PairErrors:
+    """One pair's usable tracks with a ground truth: frame i-1 positions, exact frame-i positions
+    (P, 2) and e = frame-i position - exact, less its median over the pair, clipped [px]."""
+
+    prev: np.ndarray
+    exact: np.ndarray
+    e: np.ndarray
+
+
+def pair_errors(clip) -> list[PairErrors]:
+    usable = clip.usable_tracks(SGCConfig().min_track_conf)
+    out = []
+    for pair in range(1, clip.n_frames):
+        exact, front = exact_positions(clip, pair)
+        keep = usable[pair - 1] & front
+        e = clip.track_curr[pair - 1][keep].astype(np.float64) - exact[keep]
+        e = np.clip(e - np.median(e, axis=0), -CLIP_ERROR_PX, CLIP_ERROR_PX)
+        out.append(PairErrors(clip.track_prev[pair - 1][keep].astype(np.float64), exact[keep], e))
+    return out
+
+
+def pooled_correlation(u: np.ndarray, w: np.ndarray) -> float:
+    """sum u.w / sqrt(sum |u|^2 sum |w|^2) over rows of (m, 2) error vectors: the share of their
+    variance two sets of errors have in common (1: equal, 0: unrelated)."""
+    return float(np.sum(u * w) / np.sqrt(np.sum(u * u) * np.sum(w * w)))
+
+
+def correlation_by_distance(errors: list[PairErrors]) -> np.ndarray:
+    """(bins,) median over pairs of the pooled correlation of two tracks' e, by their distance in
+    frame i-1 (DISTANCE_BINS_PX)."""
+    per_pair = []
+    for pair in errors:
+        i, j = np.triu_indices(len(pair.e), 1)
+        distance = np.linalg.norm(pair.prev[i] - pair.prev[j], axis=-1)
+        per_pair.append([pooled_correlation(pair.e[i][m], pair.e[j][m]) if (m := (distance >= lo) & (distance < hi)).any()
+                         else np.nan for lo, hi in zip(DISTANCE_BINS_PX[:-1], DISTANCE_BINS_PX[1:])])
+    return np.nanmedian(np.array(per_pair), axis=0)
+
+
+def correlation_over_time(errors: list[PairErrors]) -> tuple[float, int]:
+    """The pooled correlation of e at one scene point in consecutive pairs (a track of pair i+1
+    starting within SAME_POINT_PX of where pair i's track truly ended), and how many such points."""
+    now, after = [], []
+    for first, second in zip(errors[:-1], errors[1:]):
+        distance, index = cKDTree(second.prev).query(first.exact, distance_upper_bound=SAME_POINT_PX)
+        found = np.isfinite(distance)
+        now.append(first.e[found])
+        after.append(second.e[index[found]])
+    now, after = np.concatenate(now), np.concatenate(after)
+    return pooled_correlation(now, after), len(now)
+
+
+def print_coherence(clips: list) -> None:
+    H, W = clips[0].image_size
+    scene = synth_clip(seed=1, height=H, width=W, n_tracks=2048, n_frames=8)
+    clips = clips + [perturb_clip(scene, kind, 0.25) for kind in ("warp", "squeeze", "depth_warp")]
+    bins = [f"{lo:g}-{hi:g} px" for lo, hi in zip(DISTANCE_BINS_PX[:-1], DISTANCE_BINS_PX[1:])]
+    print("| clip | per-axis RMS of e, px | " + " | ".join(bins) + " | next pair, same point (points) |")
+    print("|---|---|" + "---|" * len(bins) + "---|")
+    for clip in clips:
+        errors = pair_errors(clip)
+        rms = np.sqrt(np.mean(np.concatenate([pair.e for pair in errors]) ** 2))
+        over_time, points = correlation_over_time(errors)
+        print(f"| {clip.clip_id} | {rms:.2f} | " + " | ".join(f"{c:.2f}" for c in correlation_by_distance(errors))
+              + f" | {over_time:.2f} ({points}) |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--scale-fits", action="store_true")
     parser.add_argument("--lk-windows", type=int, nargs="*", default=[])
+    parser.add_argument("--coherence", action="store_true")
     args = parser.parse_args()
     paths = sorted(Path(args.dir).glob("*.npz"))
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
+    if args.coherence:
+        return print_coherence([load_clip(str(path)) for path in paths])
     rng = np.random.default_rng(args.seed)
     clips = []
     for path in paths:
