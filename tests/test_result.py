@@ -26,7 +26,7 @@ from sgc_jax import (
 )
 from sgc_jax.io.tables import read_scores, write_scores
 from sgc_jax.research.synth import synth_clip
-from sgc_jax.scoring.result import camera_dynamics, rescore_records
+from sgc_jax.scoring.result import camera_dynamics, clip_from_row, rescore_records
 
 
 def clip_result(clip_id, ecd_trans, ecd_rot, group="g", status="ok", components=None):
@@ -110,6 +110,18 @@ def test_rescoring_uses_stored_components_not_geometry(scored, tmp_path, monkeyp
     rows = rescore_records(read_scores(scored.to_csv(tmp_path / "s.csv")), new)
     np.testing.assert_allclose([r["sgc"] for r in rows], expected, rtol=1e-12)
     np.testing.assert_allclose([r["ecd"] for r in rows], scored.ecd, rtol=1e-12)
+
+
+def test_rescoring_a_resumed_clip_uses_its_stored_components(scored, tmp_path, monkeypatch):
+    new = calibrate(scored, name="tiny")
+    forbid_geometry(monkeypatch)
+    resumed = BatchResult([clip_from_row({k: str(v) for k, v in row.items()})
+                           for row in read_scores(scored.to_csv(tmp_path / "s.csv"))], scored.calibration)
+    assert all(c.pairs is None for c in resumed.clips)  # as a resumed run keeps them
+    rescored = resumed.rescore(new)
+    np.testing.assert_allclose(rescored.sgc, scored.rescore(new).sgc, rtol=1e-12)
+    assert not np.allclose(rescored.sgc, scored.sgc)
+    assert all(math.isnan(c.sgc_lo) and c.run_id == "" for c in rescored.clips)  # the interval needs the pairs
 
 
 def test_rescore_by_name_restores_the_shipped_scores(scored, monkeypatch):

@@ -157,6 +157,20 @@ def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "
     return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin, compat=compat)
 
 
+def _rescored(clip: ClipResult, calibration: Calibration) -> ClipResult:
+    if clip.pairs is not None:
+        return dataclasses.replace(
+            summarize_clip(clip.clip_id, clip.pairs, calibration, group=clip.group, engine=clip.engine,
+                           mask_source=clip.mask_source, origin=clip.origin, compat=clip.compat),
+            input_sha256=clip.input_sha256)
+    if clip.status == "error":
+        return clip
+    nan = float("nan")
+    return dataclasses.replace(clip, sgc=float(sgc_score(clip.components, calibration, floors=clip.floors)),
+                               sgc_lo=nan, sgc_hi=nan, sgc_floor=float(floor_score(clip.floors, calibration)),
+                               run_id="")
+
+
 # ----------------------------------------------------------------------------- batch table
 
 
@@ -279,16 +293,13 @@ class BatchResult:
 
     def rescore(self, calibration: Calibration | str) -> "BatchResult":
         """The same components under another calibration (no geometry is recomputed: the score
-        is a function of the stored per-pair components)."""
+        is a function of the stored per-pair components). A clip kept without its pairs (one a
+        resumed run read back) is rescored from its per-clip components, as ``rescore_records``
+        does: its interval becomes NaN."""
         calibration = Calibration.load(calibration)
         for c in self.clips:
             calibration.check_compat(c.compat, f"the scores of clip {c.clip_id!r}")
-        clips = [dataclasses.replace(summarize_clip(c.clip_id, c.pairs, calibration, group=c.group, engine=c.engine,
-                                                    mask_source=c.mask_source, origin=c.origin, compat=c.compat),
-                                     input_sha256=c.input_sha256)
-                 if c.pairs is not None else c
-                 for c in self.clips]
-        return BatchResult(clips, calibration)
+        return BatchResult([_rescored(c, calibration) for c in self.clips], calibration)
 
     def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS)) -> str:
         """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4):
