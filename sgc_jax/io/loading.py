@@ -11,8 +11,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import glob
+import itertools
 import json
 import os
+import threading
 from pathlib import Path
 from typing import Any, Callable, Container, Iterable, Iterator, Mapping
 
@@ -517,16 +519,34 @@ def entries_from_file(path: Path | str, config: SGCConfig) -> list[ClipEntry]:
         layout = batch_layout({k: shape for k, (shape, _) in headers.items()}, _read(path, stem, BOOKKEEPING), stem)
     except ClipFormatError as exc:
         return [ClipEntry(stem, origin, _failing(exc), config, origin)]
+    listing = next(_LISTINGS)
     return [ClipEntry(layout.ids[b], f"{origin}[{b}]",
-                      functools.partial(_read_batch_member, path, b, layout.ids[b], stem), config, origin,
-                      read_for_scoring=functools.partial(_read_batch_member, path, b, layout.ids[b], stem, PLOTS_ONLY))
+                      functools.partial(_read_batch_member, path, listing, b, layout.ids[b], stem), config, origin,
+                      read_for_scoring=functools.partial(_read_batch_member, path, listing, b, layout.ids[b], stem,
+                                                         PLOTS_ONLY))
             for b in range(len(layout))]
 
 
-def _read_batch_member(path: Path | str, b: int, clip_id: str, stem: str,
+# A batch file's members are read one by one, each from the arrays of the whole file: the arrays of
+# the batch read last are kept (one per process), so B members decompress the file once, not B
+# times. Keyed by the listing that made the entries, so a file rewritten and listed again is read again.
+_LISTINGS = itertools.count()
+_LAST_BATCH: dict[tuple, dict[str, Any]] = {}
+_LAST_BATCH_LOCK = threading.Lock()
+
+
+def _read_batch_member(path: Path | str, listing: int, b: int, clip_id: str, stem: str,
                        shape_only: Container[str] = ()) -> dict[str, Any]:
-    arrays = _read(path, clip_id, shape_only=shape_only)
-    return _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
+    key = (os.fspath(path), listing, tuple(sorted(shape_only)))
+    with _LAST_BATCH_LOCK:
+        arrays = _LAST_BATCH.get(key)
+    if arrays is None:
+        arrays = _read(path, clip_id, shape_only=shape_only)
+        with _LAST_BATCH_LOCK:
+            _LAST_BATCH.clear()
+            _LAST_BATCH[key] = arrays
+    member = _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
+    return {name: np.array(a) for name, a in member.items()}  # copies: the kept arrays serve the other members
 
 
 def _entries_from_mapping(source: Mapping[str, Any], config: SGCConfig) -> list[ClipEntry]:
