@@ -17,6 +17,7 @@ from typing import Any, Iterable, Sequence
 
 from .calibration import COMPONENTS
 from .config import SGCConfig, cli_flag, renamed_fields
+from .io.extras import MissingExtraError
 from .version import __version__
 
 EXIT_OK = 0  # every input processed
@@ -298,11 +299,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _register_score(sub) -> None:
-    score = sub.add_parser("score", help="score clip / batch .npz files, directories or globs")
-    score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
+    score = sub.add_parser("score", help="score clip / batch .npz files, directories, globs or URLs",
+                           description="Score every clip: SGC, its interval and components per clip (docs/semantics.md §3-§5).")
+    score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
     output = score.add_argument_group("output")
     output.add_argument("--out", help="per-clip table, CSV or .parquet (columns: docs/semantics.md §4)")
-    output.add_argument("--pairs", help="per-pair table, CSV or .parquet")
+    output.add_argument("--pairs", help="per-pair table, CSV or .parquet (docs/semantics.md §4); without --out, the "
+                        "per-clip table goes to scores.csv beside it")
     score.add_argument("--devices", type=int, default=0, metavar="N",
                        help="JAX engine: spread the clips over the first N local devices (default 0: all of them)")
     score.add_argument("--lanes", type=int, default=0, metavar="N",
@@ -340,7 +343,7 @@ def _register_demo(sub) -> None:
 
 def _register_synth(sub) -> None:
     synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files")
-    synth.add_argument("--out", required=True, help="output directory")
+    synth.add_argument("--out", required=True, help="(required) output directory")
     synth.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
     synth.set_defaults(func=cmd_synth)
 
@@ -502,23 +505,27 @@ def _register_calibrate(sub) -> None:
     cal.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
-                           help="fit on clips, or on per-group means (the paper's way)")
-    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (0: skip; above the number of clips: leave-one-out)")
-    algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed")
+                           help="fit on clips (default), or on per-group means (the paper's way; docs/semantics.md §5.5)")
+    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (default 5; 0: skip; above the number of clips: leave-one-out)")
+    algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed (default 0)")
     algorithm.add_argument("--floor-band", type=float, default=0.0,
                            help="fit an excess calibration: the pose components above this many times their noise "
-                                "floors, as sgc-spec-2026 (1.25; docs/semantics.md §5.1, §5.5); 0: as they are")
+                                "floors (default 0: the components as they are; sgc-spec-2026 was fitted with 1.25; "
+                                "docs/semantics.md §5.1, §5.5)")
     output = cal.add_argument_group("output")
-    output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`)")
+    output.add_argument("--out", help="calibration JSON to write (use with `score --calibration`; without it the "
+                        "calibration is printed, not kept)")
     output.add_argument("--name", default="custom", help="name stored in the calibration")
     output.add_argument("--rescored", help="also write the input rows re-scored with the new calibration")
     cal.set_defaults(func=cmd_calibrate)
 
 
 def _register_rescore(sub) -> None:
-    res = sub.add_parser("rescore", help="recompute sgc of scores CSVs under another calibration (no geometry)")
+    res = sub.add_parser("rescore", help="recompute sgc of scores CSVs under another calibration (no geometry)",
+                         description="Recompute sgc, its interval and sgc_floor from the stored components under "
+                                     "another calibration (docs/semantics.md §5).")
     res.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
-    res.add_argument("--calibration", required=True, help="shipped calibration name or a calibration JSON file")
+    res.add_argument("--calibration", required=True, help="(required) shipped calibration name or a calibration JSON file")
     res.add_argument("--out", help="re-scored CSV (default: print the table)")
     res.set_defaults(func=cmd_rescore)
 
@@ -530,8 +537,8 @@ def _register_compare(sub) -> None:
                       help="one row per group (default) or per clip")
     cmp_.add_argument("--column", default="sgc", help="score column to summarise (default: sgc)")
     cmp_.add_argument("--against", nargs="+", help="other per-clip tables: rank agreement per clip or group mean")
-    cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI")
-    cmp_.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    cmp_.add_argument("--boot", type=int, default=2000, help="bootstrap resamples for the 95%% CI (default 2000)")
+    cmp_.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     cmp_.add_argument("--out", help="write the table as CSV")
     cmp_.add_argument("--plot", help="violins of the column per group, clips coloured by ECD (PNG/PDF; needs matplotlib)")
     cmp_.set_defaults(func=cmd_compare)
@@ -679,15 +686,15 @@ def _register_import(sub) -> None:
 
 def _register_pack(sub) -> None:
     pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (docs/semantics.md §1.3)")
-    pack.add_argument("clips", nargs="+", help="clip .npz files, directories, globs")
-    pack.add_argument("--out", required=True, help="batch .npz to write")
+    pack.add_argument("clips", nargs="+", help="clip .npz files, directories, globs or URLs")
+    pack.add_argument("--out", required=True, help="(required) batch .npz to write")
     pack.add_argument("--skip-errors", action="store_true", help="pack the loadable clips when some fail")
     pack.set_defaults(func=cmd_pack)
 
 
 def _register_validate(sub) -> None:
     val = sub.add_parser("validate", help="dry run: check clip / batch files, one line per problem")
-    val.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
+    val.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
     val.add_argument("-v", "--verbose", action="store_true", help="also print info lines (depth range, mask coverage)")
     val.add_argument("--strict", action="store_true", help="exit non-zero on warnings too")
     val.set_defaults(func=cmd_validate)
@@ -744,7 +751,7 @@ def _register_perturb(sub) -> None:
     p = sub.add_parser("perturb", help="sensitivity study: score clips under perturbations of growing severity",
                        description="Score every clip under every perturbation kind and severity; print the mean "
                                    "SGC and components per kind and severity and Spearman rho vs severity.")
-    p.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs")
+    p.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
     study = p.add_argument_group("study")
     study.add_argument("--kinds", type=_csv_list, default=list(PERTURBATIONS),
                        help=f"comma-separated, from {','.join(PERTURBATIONS + MASK_CORRUPTIONS)} "
@@ -752,7 +759,7 @@ def _register_perturb(sub) -> None:
     study.add_argument("--severities", type=lambda s: _csv_list(s, float), default=[0.0, 0.25, 0.5, 0.75, 1.0],
                        help="comma-separated values in [0, 1] (default: 0,0.25,0.5,0.75,1)")
     study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
-    study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call")
+    study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call (default 256)")
     output = p.add_argument_group("output")
     output.add_argument("--out", help="one row per clip, kind and severity: base, kind, severity, "
                         "the columns of docs/semantics.md §4, rel_change")
@@ -793,7 +800,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except UsageError as exc:
+    except (UsageError, MissingExtraError) as exc:
         print(f"sgc-jax {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -124,3 +124,14 @@ def test_research_commands_report_bad_input_without_traceback(tmp_path):
         assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stderr.startswith("sgc-jax")
     proc = run("rescore", GROUPS_CSV, "--calibration", "no-such-calibration")
     assert proc.returncode == 2 and "no-such-calibration" in proc.stderr
+
+
+def test_a_missing_optional_package_is_a_usage_error_naming_its_extra(scores_csv, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # `import pyarrow` now fails, as without the extra
+    table = tmp_path / "scores.parquet"
+    table.write_bytes(b"PAR1")
+    for args in (["compare", str(table)], ["score", "s3://bucket/clips/"],
+                 ["score", str(scores_csv.parent / "clips"), "--engine", "reference", "--out", str(tmp_path / "s.parquet")]):
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert "sgc-jax[parquet]" in err and "Traceback" not in err and "internal error" not in err, err

@@ -14,6 +14,8 @@ import os
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from .extras import MissingExtraError
+
 ARROW_TYPES = {"text": "string", "int": "int64", "float": "float64"}
 
 
@@ -21,13 +23,14 @@ def is_parquet(path: str | os.PathLike) -> bool:
     return Path(path).suffix.lower() == ".parquet"
 
 
-def _pyarrow():
+def pyarrow_modules():
+    """(pyarrow, pyarrow.parquet); MissingExtraError naming the extra without them."""
     try:
         import pyarrow
         import pyarrow.parquet
     except ImportError:
-        raise ImportError("reading or writing .parquet tables needs pyarrow: pip install 'sgc-jax[parquet]' "
-                          "(or write a .csv)") from None
+        raise MissingExtraError("reading or writing .parquet tables needs pyarrow: pip install 'sgc-jax[parquet]' "
+                                "(or write a .csv)") from None
     return pyarrow, pyarrow.parquet
 
 
@@ -47,7 +50,7 @@ def typed_cell(kind: str, value: Any) -> Any:
 def write_parquet(path: str | os.PathLike, rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
                   kind: Callable[[str], str]) -> Path:
     """Rows as a Parquet file with these columns; ``kind(column)`` is "text", "int" or "float"."""
-    pa, pq = _pyarrow()
+    pa, pq = pyarrow_modules()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     kinds = {c: kind(c) for c in columns}
@@ -65,7 +68,7 @@ def _text(value: Any) -> str:
 
 def read_parquet_text(path: str | os.PathLike) -> tuple[list[str], list[dict[str, str]]]:
     """A Parquet table's column names and rows, each cell as the CSV writer writes it."""
-    _, pq = _pyarrow()
+    _, pq = pyarrow_modules()
     table = pq.read_table(path)
     columns = {name: table.column(name).to_pylist() for name in table.column_names}
     rows = [{name: _text(values[i]) for name, values in columns.items()} for i in range(table.num_rows)]

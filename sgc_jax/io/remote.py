@@ -1,5 +1,5 @@
 """Clip files named by URL (``s3://bucket/clips/``, ``gs://``, ``hdfs://``, ``file:///``), read
-through pyarrow's filesystems (docs/semantics.md §4.2; ``pip install "sgc_jax[parquet]"``, which
+through pyarrow's filesystems (docs/semantics.md §4.2; ``pip install 'sgc-jax[parquet]'``, which
 ``[ray]`` includes). Credentials and regions come from where pyarrow looks for them (for S3 the
 AWS environment variables and files). Only inputs: outputs are local files.
 """
@@ -11,6 +11,8 @@ import glob
 import os
 import posixpath
 from typing import Any, BinaryIO
+
+from .extras import MissingExtraError
 
 
 def is_url(source: str | os.PathLike) -> bool:
@@ -26,7 +28,7 @@ def _filesystem(url: str) -> tuple[Any, str]:
         import pyarrow
         import pyarrow.fs
     except ImportError:
-        raise ImportError(f'{url}: reading clips by URL needs pyarrow: pip install "sgc_jax[parquet]"') from None
+        raise MissingExtraError(f"{url}: reading clips by URL needs pyarrow: pip install 'sgc-jax[parquet]'") from None
     try:
         return pyarrow.fs.FileSystem.from_uri(url)
     except (pyarrow.ArrowException, OSError) as exc:  # an unknown scheme, a malformed URL
@@ -36,9 +38,8 @@ def _filesystem(url: str) -> tuple[Any, str]:
 def list_files(url: str) -> list[str]:
     """The ``.npz`` files a URL names, as URLs: a directory's (sorted by name), the file itself, or
     the matches of a wildcard in its last part. FileNotFoundError when it names nothing."""
-    import pyarrow.fs
-
     fs, path = _filesystem(url)
+    import pyarrow.fs  # there: _filesystem names the extra when pyarrow is missing
     info = fs.get_file_info(path)
     if info.type == pyarrow.fs.FileType.File:
         return [url]
@@ -65,9 +66,8 @@ def open_file(url: str) -> tuple[BinaryIO, int]:
 def version_key(url: str) -> tuple[int, int]:
     """(size in bytes, modification time in ns; 0 where the filesystem keeps none) of ``url``: a
     changed file gets a new key."""
-    import pyarrow.fs
-
     fs, path = _filesystem(url)
+    import pyarrow.fs
     info = fs.get_file_info(path)
     if info.type != pyarrow.fs.FileType.File:
         raise FileNotFoundError(f"no file at {url}")

@@ -12,6 +12,7 @@ from typing import Any, Iterable, Sequence
 
 from ..calibration import COMPONENTS
 from ..calibration.interval import INTERVAL_LEVEL
+from .extras import MissingExtraError
 from .parquet import is_parquet, read_parquet_text, write_parquet
 
 # Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
@@ -166,5 +167,5 @@ def records_frame(records, columns):
     try:
         import pandas as pd
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError("to_pandas needs pandas: pip install pandas") from exc
+        raise MissingExtraError("to_pandas needs pandas: pip install 'sgc-jax[viz]' (or pip install pandas)") from exc
     return pd.DataFrame(list(records), columns=list(columns))

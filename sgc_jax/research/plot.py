@@ -17,6 +17,7 @@ import numpy as np
 
 from ..calibration import COMPONENTS
 from ..codes import REGION_STATUS_NAMES, SCORER_STATUSES
+from ..io.extras import MissingExtraError
 from ..io.tables import COLUMN_UNITS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -43,7 +44,7 @@ def import_pyplot():
     try:
         import matplotlib.pyplot as plt
     except ImportError as exc:
-        raise ImportError("plotting needs matplotlib: pip install 'sgc-jax[viz]' (or pip install matplotlib)") from exc
+        raise MissingExtraError("plotting needs matplotlib: pip install 'sgc-jax[viz]' (or pip install matplotlib)") from exc
     return plt
 
 

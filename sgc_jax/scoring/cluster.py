@@ -17,6 +17,7 @@ import time
 from typing import Any, Iterator
 
 from ..io.clip import ClipFormatError
+from ..io.extras import MissingExtraError
 from ..io.loading import ClipEntry
 from .options import RunOptions
 from .readers import ReaderProcesses, reading_plan
@@ -32,7 +33,7 @@ def connect(address: str | None) -> Any:
     try:
         import ray
     except ImportError:
-        raise ImportError("scoring with Ray needs the ray extra: pip install 'sgc-jax[ray]'") from None
+        raise MissingExtraError("scoring with Ray needs the ray extra: pip install 'sgc-jax[ray]'") from None
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False)
     return ray

@@ -21,7 +21,7 @@ from typing import Any, Iterable, Mapping
 
 from ..calibration import Calibration
 from ..config import SGCConfig
-from ..io.parquet import is_parquet, typed_cell
+from ..io.parquet import is_parquet, pyarrow_modules, typed_cell
 from ..io.remote import is_url, open_file, version_key
 from ..io.tables import CLIP_COLUMNS, PAIR_COLUMNS, read_table_text, write_csv_rows, write_table
 from ..version import __version__
@@ -91,6 +91,8 @@ class _TableFile:
     def __init__(self, path: Path, columns: tuple[str, ...]) -> None:
         self.path, self.columns = path, columns
         self.log = path.with_name(path.name + ".journal.csv") if is_parquet(path) else path
+        if is_parquet(path):
+            pyarrow_modules()  # a missing pyarrow is said before the run, not after it
         self._file = None
 
     def earlier_rows(self) -> list[dict[str, str]]:
