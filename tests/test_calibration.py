@@ -102,6 +102,13 @@ def test_unknown_calibration_name_is_a_clear_error():
 # ----------------------------------------------------------------------------- fitting inputs
 
 
+def test_a_calibration_keyed_excess_is_refused_naming_floor_band():
+    spec = Calibration.load("sgc-spec-2026").to_dict()
+    spec.pop("floor_band")
+    with pytest.raises(ValueError, match="floor_band"):
+        Calibration.from_dict({**spec, "excess": True})
+
+
 def test_dataframe_rows_and_failed_clips():
     pd = pytest.importorskip("pandas")
     rows, matrix, _ = paper_groups()

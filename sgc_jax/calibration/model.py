@@ -13,7 +13,7 @@ from typing import Any, Mapping
 COMPONENTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error")
 LOG1P_COMPONENTS = COMPONENTS[:4]  # variances are log1p-transformed, depth error is used raw
 BUILTIN = ("sgc-spec-2026", "sgc-paper-2026")
-#: The shipped calibration each semantics uses by default (docs/semantics.md §6).
+#: The shipped calibration each semantics uses by default (docs/semantics.md §5.2).
 DEFAULT_CALIBRATION = {"spec": "sgc-spec-2026", "authors": "sgc-paper-2026"}
 #: What each component's number means under each semantics; recorded in calibration JSON.
 UNITS = {
@@ -105,6 +105,9 @@ class Calibration:
         compat = str(data.get("compat", ""))
         if compat and compat not in UNITS:
             raise ValueError(f"calibration compat must be one of {tuple(UNITS)}, got {compat!r}")
+        if "excess" in data:  # the key's first name: read silently as an extra, it would score without floors
+            raise ValueError("calibration key 'excess' is not read: give 'floor_band', the number of noise floors "
+                             "the pose components count above (sgc-spec-2026: 1.25; docs/semantics.md §5.2)")
         band = data.get("floor_band", 0.0)
         if isinstance(band, bool) or not isinstance(band, (int, float)) or not band >= 0:
             raise ValueError(f"calibration key 'floor_band' must be a number >= 0, got {band!r}")
