@@ -109,7 +109,7 @@ def least_squares_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, start: Pose
         H, g = J.T @ J, J.T @ r
         delta = -np.linalg.solve(H + np.diag(damping * (np.diag(H) + 1e-12)), g)
         step = cv2.Rodrigues(delta[:3])[0]
-        R_new, t_new = step @ R, step @ t + delta[3:]
+        R_new, t_new = step @ R, t + delta[3:]  # the Jacobian's perturbation: exp([w]) R X + t + dt
         RX = X @ R_new.T
         Y = RX + t_new
         if np.all(Y[:, 2] > 0):
