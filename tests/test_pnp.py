@@ -5,6 +5,7 @@ Compiled functions are built once at module level and shared across tests (few c
 
 import functools
 
+import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -299,3 +300,19 @@ def test_each_region_is_offered_the_other_regions_pose_that_fits_its_points_best
             rodrigues(poses[j, :3]), poses[j, 3:]), X[member], uv[member], K), 8.0) for j in (0, 1, 2, 4) if j != r}
         np.testing.assert_array_equal(out[r], np.float32(poses[min(costs, key=costs.get)]), err_msg=str(r))
     assert out[1].tolist() == np.float32(poses[0]).tolist()  # the region 5 deg off is offered the right pose
+
+
+def test_reference_least_squares_reaches_the_optimum_in_a_few_steps_when_the_camera_moves_far():
+    """Levenberg-Marquardt near the optimum converges quadratically when each step is the one its
+    Jacobian models."""
+    rng = np.random.default_rng(0)
+    K = np.array([[200.0, 0.0, 80.0], [0.0, 200.0, 60.0], [0.0, 0.0, 1.0]])
+    X = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-1, 1, 60), rng.uniform(2, 4, 60)])
+    R_true, t_true = cv2.Rodrigues(np.array([0.02, -0.03, 0.01]))[0], np.array([1.5, -1.0, 2.0])
+    Y = X @ R_true.T + t_true
+    uv = Y[:, :2] / Y[:, 2:] * K[0, 0] + K[:2, 2] + rng.normal(0.0, 0.5, (60, 2))
+    optimum = reference_pose.least_squares_pose(X, uv, K, reference_pose.Pose(R_true, t_true), steps=1000)
+    off = cv2.Rodrigues(np.radians([3.0, 2.0, 0.0]))[0]
+    fit = reference_pose.least_squares_pose(X, uv, K, reference_pose.Pose(off @ R_true, t_true), steps=5)
+    np.testing.assert_allclose(fit.t, optimum.t, rtol=0, atol=1e-8)  # float64: the optimum to its rounding
+    np.testing.assert_allclose(fit.R, optimum.R, rtol=0, atol=1e-9)
