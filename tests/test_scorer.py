@@ -218,6 +218,16 @@ def test_a_wrong_shape_or_dtype_raises_clip_format_error_at_the_call(scorer, cor
         scorer({k: v for k, v in batch.items() if k != "K"})
 
 
+def test_batch_of_pads_to_a_shape_and_names_a_clip_that_does_not_fit(corpus):
+    batch = batch_of(corpus[:2], shape=(8, 100, 130, 1100))
+    assert batch["depth"].shape == (2, 8, 100, 130) and batch["track_prev"].shape == (2, 7, 1100, 2)
+    assert list(batch["heights"]) == [96, 96] and list(batch["n_tracks"]) == [1024, 1024]
+    with pytest.raises(ClipFormatError, match=f"{corpus[0].clip_id}.*at most the batch shape"):
+        batch_of(corpus[:1], shape=(8, 64, 128, 1024))
+    with pytest.raises(ValueError, match="at least one clip"):
+        batch_of([])
+
+
 # ----------------------------------------------------------------------------- the host's preparation on the device
 
 
@@ -240,7 +250,7 @@ def test_device_median_and_absurd_depth_match_the_hosts():
     positive = np.isfinite(depth) & (depth > 0)
     hi, lo = jax.jit(device_prepare.masked_median)(jnp.asarray(depth), jnp.asarray(positive))
     assert np.float64(hi) + np.float64(lo) == exact_median(depth[positive].copy())
-    valid = jax.jit(device_prepare.without_absurd_depth)(jnp.asarray(depth), jnp.asarray(positive))
+    valid = jax.jit(device_prepare.valid_without_absurd_depth)(jnp.asarray(depth), jnp.asarray(positive))
     host = without_absurd_depth(depth)
     np.testing.assert_array_equal(np.asarray(valid), np.isfinite(host) & (host > 0))
 

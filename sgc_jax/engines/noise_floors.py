@@ -60,7 +60,7 @@ def trimmed_means(values: Any, n: Any, xp=np) -> Any:
     return xp.where(count > 0, xp.sum(xp.where(kept, values, 0.0), axis=-1) / xp.maximum(count, 1), mean)
 
 
-def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, components: dict[str, Any],
+def floors_of(region_status: Any, rot_noise_deg: Any, trans_noise_percent: Any, components: dict[str, Any],
               xp=np) -> dict[str, Any]:
     """FLOOR_COLUMNS -> (...,) from each pair's region statuses, RMS rotation noise [deg] and
     translation noise [% of D] of its poses (..., k; ``region_rot_noise``, ``region_trans_noise``),
@@ -74,14 +74,14 @@ def floors_of(region_status: Any, rot_std: Any, trans_std_percent: Any, componen
     spread = 1.0 - 1.0 / xp.maximum(n, 1)  # E[mean_j |e_j - mean e|^2] = (1 - 1/n) mean_j sigma_j^2
     # the trim has no closed form: the accepted poses first, each with its column of seeded draws
     order = xp.argsort(xp.where(accepted, 0, k) + xp.arange(k), axis=-1)
-    rot_sorted = xp.take_along_axis(rot_std, order, axis=-1)[..., None, :]  # (..., 1, k)
+    rot_sorted = xp.take_along_axis(rot_noise_deg, order, axis=-1)[..., None, :]  # (..., 1, k)
     first_n = (xp.arange(k) < n[..., None])[..., None, :]
     draws = xp.where(first_n, xp.asarray(unit_squares(k)) * rot_sorted ** 2, np.nan)  # (..., draws, k)
     trimmed = xp.mean(trimmed_means(draws, n[..., None], xp), axis=-1)
-    floors = {"local_rot_var_floor": spread * mean_square(rot_std),
-              "local_trans_var_floor": spread * mean_square(trans_std_percent),
+    floors = {"local_rot_var_floor": spread * mean_square(rot_noise_deg),
+              "local_trans_var_floor": spread * mean_square(trans_noise_percent),
               "global_rot_var_floor": trimmed,
-              "global_trans_var_floor": mean_square(trans_std_percent)}
+              "global_trans_var_floor": mean_square(trans_noise_percent)}
     return {name: xp.where((n > 0) & ~xp.isnan(components[name.removesuffix("_floor")]), value, np.nan)
             for name, value in floors.items()}
 

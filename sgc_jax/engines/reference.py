@@ -1,12 +1,15 @@
 """Plain NumPy + OpenCV reference scorer of docs/semantics.md §3 (§7.2; the oracle and the speed baseline).
 
-Readable and faithful rather than fast: loops over pairs and regions, ``cv2.solvePnPRansac``
-with the authors' settings (SOLVEPNP_ITERATIVE, 100 iterations, 8 px, confidence 0.99) for the
-local poses. OpenCV's adaptive RANSAC stops early and now and then accepts a wrong pose on small
-or far regions; such one-pair spikes stay visible in the per-pair diagnostics on purpose.
+Readable and faithful rather than fast: loops over pairs and regions. Local poses under
+``compat="spec"`` come from ``reference_pose.search_region`` (P3P starts, the local optimum and
+the noise-level cut of §3.2); under ``compat="authors"`` from ``cv2.solvePnPRansac`` with the
+authors' settings (SOLVEPNP_ITERATIVE, 100 iterations, 8 px, confidence 0.99), whose adaptive
+RANSAC now and then accepts a wrong pose on small or far regions, left visible in the per-pair
+diagnostics as the authors' code leaves it.
 
 Conventions: poses map camera i-1 coordinates to camera i coordinates (x_i = R x_{i-1} + t);
-rotations in degrees in every output; depth and local translations in depth units.
+rotations in degrees in every output; depth and local translations in units of D under "spec"
+(``units.in_depth_units``), in the input's depth units under "authors".
 """
 
 from __future__ import annotations
@@ -121,19 +124,20 @@ def depth_regions(depth: np.ndarray, region_mask: np.ndarray, config: SGCConfig,
     labels = np.zeros(depth.shape, np.int32)
     cluster = kmeans_1d(depth[region_mask], config.k_seg if layers is None else layers, config.kmeans_bins)
     counts = np.bincount(cluster, minlength=config.k_seg)
-    kept = np.flatnonzero(counts >= config.min_region_pixels)
+    kept = np.flatnonzero(counts >= max(config.min_region_pixels, 1))  # never an empty cluster, as the JAX engine
     renumber = np.zeros(config.k_seg, np.int32)
     renumber[kept] = np.arange(1, kept.size + 1)
     labels[region_mask] = renumber[cluster]
     return labels
 
 
-def pair_region_mask(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
-    """S_i: static and valid depth in frame ``pair`` (authors: invalid static depth too)."""
-    static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+def pair_region_mask(clip: Clip, frame: int, config: SGCConfig) -> np.ndarray:
+    """S_i: static and valid depth in frame ``frame`` (the pair's region frame; authors: invalid
+    static depth too)."""
+    static = clip.static_mask[frame] if config.use_mos else np.ones(clip.image_size, bool)
     if config.compat == "authors":
         return static
-    return static & valid_depth(clip.depth[pair])
+    return static & valid_depth(clip.depth[frame])
 
 
 def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> int:
@@ -146,11 +150,11 @@ def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> i
     return int(np.clip(on_mask // config.tracks_per_layer, 1, config.k_seg))
 
 
-def partition_regions(clip: Clip, pair: int, config: SGCConfig, layers: int | None = None) -> np.ndarray:
-    """Region label map (H, W) of frame ``pair`` for the configured partition; ``layers``: depth
+def partition_regions(clip: Clip, frame: int, config: SGCConfig, layers: int | None = None) -> np.ndarray:
+    """Region label map (H, W) of frame ``frame`` for the configured partition; ``layers``: depth
     layers (partition ``depth``; default k_seg)."""
-    region_mask = pair_region_mask(clip, pair, config)
-    depth = np.where(valid_depth(clip.depth[pair]), clip.depth[pair], 0.0)
+    region_mask = pair_region_mask(clip, frame, config)
+    depth = np.where(valid_depth(clip.depth[frame]), clip.depth[frame], 0.0)
     if config.partition == "grid":
         return grid_regions(region_mask, config)
     if config.partition == "depth+spatial":

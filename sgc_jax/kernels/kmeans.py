@@ -180,6 +180,13 @@ def dp_step(prev, sums: Histogram, plan: SearchPlan, bins):
     return final.best, final.first
 
 
+class Backtrack(NamedTuple):
+    """The backward pass's state: the last bin of the cluster being placed, each bin's cluster so far."""
+
+    last_bin: jax.Array  # int32; -1 once every bin is placed
+    cluster: jax.Array  # (bins,) int32
+
+
 def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
     """The k-layer DP, then the backtrack -> cluster 0..k_used-1 of each bin (bins,), by increasing
     value; every bin in cluster 0 when the values span no range. ``k_used`` (traced, 1..k; default
@@ -196,17 +203,17 @@ def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
     _, first_bin = lax.scan(forward, prev0, None, length=k)  # (k, bins): A_j(b) at row j - 1
     bin_ids = jnp.arange(bins, dtype=jnp.int32)
 
-    def backward(carry, step):
-        last, cluster = carry
+    def backward(state: Backtrack, step) -> tuple[Backtrack, None]:
+        last = state.last_bin
         j = k_used - 1 - step  # rows k_used-1 .. 0; steps past row 0 change nothing
         row = jnp.maximum(j, 0)
         first = jnp.where(last >= 0, first_bin[row, jnp.maximum(last, 0)], last + 1)
         spanned = (bin_ids >= first) & (bin_ids <= last) & (j >= 0)
-        return (jnp.where(j >= 0, first - 1, last), jnp.where(spanned, row, cluster)), None
+        return Backtrack(jnp.where(j >= 0, first - 1, last), jnp.where(spanned, row, state.cluster)), None
 
-    init = (jnp.int32(bins - 1), jnp.zeros(bins, jnp.int32))
-    (_, cluster), _ = lax.scan(backward, init, jnp.arange(k, dtype=jnp.int32))
-    return jnp.where(has_span, cluster, 0)
+    done, _ = lax.scan(backward, Backtrack(jnp.int32(bins - 1), jnp.zeros(bins, jnp.int32)),
+                       jnp.arange(k, dtype=jnp.int32))
+    return jnp.where(has_span, done.cluster, 0)
 
 
 def kmeans_1d(values, valid, *, k: int, bins: int, k_used=None):

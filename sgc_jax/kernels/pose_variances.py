@@ -2,7 +2,7 @@
 their mean and about the camera's pose.
 
 Rotations in degrees (variances in deg^2), translations in the inputs' units. Local poses come as
-R region slots with an ``accepted`` mask. ``compat="authors"`` reproduces the authors' code
+k region slots with an ``accepted`` mask. ``compat="authors"`` reproduces the authors' code
 (§3.9): arccos-of-trace distances in float32, and IQR = 0 rejecting every value.
 """
 
@@ -33,7 +33,7 @@ def rotation_angle_deg_authors(R_a, R_b):
 
 
 def masked_mean(values, valid):
-    """Mean over axis 0 of values (R, ...) where valid (R,); NaN where none is."""
+    """Mean over axis 0 of values (k, ...) where valid (k,); NaN where none is."""
     values = at_least_float32(values)
     mask = valid.reshape(valid.shape + (1,) * (values.ndim - 1))
     n = jnp.sum(valid)
@@ -42,7 +42,7 @@ def masked_mean(values, valid):
 
 
 def masked_percentile(values, valid, q: int):
-    """The q-th percentile (int 0..100, NumPy's "linear" method) of values (R,) where valid; +inf
+    """The q-th percentile (int 0..100, NumPy's "linear" method) of values (k,) where valid; +inf
     with none valid. The position q (n - 1) / 100 is split exactly into integer and fraction."""
     values = at_least_float32(values)
     s = jnp.sort(jnp.where(valid, values, jnp.inf))
@@ -57,7 +57,7 @@ def masked_percentile(values, valid, q: int):
 
 
 def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
-    """Mean of the valid v (R,) with q1 - c IQR <= v <= p98, c = (p98 - q3) / IQR; NaN with none
+    """Mean of the valid v (k,) with q1 - c IQR <= v <= p98, c = (p98 - q3) / IQR; NaN with none
     valid. IQR = 0, or bounds that reject every value (two distinct values), keep all under
     "spec" and give NaN under "authors"."""
     _check_compat(compat)
@@ -76,14 +76,14 @@ def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
 
 
 def mean_pose(R_local, t_local, accepted):
-    """Accepted poses (R, 3, 3), (R, 3), (R,) -> (exp of the mean rotation vector, mean
+    """Accepted poses (k, 3, 3), (k, 3), (k,) -> (exp of the mean rotation vector, mean
     translation), float32; NaN with none accepted."""
     R_mean = so3_exp(masked_mean(so3_log(at_least_float32(R_local)), accepted))
     return R_mean, masked_mean(at_least_float32(t_local), accepted)
 
 
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
-    """Local poses (R, 3, 3), (R, 3), accepted (R,) against the camera's (3, 3), (3,) -> float32
+    """Local poses (k, 3, 3), (k, 3), accepted (k,) against the camera's (3, 3), (3,) -> float32
     local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
     All NaN with no accepted pose; the local ones 0 with one."""
     _check_compat(compat)

@@ -3,6 +3,8 @@ weighted median over the clip (an L1 fit, so outlier tracks do not drag it)."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -24,6 +26,13 @@ def scale_equations(X, use, K_curr, track_curr, R_g, t_g):
     return jnp.where(ok, b / jnp.where(ok, a, 1.0), 0.0), weight
 
 
+class KeyInterval(NamedTuple):
+    """The bisection's state: the key sought lies in [lo, hi] (uint32)."""
+
+    lo: jax.Array
+    hi: jax.Array
+
+
 def weighted_median(values, weights, fallback):
     """The smallest value whose cumulative weight reaches half the total (any shape, flattened;
     weight 0: unused); ``fallback`` when the total is 0."""
@@ -34,12 +43,13 @@ def weighted_median(values, weights, fallback):
     keys = jnp.where(bits & sign, ~bits, bits | sign)  # negative floats reversed, below the positive ones
     total = jnp.sum(weights)
 
-    def halve(_, bounds):  # the key sought lies in [lo, hi]
-        lo, hi = bounds
+    def halve(_, keys_left: KeyInterval) -> KeyInterval:
+        lo, hi = keys_left
         mid = lo + (hi - lo) // 2
         enough = jnp.sum(jnp.where(keys <= mid, weights, 0.0)) >= 0.5 * total
-        return jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi)
+        return KeyInterval(jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi))
 
-    key, _ = jax.lax.fori_loop(0, 32, halve, (jnp.uint32(0), jnp.uint32(0xFFFFFFFF)))
+    found = jax.lax.fori_loop(0, 32, halve, KeyInterval(jnp.uint32(0), jnp.uint32(0xFFFFFFFF)))
+    key = found.lo
     median = jax.lax.bitcast_convert_type(jnp.where(key & sign, key ^ sign, ~key), jnp.float32)
     return jnp.where(total > 0, median, fallback)

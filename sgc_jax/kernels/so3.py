@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-# Below this squared angle [rad^2] the Taylor series are exact to float64 round-off.
+# Below this (the squared angle [rad^2] in so3_exp, sin^2(angle / 2) in so3_log) the Taylor branches
+# err by at most ~2e-13 relative: far below float32's round-off (6e-8) and the float64 checks' tolerances.
 SMALL_ANGLE_SQ = 1e-6
 
 

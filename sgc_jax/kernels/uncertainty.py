@@ -51,7 +51,7 @@ class InlierJacobians(NamedTuple):
     onehot: jax.Array  # (k, N) inlier membership
     normal: jax.Array  # (k, 6, 6) J^T J
     covariance: jax.Array  # (k, 6, 6) its inverse
-    mean_depth: jax.Array  # (k,) mean inlier distance
+    mean_dist: jax.Array  # (k,) mean distance |X| of the inliers from the camera
     fx: jax.Array
 
 
@@ -65,9 +65,9 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     cols = point_columns(X, uv, (region >= 1).astype(dtype))
     (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(so3_exp(poses[:, :3])[own], poses[:, 3:][own], K, cols)
     n = jnp.sum(onehot, axis=1)
-    mean_depth = (onehot @ jnp.linalg.norm(X, axis=-1)) / jnp.maximum(n, 1.0)
+    mean_dist = (onehot @ jnp.linalg.norm(X, axis=-1)) / jnp.maximum(n, 1.0)
     fx = K[0, 0]
-    scale_t = (mean_depth / fx)[own]  # d(dt) per unit of the scaled parameter, per point
+    scale_t = (mean_dist / fx)[own]  # d(dt) per unit of the scaled parameter, per point
 
     def jacobian_rows(grad):  # (N, 6): w . (RX x grad) + dt . grad
         return jnp.concatenate([jnp.cross(jnp.stack(RX, -1), jnp.stack(grad, -1)) / fx,
@@ -77,7 +77,7 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     normal = block_normals(onehot, J_u.T, J_v.T)
     # materialised: gathered per point later, the unrolled solves would be recomputed per point
     covariance = materialise(jax.vmap(lambda A: jax.vmap(lambda e: solve_spd(A, e))(jnp.eye(6, dtype=dtype)))(normal))
-    return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_depth, fx)
+    return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_dist, fx)
 
 
 def block_of(uv, block_px):
@@ -108,16 +108,16 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     over its n inliers (arguments as ``inlier_jacobians``); the noise the floors count is the larger
     of it and ``block_covariance`` over squares of side block_px (inf: one square, the usual)."""
     jac = inlier_jacobians(X, uv, region, K, poses, inliers)
-    onehot, covariance, mean_depth, fx = jac.onehot, jac.covariance, jac.mean_depth, jac.fx
+    onehot, covariance, mean_dist, fx = jac.onehot, jac.covariance, jac.mean_dist, jac.fx
     n = jnp.sum(onehot, axis=1)
     sigma_sq = (onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / jnp.maximum(2.0 * n - 6.0, 1.0)
     blocks = block_covariance(jac, uv, region, block_px)
     trace = lambda cov, part: jnp.trace(cov[:, part, part], axis1=-2, axis2=-1)  # noqa: E731
     rot, trans = slice(0, 3), slice(3, 6)
     rot_var = sigma_sq * trace(covariance, rot) / fx**2
-    trans_var = sigma_sq * trace(covariance, trans) * (mean_depth / fx) ** 2
+    trans_var = sigma_sq * trace(covariance, trans) * (mean_dist / fx) ** 2
     rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
-    trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_depth / fx) ** 2)
+    trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
     spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
     enough = n >= 4

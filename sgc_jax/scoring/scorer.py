@@ -44,7 +44,14 @@ MAX_SELECTED_TRACKS = 46340
 def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
     """Clips stacked into a Scorer's batch (NumPy), each padded with zeros to ``shape`` = (T, H, W,
     P) (default: the largest of each size) and its true sizes given."""
+    if not clips:
+        raise ValueError("batch_of needs at least one clip")
     T, H, W, P = shape or tuple(max(sizes) for sizes in zip(*[(c.n_frames, *c.image_size, c.n_tracks) for c in clips]))
+    for clip in clips:
+        sizes = (clip.n_frames, *clip.image_size, clip.n_tracks)
+        if any(n > limit for n, limit in zip(sizes, (T, H, W, P))):
+            raise ClipFormatError(clip.clip_id, "depth and tracks", f"at most the batch shape (T, H, W, P) = {(T, H, W, P)}",
+                                  f"(T, H, W, P) = {sizes}")
     fields = {"depth": (T, H, W), "K": (T, 3, 3), "R_wc": (T, 3, 3), "t_wc": (T, 3), "static_mask": (T, H, W),
               "track_prev": (T - 1, P, 2), "track_curr": (T - 1, P, 2), "track_vis": (T - 1, P),
               "track_conf": (T - 1, P)}

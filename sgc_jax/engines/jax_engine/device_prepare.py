@@ -101,7 +101,7 @@ def divide_rounded(x, divisor):
     return jnp.where(jnp.isfinite(q), rounded, q)
 
 
-def without_absurd_depth(depth, positive):
+def valid_without_absurd_depth(depth, positive):
     """``positive`` less the absurd depth (beyond DEPTH_RATIO_LIMIT of the median of the positive
     values; docs/semantics.md §1.2), compared as float64 would."""
     median = masked_median(depth, positive)
@@ -136,7 +136,7 @@ def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedCl
     frame = jnp.arange(T) < clip.n_frames
     inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
     positive = inside & jnp.isfinite(clip.depth) & (clip.depth > 0)
-    valid = without_absurd_depth(clip.depth, positive)
+    valid = valid_without_absurd_depth(clip.depth, positive)
     static = clip.static_mask if config.use_mos else jnp.ones_like(clip.static_mask)
     depth = clip.depth
     if config.scale_free:  # D: the median static valid depth, of all valid depth when none is static

@@ -60,7 +60,7 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig) -> dict
         global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * f2,
         depth_error=err, reproj_error=jnp.where(n_poses > 0, reproj, jnp.nan), n_poses=n_poses.astype(jnp.int32),
         n_ill_conditioned=n_excluded.astype(jnp.int32),
-        t_g_norm=jnp.linalg.norm(t_g), R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
+        R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
         reason=reason.astype(jnp.int32))
 
 

@@ -47,7 +47,7 @@ class PairInputs(NamedTuple):
     """One pair's share of the pose stage's inputs (frames i-1 -> i)."""
 
     Z_prev: jax.Array  # (P,) depth of frame i-1 at the tracks
-    track_label: jax.Array  # (P,) region of each track in frame i
+    track_label: jax.Array  # (P,) region of each track in the region frame (§3.2 step 5)
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # ()
     K_prev: jax.Array  # (3, 3)

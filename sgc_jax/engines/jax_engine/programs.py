@@ -200,5 +200,6 @@ def compile_count() -> int:
 
 
 def compile_log() -> list[tuple[StageKey, float]]:
-    """Every stage program this process compiled or loaded, in order, with its seconds (released ones too)."""
+    """Every one-device stage program this process compiled or loaded, in order, with its seconds
+    (released ones too); ``sharded_program``'s are not listed."""
     return list(_compiles)

@@ -32,7 +32,7 @@ from .pixel_stage import depth_at_tracks
 class Frozen(NamedTuple):
     """What the forward pass chose for one clip (leading axis T-1), held fixed."""
 
-    track_labels: jax.Array  # (T-1, P) int32 region of each track in frame i (pixel stage)
+    track_labels: jax.Array  # (T-1, P) int32 region of each track in the region frame (pixel stage)
     track_fitted: jax.Array  # (T-1, P) bool: the tracks its region's pose was fitted on
     region_status: jax.Array  # (T-1, k) int32
     R_local: jax.Array  # (T-1, k, 3, 3) the local poses, where their Newton polish starts

@@ -46,7 +46,7 @@ class PixelInputs(NamedTuple):
 
 class PoseInputs(NamedTuple):
     Z_prev: jax.Array  # (B, T-1, P) depth of frame i-1 at the tracks
-    track_labels: jax.Array  # (B, T-1, P) region of each track in frame i
+    track_labels: jax.Array  # (B, T-1, P) region of each track in the region frame (§3.2 step 5)
     n_regions: jax.Array  # (B, T-1)
     region_pixels: jax.Array  # (B, T-1)
     K: jax.Array  # (B, T, 3, 3)
