@@ -332,7 +332,8 @@ def _register_score(sub) -> None:
 
 
 def _register_demo(sub) -> None:
-    demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table")
+    demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table",
+                          description="Synthesise the demo corpus (rigid, noisy, moving-object, unmasked and non-rigid clips), score it, print the table and check the claims it demonstrates (docs/semantics.md §4, §5).")
     demo.add_argument("--out", help="keep the demo clips in this directory")
     demo.add_argument("--engine", choices=("jax", "reference"), default="jax",
                       help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
@@ -342,7 +343,8 @@ def _register_demo(sub) -> None:
 
 
 def _register_synth(sub) -> None:
-    synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files")
+    synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files",
+                           description="Write the demo corpus as clip files (docs/semantics.md §1.2), to score or inspect.")
     synth.add_argument("--out", required=True, help="(required) output directory")
     synth.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
     synth.set_defaults(func=cmd_synth)
@@ -501,7 +503,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _register_calibrate(sub) -> None:
-    cal = sub.add_parser("calibrate", help="fit a calibration (mu, sigma, z bounds, PC1 weights) on scores CSVs")
+    cal = sub.add_parser("calibrate", help="fit a calibration (mu, sigma, z bounds, PC1 weights) on scores CSVs",
+                         description="Fit a calibration on per-clip tables and report its k-fold stability (docs/semantics.md §5.5).")
     cal.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
@@ -531,7 +534,8 @@ def _register_rescore(sub) -> None:
 
 
 def _register_compare(sub) -> None:
-    cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files")
+    cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files",
+                          description="Rank groups or clips with bootstrap CIs, their dependence on camera dynamics (ECD) and the agreement of two scorings (docs/semantics.md §6.5).")
     cmp_.add_argument("scores", nargs="+", help="per-clip tables, CSV or .parquet (read together as one corpus)")
     cmp_.add_argument("--by", choices=("group", "clip"), default="group",
                       help="one row per group (default) or per clip")
@@ -693,7 +697,8 @@ def _register_pack(sub) -> None:
 
 
 def _register_validate(sub) -> None:
-    val = sub.add_parser("validate", help="dry run: check clip / batch files, one line per problem")
+    val = sub.add_parser("validate", help="dry run: check clip / batch files, one line per problem",
+                         description="Check clip and batch files as the loader would, and their content (docs/semantics.md §1.4, §1.6); nothing is scored.")
     val.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
     val.add_argument("-v", "--verbose", action="store_true", help="also print info lines (depth range, mask coverage)")
     val.add_argument("--strict", action="store_true", help="exit non-zero on warnings too")
@@ -750,7 +755,8 @@ def _register_perturb(sub) -> None:
 
     p = sub.add_parser("perturb", help="sensitivity study: score clips under perturbations of growing severity",
                        description="Score every clip under every perturbation kind and severity; print the mean "
-                                   "SGC and components per kind and severity and Spearman rho vs severity.")
+                                   "SGC and components per kind and severity and Spearman rho vs severity "
+                                   "(docs/semantics.md §6.4).")
     p.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
     study = p.add_argument_group("study")
     study.add_argument("--kinds", type=_csv_list, default=list(PERTURBATIONS),

@@ -51,7 +51,8 @@ def _field(default: Any, help: str, *, flag: str | None = None, choices: tuple[s
 
 @dataclasses.dataclass(frozen=True)
 class SGCConfig:
-    """Hyperparameters; defaults are the paper's (appendix, Table of hyperparameters). Each field's
+    """Hyperparameters (docs/semantics.md §2, which says which defaults are the paper's and which
+    this package's semantics chose). Each field's
     help text doubles as its ``sgc-jax score`` / ``perturb`` option (:func:`cli_flag`)."""
 
     k_seg: int = _field(10, "region slots per frame: depth clusters, grid cells or components")

@@ -121,22 +121,22 @@ def write_scores(path: str | os.PathLike, records: Sequence[dict[str, Any]]) -> 
     return write_table(path, list(records), columns)
 
 
+def _with_floors_and_interval(units: dict[str, str]) -> dict[str, str]:
+    """A semantics' units with its floor columns' (each its component's) and the interval's."""
+    floors = {floor: units[floor.removesuffix("_floor")] for floor in (*FLOOR_COLUMNS, "sgc_floor")}
+    return {**units, **floors, **dict.fromkeys(INTERVAL_COLUMNS, f"{INTERVAL_LEVEL:.0%} interval")}
+
+
 # Short units of the numeric columns under each semantics, for the unit row of printed tables
 # (docs/semantics.md §4; D: the clip's median static depth).
-COLUMN_UNITS = {
+COLUMN_UNITS = {compat: _with_floors_and_interval(units) for compat, units in {
     "spec": {"sgc": "lower=better", "local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "(% of D)²",
              "global_trans_var": "(% of D)²", "depth_error": "% of depth", "reproj_error": "px",
              "ecd_trans": "% of D", "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth"},
     "authors": {"sgc": "lower=better", "local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth²",
                 "global_trans_var": "pose²", "depth_error": "depth", "reproj_error": "px", "ecd_trans": "pose",
                 "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth"},
-}
-
-
-_BASE_COLUMN = {floor: floor.removesuffix("_floor") for floor in (*FLOOR_COLUMNS, "sgc_floor")}
-COLUMN_UNITS = {compat: {**units, **{name: units[base] for name, base in _BASE_COLUMN.items()},
-                         **dict.fromkeys(INTERVAL_COLUMNS, f"{INTERVAL_LEVEL:.0%} interval")}
-                for compat, units in COLUMN_UNITS.items()}  # a floor has its component's unit
+}.items()}
 
 
 def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str], units: dict[str, str] | None = None) -> str:

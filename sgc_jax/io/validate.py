@@ -215,7 +215,7 @@ def check_dtypes(arrays: Any) -> list[Problem]:
     problems = []
     depth = np.asarray(arrays["depth"]) if "depth" in arrays else None
     if depth is not None and not np.issubdtype(depth.dtype, np.floating):
-        problems.append(Problem("warning", "depth_dtype", "depth", "float depth in the units of t_wc",
+        problems.append(Problem("warning", "depth_dtype", "depth", "float depth",
                                 f"dtype {depth.dtype}",
                                 "integer depth is often a 16-bit PNG in millimetres: convert to float (e.g. / 1000)"))
     frames = arrays.get("frames") if hasattr(arrays, "get") else None

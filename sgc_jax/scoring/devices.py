@@ -14,7 +14,8 @@ CPU_LANES = 2
 # sends the next clip's arrays.
 ACCELERATOR_LANES = 2
 # Clips per program call on each accelerator: one vectorized program poses all their pairs at
-# once (docs/semantics.md §9.3); not yet tuned on a GPU.
+# once (docs/semantics.md §9.3). A size, not a measured optimum: no GPU run has compared others
+# for score_batch (the Scorer's batch sizes: bench/RESULTS.md, bench/reward.py).
 ACCELERATOR_CLIPS_PER_DEVICE = 16
 
 
@@ -24,7 +25,7 @@ def host_cores() -> int:
 
 
 def default_lanes(devices: list) -> int:
-    """Clips (or groups of one clip per device) in flight at once on ``devices``: on CPU devices
+    """Clips (or groups, ``clips_per_call``) in flight at once on ``devices``: on CPU devices
     one per core of each device's share, up to CPU_LANES; on an accelerator ACCELERATOR_LANES."""
     if devices and devices[0].platform == "cpu":
         return max(1, min(host_cores() // len(devices), CPU_LANES))

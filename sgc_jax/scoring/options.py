@@ -13,7 +13,7 @@ class RunOptions:
     chunk_size: int = 16  # clips read ahead of the device (memory is bounded by it); Ray: clips per task
     readers: int | None = None  # clip readers (default: two threads, or one process per core but two)
     read_in: str = "auto"  # "threads", "processes", or "auto": processes on hosts of more than 4 cores
-    devices: int | None = None  # JAX engine: the first that many local devices, one clip each (default all)
+    devices: int | None = None  # JAX engine: the first that many local devices (default all; devices.clips_per_call)
     lanes: int | None = None  # clips (groups) in flight at once (default: scoring.devices.default_lanes)
     ray_address: str | None = None  # score on a Ray cluster: "auto", "local" or an address
     ray_scorers: int | None = None  # Ray scorer actors (default one per GPU, else per node)
