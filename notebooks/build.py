@@ -166,7 +166,7 @@ QUICKSTART = [
         Clips already in memory or on a device, scored in batches with no file and no host
         round-trip: `sgc_jax.Scorer((B, T, H, W, P))` compiles once for that shape, and
         `scorer(batch)` takes the clip arrays stacked on a leading B axis (NumPy or `jax.Array`;
-        `sgc_jax.scoring.scorer.batch_of(clips)` stacks `Clip`s) and returns `sgc`, the components,
+        `sgc_jax.batch_of(clips)` stacks `Clip`s) and returns `sgc`, the components,
         a status and a `reward` per clip as device arrays, also inside a `jax.jit`
         (docs/semantics.md §9).
     """),
@@ -234,7 +234,8 @@ SENSITIVITY = [
         (under-segmentation: moving pixels called static), `dilate` grows them
         (over-segmentation). Under-segmentation lets object motion into the background poses and
         the score rises; over-segmentation only removes background support, and the score barely
-        moves. `rel_change` is the mean relative change of the SGC vs the clean clips.
+        moves. `rel_change` is the mean relative change of the SGC vs the clean clips, over the clips
+        where it is defined: not where a clean SGC of 0 rose (docs/semantics.md §4).
     """),
     _code("""\
         movers = [synth_clip(seed=seed, clip_id=f"moving{seed}", moving_objects=2, **SCENE) for seed in range(4)]
@@ -286,13 +287,17 @@ CALIBRATION = [
         `by="group"` averages the clips of each group first (the paper fitted its weights on
         dataset-group means); `by="clip"` uses every clip as a row. Variances are log1p-transformed,
         standardised and min-max scaled; the weights are the absolute PC1 loadings, summing to 1.
+        `floor_band` fits the pose components' excess over their noise floors, as the default
+        calibration `sgc-spec-2026` does (docs/semantics.md §5.1, §5.5); without it the fit counts
+        the tracker's noise as inconsistency.
     """),
     _code("""\
-        paper = sgc_jax.Calibration.load("sgc-paper-2026")
-        by_group = sgc_jax.calibrate(result, by="group", name="synthetic, by group")
-        by_clip = sgc_jax.calibrate(result, by="clip", name="synthetic, by clip")
-        weights = pd.DataFrame({c.name: c.weight for c in (paper, by_group, by_clip)})
-        weights.loc["PC1 explained variance"] = [float("nan"), by_group.extra["pc1_explained_variance_ratio"],
+        paper, default = sgc_jax.Calibration.load("sgc-paper-2026"), sgc_jax.Calibration.load("sgc-spec-2026")
+        band = default.floor_band
+        by_group = sgc_jax.calibrate(result, by="group", name="synthetic, by group", floor_band=band)
+        by_clip = sgc_jax.calibrate(result, by="clip", name="synthetic, by clip", floor_band=band)
+        weights = pd.DataFrame({c.name: c.weight for c in (paper, default, by_group, by_clip)})
+        weights.loc["PC1 explained variance"] = [float("nan"), float("nan"), by_group.extra["pc1_explained_variance_ratio"],
                                                  by_clip.extra["pc1_explained_variance_ratio"]]
         weights"""),
     _md("""
@@ -303,7 +308,7 @@ CALIBRATION = [
         1 mean the ranking does not hinge on which clips were used.
     """),
     _code("""\
-        stability = sgc_jax.kfold_stability(result, k=5, by="group")
+        stability = sgc_jax.kfold_stability(result, k=5, by="group", floor_band=band)
         print(stability.table())"""),
     _code("""\
         fig = plot.plot_calibration_weights({"paper (sgc-paper-2026)": paper, "synthetic, by group": by_group},
@@ -322,7 +327,8 @@ CALIBRATION = [
         rescored = result.rescore(by_group)
         pd.DataFrame(group_table(rescored.to_records(), n_boot=1000))"""),
     _code("""\
-        print("paper vs synthetic calibration, by clip:", agreement_between(result.to_records(), rescored.to_records()))
+        print("sgc-spec-2026 vs the synthetic calibration, by clip:",
+              agreement_between(result.to_records(), rescored.to_records()))
         print("SGC vs camera dynamics:", motion_dependence(rescored.to_records()))"""),
     _md("""
         ## Per-group distributions coloured by camera dynamics (Figure 7)
@@ -444,7 +450,7 @@ BEST_OF_N = [
         hides everything, no usable tracks.
 
         Here the N = 8 candidates are variants of one synthetic scene: the clean clip, four
-        perturbed ones (docs/semantics.md §8; severities 0.25 and 0.5) and three decoys.
+        perturbed ones (docs/semantics.md §6.4; severities 0.25 and 0.5) and three decoys.
     """),
     _code(SETUP),
     _code("""\
@@ -453,7 +459,7 @@ BEST_OF_N = [
         import jax
 
         from sgc_jax.codes import SCORER_STATUSES
-        from sgc_jax.scoring.scorer import batch_of
+        from sgc_jax import batch_of
 
         clean = synth_clip(seed=0, clip_id="clean", **SCENE)
         candidates = [
@@ -543,7 +549,7 @@ GRADIENTS = [
         import jax
         import jax.numpy as jnp
 
-        from sgc_jax.scoring.scorer import batch_of
+        from sgc_jax import batch_of
 
         T, H, W, P = SCENE["n_frames"], SCENE["height"], SCENE["width"], SCENE["n_tracks"]
         scorer = sgc_jax.Scorer((2, T, H, W, P), differentiable=True)  # two clips per batch"""),
