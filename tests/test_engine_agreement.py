@@ -64,12 +64,11 @@ def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
 
 
 # The issue's bars (issue 20): 0.95 of (clip, component) cases within tolerance, rho 0.98, 0.98
-# of statuses and JAX wrong on at most 0.02 of regions. At seeds 0, 1 and 2: 145, 149 and 147
-# of 150 cases, rho >= 0.9995, 695-697 of 699 statuses, JAX wrong on 0-2 regions (on a GPU:
-# 146-147 cases). The misses are on the 1 px + 30% outlier and unmasked clips, whose small
-# regions have coarse optima of nearly equal cost, where the JAX engine's adaptive stop still
-# misses the lowest basin now and then; the reference reproduces itself there on 150 of 150
-# (bench/engine_agreement.py, bench/RESULTS.md).
+# of statuses and JAX wrong on at most 0.02 of regions. At seed 0: 150 of 150 cases, rho 1.000,
+# 668 of 669 statuses, JAX the worse pose in 2 regions (bench/RESULTS.md, "The reference engine's
+# Levenberg-Marquardt step"; other seeds and GPUs: bench/engine_agreement.py). Misses, where a
+# seed has them, are on the 1 px + 30% outlier and unmasked clips, whose small regions have coarse
+# optima of nearly equal cost, where the JAX engine's adaptive stop can miss the lowest basin.
 AGREEMENT_SHARE = 0.95
 # Families whose every (clip, component) case agrees: one pose per region, found alike. With frame
 # i-1's regions (the default) the 0.75 squeeze has two regions of near-equal optima where the
@@ -110,7 +109,7 @@ def test_a_scoring_compared_with_itself_agrees_in_every_figure(scored, agreement
     assert same.components_within == same.components == len(clips) * len(COMPONENTS)
     assert same.same_status == same.regions > 500 and same.spearman == 1.0
     assert same.posed > 500 and same.differ == same.a_worse == same.b_worse == 0
-    assert agreement.components_within < agreement.components and agreement.differ > 0
+    assert agreement.differ > 0  # across engines some regions do differ: a perfect self-comparison is not a given
 
 
 def test_where_the_local_poses_differ_the_jax_engine_is_seldom_the_wrong_one(agreement):
