@@ -93,13 +93,24 @@ def bootstrap_ci(values: Any, statistic: Callable[..., Any] = np.mean, *, n_boot
     return float(lo), float(hi)
 
 
-def min_max(values: Any) -> np.ndarray:
-    """(v - min) / (max - min) over the non-NaN values; NaN stays NaN, a zero span gives 0."""
-    x = _as_float(values)
-    if np.all(np.isnan(x)):
+def min_max(values: Any, xp=np) -> Any:
+    """(v - min) / (max - min) over the non-NaN values; NaN stays NaN, a zero span gives 0.
+    NumPy (float64, any sequence) or ``jax.numpy`` (an array of its dtype, traceable)."""
+    x = _as_float(values) if xp is np else values
+    if x.size == 0:
         return x
-    lo, hi = np.nanmin(x), np.nanmax(x)
-    return np.where(np.isnan(x), np.nan, (x - lo) / (hi - lo) if hi > lo else 0.0)
+    finite = ~xp.isnan(x)
+    lo, hi = xp.min(xp.where(finite, x, xp.inf)), xp.max(xp.where(finite, x, -xp.inf))
+    scaled = xp.where(hi > lo, (x - lo) / xp.where(hi > lo, hi - lo, 1.0), 0.0)
+    return xp.where(finite, scaled, xp.nan)
+
+
+def camera_dynamics(ecd_trans: Any, ecd_rot: Any, xp=np) -> Any:
+    """ECD (docs/semantics.md §4) per clip: the larger of min-max(mean ||t_g||) and min-max(mean
+    angle of R_g) over the clips given, (n,) x2 -> (n,) in [0, 1]; a clip with one NaN input takes
+    the other, with two NaN; a constant column scales to 0. NumPy or ``jax.numpy`` (the Scorer)."""
+    trans, rot = min_max(ecd_trans, xp), min_max(ecd_rot, xp)
+    return xp.where(xp.isnan(trans), rot, xp.where(xp.isnan(rot), trans, xp.maximum(trans, rot)))
 
 
 def agreement(a: Any, b: Any) -> dict[str, float]:

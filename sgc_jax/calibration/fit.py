@@ -10,10 +10,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..stats import spearman
-from .formula import POSE_COMPONENTS, excess_over_floors, sgc_score
+from .formula import FLOOR_COLUMNS, excess_over_floors, sgc_score
 from .model import COMPONENTS, LOG1P_COMPONENTS, Calibration, CalibrationMismatchError
-
-FLOOR_KEYS = tuple(f"{k}_floor" for k in POSE_COMPONENTS)
 
 
 def _as_records(rows: Any) -> Any:
@@ -49,11 +47,11 @@ def excess_rows(rows: Any, matrix: np.ndarray, floor_band: float) -> np.ndarray:
     if isinstance(rows, np.ndarray):
         raise ValueError("floor_band needs rows with the noise-floor columns (<component>_floor), not a bare array")
     records = list(rows)
-    missing = [k for k in FLOOR_KEYS if any(k not in r for r in records)]
+    missing = [k for k in FLOOR_COLUMNS if any(k not in r for r in records)]
     if missing:
         raise ValueError(f"floor_band needs the noise-floor columns {missing} in every row (sgc-jax score writes them)")
     floors = {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in records], np.float64)
-              for k in FLOOR_KEYS}
+              for k in FLOOR_COLUMNS}
     excess = excess_over_floors({k: matrix[:, j] for j, k in enumerate(COMPONENTS)}, floors, floor_band)
     return np.column_stack([excess[k] for k in COMPONENTS])
 

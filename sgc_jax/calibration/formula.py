@@ -21,6 +21,7 @@ def _as_float(m, xp) -> Any:
 
 
 POSE_COMPONENTS = COMPONENTS[:4]  # the components with a noise floor (docs/semantics.md §3.10)
+FLOOR_COLUMNS = tuple(f"{k}_floor" for k in POSE_COMPONENTS)  # their floors' columns
 # float32's own floor under an excess calibration, in the components' units (deg^2, (% of D)^2): a
 # noise-free rigid clip's poses disagree by 1e-10 to 1e-9 in float32 arithmetic, which no floor
 # from the fits' residuals describes; 1e-6 deg^2 is a spread of 0.001 deg.

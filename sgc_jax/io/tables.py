@@ -11,12 +11,11 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from ..calibration import COMPONENTS
+from ..calibration.formula import FLOOR_COLUMNS  # each pose component's noise floor (docs/semantics.md §3.10)
 from ..calibration.interval import INTERVAL_LEVEL
 from .extras import MissingExtraError
 from .parquet import is_parquet, read_parquet_text, write_parquet
 
-# Each pose component's noise floor (docs/semantics.md §3.10), in the component's units
-FLOOR_COLUMNS = tuple(f"{c}_floor" for c in COMPONENTS if c != "depth_error")
 # The score's 90 % interval (docs/semantics.md §5.6)
 INTERVAL_COLUMNS = ("sgc_lo", "sgc_hi")
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",

@@ -33,7 +33,7 @@ from ..io.tables import (
     records_frame,
     write_csv,
 )
-from ..stats import min_max
+from ..stats import camera_dynamics
 
 
 def _nanmean(values: np.ndarray) -> float:
@@ -139,17 +139,6 @@ def clip_from_row(row: Mapping[str, str]) -> ClipResult:
     cell = {name: typed_cell(column_kind(name), row[name]) for name in CLIP_COLUMNS if name != "ecd"}
     return ClipResult(components={k: cell.pop(k) for k in COMPONENTS},
                       floors={k: cell.pop(k) for k in FLOOR_COLUMNS}, **cell)
-
-
-def camera_dynamics(ecd_trans: Any, ecd_rot: Any) -> np.ndarray:
-    """ECD (docs/semantics.md §4) per clip: max of min-max(mean ||t_g||) and min-max(mean angle of R_g) over the corpus.
-
-    (n,) x2 -> (n,) in [0, 1]; NaN inputs are ignored by the scaling; a clip with one NaN input
-    takes the other; a constant column scales to 0.
-    """
-    trans, rot = min_max(ecd_trans), min_max(ecd_rot)
-    both = np.stack([trans, rot])
-    return np.where(np.isnan(both).all(axis=0), np.nan, np.nanmax(np.where(np.isnan(both), -np.inf, both), axis=0))
 
 
 def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "", compat: str = "") -> ClipResult:

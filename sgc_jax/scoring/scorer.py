@@ -5,16 +5,17 @@ sampling loops; ``score_batch`` stays the way to score files."""
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 from typing import Any, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..calibration import Calibration, default_calibration
+from ..calibration import Calibration
 from ..config import SGCConfig
 from ..engines.jax_engine.buckets import PaddedClips, bucket_for_shape
-from ..engines.jax_engine.clip_summary import camera_dynamics, summarize_on_device
+from ..engines.jax_engine.clip_summary import summarize_on_device
 from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
@@ -23,6 +24,8 @@ from ..engines.jax_engine.smooth_stage import check_differentiable, frozen_choic
 from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
+from ..stats import camera_dynamics
+from .api import resolve_calibration, resolve_config
 from .devices import default_lanes, vectorizes
 from .reward import RewardOptions, reward
 
@@ -69,7 +72,7 @@ def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = No
     return batch
 
 
-batch_camera_dynamics = jax.jit(camera_dynamics)
+batch_camera_dynamics = jax.jit(functools.partial(camera_dynamics, xp=jnp))
 
 
 def _traced(clips: ClipArrays) -> bool:
@@ -88,18 +91,17 @@ class Scorer:
     in ``n_frames``, ``n_tracks``, ``heights``, ``widths`` and pads the rest with anything.
     Compiled when constructed; callable inside ``jax.jit``."""
 
-    def __init__(self, shape: tuple[int, int, int, int, int], config: SGCConfig | None = None,
+    def __init__(self, shape: tuple[int, int, int, int, int], config: SGCConfig | dict | None = None,
                  calibration: Calibration | str | None = None, reward_options: RewardOptions | None = None,
                  *, devices: Sequence[jax.Device] | None = None, vectorized: bool | None = None,
                  differentiable: bool = False):
         if len(shape) != 5 or not all(isinstance(s, (int, np.integer)) and s >= 1 for s in shape) or shape[1] < 2:
             raise ValueError(f"shape must be (B, T, H, W, P) of positive ints with T >= 2, got {shape!r}")
         self.shape = B, T, H, W, P = tuple(int(s) for s in shape)
-        self.config = config = config or SGCConfig()
+        self.config = config = resolve_config(config, {})
         if P > config.max_tracks > MAX_SELECTED_TRACKS:
             raise ValueError(f"max_tracks={config.max_tracks}: the Scorer selects at most {MAX_SELECTED_TRACKS}")
-        self.calibration = Calibration.load(calibration or default_calibration(config.compat))
-        self.calibration.check_compat(config.compat, "the Scorer's components")
+        self.calibration = resolve_calibration(calibration, config)
         self.reward_options = reward_options or RewardOptions()
         self.differentiable = bool(differentiable)
         if self.differentiable:

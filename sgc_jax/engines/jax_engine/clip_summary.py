@@ -9,6 +9,7 @@ from ...calibration import COMPONENTS, Calibration, sgc_score
 from ...calibration.interval import score_interval
 from ...codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
 from ...io.tables import FLOOR_COLUMNS
+from ...stats import camera_dynamics
 from ..noise_floors import floor_score, floors_of
 from ..units import PERCENT
 
@@ -19,21 +20,6 @@ def nanmean(values, mask):
     count = jnp.sum(keep, axis=-1)
     total = jnp.sum(jnp.where(keep, values, 0.0), axis=-1)
     return jnp.where(count > 0, total / jnp.maximum(count, 1), jnp.nan)
-
-
-def min_max(values):
-    """``stats.min_max`` over the batch: (v - min) / (max - min) of the non-NaN values."""
-    finite = ~jnp.isnan(values)
-    lo = jnp.min(jnp.where(finite, values, jnp.inf))
-    hi = jnp.max(jnp.where(finite, values, -jnp.inf))
-    scaled = jnp.where(hi > lo, (values - lo) / jnp.where(hi > lo, hi - lo, 1.0), 0.0)
-    return jnp.where(finite, scaled, jnp.nan)
-
-
-def camera_dynamics(ecd_trans, ecd_rot):
-    """ECD over the batch (``scoring.result.camera_dynamics``): the larger of the two min-max scaled inputs."""
-    trans, rot = min_max(ecd_trans), min_max(ecd_rot)
-    return jnp.where(jnp.isnan(trans), rot, jnp.where(jnp.isnan(rot), trans, jnp.maximum(trans, rot)))
 
 
 def clip_status(reason, pair_valid, sgc):
@@ -74,7 +60,7 @@ def summarize_on_device(out: dict, pair_valid, depth_unit, calibration: Calibrat
         sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi, **components, **floors,
         sgc_floor=floor_score(floors, calibration, xp=jnp),
         reproj_error=mean("reproj_error"), ecd_trans=ecd_trans, ecd_rot=ecd_rot,
-        ecd=camera_dynamics(ecd_trans, ecd_rot), status=clip_status(reason, pair_valid, sgc),
+        ecd=camera_dynamics(ecd_trans, ecd_rot, xp=jnp), status=clip_status(reason, pair_valid, sgc),
         n_pairs=jnp.sum(pair_valid, axis=-1, dtype=jnp.int32),
         n_pairs_scored=jnp.sum(pair_valid & (reason == PAIR_REASON_CODE["ok"]), axis=-1, dtype=jnp.int32),
         n_ill_conditioned=jnp.sum(jnp.where(pair_valid, out["n_ill_conditioned"], 0), axis=-1, dtype=jnp.int32),
