@@ -18,6 +18,8 @@ from typing import Any, Iterable, Sequence
 from .calibration import COMPONENTS
 from .config import SGCConfig, cli_flag, renamed_fields
 from .io.extras import MissingExtraError
+from .scoring.engine_steps import ENGINES
+from .scoring.options import READ_IN
 from .version import __version__
 
 EXIT_OK = 0  # every input processed
@@ -125,7 +127,7 @@ def _config_option_kwargs(field: dataclasses.Field, kind: Any) -> dict[str, Any]
 
 def _add_algorithm_flags(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("algorithm")
-    group.add_argument("--engine", choices=("jax", "reference"), default="jax",
+    group.add_argument("--engine", choices=ENGINES, default="jax",
                        help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
     group.add_argument("--calibration", default=None,
                        help="shipped calibration name or a calibration JSON file (default: sgc-spec-2026, or "
@@ -314,7 +316,7 @@ def _register_score(sub) -> None:
     score.add_argument("--readers", type=int, default=0, metavar="N",
                        help="clip readers (default 0: two threads; on a host of more than 4 cores one process per "
                             "core but two)")
-    score.add_argument("--read-in", choices=("auto", "threads", "processes"), default="auto",
+    score.add_argument("--read-in", choices=READ_IN, default="auto",
                        help="read the clip files in threads or processes (default auto: processes on a host of more "
                             "than 4 cores; docs/semantics.md §4.1)")
     score.add_argument("--ray", metavar="ADDRESS",
@@ -335,7 +337,7 @@ def _register_demo(sub) -> None:
     demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table",
                           description="Synthesise the demo corpus (rigid, noisy, moving-object, unmasked and non-rigid clips), score it, print the table and check the claims it demonstrates (docs/semantics.md §4, §5).")
     demo.add_argument("--out", help="keep the demo clips in this directory")
-    demo.add_argument("--engine", choices=("jax", "reference"), default="jax",
+    demo.add_argument("--engine", choices=ENGINES, default="jax",
                       help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
     demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
     demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
