@@ -55,7 +55,7 @@ def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):
     assert missing.returncode == 2 and "nothing_here" in missing.stderr
 
 
-def test_synth_and_demo(tmp_path):
+def test_synth_writes_the_demo_corpus_and_demo_prints_units_and_intervals(tmp_path):
     proc = run("synth", "--out", tmp_path / "demo")
     assert proc.returncode == 0 and len(list((tmp_path / "demo").glob("*.npz"))) == 8
     demo = run("demo", "-q")  # the JAX engine: the demo bucket's programs come from the suite's cache

@@ -57,7 +57,7 @@ def test_structural_errors_name_clip_array_and_shapes(name, change, expected):
     assert info.value.array == name and info.value.clip_id == "tiny"
 
 
-def test_accepted_alternatives():
+def test_extrinsic_dynamic_mask_and_float_visibility_are_accepted_alternatives():
     arrays = tiny_arrays()
     R, t = arrays.pop("R_wc"), arrays.pop("t_wc")
     arrays["extrinsic"] = np.concatenate([R, t[:, :, None]], axis=2)

@@ -151,7 +151,7 @@ def test_trimmed_mean_matches_numpy_percentiles(compat):
                                    err_msg=str(values))
 
 
-def test_masked_mean():
+def test_masked_mean_ignores_masked_values_and_is_nan_with_none():
     values = jnp.array([[1.0, 2.0], [3.0, 4.0], [np.nan, np.inf]])
     np.testing.assert_allclose(masked_mean(values, jnp.array([True, True, False])), [2.0, 3.0])
     assert np.isnan(float(masked_mean(jnp.array([1.0, 2.0]), jnp.array([False, False]))))

@@ -21,6 +21,7 @@ from estimator_fixtures import (
     write_vggt,
 )
 from scenes import DEMO_SCENE
+from tolerances import RIGID_ROT_VAR_BAR
 
 from sgc_jax import load_clip, score_clip
 from sgc_jax.adapters import (
@@ -52,10 +53,8 @@ SHIFT0_MIN_ERROR = 0.05
 MIN_MOVING_FRAC = 0.15  # the unmasked moving objects cover this much of the clip (seed 8, 4 spheres: 17%)
 FLOAT32_RTOL, FLOAT32_ATOL = 1e-6, 1e-6  # the estimators' files store float32 (~6e-8 relative)
 EXACT_RTOL = 1e-9  # float64 IRLS on a noise-free affine map converges to rounding (measured ~1e-15)
-# deg^2: the required bar on local rotation variance for a rigid scene imported through the alignment
-# (measured 1e-10). Held to the global rotation variance too, which the shift-0 import fails
-# (0.10 deg^2; its local one, 0.028, passes: the bar alone would not tell the two apart).
-ROT_VAR_MAX = 0.05
+# RIGID_ROT_VAR_BAR, held to the global rotation variance too: a shift-0 import fails there (0.10
+# deg^2) while its local one (0.028) passes, so the local bar alone would not tell the two apart.
 
 _SCRIPT = Path(sys.executable).with_name("sgc-jax")
 CLI = [str(_SCRIPT)] if _SCRIPT.exists() else [shutil.which("sgc-jax") or "sgc-jax"]
@@ -240,5 +239,5 @@ def test_rigid_scene_imported_through_the_alignment_scores_rigid(tmp_path, rigid
     assert imported.meta["import"]["depth_alignment"]["status"] == "ok"
     result = score_clip(imported, engine="jax")
     assert result.status == "ok"
-    assert result.components["local_rot_var"] < ROT_VAR_MAX
-    assert result.components["global_rot_var"] < ROT_VAR_MAX
+    assert result.components["local_rot_var"] < RIGID_ROT_VAR_BAR
+    assert result.components["global_rot_var"] < RIGID_ROT_VAR_BAR

@@ -8,7 +8,7 @@ that costs less. They search for the coarse optimum differently, the reference h
 more minimal samples, no early stop, every neighbour's optimum and the camera's pose as starts).
 Where the engines' poses differ, the one of higher cost on the region's points is the wrong
 one. Both judge a pose against the same rival (docs/semantics.md §3.3), so they agree on the
-region statuses. The bars below are the issue's.
+region statuses. The bars below are what the engines must keep.
 """
 
 import cv2
@@ -63,7 +63,7 @@ def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
             clip.clip_id, r.components["depth_error"], j.components["depth_error"])
 
 
-# The issue's bars (issue 20): 0.95 of (clip, component) cases within tolerance, rho 0.98, 0.98
+# The bars: 0.95 of (clip, component) cases within tolerance, rho 0.98, 0.98
 # of statuses and JAX wrong on at most 0.02 of regions. At seed 0: 150 of 150 cases, rho 1.000,
 # 668 of 669 statuses, JAX the worse pose in 2 regions (bench/RESULTS.md, "The reference engine's
 # Levenberg-Marquardt step"; other seeds and GPUs: bench/engine_agreement.py). Misses, where a
@@ -138,9 +138,7 @@ def test_on_rigid_scenes_the_spec_local_poses_are_closer_to_the_truth_than_openc
     """The authors' PnP (OpenCV's adaptive RANSAC, inlier counting) on the same regions, against
     both spec engines: OpenCV's worst poses are further from the true motion. On frame i-1's
     regions (the default) the poses differ by > 0.1 deg in 31-32 of 280 regions, half of them in
-    each direction (95th percentile 1.35 deg against OpenCV's 1.43); on frame i's, where the
-    tracker's noise decides membership at a region's border, OpenCV was the one further away in
-    at least 3 of 4 (bench/RESULTS.md)."""
+    each direction (95th percentile 1.35 deg against OpenCV's 1.43; bench/RESULTS.md)."""
     clips, ref, jx = scored
     errors = {"jax": [], "reference": [], "opencv": []}
     for clip, r, j in zip(clips, ref.clips, jx.clips):
@@ -217,8 +215,7 @@ def test_on_outlier_clips_the_spec_local_poses_are_near_the_information_limit(sc
         assert len(errors) >= 20, name
         within[name] = np.mean(errors <= np.maximum(0.2, 3.0 * limits))
     assert within["jax"] >= 0.85 and within["reference"] >= 0.85, within
-    # on frame i's regions OpenCV fell short by 0.3 and more; on frame i-1's (the default): 0.98, the
-    # spec engines 1.0 (bench/RESULTS.md)
+    # measured 0.98 for OpenCV, 1.0 for the spec engines (bench/RESULTS.md)
     assert min(within["jax"], within["reference"]) >= within["opencv"], within
 
 

@@ -28,7 +28,7 @@ FLOATS = ("depth", "track_prev", "track_curr", "R_wc", "t_wc", "K")
 FORWARD_RTOL = 1e-4
 # Finite differences in float64: each input moved by at most 2.5e-8 of itself, below half a float32
 # ulp, so every choice (made on float32 values) stays as it was; the step's truncation and
-# rounding errors are ~1e-7 of the derivative (measured), so 1e-3 is the aim with margin.
+# rounding errors are ~1e-7 of the derivative (measured), so 1e-3 leaves a margin.
 FD_STEP = 1e-8
 FD_RTOL = 1e-3
 

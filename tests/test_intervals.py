@@ -14,7 +14,7 @@ from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.result import rescore_records
 
 CALIBRATION = Calibration.load("sgc-spec-2026")
-# The bar: one draw's 90 % interval holds the median score of repeated draws in >= 80 % of
+# The bar: one draw's 90 % interval holds the median score of repeated draws in >= 80 % of
 # draws. Per-pair components drawn as scaled chi-square(6) values of the spec calibration's range;
 # CLIPS draws put the coverage's standard error near 0.02 (measured: 0.83 at 3 pairs, 0.90 at 7).
 COVERAGE_MIN, CLIPS = 0.80, 300

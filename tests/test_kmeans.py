@@ -104,7 +104,8 @@ def test_labels_increase_with_value():
 
 @pytest.mark.slow
 def test_quality_at_least_ten_restart_lloyd_on_layered_depth():
-    KMeans = pytest.importorskip("sklearn.cluster").KMeans
+    from sklearn.cluster import KMeans
+
     rng = np.random.default_rng(0)
     valid = jnp.ones(MAP_SHAPE[0] * MAP_SHAPE[1], bool)
     excess = []
@@ -143,14 +144,14 @@ def test_invalid_entries_labelled_minus_one_and_ignored():
     np.testing.assert_array_equal(labels[np.argsort(perm)][: values.size], compact[: values.size])
 
 
-def test_degenerate_inputs():
+def test_no_valid_value_gives_no_cluster_and_a_constant_one_cluster():
     none = np.asarray(kmeans_1d(np.ones(6, np.float32), np.zeros(6, bool), k=3, bins=16))
     np.testing.assert_array_equal(none, -1)
     constant = np.asarray(kmeans_1d(np.full(6, 2.5, np.float32), np.arange(6) < 4, k=3, bins=16))
     np.testing.assert_array_equal(constant, [0, 0, 0, 0, -1, -1])
 
 
-def test_cluster_counts():
+def test_cluster_counts_count_each_cluster_and_skip_invalid_labels():
     counts = cluster_counts(jnp.array([0, 2, 2, -1, 1, 2, -1]), k=4)
     np.testing.assert_array_equal(counts, [1, 1, 3, 0])
 

@@ -203,7 +203,7 @@ def test_pyproject_ships_every_subpackage_and_the_calibrations():
     assert setuptools["package-data"]["sgc_jax.calibration"] == ["*.json"]
 
 
-# issue 39's bar for a function a newcomer reads at once
+# the most a function may hold for a newcomer to read it at once
 MAX_FUNCTION_LINES = 80
 MAX_PARAMETERS = 12
 

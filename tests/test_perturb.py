@@ -86,7 +86,7 @@ def test_same_seed_same_clip(clip, kind):
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_clip_without_frames_or_masks(bare_clip, kind):
+def test_a_clip_without_frames_or_masks_is_perturbed_without_inventing_them(bare_clip, kind):
     out = perturb_clip(bare_clip, kind, 1.0)
     assert out.frames is None and out.static_mask.shape == bare_clip.static_mask.shape
     # only false-positive noise can create a dynamic region where no mask was given

@@ -223,7 +223,7 @@ def test_ransac_is_accurate_with_noise_and_outliers(seed):
     assert np.all(np.asarray(res.reproj_px) > 0)
 
 
-def test_status_codes():
+def test_too_few_points_and_an_outlier_region_get_their_statuses_and_inliers_are_members():
     X, uv, member, _, _ = scene_with_regions(3, sizes=[3, 60, 60], outlier_region=1)
     res, _ = run_regions(X, uv, member)
     np.testing.assert_array_equal(np.asarray(res.status), [REGION_TOO_FEW_POINTS, REGION_REJECTED, REGION_OK])

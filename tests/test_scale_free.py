@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scenes import SCENE
+from tolerances import NUMERICAL_FLOOR, RIGID_ROT_VAR_BAR
 
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS
@@ -23,11 +24,8 @@ SCALE_REL_TOL = 1e-3
 # and discrete decisions (a point at the refinement's noise-level cut) can flip. Measured worst:
 # 1.9e-3 (bench/scale_free.py); the bar leaves room for other scenes.
 FLOAT32_STORAGE_REL_TOL = 1e-2
-# Below this, a component is float32 rounding of a clean fit (rotations resolve ~1e-5 deg, poses
-# ~1e-7 of D): relative differences of such values mean nothing.
-FLOAT32_FLOOR = 1e-6
-# The bars for a rigid scene with a masked moving object.
-ROT_VAR_BAR = 0.05  # deg^2
+# Below NUMERICAL_FLOOR a component is float32 rounding of a clean fit: relative differences of
+# such values mean nothing. The bars for a rigid scene with a masked moving object:
 DEPTH_ERROR_RATIO_BAR = 1.5  # against the same scene without the object
 
 
@@ -43,7 +41,7 @@ def assert_components_equal(result, reference_result, what, rel_tol=SCALE_REL_TO
     for k in (*COMPONENTS, "sgc"):
         got = result.sgc if k == "sgc" else result.components[k]
         want = reference_result.sgc if k == "sgc" else reference_result.components[k]
-        assert abs(got - want) <= rel_tol * abs(want) + FLOAT32_FLOOR, (what, k, got, want)
+        assert abs(got - want) <= rel_tol * abs(want) + NUMERICAL_FLOOR, (what, k, got, want)
 
 
 @pytest.fixture(scope="module")
@@ -122,8 +120,8 @@ def test_translation_scale_and_depth_error_do_not_depend_on_the_local_poses(trac
 @pytest.mark.parametrize("engine", ENGINES)
 def test_masked_moving_object_neither_moves_poses_nor_leaks_into_depth_error(moving_clip, still_clip, engine):
     moving, still = score_batch([moving_clip, still_clip], engine=engine).clips
-    assert moving.components["local_rot_var"] < ROT_VAR_BAR
-    assert moving.components["global_rot_var"] < ROT_VAR_BAR
+    assert moving.components["local_rot_var"] < RIGID_ROT_VAR_BAR
+    assert moving.components["global_rot_var"] < RIGID_ROT_VAR_BAR
     assert moving.components["depth_error"] < DEPTH_ERROR_RATIO_BAR * still.components["depth_error"]
 
 
@@ -154,7 +152,7 @@ def test_without_global_pose_the_global_components_drop_out(rigid_clip, engine):
     full, ablated = (score_batch([rigid_clip], engine=engine, global_pose=g).clips[0] for g in (True, False))
     assert np.isnan(ablated.components["global_rot_var"]) and np.isnan(ablated.components["global_trans_var"])
     for k in ("local_rot_var", "local_trans_var"):
-        assert ablated.components[k] == pytest.approx(full.components[k], rel=1e-6, abs=FLOAT32_FLOOR)
+        assert ablated.components[k] == pytest.approx(full.components[k], rel=1e-6, abs=NUMERICAL_FLOOR)
     # the mean local pose of an exact rigid scene is the camera's motion: the same depth check
     assert ablated.components["depth_error"] == pytest.approx(full.components["depth_error"], rel=1e-3)
     assert np.isfinite(ablated.sgc) and ablated.scale == 1.0

@@ -1,0 +1,16 @@
+"""Tolerances several test files share, each once with where its number comes from
+(``from tolerances import ...``). A tolerance one file uses alone is defined in that file.
+"""
+
+from sgc_jax.calibration.formula import NUMERICAL_FLOOR  # noqa: F401 - float32's floor of a clean fit (deg^2, (% of D)^2)
+
+# deg^2: a rigid scene (its moving objects masked) must score a rotation variance below this; clean
+# fits measure 1e-10, and a wrong optimum on one region of one pair (the failure it guards
+# against) adds tenths of a degree squared.
+RIGID_ROT_VAR_BAR = 0.05
+
+# The paper's published values are rounded to 4 decimals: a score recomputed from its rounded
+# components moves by up to ~1.5e-4, and weights refitted from the 13 published group rows match to
+# their last printed digit.
+PUBLISHED_SCORE_ATOL = 2e-4
+PUBLISHED_WEIGHT_ATOL = 1e-4
