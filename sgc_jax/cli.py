@@ -15,6 +15,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .adapters.delta import DELTA_VIS_THRESHOLD
+from .adapters.vggt import MODES as VGGT_MODES
 from .calibration import COMPONENTS
 from .config import SGCConfig, cli_flag, renamed_fields
 from .io.extras import MissingExtraError
@@ -669,7 +671,7 @@ def _register_import(sub) -> None:
                                  "is aligned to VGGT's depth)")
     conversion.add_argument("--depth-key", default="depths", help="array name in the depth file (default: depths)")
     conversion.add_argument("--size", help="clip grid HxW (default: frames, else masks, else depth size)")
-    conversion.add_argument("--vggt-mode", choices=("crop", "pad"), default="crop",
+    conversion.add_argument("--vggt-mode", choices=VGGT_MODES, default="crop",
                             help="VGGT load_and_preprocess_images mode (default: crop)")
     conversion.add_argument("--vggt-source-size", help="HxW of the frames VGGT saw, when not the clip grid")
     conversion.add_argument("--track-size", help="HxW of the frames DELTA saw, when not the clip grid")
@@ -679,7 +681,7 @@ def _register_import(sub) -> None:
                                  "over static pixels of above-median VGGT confidence) to VGGT's depth, so depth and "
                                  "camera translations share units; meta['import']['depth_alignment'] records the fit "
                                  "or what was assumed")
-    conversion.add_argument("--vis-threshold", type=float, default=0.8,
+    conversion.add_argument("--vis-threshold", type=float, default=DELTA_VIS_THRESHOLD,
                             help="DELTA visibility above this is visible (default 0.8, DELTA's own)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "

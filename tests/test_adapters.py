@@ -287,6 +287,11 @@ def test_delta_dense_arrays_become_consecutive_pairs(tmp_path):
     np.savez(tmp_path / "renamed.npz", trajs_uv=coords, vis=vis)
     with pytest.raises(EstimatorFormatError, match=r"renamed\.npz: array 'coords'.*found \['trajs_uv', 'vis'\]"):
         read_delta(tmp_path / "renamed.npz")
+    for name, content in (("empty.npz", b""), ("cut.npz", (tmp_path / "renamed.npz").read_bytes()[:100]),
+                          ("cut.pkl", (tmp_path / "bad.pkl").read_bytes()[:20])):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(EstimatorFormatError, match=name):  # a broken file is named, never a traceback
+            read_delta(tmp_path / name)
 
 
 # ----------------------------------------------------------------------------- SegAnyMo
@@ -330,8 +335,10 @@ def test_missing_masks_mean_nothing_moves_and_are_reported(tmp_path, scene_clip)
     masks = read_seganymo(directory, height=H, width=W, frame_names=names)
     assert masks.static_mask[2].all() and masks.notes["masks_missing"] == [names[2]]
     assert "nothing moves there" in masks.notes["masks"]
-    absent = read_seganymo(tmp_path / "nowhere", height=H, width=W, frame_names=names)
+    absent = read_seganymo(None, height=H, width=W, frame_names=names)
     assert absent.static_mask is None and "nothing moves" in absent.notes["masks"]
+    with pytest.raises(FileNotFoundError, match="nowhere: no such folder"):  # mistyped: not "nothing moves"
+        read_seganymo(tmp_path / "nowhere", height=H, width=W, frame_names=names)
     with pytest.raises(EstimatorFormatError, match=r"expected 4 PNGs, one per frame, found 3 PNGs"):
         read_seganymo(directory, height=H, width=W, n_frames=4)
 

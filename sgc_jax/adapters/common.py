@@ -15,6 +15,8 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
+from ..io.npz import NpzError, read_npz
+
 
 class EstimatorFormatError(ValueError):
     """An estimator output that cannot be imported: names the file, the array, what was expected,
@@ -38,15 +40,18 @@ def load_arrays(source: Any, label: str | None = None) -> tuple[str, dict[str, n
     path = Path(os.fspath(source))
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
+    try:  # read_npz turns any archive it cannot read (empty, truncated, pickled) into NpzError
+        return str(path), read_npz(path)
+    except NpzError as exc:
+        raise EstimatorFormatError(path, exc.array, exc.expected, exc.found) from None
+
+
+def load_npy(path: Path) -> np.ndarray:
+    """One ``.npy`` array of numbers; EstimatorFormatError naming the file for anything else."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return str(path), {k: data[k] for k in data.files}
-    except ValueError as exc:  # a pickled object array, or not an .npz at all
-        raise EstimatorFormatError(path, "<file>", "an .npz of numeric arrays", f"{type(exc).__name__}: {exc}") from exc
-
-
-def shape_str(shape: Any) -> str:
-    return "(" + ", ".join(str(s) for s in shape) + ")"
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:  # object arrays, truncated or empty files
+        raise EstimatorFormatError(path, "<file>", "a .npy of numeric arrays", f"{type(exc).__name__}: {exc}") from None
 
 
 def squeeze_batch(array: np.ndarray, ndim: int) -> np.ndarray:

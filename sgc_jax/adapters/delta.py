@@ -24,7 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import EstimatorFormatError, load_arrays, natural_key, shape_str, squeeze_batch
+from ..io.npz import shape_text
+from .common import EstimatorFormatError, load_arrays, load_npy, natural_key, squeeze_batch
 
 DELTA_VIS_THRESHOLD = 0.8  # DensePredictor2D: dense_vis_e = dense_vis_e > 0.8
 
@@ -71,10 +72,10 @@ def frame_stems(directory: Path) -> list[str]:
 
 
 def _load_pair_file(path: Path) -> np.ndarray:
-    data = np.load(path, allow_pickle=False)
+    data = load_npy(path)
     if data.ndim != 2 or data.shape[1] < 4:
         raise EstimatorFormatError(path, "x, y, vis, conf", "shape (N, 4) float32 (DELTA per-pair layout)",
-                                   f"shape {shape_str(data.shape)}")
+                                   f"shape {shape_text(data.shape)}")
     return np.asarray(data, np.float32)
 
 
@@ -137,8 +138,12 @@ def read_delta_dense(source: Any, *, vis_threshold: float = DELTA_VIS_THRESHOLD,
     """
     if isinstance(source, (str, os.PathLike)) and Path(source).suffix == ".pkl":
         label = str(source)
-        with open(source, "rb") as handle:
-            raw = pickle.load(handle)  # noqa: S301 - the user's own DELTA output, documented above
+        try:
+            with open(source, "rb") as handle:
+                raw = pickle.load(handle)  # noqa: S301 - the user's own DELTA output, documented above
+        except (pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:  # truncated, or not a pickle
+            raise EstimatorFormatError(label, "<pickle>", "a pickled dict with coords, vis, conf",
+                                       f"{type(exc).__name__}: {exc}") from None
         if not isinstance(raw, dict):
             raise EstimatorFormatError(label, "<pickle>", "a dict with coords, vis, conf", type(raw).__name__)
         arrays = {k: np.asarray(v) for k, v in raw.items()}
@@ -149,13 +154,13 @@ def read_delta_dense(source: Any, *, vis_threshold: float = DELTA_VIS_THRESHOLD,
                                    "DELTA's demo_2d.py saves 'coords', 'vis' and 'conf' in dense_2d_track.pkl")
     coords = squeeze_batch(np.asarray(arrays["coords"], np.float32), 3)
     if coords.ndim != 3 or coords.shape[2] != 2 or coords.shape[0] < 2:
-        raise EstimatorFormatError(label, "coords", "shape (T, N, 2) with T >= 2", f"shape {shape_str(coords.shape)}")
+        raise EstimatorFormatError(label, "coords", "shape (T, N, 2) with T >= 2", f"shape {shape_text(coords.shape)}")
     T, N = coords.shape[:2]
     vis = squeeze_batch(np.asarray(arrays["vis"]), 2) if "vis" in arrays else np.ones((T, N), np.float32)
     conf = squeeze_batch(np.asarray(arrays["conf"], np.float32), 2) if "conf" in arrays else np.ones((T, N), np.float32)
     for name, array in (("vis", vis), ("conf", conf)):
         if array.shape != (T, N):
-            raise EstimatorFormatError(label, name, f"shape ({T}, {N}) like coords", f"shape {shape_str(array.shape)}")
+            raise EstimatorFormatError(label, name, f"shape ({T}, {N}) like coords", f"shape {shape_text(array.shape)}")
     if reference_compat:
         track_vis = _visibility(vis[1:], vis_threshold, True)
     else:

@@ -69,10 +69,11 @@ def read_seganymo(directory: Any, *, height: int, width: int, frame_names: Seque
     ``frame_names``: frame stems in order; masks are then ``{name}.png`` and missing ones are all
     static. Without names, the sorted PNGs are the frames and their count must be ``n_frames``.
     """
-    if directory is None or not Path(os.fspath(directory)).is_dir():
-        where = "none given" if directory is None else f"{directory} does not exist"
-        return Masks(None, {"masks": f"no mask folder ({where}): nothing moves, the whole frame is static"})
+    if directory is None:
+        return Masks(None, {"masks": "no mask folder given: nothing moves, the whole frame is static"})
     directory = Path(os.fspath(directory))
+    if not directory.is_dir():  # a mistyped folder must not pass for a clip where nothing moves
+        raise FileNotFoundError(f"--masks {directory}: no such folder (leave --masks out if nothing moves)")
     files = mask_files(directory)
     if not files:
         return Masks(None, {"masks": f"no PNG in {directory}: nothing moves, the whole frame is static"})

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from .common import EstimatorFormatError, load_arrays, map_intrinsics, resize_factors, shape_str, squeeze_batch
+from ..io.npz import shape_text
+from .common import EstimatorFormatError, load_arrays, map_intrinsics, resize_factors, squeeze_batch
 
 VGGT_SIZE = 518  # VGGT's target width (crop) or longer side (pad)
 PATCH = 14  # VGGT's patch size: preprocessed sides are multiples of it
@@ -120,11 +121,11 @@ def read_vggt(source: Any, *, height: int, width: int, mode: str = "crop",
     extrinsic = squeeze_batch(np.asarray(arrays["extrinsic"], np.float64), 3)
     intrinsic = squeeze_batch(np.asarray(arrays["intrinsic"], np.float64), 3)
     if extrinsic.ndim != 3 or extrinsic.shape[1:] not in ((3, 4), (4, 4)):
-        raise EstimatorFormatError(label, "extrinsic", "shape (S, 3, 4)", f"shape {shape_str(extrinsic.shape)}")
+        raise EstimatorFormatError(label, "extrinsic", "shape (S, 3, 4)", f"shape {shape_text(extrinsic.shape)}")
     S = extrinsic.shape[0]
     if intrinsic.shape != (S, 3, 3):
         raise EstimatorFormatError(label, "intrinsic", f"shape ({S}, 3, 3), one per extrinsic",
-                                   f"shape {shape_str(intrinsic.shape)}")
+                                   f"shape {shape_text(intrinsic.shape)}")
     for name, array in (("extrinsic", extrinsic), ("intrinsic", intrinsic)):
         if not np.isfinite(array).all():
             raise EstimatorFormatError(label, name, "finite values", f"{int((~np.isfinite(array)).sum())} non-finite")
@@ -178,7 +179,7 @@ def _read_depth(label: str, arrays: dict[str, np.ndarray], grid: VGGTGrid, frame
         if maps.shape != (n_frames, grid.height, grid.width):
             same_count = maps.ndim == 3 and maps.shape[0] == n_frames
             fix = _grid_fix(maps.shape[1:3], frame_hw, grid.mode) if same_count else ""
-            raise EstimatorFormatError(label, name, expected, f"shape {shape_str(np.shape(arrays[name]))}", fix)
+            raise EstimatorFormatError(label, name, expected, f"shape {shape_text(np.shape(arrays[name]))}", fix)
         if not np.issubdtype(maps.dtype, np.number):
             raise EstimatorFormatError(label, name, "numeric maps", f"dtype {maps.dtype}")
         found[name] = maps.astype(np.float32, copy=False)

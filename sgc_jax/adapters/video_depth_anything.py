@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from .common import EstimatorFormatError, load_arrays, resize_nearest, shape_str, squeeze_batch
+from ..io.npz import shape_text
+from .common import EstimatorFormatError, load_arrays, resize_nearest, squeeze_batch
 
 KINDS = ("disparity", "metric")
 AUTHORS_DIVISOR = 1000.0  # the SGC authors' pipeline: depth = VDA output / 1000, used directly
@@ -49,7 +50,7 @@ def _read_maps(source: Any, key: str) -> tuple[str, np.ndarray]:
     maps = np.asarray(arrays[key])
     maps = maps[:, 0] if maps.ndim == 4 and maps.shape[1] == 1 else squeeze_batch(maps, 3)
     if maps.ndim != 3:
-        raise EstimatorFormatError(label, key, "shape (T, H, W)", f"shape {shape_str(maps.shape)}")
+        raise EstimatorFormatError(label, key, "shape (T, H, W)", f"shape {shape_text(maps.shape)}")
     if not np.issubdtype(maps.dtype, np.number):
         raise EstimatorFormatError(label, key, "numeric depth maps", f"dtype {maps.dtype}")
     return label, maps
