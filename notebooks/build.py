@@ -417,16 +417,16 @@ DIAGNOSTICS = [
         compared with frame i's depth on static pixels. On a rigid scene only occlusion edges
         remain; the drifting layer leaves bands where its old and new positions disagree.
     """),
-    _code("fig = plot.plot_depth_warp_error(drift, PAIR)"),
+    _code("fig = plot.plot_depth_warp_error(drift, PAIR, scale=result.clip('layer-drift').scale)"),
     _code("""\
-        warp = diagnostics.depth_warp_error(drift, PAIR)
+        warp = diagnostics.depth_warp_error(drift, PAIR, scale=result.clip("layer-drift").scale)
         print(f"mean {warp.mean:.4f} {warp.error_unit} over {warp.compared.sum()} pixels; "
               f"the pair's depth_error: {result.clip('layer-drift').pairs.depth_error[PAIR - 1]:.4f}")"""),
     _md("""
         The `depth_warp` perturbation remaps the depth maps differently in every frame, so the
         warped depth no longer lines up with the next frame's anywhere:
     """),
-    _code("fig = plot.plot_depth_warp_error(bent, PAIR)"),
+    _code("fig = plot.plot_depth_warp_error(bent, PAIR, scale=result.clip(bent.clip_id).scale)"),
     _md("""
         ## Reprojection error per region
 
@@ -636,13 +636,13 @@ GRADIENTS = [
               f"({norm[on_object].mean() / norm[static].mean():.0f}x)")
         ratio = [norm[p][on_object[p]].mean() / norm[p][static[p]].mean() if on_object[p].any() else 0.0
                  for p in range(T - 1)]
-        pair = int(np.argmax(ratio))
+        pair = int(np.argmax(ratio)) + 1  # pair i = frames i-1 -> i, row i-1
         # which pairs stand out (> 10x) is stable; the small ratios follow RANSAC's choices, which
         # another CPU's rounding may change
-        strong = [p for p in range(T - 1) if ratio[p] > 10]
+        strong = [p + 1 for p in range(T - 1) if ratio[p] > 10]
         print(f"pairs where they carry > 10x the static gradient: {strong} "
-              f"({', '.join(f'{ratio[p]:.0f}x' for p in strong)}); elsewhere at most "
-              f"{max((r for p, r in enumerate(ratio) if p not in strong), default=0.0):.0f}x; shown: pair {pair}")"""),
+              f"({', '.join(f'{ratio[i - 1]:.0f}x' for i in strong)}); elsewhere at most "
+              f"{max((r for p, r in enumerate(ratio) if p + 1 not in strong), default=0.0):.0f}x; shown: pair {pair}")"""),
     _md("""
         Per pair the picture is sharper than the mean: where the sphere's tracks form a region of
         their own, its pose disagrees with the others and its tracks carry tens of times the

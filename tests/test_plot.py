@@ -254,7 +254,7 @@ def test_descent_draws_the_score_and_the_depth_error_per_step(tmp_path):
 def test_track_gradients_colour_each_visible_track(rigid_clip, tmp_path):
     norm = np.abs(np.random.default_rng(0).normal(size=rigid_clip.track_vis.shape))
     norm[0, :10] = 0.0  # tracks without a gradient are drawn too
-    fig = plot.plot_track_gradients(rigid_clip, 0, norm)
+    fig = plot.plot_track_gradients(rigid_clip, 1, norm)  # pair 1: row 0
     check_figure(fig, tmp_path / "tracks.png")
     dots = [c for c in _data_axes(fig)[0].collections if isinstance(c, PathCollection)]
     assert len(dots) == 1 and len(dots[0].get_offsets()) == rigid_clip.track_vis[0].sum()

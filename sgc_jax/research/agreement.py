@@ -1,7 +1,8 @@
 """How closely two scorings of the same clips agree (docs/semantics.md §7): the agreement corpus
-of issue 20 (30 synthetic clips), the tolerances of a component, and the figures of one
-comparison: components within tolerance, Spearman rho of SGC, same region status, and where two
-local poses differ, which one is the worse optimum (higher truncated cost at the cut).
+(30 synthetic clips: six families and eight perturbations), the tolerances of a component, and
+the figures of one comparison: components within tolerance, Spearman rho of SGC, same region
+status, and where two local poses differ, which one is the worse optimum (higher truncated cost
+at the cut).
 
 Any two scorings compare: the two engines, or one engine under two seeds or search efforts (its
 own reproducibility: the ceiling of any cross-engine figure).
@@ -29,12 +30,12 @@ _LADDER = (("warp", 0.25), ("warp", 0.75), ("squeeze", 0.25), ("squeeze", 0.75),
            ("depth_warp", 0.25), ("depth_warp", 0.75), ("warp", 0.5), ("squeeze", 0.5))
 
 # The agreement bar in the scale-free units of docs/semantics.md §4: rotation variances 0.05
-# deg^2 (issue 20's); translation variances (1% of the median depth)^2 = 1 (% of D)^2 and the
+# deg^2 (the rigid-scene bar); translation variances (1% of the median depth)^2 = 1 (% of D)^2 and the
 # depth error 0.1% (1e-4 md^2 and 1e-3 md in depth units); or 5% of the value.
 ATOL = {"local_rot_var": 0.05, "global_rot_var": 0.05, "local_trans_var": 1.0, "global_trans_var": 1.0,
         "depth_error": 0.1}
 RTOL = 0.05
-#: Two local poses further apart than this [deg] are different optima (issue 20).
+#: Two local poses further apart than this [deg] are different optima.
 DIFFER_DEG = 1.0
 
 

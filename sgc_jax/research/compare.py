@@ -2,7 +2,7 @@
 agreement between two score files, and how much a score follows camera dynamics (ECD).
 
 Inputs are per-clip rows (columns of docs/semantics.md §4), e.g. ``BatchResult.to_records()`` or
-``sgc_jax.io.result.read_scores(...)``. Rows with status ``error`` or a NaN value are left out of
+``sgc_jax.read_scores(...)``. Rows with status ``error`` or a NaN value are left out of
 every statistic. Ranks: 1 = lowest mean (lower SGC is better), ties share their average rank.
 Fewer than :data:`MIN_N` values give no bootstrap CI and no correlation (NaN): the CI of one or
 two values is the values themselves, and any two points correlate at exactly +-1.

@@ -2,10 +2,11 @@
 
 ``pair`` is the index i (docs/semantics.md §3) of frames i-1 -> i (1..T-1), the ``pair`` column of
 ``to_pandas(pairs=True)``; region label j (1..N_s) is slot j-1 of the per-region arrays of
-:class:`~sgc_jax.io.result.PairArrays`. Every quantity is recomputed with the reference
+:class:`~sgc_jax.engines.pairs.PairArrays`. Every quantity is recomputed with the reference
 implementation (NumPy + OpenCV) from the clip and the config that scored it; the poses come from
-the scored :class:`~sgc_jax.io.result.PairArrays`, so the diagnostics show what either engine found.
-Pixels: x = column, y = row; depth and local translations in depth units.
+the scored :class:`~sgc_jax.engines.pairs.PairArrays`, so the diagnostics show what either engine
+found. Pixels: x = column, y = row; depth and local translations in units of D under
+``compat="spec"``, in depth units under "authors" (a warped depth map is given back in depth units).
 """
 
 from __future__ import annotations
@@ -102,7 +103,9 @@ def global_pose(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
                 scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(R_g (3, 3), scale * t_g / D (3,)): the camera's relative pose from frame pair-1 to pair
     (docs/semantics.md §3.4), its translation in the units the engines use (D = 1 under authors);
-    ``scale``: a result's ``pairs.scale`` (depth units per pose unit)."""
+    ``scale``: the scored clip's ``scale`` (depth units per pose unit; 1 is right only where depth
+    and cameras share units). The cameras' pose also under ``global_pose=False``, where the score
+    uses the mean local pose instead (§6.3)."""
     clip, config, unit = _prepare_with_unit(clip, pair, config)
     R_g, t_g = reference.global_relative_pose(clip, pair, config)
     return R_g, scale * t_g / unit
@@ -113,7 +116,7 @@ class PoseFlow:
     """Image motion each relative pose predicts for each region (paper Figure 4).
 
     Per region slot (k): ``anchor`` (k, 3) the centroid of the region's points in camera pair-1
-    (depth units); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
+    (units of D under spec, depth units under authors); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
     (k, 2) the displacement in pixels of that point under the region's local pose / the global
     pose; ``status`` (k,) :data:`~sgc_jax.codes.REGION_STATUS` codes; ``n_points`` (k,).
     Rows of regions without an accepted pose (or without points) are NaN.
@@ -146,7 +149,7 @@ def pose_flow(clip: Clip | Any, scored: ClipResult | PairArrays, pair: int,
               config: SGCConfig | None = None) -> PoseFlow:
     """Where each region's centroid moves under its local pose and under the global pose.
 
-    ``scored``: the clip's :class:`~sgc_jax.io.result.ClipResult` (or its ``pairs``), scored with
+    ``scored``: the clip's :class:`~sgc_jax.scoring.result.ClipResult` (or its ``pairs``), scored with
     ``config``. Each arrow is the optical flow the pose predicts at the region's anchor:
     project(K[pair], R X + t) - project(K[pair-1], X); a rigid scene gives equal arrows.
     """
@@ -232,9 +235,10 @@ class DepthWarpError:
 
 def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = None, *,
                      scale: float = 1.0) -> DepthWarpError:
-    """Per-pixel depth-warp error of a pair with the global pose; ``scale``: the result's
-    ``pairs.scale`` (depth units per pose unit). Under compat="spec" depths are in units of D and
-    the error in percent of depth; under "authors" both in depth units."""
+    """Per-pixel depth-warp error of a pair with the global pose; ``scale``: the scored clip's
+    ``scale`` (depth units per pose unit; the default 1 is right only where depth and cameras share
+    units, as in synthetic clips). Under compat="spec" depths are in units of D and the error in
+    percent of depth; under "authors" both in depth units."""
     original = clip
     clip, config, unit = _prepare_with_unit(clip, pair, config)
     R_g, t_g = global_pose(original, pair, config, scale=scale)

@@ -270,6 +270,7 @@ def plot_depth_warp_error(clip: "Clip", pair: int, *, config: "SGCConfig | None"
                           vmax: float | None = None, log: bool = True) -> "Figure":
     """Frame pair-1's depth warped into frame ``pair`` with the global pose, frame ``pair``'s depth,
     and their absolute difference where compared (docs/semantics.md §3.6); grey = not compared.
+    ``scale``: the scored clip's ``scale`` (1, the default, is right where depth and cameras share units).
 
     The error colour scale runs to ``vmax`` (default: the largest error); ``log``: a log scale over
     three decades below it, so small errors over whole surfaces show next to occlusion edges.
@@ -544,18 +545,19 @@ def plot_descent(steps: Sequence[int], sgc: Sequence[float], depth_error_pct: Se
 
 
 def plot_track_gradients(clip: "Clip", pair: int, gradient_norm) -> "Figure":
-    """Each visible track of ``pair`` at its pixel in frame pair + 1, over that frame's depth,
-    coloured by its gradient norm (``gradient_norm`` (T-1, P), e.g. |d sgc_smooth / d track_curr|)."""
+    """Each visible track of pair i = ``pair`` (frames i-1 -> i, 1..T-1, as the pair tables) at its
+    pixel in frame i, over that frame's depth, coloured by its gradient norm (``gradient_norm``
+    (T-1, P), row i-1 for pair i; e.g. |d sgc_smooth / d track_curr|)."""
     plt = import_pyplot()
     from matplotlib.colors import LogNorm
 
     fig, ax = plt.subplots(figsize=(5, 4), constrained_layout=True)
-    ax.imshow(clip.depth[pair + 1], cmap="gray")
-    shown = clip.track_vis[pair]
-    values = np.asarray(gradient_norm, float)[pair, shown]
+    ax.imshow(clip.depth[pair], cmap="gray")
+    shown = clip.track_vis[pair - 1]
+    values = np.asarray(gradient_norm, float)[pair - 1, shown]
     positive = values[values > 0]
     floor = positive.min() if positive.size else 1e-12  # tracks without a gradient at the colour map's bottom
-    dots = ax.scatter(clip.track_curr[pair, shown, 0], clip.track_curr[pair, shown, 1], c=np.maximum(values, floor),
+    dots = ax.scatter(clip.track_curr[pair - 1, shown, 0], clip.track_curr[pair - 1, shown, 1], c=np.maximum(values, floor),
                       s=6, cmap="magma", norm=LogNorm(vmin=floor))
     fig.colorbar(dots, ax=ax, label="gradient norm per track [1/px]")
     _image_axes(ax, f"pair {pair}: gradient norm per track")
