@@ -111,8 +111,9 @@ def test_invalid_arguments_raise(clip):
         perturb_clip(clip, "warp", 0.5, amplitude=3)  # misspelled magnitude keyword
     with pytest.raises(ValueError, match="seed"):
         perturb_clip(clip, "warp", 0.5, seed=-1)
-    with pytest.raises(ValueError, match="folds"):
-        perturb_clip(clip, "depth_warp", 0.5, amplitude_frac=0.2, wavelength_frac=1.0)
+    for amplitude in (0.2, 0.15):  # 0.15: each component's slope 0.94 < 1, the two together 1.33
+        with pytest.raises(ValueError, match="fold"):
+            perturb_clip(clip, "depth_warp", 0.5, amplitude_frac=amplitude, wavelength_frac=1.0)
 
 
 # ----------------------------------------------------------------------------- geometric
