@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scenes import DEMO_SCENE, SMALL_SCENE
+from tolerances import LM_SETTLE_RTOL
 
 from sgc_jax import COMPONENTS, ClipFormatError, Scorer, SGCConfig, score_batch
 from sgc_jax.codes import SCORER_STATUS_CODE
@@ -31,10 +32,9 @@ from sgc_jax.stats import exact_median
 # pairs and the score formula run in float32 where the tables use float64: a few float32 roundings
 # (2^-24 ~ 6e-8 each) of values of order 1-100.
 CLIP_RTOL, CLIP_ATOL = 1e-5, 1e-6
-# Inside a user's jit the steps fuse into one program that rounds differently, and a local optimum
-# settles once a step lowers its cost by less than LM_RTOL = 1e-6 of it (kernels/joint_pnp.py):
-# two roundings of one fit may stop sqrt(1e-6) = 1e-3 apart, relative, in the pose.
-FUSED_RTOL, FUSED_ATOL = 2e-3, 1e-5
+# Inside a user's jit the steps fuse into one program that rounds differently: two roundings of one
+# fit may settle LM_SETTLE_RTOL apart in the pose.
+FUSED_RTOL, FUSED_ATOL = 2 * LM_SETTLE_RTOL, 1e-5
 PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
             "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
 SHAPE = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
