@@ -546,7 +546,8 @@ def _read_batch_member(path: Path | str, listing: int, b: int, clip_id: str, ste
             _LAST_BATCH.clear()
             _LAST_BATCH[key] = arrays
     member = _batch_member(arrays, b, batch_layout({k: a.shape for k, a in arrays.items()}, arrays, stem))
-    return {name: np.array(a) for name, a in member.items()}  # copies: the kept arrays serve the other members
+    # copies, as the kept arrays serve the other members; shape-only placeholders stay views (no memory)
+    return {name: a if name in shape_only else np.array(a) for name, a in member.items()}
 
 
 def _entries_from_mapping(source: Mapping[str, Any], config: SGCConfig) -> list[ClipEntry]:
