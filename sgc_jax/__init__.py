@@ -37,7 +37,8 @@ __all__ = [
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "CalibrationMismatchError", "Clip", "ClipFormatError",
     "ClipResult", "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
     "PERTURBATIONS", "PairArrays", "RewardOptions", "RunOptions", "SGCConfig", "Scorer", "StreamStats", "StudyResult",
-    "batch_of", "calibrate", "camera_dynamics", "check_clip", "clip_from_arrays", "default_calibration", "enable_compilation_cache",
-    "import_clip", "iter_scores", "kfold_stability", "load_clip", "load_clips", "perturb_clip", "read_scores",
-    "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip", "sensitivity_study", "sgc_score",
+    "batch_of", "calibrate", "camera_dynamics", "check_clip", "clip_from_arrays", "default_calibration",
+    "enable_compilation_cache", "import_clip", "iter_scores", "kfold_stability", "load_clip", "load_clips",
+    "perturb_clip", "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip",
+    "sensitivity_study", "sgc_score",
 ]

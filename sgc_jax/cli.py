@@ -24,6 +24,8 @@ from .scoring.engine_steps import ENGINES
 from .scoring.options import READ_IN
 from .version import __version__
 
+CLIP_INPUTS_HELP = "clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)"
+
 EXIT_OK = 0  # every input processed
 EXIT_SOME_FAILED = 1  # the command ran to the end and wrote its outputs; some inputs were reported as errors
 EXIT_USAGE = 2  # nothing done: bad arguments, inputs or outputs (one line on stderr says which)
@@ -304,8 +306,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _register_score(sub) -> None:
     score = sub.add_parser("score", help="score clip / batch .npz files, directories, globs or URLs",
-                           description="Score every clip: SGC, its interval and components per clip (docs/semantics.md §3-§5).")
-    score.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
+                           description="Score every clip: SGC, its interval and components per clip "
+                                       "(docs/semantics.md §3-§5).")
+    score.add_argument("paths", nargs="+", help=CLIP_INPUTS_HELP)
     output = score.add_argument_group("output")
     output.add_argument("--out", help="per-clip table, CSV or .parquet (columns: docs/semantics.md §4)")
     output.add_argument("--pairs", help="per-pair table, CSV or .parquet (docs/semantics.md §4); without --out, the "
@@ -337,7 +340,9 @@ def _register_score(sub) -> None:
 
 def _register_demo(sub) -> None:
     demo = sub.add_parser("demo", help="synthesise a small corpus, score it and print the table",
-                          description="Synthesise the demo corpus (rigid, noisy, moving-object, unmasked and non-rigid clips), score it, print the table and check the claims it demonstrates (docs/semantics.md §4, §5).")
+                          description="Synthesise the demo corpus (rigid, noisy, moving-object, unmasked and "
+                                      "non-rigid clips), score it, print the table and check the claims it "
+                                      "demonstrates (docs/semantics.md §4, §5).")
     demo.add_argument("--out", help="keep the demo clips in this directory")
     demo.add_argument("--engine", choices=ENGINES, default="jax",
                       help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
@@ -348,7 +353,8 @@ def _register_demo(sub) -> None:
 
 def _register_synth(sub) -> None:
     synth = sub.add_parser("synth", help="write the synthetic demo corpus as clip .npz files",
-                           description="Write the demo corpus as clip files (docs/semantics.md §1.2), to score or inspect.")
+                           description="Write the demo corpus as clip files (docs/semantics.md §1.2), to score "
+                                       "or inspect.")
     synth.add_argument("--out", required=True, help="(required) output directory")
     synth.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
     synth.set_defaults(func=cmd_synth)
@@ -508,12 +514,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def _register_calibrate(sub) -> None:
     cal = sub.add_parser("calibrate", help="fit a calibration (mu, sigma, z bounds, PC1 weights) on scores CSVs",
-                         description="Fit a calibration on per-clip tables and report its k-fold stability (docs/semantics.md §5.5).")
+                         description="Fit a calibration on per-clip tables and report its k-fold stability "
+                                     "(docs/semantics.md §5.5).")
     cal.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
     algorithm = cal.add_argument_group("algorithm")
     algorithm.add_argument("--by", choices=("clip", "group"), default="clip",
-                           help="fit on clips (default), or on per-group means (the paper's way; docs/semantics.md §5.5)")
-    algorithm.add_argument("--folds", type=int, default=5, help="k of the k-fold weight stability (default 5; 0: skip; above the number of clips: leave-one-out)")
+                           help="fit on clips (default), or on per-group means (the paper's way; "
+                                "docs/semantics.md §5.5)")
+    algorithm.add_argument("--folds", type=int, default=5,
+                           help="k of the k-fold weight stability (default 5; 0: skip; above the number of "
+                                "clips: leave-one-out)")
     algorithm.add_argument("--seed", type=int, default=0, help="fold shuffling seed (default 0)")
     algorithm.add_argument("--floor-band", type=float, default=0.0,
                            help="fit an excess calibration: the pose components above this many times their noise "
@@ -532,14 +542,16 @@ def _register_rescore(sub) -> None:
                          description="Recompute sgc, its interval and sgc_floor from the stored components under "
                                      "another calibration (docs/semantics.md §5).")
     res.add_argument("scores", nargs="+", help="per-clip tables (CSV or .parquet) from `sgc-jax score --out`")
-    res.add_argument("--calibration", required=True, help="(required) shipped calibration name or a calibration JSON file")
+    res.add_argument("--calibration", required=True,
+                     help="(required) shipped calibration name or a calibration JSON file")
     res.add_argument("--out", help="re-scored CSV (default: print the table)")
     res.set_defaults(func=cmd_rescore)
 
 
 def _register_compare(sub) -> None:
     cmp_ = sub.add_parser("compare", help="per-group / per-clip tables, ECD dependence, agreement of two files",
-                          description="Rank groups or clips with bootstrap CIs, their dependence on camera dynamics (ECD) and the agreement of two scorings (docs/semantics.md §6.5).")
+                          description="Rank groups or clips with bootstrap CIs, their dependence on camera "
+                                      "dynamics (ECD) and the agreement of two scorings (docs/semantics.md §6.5).")
     cmp_.add_argument("scores", nargs="+", help="per-clip tables, CSV or .parquet (read together as one corpus)")
     cmp_.add_argument("--by", choices=("group", "clip"), default="group",
                       help="one row per group (default) or per clip")
@@ -702,8 +714,9 @@ def _register_pack(sub) -> None:
 
 def _register_validate(sub) -> None:
     val = sub.add_parser("validate", help="dry run: check clip / batch files, one line per problem",
-                         description="Check clip and batch files as the loader would, and their content (docs/semantics.md §1.4, §1.6); nothing is scored.")
-    val.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
+                         description="Check clip and batch files as the loader would, and their content "
+                                     "(docs/semantics.md §1.4, §1.6); nothing is scored.")
+    val.add_argument("paths", nargs="+", help=CLIP_INPUTS_HELP)
     val.add_argument("-v", "--verbose", action="store_true", help="also print info lines (depth range, mask coverage)")
     val.add_argument("--strict", action="store_true", help="exit non-zero on warnings too")
     val.set_defaults(func=cmd_validate)
@@ -761,7 +774,7 @@ def _register_perturb(sub) -> None:
                        description="Score every clip under every perturbation kind and severity; print the mean "
                                    "SGC and components per kind and severity and Spearman rho vs severity "
                                    "(docs/semantics.md §6.4).")
-    p.add_argument("paths", nargs="+", help="clip or batch .npz files, directories, globs or URLs (docs/semantics.md §1, §4.2)")
+    p.add_argument("paths", nargs="+", help=CLIP_INPUTS_HELP)
     study = p.add_argument_group("study")
     study.add_argument("--kinds", type=_csv_list, default=list(PERTURBATIONS),
                        help=f"comma-separated, from {','.join(PERTURBATIONS + MASK_CORRUPTIONS)} "
@@ -769,7 +782,8 @@ def _register_perturb(sub) -> None:
     study.add_argument("--severities", type=lambda s: _csv_list(s, float), default=[0.0, 0.25, 0.5, 0.75, 1.0],
                        help="comma-separated values in [0, 1] (default: 0,0.25,0.5,0.75,1)")
     study.add_argument("--perturb-seed", type=int, default=0, help="seed of the perturbations (default 0)")
-    study.add_argument("--chunk-size", type=int, default=256, help="clips perturbed and scored per engine call (default 256)")
+    study.add_argument("--chunk-size", type=int, default=256,
+                       help="clips perturbed and scored per engine call (default 256)")
     output = p.add_argument_group("output")
     output.add_argument("--out", help="one row per clip, kind and severity: base, kind, severity, "
                         "the columns of docs/semantics.md §4, rel_change")

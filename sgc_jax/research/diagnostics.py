@@ -116,10 +116,10 @@ class PoseFlow:
     """Image motion each relative pose predicts for each region (paper Figure 4).
 
     Per region slot (k): ``anchor`` (k, 3) the centroid of the region's points in camera pair-1
-    (units of D under spec, depth units under authors); ``start_px`` (k, 2) its projection in frame pair-1; ``local_px`` / ``global_px``
-    (k, 2) the displacement in pixels of that point under the region's local pose / the global
-    pose; ``status`` (k,) :data:`~sgc_jax.codes.REGION_STATUS` codes; ``n_points`` (k,).
-    Rows of regions without an accepted pose (or without points) are NaN.
+    (units of D under spec, depth units under authors); ``start_px`` (k, 2) its projection in frame
+    pair-1; ``local_px`` / ``global_px`` (k, 2) the displacement in pixels of that point under the
+    region's local pose / the global pose; ``status`` (k,) :data:`~sgc_jax.codes.REGION_STATUS`
+    codes; ``n_points`` (k,). Rows of regions without an accepted pose (or without points) are NaN.
     """
 
     pair: int

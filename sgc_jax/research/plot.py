@@ -44,7 +44,8 @@ def import_pyplot():
     try:
         import matplotlib.pyplot as plt
     except ImportError as exc:
-        raise MissingExtraError("plotting needs matplotlib: pip install 'sgc-jax[viz]' (or pip install matplotlib)") from exc
+        raise MissingExtraError("plotting needs matplotlib: pip install 'sgc-jax[viz]' "
+                                "(or pip install matplotlib)") from exc
     return plt
 
 
@@ -557,8 +558,8 @@ def plot_track_gradients(clip: "Clip", pair: int, gradient_norm) -> "Figure":
     values = np.asarray(gradient_norm, float)[pair - 1, shown]
     positive = values[values > 0]
     floor = positive.min() if positive.size else 1e-12  # tracks without a gradient at the colour map's bottom
-    dots = ax.scatter(clip.track_curr[pair - 1, shown, 0], clip.track_curr[pair - 1, shown, 1], c=np.maximum(values, floor),
-                      s=6, cmap="magma", norm=LogNorm(vmin=floor))
+    x, y = clip.track_curr[pair - 1, shown].T
+    dots = ax.scatter(x, y, c=np.maximum(values, floor), s=6, cmap="magma", norm=LogNorm(vmin=floor))
     fig.colorbar(dots, ax=ax, label="gradient norm per track [1/px]")
     _image_axes(ax, f"pair {pair}: gradient norm per track")
     return fig

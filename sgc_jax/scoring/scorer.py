@@ -53,8 +53,8 @@ def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = No
     for clip in clips:
         sizes = (clip.n_frames, *clip.image_size, clip.n_tracks)
         if any(n > limit for n, limit in zip(sizes, (T, H, W, P))):
-            raise ClipFormatError(clip.clip_id, "depth and tracks", f"at most the batch shape (T, H, W, P) = {(T, H, W, P)}",
-                                  f"(T, H, W, P) = {sizes}")
+            raise ClipFormatError(clip.clip_id, "depth and tracks",
+                                  f"at most the batch shape (T, H, W, P) = {(T, H, W, P)}", f"(T, H, W, P) = {sizes}")
     fields = {"depth": (T, H, W), "K": (T, 3, 3), "R_wc": (T, 3, 3), "t_wc": (T, 3), "static_mask": (T, H, W),
               "track_prev": (T - 1, P, 2), "track_curr": (T - 1, P, 2), "track_vis": (T - 1, P),
               "track_conf": (T - 1, P)}

@@ -2,9 +2,9 @@
 
 Readers hash, read, validate and prepare the clips ahead of the device, at most ``chunk_size`` at a
 time (memory does not grow with the corpus); ``lanes`` scoring threads each score one clip (with
-several devices or on an accelerator, a group: ``devices.clips_per_call``) at a time, and every finished clip is handed on
-at once, in input order. Clip ids are claimed in input order by the generator's thread, so the
-first file with an id keeps it whatever order the readers finish in.
+several devices or on an accelerator, a group: ``devices.clips_per_call``) at a time, and every
+finished clip is handed on at once, in input order. Clip ids are claimed in input order by the
+generator's thread, so the first file with an id keeps it whatever order the readers finish in.
 """
 
 from __future__ import annotations
