@@ -153,36 +153,35 @@ SHARDED_ROUNDOFF = NUMERICAL_FLOOR
 TWO_DEVICES = """
 import json, sys
 sys.path.insert(0, sys.argv[1])  # the tests folder: scenes.py
-import numpy as np
 from scenes import SCENE
-from sgc_jax import enable_compilation_cache, score_batch
+from sgc_jax import score_batch
 from sgc_jax.research.synth import synth_clip
 import jax
-# the suite's main bucket: its one-device programs load from the run's cache (a compile costs the
-# same at any size), so only the two-device ones compile here
 assert len(jax.devices()) == 2, jax.devices()
 clips = [synth_clip(seed=s, clip_id=f"c{s}", **SCENE) for s in range(3)]  # odd: the last group is filled
-spread, single = score_batch(clips, progress=False), score_batch(clips, progress=False, devices=1)
-rows = lambda result: [[float(v) for v in (c.sgc, *c.pairs.region_status.ravel())] for c in result]
-poses = lambda result: [[float(v) for v in (*c.pairs.R_local.ravel(), *c.pairs.t_local.ravel())] for c in result]
-components = lambda result: [list(c.components.values()) for c in result]
-print(json.dumps({"spread": rows(spread), "single": rows(single),  # NaN as NaN
-                  "spread_poses": poses(spread), "single_poses": poses(single),
-                  "spread_components": components(spread), "single_components": components(single)}))
+spread = score_batch(clips, progress=False)
+print(json.dumps({"rows": [[float(v) for v in (c.sgc, *c.pairs.region_status.ravel())] for c in spread],  # NaN as NaN
+                  "poses": [[float(v) for v in (*c.pairs.R_local.ravel(), *c.pairs.t_local.ravel())] for c in spread],
+                  "components": [list(c.components.values()) for c in spread]}))
 """
 
 
 def test_two_forced_host_devices_give_the_numbers_of_one():
+    # The one-device numbers come from this process: XLA's cache key holds the client's device
+    # count, so a two-device process would compile the one-device programs again.
     env = {**os.environ, "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"}
     done = subprocess.run([sys.executable, "-c", TWO_DEVICES, str(Path(__file__).parent)], capture_output=True,
                           text=True, env=env, timeout=900)
     assert done.returncode == 0, done.stderr
     assert "one clip on each of 2 devices" in done.stderr
-    rows = json.loads(done.stdout.strip().splitlines()[-1])
-    np.testing.assert_array_equal(np.array(rows["spread"]), np.array(rows["single"]))  # NaN where both are NaN
-    np.testing.assert_allclose(np.array(rows["spread_poses"]), np.array(rows["single_poses"]), rtol=0,
-                               atol=SHARDED_POSE_ROUNDOFF)
-    np.testing.assert_allclose(np.array(rows["spread_components"]), np.array(rows["single_components"]),
+    spread = json.loads(done.stdout.strip().splitlines()[-1])
+    single = score_batch([synth_clip(seed=s, clip_id=f"c{s}", **SCENE) for s in range(3)], progress=False)
+    np.testing.assert_array_equal(np.array(spread["rows"]),  # NaN where both are NaN
+                                  np.array([[c.sgc, *c.pairs.region_status.ravel()] for c in single]))
+    np.testing.assert_allclose(np.array(spread["poses"]),
+                               np.array([[*c.pairs.R_local.ravel(), *c.pairs.t_local.ravel()] for c in single]),
+                               rtol=0, atol=SHARDED_POSE_ROUNDOFF)
+    np.testing.assert_allclose(np.array(spread["components"]), np.array([list(c.components.values()) for c in single]),
                                rtol=1e-6, atol=SHARDED_ROUNDOFF)
 
 
