@@ -39,7 +39,6 @@ OPTIONS = ransac_options(SGCConfig())  # the engine's defaults: 100 hypotheses, 
 
 solve_batch = jax.jit(jax.vmap(lambda X, uv, w, K: solve_pnp(X, uv, w, K, steps=10), in_axes=(0, 0, 0, None)))
 init_batch = jax.jit(jax.vmap(initial_pose, in_axes=(0, 0, 0, None)))
-ransac_one = jax.jit(functools.partial(ransac_pnp, options=OPTIONS))
 ransac_regions = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=OPTIONS), in_axes=(None, None, 0, None, 0)))
 
 
@@ -232,11 +231,19 @@ def test_too_few_points_and_an_outlier_region_get_their_statuses_and_inliers_are
     assert not np.any(inliers & ~member)  # inliers are always members
 
 
+def run_alone(X, uv, member_row, key, slot=0):
+    """One region's RANSAC result, its members and key at ``slot`` of a 3-region batch whose other
+    regions are empty (the RANSAC tests' one program: 3 regions of N_PAD points)."""
+    member = np.zeros((3, N_PAD), bool)
+    member[slot] = member_row
+    out = ransac_regions(*f32(X, uv), jnp.asarray(member), jnp.asarray(K, jnp.float32), jnp.stack([key] * 3))
+    return jax.tree.map(lambda a: a[slot], out)
+
+
 def test_padding_does_not_change_the_result():
     """Same members at other slots among other garbage padding (one padded size, one compile: the
     engine's tests pad whole clips to other sizes, tests/test_padding.py)."""
     X, uv, member, _, _ = scene_with_regions(4, sizes=[80])
-    member = member[0]
     key = jax.random.key(5)
     slots = np.sort(np.random.default_rng(0).permutation(N_PAD)[:80])
     X_pad = np.full((N_PAD, 3), 7.0)
@@ -244,8 +251,7 @@ def test_padding_does_not_change_the_result():
     X_pad[slots], uv_pad[slots] = X[:80], uv[:80]
     member_pad = np.zeros(N_PAD, bool)
     member_pad[slots] = True
-    packed = ransac_one(*f32(X, uv), jnp.asarray(member), jnp.asarray(K, jnp.float32), key)
-    padded = ransac_one(*f32(X_pad, uv_pad), jnp.asarray(member_pad), jnp.asarray(K, jnp.float32), key)
+    packed, padded = run_alone(X, uv, member[0], key), run_alone(X_pad, uv_pad, member_pad, key)
     assert int(packed.status) == int(padded.status) == REGION_OK
     assert int(packed.n_inliers) == int(padded.n_inliers)
     np.testing.assert_array_equal(np.asarray(padded.inliers)[slots], np.asarray(packed.inliers)[:80])
@@ -256,23 +262,22 @@ def test_padding_does_not_change_the_result():
 
 
 def test_fixed_key_is_deterministic():
-    X, uv, member, _, _ = scene_with_regions(5, sizes=[70])
-    args = (*f32(X, uv), jnp.asarray(member[0]), jnp.asarray(K, jnp.float32), jax.random.key(11))
-    first, second = ransac_one(*args), ransac_one(*args)
+    X, uv, member, _, _ = scene_with_regions(5, sizes=[70, 60, 50])
+    first, second = run_regions(X, uv, member, seed=11)[0], run_regions(X, uv, member, seed=11)[0]
     for a, b in zip(first, second):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_vmap_over_regions_equals_per_region_calls():
+def test_a_regions_result_depends_neither_on_its_slot_nor_on_the_other_regions():
     X, uv, member, _, _ = scene_with_regions(6, sizes=[40, 3, 50])
     batched, keys = run_regions(X, uv, member)
     for r in range(member.shape[0]):
-        single = ransac_one(*f32(X, uv), jnp.asarray(member[r]), jnp.asarray(K, jnp.float32), keys[r])
-        assert int(single.status) == int(batched.status[r])
-        assert int(single.n_inliers) == int(batched.n_inliers[r])
-        np.testing.assert_array_equal(np.asarray(single.inliers), np.asarray(batched.inliers[r]))
-        np.testing.assert_allclose(np.asarray(single.R), np.asarray(batched.R[r]), atol=1e-5)
-        np.testing.assert_allclose(np.asarray(single.t), np.asarray(batched.t[r]), atol=1e-5)
+        alone = run_alone(X, uv, member[r], keys[r], slot=(r + 1) % 3)
+        assert int(alone.status) == int(batched.status[r])
+        assert int(alone.n_inliers) == int(batched.n_inliers[r])
+        np.testing.assert_array_equal(np.asarray(alone.inliers), np.asarray(batched.inliers[r]))
+        np.testing.assert_allclose(np.asarray(alone.R), np.asarray(batched.R[r]), atol=1e-5)
+        np.testing.assert_allclose(np.asarray(alone.t), np.asarray(batched.t[r]), atol=1e-5)
 
 
 def test_each_region_is_offered_the_other_regions_pose_that_fits_its_points_best():
