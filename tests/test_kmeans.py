@@ -79,12 +79,13 @@ def test_matches_exact_dp_when_distinct_values_have_distinct_bins(seed):
     values = lattice_values(rng, 40)
     valid = np.ones(values.size, bool)
     for k in (1, 2, 3, 5):
-        labels = np.asarray(kmeans_1d(values, valid, k=k, bins=256))
+        # k clusters of the k = 5 programme: its DP's earlier row, a traced value
+        labels = np.asarray(kmeans_1d(values, valid, k=5, bins=256, k_used=np.int32(k)))
         assert labels.min() >= 0 and labels.max() < k
         best = exact_kmeans_wcss(values, k)
         assert wcss(values, labels) <= best * (1 + EXACT_RTOL) + 1e-12
-        # k clusters of the k = 5 programme (its DP's earlier row, a traced value) are the same
-        np.testing.assert_array_equal(kmeans_1d(values, valid, k=5, bins=256, k_used=np.int32(k)), labels)
+        if k in (3, 5):  # a program of k clusters gives the same (two of them: each k is a compile)
+            np.testing.assert_array_equal(kmeans_1d(values, valid, k=k, bins=256), labels)
 
 
 def test_more_clusters_than_distinct_values_gives_zero_wcss():
