@@ -68,14 +68,15 @@ def _traced(key: StageKey):
     return jax.jit(functools.partial(stage_program, stage=key.stage, static=key.static, vectorized=key.vectorized))
 
 
-def _lower(key: StageKey, path, args: tuple):
-    """The stage lowered for ``args`` (shapes): from its kept ``jax.export`` file when the cache
-    has one, else traced (and kept there when the cache is on)."""
+def _lower(traced: Callable[[], Any], path, args: tuple):
+    """A stage lowered for ``args`` (shapes, shardings): from its kept ``jax.export`` file when
+    the cache has one, else ``traced()`` (its jitted function) traced, and kept there when the
+    cache is on."""
     exported = load_program(path) if path is not None else None
     if exported is None:
         if path is None:
-            return _traced(key).lower(*args)
-        exported = jax.export.export(_traced(key))(*args)
+            return traced().lower(*args)
+        exported = jax.export.export(traced())(*args)
         save_program(path, exported)
     return jax.jit(exported.call).lower(*args)
 
@@ -119,7 +120,8 @@ def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, ke
             begin = time.perf_counter()
             lock = ProgramLock(paths[key])  # another process may be compiling it
             try:
-                lowered = _lower(key, paths[key], (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                lowered = _lower(functools.partial(_traced, key), paths[key],
+                                 (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
             except BaseException:
                 lock.release()
                 raise
@@ -176,13 +178,21 @@ def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: 
     key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
     stages, previous = [], None
     per_device = np.shape(example.depth)[0] // len(devices)
-    with CompileNotice(_bucket_text(bucket, len(devices), per_device), ", ".join(STAGES), loading=False,
+    # kept per mesh size and clips per device: a program over n devices runs on any n of them
+    paths = [program_path((key, len(devices), per_device)) for key in keys]
+    kept = all(p is not None and p.exists() for p in paths)
+    with CompileNotice(_bucket_text(bucket, len(devices), per_device), ", ".join(STAGES), loading=kept,
                        hint=cache_hint()):
-        for key in keys:  # one program per stage, as on one device: the same fusions, the same numbers
-            lowered = spread_stage(key, mesh).lower(stage_inputs(key.stage, batch_spec, previous), key_spec,
-                                                    values_spec)
-            previous = lowered.out_info
-            stages.append(compile_stage(lowered, key.stage, devices[0].platform))
+        # one program per stage, as on one device: the same fusions, the same numbers
+        for key, path in zip(keys, paths):
+            lock = ProgramLock(path)
+            try:
+                lowered = _lower(functools.partial(spread_stage, key, mesh), path,
+                                 (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                previous = lowered.out_info
+                stages.append(compile_stage(lowered, key.stage, devices[0].platform))
+            finally:
+                lock.release()
     return BucketProgram(tuple(stages)), sharding
 
 
