@@ -178,8 +178,10 @@ def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: 
     key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
     stages, previous = [], None
     per_device = np.shape(example.depth)[0] // len(devices)
-    # kept per mesh size and clips per device: a program over n devices runs on any n of them
-    paths = [program_path((key, len(devices), per_device)) for key in keys]
+    # kept per mesh size and clips per device (a program over n devices runs on any n of them), and
+    # only for the default backend's devices: a kept program is exported for the default platform
+    default_platform = devices[0].platform == jax.devices()[0].platform
+    paths = [program_path((key, len(devices), per_device)) if default_platform else None for key in keys]
     kept = all(p is not None and p.exists() for p in paths)
     with CompileNotice(_bucket_text(bucket, len(devices), per_device), ", ".join(STAGES), loading=kept,
                        hint=cache_hint()):
