@@ -15,6 +15,9 @@ SCENE = dict(n_layers=2, static_spheres=4, height=120, width=160, n_tracks=2048,
 SMALL_SCENE = dict(n_layers=2, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=4)  # 4, 128x128, 1024
 # The demo corpus's shape (research.synth.demo_corpus; `sgc-jax demo` compiles it first in CI) and the notebooks'.
 DEMO_SCENE = dict(n_layers=3, static_spheres=4, height=96, width=128, n_tracks=1024, n_frames=8)  # 8, 128x128, 1024
+# A Scorer's batch of 4 demo clips (B, T, H, W, P): test_scorer.py's, and the one test_compile_cache.py
+# starts in new processes (its stages compiled once for both).
+DEMO_BATCH_SHAPE = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
 
 # Scored by the reference engine only, or not at all:
 TINY = dict(n_layers=1, static_spheres=2, height=64, width=80, n_tracks=256, n_frames=3)  # CLI and table tests

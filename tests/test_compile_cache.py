@@ -55,11 +55,10 @@ def test_a_python_process_after_the_cli_loads_every_program_from_the_cache(tmp_p
 
 
 SCORER_CALL = """
-from scenes import DEMO_SCENE
+from scenes import DEMO_BATCH_SHAPE
 from sgc_jax import Scorer, batch_of
 from sgc_jax.research.synth import demo_corpus
-shape = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
-print(float(Scorer(shape)(batch_of(demo_corpus()[:4]))["sgc"][0]))
+print(float(Scorer(DEMO_BATCH_SHAPE)(batch_of(demo_corpus()[:4]))["sgc"][0]))
 """
 
 
@@ -67,7 +66,7 @@ print(float(Scorer(shape)(batch_of(demo_corpus()[:4]))["sgc"][0]))
 def test_a_scorer_in_a_new_process_loads_its_stages_from_the_cache(tmp_path):
     """The Scorer's stages (one program over its devices' clips) are kept traced, as score_batch's
     are: once a Scorer of this shape ran, a new process's Scorer neither traces nor compiles them
-    (test_scorer.py's Scorer has this shape: usually the first process loads too)."""
+    (DEMO_BATCH_SHAPE, test_scorer.py's Scorer: usually the first process loads too)."""
     cache_dir = jax.config.jax_compilation_cache_dir
     code = f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})" + SCORER_CALL
     _fresh_process(code, cache_dir)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scenes import DEMO_SCENE, SMALL_SCENE
+from scenes import DEMO_BATCH_SHAPE, DEMO_SCENE, SMALL_SCENE
 from tolerances import LM_SETTLE_RTOL
 
 from sgc_jax import COMPONENTS, ClipFormatError, Scorer, SGCConfig, score_batch
@@ -37,7 +37,7 @@ CLIP_RTOL, CLIP_ATOL = 1e-5, 1e-6
 FUSED_RTOL, FUSED_ATOL = 2 * LM_SETTLE_RTOL, 1e-5
 PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
             "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
-SHAPE = (4, DEMO_SCENE["n_frames"], DEMO_SCENE["height"], DEMO_SCENE["width"], DEMO_SCENE["n_tracks"])
+SHAPE = DEMO_BATCH_SHAPE
 
 
 @pytest.fixture(scope="module")
