@@ -13,12 +13,12 @@ from tolerances import LM_SETTLE_RTOL, NUMERICAL_FLOOR
 
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_EMPTY, REGION_OK
+from sgc_jax.config import NOISE_BLOCK_FRAC
 from sgc_jax.engines.noise_floors import floors_of, pair_floors
 from sgc_jax.engines.pairs import PairArrays
 from sgc_jax.engines.reference import global_variances, local_variances
 from sgc_jax.engines.units import PERCENT
 from sgc_jax.io.tables import FLOOR_COLUMNS
-from sgc_jax.kernels.uncertainty import NOISE_BLOCK_FRAC
 from sgc_jax.research.synth import synth_clip
 
 # Monte Carlo of the formulas: DRAWS sets of 6 poses; the mean of a squared Gaussian size over

@@ -20,9 +20,8 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import HOLE_DEPTH_MARGIN, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
-from ..kernels.uncertainty import BLOCKS_PER_AXIS, NOISE_BLOCK_FRAC
 from . import reference_pose as reference_pose_search
 from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian

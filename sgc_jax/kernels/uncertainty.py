@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
+from ..config import BLOCKS_PER_AXIS
 from .fence import materialise
 from .linalg import solve_spd
 from .pnp import point_columns, pointwise_residuals
@@ -32,12 +33,6 @@ class PoseUncertainty(NamedTuple):
     sigma_px: jax.Array  # inlier residual standard deviation per image coordinate [px]
     rot_noise_deg: jax.Array  # RMS rotation error the noise floors count (``block_covariance``) [deg]
     trans_noise: jax.Array  # RMS translation error the noise floors count [units of X]
-
-
-# The floors' squares (docs/semantics.md §3.10): this fraction of the image diagonal a side, so at
-# most BLOCKS_PER_AXIS along either side of the image (W, H <= diagonal).
-NOISE_BLOCK_FRAC = 0.05
-BLOCKS_PER_AXIS = 21
 
 
 class InlierJacobians(NamedTuple):

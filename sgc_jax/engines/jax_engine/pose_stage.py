@@ -10,14 +10,14 @@ import jax
 import jax.numpy as jnp
 
 from ...codes import REGION_EMPTY, REGION_OK
-from ...config import SGCConfig
+from ...config import NOISE_BLOCK_FRAC, SGCConfig
 from ...kernels.camera import back_project
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
 from ...kernels.so3 import nearest_rotation
-from ...kernels.uncertainty import NOISE_BLOCK_FRAC, QualityRule, region_quality
+from ...kernels.uncertainty import QualityRule, region_quality
 from .stages import PoseInputs, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
