@@ -21,6 +21,11 @@ def rigid_pairs(rigid_clip):
     return reference.score_pairs(rigid_clip)
 
 
+@pytest.fixture(scope="module")
+def drift_pairs(drift_clip):
+    return reference.score_pairs(drift_clip)
+
+
 def _with_true_poses(clip, pairs):
     """The scored pairs with every accepted region's pose replaced by the camera's true relative
     pose (its translation in the engines' units of D)."""
@@ -39,11 +44,10 @@ def test_region_labels_have_the_scored_number_of_regions(rigid_clip, rigid_pairs
     assert not labels[~rigid_clip.static_mask[PAIR]].any()
 
 
-def test_region_tracks_count_the_scored_points_per_region(drift_clip):
-    pairs = reference.score_pairs(drift_clip)
+def test_region_tracks_count_the_scored_points_per_region(drift_clip, drift_pairs):
     tracks = diagnostics.region_tracks(drift_clip, PAIR)
-    counts = np.bincount(tracks.region, minlength=pairs.region_points.shape[1] + 1)[1:]
-    np.testing.assert_array_equal(counts, pairs.region_points[PAIR - 1])
+    counts = np.bincount(tracks.region, minlength=drift_pairs.region_points.shape[1] + 1)[1:]
+    np.testing.assert_array_equal(counts, drift_pairs.region_points[PAIR - 1])
     # uv_prev: the frame pair-1 positions of the usable tracks with depth, back-projected from
     usable = drift_clip.usable_tracks(SGCConfig().min_track_conf)[PAIR - 1]
     prev = drift_clip.track_prev[PAIR - 1][usable]
@@ -78,21 +82,19 @@ def test_a_shifted_local_translation_moves_its_arrow_by_fx_dx_over_z(rigid_clip,
     np.testing.assert_array_equal(after.local_px[others], before.local_px[others])
 
 
-def test_a_drifting_layer_parts_from_the_global_motion(drift_clip):
-    pairs = reference.score_pairs(drift_clip)
-    flow = diagnostics.pose_flow(drift_clip, pairs, PAIR)
+def test_a_drifting_layer_parts_from_the_global_motion(drift_clip, drift_pairs):
+    flow = diagnostics.pose_flow(drift_clip, drift_pairs, PAIR)
     gaps = flow.disagreement_px[flow.accepted]
     assert np.nanmax(gaps) > 1.0  # the drifting layer's regions move on their own
     assert np.nanmin(gaps) < 1e-2  # the rigid rest agrees with the camera
 
 
-def test_depth_warp_error_mean_is_the_pairs_depth_error(drift_clip):
-    pairs = reference.score_pairs(drift_clip)
+def test_depth_warp_error_mean_is_the_pairs_depth_error(drift_clip, drift_pairs):
     for pair in range(1, drift_clip.n_frames):
         warp = diagnostics.depth_warp_error(drift_clip, pair)
         # rel 1e-6: the result stores s in depth units per pose unit, so t_g comes back to 1 ulp,
         # which can move one pixel's rounding in the warp
-        assert warp.mean == pytest.approx(pairs.depth_error[pair - 1], rel=1e-6)
+        assert warp.mean == pytest.approx(drift_pairs.depth_error[pair - 1], rel=1e-6)
         assert np.nanmean(warp.error) == pytest.approx(warp.mean, rel=1e-9)
         assert not warp.compared[~drift_clip.static_mask[pair]].any()
 
@@ -109,13 +111,12 @@ def test_rigid_depth_warp_errs_only_at_occlusion_edges(rigid_clip):
     assert np.median(ratio) == pytest.approx(1.0, abs=1e-3)
 
 
-def test_region_reprojection_means_are_the_scored_ones(drift_clip):
-    pairs = reference.score_pairs(drift_clip)
-    reproj = diagnostics.region_reprojection(drift_clip, pairs, PAIR)
+def test_region_reprojection_means_are_the_scored_ones(drift_clip, drift_pairs):
+    reproj = diagnostics.region_reprojection(drift_clip, drift_pairs, PAIR)
     for j, status in enumerate(reproj.status):
-        assert len(reproj.global_px[j]) == pairs.region_points[PAIR - 1, j]
+        assert len(reproj.global_px[j]) == drift_pairs.region_points[PAIR - 1, j]
         if status == ACCEPTED:
-            assert reproj.local_px[j].mean() == pytest.approx(pairs.region_reproj[PAIR - 1, j], rel=1e-9)
+            assert reproj.local_px[j].mean() == pytest.approx(drift_pairs.region_reproj[PAIR - 1, j], rel=1e-9)
         else:
             assert reproj.local_px[j].size == 0
     assert reproj.inlier_px == SGCConfig().inlier_px
