@@ -186,7 +186,8 @@ def _overwrite_attempts(clip, table, tmp_path):
 
 
 def test_an_output_that_names_an_input_is_refused_and_the_input_kept(scored, tmp_path, capsys):
-    # in this process: a refusal is argument logic, and a process per case cost 2 s each
+    # through main() in this process: a refusal is argument logic; the real process, its exit codes
+    # and stderr, are test_exit_codes_are_as_documented's
     clip, table = scored
     for case, (args, kept, words) in _overwrite_attempts(clip, table, tmp_path).items():
         before = kept.read_bytes()

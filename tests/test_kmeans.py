@@ -79,7 +79,7 @@ def test_matches_exact_dp_when_distinct_values_have_distinct_bins(seed):
     values = lattice_values(rng, 40)
     valid = np.ones(values.size, bool)
     for k in (1, 2, 3, 5):
-        # k clusters of the k = 5 programme: its DP's earlier row, a traced value
+        # k clusters of the k = 5 program: its DP's earlier row, a traced value (the engine's path)
         labels = np.asarray(kmeans_1d(values, valid, k=5, bins=256, k_used=np.int32(k)))
         assert labels.min() >= 0 and labels.max() < k
         best = exact_kmeans_wcss(values, k)

@@ -20,7 +20,8 @@ from .stages import STAGES, StageKey, program_values, stage_inputs, stage_key
 
 # StageKey -> (executable taking (inputs, key, values), its output's shapes)
 _programs: dict[StageKey, tuple[Callable, Any]] = {}
-# (stage keys, device ids) -> (the stages over a batch of one clip per device, the batch's sharding)
+# (stage keys, device ids, clips in the batch) -> (the stages over the batch spread over those devices,
+# the batch's sharding)
 _sharded: dict[tuple, tuple["BucketProgram", Any]] = {}
 _compiles: list[tuple[StageKey, float]] = []  # every compile or load of this process, with its seconds
 # Held while programs are compiled or loaded: lanes that need the same program wait for the first
