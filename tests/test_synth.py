@@ -130,6 +130,18 @@ def test_camera_moves_smoothly_and_keeps_scene_in_depth_range():
     assert clip.depth.min() >= 0.5 * near and clip.depth.max() <= 1.5 * far
 
 
+@pytest.mark.parametrize("seed", [3, 11])
+def test_a_forward_camera_moves_mostly_along_its_optical_axis_and_an_orbiting_one_sideways(seed):
+    def forward_share(motion):
+        clip = synth_clip(seed=seed, camera_motion=motion, with_frames=False, **SMALL)
+        centres = -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)  # camera centres in the world
+        steps = np.diff(centres, axis=0)
+        along = np.abs(np.einsum("ti,ti->t", steps, clip.R_wc[:-1, 2]))  # along camera i-1's optical axis
+        return np.median(along / np.linalg.norm(steps, axis=1))
+
+    assert forward_share("forward") > 0.65 > 0.3 > forward_share("orbit")
+
+
 @pytest.mark.parametrize("n_layers", [1, 4, 6])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_each_static_layer_is_its_own_depth_band(n_layers, seed):

@@ -48,6 +48,7 @@ class SceneSpec:
     low_conf_frac: float = 0.0  # tracks per pair with confidence drawn in [0, 0.5)
     rot_deg_per_frame: float = 1.5  # typical camera rotation between frames
     trans_per_frame: float = 0.15  # typical camera translation between frames
+    camera_motion: str = "orbit"  # "orbit": mostly sideways, turning towards the scene; "forward": a dolly in
     depth_range: tuple[float, float] = (2.0, 12.0)  # nearest layer / back wall
     layer_drift: float = 0.0  # one unmasked static layer translates this much per frame
     fov_deg: float = 60.0  # horizontal field of view; fx = fy, principal point at the centre
@@ -70,6 +71,7 @@ class SceneSpec:
                 0 <= self.outlier_frac and 0 <= self.low_conf_frac
                 and self.outlier_frac + self.low_conf_frac <= 1),
             "rot_deg_per_frame, trans_per_frame >= 0": min(self.rot_deg_per_frame, self.trans_per_frame) >= 0,
+            "camera_motion in ('orbit', 'forward')": self.camera_motion in ("orbit", "forward"),
             "0 < depth_range[0] < depth_range[1]": 0 < near < far,
             "layer_drift >= 0, and > 0 only with n_layers >= 1": (
                 self.layer_drift >= 0 and (self.layer_drift == 0 or self.n_layers >= 1)),
@@ -140,12 +142,16 @@ def _camera_path(spec: SceneSpec, rng: np.random.Generator) -> tuple[np.ndarray,
 
     The camera translates about ``trans_per_frame`` per frame along a direction that sweeps a slow
     arc (mostly sideways), and turns about ``rot_deg_per_frame`` per frame towards the side it
-    leaves, as when orbiting the scene, plus a little roll: the scene stays in view.
+    leaves, as when orbiting the scene, plus a little roll: the scene stays in view. A ``"forward"``
+    camera takes the same draws but moves mostly along its optical axis (a dolly in, parallax
+    growing towards the image borders and none at the focus of expansion).
     """
     T = spec.n_frames
     phase = rng.uniform(0.0, 2.0 * math.pi)
     sweep = rng.uniform(1.0, 1.5) * math.pi * rng.choice([-1.0, 1.0])
     forward_share = rng.uniform(-0.15, 0.25)
+    if spec.camera_motion == "forward":
+        forward_share = 2.5 + 10.0 * forward_share  # 1-5 times the sideways part, always forward
     roll_share = rng.uniform(-0.3, 0.3)
     wobble = rng.uniform(0.0, 2.0 * math.pi, size=2)
     R_cw, centre = np.eye(3), np.zeros(3)

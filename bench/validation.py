@@ -1,0 +1,158 @@
+"""The validation protocol (issue 58, docs/semantics.md §7.4): the default score on a split of
+synthetic scenes under each noise model, level and track count, consistent and inconsistent.
+
+    python bench/validation.py [--split test|fit] [--models iid-curr iid-both ...] [--levels 0.25 0.5 1 2]
+                               [--tracks 200 1000 4096] [--scenes N] [--out rows.csv] [--rows rows.csv]
+                               [--intervals] [--config FILE]
+
+Constants are fitted on ``--split fit``; the figures of RESULTS and the docs come from ``--split
+test`` (sgc_jax.research.protocol). ``--rows`` prints the tables from a CSV an earlier run wrote
+with ``--out`` instead of scoring. Prints, for the split:
+
+1. consistent scenes: per noise model and track count, the median SGC over scenes at each level,
+   its rise from 0.5 to 2 px (the bar: <= 0.02) and the largest single clip (the bar: <= 0.10);
+2. detection: per inconsistency and severity, the share of cells (scene, model, level, tracks)
+   where it scores strictly above its consistent twin (the bar at 0.25: >= 95 %), also per model;
+3. floors: per noise model, the range over (level, tracks) cells of the median observed / floor of
+   each pose component over the consistent scenes (the bar: within [0.5, 2]);
+4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
+   of 20 draws (consistent scenes at 1 px, 1000 tracks; the bar: >= 85 %).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sgc_jax import COMPONENTS, SGCConfig, score_batch
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.protocol import NOISE_LEVELS_PX, SPLITS, TRACK_COUNTS, cell_clips, cells, detection_table
+
+POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
+INTERVAL_DRAWS, INTERVAL_PX, INTERVAL_TRACKS = 20, 1.0, 1000
+
+
+def score_rows(args, config: SGCConfig) -> list[dict]:
+    rows = []
+    scenes = SPLITS[args.split][:args.scenes]
+    for scene, tracks in itertools.product(scenes, args.tracks):
+        started = time.perf_counter()
+        batch = [(cell, clip, kind, severity) for cell in cells(args.split, args.models, args.levels, (tracks,))
+                 if cell.scene == scene for clip, kind, severity in cell_clips(cell)]
+        result = score_batch([clip for _, clip, _, _ in batch], config=config, progress=False)
+        for (cell, _, kind, severity), clip in zip(batch, result.clips):
+            rows.append(dict(scene=scene.name, model=cell.noise_model, noise_px=cell.noise_px, tracks=tracks,
+                             kind=kind, severity=severity, status=clip.status, sgc=clip.sgc, sgc_lo=clip.sgc_lo,
+                             sgc_hi=clip.sgc_hi, **clip.components, **clip.floors))
+        print(f"{scene.name}, {tracks} tracks: {len(batch)} clips in {time.perf_counter() - started:.0f} s",
+              file=sys.stderr, flush=True)
+    return rows
+
+
+def read_rows(path: str) -> list[dict]:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for key, value in r.items():
+            if key not in ("scene", "model", "kind", "status"):
+                r[key] = float(value) if value not in ("", "nan") else float("nan")
+        r["tracks"] = int(r["tracks"])
+    return rows
+
+
+def print_consistent(rows: list[dict], models, levels, tracks) -> None:
+    print("\n1. Consistent scenes: median SGC over scenes at each noise level (px)")
+    print("| noise model | tracks | " + " | ".join(f"{n:g} px" for n in levels) + " | rise 0.5 -> 2 | largest clip |")
+    print("|---|---|" + "---|" * (len(levels) + 2))
+    for model, t in itertools.product(models, tracks):
+        cell = [r for r in rows if (r["kind"], r["model"], r["tracks"]) == ("", model, t)]
+        medians = {n: np.nanmedian([r["sgc"] for r in cell if r["noise_px"] == n]) for n in levels}
+        rise = medians.get(2.0, np.nan) - medians.get(0.5, np.nan)
+        print(f"| {model} | {t} | " + " | ".join(f"{medians[n]:.3f}" for n in levels)
+              + f" | {rise:+.3f} | {np.nanmax([r['sgc'] for r in cell]):.3f} |")
+
+
+def print_detection(rows: list[dict], models) -> None:
+    keyed = [{**r, "cell": (r["scene"], r["model"], r["noise_px"], r["tracks"])} for r in rows]
+    overall = detection_table(keyed)
+    per_model = {m: detection_table([r for r in keyed if r["model"] == m]) for m in models}
+    print("\n2. Detection: share of cells where the inconsistency scores above its consistent twin")
+    print("| inconsistency | severity | all cells | " + " | ".join(models) + " |")
+    print("|---|---|---|" + "---|" * len(models))
+    for (kind, severity), share in overall.items():
+        print(f"| {kind} | {severity:g} | {share:.0%} | "
+              + " | ".join(f"{per_model[m].get((kind, severity), np.nan):.0%}" for m in models) + " |")
+
+
+def print_floors(rows: list[dict], models, levels, tracks) -> None:
+    print("\n3. Floors: range over (level, tracks) cells of the median observed / floor (consistent scenes)")
+    print("| noise model | " + " | ".join(POSE_COMPONENTS) + " |")
+    print("|---|" + "---|" * len(POSE_COMPONENTS))
+    for model in models:
+        spans = []
+        for k in POSE_COMPONENTS:
+            medians = []
+            for n, t in itertools.product(levels, tracks):
+                cell = [r for r in rows if (r["kind"], r["model"], r["noise_px"], r["tracks"]) == ("", model, n, t)]
+                ratios = [r[k] / r[f"{k}_floor"] for r in cell if r[f"{k}_floor"] > 0]
+                if ratios:
+                    medians.append(np.median(ratios))
+            spans.append(f"{min(medians):.2f}-{max(medians):.2f}" if medians else "n/a")
+        print(f"| {model} | " + " | ".join(spans) + " |")
+
+
+def print_intervals(args, config: SGCConfig) -> None:
+    print(f"\n4. Intervals: one draw's 90 % interval holds the median of {INTERVAL_DRAWS} draws "
+          f"(consistent scenes, {INTERVAL_PX:g} px, {INTERVAL_TRACKS} tracks)")
+    print("| noise model | draws | coverage | median width |")
+    print("|---|---|---|---|")
+    for model in args.models:
+        covered, widths = [], []
+        for scene in SPLITS[args.split][:args.scenes]:
+            clean = scene.clip(INTERVAL_TRACKS)
+            noisy = NOISE_MODELS[model].replace(px=INTERVAL_PX)
+            clips = [add_noise(clean, noisy, 90_000 + scene.seed * 100 + d) for d in range(INTERVAL_DRAWS)]
+            result = score_batch(clips, config=config, progress=False)
+            sgc, lo, hi = (np.array([getattr(c, k) for c in result.clips]) for k in ("sgc", "sgc_lo", "sgc_hi"))
+            median = np.median(sgc)
+            covered += list((lo <= median) & (median <= hi))
+            widths += list(hi - lo)
+        print(f"| {model} | {len(covered)} | {np.mean(covered):.0%} | {np.nanmedian(widths):.3f} |", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", default="test", choices=sorted(SPLITS))
+    parser.add_argument("--models", nargs="+", default=list(NOISE_MODELS), choices=list(NOISE_MODELS))
+    parser.add_argument("--levels", type=float, nargs="+", default=list(NOISE_LEVELS_PX))
+    parser.add_argument("--tracks", type=int, nargs="+", default=list(TRACK_COUNTS))
+    parser.add_argument("--scenes", type=int, default=None, help="the split's first N scenes (default: all)")
+    parser.add_argument("--out", default=None, help="CSV of every clip's score, components and floors")
+    parser.add_argument("--rows", default=None, help="print the tables from this CSV instead of scoring")
+    parser.add_argument("--intervals", action="store_true", help="also measure the intervals' coverage")
+    parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    args = parser.parse_args()
+    config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
+    rows = read_rows(args.rows) if args.rows else score_rows(args, config)
+    if args.out and not args.rows:
+        with open(args.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
+    print_consistent(rows, args.models, args.levels, args.tracks)
+    print_detection(rows, args.models)
+    print_floors(rows, args.models, args.levels, args.tracks)
+    if args.intervals:
+        print_intervals(args, config)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,175 @@
+"""Estimator error models for validating the score (docs/semantics.md §7.4): what a tracker and a
+depth estimator get wrong on a consistent world, applied to a clip's exact arrays.
+
+A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded draw of them.
+
+- Track errors are in pixels, ``px`` the RMS error per coordinate at each end that errs. Pairwise
+  trackers queried at frame i−1 (the authors' DELTA files, LK) err at frame i only (``ends="curr"``);
+  long-range trackers (DELTA's dense output, CoTracker3) err at both ends of every pair
+  (``ends="both"``), with independent draws at frame i−1 and frame i.
+- Correlated errors: with ``correlation_px`` ℓ > 0 a share ``shared`` of each end's error variance
+  comes from a smooth random displacement field over the image, correlation exp(−d²/2ℓ²) at a
+  distance d, drawn anew for each end of each pair; the rest is independent per track. With ℓ = 16
+  px and a share of 0.85, tracks 8 px apart share 75 % of their variance and 32 px apart 11 %, as
+  the shared real clips' LK tracks do (79–91 % within 8 px, 16–43 % at 32–64 px).
+- Outliers: a fraction ``outlier_frac`` of each pair's tracks lands at a uniform random pixel of
+  frame i, still visible and fully confident.
+- Depth errors, multiplicative: a smooth per-frame field of relative RMS ``depth_rel`` (ℓ =
+  ``DEPTH_CORRELATION_PX``), and at depth edges (a jump of more than ``DEPTH_EDGE_JUMP`` between
+  neighbouring pixels) pixels within ``depth_edge_px`` of the edge blended at random between the
+  two sides, as monocular estimators smear edges ("flying pixels").
+
+Every draw is from ``numpy.random.default_rng((NOISE_SEED, seed, stream))``: the same clip, model
+and seed give the same arrays, and the track and depth draws are independent streams.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from ..io.clip import Clip
+
+NOISE_SEED = 58_000  # the streams of this module, apart from research.synth's and the perturbations'
+DEPTH_CORRELATION_PX = 32.0  # correlation length of the smooth depth error field
+DEPTH_EDGE_JUMP = 0.05  # relative depth jump between neighbouring pixels that makes an edge
+_TRACK_STREAM, _DEPTH_STREAM = 1, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseModel:
+    """What a tracker and a depth estimator get wrong; pixels, and depth as a relative error."""
+
+    px: float = 0.0  # RMS track error per coordinate, at each erring end [px]
+    ends: str = "both"  # "curr": frame i only (per-pair queries); "both": frames i-1 and i (long-range)
+    correlation_px: float = 0.0  # ℓ of the shared displacement field; 0: independent errors
+    shared: float = 0.85  # share of each end's error variance in the field (when ℓ > 0)
+    outlier_frac: float = 0.0  # tracks per pair moved to a uniform random pixel of frame i
+    depth_rel: float = 0.0  # relative RMS of the smooth multiplicative depth error
+    depth_edge_px: int = 0  # pixels on each side of a depth edge blended across it
+
+    def __post_init__(self) -> None:
+        checks = {
+            "px >= 0": self.px >= 0,
+            "ends in ('curr', 'both')": self.ends in ("curr", "both"),
+            "correlation_px >= 0": self.correlation_px >= 0,
+            "0 <= shared <= 1": 0 <= self.shared <= 1,
+            "0 <= outlier_frac <= 1": 0 <= self.outlier_frac <= 1,
+            "0 <= depth_rel < 0.5": 0 <= self.depth_rel < 0.5,
+            "depth_edge_px >= 0": self.depth_edge_px >= 0,
+        }
+        failed = [rule for rule, ok in checks.items() if not ok]
+        if failed:
+            raise ValueError(f"invalid NoiseModel ({'; '.join(failed)}): {self}")
+
+    def replace(self, **changes) -> "NoiseModel":
+        return dataclasses.replace(self, **changes)
+
+
+#: The protocol's noise models (issue 58's (a)-(d)); each is scaled to a level by ``.replace(px=...)``.
+NOISE_MODELS = {
+    "iid-curr": NoiseModel(ends="curr"),  # (a) per-pair queries: independent, frame i only
+    "iid-both": NoiseModel(ends="both"),  # (a) long-range tracks: independent, both ends
+    "correlated": NoiseModel(ends="both", correlation_px=16.0),  # (b) a shared field per end and pair
+    "depth": NoiseModel(ends="both", depth_rel=0.01, depth_edge_px=1),  # (c) depth errors, edges most
+    "outliers": NoiseModel(ends="both", outlier_frac=0.1),  # (d) 10 % of the tracks anywhere
+}
+
+
+def smooth_field(rng: np.random.Generator, shape: tuple[int, ...], height: int, width: int,
+                 correlation_px: float) -> np.ndarray:
+    """(*shape, H, W) float64 fields of unit RMS whose correlation at distance d is exp(-d²/2ℓ²):
+    white noise blurred by a Gaussian of sigma ℓ/√2, each field scaled to unit RMS."""
+    white = rng.standard_normal((*shape, height, width))
+    if correlation_px <= 0:
+        return white
+    sigma = correlation_px / math.sqrt(2.0)
+    flat = white.reshape(-1, height, width)
+    blurred = np.stack([cv2.GaussianBlur(f, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+                        for f in flat])
+    rms = np.sqrt(np.mean(blurred ** 2, axis=(1, 2), keepdims=True))
+    return (blurred / np.maximum(rms, 1e-12)).reshape(white.shape)
+
+
+def _sample(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Values (..., P) of fields (..., H, W) at the nearest pixel of positions (..., P, 2), clamped."""
+    H, W = field.shape[-2:]
+    col = np.clip(np.rint(np.nan_to_num(xy[..., 0])), 0, W - 1).astype(np.int64)
+    row = np.clip(np.rint(np.nan_to_num(xy[..., 1])), 0, H - 1).astype(np.int64)
+    return np.take_along_axis(field.reshape(*field.shape[:-2], H * W), row * W + col, axis=-1)
+
+
+def track_errors(model: NoiseModel, positions: np.ndarray, height: int, width: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """(n, P, 2) errors [px] for n sets of P positions (x, y): independent, or ``shared`` of the
+    variance from a smooth field per set and coordinate (module docstring)."""
+    n, P = positions.shape[:2]
+    independent = rng.standard_normal((n, P, 2))
+    if model.correlation_px <= 0:
+        return model.px * independent
+    fields = smooth_field(rng, (n, 2), height, width, model.correlation_px)
+    shared = np.stack([_sample(fields[:, c], positions) for c in range(2)], axis=-1)
+    return model.px * (math.sqrt(model.shared) * shared + math.sqrt(1.0 - model.shared) * independent)
+
+
+def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(T, H, W) float32 depth with the model's multiplicative field and smeared edges; invalid
+    pixels (<= 0 or non-finite) stay as they are."""
+    T, H, W = depth.shape
+    out = depth.astype(np.float64)
+    valid = np.isfinite(out) & (out > 0)
+    if model.depth_rel > 0:
+        out = np.where(valid, out * np.exp(model.depth_rel * smooth_field(rng, (T,), H, W, DEPTH_CORRELATION_PX)),
+                       out)
+    if model.depth_edge_px > 0:
+        log_depth = np.log(np.where(valid, out, 1.0))
+        jump = np.zeros_like(valid)
+        for axis in (1, 2):
+            step = np.abs(np.diff(log_depth, axis=axis)) > math.log1p(DEPTH_EDGE_JUMP)
+            both = np.take(valid, range(1, valid.shape[axis]), axis=axis) & np.take(
+                valid, range(valid.shape[axis] - 1), axis=axis)
+            edge = step & both
+            pad_lo = [(0, 0)] * 3
+            pad_hi = [(0, 0)] * 3
+            pad_lo[axis], pad_hi[axis] = (1, 0), (0, 1)
+            jump |= np.pad(edge, pad_lo) | np.pad(edge, pad_hi)
+        size = 2 * model.depth_edge_px + 1
+        kernel = np.ones((size, size), np.uint8)
+        near_edge = np.stack([cv2.dilate(j.astype(np.uint8), kernel) > 0 for j in jump]) & valid
+        low = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), kernel)
+                        for d, v in zip(out, valid)]).astype(np.float64)
+        high = np.stack([cv2.dilate(np.where(v, d, 0.0).astype(np.float32), kernel)
+                         for d, v in zip(out, valid)]).astype(np.float64)
+        blend = rng.uniform(0.0, 1.0, size=out.shape)
+        out = np.where(near_edge, low + blend * (high - low), out)
+    return out.astype(np.float32)
+
+
+def add_noise(clip: Clip, model: NoiseModel, seed: int = 0) -> Clip:
+    """The clip with one seeded draw of the model's errors (module docstring); its id gets a
+    ``-noise<seed>`` suffix. Identity for the zero model."""
+    rng_tracks = np.random.default_rng((NOISE_SEED, seed, _TRACK_STREAM))
+    rng_depth = np.random.default_rng((NOISE_SEED, seed, _DEPTH_STREAM))
+    H, W = clip.image_size
+    prev = clip.track_prev.astype(np.float64)
+    curr = clip.track_curr.astype(np.float64)
+    vis = clip.track_vis.copy()
+    if model.px > 0:
+        curr = curr + track_errors(model, curr, H, W, rng_tracks)
+        if model.ends == "both":
+            prev = prev + track_errors(model, prev, H, W, rng_tracks)
+    if model.outlier_frac > 0:
+        n_pairs, P = curr.shape[:2]
+        n_out = int(round(model.outlier_frac * P))
+        for pair in range(n_pairs):  # host-side data preparation, not a kernel
+            bad = rng_tracks.permutation(P)[:n_out]
+            curr[pair, bad] = rng_tracks.uniform([0.0, 0.0], [W - 1, H - 1], size=(n_out, 2))
+            vis[pair, bad] = True
+    depth = clip.depth
+    if model.depth_rel > 0 or model.depth_edge_px > 0:
+        depth = noisy_depth(model, clip.depth, rng_depth)
+    return dataclasses.replace(clip, track_prev=prev.astype(np.float32), track_curr=curr.astype(np.float32),
+                               track_vis=vis, depth=depth, clip_id=f"{clip.clip_id}-noise{seed}")

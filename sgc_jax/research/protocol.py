@@ -1,0 +1,144 @@
+"""The validation protocol (docs/semantics.md §7.4): a FIT split of synthetic scenes on which every
+constant of the default score may be chosen, and a TEST split, fixed before any tuning, on which
+its claims are reported.
+
+The splits share no seed. TEST also holds what FIT lacks: scene layouts (more and fewer planar
+layers), image sizes (120x160, 192x256), frame counts (6, 12) and camera motions (other speeds, a
+forward dolly). Every scene is consistent; a *cell* is one scene under one noise model
+(:data:`sgc_jax.research.noise.NOISE_MODELS`) at one level and one track count, scored clean, under
+each inconsistency and its consistent twin:
+
+- ``warp``, ``squeeze``, ``depth_warp`` (:mod:`sgc_jax.research.perturb`) at :data:`SEVERITIES`,
+  against the clean scene;
+- ``mover``: one moving object left unmasked, against the same scene with it masked.
+
+Noise is dealt after the inconsistency, from a seed of the cell, so a scene and its inconsistent
+version carry the same tracker errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import Any, Iterator
+
+import numpy as np
+
+from ..io.clip import Clip
+from .noise import NOISE_MODELS, add_noise
+from .perturb import PERTURBATIONS, perturb_clip
+from .synth import synth_clip
+
+#: Seeds of each split; FIT's include the shipped calibration corpus's (0, 1) and the benchmarks' (10-12).
+FIT_SEEDS = range(0, 100)
+TEST_SEEDS = range(5800, 5900)
+NOISE_LEVELS_PX = (0.25, 0.5, 1.0, 2.0)
+TRACK_COUNTS = (200, 1000, 4096)
+SEVERITIES = (0.1, 0.25, 0.5)
+INCONSISTENCIES = (*PERTURBATIONS, "mover")
+
+
+@dataclasses.dataclass(frozen=True)
+class ProtocolScene:
+    """One consistent scene of a split: a seed and the :class:`~sgc_jax.research.synth.SceneSpec`
+    fields that differ from the defaults (tracks and noise are set per cell)."""
+
+    name: str
+    seed: int
+    spec: dict[str, Any]
+
+    def clip(self, n_tracks: int, *, moving: bool = False, masked: bool = True) -> Clip:
+        """The exact clip with ``n_tracks`` tracks per pair; ``moving``: one moving object,
+        masked or not."""
+        return synth_clip(seed=self.seed, clip_id=self.name, n_tracks=n_tracks, with_frames=False,
+                          moving_objects=int(moving), with_mask=masked, **self.spec)
+
+
+def _scene(name: str, seed: int, layers: int, spheres: int, size: tuple[int, int], frames: int,
+           rot: float, trans: float, motion: str = "orbit") -> ProtocolScene:
+    return ProtocolScene(name, seed, dict(n_layers=layers, static_spheres=spheres, height=size[0], width=size[1],
+                                          n_frames=frames, rot_deg_per_frame=rot, trans_per_frame=trans,
+                                          camera_motion=motion))
+
+
+#: FIT: the calibration corpus's layout and sizes, 8 frames, orbiting cameras at its three speeds.
+FIT_SCENES = (
+    _scene("fit-0", 20, 3, 4, (144, 192), 8, 1.5, 0.15),
+    _scene("fit-1", 21, 2, 4, (144, 192), 8, 0.5, 0.05),
+    _scene("fit-2", 22, 3, 4, (96, 128), 8, 3.0, 0.3),
+    _scene("fit-3", 23, 2, 4, (96, 128), 8, 1.5, 0.15),
+    _scene("fit-4", 24, 3, 4, (144, 192), 8, 3.0, 0.3),
+    _scene("fit-5", 25, 2, 4, (144, 192), 8, 1.5, 0.15),
+)
+
+#: TEST: two scenes like FIT's (other seeds), then layouts, sizes, frame counts and motions FIT lacks.
+TEST_SCENES = (
+    _scene("test-0", 5800, 3, 4, (144, 192), 8, 1.5, 0.15),
+    _scene("test-1", 5801, 2, 4, (96, 128), 8, 0.5, 0.05),
+    _scene("test-2", 5802, 5, 2, (120, 160), 6, 1.0, 0.1),  # many planar layers, few spheres
+    _scene("test-3", 5803, 1, 6, (192, 256), 8, 2.0, 0.25),  # mostly curved structure
+    _scene("test-4", 5804, 4, 3, (144, 192), 12, 1.0, 0.12, "forward"),  # a dolly in
+    _scene("test-5", 5805, 3, 4, (120, 160), 8, 2.5, 0.05),  # rotation-dominated pan, little parallax
+)
+
+SPLITS = {"fit": FIT_SCENES, "test": TEST_SCENES}
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One scene under one noise model, level and track count; its rows share one noise seed."""
+
+    scene: ProtocolScene
+    noise_model: str
+    noise_px: float
+    n_tracks: int
+
+    @property
+    def noise_seed(self) -> int:
+        return self.scene.seed * 1000 + NOISE_LEVELS_PX.index(self.noise_px) * 100 + sorted(NOISE_MODELS).index(
+            self.noise_model) * 10 + TRACK_COUNTS.index(self.n_tracks)
+
+
+def cells(split: str, noise_models=tuple(NOISE_MODELS), levels=NOISE_LEVELS_PX, tracks=TRACK_COUNTS) -> Iterator[Cell]:
+    """Every cell of a split, scene-major."""
+    for scene, model, px, n in itertools.product(SPLITS[split], noise_models, levels, tracks):
+        yield Cell(scene, model, px, n)
+
+
+def cell_clips(cell: Cell, inconsistencies=INCONSISTENCIES, severities=SEVERITIES) -> list[tuple[Clip, str, float]]:
+    """(noisy clip, inconsistency or "" for consistent, severity) of a cell: the consistent scene,
+    each perturbation at each severity, and for ``mover`` the masked scene (consistent, kind
+    ``"mover-masked"``) and the unmasked one (severity 1)."""
+    model = NOISE_MODELS[cell.noise_model].replace(px=cell.noise_px)
+    clean = cell.scene.clip(cell.n_tracks)
+    out: list[tuple[Clip, str, float]] = [(clean, "", 0.0)]
+    for kind in inconsistencies:
+        if kind == "mover":
+            out += [(cell.scene.clip(cell.n_tracks, moving=True, masked=True), "mover-masked", 0.0),
+                    (cell.scene.clip(cell.n_tracks, moving=True, masked=False), "mover", 1.0)]
+        else:
+            out += [(perturb_clip(clean, kind, s, seed=cell.scene.seed), kind, s) for s in severities]
+    return [(add_noise(c, model, cell.noise_seed), kind, s) for c, kind, s in out]
+
+
+def consistent_twin(kind: str) -> str:
+    """The kind of the consistent clip an inconsistency is compared with."""
+    return "mover-masked" if kind == "mover" else ""
+
+
+def detection_table(rows: list[dict]) -> dict[tuple[str, float], float]:
+    """(inconsistency, severity) -> the share of cells where it scores strictly above its
+    consistent twin; rows carry ``cell`` (any hashable), ``kind``, ``severity`` and ``sgc``."""
+    by_cell: dict[Any, dict[tuple[str, float], float]] = {}
+    for r in rows:
+        by_cell.setdefault(r["cell"], {})[(r["kind"], r["severity"])] = r["sgc"]
+    hits: dict[tuple[str, float], list[bool]] = {}
+    for scores in by_cell.values():
+        for (kind, severity), sgc in scores.items():
+            if kind in ("", "mover-masked"):
+                continue
+            twin = scores.get((consistent_twin(kind), 0.0))
+            if twin is None:
+                continue
+            hits.setdefault((kind, severity), []).append(bool(np.nan_to_num(sgc, nan=-1.0) > np.nan_to_num(twin, nan=0.0)))
+    return {key: float(np.mean(v)) for key, v in sorted(hits.items())}

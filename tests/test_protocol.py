@@ -1,0 +1,150 @@
+"""The validation protocol (docs/semantics.md §7.4): its noise models deal the errors they name, and
+its TEST split shares nothing with what the default score's constants were fitted on."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+
+import numpy as np
+import pytest
+from scenes import SYNTH_SCENE
+
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, smooth_field
+from sgc_jax.research.protocol import FIT_SCENES, FIT_SEEDS, TEST_SCENES, TEST_SEEDS, Cell, cell_clips, detection_table
+from sgc_jax.research.synth import synth_clip
+
+# Sampling tolerances: RMS over 2 x (T-1) x P = 1,536 draws (SYNTH_SCENE) is within 10 % of its
+# value with probability > 0.999; correlation shares over >= 1,000 pairs of tracks within 0.1.
+RMS_RTOL = 0.1
+SHARE_ATOL = 0.1
+
+
+@pytest.fixture(scope="module")
+def exact_clip():
+    return synth_clip(seed=3, clip_id="exact", n_layers=2, static_spheres=2, with_frames=False, **SYNTH_SCENE)
+
+
+def rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values.astype(np.float64) ** 2)))
+
+
+def test_the_zero_model_changes_no_array(exact_clip):
+    noisy = add_noise(exact_clip, NoiseModel(), seed=1)
+    for name in ("track_prev", "track_curr", "track_vis", "depth"):
+        np.testing.assert_array_equal(getattr(noisy, name), getattr(exact_clip, name))
+
+
+def test_per_pair_queries_err_at_frame_i_only(exact_clip):
+    noisy = add_noise(exact_clip, NOISE_MODELS["iid-curr"].replace(px=1.5), seed=1)
+    np.testing.assert_array_equal(noisy.track_prev, exact_clip.track_prev)
+    assert rms(noisy.track_curr - exact_clip.track_curr) == pytest.approx(1.5, rel=RMS_RTOL)
+
+
+def test_long_range_tracks_err_at_both_ends_independently(exact_clip):
+    noisy = add_noise(exact_clip, NOISE_MODELS["iid-both"].replace(px=1.5), seed=1)
+    prev_error = noisy.track_prev - exact_clip.track_prev
+    curr_error = noisy.track_curr - exact_clip.track_curr
+    assert rms(prev_error) == pytest.approx(1.5, rel=RMS_RTOL)
+    assert rms(curr_error) == pytest.approx(1.5, rel=RMS_RTOL)
+    assert abs(np.corrcoef(prev_error.ravel(), curr_error.ravel())[0, 1]) < SHARE_ATOL
+
+
+def shared_share(errors: np.ndarray, positions: np.ndarray, lo: float, hi: float) -> float:
+    """Mean product of the errors of two tracks of one pair lo..hi px apart, over the mean square
+    error; errors and positions (pairs, P, 2)."""
+    products = []
+    for e, p in zip(errors, positions):
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+        i, j = np.nonzero((d >= lo) & (d < hi) & np.triu(np.ones_like(d, bool), 1))
+        products.append(np.sum(e[i] * e[j], -1))
+    return float(np.mean(np.concatenate(products)) / np.mean(np.sum(errors ** 2, -1)))
+
+
+def test_correlated_errors_are_shared_by_nearby_tracks_and_not_by_far_ones():
+    clip = synth_clip(seed=4, clip_id="wide", n_layers=2, static_spheres=2, with_frames=False, n_frames=9,
+                      height=144, width=192, n_tracks=800)
+    noisy = add_noise(clip, NOISE_MODELS["correlated"], seed=2)  # px = 0: no error at all
+    assert np.array_equal(noisy.track_curr, clip.track_curr)
+    model = NOISE_MODELS["correlated"].replace(px=1.0)
+    noisy = add_noise(clip, model, seed=2)
+    errors, positions = noisy.track_curr - clip.track_curr, clip.track_curr
+    # share x exp(-d^2 / 2 l^2) at l = 16 px, share 0.85: 0.82 at 0-4 px, 0.00 at 64-96 px (8 fields)
+    assert shared_share(errors, positions, 0, 4) == pytest.approx(0.82, abs=SHARE_ATOL)
+    assert shared_share(errors, positions, 64, 96) == pytest.approx(0.0, abs=SHARE_ATOL)
+
+
+def test_smooth_fields_have_unit_rms_and_their_correlation_length():
+    field = smooth_field(np.random.default_rng(0), (8,), 128, 128, 16.0)
+    assert rms(field) == pytest.approx(1.0, rel=1e-6)
+    lag = 16  # exp(-1/2) = 0.61 at one correlation length
+    corr = np.mean(field[:, :, lag:] * field[:, :, :-lag]) / np.mean(field ** 2)
+    assert corr == pytest.approx(np.exp(-0.5), abs=SHARE_ATOL)
+
+
+def test_depth_errors_are_largest_at_depth_edges(exact_clip):
+    noisy = add_noise(exact_clip, NOISE_MODELS["depth"], seed=3)
+    ratio = np.abs(np.log(noisy.depth / exact_clip.depth))
+    log_depth = np.log(exact_clip.depth)
+    edge = np.zeros_like(ratio, bool)
+    edge[:, :, 1:] |= np.abs(np.diff(log_depth, axis=2)) > 0.05
+    edge[:, 1:, :] |= np.abs(np.diff(log_depth, axis=1)) > 0.05
+    assert np.median(ratio[~edge]) < 0.02  # the smooth field's 1 % RMS
+    assert np.mean(ratio[edge]) > 5 * np.mean(ratio[~edge])
+
+
+def test_outliers_land_anywhere_and_stay_visible(exact_clip):
+    noisy = add_noise(exact_clip, NOISE_MODELS["outliers"].replace(px=0.5), seed=4)
+    far = np.linalg.norm(noisy.track_curr - exact_clip.track_curr, axis=-1) > 5.0  # 10 sigma of the noise
+    assert np.mean(far) == pytest.approx(0.1 * np.mean(far | True), abs=0.03)
+    assert noisy.track_vis[far].all()
+
+
+def test_a_draw_depends_on_its_seed_only(exact_clip):
+    model = NOISE_MODELS["correlated"].replace(px=1.0)
+    a, b, c = (add_noise(exact_clip, model, seed=s) for s in (7, 7, 8))
+    np.testing.assert_array_equal(a.track_curr, b.track_curr)
+    assert not np.array_equal(a.track_curr, c.track_curr)
+
+
+def test_test_split_shares_no_seed_with_the_fit_split():
+    assert {s.seed for s in TEST_SCENES} <= set(TEST_SEEDS)
+    assert {s.seed for s in FIT_SCENES} <= set(FIT_SEEDS)
+    assert not set(FIT_SEEDS) & set(TEST_SEEDS)
+
+
+def test_shipped_calibration_corpus_shares_no_seed_with_the_test_split():
+    text = resources.files("sgc_jax.calibration").joinpath("sgc-spec-2026.json").read_text()
+    seeds = set(json.loads(text)["corpus"]["seeds"])
+    assert seeds <= set(FIT_SEEDS)
+    assert not seeds & set(TEST_SEEDS)
+
+
+def test_test_split_holds_sizes_frame_counts_motions_and_layouts_the_fit_split_lacks():
+    def values(scenes, *keys):
+        return {tuple(s.spec[k] for k in keys) for s in scenes}
+
+    for keys in [("height", "width"), ("n_frames",), ("camera_motion",), ("rot_deg_per_frame", "trans_per_frame"),
+                 ("n_layers", "static_spheres")]:
+        assert values(TEST_SCENES, *keys) - values(FIT_SCENES, *keys), keys
+
+
+def test_cell_clips_share_the_noise_draw_of_their_cell():
+    scene = TEST_SCENES[1]
+    cell = Cell(scene, "iid-curr", 1.0, 200)
+    clips = cell_clips(cell, inconsistencies=("squeeze", "mover"), severities=(0.25,))
+    kinds = [kind for _, kind, _ in clips]
+    assert kinds == ["", "squeeze", "mover-masked", "mover"]
+    clean, squeezed = clips[0][0], clips[1][0]
+    exact = scene.clip(200)
+    # squeeze moves only y: the x errors of the clean and the squeezed clip are the same draw
+    np.testing.assert_allclose(clean.track_curr[..., 0] - exact.track_curr[..., 0],
+                               squeezed.track_curr[..., 0] - exact.track_curr[..., 0], atol=1e-4)
+
+
+def test_detection_counts_a_cell_when_the_inconsistency_scores_above_its_twin():
+    rows = [dict(cell=1, kind="", severity=0.0, sgc=0.1), dict(cell=1, kind="warp", severity=0.25, sgc=0.2),
+            dict(cell=2, kind="", severity=0.0, sgc=0.3), dict(cell=2, kind="warp", severity=0.25, sgc=0.3),
+            dict(cell=1, kind="mover-masked", severity=0.0, sgc=0.0), dict(cell=1, kind="mover", severity=1.0,
+                                                                            sgc=float("nan"))]
+    assert detection_table(rows) == {("mover", 1.0): 0.0, ("warp", 0.25): 0.5}
