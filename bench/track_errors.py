@@ -41,7 +41,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
-from sgc_jax.engines.reference import back_project, global_relative_pose, project
+from sgc_jax.engines.reference import back_project, global_relative_pose
+from sgc_jax.research.ground_truth import exact_positions, points_prev
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.synth import synth_clip
 
@@ -51,27 +52,6 @@ VARIANTS = ("real", "exact", "iid", "shuffled")
 DISTANCE_BINS_PX = (0, 8, 32, 64, 128, np.inf)
 CLIP_ERROR_PX = 5.0  # e clipped per axis: tartan_000080's 37 px failures would swamp the sums
 SAME_POINT_PX = 1.5  # a pair's track starts at the scene point another ended at (frame i positions)
-
-
-def points_prev(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every track of pair ``pair`` back-projected from frame i-1's depth at its floor pixel (X (P, 3),
-    camera i-1; docs/semantics.md §3.2 step 3), and where that depth is valid (P,)."""
-    H, W = clip.image_size
-    prev = clip.track_prev[pair - 1].astype(np.float64)
-    col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
-    row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
-    Z = clip.depth[pair - 1][row, col].astype(np.float64)
-    valid = np.isfinite(Z) & (Z > 0)
-    return back_project(clip.K[pair - 1], prev, np.where(valid, Z, 1.0)), valid
-
-
-def exact_positions(clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth frame-i positions (P, 2) of pair ``pair``'s tracks, and where they exist (P,)."""
-    X, valid = points_prev(clip, pair)
-    R, t = global_relative_pose(clip, pair, SGCConfig())
-    Y = X @ R.T + t
-    front = valid & (Y[:, 2] > 1e-6)
-    return project(clip.K[pair], Y), front
 
 
 def variants(clip, rng: np.random.Generator) -> dict:

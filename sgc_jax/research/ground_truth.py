@@ -1,0 +1,48 @@
+"""Tracks against a clip's own geometry: where each track's frame-(i−1) point lands in frame i under
+the clip's depth and cameras, and how far the tracker put it from there (px).
+
+On a clip whose depth and cameras are ground truth (``../shared/realdata``, synthetic scenes) this
+is the tracker's error as the score sees it; on an estimated clip it mixes the estimators'
+disagreements. Conventions of docs/semantics.md §1.1 and §3.2 step 4 (depth at the floor pixel).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config import SGCConfig
+from ..engines.reference import back_project, global_relative_pose, project
+from ..io.clip import Clip
+
+
+def points_prev(clip: Clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pair ``pair``'s tracks back-projected from frame i−1's depth at their floor pixels (X (P, 3),
+    camera i−1), and where that depth is valid (P,)."""
+    H, W = clip.image_size
+    prev = clip.track_prev[pair - 1].astype(np.float64)
+    col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
+    row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
+    Z = clip.depth[pair - 1][row, col].astype(np.float64)
+    valid = np.isfinite(Z) & (Z > 0)
+    return back_project(clip.K[pair - 1], prev, np.where(valid, Z, 1.0)), valid
+
+
+def exact_positions(clip: Clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame-i positions (P, 2) of pair ``pair``'s tracks under the clip's depth and relative camera
+    pose, and where they exist (P,): valid depth, in front of camera i."""
+    X, valid = points_prev(clip, pair)
+    R, t = global_relative_pose(clip, pair, SGCConfig())
+    Y = X @ R.T + t
+    return project(clip.K[pair], Y), valid & (Y[:, 2] > 1e-6)
+
+
+def motion_errors(clip: Clip, min_track_conf: float = SGCConfig().min_track_conf) -> np.ndarray:
+    """Distances [px] between the usable tracks' frame-i positions and their exact positions, over
+    all pairs (the tracks with an exact position only)."""
+    usable = clip.usable_tracks(min_track_conf)
+    errors = []
+    for pair in range(1, clip.n_frames):
+        exact, exists = exact_positions(clip, pair)
+        keep = usable[pair - 1] & exists
+        errors.append(np.linalg.norm(clip.track_curr[pair - 1][keep].astype(np.float64) - exact[keep], axis=1))
+    return np.concatenate(errors)
