@@ -16,7 +16,7 @@ with ``--out`` instead of scoring. Prints, for the split:
 3. floors: per noise model, the range over (level, tracks) cells of the median observed / floor of
    each pose component over the consistent scenes (the bar: within [0.5, 2]);
 4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
-   of 20 draws (consistent scenes at 1 px, 1000 tracks; the bar: >= 85 %).
+   of 20 draws (consistent scenes and warp at 0.5, 1 px, 1000 tracks; the bar: >= 85 %).
 """
 
 from __future__ import annotations
@@ -33,10 +33,11 @@ import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.protocol import NOISE_LEVELS_PX, SPLITS, TRACK_COUNTS, cell_clips, cells, detection_table
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
-INTERVAL_DRAWS, INTERVAL_PX, INTERVAL_TRACKS = 20, 1.0, 1000
+INTERVAL_DRAWS, INTERVAL_PX, INTERVAL_TRACKS, INTERVAL_WARP = 20, 1.0, 1000, 0.5
 
 
 def score_rows(args, config: SGCConfig) -> list[dict]:
@@ -110,21 +111,25 @@ def print_floors(rows: list[dict], models, levels, tracks) -> None:
 
 def print_intervals(args, config: SGCConfig) -> None:
     print(f"\n4. Intervals: one draw's 90 % interval holds the median of {INTERVAL_DRAWS} draws "
-          f"(consistent scenes, {INTERVAL_PX:g} px, {INTERVAL_TRACKS} tracks)")
-    print("| noise model | draws | coverage | median width |")
-    print("|---|---|---|---|")
-    for model in args.models:
-        covered, widths = [], []
+          f"({INTERVAL_PX:g} px, {INTERVAL_TRACKS} tracks; consistent scenes and warp at {INTERVAL_WARP:g})")
+    print("| noise model | clip | draws | coverage | median SGC | median width |")
+    print("|---|---|---|---|---|---|")
+    for model, kind in itertools.product(args.models, ("consistent", "warp")):
+        covered, widths, scores = [], [], []
         for scene in SPLITS[args.split][:args.scenes]:
-            clean = scene.clip(INTERVAL_TRACKS)
+            base = scene.clip(INTERVAL_TRACKS)
+            if kind == "warp":
+                base = perturb_clip(base, "warp", INTERVAL_WARP, seed=scene.seed)
             noisy = NOISE_MODELS[model].replace(px=INTERVAL_PX)
-            clips = [add_noise(clean, noisy, 90_000 + scene.seed * 100 + d) for d in range(INTERVAL_DRAWS)]
+            clips = [add_noise(base, noisy, 90_000 + scene.seed * 100 + d) for d in range(INTERVAL_DRAWS)]
             result = score_batch(clips, config=config, progress=False)
             sgc, lo, hi = (np.array([getattr(c, k) for c in result.clips]) for k in ("sgc", "sgc_lo", "sgc_hi"))
             median = np.median(sgc)
             covered += list((lo <= median) & (median <= hi))
             widths += list(hi - lo)
-        print(f"| {model} | {len(covered)} | {np.mean(covered):.0%} | {np.nanmedian(widths):.3f} |", flush=True)
+            scores += list(sgc)
+        print(f"| {model} | {kind} | {len(covered)} | {np.mean(covered):.0%} | {np.nanmedian(scores):.3f} "
+              f"| {np.nanmedian(widths):.3f} |", flush=True)
 
 
 def main() -> None:
