@@ -115,6 +115,22 @@ def track_errors(model: NoiseModel, positions: np.ndarray, height: int, width: i
     return model.px * (math.sqrt(model.shared) * shared + math.sqrt(1.0 - model.shared) * independent)
 
 
+def depth_edges(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T, H, W) bool: valid pixels whose depth differs from a valid 4-neighbour's by more than
+    ``DEPTH_EDGE_JUMP`` (relative), on both sides of the jump."""
+    log_depth = np.log(np.where(valid, depth, 1.0))
+    edge = np.zeros_like(valid)
+    for axis in (1, 2):  # rows, then columns
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis], hi[axis] = slice(None, -1), slice(1, None)
+        jump = ((np.abs(log_depth[tuple(hi)] - log_depth[tuple(lo)]) > math.log1p(DEPTH_EDGE_JUMP))
+                & valid[tuple(hi)] & valid[tuple(lo)])
+        edge[tuple(lo)] |= jump
+        edge[tuple(hi)] |= jump
+    return edge
+
+
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(T, H, W) float32 depth with the model's multiplicative field and smeared edges; invalid
     pixels (<= 0 or non-finite) stay as they are."""
@@ -122,29 +138,16 @@ def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) 
     out = depth.astype(np.float64)
     valid = np.isfinite(out) & (out > 0)
     if model.depth_rel > 0:
-        out = np.where(valid, out * np.exp(model.depth_rel * smooth_field(rng, (T,), H, W, DEPTH_CORRELATION_PX)),
-                       out)
+        field = smooth_field(rng, (T,), H, W, DEPTH_CORRELATION_PX)
+        out = np.where(valid, out * np.exp(model.depth_rel * field), out)
     if model.depth_edge_px > 0:
-        log_depth = np.log(np.where(valid, out, 1.0))
-        jump = np.zeros_like(valid)
-        for axis in (1, 2):
-            step = np.abs(np.diff(log_depth, axis=axis)) > math.log1p(DEPTH_EDGE_JUMP)
-            both = np.take(valid, range(1, valid.shape[axis]), axis=axis) & np.take(
-                valid, range(valid.shape[axis] - 1), axis=axis)
-            edge = step & both
-            pad_lo = [(0, 0)] * 3
-            pad_hi = [(0, 0)] * 3
-            pad_lo[axis], pad_hi[axis] = (1, 0), (0, 1)
-            jump |= np.pad(edge, pad_lo) | np.pad(edge, pad_hi)
-        size = 2 * model.depth_edge_px + 1
-        kernel = np.ones((size, size), np.uint8)
-        near_edge = np.stack([cv2.dilate(j.astype(np.uint8), kernel) > 0 for j in jump]) & valid
-        low = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), kernel)
-                        for d, v in zip(out, valid)]).astype(np.float64)
-        high = np.stack([cv2.dilate(np.where(v, d, 0.0).astype(np.float32), kernel)
-                         for d, v in zip(out, valid)]).astype(np.float64)
+        kernel = np.ones((2 * model.depth_edge_px + 1,) * 2, np.uint8)
+        near_edge = np.stack([cv2.dilate(e.astype(np.uint8), kernel) > 0 for e in depth_edges(out, valid)]) & valid
+        # the nearest and farthest valid depth around each pixel: the two sides of its edge
+        nearest = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), kernel) for d, v in zip(out, valid)])
+        farthest = np.stack([cv2.dilate(np.where(v, d, 0.0).astype(np.float32), kernel) for d, v in zip(out, valid)])
         blend = rng.uniform(0.0, 1.0, size=out.shape)
-        out = np.where(near_edge, low + blend * (high - low), out)
+        out = np.where(near_edge, nearest + blend * (farthest.astype(np.float64) - nearest), out)
     return out.astype(np.float32)
 
 
