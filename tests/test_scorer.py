@@ -21,7 +21,7 @@ from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
-from sgc_jax.io.tables import FLOOR_COLUMNS
+from sgc_jax.io.tables import FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
@@ -35,6 +35,11 @@ CLIP_RTOL, CLIP_ATOL = 1e-5, 1e-6
 # Inside a user's jit the steps fuse into one program that rounds differently: two roundings of one
 # fit may settle LM_SETTLE_RTOL apart in the pose.
 FUSED_RTOL, FUSED_ATOL = 2 * LM_SETTLE_RTOL, 1e-5
+# The interval's bounds are percentiles of resampled excesses over the floors' band: a component near
+# its band changes its excess by its own relative change times the component, not the excess, so
+# the bounds of a clip scoring ~0.01 move by up to ~1e-4 in score units (measured 6e-5 on an Intel
+# Xeon box, 4e-5 under XLA's older emitters on an AMD one).
+FUSED_INTERVAL_ATOL = 1e-4
 PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
             "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
 SHAPE = DEMO_BATCH_SHAPE
@@ -123,8 +128,9 @@ def test_the_scorer_runs_inside_a_users_jit(three, corpus):
     inside = jax.jit(lambda b: three(b))(batch)
     outside = three(batch)
     for name in PER_CLIP:
+        atol = FUSED_INTERVAL_ATOL if name in INTERVAL_COLUMNS else FUSED_ATOL
         np.testing.assert_allclose(np.asarray(inside[name]), np.asarray(outside[name]), rtol=FUSED_RTOL,
-                                   atol=FUSED_ATOL, err_msg=name)
+                                   atol=atol, err_msg=name)
 
 
 def test_a_smaller_clip_padded_into_the_batch_scores_as_itself(scorer, corpus):
