@@ -128,7 +128,8 @@ def consistent_twin(kind: str) -> str:
 
 def detection_table(rows: list[dict]) -> dict[tuple[str, float], float]:
     """(inconsistency, severity) -> the share of cells where it scores strictly above its
-    consistent twin; rows carry ``cell`` (any hashable), ``kind``, ``severity`` and ``sgc``."""
+    consistent twin (an inconsistency without a score is not above; a twin without one counts as 0);
+    rows carry ``cell`` (any hashable), ``kind``, ``severity`` and ``sgc``."""
     by_cell: dict[Any, dict[tuple[str, float], float]] = {}
     for r in rows:
         by_cell.setdefault(r["cell"], {})[(r["kind"], r["severity"])] = r["sgc"]
