@@ -41,8 +41,8 @@ def print_clean(clips, result) -> None:
     for p95, clip, scored, median in sorted(rows, key=lambda r: r[0]):
         ratios = [scored.components[k] / scored.floors[f"{k}_floor"] for k in POSE_COMPONENTS]
         tracks = int(scored.pairs.n_tracks.mean()) if scored.pairs is not None else 0
-        print(f"| {clip.clip_id} | {median:.2f} / {p95:.2f} | {scored.sgc:.3f} | {scored.sgc_lo:.3f}-{scored.sgc_hi:.3f}"
-              " | " + " | ".join(f"{r:.2f}" for r in ratios)
+        print(f"| {clip.clip_id} | {median:.2f} / {p95:.2f} | {scored.sgc:.3f} | "
+              f"{scored.sgc_lo:.3f}-{scored.sgc_hi:.3f} | " + " | ".join(f"{r:.2f}" for r in ratios)
               + f" | {scored.components['depth_error']:.2f} | {tracks} |")
 
 

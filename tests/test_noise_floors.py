@@ -103,7 +103,9 @@ def test_without_the_band_a_consistent_clip_scores_what_its_floors_alone_score(s
     noisy, exact = (scored.rescore(NO_BAND).clip(name) for name in ("consistent-1px", "consistent-exact"))
     assert noisy.sgc_floor > 0.1  # the tracker's noise, counted as inconsistency, scores well above 0
     assert noisy.sgc == pytest.approx(noisy.sgc_floor, abs=FLOOR_SCORE_ATOL)
-    assert exact.sgc_floor == pytest.approx(0.0, abs=1e-9) and exact.sgc == pytest.approx(0.0, abs=1e-9)  # float32 rounding
+    float32_rounding = 1e-9
+    assert exact.sgc_floor == pytest.approx(0.0, abs=float32_rounding)
+    assert exact.sgc == pytest.approx(0.0, abs=float32_rounding)
 
 
 def test_exact_tracks_have_floors_of_float_noise_and_the_tables_carry_them(scored):

@@ -61,7 +61,8 @@ def _scene(name: str, seed: int, layers: int, spheres: int, size: tuple[int, int
                                           camera_motion=motion))
 
 
-#: FIT: the calibration corpus's layout and sizes, 8 frames, orbiting cameras at its three speeds.
+#: FIT: the calibration corpus's and the benchmarks' layouts and sizes, 8 frames, orbiting cameras at
+#: the corpus's speeds.
 FIT_SCENES = (
     _scene("fit-0", 20, 3, 4, (144, 192), 8, 1.5, 0.15),
     _scene("fit-1", 21, 2, 4, (144, 192), 8, 0.5, 0.05),
@@ -141,5 +142,6 @@ def detection_table(rows: list[dict]) -> dict[tuple[str, float], float]:
             twin = scores.get((consistent_twin(kind), 0.0))
             if twin is None:
                 continue
-            hits.setdefault((kind, severity), []).append(bool(np.nan_to_num(sgc, nan=-1.0) > np.nan_to_num(twin, nan=0.0)))
+            above = np.nan_to_num(sgc, nan=-1.0) > np.nan_to_num(twin, nan=0.0)
+            hits.setdefault((kind, severity), []).append(bool(above))
     return {key: float(np.mean(v)) for key, v in sorted(hits.items())}
