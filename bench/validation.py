@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, score_batch
+from sgc_jax.research import protocol
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import perturb_clip
-from sgc_jax.research.protocol import NOISE_LEVELS_PX, SPLITS, TRACK_COUNTS, cell_clips, cells, detection_table
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 INTERVAL_DRAWS, INTERVAL_PX, INTERVAL_TRACKS, INTERVAL_WARP = 20, 1.0, 1000, 0.5
@@ -42,11 +42,13 @@ INTERVAL_DRAWS, INTERVAL_PX, INTERVAL_TRACKS, INTERVAL_WARP = 20, 1.0, 1000, 0.5
 
 def score_rows(args, config: SGCConfig) -> list[dict]:
     rows = []
-    scenes = SPLITS[args.split][:args.scenes]
+    scenes = protocol.SPLITS[args.split][:args.scenes]
     for scene, tracks in itertools.product(scenes, args.tracks):
         started = time.perf_counter()
-        batch = [(cell, clip, kind, severity) for cell in cells(args.split, args.models, args.levels, (tracks,))
-                 if cell.scene == scene for clip, kind, severity in cell_clips(cell)]
+        exact = protocol.exact_variants(scene, tracks)  # the same for every noise model and level
+        scene_cells = [c for c in protocol.cells(args.split, args.models, args.levels, (tracks,)) if c.scene == scene]
+        batch = [(cell, clip, kind, severity) for cell in scene_cells
+                 for clip, kind, severity in protocol.cell_clips(cell, exact=exact)]
         result = score_batch([clip for _, clip, _, _ in batch], config=config, progress=False)
         for (cell, _, kind, severity), clip in zip(batch, result.clips):
             rows.append(dict(scene=scene.name, model=cell.noise_model, noise_px=cell.noise_px, tracks=tracks,
@@ -82,8 +84,8 @@ def print_consistent(rows: list[dict], models, levels, tracks) -> None:
 
 def print_detection(rows: list[dict], models) -> None:
     keyed = [{**r, "cell": (r["scene"], r["model"], r["noise_px"], r["tracks"])} for r in rows]
-    overall = detection_table(keyed)
-    per_model = {m: detection_table([r for r in keyed if r["model"] == m]) for m in models}
+    overall = protocol.detection_table(keyed)
+    per_model = {m: protocol.detection_table([r for r in keyed if r["model"] == m]) for m in models}
     print("\n2. Detection: share of cells where the inconsistency scores above its consistent twin")
     print("| inconsistency | severity | all cells | " + " | ".join(models) + " |")
     print("|---|---|---|" + "---|" * len(models))
@@ -116,7 +118,7 @@ def print_intervals(args, config: SGCConfig) -> None:
     print("|---|---|---|---|---|---|")
     for model, kind in itertools.product(args.models, ("consistent", "warp")):
         covered, widths, scores = [], [], []
-        for scene in SPLITS[args.split][:args.scenes]:
+        for scene in protocol.SPLITS[args.split][:args.scenes]:
             base = scene.clip(INTERVAL_TRACKS)
             if kind == "warp":
                 base = perturb_clip(base, "warp", INTERVAL_WARP, seed=scene.seed)
@@ -134,10 +136,10 @@ def print_intervals(args, config: SGCConfig) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--split", default="test", choices=sorted(SPLITS))
+    parser.add_argument("--split", default="test", choices=sorted(protocol.SPLITS))
     parser.add_argument("--models", nargs="+", default=list(NOISE_MODELS), choices=list(NOISE_MODELS))
-    parser.add_argument("--levels", type=float, nargs="+", default=list(NOISE_LEVELS_PX))
-    parser.add_argument("--tracks", type=int, nargs="+", default=list(TRACK_COUNTS))
+    parser.add_argument("--levels", type=float, nargs="+", default=list(protocol.NOISE_LEVELS_PX))
+    parser.add_argument("--tracks", type=int, nargs="+", default=list(protocol.TRACK_COUNTS))
     parser.add_argument("--scenes", type=int, default=None, help="the split's first N scenes (default: all)")
     parser.add_argument("--out", default=None, help="CSV of every clip's score, components and floors")
     parser.add_argument("--rows", default=None, help="print the tables from this CSV instead of scoring")

@@ -47,11 +47,10 @@ class ProtocolScene:
     seed: int
     spec: dict[str, Any]
 
-    def clip(self, n_tracks: int, *, moving: bool = False, masked: bool = True) -> Clip:
-        """The exact clip with ``n_tracks`` tracks per pair; ``moving``: one moving object,
-        masked or not."""
+    def clip(self, n_tracks: int, *, moving: bool = False) -> Clip:
+        """The exact clip with ``n_tracks`` tracks per pair; ``moving``: with one moving object, masked."""
         return synth_clip(seed=self.seed, clip_id=self.name, n_tracks=n_tracks, with_frames=False,
-                          moving_objects=int(moving), with_mask=masked, **self.spec)
+                          moving_objects=int(moving), **self.spec)
 
 
 def _scene(name: str, seed: int, layers: int, spheres: int, size: tuple[int, int], frames: int,
@@ -106,20 +105,31 @@ def cells(split: str, noise_models=tuple(NOISE_MODELS), levels=NOISE_LEVELS_PX, 
         yield Cell(scene, model, px, n)
 
 
-def cell_clips(cell: Cell, inconsistencies=INCONSISTENCIES, severities=SEVERITIES) -> list[tuple[Clip, str, float]]:
-    """(noisy clip, inconsistency or "" for consistent, severity) of a cell: the consistent scene,
-    each perturbation at each severity, and for ``mover`` the masked scene (consistent, kind
-    ``"mover-masked"``) and the unmasked one (severity 1)."""
-    model = NOISE_MODELS[cell.noise_model].replace(px=cell.noise_px)
-    clean = cell.scene.clip(cell.n_tracks)
+def exact_variants(scene: ProtocolScene, n_tracks: int, inconsistencies=INCONSISTENCIES,
+                   severities=SEVERITIES) -> list[tuple[Clip, str, float]]:
+    """(exact clip, inconsistency or "" for consistent, severity) of a scene: the consistent scene,
+    each perturbation at each severity, and for ``mover`` the scene with one moving object masked
+    (consistent, kind ``"mover-masked"``) and the same clip without its mask (severity 1)."""
+    clean = scene.clip(n_tracks)
     out: list[tuple[Clip, str, float]] = [(clean, "", 0.0)]
     for kind in inconsistencies:
         if kind == "mover":
-            out += [(cell.scene.clip(cell.n_tracks, moving=True, masked=True), "mover-masked", 0.0),
-                    (cell.scene.clip(cell.n_tracks, moving=True, masked=False), "mover", 1.0)]
+            masked = scene.clip(n_tracks, moving=True)
+            unmasked = dataclasses.replace(masked, static_mask=np.ones_like(masked.static_mask), mask_source="none")
+            out += [(masked, "mover-masked", 0.0), (unmasked, "mover", 1.0)]
         else:
-            out += [(perturb_clip(clean, kind, s, seed=cell.scene.seed), kind, s) for s in severities]
-    return [(add_noise(c, model, cell.noise_seed), kind, s) for c, kind, s in out]
+            out += [(perturb_clip(clean, kind, s, seed=scene.seed), kind, s) for s in severities]
+    return out
+
+
+def cell_clips(cell: Cell, inconsistencies=INCONSISTENCIES, severities=SEVERITIES,
+               exact: list[tuple[Clip, str, float]] | None = None) -> list[tuple[Clip, str, float]]:
+    """``exact_variants`` of the cell's scene with the cell's noise; ``exact``: those variants,
+    when already made for the scene and track count (they do not depend on the noise)."""
+    model = NOISE_MODELS[cell.noise_model].replace(px=cell.noise_px)
+    if exact is None:
+        exact = exact_variants(cell.scene, cell.n_tracks, inconsistencies, severities)
+    return [(add_noise(c, model, cell.noise_seed), kind, s) for c, kind, s in exact]
 
 
 def consistent_twin(kind: str) -> str:
