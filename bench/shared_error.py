@@ -1,16 +1,16 @@
 """Errors nearby tracks share (issue 41): how far accepted poses scatter against the noise the
 floors count, with the usual covariance and with the floors' (docs/semantics.md §3.10).
 
-    python bench/shared_error.py [--dir ../shared/realdata] [--correlation-frac 0.0667 0.1] [--draws 2]
+    python bench/shared_error.py [--dir ../shared/realdata] [--block-frac 0.05 0.1] [--draws 2]
 
 With the reference engine on the real clips and on consistent synthetic scenes (independent
 tracker noise by construction) and these perturbed at severity 0.5:
 
 1. for every two accepted poses of a pair, their squared rotation difference over the sum of their
    squared RMS rotation errors (1 on average when the errors are right), by the usual covariance
-   (``region_rot_std``) and by the floors' pose noise with errors shared over ``--correlation-frac``
-   x the image diagonal (``reference.floor_noise``; ``config.CORRELATION_FRAC`` = 1/15 is the
-   engines'; under it the grid's last row and column take the rest);
+   (``region_rot_std``) and by the floors' pose noise with blocks of ``--block-frac`` x the image
+   diagonal (``reference.floor_noise``; 0.05 is the engines'; under 1/21 the grid's last row and
+   column take the rest);
 2. per clip, SGC (default calibration) and observed / floor of each pose component with the floors
    of either;
 3. for the real clips' outlying accepted poses (a median rotation more than 10 deg from the pair's
@@ -63,22 +63,22 @@ def scatter_ratios(R: list[np.ndarray], std: list[float]) -> list[float]:
             for a in range(len(R)) for b in range(a + 1, len(R))]
 
 
-def analyse(clip, config: SGCConfig, correlation_fracs, calibration):
+def analyse(clip, config: SGCConfig, block_fracs, calibration):
     """-> (ratios {name: list}, summaries {name: ClipResult}, outlying-pose lines); names "usual"
     and each block fraction."""
     pairs = score_pairs(clip, config)
     scaled, _ = in_depth_units(clip, config)
     diagonal = float(np.hypot(*clip.image_size))
     noise = {f: (np.full_like(pairs.region_rot_std, np.nan), np.full_like(pairs.region_trans_std, np.nan))
-             for f in correlation_fracs}
-    ratios = {name: [] for name in ("usual", *correlation_fracs)}
+             for f in block_fracs}
+    ratios = {name: [] for name in ("usual", *block_fracs)}
     outliers = []
     for pair in range(1, clip.n_frames):
         p, pp, K = pair - 1, pair_points(scaled, pair, config), clip.K[pair]
         accepted = [j for j in range(config.k_seg) if pairs.region_status[p, j] == REGION_OK]
         R = [pairs.R_local[p, j] for j in accepted]
         ratios["usual"] += scatter_ratios(R, [pairs.region_rot_std[p, j] for j in accepted])
-        for f in correlation_fracs:
+        for f in block_fracs:
             for j in accepted:
                 member = pp.region == j + 1
                 X, uv = pp.X[member], pp.uv[member]
@@ -122,7 +122,7 @@ def outlying_regions(clip, scaled, pairs, pair, pp, accepted, config) -> list[st
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
-    parser.add_argument("--correlation-frac", type=float, nargs="+", default=[1 / 15, 0.1])
+    parser.add_argument("--block-frac", type=float, nargs="+", default=[0.05, 0.1])
     parser.add_argument("--draws", type=int, default=1, help="noise draws per synthetic scene and noise level")
     parser.add_argument("--noise", type=float, nargs="+", default=[0.5, 2.0])
     args = parser.parse_args()
@@ -135,13 +135,13 @@ def main() -> None:
                   for noise in args.noise for d in range(args.draws)]
         clips += [dataclasses.replace(with_track_noise(perturb_clip(base, kind, SEVERITY, seed=s), PERTURBED_NOISE_PX, 0),
                                       clip_id=f"synth{s} {kind} {SEVERITY}") for kind in PERTURBATIONS]
-    names = ["usual", *args.correlation_frac]
+    names = ["usual", *args.block_frac]
     print("| clip | pose pairs | " + " | ".join(f"median ratio {n}" for n in names)
           + " | " + " | ".join(f"SGC {n}" for n in names) + " |")
     print("|---|---|" + "---|" * (2 * len(names)))
     rows, outliers = [], []
     for clip in clips:
-        ratios, summaries, found = analyse(clip, config, args.correlation_frac, calibration)
+        ratios, summaries, found = analyse(clip, config, args.block_frac, calibration)
         outliers += found
         print(f"| {clip.clip_id} | {len(ratios['usual'])} | "
               + " | ".join(f"{np.median(ratios[n]):.2f}" if ratios[n] else "-" for n in names) + " | "
