@@ -26,9 +26,10 @@ HOLE_DEPTH_MARGIN = 0.05
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5
 MIN_CUT_PX = 1.0
-# The correlation length of the errors nearby tracks share, which the noise floors count
-# (docs/semantics.md §3.10), as a fraction of the image diagonal.
-CORRELATION_FRAC = 1 / 15
+# The noise floors' squares (docs/semantics.md §3.10): this fraction of the image diagonal a side,
+# so at most BLOCKS_PER_AXIS along either side of the image (W, H <= diagonal).
+NOISE_BLOCK_FRAC = 0.05
+BLOCKS_PER_AXIS = 21
 # Field names of earlier releases that config files and ``SGCConfig.from_dict`` still accept, with
 # a DeprecationWarning: old name -> field.
 DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}

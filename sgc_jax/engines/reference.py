@@ -20,9 +20,8 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import CORRELATION_FRAC, HOLE_DEPTH_MARGIN, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
-from ..kernels import shared_error
 from . import reference_pose as reference_pose_search
 from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian
@@ -313,35 +312,33 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
             float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
 
 
-def shared_error_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                            correlation_px: float) -> np.ndarray:
-    """The covariance (6, 6) of the left-perturbed pose (w, dt) fitted to X (n, 3), uv (n, 2) when
-    its residuals are errors of each track's own plus a field nearby tracks share over
-    correlation_px (``kernels.shared_error``): A (sum_ab Σ_ab J_aᵀ J_b) A, A = (JᵀJ)⁻¹. NaN under
-    4 points."""
+def block_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                     block_px: float) -> np.ndarray:
+    """The cluster-robust covariance (6, 6) of the left-perturbed pose (w, dt) fitted to X (n, 3),
+    uv (n, 2) over squares of side block_px (``kernels.uncertainty.block_covariance``): A (sum_b g_b
+    g_b^T) A G/(G-1) (2n-1)/(2n-6), A = (J^T J)^-1, g_b = J_b^T e_b. NaN under 4 points."""
     n = len(X)
     if n < 4:
         return np.full((6, 6), np.nan)
     residuals, J = residual_jacobian(X, uv, K, R, t)
-    normal = J.T @ J
-    tables = np.zeros((shared_error.GRID ** 2, shared_error.CHANNELS))
-    np.add.at(tables, shared_error.cell_of(uv, correlation_px),
-              shared_error.point_channels(residuals[:n], residuals[n:], J[:n], J[n:]))
-    tables = tables.reshape(shared_error.GRID, shared_error.GRID, shared_error.CHANNELS)
-    A = np.linalg.pinv(normal)
-    own, shared = shared_error.shared_error_variances(tables, A, np.sum(residuals ** 2) / max(2 * n - 6, 1))
-    return A @ shared_error.shared_error_information(tables, own, shared, normal) @ A
+    A = np.linalg.pinv(J.T @ J)
+    cell = np.clip(np.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(np.int64)
+    block = np.unique(cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0], return_inverse=True)[1].ravel()
+    G = int(block.max()) + 1
+    g = np.zeros((G, 6))
+    np.add.at(g, block, J[:n] * residuals[:n, None] + J[n:] * residuals[n:, None])
+    return A @ (g.T @ g) @ A * G / max(G - 1, 1) * (2 * n - 1) / max(2 * n - 6, 1)
 
 
 def floor_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                usual: tuple[float, float], correlation_px: float, inlier_px: float) -> tuple[float, float]:
+                usual: tuple[float, float], block_px: float, inlier_px: float) -> tuple[float, float]:
     """(RMS rotation error deg, RMS translation error) the noise floors count for an accepted pose
-    (docs/semantics.md §3.10): each the larger of ``usual`` (``pose_uncertainty``'s) and the shared
-    error covariance's on the pose's inliers."""
+    (docs/semantics.md §3.10): each the larger of ``usual`` (``pose_uncertainty``'s) and the block
+    covariance's on the pose's inliers."""
     inliers = pose_inliers(X, uv, K, R, t, inlier_px)
-    shared = shared_error_covariance(X[inliers], uv[inliers], K, R, t, correlation_px)
-    return (float(np.maximum(usual[0], np.degrees(np.sqrt(max(np.trace(shared[:3, :3]), 0.0))))),
-            float(np.maximum(usual[1], np.sqrt(max(np.trace(shared[3:, 3:]), 0.0)))))
+    blocks = block_covariance(X[inliers], uv[inliers], K, R, t, block_px)
+    return (float(np.maximum(usual[0], np.degrees(np.sqrt(max(np.trace(blocks[:3, :3]), 0.0))))),
+            float(np.maximum(usual[1], np.sqrt(max(np.trace(blocks[3:, 3:]), 0.0)))))
 
 
 def pixel_extent(uv: np.ndarray) -> float:
@@ -634,7 +631,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
         "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
         "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
-    correlation_px = CORRELATION_FRAC * float(np.hypot(*clip.image_size))  # of the errors the floors count
+    block_px = NOISE_BLOCK_FRAC * float(np.hypot(*clip.image_size))  # the floors' squares
     for pair in range(1, clip.n_frames):
         p, pp, K = pair - 1, points[pair - 1], clip.K[pair]
         if pp.n_usable < 4:
@@ -652,7 +649,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
                 out["region_rot_std"][p, j], out["region_trans_std"][p, j] = usual
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
-                        X, uv, K, pose.R, pose.t, usual, correlation_px, config.inlier_px)
+                        X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)
                 if config.applies_quality_rule and pose.ambiguous and sigma <= config.quality_noise_px:
                     status = REGION_STATUS["ambiguous"]
                 elif config.applies_quality_rule and not good:

@@ -180,7 +180,7 @@ def camera_start(X, uv, region, K, rival_R, global_t, inlier_px, k):
 
 
 def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=None, global_t=None,
-                       correlation_px=jnp.inf) -> PnPResult:
+                       noise_block_px=jnp.inf) -> PnPResult:
     """Robust pose of every region of a pair -> PnPResult (leading axis k = len(keys)).
 
     X (N, 3) points in camera i-1, uv (N, 2) their pixels in frame i, region (N,) 1..k (0: none),
@@ -190,7 +190,7 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
     ``options.borrow`` the pair's other region pose that fits it best, and the camera's pose; then
     ``refine_poses``. Status: too_few_points with fewer than min_points members; ok with inliers >=
     max(4, floor(min_inlier_frac members)), a finite pose and det(R) ~ 1; else rejected.
-    correlation_px: the length [px] over which the noise the floors count is shared (``pose_uncertainty``)."""
+    noise_block_px: side [px] of the squares of the noise the floors count (``pose_uncertainty``)."""
     k, dtype = keys.shape[0], X.dtype
     region = jnp.where(jnp.isfinite(X).all(-1) & jnp.isfinite(uv).all(-1), region, 0).astype(jnp.int32)
     member = region >= 1
@@ -216,7 +216,7 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
     proper = jnp.abs(jnp.linalg.det(R) - 1.0) < 1e-3
     good = (refined.n_inliers >= need) & jnp.all(jnp.isfinite(refined.poses), axis=-1) & proper & jnp.isfinite(reproj_px)
     status = jnp.where(n_members < options.min_points, REGION_TOO_FEW_POINTS, jnp.where(good, REGION_OK, REGION_REJECTED))
-    uncertainty = pose_uncertainty(X, uv, region, K, refined.poses, refined.inliers, correlation_px)
+    uncertainty = pose_uncertainty(X, uv, region, K, refined.poses, refined.inliers, noise_block_px)
     return PnPResult(R, t, status.astype(jnp.int32), n_members, refined.n_inliers, refined.inliers, reproj_px,
                      refined.ambiguous, uncertainty, refined.fitted)
 

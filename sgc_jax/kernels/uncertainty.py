@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
-from . import shared_error
+from ..config import BLOCKS_PER_AXIS
 from .fence import materialise
 from .linalg import solve_spd
 from .pnp import point_columns, pointwise_residuals
@@ -31,7 +31,7 @@ class PoseUncertainty(NamedTuple):
     trans_std: jax.Array  # RMS translation error [units of X]
     extent_px: jax.Array  # RMS distance of the inlier pixels from their centroid [px]
     sigma_px: jax.Array  # inlier residual standard deviation per image coordinate [px]
-    rot_noise_deg: jax.Array  # RMS rotation error the noise floors count (``shared_error_covariance``) [deg]
+    rot_noise_deg: jax.Array  # RMS rotation error the noise floors count (``block_covariance``) [deg]
     trans_noise: jax.Array  # RMS translation error the noise floors count [units of X]
 
 
@@ -75,36 +75,44 @@ def inlier_jacobians(X, uv, region, K, poses, inliers) -> InlierJacobians:
     return InlierJacobians(du, dv, J_u, J_v, onehot, normal, covariance, mean_dist, fx)
 
 
-def shared_error_covariance(jac: InlierJacobians, uv, region, correlation_px, usual_var):
-    """The covariance (k, 6, 6) of each region's pose when its residuals are errors of each track's
-    own plus a field nearby tracks share over correlation_px (``shared_error``): A (sum_ab Σ_ab
-    J_aᵀ J_b) A; usual_var (k,) the residual variance, the own error's with too few nearby pairs."""
+def block_of(uv, block_px):
+    """(N, 2) pixels -> (N,) int32 square on a grid of side block_px, clamped to BLOCKS_PER_AXIS a side."""
+    cell = jnp.clip(jnp.floor(uv / block_px), 0, BLOCKS_PER_AXIS - 1).astype(jnp.int32)
+    return cell[:, 1] * BLOCKS_PER_AXIS + cell[:, 0]
+
+
+def block_covariance(jac: InlierJacobians, uv, region, block_px):
+    """The cluster-robust covariance (k, 6, 6) of each region's pose over squares of side block_px,
+    which counts errors the inliers of one square share: A (sum_b g_b g_b^T) A G/(G-1) (2n-1)/(2n-6),
+    A = (J^T J)^-1, g_b = J_b^T e_b over the inliers in square b, G the squares holding any."""
     k = jac.onehot.shape[0]
+    n = jnp.sum(jac.onehot, axis=1)
     weight = jnp.sum(jac.onehot, axis=0)  # (N,) 1 for an inlier of its region's pose
-    key = jnp.clip(region - 1, 0, k - 1) * shared_error.GRID ** 2 + shared_error.cell_of(uv, correlation_px, jnp)
-    channels = weight[:, None] * shared_error.point_channels(jac.du, jac.dv, jac.J_u, jac.J_v, jnp)
-    tables = jax.ops.segment_sum(channels, key, num_segments=k * shared_error.GRID ** 2)
-    tables = tables.reshape(k, shared_error.GRID, shared_error.GRID, shared_error.CHANNELS)
-    own, shared = shared_error.shared_error_variances(tables, jac.covariance, usual_var, jnp)
-    information = shared_error.shared_error_information(tables, own, shared, jac.normal, jnp)
-    return jnp.einsum("kij,kjl,klm->kim", jac.covariance, information, jac.covariance, precision=HIGHEST)
+    segments = k * BLOCKS_PER_AXIS * BLOCKS_PER_AXIS
+    key = jnp.clip(region - 1, 0, k - 1) * BLOCKS_PER_AXIS * BLOCKS_PER_AXIS + block_of(uv, block_px)
+    gradient = weight[:, None] * (jac.J_u * jac.du[:, None] + jac.J_v * jac.dv[:, None])  # (N, 6)
+    g = jax.ops.segment_sum(gradient, key, num_segments=segments).reshape(k, -1, 6)
+    G = jnp.sum(jax.ops.segment_sum(weight, key, num_segments=segments).reshape(k, -1) > 0, axis=1).astype(n.dtype)
+    correction = G / jnp.maximum(G - 1.0, 1.0) * (2.0 * n - 1.0) / jnp.maximum(2.0 * n - 6.0, 1.0)
+    meat = jnp.einsum("kbi,kbj->kij", g, g, precision=HIGHEST)
+    return jac.covariance @ meat @ jac.covariance * correction[:, None, None]
 
 
-def pose_uncertainty(X, uv, region, K, poses, inliers, correlation_px) -> PoseUncertainty:
+def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> PoseUncertainty:
     """Covariance sigma^2 (J^T J)^-1 of each region's pose6 (k, 6), sigma^2 = sum e^2 / (2 n - 6)
     over its n inliers (arguments as ``inlier_jacobians``); the noise the floors count is the larger
-    of it and ``shared_error_covariance`` with errors shared over correlation_px [px]."""
+    of it and ``block_covariance`` over squares of side block_px (inf: one square, the usual)."""
     jac = inlier_jacobians(X, uv, region, K, poses, inliers)
     onehot, covariance, mean_dist, fx = jac.onehot, jac.covariance, jac.mean_dist, jac.fx
     n = jnp.sum(onehot, axis=1)
     sigma_sq = (onehot @ (jac.du * jac.du + jac.dv * jac.dv)) / jnp.maximum(2.0 * n - 6.0, 1.0)
-    shared = shared_error_covariance(jac, uv, region, correlation_px, sigma_sq)
+    blocks = block_covariance(jac, uv, region, block_px)
     trace = lambda cov, part: jnp.trace(cov[:, part, part], axis1=-2, axis2=-1)  # noqa: E731
     rot, trans = slice(0, 3), slice(3, 6)
     rot_var = sigma_sq * trace(covariance, rot) / fx**2
     trans_var = sigma_sq * trace(covariance, trans) * (mean_dist / fx) ** 2
-    rot_noise = jnp.maximum(rot_var, trace(shared, rot) / fx**2)
-    trans_noise = jnp.maximum(trans_var, trace(shared, trans) * (mean_dist / fx) ** 2)
+    rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
+    trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
     spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
     enough = n >= 4

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from ...codes import REGION_EMPTY, REGION_OK
-from ...config import CORRELATION_FRAC, SGCConfig
+from ...config import NOISE_BLOCK_FRAC, SGCConfig
 from ...kernels.camera import back_project
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
@@ -92,7 +92,7 @@ def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPose
     keys = jax.vmap(lambda r: jax.random.fold_in(pair.key, r))(regions)
     diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
     fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
-                             pair.rival_R, global_t=pair.global_t, correlation_px=CORRELATION_FRAC * diagonal)
+                             pair.rival_R, global_t=pair.global_t, noise_block_px=NOISE_BLOCK_FRAC * diagonal)
     status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
     nan = jnp.full(config.k_seg, jnp.nan, X.dtype)
     rot_noise, trans_noise = nan, nan  # no floors under compat="authors"

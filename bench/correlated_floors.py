@@ -1,0 +1,92 @@
+"""A candidate floor for errors nearby tracks share (issue 58): the reference engine with the
+floors' block covariance (docs/semantics.md §3.10) replaced by a propagated one, on FIT scenes.
+
+    python bench/correlated_floors.py [--scenes 2] [--correlation-px 16] [--tracks 1000]
+
+The candidate, per accepted pose on its m inliers (pixels u_a in frame i, residuals e_a, Jacobian
+rows J_a, A = (JᵀJ)⁻¹ as in §3.3):
+
+1. the residuals' semivariogram over pairs of inliers closer than 2ℓ, g_ab = |e_a − e_b|² / 4 per
+   coordinate, fitted by least squares as ν + ψ (1 − exp(−d²/2ℓ²)) (ν, ψ ≥ 0): an error of its own
+   (ν) and one shared with correlation exp(−d²/2ℓ²) (ψ). Differences of nearby residuals do not
+   see what the pose's own fit absorbed, which the block sums of the current floor miss;
+2. Σ_ab = ψ exp(−d_ab²/2ℓ²) + ν δ_ab, and the pose covariance A (Σ_ab Σ_ab J_aᵀ J_b) A.
+
+ℓ is given (``--correlation-px``), not estimated: from one pair's residuals a shared error of
+length ℓ cannot be told from a smooth misfit of the region (only ψ/ℓ² is seen at short lags).
+Prints, per scene, noise model, level and kind (clean, warp and squeeze at 0.25), SGC and each pose
+component over its floor, under the current floors and the candidate. O(m²) per region: the JAX
+engine would need it without the pairwise matrix (a grid or a neighbour list).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+
+import numpy as np
+
+import sgc_jax.engines.reference as reference
+from sgc_jax import COMPONENTS, score_batch
+from sgc_jax.engines.reference_pose import residual_jacobian
+from sgc_jax.research.protocol import FIT_SCENES, Cell, cell_clips
+
+POSE_COMPONENTS = COMPONENTS[:4]
+CURRENT_BLOCK_COVARIANCE = reference.block_covariance
+
+
+def propagated_covariance(correlation_px: float):
+    """A ``reference.block_covariance`` stand-in: the candidate's (6, 6) covariance (module docstring)."""
+
+    def covariance(X, uv, K, R, t, block_px):
+        n = len(X)
+        if n < 4:
+            return np.full((6, 6), np.nan)
+        residuals, J = residual_jacobian(X, uv, K, R, t)
+        e = np.stack([residuals[:n], residuals[n:]], axis=1)
+        A = np.linalg.pinv(J.T @ J)
+        d = np.linalg.norm(uv[:, None] - uv[None], axis=-1)
+        a, b = np.triu_indices(n, 1)
+        near = d[a, b] < 2 * correlation_px
+        shared = np.exp(-d ** 2 / (2 * correlation_px ** 2))
+        own_var, shared_var = np.sum(e ** 2) / max(2 * n - 6, 1), 0.0
+        if near.sum() >= 10:
+            semivariance = np.sum((e[a] - e[b]) ** 2, axis=1)[near] / 4
+            design = np.column_stack([np.ones(near.sum()), 1 - shared[a, b][near]])
+            own_var, shared_var = np.maximum(np.linalg.lstsq(design, semivariance, rcond=None)[0], 0.0)
+        sigma = shared_var * shared + own_var * np.eye(n)
+        rows = np.stack([J[:n], J[n:]], axis=1)  # (n, 2, 6)
+        return A @ np.einsum("aci,ab,bcj->ij", rows, sigma, rows) @ A
+
+    return covariance
+
+
+def score(clips, covariance):
+    reference.block_covariance = covariance
+    try:
+        return score_batch(clips, engine="reference", progress=False).clips
+    finally:
+        reference.block_covariance = CURRENT_BLOCK_COVARIANCE
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=2)
+    parser.add_argument("--correlation-px", type=float, default=16.0)
+    parser.add_argument("--tracks", type=int, default=1000)
+    args = parser.parse_args()
+    print("| scene | noise | px | kind | SGC now | SGC candidate | observed / floor now | observed / floor candidate |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scene, model, px in itertools.product(FIT_SCENES[:args.scenes], ("iid-both", "correlated"), (0.5, 2.0)):
+        clips = cell_clips(Cell(scene, model, px, args.tracks), inconsistencies=("warp", "squeeze"), severities=(0.25,))
+        now = score([c for c, _, _ in clips], CURRENT_BLOCK_COVARIANCE)
+        candidate = score([c for c, _, _ in clips], propagated_covariance(args.correlation_px))
+        for (_, kind, _), a, b in zip(clips, now, candidate):
+            ratios = [" ".join(f"{r.components[k] / r.floors[f'{k}_floor']:.2f}" for k in POSE_COMPONENTS)
+                      for r in (a, b)]
+            print(f"| {scene.name} | {model} | {px:g} | {kind or 'clean'} | {a.sgc:.3f} | {b.sgc:.3f} | "
+                  f"{ratios[0]} | {ratios[1]} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
