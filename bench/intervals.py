@@ -19,6 +19,7 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+from sgc_jax.research.protocol import interval_coverage
 from sgc_jax.research.synth import synth_clip
 
 SCENES = [dict(n_layers=2, static_spheres=4), dict(n_layers=3, static_spheres=2), dict(n_layers=4, static_spheres=6)]
@@ -51,12 +52,9 @@ def main() -> None:
                            n_tracks=args.tracks, with_frames=False, **scene)
         base = clean if kind == "none" else perturb_clip(clean, kind, SEVERITY, seed=s)
         clips = [with_track_noise(base, noise, d) for d in range(args.draws)]
-        result = score_batch(clips, engine=args.engine, progress=False)
-        sgc, lo, hi = (np.array([getattr(c, k) for c in result.clips]) for k in ("sgc", "sgc_lo", "sgc_hi"))
-        median = np.median(sgc)
-        covered = (lo <= median) & (median <= hi)
+        covered, width, sgc = interval_coverage(score_batch(clips, engine=args.engine, progress=False).clips)
         total, covered_total = total + covered.size, covered_total + covered.sum()
-        print(f"| {s} | {kind} | {noise} | {median:.3f} | {np.median(hi - lo):.3f} | {covered.mean():.2f} |",
+        print(f"| {s} | {kind} | {noise} | {np.median(sgc):.3f} | {np.median(width):.3f} | {covered.mean():.2f} |",
               flush=True)
     print(f"\nall cells: {covered_total}/{total} draws covered ({covered_total / total:.2f})")
 

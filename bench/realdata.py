@@ -50,15 +50,12 @@ def print_ladders(clips, clean_sgc, engine: str) -> None:
     print("\nPerturbation ladders: SGC at severity 0 (clean), " + ", ".join(f"{s:g}" for s in LADDER_SEVERITIES))
     print("| clip | perturbation | " + " | ".join(f"{s:g}" for s in (0.0, *LADDER_SEVERITIES)) + " | strictly rising |")
     print("|---|---|" + "---|" * (len(LADDER_SEVERITIES) + 2))
-    variants = [(clip, kind, perturb_clip(clip, kind, s, seed=0)) for clip in clips for kind in PERTURBATIONS
-                for s in LADDER_SEVERITIES]
-    scored = score_batch([v for _, _, v in variants], engine=engine, progress=False).clips
+    variants = [perturb_clip(clip, kind, s, seed=0) for clip in clips for kind in PERTURBATIONS for s in LADDER_SEVERITIES]
+    scored = iter(score_batch(variants, engine=engine, progress=False).clips)  # in the order made
     rising = 0
-    for i, clip in enumerate(clips):
-        for j, kind in enumerate(PERTURBATIONS):
-            at = slice((i * len(PERTURBATIONS) + j) * len(LADDER_SEVERITIES),
-                       (i * len(PERTURBATIONS) + j + 1) * len(LADDER_SEVERITIES))
-            sgc = np.array([clean_sgc[i], *[c.sgc for c in scored[at]]])
+    for clip, clean in zip(clips, clean_sgc):
+        for kind in PERTURBATIONS:
+            sgc = np.array([clean, *(next(scored).sgc for _ in LADDER_SEVERITIES)])
             strictly = bool(np.all(np.diff(sgc) > 0))
             rising += strictly
             print(f"| {clip.clip_id} | {kind} | " + " | ".join(f"{v:.3f}" for v in sgc)

@@ -124,11 +124,9 @@ def print_intervals(args, config: SGCConfig) -> None:
                 base = perturb_clip(base, "warp", INTERVAL_WARP, seed=scene.seed)
             noisy = NOISE_MODELS[model].replace(px=INTERVAL_PX)
             clips = [add_noise(base, noisy, 90_000 + scene.seed * 100 + d) for d in range(INTERVAL_DRAWS)]
-            result = score_batch(clips, config=config, progress=False)
-            sgc, lo, hi = (np.array([getattr(c, k) for c in result.clips]) for k in ("sgc", "sgc_lo", "sgc_hi"))
-            median = np.median(sgc)
-            covered += list((lo <= median) & (median <= hi))
-            widths += list(hi - lo)
+            held, width, sgc = protocol.interval_coverage(score_batch(clips, config=config, progress=False).clips)
+            covered += list(held)
+            widths += list(width)
             scores += list(sgc)
         print(f"| {model} | {kind} | {len(covered)} | {np.mean(covered):.0%} | {np.nanmedian(scores):.3f} "
               f"| {np.nanmedian(widths):.3f} |", flush=True)

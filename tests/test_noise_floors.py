@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scenes import DEMO_SCENE, SCENE
 from scipy.spatial.transform import Rotation
-from tolerances import LM_SETTLE_RTOL, NUMERICAL_FLOOR
+from tolerances import FLOOR_RATIO_RANGE, LM_SETTLE_RTOL, NUMERICAL_FLOOR
 
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.calibration import Calibration
@@ -26,9 +26,6 @@ from sgc_jax.research.synth import synth_clip
 # DRAWS * 6 draws has a relative standard error sqrt(2/3) / sqrt(6 DRAWS) = 0.4 %, the floors' own
 # draws under 3 %: 5 % is beyond both, and beyond the small-angle terms (sigma <= 0.8 deg: 1e-4).
 DRAWS, MONTE_CARLO_RTOL = 4000, 0.05
-# One clip of 7 pairs, about 8 regions each: the bar for the median clip (observed / floor
-# between 0.5 and 2); consistent scenes at 0.25-1 px measure 0.8-1.5 (bench/noise_floors.py).
-FLOOR_RATIO_RANGE = (0.5, 2.0)
 # Rescored without its band (the components as they are), a consistent clip's score is what its
 # floors alone score: 0.184 against 0.182 for the clip below (seed 7, errors at frame i only, 1 px);
 # over seeds 7-9 of the demo scene, with errors at frame i (1 px) or at both ends (0.5-2 px), the

@@ -22,3 +22,8 @@ PUBLISHED_WEIGHT_ATOL = 1e-4
 # (kernels/joint_pnp.py): two roundings of one fit may stop up to sqrt(LM_RTOL) apart, relative,
 # in the pose. Bars on numbers that pass through a settled fit are multiples of it.
 LM_SETTLE_RTOL = math.sqrt(LM_RTOL)
+
+# The bar for a consistent clip's pose components against their noise floors (observed / floor):
+# one clip of 7 pairs, about 8 regions each, sits within it; consistent scenes at 0.25-1 px measure
+# 0.8-1.5 (bench/noise_floors.py), the TEST split's independent-noise cells 0.54-1.07 (§3.10).
+FLOOR_RATIO_RANGE = (0.5, 2.0)

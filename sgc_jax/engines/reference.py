@@ -222,13 +222,20 @@ class UsablePoints(NamedTuple):
 def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
     usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
     prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
+    X, has_depth = back_project_tracks(clip, pair, prev)
+    return UsablePoints(X[has_depth], curr[has_depth], prev[has_depth], int(usable.sum()))
+
+
+def back_project_tracks(clip: Clip, pair: int, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frame pair-1 pixels prev (n, 2) back-projected from that frame's depth at their floor pixels
+    (docs/semantics.md §3.2 steps 3-4): X (n, 3) in camera pair-1, and where the depth is valid
+    (n,); depth 1 stands in where it is not."""
     H, W = clip.image_size
     col = np.clip(np.floor(prev[:, 0]).astype(np.int64), 0, W - 1)
     row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
     Z = clip.depth[pair - 1][row, col].astype(np.float64)
     has_depth = np.isfinite(Z) & (Z > 0)
-    X = back_project(clip.K[pair - 1], prev, Z)
-    return UsablePoints(X[has_depth], curr[has_depth], prev[has_depth], int(usable.sum()))
+    return back_project(clip.K[pair - 1], prev, np.where(has_depth, Z, 1.0)), has_depth
 
 
 def region_frame(pair: int, config: SGCConfig) -> int:

@@ -11,20 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import SGCConfig
-from ..engines.reference import back_project, global_relative_pose, project
+from ..engines.reference import back_project_tracks, global_relative_pose, project
 from ..io.clip import Clip
 
 
 def points_prev(clip: Clip, pair: int) -> tuple[np.ndarray, np.ndarray]:
     """Pair ``pair``'s tracks back-projected from frame i−1's depth at their floor pixels (X (P, 3),
     camera i−1), and where that depth is valid (P,)."""
-    H, W = clip.image_size
-    prev = clip.track_prev[pair - 1].astype(np.float64)
-    col = np.clip(np.floor(prev[:, 0]).astype(int), 0, W - 1)
-    row = np.clip(np.floor(prev[:, 1]).astype(int), 0, H - 1)
-    Z = clip.depth[pair - 1][row, col].astype(np.float64)
-    valid = np.isfinite(Z) & (Z > 0)
-    return back_project(clip.K[pair - 1], prev, np.where(valid, Z, 1.0)), valid
+    return back_project_tracks(clip, pair, clip.track_prev[pair - 1].astype(np.float64))
 
 
 def exact_positions(clip: Clip, pair: int) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -155,3 +155,12 @@ def detection_table(rows: list[dict]) -> dict[tuple[str, float], float]:
             above = np.nan_to_num(sgc, nan=-1.0) > np.nan_to_num(twin, nan=0.0)
             hits.setdefault((kind, severity), []).append(bool(above))
     return {key: float(np.mean(v)) for key, v in sorted(hits.items())}
+
+
+def interval_coverage(draws: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scored draws of one clip's noise (``ClipResult``s) -> (covered, width, sgc), each (n,):
+    whether each draw's 90 % interval holds the median SGC of all the draws (docs/semantics.md
+    §5.6), the interval's width and the draw's SGC."""
+    sgc, lo, hi = (np.array([getattr(c, k) for c in draws]) for k in ("sgc", "sgc_lo", "sgc_hi"))
+    median = np.median(sgc)
+    return (lo <= median) & (median <= hi), hi - lo, sgc
