@@ -8,8 +8,10 @@ clip statuses are text in the tables, and the JAX engine carries a pair's reason
 
 from __future__ import annotations
 
-#: Why a pair lacks a value, in pipeline order (``ok``: every component exists).
-PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap", "ill_conditioned")
+#: Why a pair lacks a value (``ok``: every component exists); codes in order of introduction, the
+#: order a pair's first problem is found in is docs/semantics.md §3.7's table.
+PAIR_REASONS = ("ok", "too_few_tracks", "no_static", "no_region", "no_pose", "no_depth_overlap", "ill_conditioned",
+                "one_pose")
 #: Pair reason -> its int code inside the JAX engine (the index in :data:`PAIR_REASONS`).
 PAIR_REASON_CODE = {name: i for i, name in enumerate(PAIR_REASONS)}
 
@@ -30,12 +32,13 @@ REGION_STATUS = {"ok": REGION_OK, "too_few_points": REGION_TOO_FEW_POINTS, "reje
 #: Region status names by code (inverse of :data:`REGION_STATUS`).
 REGION_STATUS_NAMES = {code: name for name, code in REGION_STATUS.items()}
 
-#: Clip status codes.
-CLIP_STATUSES = ("ok", "partial", "error")
+#: Clip status codes; ``low_evidence``: scored, but on less than the evidence the score needs to see
+#: an inconsistency (docs/semantics.md §3.11).
+CLIP_STATUSES = ("ok", "partial", "error", "low_evidence")
 #: The Scorer's clip status (docs/semantics.md §9.3), an int code per clip: ``ok`` and ``partial``
 #: as in the tables; a clip with no pair scored says why when every pair shares the reason
 #: (``no_tracks``: no pair has 4 usable tracks; ``no_static``: no pair has static valid depth, e.g.
 #: an all-dynamic mask), else ``error``; ``static_camera``: scored, but the camera moves less than
-#: the reward's full-motion level (§9.4).
-SCORER_STATUSES = ("ok", "partial", "error", "no_tracks", "no_static", "static_camera")
+#: the reward's full-motion level (§9.4); ``low_evidence`` as in the tables (§3.11).
+SCORER_STATUSES = ("ok", "partial", "error", "no_tracks", "no_static", "static_camera", "low_evidence")
 SCORER_STATUS_CODE = {name: i for i, name in enumerate(SCORER_STATUSES)}

@@ -23,6 +23,7 @@ from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
 from . import reference_pose as reference_pose_search
+from .evidence import parallax_px
 from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian
 from .units import PERCENT, in_depth_units, translation_factor
@@ -398,9 +399,10 @@ def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray]) -> tuple[np.
 
 
 def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig) -> tuple[float, float]:
-    """(local_rot_var deg^2, local_trans_var) around the mean pose; 0 with one pose, NaN with none."""
+    """(local_rot_var deg^2, local_trans_var) around the mean pose; NaN with none, and with one
+    under spec (no spread to measure); 0 with one under authors."""
     n = len(R_local)
-    if n == 0:
+    if n == 0 or (n == 1 and config.compat != "authors"):
         return float("nan"), float("nan")
     if n == 1:
         return 0.0, 0.0
@@ -698,7 +700,7 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
 
 
 def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
-                n_ill_conditioned: int = 0) -> str:
+                n_ill_conditioned: int = 0, compat: str = "spec") -> str:
     """The first problem of a pair, in pipeline order (``ok`` when every component exists)."""
     if n_tracks < 4:
         return "too_few_tracks"
@@ -710,6 +712,8 @@ def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses:
         return "ill_conditioned"
     if n_poses == 0:
         return "no_pose"
+    if n_poses == 1 and compat != "authors":
+        return "one_pose"
     if np.isnan(depth_err):
         return "no_depth_overlap"
     return "ok"
@@ -762,7 +766,9 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         out.n_poses[p] = len(R_list)
         out.n_ill_conditioned[p] = int(np.isin(poses["region_status"][p], EXCLUDED_STATUSES).sum())
         out.reproj_error[p] = np.mean(poses["region_reproj"][p][accepted[p]]) if R_list else np.nan
-        out.reason[p] = pair_reason(int(out.n_tracks[p]), int(pair_region_mask(clip, region_frame(pair, config), config).sum()),
-                                    int(out.n_regions[p]), len(R_list), out.depth_error[p],
-                                    int(out.n_ill_conditioned[p]))
+        static_pixels = int(pair_region_mask(clip, region_frame(pair, config), config).sum())
+        out.static_frac[p] = static_pixels / (clip.image_size[0] * clip.image_size[1])
+        out.reason[p] = pair_reason(int(out.n_tracks[p]), static_pixels, int(out.n_regions[p]), len(R_list),
+                                    out.depth_error[p], int(out.n_ill_conditioned[p]), config.compat)
+    out.parallax_px = parallax_px(clip.K[1:].astype(np.float64), out.t_g_norm, config.scale_free)
     return out

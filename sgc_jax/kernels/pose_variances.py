@@ -85,7 +85,8 @@ def mean_pose(R_local, t_local, accepted):
 def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
     """Local poses (k, 3, 3), (k, 3), accepted (k,) against the camera's (3, 3), (3,) -> float32
     local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
-    All NaN with no accepted pose; the local ones 0 with one."""
+    All NaN with no accepted pose; with one, the local ones are NaN under spec (one pose has no
+    spread to measure, docs/semantics.md §3.5) and 0 under authors (the authors' code)."""
     _check_compat(compat)
     angle = rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
     R_local, t_local = at_least_float32(R_local), at_least_float32(t_local)
@@ -97,9 +98,10 @@ def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = 
     R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=R_local.dtype), R_mean), jnp.nan_to_num(t_mean)
     local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted)
     local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted)
+    single_value = 0.0 if compat == "authors" else jnp.nan
     single = n < 2
-    local_rot = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_rot))
-    local_trans = jnp.where(none, jnp.nan, jnp.where(single, 0.0, local_trans))
+    local_rot = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_rot))
+    local_trans = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_trans))
     global_rot = trimmed_mean_iqr(angle(R_local, R_g[None]) ** 2, accepted, compat=compat)
     global_trans = masked_mean(jnp.sum((t_local - t_g) ** 2, axis=-1), accepted)
     return {"local_rot_var": at_least_float32(local_rot), "local_trans_var": at_least_float32(local_trans),

@@ -49,11 +49,12 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig) -> dict
                        axis=-1)
     n_excluded = jnp.sum(excluded)
     reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
+    one_pose = (n_poses == 1) & (config.compat != "authors")
     reason = jnp.select(
         [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, (n_poses == 0) & (n_excluded > 0),
-         n_poses == 0, jnp.isnan(err)],
+         n_poses == 0, one_pose, jnp.isnan(err)],
         [PAIR_REASON_CODE[r] for r in ("too_few_tracks", "no_static", "no_region", "ill_conditioned", "no_pose",
-                                       "no_depth_overlap")],
+                                       "one_pose", "no_depth_overlap")],
         PAIR_REASON_CODE["ok"])
     return dict(
         local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * f2,
