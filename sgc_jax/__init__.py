@@ -15,6 +15,7 @@ from .calibration import (
                           sgc_score,
 )
 from .config import SGCConfig
+from .engines.evidence import EvidenceLevels
 from .engines.jax_engine.compile_cache import enable_compilation_cache
 from .engines.pairs import PairArrays
 from .io.clip import Clip, ClipFormatError, save_batch, save_clip
@@ -35,7 +36,7 @@ from .version import __version__
 __all__ = [
     "__version__",
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "CalibrationMismatchError", "Clip", "ClipFormatError",
-    "ClipResult", "ClipValidationError", "ClipWarning", "ENGINES", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
+    "ClipResult", "ClipValidationError", "ClipWarning", "ENGINES", "EvidenceLevels", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
     "PERTURBATIONS", "PairArrays", "RewardOptions", "RunOptions", "SGCConfig", "Scorer", "StreamStats", "StudyResult",
     "batch_of", "calibrate", "camera_dynamics", "check_clip", "clip_from_arrays", "default_calibration",
     "enable_compilation_cache", "import_clip", "iter_scores", "kfold_stability", "load_clip", "load_clips",

@@ -21,7 +21,7 @@ from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
-from sgc_jax.io.tables import FLOOR_COLUMNS, INTERVAL_COLUMNS
+from sgc_jax.io.tables import EVIDENCE_COLUMNS, FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
@@ -41,7 +41,8 @@ FUSED_RTOL, FUSED_ATOL = 2 * LM_SETTLE_RTOL, 1e-5
 # Xeon box, 4e-5 under XLA's older emitters on an AMD one).
 FUSED_INTERVAL_ATOL = 1e-4
 PER_CLIP = ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error", "ecd_trans",
-            "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned", "depth_unit")
+            "ecd_rot", "sgc_unclipped", "camera_motion", "reward", "status", "n_pairs", "n_pairs_scored", "n_ill_conditioned",
+            "depth_unit", *EVIDENCE_COLUMNS)
 SHAPE = DEMO_BATCH_SHAPE
 
 
@@ -76,7 +77,7 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
         out = outputs(scorer, corpus[start:start + SHAPE[0]])
         rows = expected.clips[start:start + SHAPE[0]]
         for name in ("sgc", "sgc_lo", "sgc_hi", *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor", "reproj_error",
-                     "ecd_trans", "ecd_rot"):
+                     "ecd_trans", "ecd_rot", *EVIDENCE_COLUMNS):
             want = [r.components[name] if name in COMPONENTS else r.floors[name] if name in FLOOR_COLUMNS
                     else getattr(r, name) for r in rows]
             np.testing.assert_allclose(out[name], want, rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
@@ -87,6 +88,17 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
         np.testing.assert_allclose(out["depth_unit"], [r.depth_unit for r in rows], rtol=1e-7)
         assert [s in (SCORER_STATUS_CODE[r.status], SCORER_STATUS_CODE["static_camera"])
                 for s, r in zip(out["status"], rows)] == [True] * len(rows)
+
+
+def test_the_tables_rewards_are_the_scorers(scorer, corpus, expected):
+    """``BatchResult.rewards`` runs the Scorer's reward in float64 on the tables' columns."""
+    host = expected.rewards()
+    for start in range(0, len(corpus), SHAPE[0]):
+        out = outputs(scorer, corpus[start:start + SHAPE[0]])
+        part = slice(start, start + SHAPE[0])
+        for name in ("reward", "sgc_unclipped", "camera_motion"):
+            np.testing.assert_allclose(out[name], host[name][part], rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
+        np.testing.assert_array_equal(out["status"], host["status"][part])
 
 
 def test_scorer_gives_score_batchs_numbers_on_the_agreement_corpus(scorer):

@@ -80,8 +80,9 @@ def test_content_problem_gives_nan_and_reason_for_that_pair_only(rigid_clip, eng
     assert np.isnan(result.pairs.local_rot_var[[0, 2]]).all() and np.isnan(result.pairs.depth_error[1:]).all()
     assert np.isfinite([result.pairs.__getattribute__(k)[1] for k in COMPONENTS if k != "depth_error"]).all()
     assert np.isfinite(result.pairs.depth_error[0])  # the depth check needs no tracks
-    assert result.status == "partial" and result.n_pairs_scored == 0 and np.isfinite(result.sgc)
-    assert "too_few_tracks x1" in result.reason
+    # scored, on parts of pairs only: no pair measured every component (docs/semantics.md §3.11)
+    assert result.status == "low_evidence" and result.n_pairs_scored == 0 and result.evidence == 0.0
+    assert np.isfinite(result.sgc) and "too_few_tracks x1" in result.reason
 
 
 def test_engines_agree_on_consistent_and_drifting_scenes(rigid_clip, drift_clip):

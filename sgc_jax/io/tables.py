@@ -18,11 +18,14 @@ from .parquet import is_parquet, read_parquet_text, write_parquet
 
 # The score's 90 % interval (docs/semantics.md §5.6)
 INTERVAL_COLUMNS = ("sgc_lo", "sgc_hi")
+# What the score rests on (docs/semantics.md §3.11): per pair, and per clip the means over its pairs
+EVIDENCE_COLUMNS = ("evidence", "pose_tracks", "parallax_px", "static_frac")
 CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
-                "reproj_error", "ecd_trans", "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", "engine", "mask_source",
-                "scale", "depth_unit", "n_ill_conditioned", "compat", "origin", "input_sha256", "run_id")
+                "reproj_error", "ecd_trans", "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", *EVIDENCE_COLUMNS,
+                "engine", "mask_source", "scale", "depth_unit", "n_ill_conditioned", "compat", "origin",
+                "input_sha256", "run_id")
 PAIR_COLUMNS = ("clip_id", "group", "pair", "reason", *COMPONENTS, *FLOOR_COLUMNS, "reproj_error", "n_tracks",
-                "n_regions", "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", "engine")
+                "n_regions", "n_poses", "n_ill_conditioned", "t_g_norm", "R_g_angle_deg", *EVIDENCE_COLUMNS, "engine")
 
 
 def write_csv(path: str | os.PathLike, rows: Sequence[dict], columns: Sequence[str]) -> Path:
@@ -126,15 +129,16 @@ def _with_floors_and_interval(units: dict[str, str]) -> dict[str, str]:
     return {**units, **floors, **dict.fromkeys(INTERVAL_COLUMNS, f"{INTERVAL_LEVEL:.0%} interval")}
 
 
+EVIDENCE_UNITS = {"evidence": "0-1", "pose_tracks": "tracks", "parallax_px": "px", "static_frac": "0-1"}
 # Short units of the numeric columns under each semantics, for the unit row of printed tables
 # (docs/semantics.md §4; D: the clip's median static depth).
 COLUMN_UNITS = {compat: _with_floors_and_interval(units) for compat, units in {
     "spec": {"sgc": "lower=better", "local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "(% of D)²",
              "global_trans_var": "(% of D)²", "depth_error": "% of depth", "reproj_error": "px",
-             "ecd_trans": "% of D", "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth"},
+             "ecd_trans": "% of D", "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth", **EVIDENCE_UNITS},
     "authors": {"sgc": "lower=better", "local_rot_var": "deg²", "global_rot_var": "deg²", "local_trans_var": "depth²",
                 "global_trans_var": "pose²", "depth_error": "depth", "reproj_error": "px", "ecd_trans": "pose",
-                "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth"},
+                "ecd_rot": "deg", "ecd": "0-1", "scale": "depth/pose", "depth_unit": "depth", **EVIDENCE_UNITS},
 }.items()}
 
 

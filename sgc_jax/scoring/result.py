@@ -17,7 +17,16 @@ import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..calibration.interval import score_interval
-from ..codes import CLIP_STATUSES
+from ..codes import CLIP_STATUSES, SCORER_STATUS_CODE
+from ..engines.evidence import (
+    LOW_EVIDENCE,
+    EvidenceLevels,
+    clip_evidence,
+    pair_evidence,
+    pose_tracks,
+    shortfall,
+    upper_with_unseen,
+)
 from ..engines.noise_floors import floor_score, pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
@@ -34,6 +43,7 @@ from ..io.tables import (
     write_csv,
 )
 from ..stats import camera_dynamics
+from .reward import RewardOptions, reward
 
 
 def _nanmean(values: np.ndarray) -> float:
@@ -48,7 +58,7 @@ class ClipResult:
 
     clip_id: str
     group: str = ""
-    status: str = "error"  # "ok" | "partial" | "error"
+    status: str = "error"  # "ok" | "partial" | "error" | "low_evidence" (§3.7, §3.11)
     reason: str = ""
     sgc: float = float("nan")
     sgc_lo: float = float("nan")  # the score's 90 % interval, a bootstrap over pairs (§5.6)
@@ -61,6 +71,10 @@ class ClipResult:
     ecd_rot: float = float("nan")  # mean rotation angle of R_g over pairs (deg)
     n_pairs: int = 0
     n_pairs_scored: int = 0
+    evidence: float = float("nan")  # what the score rests on (§3.11): the mean pair evidence, 0-1
+    pose_tracks: float = float("nan")  # mean over pairs of the tracks in accepted local poses
+    parallax_px: float = float("nan")  # mean over pairs of the camera translation's parallax at depth D [px]
+    static_frac: float = float("nan")  # mean over pairs of the static share of the frame with valid depth
     engine: str = ""
     mask_source: str = ""
     scale: float = 1.0  # translation scale s (docs/semantics.md §4)
@@ -72,6 +86,7 @@ class ClipResult:
     run_id: str = ""  # the run that scored it (docs/semantics.md §4.1; "" once re-scored)
     pairs: PairArrays | None = None
     pair_floors: dict[str, np.ndarray] | None = dataclasses.field(default=None, repr=False, compare=False)
+    pair_evidence: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:  # the per-pair arrays would run to thousands of lines
         reason = self.reason if len(self.reason) <= 80 else self.reason[:77] + "..."
@@ -85,7 +100,8 @@ class ClipResult:
                "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi, **self.components, **self.floors,
                "sgc_floor": self.sgc_floor, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
-               "n_pairs_scored": self.n_pairs_scored, "engine": self.engine,
+               "n_pairs_scored": self.n_pairs_scored, "evidence": self.evidence, "pose_tracks": self.pose_tracks,
+               "parallax_px": self.parallax_px, "static_frac": self.static_frac, "engine": self.engine,
                "mask_source": self.mask_source, "scale": self.scale, "depth_unit": self.depth_unit,
                "n_ill_conditioned": self.n_ill_conditioned, "compat": self.compat, "origin": self.origin,
                "input_sha256": self.input_sha256, "run_id": self.run_id}
@@ -96,28 +112,50 @@ class ClipResult:
             return []
         p = self.pairs
         floors = self.pair_floors if self.pair_floors is not None else pair_floors(p, self.compat)
+        evidence = self.pair_evidence if self.pair_evidence is not None else evidence_of_pairs(p, EvidenceLevels())
+        tracks = pose_tracks(p.region_status, p.region_points)
         return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
                  **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, **{k: float(v[i]) for k, v in floors.items()},
                  "reproj_error": float(p.reproj_error[i]),
                  "n_tracks": int(p.n_tracks[i]), "n_regions": int(p.n_regions[i]), "n_poses": int(p.n_poses[i]),
                  "n_ill_conditioned": int(p.n_ill_conditioned[i]),
                  "t_g_norm": float(p.t_g_norm[i]), "R_g_angle_deg": float(p.R_g_angle_deg[i]),
+                 "evidence": float(evidence[i]), "pose_tracks": float(tracks[i]),
+                 "parallax_px": float(p.parallax_px[i]), "static_frac": float(p.static_frac[i]),
                  "engine": self.engine} for i in range(p.n_pairs)]
 
 
+def evidence_of_pairs(pairs: PairArrays, levels: EvidenceLevels) -> np.ndarray:
+    """(n_pairs,) each pair's evidence (docs/semantics.md §3.11)."""
+    tracks = pose_tracks(pairs.region_status, pairs.region_points).astype(np.float64)
+    return pair_evidence(pairs.reason == "ok", tracks, np.asarray(pairs.t_g_norm, np.float64),
+                         np.asarray(pairs.R_g_angle_deg, np.float64), np.asarray(pairs.static_frac, np.float64), levels)
+
+
 def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
-                   engine: str = "", mask_source: str = "", origin: str = "", compat: str = "") -> ClipResult:
-    """Per-clip means over pairs (NaN ignored), status, reason and the SGC score (docs/semantics.md §3.8, §5)."""
+                   engine: str = "", mask_source: str = "", origin: str = "", compat: str = "",
+                   evidence_levels: EvidenceLevels | None = None) -> ClipResult:
+    """Per-clip means over pairs (NaN ignored), status, reason, the SGC score and its evidence
+    (docs/semantics.md §3.8, §3.11, §5)."""
     components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
     per_pair = pair_floors(pairs, compat)
     floors = {k: _nanmean(v) for k, v in per_pair.items()}
     sgc = float(sgc_score(components, calibration, floors=floors))
     sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration, pair_floors=per_pair))
+    levels = evidence_levels or EvidenceLevels()
+    per_pair_evidence = evidence_of_pairs(pairs, levels)
+    evidence = float(clip_evidence(per_pair_evidence, np.ones(pairs.n_pairs, bool)))
+    sgc_hi = float(upper_with_unseen(sgc, sgc_hi, evidence))
     reasons = Counter(str(r) for r in pairs.reason)
     scored = reasons.get("ok", 0)
     problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
     if math.isnan(sgc):
         status, reason = "error", f"no pair could be scored ({problems})" if problems else "no pair could be scored"
+    elif evidence < LOW_EVIDENCE:
+        thin = shortfall(pose_tracks(pairs.region_status, pairs.region_points), pairs.t_g_norm, pairs.R_g_angle_deg,
+                         pairs.static_frac, pairs.reason == "ok", levels)
+        status, reason = "low_evidence", f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(
+            part for part in (problems, thin) if part)
     elif scored < pairs.n_pairs:
         status, reason = "partial", problems
     else:
@@ -127,10 +165,12 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         components=components,
         floors=floors, sgc_floor=float(floor_score(floors, calibration)),
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
-        ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored,
+        ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored, evidence=evidence,
+        pose_tracks=float(np.mean(pose_tracks(pairs.region_status, pairs.region_points))) if pairs.n_pairs else np.nan,
+        parallax_px=_nanmean(pairs.parallax_px), static_frac=_nanmean(pairs.static_frac),
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
         n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs,
-        pair_floors=per_pair)
+        pair_floors=per_pair, pair_evidence=per_pair_evidence)
 
 
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
@@ -289,6 +329,18 @@ class BatchResult:
         for c in self.clips:
             calibration.check_compat(c.compat, f"the scores of clip {c.clip_id!r}")
         return BatchResult([_rescored(c, calibration) for c in self.clips], calibration)
+
+    def rewards(self, options: RewardOptions | None = None) -> dict[str, np.ndarray]:
+        """The Scorer's reward outputs (docs/semantics.md §9.4) of these clips, (n,) each:
+        ``sgc_unclipped``, ``camera_motion``, ``reward`` (float32) and ``status`` (the Scorer's
+        codes, ``sgc_jax.codes.SCORER_STATUSES``), from the stored per-clip values."""
+        if self.calibration is None:
+            raise ValueError("rewards need the calibration the clips were scored under (this result has none)")
+        records = self.to_records()
+        column = lambda name: np.array([float(r[name]) for r in records], np.float64)  # noqa: E731
+        summary = {k: column(k) for k in (*COMPONENTS, *FLOOR_COLUMNS, "ecd_trans", "ecd_rot", "evidence")}
+        summary["status"] = np.array([SCORER_STATUS_CODE[r["status"]] for r in records], np.int32)
+        return reward(summary, self.calibration, options or RewardOptions(), xp=np)
 
     def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS)) -> str:
         """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4):

@@ -1,6 +1,7 @@
 """The Scorer's reward (docs/semantics.md §9.4): higher is better, ranks clips the calibration
-scores 0, and pays nothing for a clip that a static camera, an all-dynamic mask or missing
-tracks would make look consistent."""
+scores 0, and pays only for the consistency it measured: a clip's reward is scaled by its
+evidence (§3.11), so that what a static camera, a thin static area or few tracks leave unseen
+earns nothing for being unseen."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import jax.numpy as jnp
 
 from ..calibration import COMPONENTS, Calibration, sgc_score
 from ..codes import SCORER_STATUS_CODE
+from ..engines.evidence import EvidenceLevels, camera_motion
 from ..io.tables import FLOOR_COLUMNS
 
 # The logistic's exponent is clipped here: exp(60) ~ 1e26 is finite in float32, and beyond it the
@@ -21,29 +23,25 @@ EXPONENT_LIMIT = 60.0
 class RewardOptions:
     """The reward's constants (docs/semantics.md §9.4)."""
 
-    full_motion_trans: float = 1.0  # camera translation per frame pair earning the full reward [% of D]
-    full_motion_rot_deg: float = 0.5  # ... or camera rotation per frame pair [deg]
     temperature: float = 0.25  # width of the logistic in units of the unclipped score
+    evidence: EvidenceLevels = EvidenceLevels()  # where a pair counts as fully measured, motion included (§3.11)
 
     def __post_init__(self) -> None:
-        for name in ("full_motion_trans", "full_motion_rot_deg", "temperature"):
-            value = getattr(self, name)
-            if not value > 0:  # 0 would divide by zero into a NaN reward
-                raise ValueError(f"RewardOptions.{name} must be > 0, got {value!r}")
+        if not self.temperature > 0:  # 0 would divide by zero into a NaN reward
+            raise ValueError(f"RewardOptions.temperature must be > 0, got {self.temperature!r}")
 
 
-def reward(summary: dict, calibration: Calibration, options: RewardOptions) -> dict:
+def reward(summary: dict, calibration: Calibration, options: RewardOptions, xp=jnp) -> dict:
     """Per clip (B,): ``sgc_unclipped``, ``camera_motion``, ``reward``, and the status
-    ``static_camera`` for a scored clip whose camera moves less than the full-motion level."""
-    unclipped = sgc_score({k: summary[k] for k in COMPONENTS}, calibration, xp=jnp, floor_at_zero=False,
+    ``static_camera`` for a scored clip whose camera moves less than the full-motion level.
+    ``summary``: the per-clip components, floors, ``ecd_trans``, ``ecd_rot``, ``evidence`` and
+    ``status`` (SCORER_STATUS codes); ``xp``: jax.numpy (the Scorer) or NumPy (``BatchResult.rewards``)."""
+    unclipped = sgc_score({k: summary[k] for k in COMPONENTS}, calibration, xp=xp, floor_at_zero=False,
                           floors={k: summary[k] for k in FLOOR_COLUMNS})
-    motion = jnp.fmax(summary["ecd_trans"] / options.full_motion_trans, summary["ecd_rot"] / options.full_motion_rot_deg)
-    motion = jnp.where(jnp.isnan(motion), 0.0, motion)
-    gate = jnp.clip(motion, 0.0, 1.0)
-    coverage = summary["n_pairs_scored"] / jnp.maximum(summary["n_pairs"], 1)
-    quality = 1.0 / (1.0 + jnp.exp(jnp.clip(unclipped / options.temperature, -EXPONENT_LIMIT, EXPONENT_LIMIT)))
-    scored = (summary["status"] == SCORER_STATUS_CODE["ok"]) | (summary["status"] == SCORER_STATUS_CODE["partial"])
-    value = jnp.where(scored & ~jnp.isnan(unclipped), quality * gate * coverage, 0.0)
-    status = jnp.where(scored & (motion < 1.0), SCORER_STATUS_CODE["static_camera"], summary["status"])
-    return dict(sgc_unclipped=unclipped, camera_motion=motion, reward=value.astype(jnp.float32),
-                status=status.astype(jnp.int32))
+    motion = camera_motion(summary["ecd_trans"], summary["ecd_rot"], options.evidence, xp)
+    quality = 1.0 / (1.0 + xp.exp(xp.clip(unclipped / options.temperature, -EXPONENT_LIMIT, EXPONENT_LIMIT)))
+    scored = xp.isin(summary["status"], xp.asarray([SCORER_STATUS_CODE[s] for s in ("ok", "partial", "low_evidence")]))
+    value = xp.where(scored & ~xp.isnan(unclipped), quality * summary["evidence"], 0.0)
+    status = xp.where(scored & (motion < 1.0), SCORER_STATUS_CODE["static_camera"], summary["status"])
+    return dict(sgc_unclipped=unclipped, camera_motion=motion, reward=value.astype(xp.float32),
+                status=status.astype(xp.int32))

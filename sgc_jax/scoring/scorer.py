@@ -143,7 +143,7 @@ class Scorer:
             steps = {name: jax.jit(step) for name, step in steps.items()}
         else:
             clips = jax.sharding.PartitionSpec("clips")
-            in_specs = {"prepare": (clips,), "summarize": (clips, clips, clips)}
+            in_specs = {"prepare": (clips,), "summarize": (clips,) * 5}
             steps = {name: jax.jit(jax.shard_map(step, mesh=mesh, in_specs=in_specs[name], out_specs=clips,
                                                  check_vma=False))
                      for name, step in steps.items()}
@@ -154,8 +154,9 @@ class Scorer:
                                                                          self.calibration))
         return steps
 
-    def _summarize(self, out: dict, pair_valid, depth_unit) -> dict:
-        summary = summarize_on_device(out, pair_valid, depth_unit, self.calibration, self.config.compat)
+    def _summarize(self, out: dict, pair_valid, depth_unit, K, image_hw) -> dict:
+        summary = summarize_on_device(out, pair_valid, depth_unit, K, image_hw, self.calibration, self.config.compat,
+                                      self.reward_options.evidence)
         return {**summary, **reward(summary, self.calibration, self.reward_options)}
 
     def _compile(self) -> dict:
@@ -171,7 +172,7 @@ class Scorer:
         padded = PaddedClips(*prepare.out_info)
         program, _ = sharded_program(self.config, self.bucket, self.devices, padded, self.vectorized)
         out = program.stages[-1].out_info
-        summarize = self._traced["summarize"].lower(out, padded.pair_valid, padded.depth_unit).compile()  # small
+        summarize = self._traced["summarize"].lower(out, *summary_inputs(padded)).compile()  # small
         compiled = {"prepare": prepare, **dict(zip(STAGES, program.stages)), "summarize": summarize}
         if self.differentiable:
             with CompileNotice(what, "differentiable score", loading=False, hint=cache_hint()):
@@ -261,7 +262,7 @@ class Scorer:
         choices ``sgc_smooth`` holds fixed (docs/semantics.md §10.1)."""
         clips = jax.device_put(self._rows(self.clip_arrays(batch), 0, self.call_size), self._sharding())
         padded, outs = self._stages(self._compiled, clips)
-        summary = self._compiled["summarize"](outs[-1], padded.pair_valid, padded.depth_unit)
+        summary = self._compiled["summarize"](outs[-1], *summary_inputs(padded))
         frozen = frozen_choices(*outs, padded.pair_valid, summary)
         return jax.tree.map(lambda leaf: leaf[:self.shape[0]], frozen)
 
@@ -295,8 +296,13 @@ class Scorer:
         """The steps on one call's clips; with ``live`` (the differentiable form: the same clips
         with their gradients), sgc_smooth from the stages' choices."""
         padded, outs = self._stages(programs, clips)
-        summary = programs["summarize"](outs[-1], padded.pair_valid, padded.depth_unit)
+        summary = programs["summarize"](outs[-1], *summary_inputs(padded))
         if live is None:
             return summary
         smooth = self._traced["smooth"] if _traced(live) else programs["smooth"]
         return {**summary, "sgc_smooth": smooth(live, frozen_choices(*outs, padded.pair_valid, summary))}
+
+
+def summary_inputs(padded: PaddedClips) -> tuple:
+    """What the summary reads of the padded clips besides the stages' output."""
+    return padded.pair_valid, padded.depth_unit, padded.K, padded.image_hw

@@ -12,6 +12,7 @@ import numpy as np
 from ...codes import EXCLUDED_STATUSES, PAIR_REASONS, REGION_OK
 from ...config import SGCConfig
 from ...io.clip import Clip
+from ..evidence import parallax_px
 from ..pairs import PairArrays
 from ..units import in_depth_units
 from .buckets import Bucket, PaddedClips, bucket_for, pad_clip
@@ -29,13 +30,17 @@ class PreparedClip(NamedTuple):
     bucket: Bucket
     batch: PaddedClips
     depth_unit: float
+    image_pixels: int  # H W of the clip's true frames
+    K_curr: np.ndarray  # (n_pairs, 3, 3) frame i's intrinsics of each pair, float64
 
 
 def prepare_clip(clip: Clip, config: SGCConfig) -> PreparedClip:
     """The host side of scoring a clip: depth units and padding (NumPy only, safe in a thread)."""
     clip, unit = in_depth_units(clip, config)
     bucket = bucket_for(clip)
-    return PreparedClip(clip.n_pairs, bucket, pad_clip(clip, bucket, config, unit), unit)
+    H, W = clip.image_size
+    return PreparedClip(clip.n_pairs, bucket, pad_clip(clip, bucket, config, unit), unit, H * W,
+                        clip.K[1:].astype(np.float64))
 
 
 class Dispatched(NamedTuple):
@@ -64,14 +69,17 @@ def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, 
     return Dispatched(group, program(batch, jax.random.PRNGKey(config.seed), program_values(config)))
 
 
-def pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float) -> PairArrays:
-    """Clip b's per-pair arrays, with its depth unit D and the scale to report (depth units per pose unit)."""
-    take = lambda name: np.asarray(out[name][b, :n_pairs])  # noqa: E731
+def pair_arrays(out: dict, b: int, prepared: PreparedClip, scale: float, config: SGCConfig) -> PairArrays:
+    """Clip b's per-pair arrays, with the scale to report (depth units per pose unit)."""
+    take = lambda name: np.asarray(out[name][b, :prepared.n_pairs])  # noqa: E731
+    t_g_norm = take("t_g_norm").astype(np.float64)
     status = take("region_status")
     posed = (status == REGION_OK) | np.isin(status, EXCLUDED_STATUSES)
     per_region = lambda name: np.where(posed, take(name), np.nan).astype(np.float64)  # noqa: E731
     return PairArrays(
         **{name: take(name).astype(np.float64) for name in COMPONENT_OUTPUTS},
+        static_frac=take("region_pixels") / prepared.image_pixels,
+        parallax_px=parallax_px(prepared.K_curr, t_g_norm, config.scale_free),
         n_tracks=take("n_tracks"), n_regions=take("n_regions"), n_poses=take("n_poses"),
         n_ill_conditioned=take("n_ill_conditioned"),
         reason=np.array([PAIR_REASONS[c] for c in take("reason")], dtype=object),
@@ -80,7 +88,7 @@ def pair_arrays(out: dict, b: int, n_pairs: int, depth_unit: float, scale: float
         region_status=status, region_points=take("region_points"), region_reproj=per_region("region_reproj"),
         region_rot_std=per_region("region_rot_std"), region_trans_std=per_region("region_trans_std"),
         region_rot_noise=per_region("region_rot_noise"), region_trans_noise=per_region("region_trans_noise"),
-        scale=scale, depth_unit=depth_unit)
+        scale=scale, depth_unit=prepared.depth_unit)
 
 
 def collect(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
@@ -90,7 +98,7 @@ def collect(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:
     for b, prepared in enumerate(dispatched.prepared):
         # s (per unit of D inside) reported in depth units per pose unit; 1 without a global translation
         scale = float(np.asarray(out["scale"][b])) * prepared.depth_unit if config.global_pose else 1.0
-        results.append(pair_arrays(out, b, prepared.n_pairs, prepared.depth_unit, scale))
+        results.append(pair_arrays(out, b, prepared, scale, config))
     return results
 
 

@@ -1,0 +1,62 @@
+"""Evidence (docs/semantics.md §3.11): a component a pair could not measure is missing, never 0; a
+pair counts in proportion to what it measured; a clip measured on little says so in its status,
+reason and ``sgc_hi``."""
+
+import numpy as np
+import pytest
+from scenes import TINY
+
+from sgc_jax import EvidenceLevels, score_batch
+from sgc_jax.engines.evidence import FULL_SEVERITY_SGC, LOW_EVIDENCE, camera_motion, pair_evidence, upper_with_unseen
+from sgc_jax.kernels.pose_variances import pair_pose_components
+from sgc_jax.research.synth import synth_clip
+
+LEVELS = EvidenceLevels()
+
+
+def one_pose(compat):
+    R = np.tile(np.eye(3, dtype=np.float32), (3, 1, 1))
+    t = np.zeros((3, 3), np.float32)
+    accepted = np.array([True, False, False])
+    return pair_pose_components(R, t, accepted, np.eye(3, dtype=np.float32), np.zeros(3, np.float32), compat=compat)
+
+
+def test_one_pose_has_no_local_spread_to_measure_under_spec_and_zero_under_authors():
+    spec, authors = one_pose("spec"), one_pose("authors")
+    assert np.isnan(spec["local_rot_var"]) and np.isnan(spec["local_trans_var"])
+    assert np.isfinite(spec["global_rot_var"]) and np.isfinite(spec["global_trans_var"])
+    assert float(authors["local_rot_var"]) == float(authors["local_trans_var"]) == 0.0
+
+
+def test_a_pair_counts_in_proportion_to_what_it_measured():
+    full = dict(tracks=LEVELS.full_tracks, trans=LEVELS.full_motion_trans, rot_deg=0.0, static_frac=1.0)
+    evidence = lambda **changes: float(pair_evidence(True, **{**full, **changes}, levels=LEVELS))  # noqa: E731
+    assert evidence() == 1.0 and evidence(tracks=10 * LEVELS.full_tracks, static_frac=1.0) == 1.0
+    assert evidence(tracks=LEVELS.full_tracks / 2) == pytest.approx(0.5)
+    assert evidence(trans=0.0, rot_deg=LEVELS.full_motion_rot_deg / 4) == pytest.approx(0.25)
+    assert evidence(static_frac=LEVELS.full_static_frac / 2) == pytest.approx(0.5)
+    assert float(pair_evidence(False, **full, levels=LEVELS)) == 0.0  # a component missing: nothing measured
+    assert camera_motion(np.nan, np.nan, LEVELS) == 0.0
+
+
+def test_the_upper_bound_holds_what_an_unmeasured_share_could_hide():
+    assert upper_with_unseen(0.1, 0.2, 1.0) == 0.2  # fully measured: the bootstrap's bound
+    assert upper_with_unseen(0.0, 0.05, 0.0) == FULL_SEVERITY_SGC
+    assert upper_with_unseen(0.2, np.nan, 0.5) == pytest.approx(0.2 + 0.5 * 0.8)
+    assert np.isnan(upper_with_unseen(np.nan, np.nan, 0.0))
+
+
+@pytest.fixture(scope="module")
+def thin():
+    """A TINY scene (reference engine) at 24 tracks per pair: one layer per pair."""
+    return score_batch([synth_clip(seed=3, **{**TINY, "n_tracks": 24}, noise_px=0.5)], engine="reference",
+                       progress=False).clips[0]
+
+
+def test_a_clip_measured_on_little_is_never_a_plain_ok_with_score_zero(thin):
+    assert thin.status == "low_evidence" and thin.evidence < LOW_EVIDENCE
+    assert thin.reason.startswith(f"evidence {thin.evidence:.2f} < {LOW_EVIDENCE}") and "one_pose" in thin.reason
+    assert np.isnan(thin.components["local_rot_var"]) and np.isnan(thin.components["local_trans_var"])
+    assert thin.sgc_hi >= thin.sgc + (1 - thin.evidence) * (FULL_SEVERITY_SGC - thin.sgc) - 1e-12
+    pairs = thin.pair_records()
+    assert {p["reason"] for p in pairs} == {"one_pose"} and {p["evidence"] for p in pairs} == {0.0}
