@@ -1,0 +1,151 @@
+"""The adversary battery (issue 59, docs/semantics.md §3.11, §9.4): what the reward pays clips a
+generator could learn to make, against honest clips of the same scenes.
+
+    python bench/adversaries.py [--split test|fit] [--noise 1] [--out rows.csv] [--rows rows.csv]
+
+Noise: iid-both (independent Gaussian on both ends of every track). Prints, for the split:
+
+1. honest consistent clips at 200, 1,000 and 4,096 tracks and 0.5, 1 and 2 px: the median reward,
+   its evidence, and the spread of the rewards of clips at full evidence (the bar: within ±10 %
+   of their median);
+2. each adversary (``sgc_jax.research.adversaries``) at 1,000 tracks and ``--noise`` px: its median
+   reward over the scenes against the honest median of the same scenes (the bar: <= 0.5x), its
+   statuses and one clip's reason;
+3. the perturbation ladders (clean, 0.1, 0.25, 0.5 of each perturbation; 1,000 tracks): the share
+   where the reward falls strictly with severity (the bar: all).
+
+The rewards are ``BatchResult.rewards`` (the Scorer's, computed from the tables; tests/test_scorer.py
+holds the two equal).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import sys
+import time
+from collections import Counter
+
+import numpy as np
+
+from sgc_jax import score_batch
+from sgc_jax.codes import SCORER_STATUSES
+from sgc_jax.research import protocol
+from sgc_jax.research.adversaries import ADVERSARIES, adversary
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+
+HONEST_TRACKS = (200, 1000, 4096)
+HONEST_NOISE = (0.5, 1.0, 2.0)
+LADDER = (0.1, 0.25, 0.5)
+TRACKS = 1000
+
+
+def noisy(clip, scene, px: float):
+    return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), scene.seed * 10 + int(px * 4))
+
+
+def score_rows(args) -> list[dict]:
+    rows = []
+    for scene in protocol.SPLITS[args.split]:
+        started = time.perf_counter()
+        batch = [("honest", "", 0.0, n, px, noisy(scene.clip(n), scene, px))
+                 for n, px in itertools.product(HONEST_TRACKS, HONEST_NOISE)]
+        batch += [("adversary", name, 0.0, TRACKS, args.noise, noisy(adversary(name, scene, TRACKS), scene, args.noise))
+                  for name in ADVERSARIES]
+        clean = scene.clip(TRACKS)
+        batch += [("ladder", kind, s, TRACKS, args.noise, noisy(perturb_clip(clean, kind, s, seed=scene.seed), scene,
+                                                              args.noise))
+                  for kind, s in itertools.product(PERTURBATIONS, LADDER)]
+        result = score_batch([b[-1] for b in batch], progress=False)
+        rewards = result.rewards()
+        for i, ((group, kind, severity, n, px, _), c) in enumerate(zip(batch, result.clips)):
+            rows.append(dict(scene=scene.name, group=group, kind=kind, severity=severity, tracks=n, noise_px=px,
+                             status=SCORER_STATUSES[int(rewards["status"][i])], reason=c.reason, sgc=c.sgc,
+                             sgc_hi=c.sgc_hi, evidence=c.evidence, reward=float(rewards["reward"][i]),
+                             camera_motion=float(rewards["camera_motion"][i])))
+        print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def read_rows(path: str) -> list[dict]:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for key in ("severity", "noise_px", "sgc", "sgc_hi", "evidence", "reward", "camera_motion"):
+            r[key] = float(r[key]) if r[key] not in ("", "nan") else float("nan")
+        r["tracks"] = int(r["tracks"])
+    return rows
+
+
+def print_honest(rows: list[dict]) -> float:
+    honest = [r for r in rows if r["group"] == "honest"]
+    print("\n1. Honest consistent clips: median reward (median evidence) over the scenes")
+    print("| tracks | " + " | ".join(f"{px:g} px" for px in HONEST_NOISE) + " |")
+    print("|---|" + "---|" * len(HONEST_NOISE))
+    for n in HONEST_TRACKS:
+        cells = [[r for r in honest if r["tracks"] == n and r["noise_px"] == px] for px in HONEST_NOISE]
+        print(f"| {n} | " + " | ".join(f"{np.median([r['reward'] for r in c]):.3f} "
+                                        f"({np.median([r['evidence'] for r in c]):.2f})" for c in cells) + " |")
+    full = [r for r in honest if r["evidence"] >= 1.0]
+    by_scene = {}
+    for r in full:
+        by_scene.setdefault(r["scene"], []).append(r["reward"])
+    spread = [max(abs(np.array(v) / np.median(v) - 1)) for v in by_scene.values() if len(v) > 1]
+    print(f"clips at full evidence: {len(full)} of {len(honest)}; the largest departure of one from its scene's "
+          f"median over tracks and noise: {max(spread, default=float('nan')):.1%} (the bar: 10 %)")
+    return float(np.median([r["reward"] for r in honest if r["tracks"] == TRACKS]))
+
+
+def print_adversaries(rows: list[dict], noise: float) -> None:
+    honest = {r["scene"]: r["reward"] for r in rows
+              if r["group"] == "honest" and r["tracks"] == TRACKS and r["noise_px"] == noise}
+    print(f"\n2. Adversaries ({TRACKS} tracks, iid-both {noise:g} px): median reward over the scenes, and against "
+          f"the same scenes' honest clips (median honest {np.median(list(honest.values())):.3f})")
+    print("| adversary | median reward | x honest (median of scenes) | median SGC | statuses | a reason |")
+    print("|---|---|---|---|---|---|")
+    for name in ADVERSARIES:
+        own = [r for r in rows if r["group"] == "adversary" and r["kind"] == name]
+        ratio = np.median([r["reward"] / honest[r["scene"]] for r in own if honest.get(r["scene"], 0) > 0])
+        statuses = ", ".join(f"{s} {n}" for s, n in Counter(r["status"] for r in own).most_common())
+        reason = next((r["reason"] for r in own if r["reason"]), "")
+        print(f"| {name} | {np.median([r['reward'] for r in own]):.3f} | {ratio:.2f} | "
+              f"{np.nanmedian([r['sgc'] for r in own]):.3f} | {statuses} | {reason[:70]} |")
+
+
+def print_ladders(rows: list[dict], noise: float) -> None:
+    honest = {r["scene"]: r["reward"] for r in rows
+              if r["group"] == "honest" and r["tracks"] == TRACKS and r["noise_px"] == noise}
+    falls = []
+    for scene, kind in itertools.product(sorted(honest), PERTURBATIONS):
+        steps = sorted((r["severity"], r["reward"]) for r in rows
+                       if r["group"] == "ladder" and r["scene"] == scene and r["kind"] == kind)
+        rewards = [honest[scene]] + [reward for _, reward in steps]
+        falls.append(bool(np.all(np.diff(rewards) < 0)))
+        if not falls[-1]:
+            print(f"   {scene} {kind}: " + " -> ".join(f"{x:.3f}" for x in rewards))
+    print(f"\n3. Ladders: the reward falls strictly with severity in {sum(falls)} of {len(falls)}")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--split", choices=sorted(protocol.SPLITS), default="test")
+    parser.add_argument("--noise", type=float, default=1.0, help="iid-both noise of the adversaries and ladders [px]")
+    parser.add_argument("--out", help="write the rows to this CSV")
+    parser.add_argument("--rows", help="print the tables from a CSV written with --out")
+    args = parser.parse_args(argv)
+    rows = read_rows(args.rows) if args.rows else score_rows(args)
+    if args.out and not args.rows:
+        with open(args.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    print(f"split {args.split}")
+    print_honest(rows)
+    print_adversaries(rows, args.noise)
+    print_ladders(rows, args.noise)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,53 @@
+"""The reward pays only for measured consistency (docs/semantics.md §3.11, §9.4): clips a generator
+could learn to make so that the score sees little earn at most half an honest clip's reward, each
+with a status or reason that says why. One FIT scene of the demo corpus's shape bucket, noise on
+both ends of every track; the whole battery on the TEST split is bench/adversaries.py."""
+
+import numpy as np
+import pytest
+from scenes import DEMO_BATCH_SHAPE
+
+from sgc_jax import Scorer
+from sgc_jax.codes import SCORER_STATUSES
+from sgc_jax.research.adversaries import adversary
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.protocol import FIT_SCENES
+from sgc_jax.scoring.scorer import batch_of
+
+SCENE = FIT_SCENES[3]  # 96x128, 8 frames: the demo corpus's bucket
+TRACKS = 1000
+NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
+# The adversaries the evidence answers whatever the score sees; pure rotation and an unmasked mover
+# earn less only as far as the score sees their inconsistency (bench/RESULTS.md, "Evidence").
+BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
+               "repeated_frames", "half_broken")
+HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward
+
+
+@pytest.fixture(scope="module")
+def scored():
+    clips = [SCENE.clip(TRACKS)] + [adversary(name, SCENE, TRACKS) for name in BY_EVIDENCE]
+    clips = [add_noise(c, NOISE, seed=i) for i, c in enumerate(clips)]
+    clips += clips[-1:] * (-len(clips) % DEMO_BATCH_SHAPE[0])
+    scorer = Scorer(DEMO_BATCH_SHAPE)
+    parts = [scorer(batch_of(clips[i:i + DEMO_BATCH_SHAPE[0]], DEMO_BATCH_SHAPE[1:]))
+             for i in range(0, len(clips), DEMO_BATCH_SHAPE[0])]
+    out = {name: np.concatenate([np.asarray(p[name]) for p in parts]) for name in parts[0]}
+    return {name: {k: v[i] for k, v in out.items()} for i, name in enumerate(("honest", *BY_EVIDENCE))}
+
+
+def test_an_honest_moving_clip_is_fully_measured(scored):
+    honest = scored["honest"]
+    assert honest["evidence"] == 1.0 and SCORER_STATUSES[honest["status"]] == "ok" and honest["reward"] > 0.4
+
+
+@pytest.mark.parametrize("name", BY_EVIDENCE)
+def test_an_adversary_earns_at_most_half_an_honest_clips_reward(scored, name):
+    assert scored[name]["reward"] <= HONEST_SHARE * scored["honest"]["reward"]
+
+
+@pytest.mark.parametrize("name", BY_EVIDENCE)
+def test_an_adversary_says_why_in_its_status(scored, name):
+    status = SCORER_STATUSES[scored[name]["status"]]
+    assert status in ("low_evidence", "static_camera", "partial") or scored[name]["sgc"] > 0.25, (name, status)
+    assert scored[name]["sgc_hi"] >= scored[name]["sgc"]
