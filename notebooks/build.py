@@ -445,9 +445,10 @@ BEST_OF_N = [
         A sampler draws N candidate videos for one prompt and keeps the best. `sgc_jax.Scorer`
         scores a batch of clips already in memory (or on a device) in one set of compiled programs
         and returns, besides the SGC, a **reward** (docs/semantics.md §9.4): higher is better, it
-        keeps ranking clips the calibration scores 0, and it pays nothing for what would make a
-        geometric score look perfect without a consistent 3D world: a still camera, a mask that
-        hides everything, no usable tracks.
+        keeps ranking clips the calibration scores 0, and it pays only for the consistency it
+        measured (its `evidence`, §3.11): nothing for what would make a geometric score look
+        perfect without a consistent 3D world, such as a still camera, a mask that hides
+        everything or no usable tracks, and little for a clip measured on little.
 
         Here the N = 8 candidates are variants of one synthetic scene: the clean clip, four
         perturbed ones (docs/semantics.md §6.4; severities 0.25 and 0.5) and three decoys.
@@ -487,17 +488,19 @@ BEST_OF_N = [
         calls = [scorer(batch_of(candidates[i:i + 4])) for i in (0, 4)]
         out = {name: np.concatenate([np.asarray(call[name]) for call in calls]) for name in calls[0]}
         table = pd.DataFrame({"candidate": labels, "status": [SCORER_STATUSES[s] for s in out["status"]],
-                              **{k: out[k] for k in ("sgc", "sgc_unclipped", "camera_motion", "n_pairs_scored",
+                              **{k: out[k] for k in ("sgc", "sgc_unclipped", "camera_motion", "evidence",
                                                      "reward")}})
         table.sort_values("reward", ascending=False)"""),
     _md("""
         The clean clip earns the highest reward and is the one best-of-N keeps; the perturbed
         clips follow in the order of their scores. Two decoys tie with the clean clip at `sgc` = 0:
         the still camera, whose local poses all agree because nothing moves, and the track-less
-        clip, scored on its depth error alone. Neither earns anything: the still camera's motion
-        is far below the full-motion level (1 % of D or 0.5° per pair), which scales its reward to
-        0 and gives it the status `static_camera`; the track-less and all-masked clips are
-        measured on nothing (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
+        clip, scored on its depth error alone. Neither earns anything: the reward is the logistic
+        of the score times the clip's `evidence`, the share of its pairs' geometry that was
+        measured, and a pair counts in proportion to its camera's motion against the full-motion
+        level (1 % of D or 0.5° per pair): the still camera's evidence is 0 and its status
+        `static_camera`; the track-less and all-masked clips are measured on nothing
+        (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
         floor at 0 of each normalised component, so clips whose depth error is below the clean
         clips' 90th percentile still rank among themselves; a pose component within its noise band
         counts 0 in both (below the noise there is nothing to rank).

@@ -18,6 +18,7 @@ from typing import Any, Iterable, Sequence
 from .adapters.delta import DELTA_VIS_THRESHOLD
 from .adapters.vggt import MODES as VGGT_MODES
 from .calibration import COMPONENTS
+from .codes import CLIP_STATUSES
 from .config import SGCConfig, cli_flag, renamed_fields
 from .io.extras import MissingExtraError
 from .scoring.engine_steps import ENGINES
@@ -212,8 +213,8 @@ def _config_and_calibration(args: argparse.Namespace):
 
 
 def _summary_line(result) -> str:
-    counts = {s: sum(1 for c in result.clips if c.status == s) for s in ("ok", "partial", "error")}
-    return f"{len(result)} clip(s): {counts['ok']} ok, {counts['partial']} partial, {counts['error']} error"
+    counts = {s: sum(1 for c in result.clips if c.status == s) for s in CLIP_STATUSES}
+    return f"{len(result)} clip(s): " + ", ".join(f"{n} {s}" for s, n in counts.items())
 
 
 def _connect_ray(address: str) -> None:
