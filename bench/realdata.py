@@ -8,10 +8,11 @@ Prints
 
 1. per clean clip: SGC, its interval, each pose component against its noise floor, the depth error
    and the tracks' distance to the ground-truth motion (median and 95th percentile over the usable
-   tracks, px; sgc_jax.research.ground_truth), sorted by that distance (the bars: SGC <= 0.05 where
-   the 95th percentile is within 2 px);
+   tracks, px; sgc_jax.research.ground_truth), its evidence and reward (docs/semantics.md §3.11,
+   §9.4), sorted by that distance (the bars: SGC <= 0.05 where the 95th percentile is within 2 px);
 2. the paper's perturbations (§4.3 protocol: warp, squeeze, depth_warp at severities 0.25, 0.5, 1)
-   on every clip: SGC by severity, 0 the clean clip (the bar: every ladder rises strictly).
+   on every clip: SGC and reward by severity, 0 the clean clip (the bars: every ladder's SGC rises
+   strictly, its reward falls strictly).
 """
 
 from __future__ import annotations
@@ -32,35 +33,42 @@ LADDER_SEVERITIES = (0.25, 0.5, 1.0)
 
 def print_clean(clips, result) -> None:
     print("| clip | tracks to GT motion, median / p95 px | SGC | 90 % interval | "
-          + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " | depth_error % | tracks per pair |")
-    print("|---|---|---|---|" + "---|" * (len(POSE_COMPONENTS) + 2))
+          + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " | depth_error % | tracks per pair | evidence "
+          "| reward |")
+    print("|---|---|---|---|" + "---|" * (len(POSE_COMPONENTS) + 4))
     rows = []
-    for clip, scored in zip(clips, result.clips):
+    rewards = result.rewards()["reward"]
+    for clip, scored, reward in zip(clips, result.clips, rewards):
         distance = motion_errors(clip)
-        rows.append((np.percentile(distance, 95), clip, scored, np.median(distance)))
-    for p95, clip, scored, median in sorted(rows, key=lambda r: r[0]):
+        rows.append((np.percentile(distance, 95), clip, scored, np.median(distance), reward))
+    for p95, clip, scored, median, reward in sorted(rows, key=lambda r: r[0]):
         ratios = [scored.components[k] / scored.floors[f"{k}_floor"] for k in POSE_COMPONENTS]
         tracks = int(scored.pairs.n_tracks.mean()) if scored.pairs is not None else 0
         print(f"| {clip.clip_id} | {median:.2f} / {p95:.2f} | {scored.sgc:.3f} | "
               f"{scored.sgc_lo:.3f}-{scored.sgc_hi:.3f} | " + " | ".join(f"{r:.2f}" for r in ratios)
-              + f" | {scored.components['depth_error']:.2f} | {tracks} |")
+              + f" | {scored.components['depth_error']:.2f} | {tracks} | {scored.evidence:.2f} | {reward:.3f} |")
 
 
-def print_ladders(clips, clean_sgc, engine: str) -> None:
-    print("\nPerturbation ladders: SGC at severity 0 (clean), " + ", ".join(f"{s:g}" for s in LADDER_SEVERITIES))
-    print("| clip | perturbation | " + " | ".join(f"{s:g}" for s in (0.0, *LADDER_SEVERITIES)) + " | strictly rising |")
-    print("|---|---|" + "---|" * (len(LADDER_SEVERITIES) + 2))
+def print_ladders(clips, clean, engine: str) -> None:
+    print("\nPerturbation ladders: SGC (reward) at severity 0 (clean), " + ", ".join(f"{s:g}" for s in LADDER_SEVERITIES))
+    print("| clip | perturbation | " + " | ".join(f"{s:g}" for s in (0.0, *LADDER_SEVERITIES))
+          + " | SGC rises strictly | reward falls strictly |")
+    print("|---|---|" + "---|" * (len(LADDER_SEVERITIES) + 3))
     variants = [perturb_clip(clip, kind, s, seed=0) for clip in clips for kind in PERTURBATIONS for s in LADDER_SEVERITIES]
-    scored = iter(score_batch(variants, engine=engine, progress=False).clips)  # in the order made
-    rising = 0
-    for clip, clean in zip(clips, clean_sgc):
+    result = score_batch(variants, engine=engine, progress=False)
+    scored = iter(zip(result.clips, result.rewards()["reward"]))  # in the order made
+    rising = falling = 0
+    for clip, (clean_sgc, clean_reward) in zip(clips, clean):
         for kind in PERTURBATIONS:
-            sgc = np.array([clean, *(next(scored).sgc for _ in LADDER_SEVERITIES)])
-            strictly = bool(np.all(np.diff(sgc) > 0))
-            rising += strictly
-            print(f"| {clip.clip_id} | {kind} | " + " | ".join(f"{v:.3f}" for v in sgc)
-                  + f" | {'yes' if strictly else 'NO'} |")
-    print(f"\n{rising} of {len(clips) * len(PERTURBATIONS)} ladders rise strictly")
+            steps = [next(scored) for _ in LADDER_SEVERITIES]
+            sgc = np.array([clean_sgc, *(c.sgc for c, _ in steps)])
+            reward = np.array([clean_reward, *(r for _, r in steps)])
+            rises, falls = bool(np.all(np.diff(sgc) > 0)), bool(np.all(np.diff(reward) < 0))
+            rising, falling = rising + rises, falling + falls
+            print(f"| {clip.clip_id} | {kind} | " + " | ".join(f"{v:.3f} ({r:.3f})" for v, r in zip(sgc, reward))
+                  + f" | {'yes' if rises else 'NO'} | {'yes' if falls else 'NO'} |")
+    n = len(clips) * len(PERTURBATIONS)
+    print(f"\n{rising} of {n} ladders rise strictly in SGC; {falling} of {n} fall strictly in reward")
 
 
 def main() -> None:
@@ -79,7 +87,7 @@ def main() -> None:
     if args.out:
         result.to_pandas().to_csv(args.out, index=False)
     if not args.no_ladders:
-        print_ladders(clips, [c.sgc for c in result.clips], args.engine)
+        print_ladders(clips, list(zip([c.sgc for c in result.clips], result.rewards()["reward"])), args.engine)
 
 
 if __name__ == "__main__":

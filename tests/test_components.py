@@ -78,12 +78,14 @@ def test_rigid_poses_give_zero_components():
         assert float(out[key]) == pytest.approx(0.0, abs=1e-8), key
 
 
-def test_single_pose_has_zero_local_and_its_distance_as_global():
+def test_single_pose_has_no_local_spread_and_its_distance_as_global():
+    """One pose has no spread to measure: NaN under spec (docs/semantics.md §3.5), 0 under authors."""
     rng = np.random.default_rng(1)
     R_local, t_local, accepted, R_g, t_g = random_pair(rng, 1, spread_rad=0.2)
     (j,) = np.flatnonzero(accepted)
-    out = run(R_local, t_local, accepted, R_g, t_g)
-    assert float(out["local_rot_var"]) == 0.0 and float(out["local_trans_var"]) == 0.0
+    out, authors = run(R_local, t_local, accepted, R_g, t_g), run(R_local, t_local, accepted, R_g, t_g, compat="authors")
+    assert np.isnan(out["local_rot_var"]) and np.isnan(out["local_trans_var"])
+    assert float(authors["local_rot_var"]) == 0.0 and float(authors["local_trans_var"]) == 0.0
     assert float(out["global_rot_var"]) == pytest.approx(angle_deg(R_local[j], R_g) ** 2, rel=1e-4)
     assert float(out["global_trans_var"]) == pytest.approx(np.sum((t_local[j] - t_g) ** 2), rel=RTOL)
 
@@ -108,12 +110,13 @@ def test_hundredth_of_a_degree_spread_is_resolved_in_float32():
     assert float(out["global_rot_var"]) == pytest.approx(expected["global_rot_var"], rel=1e-3)
 
 
-def test_nan_only_when_no_pose():
+def test_nan_only_where_the_poses_cannot_measure_it():
+    """The global components need one pose, the local ones (a spread) two."""
     rng = np.random.default_rng(4)
     for n_accepted in range(R_SLOTS + 1):
         out = run(*random_pair(rng, n_accepted))
         for key in KEYS:
-            assert np.isnan(out[key]) == (n_accepted == 0), (key, n_accepted)
+            assert np.isnan(out[key]) == (n_accepted < (2 if key.startswith("local") else 1)), (key, n_accepted)
         assert out["n_poses"].dtype == np.int32 and all(out[key].dtype == np.float32 for key in KEYS)
 
 

@@ -8,24 +8,9 @@ from scenes import TINY
 
 from sgc_jax import EvidenceLevels, score_batch
 from sgc_jax.engines.evidence import FULL_SEVERITY_SGC, LOW_EVIDENCE, camera_motion, pair_evidence, upper_with_unseen
-from sgc_jax.kernels.pose_variances import pair_pose_components
 from sgc_jax.research.synth import synth_clip
 
 LEVELS = EvidenceLevels()
-
-
-def one_pose(compat):
-    R = np.tile(np.eye(3, dtype=np.float32), (3, 1, 1))
-    t = np.zeros((3, 3), np.float32)
-    accepted = np.array([True, False, False])
-    return pair_pose_components(R, t, accepted, np.eye(3, dtype=np.float32), np.zeros(3, np.float32), compat=compat)
-
-
-def test_one_pose_has_no_local_spread_to_measure_under_spec_and_zero_under_authors():
-    spec, authors = one_pose("spec"), one_pose("authors")
-    assert np.isnan(spec["local_rot_var"]) and np.isnan(spec["local_trans_var"])
-    assert np.isfinite(spec["global_rot_var"]) and np.isfinite(spec["global_trans_var"])
-    assert float(authors["local_rot_var"]) == float(authors["local_trans_var"]) == 0.0
 
 
 def test_a_pair_counts_in_proportion_to_what_it_measured():

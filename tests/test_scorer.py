@@ -16,7 +16,7 @@ import pytest
 from scenes import DEMO_BATCH_SHAPE, DEMO_SCENE, SMALL_SCENE
 from tolerances import LM_SETTLE_RTOL
 
-from sgc_jax import COMPONENTS, ClipFormatError, Scorer, SGCConfig, score_batch
+from sgc_jax import COMPONENTS, ClipFormatError, EvidenceLevels, RewardOptions, Scorer, SGCConfig, score_batch
 from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
@@ -99,6 +99,17 @@ def test_the_tables_rewards_are_the_scorers(scorer, corpus, expected):
         for name in ("reward", "sgc_unclipped", "camera_motion"):
             np.testing.assert_allclose(out[name], host[name][part], rtol=CLIP_RTOL, atol=CLIP_ATOL, err_msg=name)
         np.testing.assert_array_equal(out["status"], host["status"][part])
+
+
+def test_evidence_levels_set_in_reward_options_reach_the_tables_rewards_too(corpus, expected):
+    """A Scorer's levels move its evidence, status and reward; ``rewards`` with the same levels
+    recomputes them from the clips' pairs (docs/semantics.md §3.11)."""
+    options = RewardOptions(evidence=EvidenceLevels(full_tracks=4000.0))  # more than any demo pair holds
+    out = outputs(Scorer(SHAPE, reward_options=options), corpus[:SHAPE[0]])
+    host = expected.rewards(options)
+    assert np.all(out["evidence"] < 0.5) and np.all(out["reward"] < 0.5 * expected.rewards()["reward"][:SHAPE[0]])
+    np.testing.assert_allclose(out["reward"], host["reward"][:SHAPE[0]], rtol=CLIP_RTOL, atol=CLIP_ATOL)
+    np.testing.assert_array_equal(out["status"], host["status"][:SHAPE[0]])
 
 
 def test_scorer_gives_score_batchs_numbers_on_the_agreement_corpus(scorer):

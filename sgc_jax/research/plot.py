@@ -502,11 +502,11 @@ def plot_component_correlation(rows: Any, *, log1p: bool = True) -> "Figure":
 
 def plot_rewards(labels: Sequence[str], outputs: Mapping[str, Any]) -> "Figure":
     """Candidate clips as a Scorer scored them (docs/semantics.md §9.4), best reward on top: the
-    reward, the unclipped score behind it and the camera-motion gate, each clip's status named
+    reward, the unclipped score behind it and the evidence it is scaled by, each clip's status named
     where it is not ``ok``. ``outputs``: the Scorer's dict (arrays (N,), one per label)."""
     plt = import_pyplot()
     reward, unclipped = np.asarray(outputs["reward"], float), np.asarray(outputs["sgc_unclipped"], float)
-    motion, status = np.asarray(outputs["camera_motion"], float), np.asarray(outputs["status"])
+    evidence, status = np.asarray(outputs["evidence"], float), np.asarray(outputs["status"])
     order = np.argsort(-reward, kind="stable")[::-1]  # best at the top of the bars
     y = np.arange(len(order))
     fig, axes = plt.subplots(1, 3, figsize=(11, 0.45 * len(order) + 1.6), sharey=True, constrained_layout=True)
@@ -519,8 +519,8 @@ def plot_rewards(labels: Sequence[str], outputs: Mapping[str, Any]) -> "Figure":
     axes[1].scatter(unclipped[order], y, color="black", zorder=3)
     axes[1].axvline(0.0, color="0.5", linestyle="--", linewidth=1)
     axes[1].set(xlabel="sgc_unclipped (lower is better;\nsgc = 0 left of the dashed line)")
-    axes[2].barh(y, np.minimum(motion[order], 1.0), color="tab:blue")
-    axes[2].set(xlim=(0, 1.05), xlabel="camera-motion gate\nmin(1, m)")
+    axes[2].barh(y, evidence[order], color="tab:blue")
+    axes[2].set(xlim=(0, 1.05), xlabel="evidence (§3.11)\nshare of the geometry measured")
     for ax in axes:
         ax.grid(alpha=0.3, axis="x")
     fig.suptitle("candidates ranked by the Scorer's reward")

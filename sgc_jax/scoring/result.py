@@ -186,11 +186,12 @@ def failed_clip(clip_id: str, message: str, *, engine: str = "", origin: str = "
     return ClipResult(clip_id=clip_id, status="error", reason=message, engine=engine, origin=origin, compat=compat)
 
 
-def _rescored(clip: ClipResult, calibration: Calibration) -> ClipResult:
+def _rescored(clip: ClipResult, calibration: Calibration, evidence_levels: EvidenceLevels | None = None) -> ClipResult:
     if clip.pairs is not None:
         return dataclasses.replace(
             summarize_clip(clip.clip_id, clip.pairs, calibration, group=clip.group, engine=clip.engine,
-                           mask_source=clip.mask_source, origin=clip.origin, compat=clip.compat),
+                           mask_source=clip.mask_source, origin=clip.origin, compat=clip.compat,
+                           evidence_levels=evidence_levels),
             input_sha256=clip.input_sha256)
     if clip.status == "error":
         return clip
@@ -333,14 +334,22 @@ class BatchResult:
     def rewards(self, options: RewardOptions | None = None) -> dict[str, np.ndarray]:
         """The Scorer's reward outputs (docs/semantics.md §9.4) of these clips, (n,) each:
         ``sgc_unclipped``, ``camera_motion``, ``reward`` (float32) and ``status`` (the Scorer's
-        codes, ``sgc_jax.codes.SCORER_STATUSES``), from the stored per-clip values."""
+        codes, ``sgc_jax.codes.SCORER_STATUSES``), from the stored per-clip values; evidence levels
+        other than the tables' defaults are applied to the clips' pairs (as a Scorer would)."""
         if self.calibration is None:
             raise ValueError("rewards need the calibration the clips were scored under (this result has none)")
-        records = self.to_records()
+        options = options or RewardOptions()
+        clips = self.clips
+        if options.evidence != EvidenceLevels():
+            if any(c.pairs is None and c.status != "error" for c in clips):
+                raise ValueError("evidence levels other than the defaults need each clip's pairs (a resumed "
+                                 "run's rows have none)")
+            clips = [_rescored(c, self.calibration, options.evidence) for c in clips]
+        records = BatchResult(clips, self.calibration).to_records()
         column = lambda name: np.array([float(r[name]) for r in records], np.float64)  # noqa: E731
         summary = {k: column(k) for k in (*COMPONENTS, *FLOOR_COLUMNS, "ecd_trans", "ecd_rot", "evidence")}
         summary["status"] = np.array([SCORER_STATUS_CODE[r["status"]] for r in records], np.int32)
-        return reward(summary, self.calibration, options or RewardOptions(), xp=np)
+        return reward(summary, self.calibration, options, xp=np)
 
     def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS)) -> str:
         """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4):
