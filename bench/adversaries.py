@@ -21,7 +21,6 @@ holds the two equal).
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import sys
 import time
@@ -66,16 +65,6 @@ def score_rows(args) -> list[dict]:
                              sgc_hi=c.sgc_hi, evidence=c.evidence, reward=float(rewards["reward"][i]),
                              camera_motion=float(rewards["camera_motion"][i])))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
-    return rows
-
-
-def read_rows(path: str) -> list[dict]:
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        for key in ("severity", "noise_px", "sgc", "sgc_hi", "evidence", "reward", "camera_motion"):
-            r[key] = float(r[key]) if r[key] not in ("", "nan") else float("nan")
-        r["tracks"] = int(r["tracks"])
     return rows
 
 
@@ -135,12 +124,9 @@ def main(argv=None) -> None:
     parser.add_argument("--out", help="write the rows to this CSV")
     parser.add_argument("--rows", help="print the tables from a CSV written with --out")
     args = parser.parse_args(argv)
-    rows = read_rows(args.rows) if args.rows else score_rows(args)
+    rows = protocol.read_rows(args.rows, ("scene", "group", "kind", "status", "reason"), ("tracks",)) if args.rows else score_rows(args)
     if args.out and not args.rows:
-        with open(args.out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        protocol.write_rows(args.out, rows)
     print(f"split {args.split}")
     print_honest(rows)
     print_adversaries(rows, args.noise)

@@ -23,7 +23,6 @@ the whole frame static).
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import sys
 import time
@@ -89,15 +88,6 @@ def score_rows(args) -> list[dict]:
     return rows
 
 
-def read_rows(path: str) -> list[dict]:
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        for key in ("value", "noise_px", "sgc", "evidence", "pose_tracks", "parallax_px", "static_frac"):
-            r[key] = float(r[key]) if r[key] not in ("", "nan") else float("nan")
-    return rows
-
-
 def responses(rows: list[dict]) -> np.ndarray:
     """Each perturbed clip's SGC minus its consistent twin's (NaN counts 0)."""
     clean = {(r["scene"], r["noise_px"]): r["sgc"] for r in rows if r["kind"] == ""}
@@ -132,12 +122,9 @@ def main(argv=None) -> None:
     parser.add_argument("--out", help="write the rows to this CSV")
     parser.add_argument("--rows", help="print the tables from a CSV written with --out")
     args = parser.parse_args(argv)
-    rows = read_rows(args.rows) if args.rows else score_rows(args)
+    rows = protocol.read_rows(args.rows, ("scene", "sweep", "kind", "status")) if args.rows else score_rows(args)
     if args.out and not args.rows:
-        with open(args.out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        protocol.write_rows(args.out, rows)
     print(f"split {args.split}, noise iid-both at {args.levels} px")
     print_sweeps(rows)
 

@@ -22,7 +22,6 @@ with ``--out`` instead of scoring. Prints, for the split:
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import json
 import sys
@@ -56,17 +55,6 @@ def score_rows(args, config: SGCConfig) -> list[dict]:
                              sgc_hi=clip.sgc_hi, **clip.components, **clip.floors))
         print(f"{scene.name}, {tracks} tracks: {len(batch)} clips in {time.perf_counter() - started:.0f} s",
               file=sys.stderr, flush=True)
-    return rows
-
-
-def read_rows(path: str) -> list[dict]:
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        for key, value in r.items():
-            if key not in ("scene", "model", "kind", "status"):
-                r[key] = float(value) if value not in ("", "nan") else float("nan")
-        r["tracks"] = int(r["tracks"])
     return rows
 
 
@@ -145,12 +133,9 @@ def main() -> None:
     parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
-    rows = read_rows(args.rows) if args.rows else score_rows(args, config)
+    rows = protocol.read_rows(args.rows, ("scene", "model", "kind", "status"), ("tracks",)) if args.rows else score_rows(args, config)
     if args.out and not args.rows:
-        with open(args.out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        protocol.write_rows(args.out, rows)
     print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
     print_consistent(rows, args.models, args.levels, args.tracks)
     print_detection(rows, args.models)

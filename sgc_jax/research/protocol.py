@@ -18,13 +18,16 @@ version carry the same tracker errors.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import itertools
+import os
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from ..io.clip import Clip
+from ..io.tables import write_csv
 from .noise import NOISE_MODELS, add_noise
 from .perturb import PERTURBATIONS, perturb_clip
 from .synth import synth_clip
@@ -164,3 +167,22 @@ def interval_coverage(draws: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.
     sgc, lo, hi = (np.array([getattr(c, k) for c in draws]) for k in ("sgc", "sgc_lo", "sgc_hi"))
     median = np.median(sgc)
     return (lo <= median) & (median <= hi), hi - lo, sgc
+
+
+def write_rows(path: str | os.PathLike, rows: Sequence[dict]) -> None:
+    """A benchmark's rows as CSV, columns in the first row's order (NaN as an empty cell)."""
+    write_csv(path, rows, list(rows[0]))
+
+
+def read_rows(path: str | os.PathLike, text: Sequence[str], integers: Sequence[str] = ()) -> list[dict]:
+    """Rows ``write_rows`` wrote: the ``text`` columns as written, ``integers`` as int, the rest float
+    (an empty cell NaN)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for key, value in r.items():
+            if key in integers:
+                r[key] = int(value)
+            elif key not in text:
+                r[key] = float(value) if value not in ("", "nan") else float("nan")
+    return rows
