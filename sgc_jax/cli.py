@@ -264,6 +264,8 @@ def cmd_score(args: argparse.Namespace) -> int:
     for clip in result.clips:
         if clip.status == "error":
             print(f"sgc-jax score: {clip.clip_id} ({clip.origin}): {clip.reason}", file=sys.stderr)
+        elif clip.status == "low_evidence":  # scored, on too little to see an inconsistency (§3.11)
+            print(f"sgc-jax score: {clip.clip_id}: low evidence, {clip.reason}", file=sys.stderr)
     if args.resume:
         print(f"resumed: {stats.resumed} clip(s) kept from {out}, {stats.scored + stats.errors} read and scored",
               file=sys.stderr)
@@ -296,7 +298,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         where = f"in {out_dir}" if args.out else "for this run only (--out DIR keeps them)"
         print(f"synthesised {len(paths)} demo clips {where}", file=sys.stderr)
         result = score_batch(out_dir, engine=args.engine, progress=not args.quiet)
-    print(result.table(("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, "n_pairs_scored")))
+    print(result.table(("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, "n_pairs_scored",
+                        "evidence")))
     print(_summary_line(result), file=sys.stderr)
     print("lower SGC = more consistent (units and calibration: docs/semantics.md §4-5); in this corpus:",
           file=sys.stderr)

@@ -149,9 +149,9 @@ def test_repr_of_many_clips_is_a_short_summary(scored):
 
 def test_the_printed_table_carries_the_scores_interval_and_every_unit(scored):
     head, units, rule, *rows = scored.table().splitlines()
-    assert head.split() == ["clip_id", "group", "status", "sgc", "sgc_lo", "sgc_hi", *COMPONENTS]
+    assert head.split() == ["clip_id", "group", "status", "sgc", "sgc_lo", "sgc_hi", *COMPONENTS, "evidence"]
     assert units.split() == ["lower=better", "90%", "interval", "90%", "interval", "deg²", "(%", "of", "D)²",
-                             "deg²", "(%", "of", "D)²", "%", "of", "depth"]
+                             "deg²", "(%", "of", "D)²", "%", "of", "depth", "0-1"]
     first = scored.clips[0]
     assert math.isfinite(first.sgc_lo) and first.sgc_lo <= first.sgc_hi
     assert f"{first.sgc_lo:.4g}" in rows[0] and f"{first.sgc_hi:.4g}" in rows[0]

@@ -351,9 +351,10 @@ class BatchResult:
         summary["status"] = np.array([SCORER_STATUS_CODE[r["status"]] for r in records], np.int32)
         return reward(summary, self.calibration, options, xp=np)
 
-    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS)) -> str:
+    def table(self, columns: Sequence[str] = ("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS,
+                                              "evidence")) -> str:
         """A plain-text table for terminals, with a row of units under the header (docs/semantics.md §4):
-        the score, its 90 % interval over tracker noise (§5.6) and the components."""
+        the score, its 90 % interval over tracker noise (§5.6), the components and the evidence (§3.11)."""
         compats = {c.compat for c in self.clips if c.compat}
         units = COLUMN_UNITS[compats.pop()] if len(compats) == 1 else None
         return format_table(self.to_records(), columns, units)
