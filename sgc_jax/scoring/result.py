@@ -143,6 +143,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     sgc = float(sgc_score(components, calibration, floors=floors))
     sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration, pair_floors=per_pair))
     levels = evidence_levels or EvidenceLevels()
+    tracks = pose_tracks(pairs.region_status, pairs.region_points)
     per_pair_evidence = evidence_of_pairs(pairs, levels)
     evidence = float(clip_evidence(per_pair_evidence, np.ones(pairs.n_pairs, bool)))
     sgc_hi = float(upper_with_unseen(sgc, sgc_hi, evidence))
@@ -152,8 +153,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
     if math.isnan(sgc):
         status, reason = "error", f"no pair could be scored ({problems})" if problems else "no pair could be scored"
     elif evidence < LOW_EVIDENCE:
-        thin = shortfall(pose_tracks(pairs.region_status, pairs.region_points), pairs.t_g_norm, pairs.R_g_angle_deg,
-                         pairs.static_frac, pairs.reason == "ok", levels)
+        thin = shortfall(tracks, pairs.t_g_norm, pairs.R_g_angle_deg, pairs.static_frac, pairs.reason == "ok", levels)
         status, reason = "low_evidence", f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(
             part for part in (problems, thin) if part)
     elif scored < pairs.n_pairs:
@@ -166,7 +166,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         floors=floors, sgc_floor=float(floor_score(floors, calibration)),
         reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
         ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored, evidence=evidence,
-        pose_tracks=float(np.mean(pose_tracks(pairs.region_status, pairs.region_points))) if pairs.n_pairs else np.nan,
+        pose_tracks=float(np.mean(tracks)) if pairs.n_pairs else np.nan,
         parallax_px=_nanmean(pairs.parallax_px), static_frac=_nanmean(pairs.static_frac),
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
         n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs,
