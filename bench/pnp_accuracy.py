@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine.pose_stage import ransac_options
+from sgc_jax.engines.jax_engine.stages import PoseStage
 from sgc_jax.kernels.ransac import ransac_pnp, ransac_pnp_regions
 
 W, H = 512, 288
@@ -76,7 +76,7 @@ def options(args, min_inlier_frac: float):
     """The engine's RANSAC options with this run's hypotheses, threshold and steps."""
     config = SGCConfig(ransac_hypotheses=args.hypotheses, inlier_px=args.inlier_px, lm_steps=args.steps,
                        min_inlier_frac=min_inlier_frac)
-    return ransac_options(config)
+    return PoseStage.of(config).ransac
 
 
 def run_jax(problems, K, args):

@@ -16,8 +16,7 @@ import numpy as np
 
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines.jax_engine.buckets import Bucket, PaddedClips
-from sgc_jax.engines.jax_engine.stages import STAGES, program_values, stage_config, stage_inputs
-from sgc_jax.engines.jax_engine.trace import stage_program
+from sgc_jax.engines.jax_engine.stages import stages_of
 
 
 def count_equations(jaxpr) -> int:
@@ -44,16 +43,15 @@ def main() -> None:
     config = SGCConfig()
     key = jax.random.PRNGKey(config.seed)
     batch, previous, total = zero_batch(bucket), None, 0
-    values = program_values(config)
-    for stage in STAGES:
-        inputs = stage_inputs(stage, batch, previous)
-        run = lambda x, stage=stage: stage_program(x, key, values, stage, stage_config(config, stage))  # noqa: E731
+    for stage in stages_of(config):
+        inputs = stage.inputs(batch, previous)
+        run = lambda x, stage=stage: stage(x, key)  # noqa: E731
         start = time.perf_counter()
         closed = jax.make_jaxpr(run)(inputs)
         traced_s = time.perf_counter() - start
         previous = jax.eval_shape(run, inputs)
         total += count_equations(closed)
-        print(f"bucket {bucket}, {stage} stage: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
+        print(f"bucket {bucket}, {stage.name} stage: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
     print(f"bucket {bucket}: {total} jaxpr equations in all")
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine.pose_stage import ransac_options
+from sgc_jax.engines.jax_engine.stages import PoseStage
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
 from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT
@@ -97,7 +97,7 @@ def uncertainty_table(draws: int) -> str:
     K = np.array([[300.0, 0.0, 200.0], [0.0, 300.0, 150.0], [0.0, 0.0, 1.0]], np.float32)
     R = np.asarray(so3_exp(jnp.array([0.01, 0.02, -0.005])), np.float64)
     t = np.array([0.1, -0.05, 0.05])
-    fit = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=ransac_options(SGCConfig())),
+    fit = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=PoseStage.of(SGCConfig()).ransac),
                            in_axes=(None, 0, None, None, 0)))
     rows = ["| region | points | noise px | predicted rot std deg | measured RMS deg | ratio | ambiguous |",
             "|---|---|---|---|---|---|---|"]

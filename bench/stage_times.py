@@ -36,32 +36,31 @@ def main() -> None:
     from sgc_jax import SGCConfig, enable_compilation_cache
     from sgc_jax.engines.jax_engine.buckets import PaddedClips
     from sgc_jax.engines.jax_engine.dispatch import prepare_clip
-    from sgc_jax.engines.jax_engine.programs import compiled_program
-    from sgc_jax.engines.jax_engine.stages import STAGES, program_values, stage_inputs
+    from sgc_jax.engines.jax_engine.programs import pipeline, split
     from sgc_jax.io.loading import load_clips
 
     enable_compilation_cache()
     config = SGCConfig()
     prepared = [prepare_clip(clip, config) for clip in load_clips(write_corpus(args.corpus, args.clips))]
-    key, values = jax.random.PRNGKey(0), program_values(config)
-    times: dict[str, list[float]] = {stage: [] for stage in STAGES}
-    cpu: dict[str, list[float]] = {stage: [] for stage in STAGES}  # process CPU time: all threads
+    names = ("pixel", "pose", "finish")
+    times: dict[str, list[float]] = {name: [] for name in names}
+    cpu: dict[str, list[float]] = {name: [] for name in names}  # process CPU time: all threads
     for round_ in range(args.repeat):
         for i, clip in enumerate(prepared):
-            program = compiled_program(config, clip.bucket, clip.batch)
+            score = pipeline(config, clip.bucket, clip.batch)
             batch = PaddedClips(*jax.device_put(tuple(clip.batch)))
             out = None
-            for stage, stage_program in zip(STAGES, program.stages):
+            for stage, program in zip(score.stages, score.programs):
                 start, start_cpu = time.perf_counter(), time.process_time()
-                out = jax.block_until_ready(stage_program(stage_inputs(stage, batch, out), key, values))
+                out = jax.block_until_ready(program(stage.inputs(batch, out), score.key, split(stage)[0]))
                 if round_ or i:
-                    times[stage].append(time.perf_counter() - start)
-                    cpu[stage].append(time.process_time() - start_cpu)
+                    times[stage.name].append(time.perf_counter() - start)
+                    cpu[stage.name].append(time.process_time() - start_cpu)
     medians = {stage: statistics.median(t) * 1000 for stage, t in times.items()}
     cpu_medians = {stage: statistics.median(t) * 1000 for stage, t in cpu.items()}
     print(f"{Path(sgc_jax.__file__).parent.parent}: "
           + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in medians.items())
-          + f"; a clip {sum(medians.values()):.0f} ms ({len(times[STAGES[0]])} warm calls per stage)")
+          + f"; a clip {sum(medians.values()):.0f} ms ({len(times['pixel'])} warm calls per stage)")
     print("  CPU time (all threads): " + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in cpu_medians.items())
           + f"; a clip {sum(cpu_medians.values()):.0f} ms")
 

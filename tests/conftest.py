@@ -1,6 +1,7 @@
 """Shared fixtures: small synthetic scenes reused across test files (built once per session)."""
 
 import atexit
+import dataclasses
 import gc
 import os
 import shutil
@@ -24,7 +25,7 @@ if "SGC_JAX_COMPILATION_CACHE" not in os.environ:
 from scenes import SCENE  # noqa: E402
 
 from sgc_jax import enable_compilation_cache  # noqa: E402
-from sgc_jax.config import STATIC_FIELDS, SGCConfig  # noqa: E402
+from sgc_jax.config import SGCConfig  # noqa: E402
 from sgc_jax.research.synth import synth_clip  # noqa: E402
 
 enable_compilation_cache()
@@ -100,16 +101,22 @@ def release_compiled_programs_when_mappings_run_high():
 _COMPILES_BY_MODULE: dict[str, list[tuple[str, dict, float]]] = {}
 
 
+def _altered_fields(stage) -> dict:
+    """A compiled stage's static fields that differ from the default config's."""
+    from sgc_jax.engines.jax_engine.programs import split
+
+    default = split(type(stage).of(SGCConfig(), stage.vectorized))[1]
+    return {f.name: getattr(stage, f.name) for f in dataclasses.fields(stage)
+            if getattr(stage, f.name) != getattr(default, f.name)}
+
+
 @pytest.fixture(scope="module", autouse=True)
 def record_compiles(request):
     from sgc_jax.engines.jax_engine.programs import compile_log
 
     before = len(compile_log())
     yield
-    defaults = SGCConfig()
-    new = [(str(key), {f: getattr(key.static, f) for f in STATIC_FIELDS
-                       if getattr(key.static, f) != getattr(defaults, f)}, seconds)
-           for key, seconds in compile_log()[before:]]
+    new = [(str(key), _altered_fields(key.stage), seconds) for key, seconds in compile_log()[before:]]
     if new:
         _COMPILES_BY_MODULE[request.module.__name__] = new
 

@@ -30,6 +30,14 @@ def assert_same_pairs(padded, as_is):
 # which shares the finish stage's program (keyed on T, H, W) with the clip's own bucket.
 SMALL_NOISY = dict(n_layers=2, static_spheres=4, height=100, width=120, n_tracks=1000, n_frames=3, noise_px=1.0,
                    outlier_frac=0.3)
+# Each static field (docs/semantics.md §2) altered, and the stages whose programs it shapes.
+ALTERED_STATIC = {"k_seg": 8, "ransac_hypotheses": 50, "kmeans_bins": 32, "lm_steps": 5, "partition": "grid",
+                  "region_frame": "previous", "compat": "authors", "global_pose": False, "align_scale": False,
+                  "borrow_region_poses": False}
+READ_BY = {"k_seg": ("pixel", "pose", "finish"), "ransac_hypotheses": ("pose",), "kmeans_bins": ("pixel",),
+           "lm_steps": ("pose",), "partition": ("pixel",), "region_frame": ("pixel",),
+           "compat": ("pixel", "pose", "finish"), "global_pose": ("pose", "finish"), "align_scale": ("pose",),
+           "borrow_region_poses": ("pose",)}
 LARGER = {"frames": buckets.Bucket(T=8, H=128, W=128, P=1024),
           "tracks_and_columns": buckets.Bucket(T=4, H=128, W=192, P=2048),
           "tracks": buckets.Bucket(T=4, H=128, W=128, P=2048)}
@@ -46,7 +54,7 @@ def test_padding_to_a_larger_bucket_does_not_change_the_score(larger, monkeypatc
     [padded] = dispatch.score_pairs_batch([clip], config)
     assert_same_pairs(padded, as_is)
     if larger == "tracks":
-        assert "finish" not in [key.stage for key, _ in programs.compile_log()[before:]]
+        assert "finish" not in [key.name for key, _ in programs.compile_log()[before:]]
 
 
 def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatch, capsys):
@@ -59,25 +67,34 @@ def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatc
     monkeypatch.setattr(dispatch, "bucket_for", lambda clip: taller)
     capsys.readouterr()
     [padded] = dispatch.score_pairs_batch([noisy_clip], config)
-    assert [key.stage for key, _ in programs.compile_log()[before:]] == ["pixel", "finish"]
+    assert [key.name for key, _ in programs.compile_log()[before:]] == ["pixel", "finish"]
     # a bucket no other test uses: its compile is announced on stderr, once, naming the bucket and stages
     assert capsys.readouterr().err.count(f"compiling the JAX program for clips of up to {taller.T} frames, "
                                          f"{taller.H}x{taller.W} px, {taller.P} tracks per pair (pixel, finish;") == 1
     assert_same_pairs(padded, as_is)
 
 
-def test_each_stage_reads_only_the_static_fields_its_program_is_keyed_on():
+def program_keys(config: SGCConfig, bucket) -> dict:
+    return {stage.name: programs.ProgramKey(programs.split(stage)[1], stage.sizes(bucket))
+            for stage in stages.stages_of(config)}
+
+
+@pytest.mark.parametrize("field, value", [(f, v) for f, v in ALTERED_STATIC.items()])
+def test_a_static_field_keys_the_programs_of_the_stages_that_read_it_and_no_other(field, value):
     bucket = buckets.Bucket(T=4, H=128, W=192, P=2048)
-    assert set().union(*stages.STAGE_FIELDS.values()) == set(STATIC_FIELDS)
-    finish = stages.ProgramConfig(SGCConfig(), {}, "finish")
-    assert finish.compat == "spec" and finish.scale_free
-    with pytest.raises(AttributeError, match="ransac_hypotheses"):
-        finish.ransac_hypotheses
-    # configs that differ in another stage's field share the stage's program
-    assert (stages.stage_key(SGCConfig(partition="grid"), "pose", bucket)
-            == stages.stage_key(SGCConfig(), "pose", bucket))
-    assert (stages.stage_key(SGCConfig(quality_rule=False), "pixel", bucket)
-            == stages.stage_key(SGCConfig(), "pixel", bucket))
+    default, altered = program_keys(SGCConfig(), bucket), program_keys(SGCConfig(**{field: value}), bucket)
+    assert {name for name in default if default[name] != altered[name]} == set(READ_BY[field])
+
+
+def test_every_static_field_names_the_stages_it_shapes():
+    assert set(ALTERED_STATIC) == set(READ_BY) == set(STATIC_FIELDS)
+
+
+def test_value_fields_key_no_program():
+    bucket = buckets.Bucket(T=4, H=128, W=192, P=2048)
+    values = {"inlier_px": 4.0, "min_region_pixels": 50, "quality_rule": False, "tracks_per_layer": 0,
+              "max_rot_std_deg": 2.0, "seed": 3}
+    assert program_keys(SGCConfig(**values), bucket) == program_keys(SGCConfig(), bucket)
 
 
 def test_one_program_per_bucket_and_program_shaping_options(rigid_clip, drift_clip, moving_clip):

@@ -14,7 +14,7 @@ import pytest
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
-from sgc_jax.engines.jax_engine.pose_stage import ransac_options
+from sgc_jax.engines.jax_engine.stages import PoseStage
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
 from sgc_jax.kernels.local_optimum import borrow_region_poses
 from sgc_jax.kernels.pnp import initial_pose, reprojection_residuals, solve_pnp
@@ -35,7 +35,7 @@ EXACT_ROT_DEG = 1e-2
 EXACT_T_REL = 1e-3
 NOISY_ROT_DEG = 0.2
 
-OPTIONS = ransac_options(SGCConfig())  # the engine's defaults: 100 hypotheses, 8 px, 30% inliers
+OPTIONS = PoseStage.of(SGCConfig()).ransac  # the engine's defaults: 100 hypotheses, 8 px, 30% inliers
 
 solve_batch = jax.jit(jax.vmap(lambda X, uv, w, K: solve_pnp(X, uv, w, K, steps=10), in_axes=(0, 0, 0, None)))
 init_batch = jax.jit(jax.vmap(initial_pose, in_axes=(0, 0, 0, None)))

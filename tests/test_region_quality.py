@@ -19,21 +19,21 @@ from scenes import SPARSE_SCENE
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
 from sgc_jax.engines import reference
-from sgc_jax.engines.jax_engine.pose_stage import quality_rule, ransac_options
+from sgc_jax.engines.jax_engine.stages import PoseStage
 from sgc_jax.io.tables import PAIR_COLUMNS
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
 from sgc_jax.kernels.uncertainty import PoseUncertainty, region_quality, rot_std_limit_deg
 from sgc_jax.research.synth import synth_clip
 
-RULE = quality_rule(SGCConfig())  # the defaults: 10 inliers, 1 deg or 4 px, 2% of the diagonal, 1 px
+RULE = PoseStage.of(SGCConfig()).quality  # the defaults: 10 inliers, 1 deg or 4 px, 2% of the diagonal, 1 px
 
 K = np.array([[300.0, 0.0, 200.0], [0.0, 300.0, 150.0], [0.0, 0.0, 1.0]], np.float32)
 R_TRUE = np.asarray(so3_exp(jnp.array([0.01, 0.02, -0.005])), np.float64)  # 1.3 deg
 T_TRUE = np.array([0.1, -0.05, 0.05])
 DRAWS = 64
 
-fit_draws = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=ransac_options(SGCConfig())),
+fit_draws = jax.jit(jax.vmap(functools.partial(ransac_pnp, options=PoseStage.of(SGCConfig()).ransac),
                              in_axes=(None, 0, None, None, 0)))
 
 

@@ -1,6 +1,6 @@
-"""The frozen options of a pair's pose search (RANSAC, local optima, the rival pose): the engine
-builds them from ``SGCConfig`` (docs/semantics.md §2, §7.1). Static fields shape the program;
-the others are values, traced where the caller traces them."""
+"""The frozen options of a pair's pose search (RANSAC, local optima, the rival pose) and of the
+region-quality rule: the engine builds them from ``SGCConfig`` (docs/semantics.md §2, §7.1).
+Static fields shape the program; the others are values, traced where the caller traces them."""
 
 from __future__ import annotations
 
@@ -25,3 +25,13 @@ class RansacOptions(eqx.Module):
     fit_points: int = eqx.field(static=True, default=128)  # scored members that fit uses, at most
     lo_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps of that fit
     max_rounds: int = eqx.field(static=True, default=5)  # least-squares fits per local optimum, at most
+
+
+class QualityRule(eqx.Module):
+    """The region-quality rule's thresholds (``SGCConfig`` fields of the same names)."""
+
+    min_region_points: int  # inliers an accepted pose needs
+    max_rot_std_deg: float  # largest rotation uncertainty [deg] ...
+    max_rot_std_px: float  # ... or the angle this many pixels subtend at the focal length, when larger
+    min_region_extent: float  # smallest RMS radius of the inliers, fraction of the image diagonal
+    quality_noise_px: float  # the residual sigma behind the uncertainty is capped here [px]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -20,6 +19,7 @@ from ..config import BLOCKS_PER_AXIS
 from .fence import materialise
 from .linalg import solve_spd
 from .pnp import point_columns, pointwise_residuals
+from .ransac_options import QualityRule
 from .regions import HIGHEST, block_normals, region_onehot
 from .so3 import so3_exp
 
@@ -121,16 +121,6 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     return PoseUncertainty(rot_std_deg=jnp.degrees(root(rot_var)), trans_std=root(trans_var),
                            extent_px=root(spread), sigma_px=root(sigma_sq),
                            rot_noise_deg=jnp.degrees(root(rot_noise)), trans_noise=root(trans_noise))
-
-
-class QualityRule(eqx.Module):
-    """The region-quality rule's thresholds (``SGCConfig`` fields of the same names)."""
-
-    min_region_points: int  # inliers an accepted pose needs
-    max_rot_std_deg: float  # largest rotation uncertainty [deg] ...
-    max_rot_std_px: float  # ... or the angle this many pixels subtend at the focal length, when larger
-    min_region_extent: float  # smallest RMS radius of the inliers, fraction of the image diagonal
-    quality_noise_px: float  # the residual sigma behind the uncertainty is capped here [px]
 
 
 def rule_rot_std_deg(uncertainty: PoseUncertainty, quality_noise_px):

@@ -19,9 +19,8 @@ from ..engines.jax_engine.clip_summary import summarize_on_device
 from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
-from ..engines.jax_engine.programs import sharded_program, spread_stage
+from ..engines.jax_engine.programs import pipeline, traced_pipeline
 from ..engines.jax_engine.smooth_stage import check_differentiable, frozen_choices, smooth_stage
-from ..engines.jax_engine.stages import STAGES, program_values, stage_inputs, stage_key
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
 from ..stats import camera_dynamics
@@ -107,8 +106,6 @@ class Scorer:
         if self.differentiable:
             check_differentiable(config)
         self.bucket = bucket_for_shape(T, H, W, min(P, config.max_tracks))
-        self._key = jax.random.PRNGKey(config.seed)
-        self._values = program_values(config)
         # where the batch runs (docs/semantics.md §9.3): an accelerator's clips in one vectorized
         # program sharded over the local devices; on CPU one clip after another, the batch split
         # into lanes that run at once in threads (one program keeps ~1.5 of 2 cores busy)
@@ -135,7 +132,7 @@ class Scorer:
     # ------------------------------------------------------------------ programs
 
     def _traceable_programs(self) -> dict:
-        """Each step as a jitted function: prepare, the three stages (each device runs them on its
+        """Each step as a jitted function: prepare, the stages' pipeline (each device runs it on its
         share of the clips, as ``score_batch``'s groups do), summarize."""
         bucket, config, mesh = self.bucket, self.config, self._mesh
         steps = {"prepare": lambda clips: prepare_on_device(clips, bucket, config), "summarize": self._summarize}
@@ -147,8 +144,7 @@ class Scorer:
             steps = {name: jax.jit(jax.shard_map(step, mesh=mesh, in_specs=in_specs[name], out_specs=clips,
                                                  check_vma=False))
                      for name, step in steps.items()}
-        for stage in STAGES:
-            steps[stage] = spread_stage(stage_key(config, stage, bucket, self.vectorized), mesh)
+        steps["stages"] = traced_pipeline(config, bucket, self.devices, self.vectorized)
         if self.differentiable:
             steps["smooth"] = jax.jit(lambda clips, frozen: smooth_stage(clips, frozen, bucket, config,
                                                                          self.calibration))
@@ -160,7 +156,7 @@ class Scorer:
         return {**summary, **reward(summary, self.calibration, self.reward_options)}
 
     def _compile(self) -> dict:
-        """Each step compiled for one call's clips; the stages are ``score_batch``'s programs for
+        """Each step compiled for one call's clips; the stages are ``score_batch``'s pipeline for
         groups of this size (shared with it in this process)."""
         B, T, H, W, P = self.shape
         n = len(self.devices)
@@ -170,13 +166,13 @@ class Scorer:
         with CompileNotice(what, "prepare", loading=False, hint=cache_hint()):
             prepare = self._traced["prepare"].lower(self._example()).compile()
         padded = PaddedClips(*prepare.out_info)
-        program, _ = sharded_program(self.config, self.bucket, self.devices, padded, self.vectorized)
-        out = program.stages[-1].out_info
+        stages = pipeline(self.config, self.bucket, padded, self.devices, self.vectorized)
+        out = stages.programs[-1].out_info
         summarize = self._traced["summarize"].lower(out, *summary_inputs(padded)).compile()  # small
-        compiled = {"prepare": prepare, **dict(zip(STAGES, program.stages)), "summarize": summarize}
+        compiled = {"prepare": prepare, "stages": stages, "summarize": summarize}
         if self.differentiable:
             with CompileNotice(what, "differentiable score", loading=False, hint=cache_hint()):
-                frozen = jax.eval_shape(frozen_choices, *(stage.out_info for stage in program.stages),
+                frozen = jax.eval_shape(frozen_choices, *(program.out_info for program in stages.programs),
                                         padded.pair_valid, summarize.out_info)
                 compiled["smooth"] = self._traced["smooth"].lower(self._example(), frozen).compile()
         return compiled
@@ -286,11 +282,7 @@ class Scorer:
     def _stages(self, programs: dict, clips: ClipArrays) -> tuple:
         """(the padded clips, the three stages' outputs)."""
         padded = programs["prepare"](clips)
-        outs, out = [], None
-        for stage in STAGES:
-            out = programs[stage](stage_inputs(stage, padded, out), self._key, self._values)
-            outs.append(out)
-        return padded, outs
+        return padded, programs["stages"].outputs(padded)
 
     def _run(self, programs: dict, clips: ClipArrays, live: ClipArrays | None = None) -> dict:
         """The steps on one call's clips; with ``live`` (the differentiable form: the same clips

@@ -16,8 +16,7 @@ from ..evidence import parallax_px
 from ..pairs import PairArrays
 from ..units import in_depth_units
 from .buckets import Bucket, PaddedClips, bucket_for, pad_clip
-from .programs import compiled_program, sharded_program
-from .stages import program_values
+from .programs import pipeline
 
 COMPONENT_OUTPUTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error",
                      "reproj_error", "t_g_norm", "R_g_angle_deg")
@@ -53,8 +52,9 @@ class Dispatched(NamedTuple):
 def dispatch(prepared: PreparedClip, config: SGCConfig) -> Dispatched:
     """Start scoring a prepared clip on the default device; returns without waiting (a bucket's
     first clip compiles its program first)."""
-    program = compiled_program(config, prepared.bucket, prepared.batch)
-    return Dispatched([prepared], program(prepared.batch, jax.random.PRNGKey(config.seed), program_values(config)))
+    score = pipeline(config, prepared.bucket, prepared.batch)
+    batch = PaddedClips(*jax.device_put(tuple(prepared.batch)))  # once, not per stage
+    return Dispatched([prepared], score(batch))
 
 
 def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, size: int,
@@ -64,9 +64,8 @@ def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, 
     §9.3); a short group is filled with copies of its last clip, which ``collect`` leaves out."""
     fill = [group[-1].batch] * (size - len(group))
     stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
-    program, sharding = sharded_program(config, group[0].bucket, devices, stacked, vectorized)
-    batch = PaddedClips(*jax.device_put(tuple(stacked), sharding))
-    return Dispatched(group, program(batch, jax.random.PRNGKey(config.seed), program_values(config)))
+    score = pipeline(config, group[0].bucket, stacked, devices, vectorized)
+    return Dispatched(group, score(PaddedClips(*jax.device_put(tuple(stacked), score.sharding))))
 
 
 def pair_arrays(out: dict, b: int, prepared: PreparedClip, scale: float, config: SGCConfig) -> PairArrays:

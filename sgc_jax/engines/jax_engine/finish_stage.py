@@ -9,47 +9,46 @@ import jax
 import jax.numpy as jnp
 
 from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
-from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
 from ...kernels.warp import depth_error, warp_depth
-from ..units import PERCENT, translation_factor
+from ..units import translation_factor
 from .pixel_stage import pairs_flat
 from .pose_stage import LocalPoses
-from .stages import POSE_PER_TRACK, each
+from .stages import POSE_PER_TRACK, FinishStage, each
 
 
 def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
-                      config: SGCConfig):
+                      stage: FinishStage):
     """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
     (AbsRel in %), under authors every valid one (depth units). One pair at a time on CPU, for the
     unbatched z-buffer scatter."""
-    authors = config.compat == "authors"
+    authors = stage.compat == "authors"
 
     def one(pair):
         depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
         source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
         warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors,
                                  mask_holes=not authors)
-        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=config.scale_free)[0]
+        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
 
-    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g), config)
-    return errors * (PERCENT if config.scale_free else 1.0)
+    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g), stage.vectorized)
+    return errors * translation_factor(stage)
 
 
-def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig) -> dict:
+def pair_components(poses: LocalPoses, R_g, t_g, err, stage: FinishStage) -> dict:
     """One pair's pose variances, diagnostics and reason code; ``err`` its depth error."""
     accepted = poses.region_status == REGION_OK
-    comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=config.compat)
-    f2 = translation_factor(config) ** 2
-    if not config.global_pose:  # the mean local pose is no independent reference
+    comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, compat=stage.compat)
+    f2 = translation_factor(stage) ** 2
+    if not stage.global_pose:  # the mean local pose is no independent reference
         comps["global_rot_var"] = comps["global_trans_var"] = jnp.float32(jnp.nan)
     n_poses = jnp.sum(accepted)
     excluded = jnp.any(poses.region_status[..., None] == jnp.asarray(EXCLUDED_STATUSES, poses.region_status.dtype),
                        axis=-1)
     n_excluded = jnp.sum(excluded)
     reproj = jnp.sum(jnp.where(accepted, poses.region_reproj, 0.0)) / jnp.maximum(n_poses, 1)
-    one_pose = (n_poses == 1) & (config.compat != "authors")
+    one_pose = (n_poses == 1) & (stage.compat != "authors")
     reason = jnp.select(
         [poses.n_tracks < 4, poses.region_pixels == 0, poses.n_regions == 0, (n_poses == 0) & (n_excluded > 0),
          n_poses == 0, one_pose, jnp.isnan(err)],
@@ -65,20 +64,20 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, config: SGCConfig) -> dict
         reason=reason.astype(jnp.int32))
 
 
-def finish_stage(pose: dict, depth, static, K, config: SGCConfig) -> dict:
+def finish_stage(pose: dict, depth, static, K, stage: FinishStage) -> dict:
     """The pose stage's per-region output and the clips' depth (B, T, H, W), masks and K -> per-clip,
     per-pair and per-region arrays (leading axes B, T-1)."""
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     regions = {name: pose[name] for name in LocalPoses._fields if name not in POSE_PER_TRACK}
-    poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # stage_inputs keeps the per-track fields back
+    poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # FinishStage.inputs keeps the per-track fields back
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
     err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
                                    flat(static[:, 1:]), flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
-                                   flat(t_g_scaled), config))
-    comps = jax.vmap(jax.vmap(functools.partial(pair_components, config=config)))(poses, R_g, t_g_scaled, err)
+                                   flat(t_g_scaled), stage))
+    comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
-    t_g_ecd = t_g_scaled if config.scale_free else t_g
-    comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(config)
+    t_g_ecd = t_g_scaled if stage.scale_free else t_g
+    comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(stage)
     return dict(comps, **regions, scale=scale)

@@ -7,46 +7,45 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ...config import SGCConfig
 from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_regions, region_of_depth
-from .stages import PixelInputs, each
+from .stages import PixelInputs, PixelStage, each
 
 
-def layer_count(tracks_on_mask, config: SGCConfig):
+def layer_count(tracks_on_mask, stage: PixelStage):
     """Depth layers (F,) int32 of frames whose backgrounds hold ``tracks_on_mask`` (F,) of their
     pairs' tracks: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0 or under
     compat="authors"."""
-    if config.compat == "authors":
-        return jnp.full(tracks_on_mask.shape, config.k_seg, jnp.int32)
-    per_layer = config.tracks_per_layer
-    return jnp.where(per_layer > 0, jnp.clip(tracks_on_mask // jnp.maximum(per_layer, 1), 1, config.k_seg),
-                     config.k_seg).astype(jnp.int32)
+    if stage.compat == "authors":
+        return jnp.full(tracks_on_mask.shape, stage.k_seg, jnp.int32)
+    per_layer = stage.tracks_per_layer
+    return jnp.where(per_layer > 0, jnp.clip(tracks_on_mask // jnp.maximum(per_layer, 1), 1, stage.k_seg),
+                     stage.k_seg).astype(jnp.int32)
 
 
-def frame_regions(depth, static, points, counted, image_hw, config: SGCConfig):
+def frame_regions(depth, static, points, counted, image_hw, stage: PixelStage):
     """Frames (F, H, W), their pairs' points in them (F, P, 2), the points that count towards the
     layer count (F, P) and true sizes (F, 2) -> (region at each point's floor pixel (F, P) int32,
     0 = none or outside; N_s (F,); |S| (F,))."""
-    region_mask = static if config.compat == "authors" else static & (depth > 0)
+    region_mask = static if stage.compat == "authors" else static & (depth > 0)
     H_pad, W_pad = depth.shape[1:]
     col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
     inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
     pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
     at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
-    regions = dict(k=config.k_seg, min_region_pixels=config.min_region_pixels)
-    if config.partition == "depth":  # the points labelled from each bin's region, never whole label maps
+    regions = dict(k=stage.k_seg, min_region_pixels=stage.min_region_pixels)
+    if stage.partition == "depth":  # the points labelled from each bin's region, never whole label maps
         on_mask = inside & at_points(region_mask, pixel)
-        layers = layer_count(jnp.sum(counted & on_mask, axis=1), config)
-        partition = depth_partition(depth, region_mask, bins=config.kmeans_bins, **regions, layers=layers,
-                                    frames_at_once=config.vectorized)
+        layers = layer_count(jnp.sum(counted & on_mask, axis=1), stage)
+        partition = depth_partition(depth, region_mask, bins=stage.kmeans_bins, **regions, layers=layers,
+                                    frames_at_once=stage.vectorized)
         labels = jax.vmap(region_of_depth)(partition, at_points(depth, pixel), at_points(region_mask, pixel))
         n_regions = partition.n_regions
     else:  # frame by frame on CPU: unbatched scatters run several times faster there
-        if config.partition == "grid":
+        if stage.partition == "grid":
             label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
         else:
-            label_frame = lambda frame: depth_spatial_regions(*frame, bins=config.kmeans_bins, **regions)  # noqa: E731
-        labels, n_regions = each(label_frame, (depth, region_mask), config)
+            label_frame = lambda frame: depth_spatial_regions(*frame, bins=stage.kmeans_bins, **regions)  # noqa: E731
+        labels, n_regions = each(label_frame, (depth, region_mask), stage.vectorized)
         labels = at_points(labels, pixel)
     return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
@@ -66,17 +65,17 @@ def pairs_flat(B, T):
             lambda x: x.reshape((B, T - 1) + x.shape[1:]))
 
 
-def pixel_stage(x: PixelInputs, config: SGCConfig) -> dict:
+def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
     """Clips (leading axis B) -> track_labels (B, T-1, P), n_regions, region_pixels (B, T-1) and
     Z_prev (B, T-1, P), frame by frame over the B (T-1) frames."""
     B, T = x.depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
-    frames, points = (slice(None, -1), x.track_prev) if config.reads_previous_frame else (slice(1, None), x.track_curr)
+    frames, points = (slice(None, -1), x.track_prev) if stage.reads_previous_frame else (slice(1, None), x.track_curr)
     Z_prev = jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw)
     counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
     labels, n_regions, region_pixels = map(unflat, frame_regions(
-        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), counted, image_hw, config))
+        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), counted, image_hw, stage))
     Z_prev = unflat(Z_prev)
     return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

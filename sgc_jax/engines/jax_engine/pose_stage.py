@@ -10,15 +10,14 @@ import jax
 import jax.numpy as jnp
 
 from ...codes import REGION_EMPTY, REGION_OK
-from ...config import NOISE_BLOCK_FRAC, SGCConfig
+from ...config import NOISE_BLOCK_FRAC
 from ...kernels.camera import back_project
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
-from ...kernels.ransac_options import RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
 from ...kernels.so3 import nearest_rotation
-from ...kernels.uncertainty import QualityRule, region_quality
-from .stages import PoseInputs, each
+from ...kernels.uncertainty import region_quality
+from .stages import PoseInputs, PoseStage, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
 # is done, and fewer than ~4 pay more per-op overhead than they save (bench/RESULTS.md).
@@ -60,58 +59,44 @@ class PairInputs(NamedTuple):
     global_t: jax.Array | None  # (3,) s t_g in units of D; None without a global pose
 
 
-def ransac_options(config: SGCConfig) -> RansacOptions:
-    return RansacOptions(inlier_px=config.inlier_px, min_inlier_frac=config.min_inlier_frac,
-                         min_points=config.min_points, confidence=config.confidence,
-                         ambiguous_rot_deg=config.ambiguous_rot_deg, ambiguous_inlier_frac=config.ambiguous_inlier_frac,
-                         hypotheses=config.ransac_hypotheses, lm_steps=config.lm_steps,
-                         borrow=config.borrow_region_poses)
-
-
-def quality_rule(config: SGCConfig) -> QualityRule:
-    return QualityRule(min_region_points=config.min_region_points, max_rot_std_deg=config.max_rot_std_deg,
-                       max_rot_std_px=config.max_rot_std_px, min_region_extent=config.min_region_extent,
-                       quality_noise_px=config.quality_noise_px)
-
-
 def points_prev(Z, K_prev, track_prev, usable):
     """Tracks (P, 2) of frame i-1 back-projected at their pixel's depth Z (P,) -> (X (P, 3) in
     camera i-1, usable with depth > 0 (P,))."""
     return back_project(K_prev, track_prev, Z), usable & (Z > 0)
 
 
-def local_poses_pair(pair: PairInputs, image_hw, config: SGCConfig) -> LocalPoses:
+def local_poses_pair(pair: PairInputs, image_hw, stage: PoseStage) -> LocalPoses:
     """One pair's local poses, then the region-quality rule where the config applies it."""
     H, W = image_hw[0], image_hw[1]
     X, has_depth = points_prev(pair.Z_prev, pair.K_prev, pair.track_prev, pair.usable)
     n_tracks = jnp.sum(pair.usable)
     enough_tracks = n_tracks >= 4
-    regions = jnp.arange(1, config.k_seg + 1)
+    regions = jnp.arange(1, stage.k_seg + 1)
     point_region = jnp.where(has_depth, pair.track_label, 0)
     point_region = jnp.where((point_region <= pair.n_regions) & enough_tracks, point_region, 0)
     keys = jax.vmap(lambda r: jax.random.fold_in(pair.key, r))(regions)
     diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
-    fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, ransac_options(config),
+    fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, stage.ransac,
                              pair.rival_R, global_t=pair.global_t, noise_block_px=NOISE_BLOCK_FRAC * diagonal)
     status = jnp.where((regions <= pair.n_regions) & enough_tracks, fit.status, REGION_EMPTY)
-    nan = jnp.full(config.k_seg, jnp.nan, X.dtype)
+    nan = jnp.full(stage.k_seg, jnp.nan, X.dtype)
     rot_noise, trans_noise = nan, nan  # no floors under compat="authors"
-    if config.compat != "authors":  # the rule is never applied there; on or off is a value, one program for both
+    if stage.compat != "authors":  # the rule is never applied there; on or off is a value, one program for both
         focal = 0.5 * (pair.K_curr[0, 0] + pair.K_curr[1, 1])
         judged = region_quality(status, fit.n_inliers, fit.uncertainty, fit.ambiguous, diagonal, focal,
-                                quality_rule(config))
-        status = jnp.where(config.quality_rule != 0, judged, status)
+                                stage.quality)
+        status = jnp.where(stage.quality_rule != 0, judged, status)
         rot_noise, trans_noise = fit.uncertainty.rot_noise_deg, fit.uncertainty.trans_noise
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
                       fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, rot_noise, trans_noise,
                       n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels, fit.fitted)
 
 
-def global_relative_pose(R_prev, t_prev, R_curr, t_curr, config: SGCConfig):
+def global_relative_pose(R_prev, t_prev, R_curr, t_curr, compat: str):
     """(R_g, t_g) from camera i-1 to camera i; authors: t from the raw product."""
     product = R_curr @ R_prev.T
     R_g = nearest_rotation(product)
-    R_for_t = product if config.compat == "authors" else R_g
+    R_for_t = product if compat == "authors" else R_g
     return R_g, t_curr - R_for_t @ t_prev
 
 
@@ -129,11 +114,11 @@ def pair_groups(pose_pair, args, n_pairs: int, vectorized: bool):
     return jax.tree.map(lambda a: a.reshape((groups * size,) + a.shape[2:])[:n_pairs], out)
 
 
-def translation_scale(x: PoseInputs, usable, R_g, t_g, config: SGCConfig):
+def translation_scale(x: PoseInputs, usable, R_g, t_g, stage: PoseStage):
     """s (units of D per pose unit): the weighted median of every pair's scale equations, or 1 / D
     (the units taken as shared) where it is not fitted or undefined."""
     scale = 1.0 / x.depth_unit
-    if not config.fits_translation_scale:
+    if not stage.fits_translation_scale:
         return scale
 
     def equations(Z_prev, label, K_prev, K_curr, track_prev, track_curr, usable, R_g, t_g):
@@ -145,35 +130,35 @@ def translation_scale(x: PoseInputs, usable, R_g, t_g, config: SGCConfig):
     return weighted_median(ratios, weights, fallback=scale)
 
 
-def clip_poses(x: PoseInputs, key, config: SGCConfig):
+def clip_poses(x: PoseInputs, key, stage: PoseStage):
     """One padded clip (no B axis) -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), s).
     Without a global pose each pair's mean local pose (NaN without one) stands for the camera's."""
     n_pairs = x.pair_valid.shape[0]
     pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(n_pairs) + 1)
     usable = x.usable & x.pair_valid[:, None]
-    if config.global_pose:
-        R_g, t_g = jax.vmap(functools.partial(global_relative_pose, config=config))(
+    if stage.global_pose:
+        R_g, t_g = jax.vmap(functools.partial(global_relative_pose, compat=stage.compat))(
             x.R_wc[:-1], x.t_wc[:-1], x.R_wc[1:], x.t_wc[1:])
         # the rivals' rotation (docs/semantics.md §3.3): the camera's, the identity where it is not finite
         rival_R = jnp.where(jnp.all(jnp.isfinite(R_g), axis=(1, 2))[:, None, None], R_g, jnp.eye(3, dtype=R_g.dtype))
         # s does not depend on the local poses, which start from the camera's pose (R_g, s t_g)
-        scale = translation_scale(x, usable, R_g, t_g, config)
+        scale = translation_scale(x, usable, R_g, t_g, stage)
         global_t = scale * t_g
     else:
         rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
         global_t = None  # no camera start (an empty pytree under vmap)
     pairs = PairInputs(x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[:-1], x.K[1:], x.track_prev,
                        x.track_curr, usable, pair_keys, rival_R, global_t)
-    poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, config), pairs, n_pairs, config.vectorized)
-    if not config.global_pose:
+    poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, stage), pairs, n_pairs, stage.vectorized)
+    if not stage.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
         return poses, R_g, t_g, jnp.float32(1.0)
     return poses, R_g, t_g, scale
 
 
-def pose_stage(x: PoseInputs, key, config: SGCConfig) -> dict:
+def pose_stage(x: PoseInputs, key, stage: PoseStage) -> dict:
     """Clips (leading axis B). On CPU one after another, each clip's pairs in groups of at most
     PAIRS_AT_ONCE: RANSAC's loops run until their slowest lane is done, so vmapping many pairs at
     once costs more than it saves there. Vectorized (accelerators): every pair of every clip at once."""
-    poses, R_g, t_g, scale = each(lambda clip: clip_poses(PoseInputs(*clip), key, config), tuple(x), config)
+    poses, R_g, t_g, scale = each(lambda clip: clip_poses(PoseInputs(*clip), key, stage), tuple(x), stage.vectorized)
     return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)

@@ -1,14 +1,16 @@
-"""The compiled stage programs this process holds: compiled once per ``StageKey`` (or loaded from
-the persistent cache), for one device or for a batch spread over devices."""
+"""The compiled stage programs this process holds, and the pipeline that chains them: each stage
+compiled once per ``ProgramKey`` (or loaded from the persistent cache), on one device or over a
+batch spread across devices, by one compile path."""
 
 from __future__ import annotations
 
 import concurrent.futures
-import functools
+import dataclasses
 import threading
 import time
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, Sequence
 
+import equinox as eqx
 import jax
 import numpy as np
 
@@ -16,14 +18,39 @@ from ...config import SGCConfig
 from .buckets import Bucket, PaddedClips
 from .compile_cache import ProgramLock, cache_hint, load_program, program_path, save_program
 from .compile_notice import CompileNotice
-from .stages import STAGES, StageKey, program_values, stage_inputs, stage_key
+from .stages import Stage, stages_of
 
-# StageKey -> (executable taking (inputs, key, values), its output's shapes)
-_programs: dict[StageKey, tuple[Callable, Any]] = {}
-# (stage keys, device ids, clips in the batch) -> (the stages over the batch spread over those devices,
-# the batch's sharding)
-_sharded: dict[tuple, tuple["BucketProgram", Any]] = {}
-_compiles: list[tuple[StageKey, float]] = []  # every compile or load of this process, with its seconds
+
+@dataclasses.dataclass(frozen=True)
+class ProgramKey:
+    """One compiled program: a stage's static part (its value fields None), the bucket sizes it
+    reads (pixel: T, H, W, P; pose: T, P; finish: T, H, W) and, for a batch spread over devices,
+    (the mesh's size, clips per device). Its repr names the program in the persistent cache."""
+
+    stage: Stage
+    sizes: tuple[int, ...]
+    spread: tuple[int, int] | None = None
+
+    @property
+    def name(self) -> str:
+        return self.stage.name
+
+    def __str__(self) -> str:
+        vectorized = " vectorized" if self.stage.vectorized else ""
+        spread = f" over {self.spread[0]} devices" if self.spread else ""
+        return f"{self.name} {'x'.join(map(str, self.sizes))}{vectorized}{spread}"
+
+
+def split(stage: Stage) -> tuple[list, Stage]:
+    """(the stage's value fields, the leaves a program takes; its static part)."""
+    values, static = eqx.partition(stage, eqx.is_array)
+    return jax.tree.leaves(values), static
+
+
+# (ProgramKey, the device ids of a spread program or None) -> (executable taking (inputs, key,
+# values), its output's shapes)
+_programs: dict[tuple[ProgramKey, tuple | None], tuple[Callable, Any]] = {}
+_compiles: list[tuple[ProgramKey, float]] = []  # every compile or load of this process, with its seconds
 # Held while programs are compiled or loaded: lanes that need the same program wait for the first
 # one's compile. Held programs are looked up without it, so a lane never waits for another's.
 _compiling = threading.Lock()
@@ -34,17 +61,83 @@ _compiling = threading.Lock()
 CPU_COMPILER_OPTIONS = {"pose": {"xla_cpu_experimental_ynn_fusion_type": ""}}
 
 
-class BucketProgram(NamedTuple):
-    """The three compiled stages that score a padded batch of a bucket."""
+class Pipeline(NamedTuple):
+    """The stages that score padded clips of one bucket, with their programs (compiled, or jitted
+    to be traced inside a caller's jit): ``pipeline(batch)`` -> the finish stage's output,
+    ``outputs(batch)`` -> every stage's. ``sharding``: where a spread batch must lie (None on one
+    device)."""
 
-    stages: tuple[Callable, ...]
+    stages: tuple[Stage, ...]
+    programs: tuple[Callable, ...]
+    key: jax.Array  # RANSAC's key (config.seed)
+    sharding: Any = None
 
-    def __call__(self, batch: PaddedClips, key, values) -> dict:
-        batch = PaddedClips(*jax.device_put(tuple(batch)))  # once, not per stage
-        out = None
-        for stage, program in zip(STAGES, self.stages):
-            out = program(stage_inputs(stage, batch, out), key, values)
-        return out
+    def outputs(self, batch: PaddedClips) -> list[dict]:
+        outs, out = [], None
+        for stage, program in zip(self.stages, self.programs):
+            out = program(stage.inputs(batch, out), self.key, split(stage)[0])
+            outs.append(out)
+        return outs
+
+    def __call__(self, batch: PaddedClips) -> dict:
+        return self.outputs(batch)[-1]
+
+
+def pipeline(config: SGCConfig, bucket: Bucket, example: PaddedClips, devices: Sequence | None = None,
+             vectorized: bool = False) -> Pipeline:
+    """The compiled stages scoring ``example``'s shapes of ``bucket`` under ``config``: on the
+    default device (``devices`` None), or over a batch whose leading axis B (a multiple of
+    len(devices)) is sharded over ``devices``, each running the one-device program on its B /
+    len(devices) clips, so the numbers are those of one device. Each stage compiled once per
+    ProgramKey, a stage traced while the previous one compiles; with the persistent cache on, a
+    stage another process is compiling is waited for, then loaded."""
+    stages = stages_of(config, vectorized)
+    mesh = _mesh(devices)
+    per_device = np.shape(example.depth)[0] // len(devices) if devices else 1
+    spread = (len(devices), per_device) if devices else None
+    keys = [ProgramKey(split(stage)[1], stage.sizes(bucket), spread) for stage in stages]
+    where = tuple(d.id for d in devices) if devices else None
+    if not all((key, where) in _programs for key in keys):
+        with _compiling:
+            _compile_missing(stages, keys, where, mesh, bucket, example)
+    sharding = _sharding(mesh) if devices else None
+    return Pipeline(stages, tuple(_programs[key, where][0] for key in keys), jax.random.PRNGKey(config.seed),
+                    sharding)
+
+
+def traced_pipeline(config: SGCConfig, bucket: Bucket, devices: Sequence, vectorized: bool = False) -> Pipeline:
+    """``pipeline``'s stages as jitted functions over ``devices`` (each running the one-device
+    program on its share of the clips), to be traced inside a caller's ``jax.jit``."""
+    stages = stages_of(config, vectorized)
+    mesh = _mesh(devices)
+    return Pipeline(stages, tuple(_traced(stage, mesh) for stage in stages), jax.random.PRNGKey(config.seed),
+                    _sharding(mesh))
+
+
+def _mesh(devices: Sequence | None):
+    return jax.sharding.Mesh(np.array(devices), ("clips",)) if devices else None
+
+
+def _sharding(mesh):
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("clips"))
+
+
+def _traced(stage: Stage, mesh=None) -> Callable:
+    """The stage as a jitted function of (inputs, key, values); over ``mesh`` (``shard_map``) each
+    device runs it on its share of the clips."""
+    treedef = jax.tree.structure(eqx.filter(stage, eqx.is_array))
+    static = split(stage)[1]
+
+    def run(inputs, key, values):
+        return eqx.combine(jax.tree.unflatten(treedef, values), static)(inputs, key)
+
+    if mesh is None:
+        return jax.jit(run)
+    clips, replicated = jax.sharding.PartitionSpec("clips"), jax.sharding.PartitionSpec()
+    # check_vma off: the kernels' loops start from constants the per-device clip makes
+    # device-varying, which the check would have every loop annotate
+    return jax.jit(jax.shard_map(run, mesh=mesh, in_specs=(clips, replicated, replicated), out_specs=clips,
+                                 check_vma=False))
 
 
 def compile_stage(lowered, stage: str, platform: str):
@@ -59,14 +152,8 @@ def compile_stage(lowered, stage: str, platform: str):
     return lowered.compile()
 
 
-def _spec(tree):
-    return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), tree)
-
-
-def _traced(key: StageKey):
-    from .trace import stage_program  # only tracing imports the stages' modules and the kernels
-
-    return jax.jit(functools.partial(stage_program, stage=key.stage, static=key.static, vectorized=key.vectorized))
+def _spec(tree, sharding=None):
+    return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding), tree)
 
 
 def _lower(traced: Callable[[], Any], path, args: tuple):
@@ -82,47 +169,41 @@ def _lower(traced: Callable[[], Any], path, args: tuple):
     return jax.jit(exported.call).lower(*args)
 
 
-def compiled_program(config: SGCConfig, bucket: Bucket, example: PaddedClips) -> BucketProgram:
-    """The stages scoring one padded clip of ``bucket``, called as ``program(batch, key, values)``;
-    each compiled once per StageKey, a stage traced while the previous one compiles. With the
-    persistent cache on, a stage another process is compiling is waited for, then loaded."""
-    keys = [stage_key(config, stage, bucket) for stage in STAGES]
-    if not all(key in _programs for key in keys):
-        with _compiling:
-            _compile_missing(config, bucket, example, keys)
-    return BucketProgram(tuple(_programs[key][0] for key in keys))
-
-
-def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, keys: list[StageKey]) -> None:
-    missing = [key for key in keys if key not in _programs]
+def _compile_missing(stages: tuple[Stage, ...], keys: list[ProgramKey], where: tuple | None, mesh, bucket: Bucket,
+                     example: PaddedClips) -> None:
+    missing = [key for key in keys if (key, where) not in _programs]
     if not missing:
         return
-    paths = {key: program_path(key) for key in missing}
+    # a spread program is kept only for the default backend's devices: it is exported for the default platform
+    platform = mesh.devices.flat[0].platform if mesh is not None else jax.default_backend()
+    keep = platform == jax.default_backend()
+    paths = {key: program_path(key) if keep else None for key in missing}
     kept = all(p is not None and p.exists() for p in paths.values())
-    stages = ", ".join(key.stage for key in missing)
-    key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
-    batch_spec = PaddedClips(*_spec(tuple(example)))
-    platform = jax.default_backend()
+    batch_spec = PaddedClips(*_spec(tuple(example), _sharding(mesh) if mesh is not None else None))
+    key_spec = _spec(jax.random.PRNGKey(0))
 
-    def compile_one(key: StageKey, lowered, lowered_s: float, lock: ProgramLock):
+    def compile_one(key: ProgramKey, lowered, lowered_s: float, lock: ProgramLock):
         try:
             begin = time.perf_counter()
-            return compile_stage(lowered, key.stage, platform), lowered.out_info, lowered_s + time.perf_counter() - begin
+            return compile_stage(lowered, key.name, platform), lowered.out_info, lowered_s + time.perf_counter() - begin
         finally:
             lock.release()
 
-    with CompileNotice(_bucket_text(bucket), stages, loading=kept, hint=cache_hint()), \
+    devices, clips = keys[0].spread or (1, 1)
+    with CompileNotice(_bucket_text(bucket, devices, clips), ", ".join(key.name for key in missing), loading=kept,
+                       hint=cache_hint()), \
             concurrent.futures.ThreadPoolExecutor(max_workers=len(missing)) as pool:
         pending, previous = {}, None
-        for key in keys:
-            if key in _programs:
-                previous = _programs[key][1]
+        for stage, key in zip(stages, keys):
+            if (key, where) in _programs:
+                previous = _programs[key, where][1]
                 continue
             begin = time.perf_counter()
             lock = ProgramLock(paths[key])  # another process may be compiling it
             try:
-                lowered = _lower(functools.partial(_traced, key), paths[key],
-                                 (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
+                values_spec = _spec(split(stage)[0])
+                lowered = _lower(lambda stage=stage: _traced(stage, mesh), paths[key],
+                                 (stage.inputs(batch_spec, previous), key_spec, values_spec))
             except BaseException:
                 lock.release()
                 raise
@@ -130,7 +211,7 @@ def _compile_missing(config: SGCConfig, bucket: Bucket, example: PaddedClips, ke
             pending[key] = pool.submit(compile_one, key, lowered, time.perf_counter() - begin, lock)
         for key, future in pending.items():  # logged in stage order, whichever compile ends first
             executable, out_info, seconds = future.result()
-            _programs[key] = executable, out_info
+            _programs[key, where] = executable, out_info
             _compiles.append((key, seconds))
 
 
@@ -141,69 +222,10 @@ def _bucket_text(bucket: Bucket, devices: int = 1, clips: int = 1) -> str:
     return f"{text}, {'one clip' if clips == 1 else f'{clips} clips at once'} on each of {devices} devices"
 
 
-def sharded_program(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips,
-                    vectorized: bool = False) -> tuple:
-    """The three stages over a batch whose leading axis B (a multiple of len(devices)) is sharded
-    over ``devices`` (``shard_map``): each device runs the programs on its B / len(devices) clips,
-    so the numbers are those of one device -> (BucketProgram, the batch's sharding)."""
-    keys = tuple(stage_key(config, stage, bucket, vectorized) for stage in STAGES)
-    cache_key = (keys, tuple(d.id for d in devices), np.shape(example.depth)[0])
-    if cache_key not in _sharded:
-        with _compiling:
-            if cache_key not in _sharded:
-                _sharded[cache_key] = _compile_sharded(config, bucket, devices, example, keys)
-    return _sharded[cache_key]
-
-
-def spread_stage(key: StageKey, mesh):
-    """The stage's traced program over a batch whose clip axis is sharded over ``mesh``'s devices:
-    each runs the one-device program on its share, so the numbers are those of one device."""
-    from jax.sharding import PartitionSpec
-
-    from .trace import stage_program
-
-    clips, replicated = PartitionSpec("clips"), PartitionSpec()
-    run = functools.partial(stage_program, stage=key.stage, static=key.static, vectorized=key.vectorized)
-    # check_vma off: the kernels' loops start from constants the per-device clip makes
-    # device-varying, which the check would have every loop annotate
-    return jax.jit(jax.shard_map(run, mesh=mesh, in_specs=(clips, replicated, replicated), out_specs=clips,
-                                 check_vma=False))
-
-
-def _compile_sharded(config: SGCConfig, bucket: Bucket, devices: list, example: PaddedClips, keys: tuple) -> tuple:
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
-    mesh = Mesh(np.array(devices), ("clips",))
-    sharding = NamedSharding(mesh, PartitionSpec("clips"))
-    batch_spec = PaddedClips(*(jax.ShapeDtypeStruct(np.shape(a), a.dtype, sharding=sharding) for a in example))
-    key_spec, values_spec = _spec(jax.random.PRNGKey(0)), _spec(program_values(config))
-    stages, previous = [], None
-    per_device = np.shape(example.depth)[0] // len(devices)
-    # kept per mesh size and clips per device (a program over n devices runs on any n of them), and
-    # only for the default backend's devices: a kept program is exported for the default platform
-    default_platform = devices[0].platform == jax.devices()[0].platform
-    paths = [program_path((key, len(devices), per_device)) if default_platform else None for key in keys]
-    kept = all(p is not None and p.exists() for p in paths)
-    with CompileNotice(_bucket_text(bucket, len(devices), per_device), ", ".join(STAGES), loading=kept,
-                       hint=cache_hint()):
-        # one program per stage, as on one device: the same fusions, the same numbers
-        for key, path in zip(keys, paths):
-            lock = ProgramLock(path)
-            try:
-                lowered = _lower(functools.partial(spread_stage, key, mesh), path,
-                                 (stage_inputs(key.stage, batch_spec, previous), key_spec, values_spec))
-                previous = lowered.out_info
-                stages.append(compile_stage(lowered, key.stage, devices[0].platform))
-            finally:
-                lock.release()
-    return BucketProgram(tuple(stages)), sharding
-
-
 def release_programs() -> int:
     """Drop every compiled stage (each holds its machine code in memory mappings); how many."""
-    count = len(_programs) + len(STAGES) * len(_sharded)
+    count = len(_programs)
     _programs.clear()
-    _sharded.clear()
     return count
 
 
@@ -212,7 +234,7 @@ def compile_count() -> int:
     return len(_programs)
 
 
-def compile_log() -> list[tuple[StageKey, float]]:
-    """Every one-device stage program this process compiled or loaded, in order, with its seconds
-    (released ones too); ``sharded_program``'s are not listed."""
+def compile_log() -> list[tuple[ProgramKey, float]]:
+    """Every stage program this process compiled or loaded, in order, with its seconds (released
+    ones too)."""
     return list(_compiles)
