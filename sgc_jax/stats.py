@@ -1,5 +1,7 @@
 """Agreement statistics for score lists (docs/semantics.md §6.5): rank correlations, bootstrap CIs,
-min-max scaling; and the median of a clip's depth values (§4) without a float64 copy.
+min-max scaling; the median of a clip's depth values (§4) without a float64 copy; and the means
+both engines, the noise floors and the summaries share (NaN-aware, trimmed), written once for
+NumPy and ``jax.numpy``.
 
 A thin layer over ``scipy.stats`` that fixes our conventions: every paired function drops the pairs
 where either value is NaN (or missing, ``None``) and returns NaN, without a warning, when fewer than
@@ -130,3 +132,52 @@ def exact_median(values: np.ndarray) -> float:
         return float(values[half])
     values.partition((half - 1, half))
     return (float(values[half - 1]) + float(values[half])) / 2.0
+
+
+# ------------------------------------------------------------------ means written once for NumPy and jax.numpy
+
+
+def nanmean(values: Any, mask: Any = True, xp=np) -> Any:
+    """Mean over the last axis of the non-NaN ``values`` where ``mask`` (broadcast against them);
+    NaN where none is. A masked sum, so padded or traced arrays need no compaction."""
+    keep = mask & ~xp.isnan(values)
+    count = xp.sum(keep, axis=-1)
+    total = xp.sum(xp.where(keep, values, 0.0), axis=-1)
+    return xp.where(count > 0, total / xp.maximum(count, 1), np.nan)
+
+
+def percentile_of_sorted(ordered: Any, n: Any, q: int, xp=np) -> Any:
+    """The q-th percentile (int 0..100, NumPy's "linear" method) of the first n entries of
+    ``ordered``, sorted along the last axis (n broadcasts against its other axes; n <= 0 reads
+    the first entry). The position q (n - 1) / 100 is split exactly into integer and fraction."""
+    last = xp.maximum(n - 1, 0)
+    scaled = q * last
+    lo = scaled // 100
+    frac = xp.asarray(scaled % 100).astype(ordered.dtype) / 100.0
+    hi = xp.minimum(lo + 1, last)
+    at = lambda i: xp.take_along_axis(ordered, xp.asarray(i)[..., None].astype(np.int32), axis=-1)[..., 0]  # noqa: E731
+    a, b = at(lo), at(hi)
+    diff = xp.where(hi > lo, b - a, 0.0)  # never inf - inf
+    return xp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
+
+
+def trimmed(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
+    """The values the trimmed mean of docs/semantics.md §3.5 averages, over the last axis: the
+    valid v with q1 - c IQR <= v <= p98, c = (p98 - q3) / IQR. When IQR = 0, or the bounds keep
+    nothing (two distinct values), every valid one under "spec" and none under "authors"."""
+    n = xp.sum(valid, axis=-1)
+    ordered = xp.sort(xp.where(valid, values, xp.inf), axis=-1)
+    q1, q3, p98 = (percentile_of_sorted(ordered, n, q, xp)[..., None] for q in (25, 75, 98))
+    iqr = q3 - q1
+    iqr_safe = xp.where(iqr > 0, iqr, 1.0)
+    c = (p98 - q3) / iqr_safe
+    kept = valid & (values >= q1 - c * iqr_safe) & (values <= p98)
+    if compat == "authors":
+        return kept & (iqr > 0)
+    keep_all = (iqr == 0) | ~xp.any(kept, axis=-1, keepdims=True)
+    return xp.where(keep_all, valid, kept)
+
+
+def trimmed_mean(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
+    """The mean of ``trimmed`` values over the last axis; NaN where none is."""
+    return nanmean(values, trimmed(values, valid, compat, xp), xp)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sgc_jax import SGCConfig
-from sgc_jax.engines import reference
+from sgc_jax import stats
 from sgc_jax.kernels import pose_variances as components
 from sgc_jax.kernels.pose_variances import masked_mean, rotation_angle_deg_authors
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 pair_pose_components = jax.jit(components.pair_pose_components, static_argnames=("compat",))
-trimmed_mean_iqr = jax.jit(components.trimmed_mean_iqr, static_argnames=("compat",))
+trimmed_mean_jax = jax.jit(lambda values, valid, compat: stats.trimmed_mean(values, valid, compat, xp=jnp),
+                           static_argnames=("compat",))
 
 R_SLOTS = 6  # region slots per pair in these tests (padded, masked by `accepted`)
 KEYS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var")
@@ -32,8 +32,16 @@ def angle_deg(R_a, R_b) -> float:
 
 
 def trimmed_mean_numpy(values, compat="spec") -> float:
-    """SPEC §3.8 trimming in float64 NumPy: the reference engine's own function (the oracle)."""
-    return reference.trimmed_mean_iqr(values, SGCConfig(compat=compat))
+    """docs/semantics.md §3.5's trimming written from np.percentile in float64 (the oracle)."""
+    values = np.asarray(values, np.float64)
+    if values.size == 0:
+        return float("nan")
+    q1, q3, p98 = np.percentile(values, [25, 75, 98])
+    iqr = q3 - q1
+    kept = values[(values >= q1 - (p98 - q3)) & (values <= p98)] if iqr > 0 else values[:0]
+    if kept.size == 0:  # IQR = 0, or two distinct values the bounds fall between
+        return float("nan") if compat == "authors" else float(values.mean())
+    return float(kept.mean())
 
 
 def components_numpy(R_local, t_local, accepted, R_g, t_g) -> dict:
@@ -144,14 +152,16 @@ def trimming_cases():
 
 
 @pytest.mark.parametrize("compat", ["spec", "authors"])
-def test_trimmed_mean_matches_numpy_percentiles(compat):
+def test_trimmed_mean_matches_numpy_percentiles_in_jax_and_numpy(compat):
     for values in trimming_cases():
         padded = np.full(R_SLOTS, np.nan, np.float32)
         padded[: values.size] = values
         valid = np.arange(R_SLOTS) < values.size
-        got = float(trimmed_mean_iqr(jnp.asarray(padded), jnp.asarray(valid), compat=compat))
-        np.testing.assert_allclose(got, trimmed_mean_numpy(values.astype(np.float32), compat), rtol=RTOL,
-                                   err_msg=str(values))
+        expected = trimmed_mean_numpy(values.astype(np.float32), compat)
+        got = float(trimmed_mean_jax(jnp.asarray(padded), jnp.asarray(valid), compat=compat))
+        np.testing.assert_allclose(got, expected, rtol=RTOL, err_msg=str(values))
+        host = float(stats.trimmed_mean(padded.astype(np.float64), valid, compat))
+        np.testing.assert_allclose(host, expected, rtol=1e-12, err_msg=str(values))  # float64 throughout
 
 
 def test_masked_mean_ignores_masked_values_and_is_nan_with_none():
@@ -174,4 +184,5 @@ def test_batch_of_pairs_equals_loop():
 
 def test_unknown_compat_raises():
     with pytest.raises(ValueError, match="compat"):
-        trimmed_mean_iqr(jnp.zeros(3), jnp.ones(3, bool), compat="paper")
+        pair_pose_components(jnp.zeros((3, 3, 3)), jnp.zeros((3, 3)), jnp.ones(3, bool), jnp.eye(3), jnp.zeros(3),
+                             compat="paper")

@@ -60,7 +60,7 @@ def one_pair(rot_std_deg, trans_std) -> PairArrays:
 def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitted_sizes():
     rot_std = np.array([0.1, 0.2, 0.3, 0.4, 0.6, 0.8])  # deg, RMS over the three axes
     trans_std = np.array([0.001, 0.002, 0.002, 0.003, 0.005, 0.008])  # units of D
-    floors = {k: v[0] for k, v in pair_floors(one_pair(rot_std, trans_std), "spec").items()}
+    floors = {k: v[0] for k, v in pair_floors(one_pair(rot_std, trans_std).columns(), "spec").items()}
     rng = np.random.default_rng(0)
     config, sums = SGCConfig(), dict.fromkeys(FLOOR_COLUMNS, 0.0)
     for _ in range(DRAWS):
@@ -78,9 +78,9 @@ def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitte
 def test_floors_are_nan_without_a_pose_and_under_authors():
     pair = one_pair([0.2, 0.3], [0.01, 0.01])
     no_pose = dataclasses.replace(pair, region_status=np.full_like(pair.region_status, REGION_EMPTY))
-    assert all(np.isnan(v).all() for v in pair_floors(no_pose, "spec").values())
-    assert all(np.isnan(v).all() for v in pair_floors(pair, "authors").values())
-    one = pair_floors(one_pair([0.2], [0.01]), "spec")
+    assert all(np.isnan(v).all() for v in pair_floors(no_pose.columns(), "spec").values())
+    assert all(np.isnan(v).all() for v in pair_floors(pair.columns(), "authors").values())
+    one = pair_floors(one_pair([0.2], [0.01]).columns(), "spec")
     assert one["local_rot_var_floor"][0] == one["local_trans_var_floor"][0] == 0.0  # one pose cannot disagree
 
 

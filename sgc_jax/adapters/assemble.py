@@ -43,6 +43,20 @@ class ImportOptions:
     reference_compat: bool = False  # the SGC authors' pipeline (K at 518 px, depth = VDA / 1000, no threshold)
     align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
 
+    @property
+    def fits_disparity(self) -> bool:
+        """The disparity is fitted to VGGT's depth map (which the cameras file must then hold)."""
+        return self.align_depth and self.depth_kind == "disparity" and not self.reference_compat
+
+
+def _same_frame_counts(counts: dict[str, int | None]) -> None:
+    """Raise unless every estimator output given (count not None) has as many frames."""
+    counts = {name: n for name, n in counts.items() if n is not None}
+    if len(set(counts.values())) != 1:
+        listing = ", ".join(f"{k}: {v}" for k, v in counts.items())
+        raise ValueError(f"the estimator outputs disagree on the number of frames ({listing}); "
+                         "run every estimator on the same frames (e.g. the same --target_fps / --max_len)")
+
 
 def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, frames: Any = None,
                 clip_id: str | None = None, group: str = "", meta: dict | None = None,
@@ -57,46 +71,34 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
     the clip is validated like a loaded one (problems raise or warn).
     """
     o = dataclasses.replace(options or ImportOptions(), **option_fields)
-    depth_kind, depth_scale, depth_key, size = o.depth_kind, o.depth_scale, o.depth_key, o.size
-    vggt_mode, vggt_source_size, track_size = o.vggt_mode, o.vggt_source_size, o.track_size
-    vis_threshold, reference_compat, align_depth = o.vis_threshold, o.reference_compat, o.align_depth
-    size, vggt_source_size, track_size = parse_size(size), parse_size(vggt_source_size), parse_size(track_size)
+    o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
+                            track_size=parse_size(o.track_size))
     loaded_frames = read_frames(frames) if frames is not None else None
     names = loaded_frames.names if loaded_frames is not None else None
-    if size is None:
-        if loaded_frames is not None:
-            size = loaded_frames.frames.shape[1:3]
-        else:
-            size = read_mask_hw(masks) or read_depth_hw(depth, depth_key)
-    H, W = int(size[0]), int(size[1])
+    H, W = o.size or (loaded_frames.frames.shape[1:3] if loaded_frames is not None
+                      else read_mask_hw(masks) or read_depth_hw(depth, o.depth_key))
+    H, W = int(H), int(W)
 
-    track_data = read_delta(tracks, frame_names=names, vis_threshold=vis_threshold,
-                            reference_compat=reference_compat)
+    track_data = read_delta(tracks, frame_names=names, vis_threshold=o.vis_threshold,
+                            reference_compat=o.reference_compat)
     names = names or track_data.frame_names
-    cams = read_vggt(cameras, height=H, width=W, mode=vggt_mode, source_size=vggt_source_size,
-                     reference_compat=reference_compat,
-                     with_depth=align_depth and depth_kind == "disparity" and not reference_compat)
-    depth_data = read_video_depth(depth, height=H, width=W, kind=depth_kind, depth_scale=depth_scale,
-                                  key=depth_key, reference_compat=reference_compat)
+    cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
+                     reference_compat=o.reference_compat, with_depth=o.fits_disparity)
+    depth_data = read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
+                                  key=o.depth_key, reference_compat=o.reference_compat)
     T = depth_data.depth.shape[0]
     mask_data = read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T)
-
-    counts = {f"cameras ({_label(cameras)})": len(cams.K), f"depth ({_label(depth)})": T,
-              f"tracks ({_label(tracks)})": track_data.n_frames}
-    if mask_data.static_mask is not None:
-        counts[f"masks ({_label(masks)})"] = len(mask_data.static_mask)
-    if loaded_frames is not None:
-        counts[f"frames ({_label(frames)})"] = len(loaded_frames.frames)
-    if len(set(counts.values())) != 1:
-        listing = ", ".join(f"{k}: {v}" for k, v in counts.items())
-        raise ValueError(f"the estimator outputs disagree on the number of frames ({listing}); "
-                         "run every estimator on the same frames (e.g. the same --target_fps / --max_len)")
-    depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask, enabled=align_depth)
+    _same_frame_counts({f"cameras ({_label(cameras)})": len(cams.K), f"depth ({_label(depth)})": T,
+                        f"tracks ({_label(tracks)})": track_data.n_frames,
+                        f"masks ({_label(masks)})": None if mask_data.static_mask is None else len(mask_data.static_mask),
+                        f"frames ({_label(frames)})": None if loaded_frames is None else len(loaded_frames.frames)})
+    depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
+                                     enabled=o.align_depth)
 
     track_prev, track_curr = track_data.track_prev, track_data.track_curr
-    if track_size is not None:
-        track_prev = resize_points(track_prev, track_size, (H, W))
-        track_curr = resize_points(track_curr, track_size, (H, W))
+    if o.track_size is not None:
+        track_prev = resize_points(track_prev, o.track_size, (H, W))
+        track_curr = resize_points(track_curr, o.track_size, (H, W))
     arrays: dict[str, Any] = dict(depth=depth_data.depth, K=cams.K, R_wc=cams.R_wc, t_wc=cams.t_wc,
                                   track_prev=track_prev, track_curr=track_curr,
                                   track_vis=track_data.track_vis, track_conf=track_data.track_conf)
@@ -105,13 +107,13 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
     if loaded_frames is not None:
         arrays["frames"] = resize_frames(loaded_frames.frames, (H, W))
 
-    record = {"reference_compat": bool(reference_compat), "grid": [H, W],
+    record = {"reference_compat": bool(o.reference_compat), "grid": [H, W],
               "sources": {"cameras": _label(cameras), "depth": _label(depth), "tracks": _label(tracks),
                           "masks": None if masks is None else _label(masks),
                           "frames": None if frames is None else _label(frames)},
               **cams.notes, **depth_data.notes, **track_data.notes, **mask_data.notes}
-    if track_size is not None:
-        record["track_size"] = list(track_size)
+    if o.track_size is not None:
+        record["track_size"] = list(o.track_size)
     clip_meta = {**(meta or {}), "import": record}
     if group:
         clip_meta["group"] = group

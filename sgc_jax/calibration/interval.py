@@ -10,6 +10,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy.special import ndtri, stdtrit
 
+from ..stats import nanmean
 from .formula import sgc_score
 from .model import COMPONENTS, Calibration
 
@@ -66,10 +67,7 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     means = {}
     for k, per_pair in resampled_columns.items():
         resampled = xp.take_along_axis(per_pair[..., None, :], drawn, axis=-1)
-        keep = in_resample & ~xp.isnan(resampled)
-        count = xp.sum(keep, axis=-1)
-        total = xp.sum(xp.where(keep, resampled, 0.0), axis=-1)
-        means[k] = xp.where(count > 0, total / xp.maximum(count, 1), np.nan)  # (..., draws)
+        means[k] = nanmean(resampled, in_resample, xp)  # (..., draws)
     floors = {name: means[name] for name in pair_floors} if with_floors else None
     scores = sgc_score({k: means[k] for k in COMPONENTS}, calibration, xp=xp, floors=floors)
     tail = 50.0 * (1.0 - INTERVAL_LEVEL)

@@ -6,14 +6,14 @@ fit's noise (the region uncertainties of §3.3). Written once for NumPy (the tab
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
-from ..calibration import Calibration, sgc_score
+from ..calibration import COMPONENTS, Calibration, sgc_score
 from ..codes import REGION_OK
 from ..io.tables import FLOOR_COLUMNS
-from .pairs import PairArrays
+from ..stats import trimmed_mean
 from .units import PERCENT
 
 # Draws of the parametric floor of the trimmed global_rot_var: its relative sampling error is about
@@ -34,32 +34,6 @@ def unit_squares(k: int) -> np.ndarray:
     return np.stack([_unit_square_column(j) for j in range(k)], axis=1)
 
 
-def _percentile(ordered: Any, n: Any, q: float, xp) -> Any:
-    """The q-th percentile (linear interpolation) of the first n entries of ``ordered``, sorted
-    along the last axis; n >= 1 broadcasts against its other axes. A gather where NumPy's
-    ``nanpercentile`` would loop over rows."""
-    position = (q / 100.0) * (n - 1)
-    below = xp.floor(position)
-    lo = xp.take_along_axis(ordered, below.astype(xp.int32)[..., None], axis=-1)[..., 0]
-    hi = xp.take_along_axis(ordered, xp.minimum(below + 1, n - 1).astype(xp.int32)[..., None], axis=-1)[..., 0]
-    return lo + (position - below) * (hi - lo)
-
-
-def trimmed_means(values: Any, n: Any, xp=np) -> Any:
-    """The trimmed mean of docs/semantics.md §3.5 (``global_rot_var``, spec) of the first n entries
-    of the last axis of ``values`` (n broadcasts against its other axes): keep q1 - k IQR <= v <=
-    p98, k = (p98 - q3) / IQR; all of them when IQR = 0 or the bounds keep nothing."""
-    n = xp.maximum(n, 1)
-    ordered = xp.sort(values, axis=-1)  # NaN (the entries past n) sorts last
-    q1, q3, p98 = (_percentile(ordered, n, q, xp)[..., None] for q in (25, 75, 98))
-    iqr = q3 - q1
-    present = xp.arange(values.shape[-1]) < n[..., None]
-    kept = present & (values >= q1 - (p98 - q3)) & (values <= p98) & (iqr > 0)
-    count = xp.sum(kept, axis=-1)
-    mean = xp.sum(xp.where(present, values, 0.0), axis=-1) / n
-    return xp.where(count > 0, xp.sum(xp.where(kept, values, 0.0), axis=-1) / xp.maximum(count, 1), mean)
-
-
 def floors_of(region_status: Any, rot_noise_deg: Any, trans_noise_percent: Any, components: dict[str, Any],
               xp=np) -> dict[str, Any]:
     """FLOOR_COLUMNS -> (...,) from each pair's region statuses, RMS rotation noise [deg] and
@@ -77,7 +51,7 @@ def floors_of(region_status: Any, rot_noise_deg: Any, trans_noise_percent: Any, 
     rot_sorted = xp.take_along_axis(rot_noise_deg, order, axis=-1)[..., None, :]  # (..., 1, k)
     first_n = (xp.arange(k) < n[..., None])[..., None, :]
     draws = xp.where(first_n, xp.asarray(unit_squares(k)) * rot_sorted ** 2, np.nan)  # (..., draws, k)
-    trimmed = xp.mean(trimmed_means(draws, n[..., None], xp), axis=-1)
+    trimmed = xp.mean(trimmed_mean(draws, first_n, xp=xp), axis=-1)
     floors = {"local_rot_var_floor": spread * mean_square(rot_noise_deg),
               "local_trans_var_floor": spread * mean_square(trans_noise_percent),
               "global_rot_var_floor": trimmed,
@@ -96,11 +70,12 @@ def floor_score(floors: dict[str, Any], calibration: Calibration, xp=np) -> Any:
     return xp.where(xp.all(xp.stack([xp.isnan(v) for v in values]), axis=0), np.nan, score)
 
 
-def pair_floors(pairs: PairArrays, compat: str) -> dict[str, np.ndarray]:
-    """FLOOR_COLUMNS -> (n_pairs,) of a clip's pairs in the components' units; NaN everywhere under
-    compat="authors", whose translation units differ between terms."""
+def pair_floors(pairs: Mapping[str, Any], compat: str, xp=np) -> dict[str, Any]:
+    """FLOOR_COLUMNS -> (..., n_pairs) of clips' pairs (``PairArrays.columns()`` or the finish
+    stage's output) in the components' units; NaN everywhere under compat="authors", whose
+    translation units differ between terms."""
     if compat == "authors":
-        return {name: np.full(pairs.n_pairs, np.nan) for name in FLOOR_COLUMNS}
+        return {name: xp.full(xp.shape(pairs["global_rot_var"]), np.nan) for name in FLOOR_COLUMNS}
     with np.errstate(invalid="ignore"):  # a pair without a pose: NaN draws, masked in floors_of
-        return floors_of(pairs.region_status, np.asarray(pairs.region_rot_noise, np.float64),
-                         PERCENT * np.asarray(pairs.region_trans_noise, np.float64), pairs.components())
+        return floors_of(pairs["region_status"], pairs["region_rot_noise"], PERCENT * pairs["region_trans_noise"],
+                         {k: pairs[k] for k in COMPONENTS}, xp=xp)

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from ..calibration import COMPONENTS
-from ..codes import PAIR_REASONS, REGION_EMPTY
+from ..codes import PAIR_REASON_CODE, PAIR_REASONS, REGION_EMPTY
 from ..io.tables import format_counts
 
 
@@ -58,6 +58,15 @@ class PairArrays:
 
     def components(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in COMPONENTS}
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The per-pair (n_pairs,) and per-region (n_pairs, k) arrays by name, ``reason`` as
+        codes.PAIR_REASON_CODE: what the summaries read (``scoring.summary``)."""
+        arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)
+                  if f.name not in ("scale", "depth_unit", "reason")}
+        arrays = {name: a.astype(np.float64) if a.dtype.kind == "f" else a for name, a in arrays.items()}
+        arrays["reason"] = np.array([PAIR_REASON_CODE[str(r)] for r in self.reason], np.int32)
+        return arrays
 
 
 def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:

@@ -22,6 +22,7 @@ import numpy as np
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
+from ..stats import trimmed
 from . import reference_pose as reference_pose_search
 from .evidence import parallax_px
 from .pairs import PairArrays, empty_pair_arrays
@@ -414,23 +415,13 @@ def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config
 
 
 def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
-    """Mean of v with q1 - k*IQR <= v <= p98, k = (p98 - q3)/IQR; IQR == 0 keeps all (docs/semantics.md §3.5).
-
-    When the bounds reject every value (two distinct values) all are kept. Under
-    ``compat="authors"`` both cases reject every value (NaN).
-    """
+    """The trimmed mean of docs/semantics.md §3.5 (``stats.trimmed``) of values (n,), in float64;
+    NaN for none."""
     values = np.asarray(values, np.float64)
     if values.size == 0:
         return float("nan")
-    q1, q3, p98 = np.percentile(values, [25, 75, 98])
-    iqr = q3 - q1
-    if iqr == 0:
-        return float("nan") if config.compat == "authors" else float(values.mean())
-    k = (p98 - q3) / iqr
-    kept = values[(values >= q1 - k * iqr) & (values <= p98)]
-    if kept.size == 0:  # e.g. two distinct values: the bounds fall strictly between them
-        return float("nan") if config.compat == "authors" else float(values.mean())
-    return float(kept.mean())
+    kept = values[trimmed(values, np.ones(values.shape, bool), config.compat)]
+    return float(kept.mean()) if kept.size else float("nan")
 
 
 def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,

@@ -255,7 +255,7 @@ def noise_cut(err_sq: np.ndarray, inlier_px: float) -> float:
     return float(np.clip(NOISE_CUT * sigma, min(MIN_CUT_PX, inlier_px), inlier_px))
 
 
-class RegionPose(NamedTuple):
+class FoundPose(NamedTuple):
     """A region's local pose (docs/semantics.md §3.2 step 6) and whether its rival makes it
     ``ambiguous`` (§3.3)."""
 
@@ -265,7 +265,7 @@ class RegionPose(NamedTuple):
 
 def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSearch, others: list[Pose],
                 rival_rotation: np.ndarray, inlier_px: float, ambiguous_rot_deg: float,
-                ambiguous_inlier_frac: float) -> RegionPose:
+                ambiguous_inlier_frac: float) -> FoundPose:
     """The region's pose (docs/semantics.md §3.2 step 6) from its own search and ``others`` (the
     pair's other regions' best optima, the global pose), each taken to its local optimum at
     inlier_px:
@@ -288,7 +288,7 @@ def region_pose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, search: RegionSear
     rival, cut = rival_pose(X, uv, K, pose, cut, rival_rotation, inlier_px, best_cost)
     if truncated_costs(pose_errors_sq(rival, X, uv, K), cut) < truncated_costs(pose_errors_sq(pose, X, uv, K), cut):
         pose = rival
-    return RegionPose(pose, is_ambiguous(X, uv, K, pose, cut, rival, ambiguous_rot_deg, ambiguous_inlier_frac))
+    return FoundPose(pose, is_ambiguous(X, uv, K, pose, cut, rival, ambiguous_rot_deg, ambiguous_inlier_frac))
 
 
 def translation_for_rotation(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -269,10 +269,14 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     return subsample_tracks(clip, config)
 
 
-def evenly_spaced_ranks(n: int, limit: int) -> np.ndarray:
+def evenly_spaced_ranks(n: Any, limit: int, xp=np) -> Any:
     """The ranks floor(k (n - 1) / (limit - 1)), k < limit, of ``limit`` of ``n > limit`` items, in
-    integers (the device form, ``device_prepare``, computes the same in int32)."""
-    return (np.arange(limit, dtype=np.int64) * (n - 1)) // max(limit - 1, 1)
+    integers: int64 on the host, int32 on the device (``xp=jax.numpy``), where n - 1 = q (limit -
+    1) + r keeps every product below limit^2."""
+    k = xp.arange(limit, dtype=xp.int64 if xp is np else xp.int32)
+    span = max(limit - 1, 1)
+    q, r = (n - 1) // span, (n - 1) % span
+    return k * q + (k * r) // span
 
 
 def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ..config import COMPATS
+from ..stats import trimmed_mean
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 
 
@@ -41,40 +42,6 @@ def masked_mean(values, valid):
     return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(values.dtype), jnp.nan)
 
 
-def masked_percentile(values, valid, q: int):
-    """The q-th percentile (int 0..100, NumPy's "linear" method) of values (k,) where valid; +inf
-    with none valid. The position q (n - 1) / 100 is split exactly into integer and fraction."""
-    values = at_least_float32(values)
-    s = jnp.sort(jnp.where(valid, values, jnp.inf))
-    n = jnp.sum(valid).astype(jnp.int32)
-    scaled = q * jnp.maximum(n - 1, 0)
-    lo = scaled // 100
-    frac = (scaled % 100).astype(values.dtype) / 100.0
-    hi = jnp.minimum(lo + 1, jnp.maximum(n - 1, 0))
-    a, b = s[lo], s[hi]
-    diff = jnp.where(hi > lo, b - a, 0.0)  # never inf - inf
-    return jnp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
-
-
-def trimmed_mean_iqr(values, valid, *, compat: str = "spec"):
-    """Mean of the valid v (k,) with q1 - c IQR <= v <= p98, c = (p98 - q3) / IQR; NaN with none
-    valid. IQR = 0, or bounds that reject every value (two distinct values), keep all under
-    "spec" and give NaN under "authors"."""
-    _check_compat(compat)
-    values = at_least_float32(values)
-    q1 = masked_percentile(values, valid, 25)
-    q3 = masked_percentile(values, valid, 75)
-    p98 = masked_percentile(values, valid, 98)
-    iqr = q3 - q1
-    iqr_safe = jnp.where(iqr > 0, iqr, 1.0)
-    c = (p98 - q3) / iqr_safe
-    kept = valid & (values >= q1 - c * iqr_safe) & (values <= p98)
-    if compat == "authors":
-        return jnp.where(iqr > 0, masked_mean(values, kept), jnp.nan)
-    keep_all = (iqr == 0) | ~jnp.any(kept)
-    return masked_mean(values, jnp.where(keep_all, valid, kept))
-
-
 def mean_pose(R_local, t_local, accepted):
     """Accepted poses (k, 3, 3), (k, 3), (k,) -> (exp of the mean rotation vector, mean
     translation), float32; NaN with none accepted."""
@@ -102,7 +69,7 @@ def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = 
     single = n < 2
     local_rot = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_rot))
     local_trans = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_trans))
-    global_rot = trimmed_mean_iqr(angle(R_local, R_g[None]) ** 2, accepted, compat=compat)
+    global_rot = trimmed_mean(angle(R_local, R_g[None]) ** 2, accepted, compat, xp=jnp)
     global_trans = masked_mean(jnp.sum((t_local - t_g) ** 2, axis=-1), accepted)
     return {"local_rot_var": at_least_float32(local_rot), "local_trans_var": at_least_float32(local_trans),
             "global_rot_var": at_least_float32(global_rot), "global_trans_var": at_least_float32(global_trans),

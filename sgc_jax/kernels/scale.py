@@ -3,11 +3,9 @@ weighted median over the clip (an L1 fit, so outlier tracks do not drag it)."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
-import jax
 import jax.numpy as jnp
 
+from .bisection import ordered_keys, smallest_reaching, value_of_key
 from .camera import back_project
 
 
@@ -26,30 +24,12 @@ def scale_equations(X, use, K_curr, track_curr, R_g, t_g):
     return jnp.where(ok, b / jnp.where(ok, a, 1.0), 0.0), weight
 
 
-class KeyInterval(NamedTuple):
-    """The bisection's state: the key sought lies in [lo, hi] (uint32)."""
-
-    lo: jax.Array
-    hi: jax.Array
-
-
 def weighted_median(values, weights, fallback):
     """The smallest value whose cumulative weight reaches half the total (any shape, flattened;
     weight 0: unused); ``fallback`` when the total is 0."""
     # bisection over the values' order-keeping uint32 keys: 32 masked sums, a tenth of a sort's cost on CPU
-    values, weights = values.reshape(-1).astype(jnp.float32), weights.reshape(-1)
-    sign = jnp.uint32(0x80000000)
-    bits = jax.lax.bitcast_convert_type(values, jnp.uint32)
-    keys = jnp.where(bits & sign, ~bits, bits | sign)  # negative floats reversed, below the positive ones
+    keys, weights = ordered_keys(values.reshape(-1)), weights.reshape(-1)
     total = jnp.sum(weights)
-
-    def halve(_, keys_left: KeyInterval) -> KeyInterval:
-        lo, hi = keys_left
-        mid = lo + (hi - lo) // 2
-        enough = jnp.sum(jnp.where(keys <= mid, weights, 0.0)) >= 0.5 * total
-        return KeyInterval(jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi))
-
-    found = jax.lax.fori_loop(0, 32, halve, KeyInterval(jnp.uint32(0), jnp.uint32(0xFFFFFFFF)))
-    key = found.lo
-    median = jax.lax.bitcast_convert_type(jnp.where(key & sign, key ^ sign, ~key), jnp.float32)
-    return jnp.where(total > 0, median, fallback)
+    key = smallest_reaching(lambda mid: jnp.sum(jnp.where(keys <= mid, weights, 0.0)) >= 0.5 * total,
+                            jnp.uint32(0), jnp.uint32(0xFFFFFFFF), 32)
+    return jnp.where(total > 0, value_of_key(key), fallback)

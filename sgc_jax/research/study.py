@@ -27,7 +27,7 @@ from ..io.loading import discover_clips
 from ..io.tables import CLIP_COLUMNS, format_counts, format_table, records_frame, write_csv
 from ..scoring.api import resolve_calibration, resolve_config, score_batch
 from ..scoring.result import BatchResult, ClipResult, failed_clip
-from ..stats import spearman
+from ..stats import nanmean, spearman
 from .perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip, perturbed_clip_id
 
 #: Columns of a study row: the per-clip columns (docs/semantics.md §4), the study keys, and the
@@ -41,10 +41,9 @@ CORRELATION_COLUMNS = ("kind", "rho_sgc", "rho_sgc_clips", *(f"rho_{c}" for c in
 DEFAULT_SEVERITIES = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
-def _nanmean(values: Sequence[float]) -> float:
+def _finite_mean(values: Sequence[float]) -> float:
     values = np.asarray(values, np.float64)
-    finite = np.isfinite(values)
-    return float(values[finite].mean()) if finite.any() else float("nan")
+    return float(nanmean(values, np.isfinite(values)))
 
 
 def _nanstd(values: Sequence[float]) -> float:
@@ -107,9 +106,9 @@ class StudyResult:
                 rows = self._scored(kind, severity)
                 out.append({
                     "kind": kind, "severity": severity, "n": len(rows),
-                    "sgc": _nanmean([r["sgc"] for r in rows]), "sgc_std": _nanstd([r["sgc"] for r in rows]),
-                    **{c: _nanmean([r[c] for r in rows]) for c in COMPONENTS},
-                    "rel_change": _nanmean([r["rel_change"] for r in rows]),
+                    "sgc": _finite_mean([r["sgc"] for r in rows]), "sgc_std": _nanstd([r["sgc"] for r in rows]),
+                    **{c: _finite_mean([r[c] for r in rows]) for c in COMPONENTS},
+                    "rel_change": _finite_mean([r["rel_change"] for r in rows]),
                 })
         return out
 

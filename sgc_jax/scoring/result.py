@@ -16,17 +16,8 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
-from ..calibration.interval import score_interval
 from ..codes import CLIP_STATUSES, SCORER_STATUS_CODE
-from ..engines.evidence import (
-    LOW_EVIDENCE,
-    EvidenceLevels,
-    clip_evidence,
-    pair_evidence,
-    pose_tracks,
-    shortfall,
-    upper_with_unseen,
-)
+from ..engines.evidence import LOW_EVIDENCE, EvidenceLevels, pose_tracks, shortfall
 from ..engines.noise_floors import floor_score, pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
@@ -44,12 +35,7 @@ from ..io.tables import (
 )
 from ..stats import camera_dynamics
 from .reward import RewardOptions, reward
-
-
-def _nanmean(values: np.ndarray) -> float:
-    values = np.asarray(values, np.float64)
-    finite = ~np.isnan(values)
-    return float(values[finite].mean()) if finite.any() else float("nan")
+from .summary import evidence_per_pair, summarize_pairs, table_status
 
 
 @dataclasses.dataclass
@@ -111,8 +97,9 @@ class ClipResult:
         if self.pairs is None:
             return []
         p = self.pairs
-        floors = self.pair_floors if self.pair_floors is not None else pair_floors(p, self.compat)
-        evidence = self.pair_evidence if self.pair_evidence is not None else evidence_of_pairs(p, EvidenceLevels())
+        floors = self.pair_floors if self.pair_floors is not None else pair_floors(p.columns(), self.compat)
+        evidence = (self.pair_evidence if self.pair_evidence is not None
+                    else evidence_per_pair(p.columns(), EvidenceLevels())[0])
         tracks = pose_tracks(p.region_status, p.region_points)
         return [{"clip_id": self.clip_id, "group": self.group, "pair": i + 1, "reason": str(p.reason[i]),
                  **{k: float(getattr(p, k)[i]) for k in COMPONENTS}, **{k: float(v[i]) for k, v in floors.items()},
@@ -125,52 +112,37 @@ class ClipResult:
                  "engine": self.engine} for i in range(p.n_pairs)]
 
 
-def evidence_of_pairs(pairs: PairArrays, levels: EvidenceLevels) -> np.ndarray:
-    """(n_pairs,) each pair's evidence (docs/semantics.md §3.11)."""
-    tracks = pose_tracks(pairs.region_status, pairs.region_points).astype(np.float64)
-    return pair_evidence(pairs.reason == "ok", tracks, np.asarray(pairs.t_g_norm, np.float64),
-                         np.asarray(pairs.R_g_angle_deg, np.float64), np.asarray(pairs.static_frac, np.float64), levels)
-
-
 def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *, group: str = "",
                    engine: str = "", mask_source: str = "", origin: str = "", compat: str = "",
                    evidence_levels: EvidenceLevels | None = None) -> ClipResult:
     """Per-clip means over pairs (NaN ignored), status, reason, the SGC score and its evidence
-    (docs/semantics.md §3.8, §3.11, §5)."""
-    components = {k: _nanmean(getattr(pairs, k)) for k in COMPONENTS}
-    per_pair = pair_floors(pairs, compat)
-    floors = {k: _nanmean(v) for k, v in per_pair.items()}
-    sgc = float(sgc_score(components, calibration, floors=floors))
-    sgc_lo, sgc_hi = (float(v) for v in score_interval(pairs.components(), sgc, calibration, pair_floors=per_pair))
+    (docs/semantics.md §3.8, §3.11, §5): ``summary.summarize_pairs`` in float64, with the reasons
+    in words."""
     levels = evidence_levels or EvidenceLevels()
-    tracks = pose_tracks(pairs.region_status, pairs.region_points)
-    per_pair_evidence = evidence_of_pairs(pairs, levels)
-    evidence = float(clip_evidence(per_pair_evidence, np.ones(pairs.n_pairs, bool)))
-    sgc_hi = float(upper_with_unseen(sgc, sgc_hi, evidence))
+    columns = pairs.columns()
+    s = summarize_pairs(columns, np.ones(pairs.n_pairs, bool), calibration, compat, levels)
+    sgc, evidence = float(s["sgc"]), float(s["evidence"])
+    status = table_status(int(s["status"]), sgc)
     reasons = Counter(str(r) for r in pairs.reason)
-    scored = reasons.get("ok", 0)
     problems = "; ".join(f"{r} x{n}" for r, n in sorted(reasons.items()) if r != "ok")
-    if math.isnan(sgc):
-        status, reason = "error", f"no pair could be scored ({problems})" if problems else "no pair could be scored"
-    elif evidence < LOW_EVIDENCE:
+    if status == "error":
+        reason = f"no pair could be scored ({problems})" if problems else "no pair could be scored"
+    elif status == "low_evidence":
+        tracks = pose_tracks(pairs.region_status, pairs.region_points)
         thin = shortfall(tracks, pairs.t_g_norm, pairs.R_g_angle_deg, pairs.static_frac, pairs.reason == "ok", levels)
-        status, reason = "low_evidence", f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(
-            part for part in (problems, thin) if part)
-    elif scored < pairs.n_pairs:
-        status, reason = "partial", problems
+        reason = f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(part for part in (problems, thin) if part)
     else:
-        status, reason = "ok", ""
+        reason = problems if status == "partial" else ""
     return ClipResult(
-        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, sgc_lo=sgc_lo, sgc_hi=sgc_hi,
-        components=components,
-        floors=floors, sgc_floor=float(floor_score(floors, calibration)),
-        reproj_error=_nanmean(pairs.reproj_error), ecd_trans=_nanmean(pairs.t_g_norm),
-        ecd_rot=_nanmean(pairs.R_g_angle_deg), n_pairs=pairs.n_pairs, n_pairs_scored=scored, evidence=evidence,
-        pose_tracks=float(np.mean(tracks)) if pairs.n_pairs else np.nan,
-        parallax_px=_nanmean(pairs.parallax_px), static_frac=_nanmean(pairs.static_frac),
+        clip_id=clip_id, group=group, status=status, reason=reason, sgc=sgc, sgc_lo=float(s["sgc_lo"]),
+        sgc_hi=float(s["sgc_hi"]), components={k: float(s[k]) for k in COMPONENTS},
+        floors={k: float(s[k]) for k in FLOOR_COLUMNS}, sgc_floor=float(s["sgc_floor"]),
+        reproj_error=float(s["reproj_error"]), ecd_trans=float(s["ecd_trans"]), ecd_rot=float(s["ecd_rot"]),
+        n_pairs=pairs.n_pairs, n_pairs_scored=int(s["n_pairs_scored"]), evidence=evidence,
+        pose_tracks=float(s["pose_tracks"]), parallax_px=float(s["parallax_px"]), static_frac=float(s["static_frac"]),
         engine=engine, mask_source=mask_source, scale=float(pairs.scale), depth_unit=float(pairs.depth_unit),
-        n_ill_conditioned=int(np.sum(pairs.n_ill_conditioned)), compat=compat, origin=origin, pairs=pairs,
-        pair_floors=per_pair, pair_evidence=per_pair_evidence)
+        n_ill_conditioned=int(s["n_ill_conditioned"]), compat=compat, origin=origin, pairs=pairs,
+        pair_floors=s["pair_floors"], pair_evidence=s["pair_evidence"])
 
 
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:

@@ -15,7 +15,6 @@ import numpy as np
 from ..calibration import Calibration
 from ..config import SGCConfig
 from ..engines.jax_engine.buckets import PaddedClips, bucket_for_shape
-from ..engines.jax_engine.clip_summary import summarize_on_device
 from ..engines.jax_engine.compile_cache import cache_hint, enable_compilation_cache
 from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
@@ -27,6 +26,7 @@ from ..stats import camera_dynamics
 from .api import resolve_calibration, resolve_config
 from .devices import default_lanes, vectorizes
 from .reward import RewardOptions, reward
+from .summary import summarize_on_device
 
 #: name -> (its shape in terms of B, T, H, W, P; its kind: float, mask or count)
 BATCH_ARRAYS = {

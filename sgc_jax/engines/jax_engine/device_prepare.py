@@ -12,6 +12,8 @@ import jax.numpy as jnp
 
 from ...config import SGCConfig
 from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
+from ...io.loading import evenly_spaced_ranks
+from ...kernels.bisection import smallest_reaching
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
 from .buckets import Bucket, PaddedClips
 
@@ -35,28 +37,15 @@ class ClipArrays(NamedTuple):
     widths: jax.Array  # (B,) int32
 
 
-class RankSearch(NamedTuple):
-    """Bisection bounds on the float32 bit patterns of the wanted order statistics."""
-
-    lo: jax.Array  # (2,) int32
-    hi: jax.Array  # (2,) int32
-
-
 def order_statistics(values, mask, ranks):
     """The ranks (2,)-th smallest (0-based) of the positive finite values[mask]: bisection on their
     bit patterns, which order as the values do; 31 counting passes, where XLA CPU's sort of a
     clip's pixels costs ~10x more."""
     bits = jax.lax.bitcast_convert_type(jnp.where(mask, values, jnp.inf), jnp.int32).ravel()
     inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
-
-    def halve(_, search: RankSearch) -> RankSearch:
-        mid = search.lo + (search.hi - search.lo) // 2
-        enough = jnp.sum(bits[None, :] <= mid[:, None], axis=1) > ranks
-        return RankSearch(jnp.where(enough, search.lo, mid + 1), jnp.where(enough, mid, search.hi))
-
-    start = RankSearch(jnp.zeros(2, jnp.int32), jnp.full(2, inf_bits, jnp.int32))
-    found = jax.lax.fori_loop(0, 31, halve, start)
-    return jax.lax.bitcast_convert_type(found.lo, jnp.float32)
+    found = smallest_reaching(lambda mid: jnp.sum(bits[None, :] <= mid[:, None], axis=1) > ranks,
+                              jnp.zeros(2, jnp.int32), jnp.full(2, inf_bits, jnp.int32), 31)
+    return jax.lax.bitcast_convert_type(found, jnp.float32)
 
 
 def masked_median(values, mask):
@@ -111,21 +100,12 @@ def valid_without_absurd_depth(depth, positive):
     return positive & ~too_far & ~too_near
 
 
-def evenly_spaced_ranks(n, limit: int):
-    """floor(k (n - 1) / (limit - 1)) for k < limit in int32 (``loading.evenly_spaced_ranks``):
-    n - 1 = q (limit - 1) + r, so no product exceeds limit^2."""
-    k = jnp.arange(limit, dtype=jnp.int32)
-    span = max(limit - 1, 1)
-    q, r = (n - 1) // span, (n - 1) % span
-    return k * q + (k * r) // span
-
-
 def select_tracks(usable, limit: int):
     """(P,) usable -> (limit,) indices of the kept tracks (``loading.subsample_tracks``): usable
     ones first in their order, evenly spaced when more than ``limit``; then unusable ones."""
     order = jnp.argsort(~usable, stable=True)
     n = jnp.sum(usable, dtype=jnp.int32)
-    spaced = order[evenly_spaced_ranks(n, limit)]
+    spaced = order[evenly_spaced_ranks(n, limit, xp=jnp)]
     return jnp.where(n > limit, spaced, order[:limit])
 
 

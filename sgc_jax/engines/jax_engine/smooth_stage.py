@@ -23,6 +23,7 @@ from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
 from ...kernels.warp import warp_sources
+from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
 from .device_prepare import ClipArrays, prepare_differentiable
@@ -45,7 +46,7 @@ class Frozen(NamedTuple):
 
 
 def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: dict) -> Frozen:
-    """The stage outputs of B clips (leading axis B) and their summary (``summarize_on_device``, whose
+    """The stage outputs of B clips (leading axis B) and their summary (``scoring.summary.summarize_on_device``, whose
     noise floors they reuse) -> their Frozen (leading axis B)."""
     present = jnp.stack([pair_valid & ~jnp.isnan(finish[k]) for k in COMPONENTS], axis=-1)
     floors = jnp.stack([summary[name] for name in FLOOR_COLUMNS], axis=-1)
@@ -147,13 +148,8 @@ def smooth_components(clip: ClipArrays, frozen: Frozen, bucket: Bucket, config: 
     """One clip (no B axis) -> (its components (), each the mean over the pairs that have it; whether
     it has any ()), differentiable."""
     per_pair = clip_components(*prepare_differentiable(clip, bucket, config), frozen, config)
-    components, present = {}, {}
-    for i, name in enumerate(COMPONENTS):
-        keep = frozen.present[:, i]
-        count = jnp.sum(keep)
-        components[name] = jnp.sum(jnp.where(keep, per_pair[name], 0.0)) / jnp.maximum(count, 1)
-        present[name] = count > 0
-    return components, present
+    components = {name: nanmean(per_pair[name], frozen.present[:, i], jnp) for i, name in enumerate(COMPONENTS)}
+    return components, {name: jnp.any(frozen.present[:, i]) for i, name in enumerate(COMPONENTS)}
 
 
 def smooth_stage(clips: ClipArrays, frozen: Frozen, bucket: Bucket, config: SGCConfig,
