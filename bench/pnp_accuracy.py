@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine.stages import PoseStage
+from sgc_jax.engines.jax_engine.pose_stage import PoseStage
 from sgc_jax.kernels.ransac import ransac_pnp, ransac_pnp_regions
 
 W, H = 512, 288

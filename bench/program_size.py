@@ -16,7 +16,7 @@ import numpy as np
 
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines.jax_engine.buckets import Bucket, PaddedClips
-from sgc_jax.engines.jax_engine.stages import stages_of
+from sgc_jax.engines.jax_engine.programs import stages_of
 
 
 def count_equations(jaxpr) -> int:

@@ -1,6 +1,6 @@
 """Evidence for the region-quality rule (issue 7): what it removes, what it keeps.
 
-Three tables, printed as Markdown for bench/RESULTS.md:
+Three tables, printed as Markdown (figures: bench/history/2026-11-21.md):
 
 1. Rigid scenes built to trigger spurious local poses (six small planar layers, 400 tracks per
    pair, so the near layers carry 6-30 tracks each; 0.5 and 1 px noise): local and global
@@ -26,7 +26,7 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines.jax_engine.stages import PoseStage
+from sgc_jax.engines.jax_engine.pose_stage import PoseStage
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
 from sgc_jax.research.perturb import PERTURBATIONS, TARGET_COMPONENT

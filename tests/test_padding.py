@@ -11,7 +11,7 @@ import pytest
 
 from sgc_jax import COMPONENTS, SGCConfig
 from sgc_jax.config import STATIC_FIELDS
-from sgc_jax.engines.jax_engine import buckets, dispatch, pose_stage, programs, stages
+from sgc_jax.engines.jax_engine import buckets, dispatch, pose_stage, programs
 from sgc_jax.research.synth import synth_clip
 
 
@@ -76,7 +76,7 @@ def test_clips_of_another_image_size_share_the_pose_stage(noisy_clip, monkeypatc
 
 def program_keys(config: SGCConfig, bucket) -> dict:
     return {stage.name: programs.ProgramKey(programs.split(stage)[1], stage.sizes(bucket))
-            for stage in stages.stages_of(config)}
+            for stage in programs.stages_of(config)}
 
 
 @pytest.mark.parametrize("field, value", [(f, v) for f, v in ALTERED_STATIC.items()])

@@ -14,7 +14,7 @@ import pytest
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
-from sgc_jax.engines.jax_engine.stages import PoseStage
+from sgc_jax.engines.jax_engine.pose_stage import PoseStage
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
 from sgc_jax.kernels.local_optimum import borrow_region_poses
 from sgc_jax.kernels.pnp import initial_pose, reprojection_residuals, solve_pnp

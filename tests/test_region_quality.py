@@ -19,7 +19,7 @@ from scenes import SPARSE_SCENE
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK, REGION_STATUS
 from sgc_jax.engines import reference
-from sgc_jax.engines.jax_engine.stages import PoseStage
+from sgc_jax.engines.jax_engine.pose_stage import PoseStage
 from sgc_jax.io.tables import PAIR_COLUMNS
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp
@@ -189,7 +189,7 @@ def test_rule_keeps_unmasked_moving_objects_visible(seed):
     spheres still raise the local rotation variance by orders of magnitude over the masked clip
     (reference engine, 240 x 320, rule on; the rule even removes OpenCV's one-pair spikes). A moving
     object that fills a region alone with an ill-conditioned fit is left out as any such region is
-    (seed 2: bench/RESULTS.md, "The excess score, the default")."""
+    (seed 2: bench/history/issue-41.md, "The excess score, the default")."""
     clip = synth_clip(seed=seed, moving_objects=2, n_layers=2, static_spheres=4, height=240, width=320,
                       n_tracks=2048, n_frames=4, with_frames=False)
     masked = score_batch([clip], engine="reference", progress=False)[0].components

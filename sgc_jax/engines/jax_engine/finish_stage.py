@@ -4,18 +4,22 @@ from the pose stage's output."""
 from __future__ import annotations
 
 import functools
+from typing import ClassVar
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
+from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
 from ...kernels.warp import depth_error, warp_depth
 from ..units import translation_factor
+from .buckets import Bucket, PaddedClips
 from .pixel_stage import pairs_flat
 from .pose_stage import LocalPoses
-from .stages import POSE_PER_TRACK, FinishStage, each
+from .stages import POSE_PER_TRACK, Stage, each
 
 
 def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
@@ -62,6 +66,32 @@ def pair_components(poses: LocalPoses, R_g, t_g, err, stage: FinishStage) -> dic
         n_ill_conditioned=n_excluded.astype(jnp.int32),
         R_g_angle_deg=rotation_angle_deg(jnp.eye(3, dtype=R_g.dtype), R_g),
         reason=reason.astype(jnp.int32))
+
+
+class FinishStage(Stage):
+    """Every pair's depth error and pose components (``finish_stage``)."""
+
+    name: ClassVar[str] = "finish"
+    k_seg: int = eqx.field(static=True)  # the region slots of its inputs
+    compat: str = eqx.field(static=True)
+    scale_free: bool = eqx.field(static=True)
+    global_pose: bool = eqx.field(static=True)
+    vectorized: bool = eqx.field(static=True)
+
+    @classmethod
+    def of(cls, config: SGCConfig, vectorized: bool = False) -> FinishStage:
+        return cls(k_seg=config.k_seg, compat=config.compat, scale_free=config.scale_free,
+                   global_pose=config.global_pose, vectorized=vectorized)
+
+    def sizes(self, bucket: Bucket) -> tuple[int, ...]:
+        return bucket.T, bucket.H, bucket.W
+
+    def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
+        regions = {name: value for name, value in previous.items() if name not in POSE_PER_TRACK}
+        return (regions, batch.depth, batch.static, batch.K)
+
+    def __call__(self, inputs: tuple, key) -> dict:
+        return finish_stage(*inputs, self)
 
 
 def finish_stage(pose: dict, depth, static, K, stage: FinishStage) -> dict:

@@ -4,11 +4,16 @@ for every pair of the clips of a bucket."""
 
 from __future__ import annotations
 
+from typing import Any, ClassVar
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ...config import SGCConfig
 from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_regions, region_of_depth
-from .stages import PixelInputs, PixelStage, each
+from .buckets import Bucket, PaddedClips
+from .stages import PixelInputs, Stage, as_int, each
 
 
 def layer_count(tracks_on_mask, stage: PixelStage):
@@ -63,6 +68,36 @@ def pairs_flat(B, T):
     """(flat, unflat): (B, T-1, ...) <-> (B (T-1), ...)."""
     return (lambda x: x.reshape((B * (T - 1),) + x.shape[2:]),
             lambda x: x.reshape((B, T - 1) + x.shape[1:]))
+
+
+class PixelStage(Stage):
+    """The region of every track and frame i-1's depth there (``pixel_stage``)."""
+
+    name: ClassVar[str] = "pixel"
+    k_seg: int = eqx.field(static=True)
+    kmeans_bins: int = eqx.field(static=True)
+    partition: str = eqx.field(static=True)
+    reads_previous_frame: bool = eqx.field(static=True)
+    compat: str = eqx.field(static=True)
+    vectorized: bool = eqx.field(static=True)
+    min_region_pixels: Any  # int32 ()
+    tracks_per_layer: Any  # int32 ()
+
+    @classmethod
+    def of(cls, config: SGCConfig, vectorized: bool = False) -> PixelStage:
+        return cls(k_seg=config.k_seg, kmeans_bins=config.kmeans_bins, partition=config.partition,
+                   reads_previous_frame=config.reads_previous_frame, compat=config.compat, vectorized=vectorized,
+                   min_region_pixels=as_int(config.min_region_pixels), tracks_per_layer=as_int(config.tracks_per_layer))
+
+    def sizes(self, bucket: Bucket) -> tuple[int, ...]:
+        return bucket.T, bucket.H, bucket.W, bucket.P
+
+    def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
+        return tuple(PixelInputs(batch.depth, batch.static, batch.track_prev, batch.track_curr, batch.usable,
+                                 batch.image_hw))
+
+    def __call__(self, inputs: tuple, key) -> dict:
+        return pixel_stage(PixelInputs(*inputs), self)
 
 
 def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:

@@ -4,23 +4,27 @@ camera's relative poses and the clip's translation scale."""
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ...codes import REGION_EMPTY, REGION_OK
-from ...config import NOISE_BLOCK_FRAC
+from ...config import NOISE_BLOCK_FRAC, SGCConfig
 from ...kernels.camera import back_project
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
+from ...kernels.ransac_options import QualityRule, RansacOptions
 from ...kernels.scale import scale_equations, weighted_median
 from ...kernels.so3 import nearest_rotation
 from ...kernels.uncertainty import region_quality
-from .stages import PoseInputs, PoseStage, each
+from .buckets import Bucket, PaddedClips
+from .stages import PoseInputs, Stage, as_float, as_int, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
-# is done, and fewer than ~4 pay more per-op overhead than they save (bench/RESULTS.md).
+# is done, and fewer than ~4 pay more per-op overhead than they save (bench/history/issue-21.md,
+# "Fewer pairs in lockstep").
 PAIRS_AT_ONCE = 5
 
 
@@ -154,6 +158,48 @@ def clip_poses(x: PoseInputs, key, stage: PoseStage):
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
         return poses, R_g, t_g, jnp.float32(1.0)
     return poses, R_g, t_g, scale
+
+
+class PoseStage(Stage):
+    """Every pair's local poses, the camera's relative poses and the clip's translation scale
+    (``pose_stage``)."""
+
+    name: ClassVar[str] = "pose"
+    k_seg: int = eqx.field(static=True)
+    compat: str = eqx.field(static=True)
+    global_pose: bool = eqx.field(static=True)
+    fits_translation_scale: bool = eqx.field(static=True)
+    vectorized: bool = eqx.field(static=True)
+    ransac: RansacOptions
+    quality: QualityRule
+    quality_rule: Any  # int32 (): the region-quality rule on (1) or off (0), one program for both
+
+    @classmethod
+    def of(cls, config: SGCConfig, vectorized: bool = False) -> PoseStage:
+        ransac = RansacOptions(
+            inlier_px=as_float(config.inlier_px), min_inlier_frac=as_float(config.min_inlier_frac),
+            min_points=as_int(config.min_points), confidence=as_float(config.confidence),
+            ambiguous_rot_deg=as_float(config.ambiguous_rot_deg),
+            ambiguous_inlier_frac=as_float(config.ambiguous_inlier_frac),
+            hypotheses=config.ransac_hypotheses, lm_steps=config.lm_steps, borrow=config.borrow_region_poses)
+        quality = QualityRule(
+            min_region_points=as_int(config.min_region_points), max_rot_std_deg=as_float(config.max_rot_std_deg),
+            max_rot_std_px=as_float(config.max_rot_std_px), min_region_extent=as_float(config.min_region_extent),
+            quality_noise_px=as_float(config.quality_noise_px))
+        return cls(k_seg=config.k_seg, compat=config.compat, global_pose=config.global_pose,
+                   fits_translation_scale=config.fits_translation_scale, vectorized=vectorized, ransac=ransac,
+                   quality=quality, quality_rule=as_int(config.quality_rule))
+
+    def sizes(self, bucket: Bucket) -> tuple[int, ...]:
+        return bucket.T, bucket.P
+
+    def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
+        return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
+                                previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
+                                batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
+
+    def __call__(self, inputs: tuple, key) -> dict:
+        return pose_stage(PoseInputs(*inputs), key, self)
 
 
 def pose_stage(x: PoseInputs, key, stage: PoseStage) -> dict:

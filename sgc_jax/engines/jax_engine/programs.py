@@ -18,7 +18,10 @@ from ...config import SGCConfig
 from .buckets import Bucket, PaddedClips
 from .compile_cache import ProgramLock, cache_hint, load_program, program_path, save_program
 from .compile_notice import CompileNotice
-from .stages import Stage, stages_of
+from .finish_stage import FinishStage
+from .pixel_stage import PixelStage
+from .pose_stage import PoseStage
+from .stages import Stage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +44,11 @@ class ProgramKey:
         return f"{self.name} {'x'.join(map(str, self.sizes))}{vectorized}{spread}"
 
 
+def stages_of(config: SGCConfig, vectorized: bool = False) -> tuple[PixelStage, PoseStage, FinishStage]:
+    """The three stages that score clips under ``config``, in the order they run."""
+    return PixelStage.of(config, vectorized), PoseStage.of(config, vectorized), FinishStage.of(config, vectorized)
+
+
 def split(stage: Stage) -> tuple[list, Stage]:
     """(the stage's value fields, the leaves a program takes; its static part)."""
     values, static = eqx.partition(stage, eqx.is_array)
@@ -56,7 +64,8 @@ _compiles: list[tuple[ProgramKey, float]] = []  # every compile or load of this 
 _compiling = threading.Lock()
 
 # XLA options per stage on CPU devices: XLA CPU's YNNPACK fusions run the pose stage's many small
-# reductions slower than its own loops (~175 against ~220 ms per standard clip, bench/RESULTS.md).
+# reductions slower than its own loops (~175 against ~220 ms per standard clip,
+# bench/history/issue-21.md, "The pose stage without YNNPACK fusions").
 # An XLA that no longer knows an option compiles without it.
 CPU_COMPILER_OPTIONS = {"pose": {"xla_cpu_experimental_ynn_fusion_type": ""}}
 
