@@ -42,22 +42,16 @@ def engine_steps(name: str, config: SGCConfig, devices: int | None = None, lanes
     clip per program call on each, on accelerators groups of one bucket in one call) or
     ``"reference"`` (which computes in ``collect``, one clip at a time unless ``lanes`` says
     otherwise)."""
+    prepare = prepare_step(name, config)
     if name == "jax":
-        from ..engines.jax_engine import dispatch
+        from ..engines.jax_engine.dispatch import device_steps
 
         spread = scoring_devices(devices)
-        lanes = lanes or default_lanes(spread)
-        collect = lambda dispatched: dispatch.collect(dispatched, config)  # noqa: E731
-        size, vectorized = clips_per_call(spread), vectorizes(spread)
-        if size == 1:
-            return Engine(prepare_step(name, config), lambda group: dispatch.dispatch(group[0], config), collect,
-                          lanes=lanes)
-        return Engine(prepare_step(name, config),
-                      lambda group: dispatch.dispatch_group(group, config, spread, size, vectorized),
-                      collect, size, lambda prepared: prepared.bucket, lanes)
-    if name == "reference":
-        from ..engines import reference
+        size = clips_per_call(spread)
+        start, collect = device_steps(config, spread, size, vectorizes(spread))
+        by_bucket = (lambda prepared: prepared.bucket) if size > 1 else (lambda prepared: None)
+        return Engine(prepare, start, collect, size, by_bucket, lanes or default_lanes(spread))
+    from ..engines import reference  # prepare_step refused any other name
 
-        return Engine(prepare_step(name, config), lambda group: group[0],
-                      lambda clip: [reference.score_pairs(clip, config)], lanes=lanes or 1)
-    raise ValueError(f"engine must be one of {ENGINES}, got {name!r}")
+    return Engine(prepare, lambda group: group[0], lambda clip: [reference.score_pairs(clip, config)],
+                  lanes=lanes or 1)

@@ -4,7 +4,7 @@ its outputs turned into per-pair arrays (``collect``)."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -66,6 +66,16 @@ def dispatch_group(group: list[PreparedClip], config: SGCConfig, devices: list, 
     stacked = PaddedClips(*(np.concatenate(arrays) for arrays in zip(*[p.batch for p in group], *fill)))
     score = pipeline(config, group[0].bucket, stacked, devices, vectorized)
     return Dispatched(group, score(PaddedClips(*jax.device_put(tuple(stacked), score.sharding))))
+
+
+def device_steps(config: SGCConfig, devices: list, size: int, vectorized: bool) -> tuple[Callable, Callable]:
+    """(start, collect) of ``scoring.engine_steps``: start a group of prepared clips (one clip per
+    program call on the default device when ``size`` is 1, else up to ``size`` at once over
+    ``devices``), and wait for its per-pair arrays."""
+    if size == 1:
+        return lambda group: dispatch(group[0], config), lambda dispatched: collect(dispatched, config)
+    return (lambda group: dispatch_group(group, config, devices, size, vectorized),
+            lambda dispatched: collect(dispatched, config))
 
 
 def pair_arrays(out: dict, b: int, prepared: PreparedClip, scale: float, config: SGCConfig) -> PairArrays:
