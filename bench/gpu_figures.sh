@@ -6,7 +6,7 @@
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 # Each step has its own time limit, so a slow compile loses that step's figure, not the others'.
-# bench/RESULTS.md has the figures of each lease.
+# bench/README.md has the current figures, bench/history/ those of each lease.
 set -o pipefail
 OUT=${OUT:-gpu-figures}
 mkdir -p "$OUT"

@@ -1,4 +1,4 @@
-"""Evidence for the scale-free default semantics (issue 17), printed as Markdown for bench/RESULTS.md.
+"""Evidence for the scale-free default semantics (issue 17), printed as Markdown (bench/history/issue-17.md).
 
 1. Units: a rigid scene seen through 0.5 px track noise, with depth and t_wc scaled together
    (0.01 ... 100) and t_wc alone (0.02, 37): SGC and the largest relative change of a component,

@@ -14,7 +14,7 @@ PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
 # Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers at 200 tracks,
-# k_seg from about 700 (bench/RESULTS.md, "The excess score, the default").
+# k_seg from about 700 (bench/history/issue-41.md, "The excess score, the default").
 TRACKS_PER_LAYER = 70
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).

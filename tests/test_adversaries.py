@@ -18,7 +18,7 @@ SCENE = FIT_SCENES[3]  # 96x128, 8 frames: the demo corpus's bucket
 TRACKS = 1000
 NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
 # The adversaries the evidence answers whatever the score sees; pure rotation and an unmasked mover
-# earn less only as far as the score sees their inconsistency (bench/RESULTS.md, "Evidence").
+# earn less only as far as the score sees their inconsistency (bench/history/issue-59.md, "Evidence").
 BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
                "repeated_frames", "half_broken")
 HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward

@@ -65,14 +65,15 @@ def test_translation_scale_and_depth_error_agree_on_every_clip(scored):
 
 # The bars: 0.95 of (clip, component) cases within tolerance, rho 0.98, 0.98
 # of statuses and JAX wrong on at most 0.02 of regions. At seed 0: 150 of 150 cases, rho 1.000,
-# 668 of 669 statuses, JAX the worse pose in 2 regions (bench/RESULTS.md, "The reference engine's
+# 668 of 669 statuses, JAX the worse pose in 2 regions (bench/history/issue-39.md, "The reference engine's
 # Levenberg-Marquardt step"; other seeds and GPUs: bench/engine_agreement.py). Misses, where a
 # seed has them, are on the 1 px + 30% outlier and unmasked clips, whose small regions have coarse
 # optima of nearly equal cost, where the JAX engine's adaptive stop can miss the lowest basin.
 AGREEMENT_SHARE = 0.95
 # Families whose every (clip, component) case agrees: one pose per region, found alike. With frame
 # i-1's regions (the default) the 0.75 squeeze has two regions of near-equal optima where the
-# reference settles in the higher-cost one (11.82 vs 11.69 and 422.5 vs 419.3 px^2; bench/RESULTS.md).
+# reference settles in the higher-cost one (11.82 vs 11.69 and 422.5 vs 419.3 px^2; bench/history/issue-41.md,
+# "The excess score, the default").
 AGREEING_FAMILIES = ("rigid", "moving", "noisy", "lowconf")
 SPEARMAN_MIN = 0.98
 STATUS_AGREEMENT = 0.98
@@ -138,7 +139,7 @@ def test_on_rigid_scenes_the_spec_local_poses_are_closer_to_the_truth_than_openc
     """The authors' PnP (OpenCV's adaptive RANSAC, inlier counting) on the same regions, against
     both spec engines: OpenCV's worst poses are further from the true motion. On frame i-1's
     regions (the default) the poses differ by > 0.1 deg in 31-32 of 280 regions, half of them in
-    each direction (95th percentile 1.35 deg against OpenCV's 1.43; bench/RESULTS.md)."""
+    each direction (95th percentile 1.35 deg against OpenCV's 1.43; bench/history/issue-41.md, "The excess score, the default")."""
     clips, ref, jx = scored
     errors = {"jax": [], "reference": [], "opencv": []}
     for clip, r, j in zip(clips, ref.clips, jx.clips):
@@ -215,7 +216,7 @@ def test_on_outlier_clips_the_spec_local_poses_are_near_the_information_limit(sc
         assert len(errors) >= 20, name
         within[name] = np.mean(errors <= np.maximum(0.2, 3.0 * limits))
     assert within["jax"] >= 0.85 and within["reference"] >= 0.85, within
-    # measured 0.98 for OpenCV, 1.0 for the spec engines (bench/RESULTS.md)
+    # measured 0.98 for OpenCV, 1.0 for the spec engines (bench/history/issue-20.md, "One semantics, two independent searches")
     assert min(within["jax"], within["reference"]) >= within["opencv"], within
 
 

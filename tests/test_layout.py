@@ -5,7 +5,8 @@ Layers, bottom up (docs/semantics.md names the formulas; STYLE.md draws the layo
 - base: ``config`` (SGCConfig and the semantics' constants), ``codes``, ``stats``, ``version``;
 - ``calibration/``: the score formula, calibration files and fitting;
 - ``io/``: clip files and tables, read, validated, written; nothing that computes a score;
-- ``kernels/``: pure JAX on arrays; they import each other, ``codes`` and ``config``'s constants, never SGCConfig;
+- ``kernels/``: pure JAX on arrays; they import each other, ``codes``, ``config``'s constants (never SGCConfig)
+  and ``stats``' means written for NumPy and jax.numpy;
 - ``engines/``: the JAX engine (its stages, programs and dispatch) and the NumPy reference -> per-pair arrays;
 - ``scoring/``: a run: entry points, streaming, readers, Ray, the result model;
 - ``adapters/``: estimator outputs -> clip files;
@@ -15,6 +16,7 @@ The source is read, not imported, so the test needs neither JAX nor matplotlib.
 """
 
 import ast
+import re
 import tomllib
 from pathlib import Path
 
@@ -39,7 +41,7 @@ ALLOWED = {
 }
 SUBPACKAGES = ("calibration", "io", "kernels", "engines", "scoring", "adapters", "research")
 # what the kernels may take from the base layer: status codes, and config's constants (not SGCConfig)
-KERNEL_BASE = {"sgc_jax.codes": None, "sgc_jax.config": str.isupper}
+KERNEL_BASE = {"sgc_jax.codes": None, "sgc_jax.config": str.isupper, "sgc_jax.stats": None}
 
 
 def module_name(path: Path) -> str:
@@ -223,3 +225,26 @@ def test_no_function_is_longer_than_80_lines_or_takes_more_than_12_parameters():
             if lines > MAX_FUNCTION_LINES or len(params) > MAX_PARAMETERS:
                 too_big.append(f"{name}:{node.lineno} {node.name}: {lines} lines, {len(params)} parameters")
     assert not too_big, "\n".join(too_big)
+
+
+CITATION = re.compile(r'bench/history/([\w.-]+\.md)(?:,\s*(?:#\s*)?"([^"]+)")?')
+
+
+def test_every_cited_benchmark_section_exists():
+    """Code, tests and docs cite a measurement by a file of bench/history/ and, in quotes, the
+    first words of its section's title: the file must exist and one of its sections start so."""
+    sources = [*PACKAGE.rglob("*.py"), *(ROOT / "tests").glob("*.py"), *(ROOT / "bench").glob("*.py"),
+               ROOT / "README.md", ROOT / "bench" / "README.md", *(ROOT / "docs").glob("*.md")]
+    missing = []
+    for source in sources:
+        for match in CITATION.finditer(source.read_text()):
+            path = ROOT / "bench" / "history" / match.group(1)
+            if not path.exists():
+                missing.append(f"{source.name}: {match.group(1)}")
+                continue
+            if match.group(2):
+                quoted = re.sub(r"\s*\n\s*#?\s*", " ", match.group(2)).strip()
+                titles = [line[3:] for line in path.read_text().splitlines() if line.startswith("## ")]
+                if not any(title.startswith(quoted) for title in titles):
+                    missing.append(f"{source.name}: {match.group(1)}, {quoted!r}")
+    assert not missing, "\n".join(missing)

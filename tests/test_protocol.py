@@ -156,7 +156,7 @@ def test_detection_counts_a_cell_when_the_inconsistency_scores_above_its_twin():
 # The claims under long-range tracks' errors (both ends, 0.5 px), on the demo scene's bucket: a
 # consistent scene scores at most 0.10 (the protocol's bar for one clip; measured 0.000-0.022 on
 # seeds 7-9) and sits near its floors; each perturbation at severity 0.25 scores above it (by
-# 0.027-0.39 on those seeds). TEST-split figures: bench/RESULTS.md, "The validation protocol".
+# 0.027-0.39 on those seeds). TEST-split figures: bench/history/issue-58.md, "The validation protocol".
 CONSISTENT_MAX = 0.10
 BOTH_ENDS = NOISE_MODELS["iid-both"].replace(px=0.5)
 

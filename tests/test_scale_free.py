@@ -87,7 +87,7 @@ def test_camera_translations_in_other_units_than_depth_change_nothing(tracked_cl
 
 
 # A median of ~10^4 track equations with 0.5 px noise: the fitted scale's spread across scenes and
-# seeds is ~0.3% (bench/RESULTS.md); the bar allows three times that.
+# seeds is ~0.3% (bench/history/issue-17.md); the bar allows three times that.
 SCALE_FIT_REL_TOL = 1e-2
 
 

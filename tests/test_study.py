@@ -61,7 +61,7 @@ def test_targeted_component_rises_strictly_with_severity(ladder, kind):
 def test_quality_rule_keeps_most_of_the_signal_at_half_severity(ladder):
     """The region-quality rule (on by default, as in ``ladder``) must not hide real
     inconsistency: at severity 0.5 the mean SGC drops by less than 20% against the rule off
-    (figures per kind: bench/RESULTS.md)."""
+    (figures per kind: bench/history/issue-41.md, "A region-quality rule that judges geometry")."""
     assert SGCConfig().applies_quality_rule  # the default that ``ladder`` was scored with
     rule_off = sensitivity_study(ladder_bases(), PERTURBATIONS, (0.0, 0.5), progress=False, quality_rule=False)
     half = list(DEFAULT_SEVERITIES).index(0.5)

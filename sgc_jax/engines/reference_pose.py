@@ -25,7 +25,8 @@ from ..config import MIN_CUT_PX, NOISE_CUT
 # Candidates from the triples that go on to local optimisation, and the rotation [deg] under
 # which two of them count as the same start. On a small region with outlier tracks the first
 # candidate in the lowest basin can rank sixth or lower among the distinct ones; with 16 the
-# search reaches the same optima under every seed tried (bench/RESULTS.md).
+# search reaches the same optima under every seed tried (bench/history/issue-20.md, "Both engines search until
+# the optimum stops moving").
 LO_STARTS = 16
 DISTINCT_DEG = 0.5
 # Least-squares fits per local optimisation (each on the inliers of the previous one) and

@@ -12,7 +12,7 @@ from .pnp import reprojection_residuals
 
 # Newton steps from the forward pass's pose in float64 (gradient checks), where the exact optimum
 # is wanted: the forward pose is the optimum to the Levenberg-Marquardt tolerance (within ~0.01 deg,
-# bench/RESULTS.md), and quadratic convergence takes it to float64's in three. In float32 none:
+# bench/history/issue-42.md, "Gradients of SGC"), and quadratic convergence takes it to float64's in three. In float32 none:
 # the forward pose stands, so that sgc_smooth equals sgc.
 POLISH_STEPS = 3
 

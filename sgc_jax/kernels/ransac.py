@@ -25,7 +25,8 @@ from .uncertainty import PoseUncertainty, pose_uncertainty
 
 # The adaptive stop counts the members within this many pixels of a candidate (at most
 # inlier_px): within 8 px nearly every member of a warped region fits some early candidate, and
-# the draws stopped while better basins were still to be found (bench/RESULTS.md).
+# the draws stopped while better basins were still to be found (bench/history/issue-20.md,
+# "Both engines search until the optimum stops moving").
 ADAPTIVE_PX = 2.0
 # ... and draws this many times the samples its rule asks for: where a region's cost has optima of
 # nearly equal cost, one all-inlier sample is not enough to reach the lowest.

@@ -46,7 +46,7 @@ SEVERITIES = (0.25, 0.5, 0.75, 1.0)
 CLEAN_QUANTILE = 90  # the depth error's z_min: this percentile of the clean clips
 # A pose component counts above this many times its noise floor: a consistent clip's component
 # scatters about its floor (80 % of them below 1.3 times it on the corpus's scenes), and a band of
-# 1.25 keeps the noise bars where 1 and 1.5 do not (bench/RESULTS.md, "The excess score, the default").
+# 1.25 keeps the noise bars where 1 and 1.5 do not (bench/history/issue-41.md, "The excess score, the default").
 FLOOR_BAND = 1.25
 WEIGHTS_FROM = "sgc-paper-2026"  # the weights' source (module docstring)
 SCENE = dict(n_frames=8, n_layers=3, static_spheres=4)

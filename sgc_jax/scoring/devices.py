@@ -8,14 +8,16 @@ import os
 import jax
 
 # Clips scored at once on CPU devices, at most: XLA runs one clip's program on about 1.5 of the
-# 2-core box's cores, a second fills the rest, a third gains nothing (bench/RESULTS.md).
+# 2-core box's cores, a second fills the rest, a third gains nothing
+# (bench/history/issue-21.md, "Lanes: two clips at once on a CPU").
 CPU_LANES = 2
 # On an accelerator: one clip computes while another lane fetches the last clip's results and
 # sends the next clip's arrays.
 ACCELERATOR_LANES = 2
 # Clips per program call on each accelerator: one vectorized program poses all their pairs at
 # once (docs/semantics.md §9.3). A size, not a measured optimum: no GPU run has compared others
-# for score_batch (the Scorer's batch sizes: bench/RESULTS.md, bench/reward.py).
+# for score_batch (the Scorer's batch sizes: bench/history/issue-40.md, "The Scorer fills an
+# accelerator"; bench/reward.py).
 ACCELERATOR_CLIPS_PER_DEVICE = 16
 
 

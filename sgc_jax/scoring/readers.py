@@ -2,7 +2,7 @@
 one entry (``read_entry``), in a thread or in a reader process (``ReaderProcesses``).
 
 Reading a standard clip is 60-200 ms of NumPy and zlib, much of it holding Python's GIL, so
-reader threads keep only about four cores busy however many there are (bench/RESULTS.md): too
+reader threads keep only about four cores busy however many there are (bench/history/issue-21.md, "1,000 standard clips from disk on a GPU"): too
 few to feed a GPU. Reader processes are plain subprocesses (``serve``) that
 talk pickle over their stdin and stdout, each driven by one thread of a pool. Not
 ``multiprocessing``: its spawned children import the caller's ``__main__`` script again, which
