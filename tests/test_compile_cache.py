@@ -10,7 +10,7 @@ import jax
 import pytest
 from scenes import SCENE
 
-from sgc_jax import save_clip
+from sgc_jax import SGCConfig, save_clip
 from sgc_jax.engines.jax_engine import compile_cache
 from sgc_jax.research.synth import synth_clip
 
@@ -104,13 +104,15 @@ class _Lowered:
 
 
 def test_the_pose_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lacks_them():
-    from sgc_jax.engines.jax_engine.programs import CPU_COMPILER_OPTIONS, compile_stage
+    from sgc_jax.engines.jax_engine.programs import compile_stage, stages_of
 
-    options = CPU_COMPILER_OPTIONS["pose"]
+    pixel, pose, _ = stages_of(SGCConfig())
+    options = pose.cpu_compiler_options
+    assert options  # the pose stage has some
     knows = _Lowered(options)
-    assert compile_stage(knows, "pose", "cpu") == "executable" and knows.calls == [options]
+    assert compile_stage(knows, pose, "cpu") == "executable" and knows.calls == [options]
     lacks = _Lowered()
-    assert compile_stage(lacks, "pose", "cpu") == "executable" and lacks.calls == [options, None]
+    assert compile_stage(lacks, pose, "cpu") == "executable" and lacks.calls == [options, None]
     elsewhere = _Lowered()
-    assert compile_stage(elsewhere, "pose", "gpu") == "executable" and elsewhere.calls == [None]
-    assert compile_stage(elsewhere, "pixel", "cpu") == "executable" and elsewhere.calls == [None, None]
+    assert compile_stage(elsewhere, pose, "gpu") == "executable" and elsewhere.calls == [None]
+    assert compile_stage(elsewhere, pixel, "cpu") == "executable" and elsewhere.calls == [None, None]

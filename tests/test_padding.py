@@ -32,7 +32,7 @@ SMALL_NOISY = dict(n_layers=2, static_spheres=4, height=100, width=120, n_tracks
                    outlier_frac=0.3)
 # Each static field (docs/semantics.md §2) altered, and the stages whose programs it shapes.
 ALTERED_STATIC = {"k_seg": 8, "ransac_hypotheses": 50, "kmeans_bins": 32, "lm_steps": 5, "partition": "grid",
-                  "region_frame": "previous", "compat": "authors", "global_pose": False, "align_scale": False,
+                  "region_frame": "current", "compat": "authors", "global_pose": False, "align_scale": False,
                   "borrow_region_poses": False}
 READ_BY = {"k_seg": ("pixel", "pose", "finish"), "ransac_hypotheses": ("pose",), "kmeans_bins": ("pixel",),
            "lm_steps": ("pose",), "partition": ("pixel",), "region_frame": ("pixel",),

@@ -165,6 +165,10 @@ class PoseStage(Stage):
     (``pose_stage``)."""
 
     name: ClassVar[str] = "pose"
+    # XLA CPU's YNNPACK fusions run this stage's many small reductions slower than its own loops
+    # (~175 against ~220 ms per standard clip, bench/history/issue-21.md, "The pose stage without
+    # YNNPACK fusions")
+    cpu_compiler_options: ClassVar[dict[str, str]] = {"xla_cpu_experimental_ynn_fusion_type": ""}
     k_seg: int = eqx.field(static=True)
     compat: str = eqx.field(static=True)
     global_pose: bool = eqx.field(static=True)

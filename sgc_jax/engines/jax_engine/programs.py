@@ -63,13 +63,6 @@ _compiles: list[tuple[ProgramKey, float]] = []  # every compile or load of this 
 # one's compile. Held programs are looked up without it, so a lane never waits for another's.
 _compiling = threading.Lock()
 
-# XLA options per stage on CPU devices: XLA CPU's YNNPACK fusions run the pose stage's many small
-# reductions slower than its own loops (~175 against ~220 ms per standard clip,
-# bench/history/issue-21.md, "The pose stage without YNNPACK fusions").
-# An XLA that no longer knows an option compiles without it.
-CPU_COMPILER_OPTIONS = {"pose": {"xla_cpu_experimental_ynn_fusion_type": ""}}
-
-
 class Pipeline(NamedTuple):
     """The stages that score padded clips of one bucket, with their programs (compiled, or jitted
     to be traced inside a caller's jit): ``pipeline(batch)`` -> the finish stage's output,
@@ -149,9 +142,10 @@ def _traced(stage: Stage, mesh=None) -> Callable:
                                  check_vma=False))
 
 
-def compile_stage(lowered, stage: str, platform: str):
-    """``lowered.compile()`` with the stage's CPU_COMPILER_OPTIONS on a CPU ``platform``."""
-    options = CPU_COMPILER_OPTIONS.get(stage) if platform == "cpu" else None
+def compile_stage(lowered, stage: Stage, platform: str):
+    """``lowered.compile()`` with the stage's ``cpu_compiler_options`` on a CPU ``platform``; an
+    XLA that no longer knows an option compiles without it."""
+    options = stage.cpu_compiler_options if platform == "cpu" else None
     if options:
         try:
             return lowered.compile(compiler_options=options)
@@ -194,7 +188,7 @@ def _compile_missing(stages: tuple[Stage, ...], keys: list[ProgramKey], where: t
     def compile_one(key: ProgramKey, lowered, lowered_s: float, lock: ProgramLock):
         try:
             begin = time.perf_counter()
-            return compile_stage(lowered, key.name, platform), lowered.out_info, lowered_s + time.perf_counter() - begin
+            return compile_stage(lowered, key.stage, platform), lowered.out_info, lowered_s + time.perf_counter() - begin
         finally:
             lock.release()
 

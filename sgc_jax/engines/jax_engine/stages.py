@@ -67,6 +67,7 @@ class Stage(eqx.Module):
     and pairs (``each``)."""
 
     name: ClassVar[str]
+    cpu_compiler_options: ClassVar[dict[str, str]] = {}  # XLA options for its program on CPU devices
     vectorized: eqx.AbstractVar[bool]
 
     def sizes(self, bucket: Bucket) -> tuple[int, ...]:
