@@ -12,6 +12,7 @@ inputs and outputs are flat tuples and dicts (what ``jax.export`` keeps).
 
 from __future__ import annotations
 
+import abc
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
@@ -70,14 +71,17 @@ class Stage(eqx.Module):
     cpu_compiler_options: ClassVar[dict[str, str]] = {}  # XLA options for its program on CPU devices
     vectorized: eqx.AbstractVar[bool]
 
+    @abc.abstractmethod
     def sizes(self, bucket: Bucket) -> tuple[int, ...]:
-        raise NotImplementedError
+        """The bucket sizes its program reads."""
 
+    @abc.abstractmethod
     def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
-        raise NotImplementedError
+        """Its flat inputs from the padded clips and the previous stage's output."""
 
+    @abc.abstractmethod
     def __call__(self, inputs: tuple, key) -> dict:
-        raise NotImplementedError
+        """Its output dict from its flat inputs and RANSAC's key."""
 
 
 def each(fn, items, vectorized: bool):
