@@ -36,7 +36,7 @@ def main() -> None:
     from sgc_jax import SGCConfig, enable_compilation_cache
     from sgc_jax.engines.jax_engine.buckets import PaddedClips
     from sgc_jax.engines.jax_engine.dispatch import prepare_clip
-    from sgc_jax.engines.jax_engine.programs import pipeline, split
+    from sgc_jax.engines.jax_engine.programs import pipeline
     from sgc_jax.io.loading import load_clips
 
     enable_compilation_cache()
@@ -50,9 +50,9 @@ def main() -> None:
             score = pipeline(config, clip.bucket, clip.batch)
             batch = PaddedClips(*jax.device_put(tuple(clip.batch)))
             out = None
-            for stage, program in zip(score.stages, score.programs):
+            for stage, program, values in zip(score.stages, score.programs, score.values):
                 start, start_cpu = time.perf_counter(), time.process_time()
-                out = jax.block_until_ready(program(stage.inputs(batch, out), score.key, split(stage)[0]))
+                out = jax.block_until_ready(program(stage.inputs(batch, out), score.key, values))
                 if round_ or i:
                     times[stage.name].append(time.perf_counter() - start)
                     cpu[stage.name].append(time.process_time() - start_cpu)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, sgc_score
@@ -99,8 +100,6 @@ def summarize_on_device(out: Mapping[str, Any], pair_valid, depth_unit, K, image
     """The finish stage's output (leading axes B, T-1), the pairs each clip has (B, T-1), its D
     (B,), intrinsics (B, T, 3, 3) and true image size (B, 2) -> ``summarize_pairs``' per-clip
     arrays (B,) in float32, with ecd (over the B clips) and depth_unit."""
-    import jax.numpy as jnp
-
     image_pixels = (image_hw[:, 0] * image_hw[:, 1]).astype(jnp.float32)
     pairs = dict(out, static_frac=out["region_pixels"] / image_pixels[:, None],
                  parallax_px=parallax_px(K[:, 1:], out["t_g_norm"], compat != "authors", xp=jnp))

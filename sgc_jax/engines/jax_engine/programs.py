@@ -66,18 +66,19 @@ _compiling = threading.Lock()
 class Pipeline(NamedTuple):
     """The stages that score padded clips of one bucket, with their programs (compiled, or jitted
     to be traced inside a caller's jit): ``pipeline(batch)`` -> the finish stage's output,
-    ``outputs(batch)`` -> every stage's. ``sharding``: where a spread batch must lie (None on one
-    device)."""
+    ``outputs(batch)`` -> every stage's. ``values``: each stage's value fields, the leaves its
+    program takes; ``sharding``: where a spread batch must lie (None on one device)."""
 
     stages: tuple[Stage, ...]
     programs: tuple[Callable, ...]
+    values: tuple[list, ...]
     key: jax.Array  # RANSAC's key (config.seed)
     sharding: Any = None
 
     def outputs(self, batch: PaddedClips) -> list[dict]:
         outs, out = [], None
-        for stage, program in zip(self.stages, self.programs):
-            out = program(stage.inputs(batch, out), self.key, split(stage)[0])
+        for stage, program, values in zip(self.stages, self.programs, self.values):
+            out = program(stage.inputs(batch, out), self.key, values)
             outs.append(out)
         return outs
 
@@ -97,13 +98,14 @@ def pipeline(config: SGCConfig, bucket: Bucket, example: PaddedClips, devices: S
     mesh = _mesh(devices)
     per_device = np.shape(example.depth)[0] // len(devices) if devices else 1
     spread = (len(devices), per_device) if devices else None
-    keys = [ProgramKey(split(stage)[1], stage.sizes(bucket), spread) for stage in stages]
+    values, statics = zip(*(split(stage) for stage in stages))
+    keys = [ProgramKey(static, stage.sizes(bucket), spread) for stage, static in zip(stages, statics)]
     where = tuple(d.id for d in devices) if devices else None
     if not all((key, where) in _programs for key in keys):
         with _compiling:
             _compile_missing(stages, keys, where, mesh, bucket, example)
     sharding = _sharding(mesh) if devices else None
-    return Pipeline(stages, tuple(_programs[key, where][0] for key in keys), jax.random.PRNGKey(config.seed),
+    return Pipeline(stages, tuple(_programs[key, where][0] for key in keys), values, jax.random.PRNGKey(config.seed),
                     sharding)
 
 
@@ -112,8 +114,8 @@ def traced_pipeline(config: SGCConfig, bucket: Bucket, devices: Sequence, vector
     program on its share of the clips), to be traced inside a caller's ``jax.jit``."""
     stages = stages_of(config, vectorized)
     mesh = _mesh(devices)
-    return Pipeline(stages, tuple(_traced(stage, mesh) for stage in stages), jax.random.PRNGKey(config.seed),
-                    _sharding(mesh))
+    return Pipeline(stages, tuple(_traced(stage, mesh) for stage in stages), tuple(split(s)[0] for s in stages),
+                    jax.random.PRNGKey(config.seed), _sharding(mesh))
 
 
 def _mesh(devices: Sequence | None):
