@@ -1,0 +1,96 @@
+"""PyTorch tensors in and out of the Scorer (docs/semantics.md §9.5): the same numbers as the JAX
+Scorer, tensors shared with JAX where DLPack allows and every copy said, ClipFormatError naming the
+array, and sgc_smooth's gradients reaching torch leaves as jax.grad gives them."""
+
+import warnings
+
+import jax
+import numpy as np
+import pytest
+import torch
+from scenes import DEMO_BATCH_SHAPE
+from test_gradients import FLOATS, SHAPE as GRADIENT_SHAPE, gradient_clip
+
+from sgc_jax import ClipFormatError, Scorer
+from sgc_jax.research.perturb import perturb_clip
+from sgc_jax.research.synth import demo_corpus
+from sgc_jax.scoring.scorer import batch_of
+from sgc_jax.torch import TensorCopyWarning, TorchScorer, batch_tensors, to_jax
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return batch_of(demo_corpus()[:DEMO_BATCH_SHAPE[0]])
+
+
+@pytest.fixture(scope="module")
+def scorer():
+    return TorchScorer(DEMO_BATCH_SHAPE)
+
+
+@pytest.fixture(scope="module")
+def expected(batch):
+    return {name: np.asarray(value) for name, value in Scorer(DEMO_BATCH_SHAPE)(batch).items()}
+
+
+def test_torch_scorer_gives_the_jax_scorers_numbers_as_torch_tensors(scorer, batch, expected):
+    out = scorer(batch_tensors(batch))
+    assert set(out) == set(expected)
+    for name, value in out.items():
+        assert isinstance(value, torch.Tensor) and value.device == torch.device("cpu"), name
+        np.testing.assert_array_equal(value.numpy(), expected[name], err_msg=name)
+
+
+def test_compact_float32_and_bool_tensors_reach_jax_without_a_copy():
+    for tensor in (torch.rand(3, 64, 80), torch.rand(3, 64, 80) > 0.5, torch.rand(80, 64).T):
+        array, why = to_jax(tensor, "depth", torch.device("cpu"))
+        assert why == "" and array.unsafe_buffer_pointer() == tensor.data_ptr()
+        np.testing.assert_array_equal(np.asarray(array), tensor.numpy())
+
+
+def test_every_copy_is_said_and_scores_as_the_shared_tensor_does(scorer, batch, expected):
+    tensors = batch_tensors(batch)
+    wide = torch.zeros((*tensors["depth"].shape[:-1], tensors["depth"].shape[-1] + 3))
+    wide[..., :-3] = tensors["depth"]
+    altered = {**tensors, "depth": wide[..., :-3],  # a slice: strides DLPack cannot share
+               "track_vis": tensors["track_vis"].long(),  # int64 without x64
+               "track_prev": tensors["track_prev"].double().requires_grad_(True)}
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        out = scorer(altered)
+    assert set(scorer.copies) == {"depth", "track_vis", "track_prev"}
+    assert "contiguous" in scorer.copies["depth"] and "int64" in scorer.copies["track_vis"]
+    assert "float64" in scorer.copies["track_prev"]
+    assert {str(w.message).split("'")[1] for w in said if w.category is TensorCopyWarning} == set(scorer.copies)
+    for name in ("sgc", "reward", "status"):
+        np.testing.assert_array_equal(out[name].numpy(), expected[name], err_msg=name)
+    scorer(tensors)
+    assert scorer.copies == {}
+
+
+def test_a_wrong_tensor_raises_clip_format_error_naming_the_array(scorer, batch):
+    tensors = batch_tensors(batch)
+    with pytest.raises(ClipFormatError, match="'depth'.*shape \\(4, 8, 96, 128\\)"):
+        scorer({**tensors, "depth": tensors["depth"][:, :, :90]})
+    with pytest.raises(ClipFormatError, match="'track_prev'.*float"):
+        scorer({**tensors, "track_prev": tensors["track_prev"].int()})
+    with pytest.raises(ClipFormatError, match="'K'.*torch.Tensor.*ndarray"):
+        scorer({**tensors, "K": batch["K"]})
+    with pytest.raises(ClipFormatError, match="'depth'.*on cpu.*on meta"):
+        scorer({**tensors, "depth": torch.empty(tensors["depth"].shape, device="meta")})
+
+
+def test_loss_backward_reaches_torch_leaves_with_jax_grads_gradients():
+    clean = gradient_clip(3)
+    batch = batch_of([clean, perturb_clip(clean, "depth_warp", 0.5)])
+    scorer = TorchScorer(GRADIENT_SHAPE, differentiable=True)
+    tensors = batch_tensors(batch)
+    leaves = {name: tensors[name].clone().requires_grad_(True) for name in FLOATS}
+    out = scorer({**tensors, **leaves})
+    assert out["sgc_smooth"].requires_grad and not out["sgc"].requires_grad
+    out["sgc_smooth"].sum().backward()
+    expected = jax.grad(lambda x: scorer.scorer({**batch, **x})["sgc_smooth"].sum())({n: batch[n] for n in FLOATS})
+    for name in FLOATS:
+        grad = leaves[name].grad
+        assert grad is not None and grad.dtype == tensors[name].dtype, name
+        np.testing.assert_array_equal(grad.numpy().astype(np.float32), np.asarray(expected[name]), err_msg=name)
