@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import functools
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -43,9 +43,11 @@ OPTIONAL = {"track_conf": 1.0, "n_frames": "T", "n_tracks": "P", "heights": "H",
 MAX_SELECTED_TRACKS = 46340
 
 
-def batch_of(clips: Sequence[Clip], shape: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
-    """Clips stacked into a Scorer's batch (NumPy), each padded with zeros to ``shape`` = (T, H, W,
-    P) (default: the largest of each size) and its true sizes given."""
+def batch_of(clips: Iterable[Clip], shape: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
+    """Clips (any iterable, e.g. ``load_clips(dir)``'s generator) stacked into a Scorer's batch
+    (NumPy), each padded with zeros to ``shape`` = (T, H, W, P) (default: the largest of each size)
+    and its true sizes given."""
+    clips = list(clips)
     if not clips:
         raise ValueError("batch_of needs at least one clip")
     T, H, W, P = shape or tuple(max(sizes) for sizes in zip(*[(c.n_frames, *c.image_size, c.n_tracks) for c in clips]))
