@@ -574,16 +574,23 @@ def cmd_import(args: argparse.Namespace) -> int:
     from .adapters import import_clip
     from .io.clip import save_clip
 
-    inputs = [p for p in (args.cameras, args.depth, args.tracks, args.masks, args.frames) if p]
+    inputs = [p for p in (args.cameras, args.depth, args.da3, args.tracks, args.masks, args.frames) if p]
     guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
-    if args.depth_kind is None and not args.reference_compat:
+    if args.da3 is not None and (args.cameras or args.depth or args.depth_kind):
+        raise UsageError("--da3 gives depth and cameras from one Depth Anything 3 file: drop --cameras, --depth "
+                         "and --depth-kind, or drop --da3")
+    if args.da3 is None and not (args.cameras and args.depth):
+        raise UsageError("depth and cameras are needed: --da3 results.npz (Depth Anything 3), or --cameras "
+                         "(VGGT) with --depth and --depth-kind (Video Depth Anything)")
+    if args.da3 is None and args.depth_kind is None and not args.reference_compat:
         raise UsageError("--depth-kind disparity|metric is required: disparity for Video Depth Anything's relative "
                          "models, metric for its metric ones (or --reference-compat, the SGC authors' pipeline)")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             clip = import_clip(
-                cameras=args.cameras, depth=args.depth, tracks=args.tracks, masks=args.masks, frames=args.frames,
+                cameras=args.cameras, depth=args.depth, da3=args.da3, tracks=args.tracks, masks=args.masks,
+                frames=args.frames, da3_min_conf=args.da3_min_conf,
                 depth_kind=args.depth_kind, depth_scale=args.depth_scale, depth_key=args.depth_key, size=args.size,
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
@@ -656,27 +663,38 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 IMPORT_EXAMPLE = """\
-example (one clip; docs/semantics.md §1.5):
+examples (one clip; docs/semantics.md §1.5):
   sgc-jax import --cameras vggt/predictions.npz --depth vda/clip_depths.npz --depth-kind disparity \\
                  --tracks delta/ --masks seganymo/clip/ --frames frames/ --out clips/clip.npz --group mymodel
-  sgc-jax validate clips/ && sgc-jax score clips/ --out scores.csv"""
+  sgc-jax import --da3 da3/exports/npz/results.npz --tracks cotracker.npz --frames frames/ --out clips/clip.npz
+  sgc-jax validate clips/ && sgc-jax score clips/ --out scores.csv
+
+exit codes: 0 written, 2 bad arguments or an estimator file that cannot be read (the message names
+the file and array), 3 internal error, 130 interrupted (Ctrl-C)"""
 
 
 def _register_import(sub) -> None:
     imp = sub.add_parser(
-        "import", help="estimator outputs (VGGT, Video Depth Anything, DELTA, SegAnyMo) -> clip .npz",
-        usage="sgc-jax import --cameras NPZ --depth NPZ --depth-kind {disparity,metric} --tracks PATH --out NPZ "
-              "[--masks DIR] [--frames PATH] [options]",
+        "import", help="estimator outputs (VGGT + Video Depth Anything or Depth Anything 3, DELTA or CoTracker3, "
+                       "SegAnyMo) -> clip .npz",
+        usage="sgc-jax import (--cameras NPZ --depth NPZ --depth-kind {disparity,metric} | --da3 NPZ) --tracks PATH "
+              "--out NPZ [--masks DIR] [--frames PATH] [options]",
         epilog=IMPORT_EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
-    inputs = imp.add_argument_group("required")
-    inputs.add_argument("--cameras", required=True, metavar="NPZ",
+    inputs = imp.add_argument_group("depth and cameras: VGGT with Video Depth Anything, or Depth Anything 3")
+    inputs.add_argument("--cameras", metavar="NPZ",
                         help="VGGT predictions .npz with extrinsic (S,3,4), intrinsic (S,3,3)")
-    inputs.add_argument("--depth", required=True, metavar="NPZ", help="Video Depth Anything *_depths.npz (array 'depths')")
+    inputs.add_argument("--depth", metavar="NPZ", help="Video Depth Anything *_depths.npz (array 'depths')")
     inputs.add_argument("--depth-kind", choices=("disparity", "metric"),
                         help="disparity: VDA relative models (depth = scale / disparity); metric: metric models "
-                             "(required unless --reference-compat)")
+                             "(required with --depth unless --reference-compat)")
+    inputs.add_argument("--da3", metavar="NPZ",
+                        help="Depth Anything 3 results.npz (export_format 'npz' or 'mini_npz'): depth, extrinsics "
+                             "and intrinsics of an any-view or nested model, in place of --cameras and --depth")
+    inputs = imp.add_argument_group("required")
     inputs.add_argument("--tracks", required=True, metavar="PATH",
-                        help="DELTA folder of per-pair {a}_{a}.npy/{a}_{b}.npy, or dense coords/vis/conf .pkl/.npz")
+                        help="DELTA folder of per-pair {a}_{a}.npy/{a}_{b}.npy, or dense coords/vis/conf .pkl/.npz; "
+                             "or CoTracker3 pred_tracks (T,N,2) and pred_visibility (T,N) in an .npz or .pt "
+                             "(an .npy: pred_tracks alone)")
     inputs.add_argument("--out", required=True, metavar="NPZ", help="clip .npz to write")
     inputs = imp.add_argument_group("optional inputs")
     inputs.add_argument("--masks", metavar="DIR", help="SegAnyMo folder of palette PNGs (absent: nothing moves)")
@@ -690,15 +708,18 @@ def _register_import(sub) -> None:
     conversion.add_argument("--vggt-mode", choices=VGGT_MODES, default="crop",
                             help="VGGT load_and_preprocess_images mode (default: crop)")
     conversion.add_argument("--vggt-source-size", help="HxW of the frames VGGT saw, when not the clip grid")
-    conversion.add_argument("--track-size", help="HxW of the frames DELTA saw, when not the clip grid")
+    conversion.add_argument("--track-size", help="HxW of the frames the tracker saw, when not the clip grid")
+    conversion.add_argument("--da3-min-conf", type=float,
+                            help="Depth Anything 3: depth of confidence below this is invalid (default: all kept)")
     conversion.add_argument("--no-align-depth", action="store_true",
                             help="keep depth = scale / disparity with shift 0. By default, with --depth-kind disparity "
                                  "and a 'depth' map in --cameras, the disparity's scale and shift are fitted (robustly, "
                                  "over static pixels of above-median VGGT confidence) to VGGT's depth, so depth and "
                                  "camera translations share units; meta['import']['depth_alignment'] records the fit "
                                  "or what was assumed")
-    conversion.add_argument("--vis-threshold", type=float, default=DELTA_VIS_THRESHOLD,
-                            help="DELTA visibility above this is visible (default 0.8, DELTA's own)")
+    conversion.add_argument("--vis-threshold", type=float,
+                            help="visibility above this is visible (default: the tracker's own, DELTA "
+                                 f"{DELTA_VIS_THRESHOLD:g}, CoTracker3 0.6 where its visibility is not boolean)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")

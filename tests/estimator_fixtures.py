@@ -13,6 +13,12 @@ against an independent statement of each format:
 - DELTA as in the SGC authors' pipeline (gen_data.py): ``{a}_{a}.npy`` / ``{a}_{b}.npy`` float32
   (N, 4) = x, y, vis, conf; dense: ``coords`` (T, N, 2), ``vis`` (T, N), ``conf`` (T, N).
 - SegAnyMo / SAM2: DAVIS-style palette PNGs, index 0 = background, k = object k.
+- Depth Anything 3 (ByteDance-Seed/Depth-Anything-3, export_to_npz): ``exports/npz/results.npz``
+  with ``image`` (N, h, w, 3), ``depth`` (N, h, w), ``conf`` (N, h, w) rounded to 0.01,
+  ``extrinsics`` (N, 3, 4) world->camera and ``intrinsics`` (N, 3, 3), all on the processed grid
+  of ``upper_bound_resize``: longest side 504, each side a multiple of 14, no crop.
+- CoTracker3 (facebookresearch/co-tracker predictors): ``pred_tracks`` (1, T, N, 2) in the input
+  video's pixels, ``pred_visibility`` (1, T, N) bool (visibility x confidence > 0.6).
 """
 
 from __future__ import annotations
@@ -203,3 +209,43 @@ def write_all(root: Path, clip: Clip, *, vggt_mode: str = "crop", depth_size: tu
         "masks": write_seganymo(root / "seganymo", clip, mask_size or (H, W)),
         "frames": write_frames(root / "frames", clip),
     }
+
+
+def da3_processed_hw(height: int, width: int, process_res: int = 504) -> tuple[int, int]:
+    """DA3's ``upper_bound_resize``: the longer side to ``process_res``, each side to a multiple of 14."""
+    scale = process_res / max(height, width)
+    return max(14, round(height * scale / 14) * 14), max(14, round(width * scale / 14) * 14)
+
+
+def write_da3(path: Path, clip: Clip, *, units: float = 1.0, conf: np.ndarray | None = None,
+              with_extrinsics: bool = True) -> Path:
+    """DA3's results.npz of ``clip``: depth (times ``units``, as the translations) nearest-upsampled
+    to the processed grid, K moved onto it through the resize (pixel centres)."""
+    H, W = clip.image_size
+    h, w = da3_processed_hw(H, W)
+    s_x, s_y = w / W, h / H
+    A = np.array([[s_x, 0, 0.5 * s_x - 0.5], [0, s_y, 0.5 * s_y - 0.5], [0, 0, 1]])
+    depth = upsample_nearest(units * clip.depth.astype(np.float64), (h, w))
+    arrays = {"image": np.zeros((clip.n_frames, h, w, 3), np.uint8), "depth": np.round(depth, 6).astype(np.float32),
+              "conf": np.round(conf if conf is not None else np.full((clip.n_frames, h, w), 2.0), 2).astype(np.float32),
+              "intrinsics": (A @ clip.K).astype(np.float32)}
+    if with_extrinsics:
+        arrays["extrinsics"] = np.concatenate([clip.R_wc, units * clip.t_wc[:, :, None]], axis=2).astype(np.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def write_cotracker(path: Path, tracks: np.ndarray, visibility: np.ndarray) -> Path:
+    """CoTracker3's (pred_tracks (T, N, 2), pred_visibility (T, N)) with their batch axis, as .npz,
+    .pt (torch.save of the tuple) or .npy (the tracks alone), by the suffix."""
+    pred_tracks, pred_visibility = tracks[None].astype(np.float32), visibility[None]
+    if path.suffix == ".pt":
+        import torch
+
+        torch.save((torch.from_numpy(pred_tracks), torch.from_numpy(pred_visibility)), path)
+    elif path.suffix == ".npy":
+        np.save(path, pred_tracks)
+    else:
+        np.savez_compressed(path, pred_tracks=pred_tracks, pred_visibility=pred_visibility)
+    return path

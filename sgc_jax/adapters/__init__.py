@@ -6,25 +6,30 @@
   (relative models) or ``"metric"``, resized to the clip grid.
 - :func:`align_depth_to_vggt`: relative disparity -> depth in VGGT's camera units, by a robust fit of
   its scale and shift to VGGT's ``depth`` map.
+- :func:`read_da3`: Depth Anything 3's ``results.npz``: depth, world->camera extrinsics and K
+  from one model, mapped from DA3's processed grid to the clip grid.
 - :func:`read_delta`: DELTA per-pair ``{a}_{a}.npy`` / ``{a}_{b}.npy`` files or dense
   ``coords`` / ``vis`` / ``conf`` arrays.
+- :func:`read_cotracker`: CoTracker3 ``pred_tracks`` / ``pred_visibility`` (.npz, .pt or .npy).
 - :func:`read_seganymo`: SegAnyMo palette PNG masks (indices, 0 = static).
 - :func:`read_frames`: a frames folder or a video file.
 """
 
-from .assemble import ImportOptions, import_clip
+from .assemble import ImportOptions, import_clip, read_tracks
 from .common import EstimatorFormatError
+from .cotracker import COTRACKER_VIS_THRESHOLD, read_cotracker
 from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta, read_delta_dense, read_delta_pairs
 from .depth_alignment import DepthAlignmentWarning, DisparityFit, align_depth_to_vggt, fit_inverse_depth_affine
+from .depth_anything_3 import DA3Output, read_da3
 from .frames import Frames, read_frames
 from .seganymo import MaskFormatWarning, Masks, read_mask_labels, read_seganymo
 from .vggt import Cameras, VGGTDepth, VGGTGrid, read_vggt, vggt_grid
 from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
-    "ImportOptions", "Cameras", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit",
+    "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit",
     "EstimatorFormatError", "Frames", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth", "VGGTGrid",
-    "align_depth_to_vggt", "fit_inverse_depth_affine", "import_clip", "read_delta", "read_delta_dense",
-    "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo", "read_vggt", "read_video_depth",
+    "align_depth_to_vggt", "fit_inverse_depth_affine", "import_clip", "read_cotracker", "read_da3", "read_delta", "read_delta_dense",
+    "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo", "read_tracks", "read_vggt", "read_video_depth",
     "vggt_grid",
 ]

@@ -1,9 +1,11 @@
-"""Build one clip from the four estimators' outputs (and optional frames), on one pixel grid.
+"""Build one clip from the estimators' outputs (and optional frames), on one pixel grid.
 
-The clip grid is ``size`` when given, else the frames' size, else the masks' size, else the depth
-maps' size. Every piece is brought to that grid by its estimator's own rule (see each module);
-tracks are assumed to be on it unless ``track_size`` says where DELTA ran. Relative (disparity)
-depth is fitted to VGGT's depth map when the cameras file has one (:mod:`.depth_alignment`).
+Depth and cameras come from VGGT (cameras) with Video Depth Anything (depth), or both from one
+Depth Anything 3 file; tracks from DELTA or CoTracker3; masks from SegAnyMo. The clip grid is
+``size`` when given, else the frames' size, else the masks' size, else the depth maps' size.
+Every piece is brought to that grid by its estimator's own rule (see each module); tracks are
+assumed to be on it unless ``track_size`` says where the tracker ran. Relative (disparity) depth
+is fitted to VGGT's depth map when the cameras file has one (:mod:`.depth_alignment`).
 """
 
 from __future__ import annotations
@@ -16,8 +18,10 @@ from ..config import SGCConfig
 from ..io.clip import Clip
 from ..io.loading import clip_from_arrays
 from .common import parse_size, resize_frames, resize_points
-from .delta import DELTA_VIS_THRESHOLD, read_delta
+from .cotracker import holds_cotracker, read_cotracker
+from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta
 from .depth_alignment import align_depth_to_vggt
+from .depth_anything_3 import read_da3, read_da3_hw
 from .frames import read_frames
 from .seganymo import read_mask_hw, read_seganymo
 from .vggt import read_vggt
@@ -39,7 +43,8 @@ class ImportOptions:
     vggt_mode: str = "crop"  # VGGT's load_and_preprocess_images mode: "crop" or "pad"
     vggt_source_size: tuple[int, int] | str | None = None  # HxW of the frames VGGT saw, when not the clip grid
     track_size: tuple[int, int] | str | None = None  # HxW of the frames DELTA saw, when not the clip grid
-    vis_threshold: float = DELTA_VIS_THRESHOLD  # DELTA visibility above this is visible
+    vis_threshold: float | None = None  # visibility above this is visible (None: the tracker's own, DELTA 0.8, CoTracker3 0.6)
+    da3_min_conf: float | None = None  # Depth Anything 3: depth of conf below this is invalid (None: all kept)
     reference_compat: bool = False  # the SGC authors' pipeline (K at 518 px, depth = VDA / 1000, no threshold)
     align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
 
@@ -58,10 +63,21 @@ def _same_frame_counts(counts: dict[str, int | None]) -> None:
                          "run every estimator on the same frames (e.g. the same --target_fps / --max_len)")
 
 
-def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, frames: Any = None,
-                clip_id: str | None = None, group: str = "", meta: dict | None = None,
+def read_tracks(source: Any, *, frame_names: list[str] | None = None, vis_threshold: float | None = None,
+                reference_compat: bool = False) -> Tracks:
+    """DELTA (a folder of per-pair files, or dense coords/vis/conf) or CoTracker3 (pred_tracks and
+    pred_visibility in an .npz, .pt or .npy) tracks, told apart by the file's suffix and names."""
+    if not (isinstance(source, (str, os.PathLike)) and os.path.isdir(source)) and holds_cotracker(source):
+        return read_cotracker(source, vis_threshold=vis_threshold)
+    return read_delta(source, frame_names=frame_names, reference_compat=reference_compat,
+                      vis_threshold=DELTA_VIS_THRESHOLD if vis_threshold is None else vis_threshold)
+
+
+def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any = None, masks: Any = None,
+                frames: Any = None, clip_id: str | None = None, group: str = "", meta: dict | None = None,
                 options: ImportOptions | None = None, **option_fields: Any) -> Clip:
-    """VGGT ``cameras``, Video Depth Anything ``depth``, DELTA ``tracks``, SegAnyMo ``masks`` -> a Clip.
+    """VGGT ``cameras`` with Video Depth Anything ``depth``, or Depth Anything 3 ``da3`` (both from
+    one file); DELTA or CoTracker3 ``tracks``; SegAnyMo ``masks`` -> a Clip.
 
     Paths or mappings of arrays (see :mod:`sgc_jax.adapters`); ``options`` (or its fields as
     keywords, e.g. ``depth_kind="disparity"``): an ImportOptions. ``reference_compat`` reproduces
@@ -73,27 +89,43 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
     o = dataclasses.replace(options or ImportOptions(), **option_fields)
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
+    if da3 is not None and (cameras is not None or depth is not None):
+        raise ValueError("give either a Depth Anything 3 file (da3=, CLI --da3) or VGGT cameras with Video Depth "
+                         "Anything depth (cameras= and depth=), not both")
+    if da3 is None and (cameras is None or depth is None):
+        raise ValueError("depth and cameras are needed: da3= (CLI --da3, Depth Anything 3's results.npz), or "
+                         "cameras= and depth= (CLI --cameras, --depth: VGGT and Video Depth Anything)")
+    if da3 is not None and o.reference_compat:
+        raise ValueError("reference-compat reproduces the authors' VGGT + Video Depth Anything pipeline; "
+                         "a Depth Anything 3 clip is scored with the default semantics")
     loaded_frames = read_frames(frames) if frames is not None else None
     names = loaded_frames.names if loaded_frames is not None else None
     H, W = o.size or (loaded_frames.frames.shape[1:3] if loaded_frames is not None
-                      else read_mask_hw(masks) or read_depth_hw(depth, o.depth_key))
+                      else read_mask_hw(masks) or (read_da3_hw(da3) if da3 is not None
+                                                   else read_depth_hw(depth, o.depth_key)))
     H, W = int(H), int(W)
 
-    track_data = read_delta(tracks, frame_names=names, vis_threshold=o.vis_threshold,
-                            reference_compat=o.reference_compat)
+    track_data = read_tracks(tracks, frame_names=names, vis_threshold=o.vis_threshold,
+                             reference_compat=o.reference_compat)
     names = names or track_data.frame_names
-    cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
-                     reference_compat=o.reference_compat, with_depth=o.fits_disparity)
-    depth_data = read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
-                                  key=o.depth_key, reference_compat=o.reference_compat)
+    if da3 is not None:
+        da3_data = read_da3(da3, height=H, width=W, min_conf=o.da3_min_conf)
+        cams, depth_data = da3_data.cameras, da3_data.depth
+    else:
+        cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
+                         reference_compat=o.reference_compat, with_depth=o.fits_disparity)
+        depth_data = read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
+                                      key=o.depth_key, reference_compat=o.reference_compat)
     T = depth_data.depth.shape[0]
     mask_data = read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T)
-    _same_frame_counts({f"cameras ({_label(cameras)})": len(cams.K), f"depth ({_label(depth)})": T,
-                        f"tracks ({_label(tracks)})": track_data.n_frames,
+    depth_label = f"depth and cameras ({_label(da3)})" if da3 is not None else f"depth ({_label(depth)})"
+    _same_frame_counts({f"cameras ({_label(cameras)})": None if da3 is not None else len(cams.K),
+                        depth_label: T, f"tracks ({_label(tracks)})": track_data.n_frames,
                         f"masks ({_label(masks)})": None if mask_data.static_mask is None else len(mask_data.static_mask),
                         f"frames ({_label(frames)})": None if loaded_frames is None else len(loaded_frames.frames)})
-    depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
-                                     enabled=o.align_depth)
+    if da3 is None:
+        depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
+                                         enabled=o.align_depth)
 
     track_prev, track_curr = track_data.track_prev, track_data.track_curr
     if o.track_size is not None:
@@ -108,7 +140,8 @@ def import_clip(*, cameras: Any, depth: Any, tracks: Any, masks: Any = None, fra
         arrays["frames"] = resize_frames(loaded_frames.frames, (H, W))
 
     record = {"reference_compat": bool(o.reference_compat), "grid": [H, W],
-              "sources": {"cameras": _label(cameras), "depth": _label(depth), "tracks": _label(tracks),
+              "sources": {"cameras": _label(da3 if da3 is not None else cameras),
+                          "depth": _label(da3 if da3 is not None else depth), "tracks": _label(tracks),
                           "masks": None if masks is None else _label(masks),
                           "frames": None if frames is None else _label(frames)},
               **cams.notes, **depth_data.notes, **track_data.notes, **mask_data.notes}
