@@ -8,6 +8,7 @@ import json
 import os
 import sys
 import tempfile
+import textwrap
 import tomllib
 import traceback
 import typing
@@ -35,8 +36,30 @@ EXIT_INTERRUPTED = 130
 
 EXIT_CODES_HELP = ("exit codes: 0 every input processed; 1 finished, but some inputs were reported as errors "
                    "(outputs written for the rest); 2 nothing done (bad arguments, an input of the wrong kind, "
-                   "--out naming an input); 3 internal error (a bug; please report the traceback). "
+                   "--out naming an input); 3 internal error (a bug; please report the traceback); 130 "
+                   "interrupted (Ctrl-C: rows already written stay, `score --resume` goes on from them). "
                    "docs/semantics.md §8")
+
+# Each subcommand's --help ends with these examples, then the exit codes.
+EXAMPLES = {
+    "score": ["sgc-jax score clips/ --out scores.csv --pairs pairs.csv",
+              "sgc-jax score clips/ --out scores.csv --resume     # after an interruption"],
+    "demo": ["sgc-jax demo --out demo_clips/     # keeps the clips, e.g. for the README's Scorer snippet"],
+    "synth": ["sgc-jax synth --out demo_clips/ && sgc-jax score demo_clips/"],
+    "calibrate": ["sgc-jax calibrate scores.csv --floor-band 1.25 --out calib.json",
+                  "sgc-jax score clips/ --calibration calib.json --out scores.csv"],
+    "rescore": ["sgc-jax rescore scores.csv --calibration calib.json --out rescored.csv"],
+    "compare": ["sgc-jax compare scores.csv --by group --plot groups.png",
+                "sgc-jax compare spec.csv --against authors.csv --by clip"],
+    "import": ["sgc-jax import --cameras vggt/predictions.npz --depth vda/clip_depths.npz --depth-kind disparity \\",
+               "               --tracks delta/ --masks seganymo/clip/ --frames frames/ --out clips/clip.npz",
+               "sgc-jax import --da3 da3/exports/npz/results.npz --tracks cotracker.npz --frames frames/ "
+               "--out clips/clip.npz",
+               "sgc-jax validate clips/ && sgc-jax score clips/ --out scores.csv"],
+    "pack": ["sgc-jax pack clips/ --out batch.npz && sgc-jax score batch.npz --out scores.csv"],
+    "validate": ["sgc-jax validate clips/ --strict -v"],
+    "perturb": ["sgc-jax perturb clips/ --kinds warp,squeeze,depth_warp --severities 0,0.25,0.5 --summary study.csv"],
+}
 
 
 class UsageError(Exception):
@@ -662,24 +685,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_SOME_FAILED if errors or (args.strict and warned) else EXIT_OK
 
 
-IMPORT_EXAMPLE = """\
-examples (one clip; docs/semantics.md §1.5):
-  sgc-jax import --cameras vggt/predictions.npz --depth vda/clip_depths.npz --depth-kind disparity \\
-                 --tracks delta/ --masks seganymo/clip/ --frames frames/ --out clips/clip.npz --group mymodel
-  sgc-jax import --da3 da3/exports/npz/results.npz --tracks cotracker.npz --frames frames/ --out clips/clip.npz
-  sgc-jax validate clips/ && sgc-jax score clips/ --out scores.csv
-
-exit codes: 0 written, 2 bad arguments or an estimator file that cannot be read (the message names
-the file and array), 3 internal error, 130 interrupted (Ctrl-C)"""
-
-
 def _register_import(sub) -> None:
     imp = sub.add_parser(
         "import", help="estimator outputs (VGGT + Video Depth Anything or Depth Anything 3, DELTA or CoTracker3, "
                        "SegAnyMo) -> clip .npz",
         usage="sgc-jax import (--cameras NPZ --depth NPZ --depth-kind {disparity,metric} | --da3 NPZ) --tracks PATH "
               "--out NPZ [--masks DIR] [--frames PATH] [options]",
-        epilog=IMPORT_EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description="Turn one clip's estimator outputs into a clip file, each array brought to the clip grid by "
+                    "its estimator's rule (docs/semantics.md §1.5).")
     inputs = imp.add_argument_group("depth and cameras: VGGT with Video Depth Anything, or Depth Anything 3")
     inputs.add_argument("--cameras", metavar="NPZ",
                         help="VGGT predictions .npz with extrinsic (S,3,4), intrinsic (S,3,3)")
@@ -730,7 +743,12 @@ def _register_import(sub) -> None:
 
 
 def _register_pack(sub) -> None:
-    pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (docs/semantics.md §1.3)")
+    pack = sub.add_parser("pack", help="stack clip .npz files into one batch file (docs/semantics.md §1.3)",
+                          description="Stack clip files into one batch .npz: each clip's arrays padded to the "
+                                      "largest (T, H, W, P), its true sizes and clip id kept (docs/semantics.md "
+                                      "§1.3). `score` reads a batch file as it reads a directory of its clips; "
+                                      "one file moves and reads faster than thousands. Clips are validated as "
+                                      "they are loaded: a broken one stops the pack unless --skip-errors.")
     pack.add_argument("clips", nargs="+", help="clip .npz files, directories, globs or URLs")
     pack.add_argument("--out", required=True, help="(required) batch .npz to write")
     pack.add_argument("--skip-errors", action="store_true", help="pack the loadable clips when some fail")
@@ -841,6 +859,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for register in SUBCOMMANDS:
         register(sub)
+    for name, command in sub.choices.items():
+        examples = "\n".join(f"  {line}" for line in EXAMPLES[name])
+        command.epilog = f"example{'s' if len(EXAMPLES[name]) > 1 else ''}:\n{examples}\n\n" + textwrap.fill(EXIT_CODES_HELP)
+        command.formatter_class = argparse.RawDescriptionHelpFormatter  # the examples' lines kept as written
+        command.description = textwrap.fill(command.description) if command.description else None
     return parser
 
 

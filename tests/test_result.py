@@ -26,7 +26,7 @@ from sgc_jax import (
 )
 from sgc_jax.io.tables import read_scores, write_scores
 from sgc_jax.research.synth import synth_clip
-from sgc_jax.scoring.result import camera_dynamics, clip_from_row, rescore_records
+from sgc_jax.scoring.result import camera_dynamics, clip_from_row, failed_clip, rescore_records
 
 
 def clip_result(clip_id, ecd_trans, ecd_rot, group="g", status="ok", components=None):
@@ -155,6 +155,13 @@ def test_the_printed_table_carries_the_scores_interval_and_every_unit(scored):
     first = scored.clips[0]
     assert math.isfinite(first.sgc_lo) and first.sgc_lo <= first.sgc_hi
     assert f"{first.sgc_lo:.4g}" in rows[0] and f"{first.sgc_hi:.4g}" in rows[0]
+
+
+def test_the_printed_table_names_d_and_says_why_a_clip_was_not_scored(scored):
+    broken = failed_clip("broken", "clip 'broken': array 'depth': expected shape (T, H, W), found shape (3,)")
+    lines = BatchResult([*scored.clips, broken], scored.calibration).table().splitlines()
+    assert any(line.startswith("D: the clip's depth unit") for line in lines)
+    assert lines[-1] == f"broken (error): {broken.reason}"
 
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -329,6 +329,14 @@ class BatchResult:
         the score, its 90 % interval over tracker noise (§5.6), the components and the evidence (§3.11)."""
         compats = {c.compat for c in self.clips if c.compat}
         units = COLUMN_UNITS[compats.pop()] if len(compats) == 1 else None
-        return format_table(self.to_records(), columns, units)
+        records = self.to_records()
+        legend = []
+        if units and any("D" in units.get(c, "").split("%")[-1] for c in columns):
+            legend.append("D: the clip's depth unit, the median depth of its static pixels (docs/semantics.md "
+                          "§3.1); sgc_lo, sgc_hi: the 90 % interval over tracker noise (§5.6)")
+        # why a clip was not scored, or scored on part of its pairs or on little
+        legend += [f"{r['clip_id']} ({r['status']}): {r['reason']}" for r in records
+                   if r.get("reason") and r.get("status") != "ok"]
+        return "\n".join([format_table(records, columns, units), *legend])
 
 
