@@ -11,7 +11,7 @@ Layers, bottom up (docs/semantics.md names the formulas; STYLE.md draws the layo
 - ``scoring/``: a run: entry points, streaming, readers, Ray, the result model;
 - ``adapters/``: estimator outputs -> clip files;
 - ``research/``: synthetic scenes, perturbations, studies, tables, diagnostics, plots;
-- ``cli`` and the public ``sgc_jax`` namespace on top.
+- ``cli``, ``torch`` (the PyTorch bridge over the Scorer) and the public ``sgc_jax`` namespace on top.
 The source is read, not imported, so the test needs neither JAX nor matplotlib.
 """
 
@@ -37,6 +37,7 @@ ALLOWED = {
     "adapters": {"io", "base"},
     "research": {"scoring", "engines", "kernels", "io", "calibration", "base"},
     "cli": {"public", "research", "adapters", "scoring", "engines", "io", "calibration", "base"},
+    "torch": {"scoring", "io", "calibration", "base"},
     "public": {"research", "adapters", "scoring", "engines", "io", "calibration", "base"},
 }
 SUBPACKAGES = ("calibration", "io", "kernels", "engines", "scoring", "adapters", "research")
@@ -62,7 +63,7 @@ def layer(name: str) -> str:
     parts = name.split(".")
     if len(parts) == 1:
         return "public"
-    if parts[1] in (*SUBPACKAGES, "cli"):
+    if parts[1] in (*SUBPACKAGES, "cli", "torch"):
         return parts[1]
     raise KeyError(f"{name} belongs to no layer: add it to tests/test_layout.py")
 

@@ -73,6 +73,30 @@ def read_tracks(source: Any, *, frame_names: list[str] | None = None, vis_thresh
                       vis_threshold=DELTA_VIS_THRESHOLD if vis_threshold is None else vis_threshold)
 
 
+def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -> None:
+    if da3 is not None and (cameras is not None or depth is not None):
+        raise ValueError("give either a Depth Anything 3 file (da3=, CLI --da3) or VGGT cameras with Video Depth "
+                         "Anything depth (cameras= and depth=), not both")
+    if da3 is None and (cameras is None or depth is None):
+        raise ValueError("depth and cameras are needed: da3= (CLI --da3, Depth Anything 3's results.npz), or "
+                         "cameras= and depth= (CLI --cameras, --depth: VGGT and Video Depth Anything)")
+    if da3 is not None and o.reference_compat:
+        raise ValueError("reference-compat reproduces the authors' VGGT + Video Depth Anything pipeline; "
+                         "a Depth Anything 3 clip is scored with the default semantics")
+
+
+def _depth_and_cameras(cameras: Any, depth: Any, da3: Any, grid: tuple[int, int], o: ImportOptions):
+    """(Cameras, Depth) on the clip grid: both from one DA3 file, or VGGT's and VDA's."""
+    H, W = grid
+    if da3 is not None:
+        read = read_da3(da3, height=H, width=W, min_conf=o.da3_min_conf)
+        return read.cameras, read.depth
+    cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
+                     reference_compat=o.reference_compat, with_depth=o.fits_disparity)
+    return cams, read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
+                                  key=o.depth_key, reference_compat=o.reference_compat)
+
+
 def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any = None, masks: Any = None,
                 frames: Any = None, clip_id: str | None = None, group: str = "", meta: dict | None = None,
                 options: ImportOptions | None = None, **option_fields: Any) -> Clip:
@@ -89,15 +113,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     o = dataclasses.replace(options or ImportOptions(), **option_fields)
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
-    if da3 is not None and (cameras is not None or depth is not None):
-        raise ValueError("give either a Depth Anything 3 file (da3=, CLI --da3) or VGGT cameras with Video Depth "
-                         "Anything depth (cameras= and depth=), not both")
-    if da3 is None and (cameras is None or depth is None):
-        raise ValueError("depth and cameras are needed: da3= (CLI --da3, Depth Anything 3's results.npz), or "
-                         "cameras= and depth= (CLI --cameras, --depth: VGGT and Video Depth Anything)")
-    if da3 is not None and o.reference_compat:
-        raise ValueError("reference-compat reproduces the authors' VGGT + Video Depth Anything pipeline; "
-                         "a Depth Anything 3 clip is scored with the default semantics")
+    _check_depth_sources(cameras, depth, da3, o)
     loaded_frames = read_frames(frames) if frames is not None else None
     names = loaded_frames.names if loaded_frames is not None else None
     H, W = o.size or (loaded_frames.frames.shape[1:3] if loaded_frames is not None
@@ -108,14 +124,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     track_data = read_tracks(tracks, frame_names=names, vis_threshold=o.vis_threshold,
                              reference_compat=o.reference_compat)
     names = names or track_data.frame_names
-    if da3 is not None:
-        da3_data = read_da3(da3, height=H, width=W, min_conf=o.da3_min_conf)
-        cams, depth_data = da3_data.cameras, da3_data.depth
-    else:
-        cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
-                         reference_compat=o.reference_compat, with_depth=o.fits_disparity)
-        depth_data = read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
-                                      key=o.depth_key, reference_compat=o.reference_compat)
+    cams, depth_data = _depth_and_cameras(cameras, depth, da3, (H, W), o)
     T = depth_data.depth.shape[0]
     mask_data = read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T)
     depth_label = f"depth and cameras ({_label(da3)})" if da3 is not None else f"depth ({_label(depth)})"
