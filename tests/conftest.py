@@ -56,7 +56,7 @@ def drift_clip():
 # in at the end; a file that compiles a program comes before the files that load it from the
 # run's cache (the notebooks build the demo corpus's programs and the Scorers of test_scorer.py
 # and test_gradients.py). The rest keep their order.
-SCHEDULE = ("test_scorer.py", "test_engine_agreement.py", "test_gradients.py", "test_streaming.py",
+SCHEDULE = ("test_scorer.py", "test_engine_agreement.py", "test_gradients.py", "test_torch.py", "test_streaming.py",
             "test_notebooks.py", "test_scale_free.py", "test_cli.py", "test_demo.py", "test_study.py",
             "test_pnp.py", "test_region_quality.py", "test_compat.py")
 

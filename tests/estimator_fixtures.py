@@ -249,3 +249,30 @@ def write_cotracker(path: Path, tracks: np.ndarray, visibility: np.ndarray) -> P
     else:
         np.savez_compressed(path, pred_tracks=pred_tracks, pred_visibility=pred_visibility)
     return path
+
+
+def long_range_tracks_of(clip: Clip, n_tracks: int, seed: int = 0, occlusion_rel: float = 0.02
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """CoTracker-like (tracks (T, N, 2), visibility (T, N)) of a rigid ``clip``: static pixels of
+    frame 0 (pixel centres, valid depth) back-projected and projected into every frame through the
+    clip's own cameras; visible where in the image, in front, and within ``occlusion_rel`` of the
+    depth map there (else occluded)."""
+    rng = np.random.default_rng(seed)
+    T, (H, W) = clip.n_frames, clip.image_size
+    rows, cols = np.nonzero(clip.static_mask[0] & (clip.depth[0] > 0))
+    pick = rng.choice(len(rows), size=min(n_tracks, len(rows)), replace=False)
+    u, v = cols[pick].astype(np.float64), rows[pick].astype(np.float64)
+    z = clip.depth[0][rows[pick], cols[pick]].astype(np.float64)
+    cam0 = np.linalg.solve(clip.K[0], np.stack([u * z, v * z, z]))  # (3, N) in camera 0
+    world = clip.R_wc[0].T @ (cam0 - clip.t_wc[0][:, None])
+    tracks, visible = np.zeros((T, len(pick), 2)), np.zeros((T, len(pick)), bool)
+    for t in range(T):
+        cam = clip.R_wc[t] @ world + clip.t_wc[t][:, None]
+        pix = clip.K[t] @ cam
+        x, y = pix[0] / pix[2], pix[1] / pix[2]
+        tracks[t] = np.stack([x, y], -1)
+        inside = (cam[2] > 0) & (x > -0.5) & (x < W - 0.5) & (y > -0.5) & (y < H - 0.5)
+        r, c = np.clip(np.round(y).astype(int), 0, H - 1), np.clip(np.round(x).astype(int), 0, W - 1)
+        seen = clip.depth[t][r, c]
+        visible[t] = inside & (np.abs(seen - cam[2]) < occlusion_rel * cam[2])
+    return tracks.astype(np.float32), visible

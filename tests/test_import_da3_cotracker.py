@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from estimator_fixtures import (
     da3_processed_hw,
+    long_range_tracks_of,
     write_cotracker,
     write_da3,
     write_delta_pairs,
@@ -130,3 +131,25 @@ def test_import_cli_takes_da3_with_cotracker_and_refuses_mixed_sources(tmp_path,
     assert main(["import", "--da3", str(da3), "--cameras", str(da3), "--tracks", str(cotracker),
                  "--out", str(tmp_path / "mixed.npz")]) == 2
     assert "drop --cameras" in capsys.readouterr().err
+
+
+def test_a_da3_and_cotracker3_clip_imported_by_the_cli_scores_its_world_consistent_and_a_squeeze_not(tmp_path):
+    """A rigid scene through DA3's file and CoTracker3-like long-range tracks (projected through
+    its own geometry), imported by `sgc-jax import`, scores as the clip itself does (0, its depth
+    error); the same tracks compressed vertically over time score above 0.1."""
+    clip = synth_clip(seed=3, clip_id="rigid", **SCENE)
+    tracks, visibility = long_range_tracks_of(clip, SCENE["n_tracks"])
+    squeeze = 1.0 - 0.3 * np.arange(clip.n_frames)[:, None] / (clip.n_frames - 1)
+    squeezed = np.stack([tracks[..., 0], tracks[..., 1] * squeeze], -1)
+    H, W = clip.image_size
+    common = ["--da3", str(write_da3(tmp_path / "results.npz", clip, units=0.37)),
+              "--frames", str(write_frames(tmp_path / "frames", clip)),
+              "--masks", str(write_seganymo(tmp_path / "seganymo", clip, (H, W)))]
+    for name, arrays in (("honest", tracks), ("squeezed", squeezed)):
+        track_file = write_cotracker(tmp_path / f"{name}_tracks.npz", arrays, visibility)
+        assert main(["import", *common, "--tracks", str(track_file), "--out", str(tmp_path / f"{name}.npz")]) == 0
+    original, honest, broken = score_batch([clip, tmp_path / "honest.npz", tmp_path / "squeezed.npz"]).clips
+    assert original.status == honest.status == broken.status == "ok"
+    assert original.sgc == honest.sgc == 0.0
+    assert honest.components["depth_error"] == pytest.approx(original.components["depth_error"], rel=SCORE_RTOL)
+    assert broken.sgc > 0.1

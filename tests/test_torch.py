@@ -5,17 +5,24 @@ array, and sgc_smooth's gradients reaching torch leaves as jax.grad gives them."
 import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import torch
 from scenes import DEMO_BATCH_SHAPE
-from test_gradients import FLOATS, SHAPE as GRADIENT_SHAPE, gradient_clip
+from test_gradients import FD_STEP, FLOATS, SHAPE as GRADIENT_SHAPE, gradient_clip
 
 from sgc_jax import ClipFormatError, Scorer
+from sgc_jax.engines.jax_engine.smooth_stage import smooth_stage
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.synth import demo_corpus
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.torch import TensorCopyWarning, TorchScorer, batch_tensors, to_jax
+
+# torch's float32 gradient (at the float32 inputs) against float64 central differences of the
+# score with the forward pass's choices held (test_gradients.py's check, FD_STEP there): measured
+# 0.02-0.64 % over the six inputs, float32's rounding of a sum of near-cancelling terms.
+TORCH_FD_RTOL = 0.02
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +49,8 @@ def test_torch_scorer_gives_the_jax_scorers_numbers_as_torch_tensors(scorer, bat
 
 
 def test_compact_float32_and_bool_tensors_reach_jax_without_a_copy():
-    for tensor in (torch.rand(3, 64, 80), torch.rand(3, 64, 80) > 0.5, torch.rand(80, 64).T):
+    for tensor in (torch.rand(3, 64, 80), torch.rand(3, 64, 80) > 0.5, torch.rand(80, 64).T,
+                   torch.randint(0, 2, (3, 64, 80), dtype=torch.uint8), torch.randint(0, 9, (3, 64), dtype=torch.int32)):
         array, why = to_jax(tensor, "depth", torch.device("cpu"))
         assert why == "" and array.unsafe_buffer_pointer() == tensor.data_ptr()
         np.testing.assert_array_equal(np.asarray(array), tensor.numpy())
@@ -54,6 +62,7 @@ def test_every_copy_is_said_and_scores_as_the_shared_tensor_does(scorer, batch, 
     wide[..., :-3] = tensors["depth"]
     altered = {**tensors, "depth": wide[..., :-3],  # a slice: strides DLPack cannot share
                "track_vis": tensors["track_vis"].long(),  # int64 without x64
+               "static_mask": tensors["static_mask"].to(torch.uint8),  # shared: masks may be numbers
                "track_prev": tensors["track_prev"].double().requires_grad_(True)}
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
@@ -80,17 +89,51 @@ def test_a_wrong_tensor_raises_clip_format_error_naming_the_array(scorer, batch)
         scorer({**tensors, "depth": torch.empty(tensors["depth"].shape, device="meta")})
 
 
-def test_loss_backward_reaches_torch_leaves_with_jax_grads_gradients():
+@pytest.fixture(scope="module")
+def gradient_batch():
     clean = gradient_clip(3)
-    batch = batch_of([clean, perturb_clip(clean, "depth_warp", 0.5)])
-    scorer = TorchScorer(GRADIENT_SHAPE, differentiable=True)
-    tensors = batch_tensors(batch)
+    return batch_of([clean, perturb_clip(clean, "depth_warp", 0.5)])
+
+
+@pytest.fixture(scope="module")
+def differentiable():
+    return TorchScorer(GRADIENT_SHAPE, differentiable=True)
+
+
+@pytest.fixture(scope="module")
+def torch_gradients(differentiable, gradient_batch):
+    """d sum(sgc_smooth) / d every float input, by loss.backward() on torch leaves."""
+    tensors = batch_tensors(gradient_batch)
     leaves = {name: tensors[name].clone().requires_grad_(True) for name in FLOATS}
-    out = scorer({**tensors, **leaves})
+    out = differentiable({**tensors, **leaves})
     assert out["sgc_smooth"].requires_grad and not out["sgc"].requires_grad
     out["sgc_smooth"].sum().backward()
-    expected = jax.grad(lambda x: scorer.scorer({**batch, **x})["sgc_smooth"].sum())({n: batch[n] for n in FLOATS})
+    return {name: leaf.grad for name, leaf in leaves.items()}
+
+
+def test_loss_backward_reaches_torch_leaves_with_jax_grads_gradients(differentiable, gradient_batch, torch_gradients):
+    batch = gradient_batch
+    expected = jax.grad(lambda x: differentiable.scorer({**batch, **x})["sgc_smooth"].sum())(
+        {n: batch[n] for n in FLOATS})
     for name in FLOATS:
-        grad = leaves[name].grad
-        assert grad is not None and grad.dtype == tensors[name].dtype, name
-        np.testing.assert_array_equal(grad.numpy().astype(np.float32), np.asarray(expected[name]), err_msg=name)
+        grad = torch_gradients[name]
+        assert grad is not None and grad.dtype == torch.float32, name
+        np.testing.assert_array_equal(grad.numpy(), np.asarray(expected[name]), err_msg=name)
+
+
+def test_torch_gradients_agree_with_finite_differences_of_the_score_with_its_choices_held(
+        differentiable, gradient_batch, torch_gradients):
+    scorer = differentiable.scorer
+    frozen, arrays = scorer.choices(gradient_batch), scorer.clip_arrays(gradient_batch)
+    rng = np.random.default_rng(0)
+    with jax.enable_x64(True):
+        base = {n: jnp.asarray(getattr(arrays, n), jnp.float64) for n in FLOATS}
+        score = jax.jit(lambda x: smooth_stage(arrays._replace(**x), frozen, scorer.bucket, scorer.config,
+                                               scorer.calibration).sum())
+        for name in FLOATS:
+            x = np.asarray(base[name])
+            direction = np.abs(x) * np.clip(rng.standard_normal(x.shape), -2.5, 2.5)  # relative moves
+            finite = float(score({**base, name: base[name] + FD_STEP * direction})
+                           - score({**base, name: base[name] - FD_STEP * direction})) / (2 * FD_STEP)
+            analytic = float(np.sum(torch_gradients[name].numpy().astype(np.float64) * direction))
+            assert abs(finite - analytic) <= TORCH_FD_RTOL * abs(analytic), (name, finite, analytic)
