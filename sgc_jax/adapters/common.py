@@ -15,7 +15,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from ..io.npz import NpzError, read_npz
+from ..io.npz import NpzError, read_npz, shape_text
 
 
 class EstimatorFormatError(ValueError):
@@ -57,6 +57,28 @@ def load_npy(path: Path) -> np.ndarray:
 def squeeze_batch(array: np.ndarray, ndim: int) -> np.ndarray:
     """Drop a leading batch axis of size 1 (estimators often keep B = 1)."""
     return array[0] if array.ndim == ndim + 1 and array.shape[0] == 1 else array
+
+
+def camera_arrays(label: str, arrays: Mapping[str, np.ndarray], names: tuple[str, str], count: int | None = None,
+                  per: str = "extrinsic") -> tuple[np.ndarray, np.ndarray]:
+    """(world->camera [R | t] (S, 3, 4) or (S, 4, 4), intrinsics (S, 3, 3)) of ``arrays[names]`` in
+    float64, a batch axis of 1 dropped; S = ``count`` when given. A wrong shape or a non-finite
+    value raises EstimatorFormatError naming the array (``per``: what each one belongs to)."""
+    extrinsic_name, intrinsic_name = names
+    extrinsic = squeeze_batch(np.asarray(arrays[extrinsic_name], np.float64), 3)
+    intrinsic = squeeze_batch(np.asarray(arrays[intrinsic_name], np.float64), 3)
+    if (extrinsic.ndim != 3 or extrinsic.shape[1:] not in ((3, 4), (4, 4))
+            or count is not None and extrinsic.shape[0] != count):
+        expected = "shape (S, 3, 4)" if count is None else f"shape ({count}, 3, 4), one per {per}"
+        raise EstimatorFormatError(label, extrinsic_name, expected, f"shape {shape_text(extrinsic.shape)}")
+    S = extrinsic.shape[0]
+    if intrinsic.shape != (S, 3, 3):
+        raise EstimatorFormatError(label, intrinsic_name, f"shape ({S}, 3, 3), one per {per}",
+                                   f"shape {shape_text(intrinsic.shape)}")
+    for name, array in ((extrinsic_name, extrinsic), (intrinsic_name, intrinsic)):
+        if not np.isfinite(array).all():
+            raise EstimatorFormatError(label, name, "finite values", f"{int((~np.isfinite(array)).sum())} non-finite")
+    return extrinsic, intrinsic
 
 
 def resize_factors(src_hw: tuple[int, int], dst_hw: tuple[int, int]) -> tuple[float, float, float, float]:

@@ -27,7 +27,15 @@ from typing import Any
 import numpy as np
 
 from ..io.npz import shape_text
-from .common import EstimatorFormatError, load_arrays, map_intrinsics, resize_factors, resize_nearest, squeeze_batch
+from .common import (
+    EstimatorFormatError,
+    camera_arrays,
+    load_arrays,
+    map_intrinsics,
+    resize_factors,
+    resize_nearest,
+    squeeze_batch,
+)
 from .vggt import Cameras
 from .video_depth_anything import Depth
 
@@ -71,17 +79,7 @@ def read_da3(source: Any, *, height: int, width: int, min_conf: float | None = N
             raise EstimatorFormatError(label, name, expected, f"no such array (found {sorted(arrays)})",
                                        "DA3METRIC-LARGE and DA3MONO-LARGE predict no cameras: use an any-view or "
                                        "nested DA3 model, or VGGT's cameras with Video Depth Anything's depth")
-    extrinsics = squeeze_batch(np.asarray(arrays["extrinsics"], np.float64), 3)
-    intrinsics = squeeze_batch(np.asarray(arrays["intrinsics"], np.float64), 3)
-    if extrinsics.ndim != 3 or extrinsics.shape[0] != N or extrinsics.shape[1:] not in ((3, 4), (4, 4)):
-        raise EstimatorFormatError(label, "extrinsics", f"shape ({N}, 3, 4), one per depth map",
-                                   f"shape {shape_text(extrinsics.shape)}")
-    if intrinsics.shape != (N, 3, 3):
-        raise EstimatorFormatError(label, "intrinsics", f"shape ({N}, 3, 3), one per depth map",
-                                   f"shape {shape_text(intrinsics.shape)}")
-    for name, array in (("extrinsics", extrinsics), ("intrinsics", intrinsics)):
-        if not np.isfinite(array).all():
-            raise EstimatorFormatError(label, name, "finite values", f"{int((~np.isfinite(array)).sum())} non-finite")
+    extrinsics, intrinsics = camera_arrays(label, arrays, ("extrinsics", "intrinsics"), count=N, per="depth map")
 
     depth = np.nan_to_num(maps.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     depth = np.where(depth > 0, depth, 0.0).astype(np.float32)

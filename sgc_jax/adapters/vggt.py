@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..io.npz import shape_text
-from .common import EstimatorFormatError, load_arrays, map_intrinsics, resize_factors, squeeze_batch
+from .common import EstimatorFormatError, camera_arrays, load_arrays, map_intrinsics, resize_factors, squeeze_batch
 
 VGGT_SIZE = 518  # VGGT's target width (crop) or longer side (pad)
 PATCH = 14  # VGGT's patch size: preprocessed sides are multiples of it
@@ -118,17 +118,8 @@ def read_vggt(source: Any, *, height: int, width: int, mode: str = "crop",
                 fix = ("convert with vggt.utils.pose_enc.pose_encoding_to_extri_intri(pose_enc, images.shape[-2:]) "
                        "and save 'extrinsic' and 'intrinsic'")
             raise EstimatorFormatError(label, name, expected, f"no such array (found {sorted(arrays)})", fix)
-    extrinsic = squeeze_batch(np.asarray(arrays["extrinsic"], np.float64), 3)
-    intrinsic = squeeze_batch(np.asarray(arrays["intrinsic"], np.float64), 3)
-    if extrinsic.ndim != 3 or extrinsic.shape[1:] not in ((3, 4), (4, 4)):
-        raise EstimatorFormatError(label, "extrinsic", "shape (S, 3, 4)", f"shape {shape_text(extrinsic.shape)}")
+    extrinsic, intrinsic = camera_arrays(label, arrays, ("extrinsic", "intrinsic"))
     S = extrinsic.shape[0]
-    if intrinsic.shape != (S, 3, 3):
-        raise EstimatorFormatError(label, "intrinsic", f"shape ({S}, 3, 3), one per extrinsic",
-                                   f"shape {shape_text(intrinsic.shape)}")
-    for name, array in (("extrinsic", extrinsic), ("intrinsic", intrinsic)):
-        if not np.isfinite(array).all():
-            raise EstimatorFormatError(label, name, "finite values", f"{int((~np.isfinite(array)).sum())} non-finite")
 
     frame_hw = tuple(source_size) if source_size else (height, width)
     grid = vggt_grid(frame_hw[0], frame_hw[1], mode)
