@@ -5,6 +5,8 @@
 #                                    kernel traces, then 1,000 standard clips from disk (~8 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
+#   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
+#                                    torch beside JAX's CUDA plugin), tensors copied: none (~4 min)
 # Each step has its own time limit, so a slow compile loses that step's figure, not the others'.
 # bench/README.md has the current figures, bench/history/ those of each lease.
 set -o pipefail
@@ -26,8 +28,12 @@ gradients)
     timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
     timeout 300 python3 bench/gradients.py --batch-size 8 --repeats 3 2>&1 | tee "$OUT/gradients-b8.log"
     ;;
+torch)
+    python3 -c "import torch; print('torch', torch.__version__, torch.cuda.is_available())"
+    timeout 400 python3 bench/torch_bridge.py --batch-size 64 --repeat 10 --device cuda:0 2>&1 | tee "$OUT/torch.log"
+    ;;
 *)
-    echo "usage: bench/gpu_figures.sh [reward|gradients]" >&2
+    echo "usage: bench/gpu_figures.sh [reward|gradients|torch]" >&2
     exit 2
     ;;
 esac
