@@ -201,7 +201,7 @@ def main() -> None:
         stats = disk_rate(Path(args.dir), args.disk_clips)
         print(f"from disk, score_batch: {stats.scored} clips in {stats.wall_s:.1f} s = "
               f"{stats.scored / stats.wall_s:.2f} clips/s; the scoring thread waited for input "
-              f"{100 * stats.input_wait_share:.0f} % of the wall time and summarised clips "
+              f"{100 * stats.input_wait_share:.0f} % of the wall time; the lanes summarised clips "
               f"{100 * stats.summary_s / stats.wall_s:.0f} %", flush=True)
 
 

@@ -34,7 +34,8 @@ Done = Mapping[tuple[str, str], Mapping[str, str]]  # rows of an earlier run's o
 class StreamStats:
     """What a stream did: clips handed on (``scored``, ``resumed`` from an earlier output,
     ``errors``), its wall time, the time the scoring thread waited for a clip to be read (an
-    upper bound of the device's wait for input) and the time it spent summarising scored clips."""
+    upper bound of the device's wait for input) and the time the lanes spent summarising scored
+    clips (a group at once, beside the other lanes' programs)."""
 
     scored: int = 0
     resumed: int = 0
@@ -93,7 +94,7 @@ class _Stream:
         self.upcoming = iter(entries)
         self.queue: collections.deque = collections.deque()  # (entry, future of its Read), input order
         self.group: list[Read] = []  # read, waiting to be scored together
-        self.pending: collections.deque = collections.deque()  # (reads, future of their PairArrays), input order
+        self.pending: collections.deque = collections.deque()  # futures of (rows, summary seconds), input order
 
     def _submit(self, entry: ClipEntry) -> concurrent.futures.Future:
         if self.processes is not None and entry.path is not None:  # clips given in memory stay here
@@ -107,27 +108,33 @@ class _Stream:
                 return
             self.queue.append((entry, self._submit(entry)))
 
-    def _finished(self, read: Read, pairs: PairArrays) -> Streamed:
-        s, identity = self.scoring, read.identity
+    def _summarized(self, reads: list[Read], pairs: list[PairArrays]) -> tuple[list[ClipResult], float]:
+        """A group's rows, summarised in its lane's thread (beside the other lanes' programs, so the
+        scoring thread goes on feeding the devices) -> (rows, seconds spent)."""
+        s = self.scoring
         begin = time.perf_counter()
-        result = summarize_clip(identity.clip_id, pairs, s.calibration, group=identity.group, engine=s.engine,
-                                mask_source=identity.mask_source, origin=read.entry.origin, compat=s.config.compat)
-        self.stats.scored += 1
-        self.stats.summary_s += time.perf_counter() - begin
-        return Streamed(dataclasses.replace(result, input_sha256=read.sha256, run_id=s.run_id), None)
+        results = [dataclasses.replace(
+            summarize_clip(read.identity.clip_id, clip_pairs, s.calibration, group=read.identity.group,
+                           engine=s.engine, mask_source=read.identity.mask_source, origin=read.entry.origin,
+                           compat=s.config.compat),
+            input_sha256=read.sha256, run_id=s.run_id) for read, clip_pairs in zip(reads, pairs)]
+        return results, time.perf_counter() - begin
 
     def _launch(self) -> Iterator[Streamed]:
-        """Score the group in a lane; with every lane busy and one more group behind them, hand on the oldest."""
-        prepared, steps = [r.prepared for r in self.group], self.steps
-        self.pending.append((list(self.group), self.lanes.submit(lambda: steps.collect(steps.dispatch(prepared)))))
+        """Score and summarise the group in a lane; with every lane busy and one more group behind
+        them, hand on the oldest."""
+        reads, prepared, steps = list(self.group), [r.prepared for r in self.group], self.steps
+        self.pending.append(self.lanes.submit(lambda: self._summarized(reads, steps.collect(steps.dispatch(prepared)))))
         self.group.clear()
         if len(self.pending) > steps.lanes:
             yield from self._land()
 
     def _land(self) -> Iterator[Streamed]:
-        reads, future = self.pending.popleft()
-        for read, pairs in zip(reads, future.result()):
-            yield self._finished(read, pairs)
+        results, seconds = self.pending.popleft().result()
+        self.stats.scored += len(results)
+        self.stats.summary_s += seconds
+        for result in results:
+            yield Streamed(result, None)
 
     def _drain(self) -> Iterator[Streamed]:
         """Everything in flight, in input order."""
@@ -172,7 +179,7 @@ class _Stream:
         yield from self._drain()
 
     def cancel(self) -> None:
-        for future in [*(future for _, future in self.queue), *(future for _, future in self.pending)]:
+        for future in [*(future for _, future in self.queue), *self.pending]:
             future.cancel()
 
 
