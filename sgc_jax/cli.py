@@ -599,13 +599,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     inputs = [p for p in (args.cameras, args.depth, args.da3, args.tracks, args.masks, args.frames) if p]
     guard_outputs(inputs, out=args.out if args.out.endswith(".npz") else args.out + ".npz")
-    if args.da3 is not None and (args.cameras or args.depth or args.depth_kind):
-        raise UsageError("--da3 gives depth and cameras from one Depth Anything 3 file: drop --cameras, --depth "
-                         "and --depth-kind, or drop --da3")
-    if args.da3 is None and not (args.cameras and args.depth):
-        raise UsageError("depth and cameras are needed: --da3 results.npz (Depth Anything 3), or --cameras "
-                         "(VGGT) with --depth and --depth-kind (Video Depth Anything)")
-    if args.da3 is None and args.depth_kind is None and not args.reference_compat:
+    if args.depth is not None and args.depth_kind is None and not args.reference_compat:
         raise UsageError("--depth-kind disparity|metric is required: disparity for Video Depth Anything's relative "
                          "models, metric for its metric ones (or --reference-compat, the SGC authors' pipeline)")
     with warnings.catch_warnings(record=True) as caught:

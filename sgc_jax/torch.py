@@ -154,9 +154,8 @@ class _SmoothScore(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
-        # a sum's backward hands an expanded (stride 0) tensor, which DLPack cannot share
-        cotangent = jax.dlpack.from_dlpack(grad.detach().contiguous().to(torch.float32))
-        (grads,) = ctx.backward(cotangent)
+        # a sum's backward hands an expanded (stride 0) tensor: to_jax makes it contiguous
+        (grads,) = ctx.backward(to_jax(grad, "sgc_smooth's gradient", grad.device)[0])
         inputs = [to_torch(grads[name]).to(dtype) if needed else None
                   for name, dtype, needed in zip(ctx.names, ctx.dtypes, ctx.needs_input_grad[4:])]
         return (None, None, None, None, *inputs)

@@ -74,9 +74,9 @@ def read_tracks(source: Any, *, frame_names: list[str] | None = None, vis_thresh
 
 
 def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -> None:
-    if da3 is not None and (cameras is not None or depth is not None):
-        raise ValueError("give either a Depth Anything 3 file (da3=, CLI --da3) or VGGT cameras with Video Depth "
-                         "Anything depth (cameras= and depth=), not both")
+    if da3 is not None and (cameras is not None or depth is not None or o.depth_kind is not None):
+        raise ValueError("a Depth Anything 3 file (da3=, CLI --da3) gives depth and cameras: drop --cameras, --depth "
+                         "and --depth-kind (cameras=, depth=, depth_kind=), or drop --da3")
     if da3 is None and (cameras is None or depth is None):
         raise ValueError("depth and cameras are needed: da3= (CLI --da3, Depth Anything 3's results.npz), or "
                          "cameras= and depth= (CLI --cameras, --depth: VGGT and Video Depth Anything)")

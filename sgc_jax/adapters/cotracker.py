@@ -70,7 +70,7 @@ def cotracker_arrays(source: Any) -> tuple[str, dict[str, np.ndarray]]:
     path = Path(os.fspath(source))
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    if path.suffix == ".pt" or path.suffix == ".pth":
+    if path.suffix in (".pt", ".pth"):
         return str(path), _load_pt(path)
     if path.suffix == ".npy":
         return str(path), {"pred_tracks": load_npy(path)}

@@ -331,7 +331,7 @@ class BatchResult:
         units = COLUMN_UNITS[compats.pop()] if len(compats) == 1 else None
         records = self.to_records()
         legend = []
-        if units and any("D" in units.get(c, "").split("%")[-1] for c in columns):
+        if units and any("of D" in units.get(c, "") for c in columns):
             legend.append("D: the clip's depth unit, the median depth of its static pixels (docs/semantics.md "
                           "§3.1); sgc_lo, sgc_hi: the 90 % interval over tracker noise (§5.6)")
         # why a clip was not scored, or scored on part of its pairs or on little

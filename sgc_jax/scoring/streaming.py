@@ -35,7 +35,7 @@ class StreamStats:
     """What a stream did: clips handed on (``scored``, ``resumed`` from an earlier output,
     ``errors``), its wall time, the time the scoring thread waited for a clip to be read (an
     upper bound of the device's wait for input) and the time the lanes spent summarising scored
-    clips (a group at once, beside the other lanes' programs)."""
+    clips (in their own threads, beside the other lanes' programs)."""
 
     scored: int = 0
     resumed: int = 0
