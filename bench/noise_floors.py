@@ -27,9 +27,9 @@ import time
 
 import numpy as np
 
-from sgc_jax import COMPONENTS, SGCConfig, score_batch
+from sgc_jax import COMPONENTS, score_batch
 from sgc_jax.codes import REGION_OK
-from sgc_jax.engines.reference import trimmed_mean_iqr
+from sgc_jax.engines.reference import precision_weights
 from sgc_jax.research.synth import synth_clip
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
@@ -56,7 +56,6 @@ def first_order_floors(pairs) -> dict[str, np.ndarray]:
 def parametric_floors(pairs, draws: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Per pair: each component's formula (docs/semantics.md §3.5, small angles) on local poses
     drawn as the truth plus isotropic noise of each region's RMS uncertainty, averaged over draws."""
-    config = SGCConfig()
     out = {k: np.full(pairs.n_pairs, np.nan) for k in POSE_COMPONENTS}
     for p in range(pairs.n_pairs):
         ok = pairs.region_status[p] == REGION_OK
@@ -66,11 +65,17 @@ def parametric_floors(pairs, draws: int, rng: np.random.Generator) -> dict[str, 
         n = ok.sum()
         rot = rng.normal(size=(draws, n, 3)) * (rot_std / np.sqrt(3.0))[None, :, None]  # deg, per axis
         trans = rng.normal(size=(draws, n, 3)) * (trans_std / np.sqrt(3.0))[None, :, None]
-        local = lambda x: np.mean(np.sum((x - x.mean(axis=1, keepdims=True)) ** 2, axis=2), axis=1)  # noqa: E731
-        out["local_rot_var"][p] = local(rot).mean() if n > 1 else 0.0
-        out["local_trans_var"][p] = local(trans).mean() if n > 1 else 0.0
-        out["global_rot_var"][p] = np.mean([trimmed_mean_iqr(np.sum(r ** 2, axis=1), config) for r in rot])
-        out["global_trans_var"][p] = np.mean(np.sum(trans ** 2, axis=2))
+        # each pose weighted by its precision, as the components are (§3.5)
+        w_rot, w_trans = precision_weights(rot_std), precision_weights(trans_std)
+
+        def local(x, w):
+            mean = np.average(x, axis=1, weights=w)[:, None]
+            return np.average(np.sum((x - mean) ** 2, axis=2), axis=1, weights=w)
+
+        out["local_rot_var"][p] = local(rot, w_rot).mean() if n > 1 else 0.0
+        out["local_trans_var"][p] = local(trans, w_trans).mean() if n > 1 else 0.0
+        out["global_rot_var"][p] = np.average(np.sum(rot ** 2, axis=2), axis=1, weights=w_rot).mean()
+        out["global_trans_var"][p] = np.average(np.sum(trans ** 2, axis=2), axis=1, weights=w_trans).mean()
     return out
 
 

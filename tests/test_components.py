@@ -44,20 +44,28 @@ def trimmed_mean_numpy(values, compat="spec") -> float:
     return float(kept.mean())
 
 
-def components_numpy(R_local, t_local, accepted, R_g, t_g) -> dict:
-    """Float64 twin of the SPEC formulas over the accepted slots (n >= 1)."""
+def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise, compat="spec") -> dict:
+    """Float64 twin of docs/semantics.md §3.5 over the accepted slots (n >= 1): each pose weighted by
+    1 / noise² under spec; equally, the global rotation term trimmed, under authors."""
     Rs, ts = R_local[accepted], t_local[accepted]
-    R_mean = Rotation.from_rotvec(Rotation.from_matrix(Rs).as_rotvec().mean(0)).as_matrix()
+    w_rot, w_trans = ((None, None) if compat == "authors"
+                      else (1.0 / rot_noise[accepted] ** 2, 1.0 / trans_noise[accepted] ** 2))
+    R_mean = Rotation.from_rotvec(np.average(Rotation.from_matrix(Rs).as_rotvec(), axis=0, weights=w_rot)).as_matrix()
+    t_mean = np.average(ts, axis=0, weights=w_trans)
     single = len(Rs) < 2
+    to_camera = [angle_deg(R, R_g) ** 2 for R in Rs]
     return {
-        "local_rot_var": 0.0 if single else np.mean([angle_deg(R, R_mean) ** 2 for R in Rs]),
-        "local_trans_var": 0.0 if single else np.mean(np.sum((ts - ts.mean(0)) ** 2, axis=1)),
-        "global_rot_var": trimmed_mean_numpy([angle_deg(R, R_g) ** 2 for R in Rs]),
-        "global_trans_var": np.mean(np.sum((ts - t_g) ** 2, axis=1)),
+        "local_rot_var": 0.0 if single else np.average([angle_deg(R, R_mean) ** 2 for R in Rs], weights=w_rot),
+        "local_trans_var": 0.0 if single else np.average(np.sum((ts - t_mean) ** 2, axis=1), weights=w_trans),
+        "global_rot_var": (trimmed_mean_numpy(to_camera, compat) if compat == "authors"
+                           else np.average(to_camera, weights=w_rot)),
+        "global_trans_var": np.average(np.sum((ts - t_g) ** 2, axis=1), weights=w_trans),
     }
 
 
 def random_pair(rng, n_accepted, spread_rad=0.05):
+    """(R_local, t_local, accepted, R_g, t_g, rot_noise [deg], trans_noise): the poses' noises
+    spread over two decades, so the precision weights matter."""
     R_g = rotations(rng.normal(0, 0.3, 3))
     t_g = rng.normal(0, 1, 3)
     R_local = R_g @ rotations(rng.normal(0, spread_rad, (R_SLOTS, 3)))
@@ -66,21 +74,23 @@ def random_pair(rng, n_accepted, spread_rad=0.05):
     accepted[rng.choice(R_SLOTS, n_accepted, replace=False)] = True
     R_local[~accepted] = 0.0  # padding slots carry garbage
     t_local[~accepted] = 1e6
-    return R_local, t_local, accepted, R_g, t_g
+    rot_noise, trans_noise = 10.0 ** rng.uniform(-2, 0, R_SLOTS), 10.0 ** rng.uniform(-3, -1, R_SLOTS)
+    rot_noise[~accepted], trans_noise[~accepted] = np.nan, np.nan
+    return R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise
 
 
-def run(R_local, t_local, accepted, R_g, t_g, compat="spec"):
+def run(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise, compat="spec"):
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     out = pair_pose_components(f32(R_local), f32(t_local), jnp.asarray(accepted), f32(R_g), f32(t_g),
-                               compat=compat)
+                               f32(rot_noise), f32(trans_noise), compat=compat)
     return {key: np.asarray(value) for key, value in out.items()}
 
 
 def test_rigid_poses_give_zero_components():
     rng = np.random.default_rng(0)
-    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 4)
+    R_local, t_local, accepted, R_g, t_g, *noise = random_pair(rng, 4)
     R_local[accepted], t_local[accepted] = R_g, t_g
-    out = run(R_local, t_local, accepted, R_g, t_g)
+    out = run(R_local, t_local, accepted, R_g, t_g, *noise)
     assert int(out["n_poses"]) == 4
     for key in KEYS:
         assert float(out[key]) == pytest.approx(0.0, abs=1e-8), key
@@ -89,24 +99,51 @@ def test_rigid_poses_give_zero_components():
 def test_single_pose_has_no_local_spread_and_its_distance_as_global():
     """One pose has no spread to measure: NaN under spec (docs/semantics.md §3.5), 0 under authors."""
     rng = np.random.default_rng(1)
-    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 1, spread_rad=0.2)
+    pair = random_pair(rng, 1, spread_rad=0.2)
+    R_local, t_local, accepted, R_g, t_g, *_ = pair
     (j,) = np.flatnonzero(accepted)
-    out, authors = run(R_local, t_local, accepted, R_g, t_g), run(R_local, t_local, accepted, R_g, t_g, compat="authors")
+    out, authors = run(*pair), run(*pair, compat="authors")
     assert np.isnan(out["local_rot_var"]) and np.isnan(out["local_trans_var"])
     assert float(authors["local_rot_var"]) == 0.0 and float(authors["local_trans_var"]) == 0.0
     assert float(out["global_rot_var"]) == pytest.approx(angle_deg(R_local[j], R_g) ** 2, rel=1e-4)
     assert float(out["global_trans_var"]) == pytest.approx(np.sum((t_local[j] - t_g) ** 2), rel=RTOL)
 
 
+@pytest.mark.parametrize("compat", ["spec", "authors"])
 @pytest.mark.parametrize("n_accepted", [2, 3, 6])
-def test_matches_float64_formulas(n_accepted):
+def test_matches_float64_formulas(n_accepted, compat):
     rng = np.random.default_rng(n_accepted)
     pair = random_pair(rng, n_accepted)
-    out, expected = run(*pair), components_numpy(*pair)
+    out, expected = run(*pair, compat=compat), components_numpy(*pair, compat=compat)
     assert int(out["n_poses"]) == n_accepted
     for key in KEYS:
+        if compat == "authors" and key == "global_rot_var" and np.isnan(expected[key]):
+            assert np.isnan(out[key])  # the authors' IQR = 0 rejects every value
+            continue
         # Rotation variances of ~3 deg spreads: float32 angles are good to ~1e-4 relative.
         assert float(out[key]) == pytest.approx(expected[key], rel=1e-3), key
+
+
+def test_each_pose_counts_by_its_precision_under_spec():
+    """A pose ten times noisier counts a hundredth as much; equal noises give the plain means."""
+    rng = np.random.default_rng(11)
+    R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise = random_pair(rng, R_SLOTS)
+    equal = run(R_local, t_local, accepted, R_g, t_g, np.full(R_SLOTS, 0.3), np.full(R_SLOTS, 0.01))
+    plain = components_numpy(R_local, t_local, accepted, R_g, t_g, np.ones(R_SLOTS), np.ones(R_SLOTS))
+    for key in KEYS:
+        assert float(equal[key]) == pytest.approx(plain[key], rel=1e-3), key
+    t_far = t_local.copy()
+    t_far[0] = t_g + 1.0  # one pose far off: it moves the component by its weight's share
+    noisy, precise = trans_noise.copy(), trans_noise.copy()
+    noisy[0], precise[0] = 10.0, 1e-4
+    assert float(run(R_local, t_far, accepted, R_g, t_g, rot_noise, noisy)["global_trans_var"]) < 0.1
+    assert float(run(R_local, t_far, accepted, R_g, t_g, rot_noise, precise)["global_trans_var"]) > 0.9
+
+
+def test_spec_needs_the_poses_noise():
+    with pytest.raises(ValueError, match="rot_noise and trans_noise"):
+        components.pair_pose_components(jnp.zeros((3, 3, 3)), jnp.zeros((3, 3)), jnp.ones(3, bool), jnp.eye(3),
+                                        jnp.zeros(3))
 
 
 def test_hundredth_of_a_degree_spread_is_resolved_in_float32():
@@ -130,10 +167,10 @@ def test_nan_only_where_the_poses_cannot_measure_it():
 
 def test_authors_variant_uses_arccos_and_rejects_zero_iqr():
     rng = np.random.default_rng(5)
-    R_local, t_local, accepted, R_g, t_g = random_pair(rng, 1, spread_rad=0.2)
-    out = run(R_local, t_local, accepted, R_g, t_g, compat="authors")
+    pair = random_pair(rng, 1, spread_rad=0.2)
+    out = run(*pair, compat="authors")
     assert np.isnan(out["global_rot_var"])  # one pose: IQR == 0 rejects every value
-    assert float(out["global_trans_var"]) == pytest.approx(run(R_local, t_local, accepted, R_g, t_g)["global_trans_var"])
+    assert float(out["global_trans_var"]) == pytest.approx(run(*pair)["global_trans_var"])
     tiny = jnp.asarray(rotations([[np.radians(1e-3), 0.0, 0.0]])[0], jnp.float32)
     assert float(rotation_angle_deg_authors(jnp.eye(3), tiny)) == 0.0  # float32 arccos loses it
     big = rotations([[0.0, 0.0, np.radians(30.0)]])[0]
@@ -174,7 +211,7 @@ def test_batch_of_pairs_equals_loop():
     rng = np.random.default_rng(7)
     pairs = [random_pair(rng, n) for n in (0, 1, 3, 6)]
     stacked = [jnp.asarray(np.stack(arrays), jnp.bool_ if arrays[0].dtype == bool else jnp.float32)
-               for arrays in zip(*pairs)]
+               for arrays in zip(*pairs)]  # noise included: (pairs, R_SLOTS)
     batch = jax.vmap(pair_pose_components)(*stacked)
     for i, pair in enumerate(pairs):
         single = run(*pair)

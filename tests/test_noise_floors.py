@@ -22,9 +22,10 @@ from sgc_jax.engines.units import PERCENT
 from sgc_jax.io.tables import FLOOR_COLUMNS
 from sgc_jax.research.synth import synth_clip
 
-# Monte Carlo of the formulas: DRAWS sets of 6 poses; the mean of a squared Gaussian size over
-# DRAWS * 6 draws has a relative standard error sqrt(2/3) / sqrt(6 DRAWS) = 0.4 %, the floors' own
-# draws under 3 %: 5 % is beyond both, and beyond the small-angle terms (sigma <= 0.8 deg: 1e-4).
+# Monte Carlo of the formulas: DRAWS sets of 6 poses; the precision-weighted mean of squared
+# Gaussian sizes over DRAWS draws has a relative standard error of about sqrt(2/3) / sqrt(6 DRAWS)
+# = 0.4 % (more where one pose dominates the weights: ~1 % here): 5 % is beyond it, and beyond the
+# small-angle terms (sigma <= 0.8 deg: 1e-4).
 DRAWS, MONTE_CARLO_RTOL = 4000, 0.05
 # Rescored without its band (the components as they are), a consistent clip's score is what its
 # floors alone score: 0.184 against 0.182 for the clip below (seed 7, errors at frame i only, 1 px);
@@ -67,8 +68,8 @@ def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitte
         rotvecs = np.deg2rad(rng.standard_normal((6, 3)) * (rot_std / np.sqrt(3))[:, None])
         R = list(Rotation.from_rotvec(rotvecs).as_matrix())
         t = list(100.0 * rng.standard_normal((6, 3)) * (trans_std / np.sqrt(3))[:, None])  # % of D
-        local = local_variances(R, t, config)
-        glob = global_variances(R, t, np.eye(3), np.zeros(3), config)
+        local = local_variances(R, t, config, rot_std, trans_std)
+        glob = global_variances(R, t, np.eye(3), np.zeros(3), config, rot_std, trans_std)
         for name, value in zip(FLOOR_COLUMNS, (local[0], local[1], glob[0], glob[1])):
             sums[name] += value / DRAWS
     for name in FLOOR_COLUMNS:

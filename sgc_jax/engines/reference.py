@@ -394,23 +394,49 @@ def reprojection_errors(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndar
 # ----------------------------------------------------------------------------- components
 
 
-def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(R_mean (3, 3), t_mean (3,)): exp of the mean rotation vector and the mean translation."""
-    return so3_exp(np.mean([so3_log(R) for R in R_local], axis=0)), np.mean(t_local, axis=0)
+def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray], rot_weights: np.ndarray | None = None,
+              trans_weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(R_mean (3, 3), t_mean (3,)): exp of the (weighted) mean rotation vector and the (weighted)
+    mean translation; None: equal weights."""
+    return (so3_exp(np.average([so3_log(R) for R in R_local], axis=0, weights=rot_weights)),
+            np.average(t_local, axis=0, weights=trans_weights))
 
 
-def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig) -> tuple[float, float]:
-    """(local_rot_var deg^2, local_trans_var) around the mean pose; NaN with none, and with one
+def precision_weights(noise: np.ndarray) -> np.ndarray:
+    """(n,) weights 1 / noise² of accepted poses, the largest 1 (``kernels.pose_variances``);
+    equal weights when some pose has no finite noise."""
+    var = np.maximum(np.asarray(noise, np.float64) ** 2, 1e-30)
+    if var.size == 0 or not np.isfinite(var).all():
+        return np.ones(var.size)
+    return var.min() / var
+
+
+def pose_weights(rot_noise: np.ndarray, trans_noise: np.ndarray, config: SGCConfig
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Each accepted pose's weight in the components (docs/semantics.md §3.5): its precision under
+    spec, equal (None) under authors."""
+    if config.compat == "authors":
+        return None, None
+    if rot_noise is None or trans_noise is None:
+        raise ValueError("compat='spec' weights each local pose by its precision: rot_noise and trans_noise are needed")
+    return precision_weights(rot_noise), precision_weights(trans_noise)
+
+
+def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig,
+                    rot_noise: np.ndarray | None = None, trans_noise: np.ndarray | None = None) -> tuple[float, float]:
+    """(local_rot_var deg^2, local_trans_var) around the mean pose, each pose weighted by its
+    precision under spec (``rot_noise`` [deg], ``trans_noise`` (n,)); NaN with none, and with one
     under spec (no spread to measure); 0 with one under authors."""
     n = len(R_local)
     if n == 0 or (n == 1 and config.compat != "authors"):
         return float("nan"), float("nan")
     if n == 1:
         return 0.0, 0.0
-    R_mean, t_mean = mean_pose(R_local, t_local)
+    w_rot, w_trans = pose_weights(rot_noise, trans_noise, config)
+    R_mean, t_mean = mean_pose(R_local, t_local, w_rot, w_trans)
     angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
-    rot = np.mean([angle(R, R_mean) ** 2 for R in R_local])
-    trans = np.mean([np.sum((t - t_mean) ** 2) for t in t_local])
+    rot = np.average([angle(R, R_mean) ** 2 for R in R_local], weights=w_rot)
+    trans = np.average([np.sum((t - t_mean) ** 2) for t in t_local], weights=w_trans)
     return float(rot), float(trans)
 
 
@@ -425,13 +451,18 @@ def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
 
 
 def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,
-                     t_g: np.ndarray, config: SGCConfig) -> tuple[float, float]:
-    """(global_rot_var deg^2 trimmed, global_trans_var) of the local poses against (R_g, t_g)."""
+                     t_g: np.ndarray, config: SGCConfig, rot_noise: np.ndarray | None = None,
+                     trans_noise: np.ndarray | None = None) -> tuple[float, float]:
+    """(global_rot_var deg^2, global_trans_var) of the local poses against (R_g, t_g): each pose
+    weighted by its precision under spec; equally, the rotation term trimmed, under authors."""
     if not R_local:
         return float("nan"), float("nan")
     angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
-    rot = trimmed_mean_iqr(np.array([angle(R, R_g) ** 2 for R in R_local]), config)
-    trans = float(np.mean([np.sum((t - t_g) ** 2) for t in t_local]))
+    to_camera = np.array([angle(R, R_g) ** 2 for R in R_local])
+    w_rot, w_trans = pose_weights(rot_noise, trans_noise, config)
+    rot = trimmed_mean_iqr(to_camera, config) if config.compat == "authors" else float(np.average(to_camera,
+                                                                                                  weights=w_rot))
+    trans = float(np.average([np.sum((t - t_g) ** 2) for t in t_local], weights=w_trans))
     return rot, trans
 
 
@@ -744,8 +775,9 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     for pair in range(1, clip.n_frames):
         p = pair - 1
         R_list, t_list = posed[p]
-        local_rot, local_trans = local_variances(R_list, t_list, config)
-        global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config)
+        noise = poses["region_rot_noise"][p][accepted[p]], poses["region_trans_noise"][p][accepted[p]]
+        local_rot, local_trans = local_variances(R_list, t_list, config, *noise)
+        global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config, *noise)
         if not config.global_pose:
             global_rot = global_trans = float("nan")
         out.local_rot_var[p], out.local_trans_var[p] = local_rot, local_trans * f**2

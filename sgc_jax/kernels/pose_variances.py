@@ -2,8 +2,10 @@
 their mean and about the camera's pose.
 
 Rotations in degrees (variances in deg^2), translations in the inputs' units. Local poses come as
-k region slots with an ``accepted`` mask. ``compat="authors"`` reproduces the authors' code
-(§3.9): arccos-of-trace distances in float32, and IQR = 0 rejecting every value.
+k region slots with an ``accepted`` mask. Under ``compat="spec"`` each pose counts by its
+precision, 1 / its noise² (``region_rot_noise``, ``region_trans_noise``); ``compat="authors"``
+reproduces the authors' code (§3.9): equal weights, a trimmed global rotation term, arccos-of-trace
+distances in float32, and IQR = 0 rejecting every value.
 """
 
 from __future__ import annotations
@@ -33,44 +35,64 @@ def rotation_angle_deg_authors(R_a, R_b):
     return jnp.degrees(jnp.arccos(jnp.clip(cos, -1.0, 1.0)))
 
 
-def masked_mean(values, valid):
-    """Mean over axis 0 of values (k, ...) where valid (k,); NaN where none is."""
+def masked_mean(values, valid, weights=None):
+    """Mean over axis 0 of values (k, ...) where valid (k,), weighted by ``weights`` (k,) (None:
+    equally); NaN where none is valid."""
     values = at_least_float32(values)
-    mask = valid.reshape(valid.shape + (1,) * (values.ndim - 1))
-    n = jnp.sum(valid)
-    total = jnp.sum(jnp.where(mask, values, 0.0), axis=0)
-    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(values.dtype), jnp.nan)
+    w = jnp.where(valid, 1.0 if weights is None else weights, 0.0).astype(values.dtype)
+    w = w.reshape(w.shape + (1,) * (values.ndim - 1))
+    total = jnp.sum(jnp.where(w > 0, values, 0.0) * w, axis=0)
+    return jnp.where(jnp.any(valid), total / jnp.maximum(jnp.sum(w, axis=0), jnp.finfo(values.dtype).tiny), jnp.nan)
 
 
-def mean_pose(R_local, t_local, accepted):
-    """Accepted poses (k, 3, 3), (k, 3), (k,) -> (exp of the mean rotation vector, mean
-    translation), float32; NaN with none accepted."""
-    R_mean = so3_exp(masked_mean(so3_log(at_least_float32(R_local)), accepted))
-    return R_mean, masked_mean(at_least_float32(t_local), accepted)
+def precision_weights(noise, accepted):
+    """(k,) weights 1 / noise² of the accepted poses, scaled so the largest is 1 (float32 keeps
+    its range whatever the noise's unit); equal weights when an accepted pose has no finite noise."""
+    var = jnp.maximum(at_least_float32(noise) ** 2, jnp.float32(1e-30))
+    known = jnp.all(jnp.where(accepted, jnp.isfinite(var), True))
+    smallest = jnp.min(jnp.where(accepted & jnp.isfinite(var), var, jnp.inf))
+    weights = jnp.where(accepted, smallest / jnp.where(jnp.isfinite(var), var, 1.0), 0.0)
+    return jnp.where(known, weights, accepted.astype(weights.dtype))
 
 
-def pair_pose_components(R_local, t_local, accepted, R_g, t_g, *, compat: str = "spec"):
+def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
+    """Accepted poses (k, 3, 3), (k, 3), (k,) -> (exp of the (weighted) mean rotation vector,
+    (weighted) mean translation), float32; NaN with none accepted."""
+    R_mean = so3_exp(masked_mean(so3_log(at_least_float32(R_local)), accepted, rot_weights))
+    return R_mean, masked_mean(at_least_float32(t_local), accepted, trans_weights)
+
+
+def pair_pose_components(R_local, t_local, accepted, R_g, t_g, rot_noise=None, trans_noise=None, *,
+                         compat: str = "spec"):
     """Local poses (k, 3, 3), (k, 3), accepted (k,) against the camera's (3, 3), (3,) -> float32
     local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
-    All NaN with no accepted pose; with one, the local ones are NaN under spec (one pose has no
-    spread to measure, docs/semantics.md §3.5) and 0 under authors (the authors' code)."""
+    Under spec each pose is weighted by its precision, 1 / ``rot_noise``² [deg] and 1 /
+    ``trans_noise``² [units] (k,; required there); under authors equally, the global rotation
+    term trimmed (docs/semantics.md §3.5). All NaN with no accepted pose; with one, the local ones
+    are NaN under spec (one pose has no spread to measure) and 0 under authors (the authors' code)."""
     _check_compat(compat)
-    angle = rotation_angle_deg_authors if compat == "authors" else rotation_angle_deg
+    authors = compat == "authors"
+    if not authors and (rot_noise is None or trans_noise is None):
+        raise ValueError("compat='spec' weights each local pose by its precision: rot_noise and trans_noise are needed")
+    angle = rotation_angle_deg_authors if authors else rotation_angle_deg
     R_local, t_local = at_least_float32(R_local), at_least_float32(t_local)
     R_g, t_g = at_least_float32(R_g), at_least_float32(t_g)
     n = jnp.sum(accepted).astype(jnp.int32)
     none = n == 0
+    w_rot, w_trans = (None, None) if authors else (precision_weights(rot_noise, accepted),
+                                                    precision_weights(trans_noise, accepted))
 
-    R_mean, t_mean = mean_pose(R_local, t_local, accepted)
+    R_mean, t_mean = mean_pose(R_local, t_local, accepted, w_rot, w_trans)
     R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=R_local.dtype), R_mean), jnp.nan_to_num(t_mean)
-    local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted)
-    local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted)
-    single_value = 0.0 if compat == "authors" else jnp.nan
+    local_rot = masked_mean(angle(R_local, R_mean[None]) ** 2, accepted, w_rot)
+    local_trans = masked_mean(jnp.sum((t_local - t_mean) ** 2, axis=-1), accepted, w_trans)
+    single_value = 0.0 if authors else jnp.nan
     single = n < 2
     local_rot = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_rot))
     local_trans = jnp.where(none, jnp.nan, jnp.where(single, single_value, local_trans))
-    global_rot = trimmed_mean(angle(R_local, R_g[None]) ** 2, accepted, compat, xp=jnp)
-    global_trans = masked_mean(jnp.sum((t_local - t_g) ** 2, axis=-1), accepted)
+    to_camera = angle(R_local, R_g[None]) ** 2
+    global_rot = trimmed_mean(to_camera, accepted, compat, xp=jnp) if authors else masked_mean(to_camera, accepted, w_rot)
+    global_trans = masked_mean(jnp.sum((t_local - t_g) ** 2, axis=-1), accepted, w_trans)
     return {"local_rot_var": at_least_float32(local_rot), "local_trans_var": at_least_float32(local_trans),
             "global_rot_var": at_least_float32(global_rot), "global_trans_var": at_least_float32(global_trans),
             "n_poses": n}
