@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sgc_jax import stats
+from sgc_jax.config import WEIGHT_RANGE
 from sgc_jax.kernels import pose_variances as components
 from sgc_jax.kernels.pose_variances import masked_mean, rotation_angle_deg_authors
 
@@ -44,12 +45,18 @@ def trimmed_mean_numpy(values, compat="spec") -> float:
     return float(kept.mean())
 
 
+def capped_precision(noise) -> np.ndarray:
+    var = np.asarray(noise, np.float64) ** 2
+    return 1.0 / np.minimum(var, WEIGHT_RANGE * np.median(var))
+
+
 def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise, compat="spec") -> dict:
     """Float64 twin of docs/semantics.md §3.5 over the accepted slots (n >= 1): each pose weighted by
-    1 / noise² under spec; equally, the global rotation term trimmed, under authors."""
+    1 / min(noise², WEIGHT_RANGE x the median noise²) under spec; equally, the global rotation term
+    trimmed, under authors."""
     Rs, ts = R_local[accepted], t_local[accepted]
     w_rot, w_trans = ((None, None) if compat == "authors"
-                      else (1.0 / rot_noise[accepted] ** 2, 1.0 / trans_noise[accepted] ** 2))
+                      else (capped_precision(rot_noise[accepted]), capped_precision(trans_noise[accepted])))
     R_mean = Rotation.from_rotvec(np.average(Rotation.from_matrix(Rs).as_rotvec(), axis=0, weights=w_rot)).as_matrix()
     t_mean = np.average(ts, axis=0, weights=w_trans)
     single = len(Rs) < 2
@@ -125,19 +132,31 @@ def test_matches_float64_formulas(n_accepted, compat):
 
 
 def test_each_pose_counts_by_its_precision_under_spec():
-    """A pose ten times noisier counts a hundredth as much; equal noises give the plain means."""
+    """Twice the noise counts a quarter as much; equal noises give the plain means."""
+    accepted = jnp.ones(R_SLOTS, bool)
+    weights = components.precision_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), accepted)
+    np.testing.assert_allclose(weights, [1, 1, 1, 0.25, 0.25, 0.25], rtol=RTOL)
     rng = np.random.default_rng(11)
     R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise = random_pair(rng, R_SLOTS)
     equal = run(R_local, t_local, accepted, R_g, t_g, np.full(R_SLOTS, 0.3), np.full(R_SLOTS, 0.01))
     plain = components_numpy(R_local, t_local, accepted, R_g, t_g, np.ones(R_SLOTS), np.ones(R_SLOTS))
     for key in KEYS:
         assert float(equal[key]) == pytest.approx(plain[key], rel=1e-3), key
-    t_far = t_local.copy()
-    t_far[0] = t_g + 1.0  # one pose far off: it moves the component by its weight's share
-    noisy, precise = trans_noise.copy(), trans_noise.copy()
-    noisy[0], precise[0] = 10.0, 1e-4
-    assert float(run(R_local, t_far, accepted, R_g, t_g, rot_noise, noisy)["global_trans_var"]) < 0.1
-    assert float(run(R_local, t_far, accepted, R_g, t_g, rot_noise, precise)["global_trans_var"]) > 0.9
+
+
+def test_a_pose_that_fits_badly_still_counts_a_tenth_of_a_median_one():
+    """An unmasked mover's region fits badly, so its noise is large: it counts as a pose of
+    WEIGHT_RANGE times the pair's median noise variance, and its disagreement is not lost."""
+    noise = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 5.0])
+    weights = components.precision_weights(jnp.asarray(noise), jnp.ones(R_SLOTS, bool))
+    np.testing.assert_allclose(weights, [1, 1, 1, 1, 1, 1 / WEIGHT_RANGE], rtol=RTOL)
+    rng = np.random.default_rng(12)
+    R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
+    R_local[:], t_local[:] = R_g, t_g
+    t_local[5] = t_g + 1.0  # the mover's pose, 3 units² off
+    out = run(R_local, t_local, accepted, R_g, t_g, noise, noise)
+    share = (1 / WEIGHT_RANGE) / (5 + 1 / WEIGHT_RANGE)
+    assert float(out["global_trans_var"]) == pytest.approx(3.0 * share, rel=RTOL)
 
 
 def test_spec_needs_the_poses_noise():

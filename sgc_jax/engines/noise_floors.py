@@ -12,6 +12,7 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, sgc_score
 from ..codes import REGION_OK
 from ..io.tables import FLOOR_COLUMNS
+from ..kernels.pose_variances import precision_weights
 from .units import PERCENT
 
 
@@ -20,17 +21,23 @@ def floors_of(region_status: Any, rot_noise_deg: Any, trans_noise_percent: Any, 
     """FLOOR_COLUMNS -> (...,) from each pair's region statuses, RMS rotation noise [deg] and
     translation noise [% of D] of its poses (..., k; ``region_rot_noise``, ``region_trans_noise``),
     and its components (...,): NaN where the pair has no accepted pose or the component is NaN (no
-    global pose). The components weight pose j by w_j = 1 / noise_j² (§3.5), so with W = sum_j w_j
-    over the n accepted poses, E[sum_j w_j |e_j|² / W] = n / W and about the weighted mean (n - 1) / W."""
+    global pose). With the components' weights w_j (§3.5) and W = sum_j w_j over the accepted poses,
+    E[sum_j w_j |e_j|² / W] = sum_j w_j σ_j² / W, and about the weighted mean that minus
+    sum_j w_j² σ_j² / W²."""
     accepted = region_status == REGION_OK
     n = xp.sum(accepted, axis=-1)
 
-    def total_precision(noise):
-        return xp.sum(xp.where(accepted, 1.0 / xp.maximum(xp.where(accepted, noise, 1.0) ** 2, 1e-30), 0.0), axis=-1)
+    def expected_spreads(noise):  # (about the camera's pose, about the weighted mean pose)
+        w = precision_weights(noise, accepted, xp)
+        var = xp.where(accepted, noise, 0.0) ** 2
+        total = xp.sum(w, axis=-1)
+        about_truth = xp.sum(w * var, axis=-1) / total
+        return about_truth, about_truth - xp.sum(w * w * var, axis=-1) / total ** 2
 
-    rot_precision, trans_precision = total_precision(rot_noise_deg), total_precision(trans_noise_percent)
-    floors = {"local_rot_var_floor": (n - 1) / rot_precision, "local_trans_var_floor": (n - 1) / trans_precision,
-              "global_rot_var_floor": n / rot_precision, "global_trans_var_floor": n / trans_precision}
+    global_rot, local_rot = expected_spreads(rot_noise_deg)
+    global_trans, local_trans = expected_spreads(trans_noise_percent)
+    floors = {"local_rot_var_floor": local_rot, "local_trans_var_floor": local_trans,
+              "global_rot_var_floor": global_rot, "global_trans_var_floor": global_trans}
     return {name: xp.where((n > 0) & ~xp.isnan(components[name.removesuffix("_floor")]), value, np.nan)
             for name, value in floors.items()}
 

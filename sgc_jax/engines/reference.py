@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, WEIGHT_RANGE, SGCConfig
 from ..io.clip import Clip
 from ..stats import trimmed
 from . import reference_pose as reference_pose_search
@@ -403,12 +403,13 @@ def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray], rot_weights:
 
 
 def precision_weights(noise: np.ndarray) -> np.ndarray:
-    """(n,) weights 1 / noise² of accepted poses, the largest 1 (``kernels.pose_variances``);
-    equal weights when some pose has no finite noise."""
+    """(n,) weights of accepted poses, 1 / min(noise², WEIGHT_RANGE x their median noise²), the
+    largest 1 (docs/semantics.md §3.5); equal weights when some pose has no finite noise."""
     var = np.maximum(np.asarray(noise, np.float64) ** 2, 1e-30)
     if var.size == 0 or not np.isfinite(var).all():
         return np.ones(var.size)
-    return var.min() / var
+    capped = np.minimum(var, WEIGHT_RANGE * np.median(var))
+    return capped.min() / capped
 
 
 def pose_weights(rot_noise: np.ndarray, trans_noise: np.ndarray, config: SGCConfig

@@ -11,8 +11,9 @@ distances in float32, and IQR = 0 rejecting every value.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
-from ..config import COMPATS
+from ..config import COMPATS, WEIGHT_RANGE
 from ..stats import trimmed_mean
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 
@@ -45,14 +46,21 @@ def masked_mean(values, valid, weights=None):
     return jnp.where(jnp.any(valid), total / jnp.maximum(jnp.sum(w, axis=0), jnp.finfo(values.dtype).tiny), jnp.nan)
 
 
-def precision_weights(noise, accepted):
-    """(k,) weights 1 / noise² of the accepted poses, scaled so the largest is 1 (float32 keeps
-    its range whatever the noise's unit); equal weights when an accepted pose has no finite noise."""
-    var = jnp.maximum(at_least_float32(noise) ** 2, jnp.float32(1e-30))
-    known = jnp.all(jnp.where(accepted, jnp.isfinite(var), True))
-    smallest = jnp.min(jnp.where(accepted & jnp.isfinite(var), var, jnp.inf))
-    weights = jnp.where(accepted, smallest / jnp.where(jnp.isfinite(var), var, 1.0), 0.0)
-    return jnp.where(known, weights, accepted.astype(weights.dtype))
+def precision_weights(noise, accepted, xp=jnp):
+    """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / min(noise², WEIGHT_RANGE x
+    the median noise² of the pair's accepted poses), scaled so the largest is 1 (float32 keeps its
+    range whatever the noise's unit); equal weights when an accepted pose has no finite noise; 0
+    for the others. ``noise`` (..., k) in any unit; NumPy or ``jax.numpy`` (``xp``)."""
+    var = xp.maximum((at_least_float32(noise) if xp is jnp else np.asarray(noise, np.float64)) ** 2, 1e-30)
+    finite = xp.isfinite(var)
+    known = xp.all(xp.where(accepted, finite, True), axis=-1, keepdims=True)
+    ordered = xp.sort(xp.where(accepted & finite, var, xp.inf), axis=-1)
+    n = xp.sum(accepted & finite, axis=-1, keepdims=True)
+    middle = lambda i: xp.take_along_axis(ordered, xp.clip(i, 0, var.shape[-1] - 1), axis=-1)  # noqa: E731
+    median = 0.5 * (middle((n - 1) // 2) + middle(n // 2))
+    capped = xp.minimum(xp.where(finite, var, 1.0), WEIGHT_RANGE * median)
+    weights = xp.where(accepted, xp.min(xp.where(accepted, capped, xp.inf), axis=-1, keepdims=True) / capped, 0.0)
+    return xp.where(known, weights, xp.asarray(accepted, weights.dtype))
 
 
 def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
