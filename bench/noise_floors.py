@@ -29,7 +29,7 @@ import numpy as np
 
 from sgc_jax import COMPONENTS, score_batch
 from sgc_jax.codes import REGION_OK
-from sgc_jax.engines.reference import precision_weights
+from sgc_jax.engines.reference import geometry_weights
 from sgc_jax.research.synth import synth_clip
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
@@ -65,8 +65,9 @@ def parametric_floors(pairs, draws: int, rng: np.random.Generator) -> dict[str, 
         n = ok.sum()
         rot = rng.normal(size=(draws, n, 3)) * (rot_std / np.sqrt(3.0))[None, :, None]  # deg, per axis
         trans = rng.normal(size=(draws, n, 3)) * (trans_std / np.sqrt(3.0))[None, :, None]
-        # each pose weighted by its precision, as the components are (§3.5)
-        w_rot, w_trans = precision_weights(rot_std), precision_weights(trans_std)
+        # each pose weighted by its geometry, as the components are (§3.5)
+        sigma = pairs.region_sigma_px[p, ok]
+        w_rot, w_trans = geometry_weights(rot_std, sigma), geometry_weights(trans_std, sigma)
 
         def local(x, w):
             mean = np.average(x, axis=1, weights=w)[:, None]

@@ -30,10 +30,6 @@ MIN_CUT_PX = 1.0
 # so at most BLOCKS_PER_AXIS along either side of the image (W, H <= diagonal).
 NOISE_BLOCK_FRAC = 0.05
 BLOCKS_PER_AXIS = 21
-# The pose components' weights (docs/semantics.md §3.5): each pose counts by its precision 1 / noise²,
-# but no pose counts less than a pose of WEIGHT_RANGE times the pair's median noise variance, so a
-# pose that fits badly because its region is inconsistent (an unmasked mover) still counts.
-WEIGHT_RANGE = 10.0
 # Field names of earlier releases that config files and ``SGCConfig.from_dict`` still accept, with
 # a DeprecationWarning: old name -> field.
 DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}

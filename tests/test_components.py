@@ -9,7 +9,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sgc_jax import stats
-from sgc_jax.config import WEIGHT_RANGE
 from sgc_jax.kernels import pose_variances as components
 from sgc_jax.kernels.pose_variances import masked_mean, rotation_angle_deg_authors
 
@@ -45,18 +44,12 @@ def trimmed_mean_numpy(values, compat="spec") -> float:
     return float(kept.mean())
 
 
-def capped_precision(noise) -> np.ndarray:
-    var = np.asarray(noise, np.float64) ** 2
-    return 1.0 / np.minimum(var, WEIGHT_RANGE * np.median(var))
-
-
-def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise, compat="spec") -> dict:
+def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px, compat="spec") -> dict:
     """Float64 twin of docs/semantics.md §3.5 over the accepted slots (n >= 1): each pose weighted by
-    1 / min(noise², WEIGHT_RANGE x the median noise²) under spec; equally, the global rotation term
-    trimmed, under authors."""
+    (sigma_px / std)² under spec; equally, the global rotation term trimmed, under authors."""
     Rs, ts = R_local[accepted], t_local[accepted]
     w_rot, w_trans = ((None, None) if compat == "authors"
-                      else (capped_precision(rot_noise[accepted]), capped_precision(trans_noise[accepted])))
+                      else ((sigma_px / rot_std)[accepted] ** 2, (sigma_px / trans_std)[accepted] ** 2))
     R_mean = Rotation.from_rotvec(np.average(Rotation.from_matrix(Rs).as_rotvec(), axis=0, weights=w_rot)).as_matrix()
     t_mean = np.average(ts, axis=0, weights=w_trans)
     single = len(Rs) < 2
@@ -71,8 +64,8 @@ def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_nois
 
 
 def random_pair(rng, n_accepted, spread_rad=0.05):
-    """(R_local, t_local, accepted, R_g, t_g, rot_noise [deg], trans_noise): the poses' noises
-    spread over two decades, so the precision weights matter."""
+    """(R_local, t_local, accepted, R_g, t_g, rot_std [deg], trans_std, sigma_px): the poses'
+    uncertainties per px of error spread over two decades, so the weights matter."""
     R_g = rotations(rng.normal(0, 0.3, 3))
     t_g = rng.normal(0, 1, 3)
     R_local = R_g @ rotations(rng.normal(0, spread_rad, (R_SLOTS, 3)))
@@ -81,15 +74,16 @@ def random_pair(rng, n_accepted, spread_rad=0.05):
     accepted[rng.choice(R_SLOTS, n_accepted, replace=False)] = True
     R_local[~accepted] = 0.0  # padding slots carry garbage
     t_local[~accepted] = 1e6
-    rot_noise, trans_noise = 10.0 ** rng.uniform(-2, 0, R_SLOTS), 10.0 ** rng.uniform(-3, -1, R_SLOTS)
-    rot_noise[~accepted], trans_noise[~accepted] = np.nan, np.nan
-    return R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise
+    sigma_px = 10.0 ** rng.uniform(-1, 0.5, R_SLOTS)
+    rot_std, trans_std = sigma_px * 10.0 ** rng.uniform(-2, 0, R_SLOTS), sigma_px * 10.0 ** rng.uniform(-3, -1, R_SLOTS)
+    rot_std[~accepted], trans_std[~accepted], sigma_px[~accepted] = np.nan, np.nan, np.nan
+    return R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px
 
 
-def run(R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise, compat="spec"):
+def run(R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px, compat="spec"):
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     out = pair_pose_components(f32(R_local), f32(t_local), jnp.asarray(accepted), f32(R_g), f32(t_g),
-                               f32(rot_noise), f32(trans_noise), compat=compat)
+                               f32(rot_std), f32(trans_std), f32(sigma_px), compat=compat)
     return {key: np.asarray(value) for key, value in out.items()}
 
 
@@ -131,36 +125,37 @@ def test_matches_float64_formulas(n_accepted, compat):
         assert float(out[key]) == pytest.approx(expected[key], rel=1e-3), key
 
 
-def test_each_pose_counts_by_its_precision_under_spec():
-    """Twice the noise counts a quarter as much; equal noises give the plain means."""
+def test_each_pose_counts_by_how_well_its_geometry_determines_it():
+    """Twice the uncertainty per px of error counts a quarter as much; equal ones give the plain means."""
     accepted = jnp.ones(R_SLOTS, bool)
-    weights = components.precision_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), accepted)
+    weights = components.pose_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), jnp.ones(R_SLOTS), accepted)
     np.testing.assert_allclose(weights, [1, 1, 1, 0.25, 0.25, 0.25], rtol=RTOL)
     rng = np.random.default_rng(11)
-    R_local, t_local, accepted, R_g, t_g, rot_noise, trans_noise = random_pair(rng, R_SLOTS)
-    equal = run(R_local, t_local, accepted, R_g, t_g, np.full(R_SLOTS, 0.3), np.full(R_SLOTS, 0.01))
-    plain = components_numpy(R_local, t_local, accepted, R_g, t_g, np.ones(R_SLOTS), np.ones(R_SLOTS))
+    R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
+    ones = np.ones(R_SLOTS)
+    equal = run(R_local, t_local, accepted, R_g, t_g, 0.3 * ones, 0.01 * ones, ones)
+    plain = components_numpy(R_local, t_local, accepted, R_g, t_g, ones, ones, ones)
     for key in KEYS:
         assert float(equal[key]) == pytest.approx(plain[key], rel=1e-3), key
 
 
-def test_a_pose_that_fits_badly_still_counts_a_tenth_of_a_median_one():
-    """An unmasked mover's region fits badly, so its noise is large: it counts as a pose of
-    WEIGHT_RANGE times the pair's median noise variance, and its disagreement is not lost."""
-    noise = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 5.0])
-    weights = components.precision_weights(jnp.asarray(noise), jnp.ones(R_SLOTS, bool))
-    np.testing.assert_allclose(weights, [1, 1, 1, 1, 1, 1 / WEIGHT_RANGE], rtol=RTOL)
+def test_a_pose_that_fits_badly_counts_as_much_as_its_geometry_says():
+    """An unmasked mover's region fits badly: its residuals, and so its uncertainty, are large, but
+    its weight is its geometry's (uncertainty per px of residual), and its disagreement is not lost."""
+    sigma = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 2.0])  # px: five exact layers and a misfit
+    std = 0.5 * sigma  # deg or units: the same geometry for all six
+    np.testing.assert_allclose(components.pose_weights(jnp.asarray(std), jnp.asarray(sigma), jnp.ones(R_SLOTS, bool)),
+                               np.ones(R_SLOTS), rtol=RTOL)
     rng = np.random.default_rng(12)
     R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
     R_local[:], t_local[:] = R_g, t_g
     t_local[5] = t_g + 1.0  # the mover's pose, 3 units² off
-    out = run(R_local, t_local, accepted, R_g, t_g, noise, noise)
-    share = (1 / WEIGHT_RANGE) / (5 + 1 / WEIGHT_RANGE)
-    assert float(out["global_trans_var"]) == pytest.approx(3.0 * share, rel=RTOL)
+    out = run(R_local, t_local, accepted, R_g, t_g, std, std, sigma)
+    assert float(out["global_trans_var"]) == pytest.approx(3.0 / R_SLOTS, rel=RTOL)
 
 
-def test_spec_needs_the_poses_noise():
-    with pytest.raises(ValueError, match="rot_noise and trans_noise"):
+def test_spec_needs_the_poses_geometry():
+    with pytest.raises(ValueError, match="rot_std, trans_std and sigma_px"):
         components.pair_pose_components(jnp.zeros((3, 3, 3)), jnp.zeros((3, 3)), jnp.ones(3, bool), jnp.eye(3),
                                         jnp.zeros(3))
 

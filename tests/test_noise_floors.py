@@ -20,6 +20,7 @@ from sgc_jax.engines.pairs import PairArrays
 from sgc_jax.engines.reference import global_variances, local_variances
 from sgc_jax.engines.units import PERCENT
 from sgc_jax.io.tables import FLOOR_COLUMNS
+from sgc_jax.kernels.pose_variances import pose_weights
 from sgc_jax.research.synth import synth_clip
 
 # Monte Carlo of the formulas: DRAWS sets of 6 poses; the precision-weighted mean of squared
@@ -55,7 +56,8 @@ def one_pair(rot_std_deg, trans_std) -> PairArrays:
                       t_local=np.zeros((1, k, 3)), region_status=np.full((1, k), REGION_OK),
                       region_points=np.full((1, k), 50), region_reproj=np.zeros((1, k)),
                       region_rot_std=row(rot_std_deg), region_trans_std=row(trans_std),
-                      region_rot_noise=row(rot_std_deg), region_trans_noise=row(trans_std))
+                      region_rot_noise=row(rot_std_deg), region_trans_noise=row(trans_std),
+                      region_sigma_px=np.ones((1, k)))
 
 
 def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitted_sizes():
@@ -68,8 +70,9 @@ def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitte
         rotvecs = np.deg2rad(rng.standard_normal((6, 3)) * (rot_std / np.sqrt(3))[:, None])
         R = list(Rotation.from_rotvec(rotvecs).as_matrix())
         t = list(100.0 * rng.standard_normal((6, 3)) * (trans_std / np.sqrt(3))[:, None])  # % of D
-        local = local_variances(R, t, config, rot_std, trans_std)
-        glob = global_variances(R, t, np.eye(3), np.zeros(3), config, rot_std, trans_std)
+        spread = (rot_std, trans_std, np.ones(6))  # each pose's uncertainty per px of error: its weight
+        local = local_variances(R, t, config, spread)
+        glob = global_variances(R, t, np.eye(3), np.zeros(3), config, spread)
         for name, value in zip(FLOOR_COLUMNS, (local[0], local[1], glob[0], glob[1])):
             sums[name] += value / DRAWS
     for name in FLOOR_COLUMNS:
@@ -145,8 +148,10 @@ def test_floors_count_errors_that_nearby_tracks_share(shared_errors):
     assert np.all(pairs.region_rot_noise[accepted] >= pairs.region_rot_std[accepted])
     # the usual covariance alone, which takes every track's error as its own, would call this
     # consistent scene inconsistent
+    weights = tuple(pose_weights(std, pairs.region_sigma_px, accepted, np)
+                    for std in (pairs.region_rot_std, pairs.region_trans_std))
     usual = floors_of(pairs.region_status, pairs.region_rot_std, PERCENT * pairs.region_trans_std,
-                      pairs.components())
+                      pairs.components(), weights)
     for name in FLOOR_COLUMNS:
         component = scored.components[name.removesuffix("_floor")]
         assert component / np.nanmean(usual[name]) > FLOOR_RATIO_RANGE[1], name

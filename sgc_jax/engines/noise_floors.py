@@ -12,30 +12,29 @@ import numpy as np
 from ..calibration import COMPONENTS, Calibration, sgc_score
 from ..codes import REGION_OK
 from ..io.tables import FLOOR_COLUMNS
-from ..kernels.pose_variances import precision_weights
+from ..kernels.pose_variances import pose_weights
 from .units import PERCENT
 
 
 def floors_of(region_status: Any, rot_noise_deg: Any, trans_noise_percent: Any, components: dict[str, Any],
-              xp=np) -> dict[str, Any]:
+              weights: tuple[Any, Any], xp=np) -> dict[str, Any]:
     """FLOOR_COLUMNS -> (...,) from each pair's region statuses, RMS rotation noise [deg] and
     translation noise [% of D] of its poses (..., k; ``region_rot_noise``, ``region_trans_noise``),
-    and its components (...,): NaN where the pair has no accepted pose or the component is NaN (no
-    global pose). With the components' weights w_j (§3.5) and W = sum_j w_j over the accepted poses,
-    E[sum_j w_j |e_j|² / W] = sum_j w_j σ_j² / W, and about the weighted mean that minus
-    sum_j w_j² σ_j² / W²."""
+    its components (...,) and the poses' (rotation, translation) weights in them (..., k; §3.5):
+    NaN where the pair has no accepted pose or the component is NaN (no global pose). With W =
+    sum_j w_j over the accepted poses, E[sum_j w_j |e_j|² / W] = sum_j w_j σ_j² / W, and about the
+    weighted mean that minus sum_j w_j² σ_j² / W²."""
     accepted = region_status == REGION_OK
     n = xp.sum(accepted, axis=-1)
 
-    def expected_spreads(noise):  # (about the camera's pose, about the weighted mean pose)
-        w = precision_weights(noise, accepted, xp)
+    def expected_spreads(noise, w):  # (about the camera's pose, about the weighted mean pose)
         var = xp.where(accepted, noise, 0.0) ** 2
         total = xp.sum(w, axis=-1)
         about_truth = xp.sum(w * var, axis=-1) / total
         return about_truth, about_truth - xp.sum(w * w * var, axis=-1) / total ** 2
 
-    global_rot, local_rot = expected_spreads(rot_noise_deg)
-    global_trans, local_trans = expected_spreads(trans_noise_percent)
+    global_rot, local_rot = expected_spreads(rot_noise_deg, weights[0])
+    global_trans, local_trans = expected_spreads(trans_noise_percent, weights[1])
     floors = {"local_rot_var_floor": local_rot, "local_trans_var_floor": local_trans,
               "global_rot_var_floor": global_rot, "global_trans_var_floor": global_trans}
     return {name: xp.where((n > 0) & ~xp.isnan(components[name.removesuffix("_floor")]), value, np.nan)
@@ -59,5 +58,8 @@ def pair_floors(pairs: Mapping[str, Any], compat: str, xp=np) -> dict[str, Any]:
     if compat == "authors":
         return {name: xp.full(xp.shape(pairs["global_rot_var"]), np.nan) for name in FLOOR_COLUMNS}
     with np.errstate(invalid="ignore", divide="ignore"):  # a pair without a pose: 0 / 0, masked in floors_of
+        accepted = pairs["region_status"] == REGION_OK
+        weights = tuple(pose_weights(pairs[name], pairs["region_sigma_px"], accepted, xp)
+                        for name in ("region_rot_std", "region_trans_std"))
         return floors_of(pairs["region_status"], pairs["region_rot_noise"], PERCENT * pairs["region_trans_noise"],
-                         {k: pairs[k] for k in COMPONENTS}, xp=xp)
+                         {k: pairs[k] for k in COMPONENTS}, weights, xp=xp)

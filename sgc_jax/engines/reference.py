@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, WEIGHT_RANGE, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
 from ..stats import trimmed
 from . import reference_pose as reference_pose_search
@@ -402,38 +402,41 @@ def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray], rot_weights:
             np.average(t_local, axis=0, weights=trans_weights))
 
 
-def precision_weights(noise: np.ndarray) -> np.ndarray:
-    """(n,) weights of accepted poses, 1 / min(noise², WEIGHT_RANGE x their median noise²), the
-    largest 1 (docs/semantics.md §3.5); equal weights when some pose has no finite noise."""
-    var = np.maximum(np.asarray(noise, np.float64) ** 2, 1e-30)
-    if var.size == 0 or not np.isfinite(var).all():
-        return np.ones(var.size)
-    capped = np.minimum(var, WEIGHT_RANGE * np.median(var))
-    return capped.min() / capped
+def geometry_weights(std: np.ndarray, sigma_px: np.ndarray) -> np.ndarray:
+    """(n,) weights of accepted poses, 1 / (std / sigma_px)², the largest 1 (docs/semantics.md §3.5:
+    by how well the region's geometry determines the pose, not how well it fits); equal weights
+    when some pose has no finite one."""
+    per_px = np.maximum((np.asarray(std, np.float64) / np.maximum(np.asarray(sigma_px, np.float64), 1e-30)) ** 2,
+                        1e-30)
+    if per_px.size == 0 or not np.isfinite(per_px).all():
+        return np.ones(per_px.size)
+    return per_px.min() / per_px
 
 
-def pose_weights(rot_noise: np.ndarray, trans_noise: np.ndarray, config: SGCConfig
+def pose_weights(spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None, config: SGCConfig
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Each accepted pose's weight in the components (docs/semantics.md §3.5): its precision under
-    spec, equal (None) under authors."""
+    """Each accepted pose's (rotation, translation) weight in the components: by its geometry under
+    spec, from ``spread`` = (rot_std, trans_std, sigma_px) (n,) each; equal (None) under authors."""
     if config.compat == "authors":
         return None, None
-    if rot_noise is None or trans_noise is None:
-        raise ValueError("compat='spec' weights each local pose by its precision: rot_noise and trans_noise are needed")
-    return precision_weights(rot_noise), precision_weights(trans_noise)
+    if spread is None:
+        raise ValueError("compat='spec' weights each local pose by its geometry: (rot_std, trans_std, sigma_px) "
+                         "are needed")
+    rot_std, trans_std, sigma_px = spread
+    return geometry_weights(rot_std, sigma_px), geometry_weights(trans_std, sigma_px)
 
 
 def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig,
-                    rot_noise: np.ndarray | None = None, trans_noise: np.ndarray | None = None) -> tuple[float, float]:
+                    spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
     """(local_rot_var deg^2, local_trans_var) around the mean pose, each pose weighted by its
-    precision under spec (``rot_noise`` [deg], ``trans_noise`` (n,)); NaN with none, and with one
-    under spec (no spread to measure); 0 with one under authors."""
+    geometry under spec (``pose_weights`` of ``spread``); NaN with none, and with one under spec (no
+    spread to measure); 0 with one under authors."""
     n = len(R_local)
     if n == 0 or (n == 1 and config.compat != "authors"):
         return float("nan"), float("nan")
     if n == 1:
         return 0.0, 0.0
-    w_rot, w_trans = pose_weights(rot_noise, trans_noise, config)
+    w_rot, w_trans = pose_weights(spread, config)
     R_mean, t_mean = mean_pose(R_local, t_local, w_rot, w_trans)
     angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
     rot = np.average([angle(R, R_mean) ** 2 for R in R_local], weights=w_rot)
@@ -452,15 +455,16 @@ def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
 
 
 def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,
-                     t_g: np.ndarray, config: SGCConfig, rot_noise: np.ndarray | None = None,
-                     trans_noise: np.ndarray | None = None) -> tuple[float, float]:
+                     t_g: np.ndarray, config: SGCConfig,
+                     spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
     """(global_rot_var deg^2, global_trans_var) of the local poses against (R_g, t_g): each pose
-    weighted by its precision under spec; equally, the rotation term trimmed, under authors."""
+    weighted by its geometry under spec (``pose_weights``); equally, the rotation term trimmed,
+    under authors."""
     if not R_local:
         return float("nan"), float("nan")
     angle = rotation_angle_deg_authors if config.compat == "authors" else rotation_angle_deg
     to_camera = np.array([angle(R, R_g) ** 2 for R in R_local])
-    w_rot, w_trans = pose_weights(rot_noise, trans_noise, config)
+    w_rot, w_trans = pose_weights(spread, config)
     rot = trimmed_mean_iqr(to_camera, config) if config.compat == "authors" else float(np.average(to_camera,
                                                                                                   weights=w_rot))
     trans = float(np.average([np.sum((t - t_g) ** 2) for t in t_local], weights=w_trans))
@@ -660,6 +664,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
         "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
         "region_rot_noise": np.full((n_pairs, k), np.nan), "region_trans_noise": np.full((n_pairs, k), np.nan),
+        "region_sigma_px": np.full((n_pairs, k), np.nan),
         "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
         "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
@@ -679,6 +684,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
             if status == REGION_STATUS["ok"]:
                 good, sigma, *usual = region_quality(X, uv, K, pose.R, pose.t, clip.image_size, config)
                 out["region_rot_std"][p, j], out["region_trans_std"][p, j] = usual
+                out["region_sigma_px"][p, j] = sigma
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
                         X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)
@@ -771,14 +777,15 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     # reported in depth units per pose unit (1 when no global translation is scaled)
     out.scale, out.depth_unit = scale * unit if config.global_pose else 1.0, unit
     for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "region_rot_std",
-                "region_trans_std", "region_rot_noise", "region_trans_noise", "n_tracks", "n_regions"):
+                "region_trans_std", "region_rot_noise", "region_trans_noise", "region_sigma_px", "n_tracks",
+                "n_regions"):
         setattr(out, key, poses[key])
     for pair in range(1, clip.n_frames):
         p = pair - 1
         R_list, t_list = posed[p]
-        noise = poses["region_rot_noise"][p][accepted[p]], poses["region_trans_noise"][p][accepted[p]]
-        local_rot, local_trans = local_variances(R_list, t_list, config, *noise)
-        global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config, *noise)
+        spread = tuple(poses[name][p][accepted[p]] for name in ("region_rot_std", "region_trans_std", "region_sigma_px"))
+        local_rot, local_trans = local_variances(R_list, t_list, config, spread)
+        global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config, spread)
         if not config.global_pose:
             global_rot = global_trans = float("nan")
         out.local_rot_var[p], out.local_trans_var[p] = local_rot, local_trans * f**2

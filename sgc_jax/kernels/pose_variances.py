@@ -2,8 +2,9 @@
 their mean and about the camera's pose.
 
 Rotations in degrees (variances in deg^2), translations in the inputs' units. Local poses come as
-k region slots with an ``accepted`` mask. Under ``compat="spec"`` each pose counts by its
-precision, 1 / its noise² (``region_rot_noise``, ``region_trans_noise``); ``compat="authors"``
+k region slots with an ``accepted`` mask. Under ``compat="spec"`` each pose counts by how well
+its region's geometry determines it (``pose_weights``: 1 / its variance per px² of tracking
+error); ``compat="authors"``
 reproduces the authors' code (§3.9): equal weights, a trimmed global rotation term, arccos-of-trace
 distances in float32, and IQR = 0 rejecting every value.
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import COMPATS, WEIGHT_RANGE
+from ..config import COMPATS
 from ..stats import trimmed_mean
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 
@@ -46,20 +47,17 @@ def masked_mean(values, valid, weights=None):
     return jnp.where(jnp.any(valid), total / jnp.maximum(jnp.sum(w, axis=0), jnp.finfo(values.dtype).tiny), jnp.nan)
 
 
-def precision_weights(noise, accepted, xp=jnp):
-    """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / min(noise², WEIGHT_RANGE x
-    the median noise² of the pair's accepted poses), scaled so the largest is 1 (float32 keeps its
-    range whatever the noise's unit); equal weights when an accepted pose has no finite noise; 0
-    for the others. ``noise`` (..., k) in any unit; NumPy or ``jax.numpy`` (``xp``)."""
-    var = xp.maximum((at_least_float32(noise) if xp is jnp else np.asarray(noise, np.float64)) ** 2, 1e-30)
-    finite = xp.isfinite(var)
-    known = xp.all(xp.where(accepted, finite, True), axis=-1, keepdims=True)
-    ordered = xp.sort(xp.where(accepted & finite, var, xp.inf), axis=-1)
-    n = xp.sum(accepted & finite, axis=-1, keepdims=True)
-    middle = lambda i: xp.take_along_axis(ordered, xp.clip(i, 0, var.shape[-1] - 1), axis=-1)  # noqa: E731
-    median = 0.5 * (middle((n - 1) // 2) + middle(n // 2))
-    capped = xp.minimum(xp.where(finite, var, 1.0), WEIGHT_RANGE * median)
-    weights = xp.where(accepted, xp.min(xp.where(accepted, capped, xp.inf), axis=-1, keepdims=True) / capped, 0.0)
+def pose_weights(std, sigma_px, accepted, xp=jnp):
+    """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / g_j, g_j = (std_j /
+    sigma_j)² the variance of pose j per px² of tracking error (its region's geometry alone: not
+    how well the region fits), scaled so the largest is 1; equal weights when an accepted pose has
+    no finite g; 0 for the others. ``std`` (..., k) the pose's RMS error (``region_rot_std`` or
+    ``region_trans_std``, any unit), ``sigma_px`` its fit's residual sigma; NumPy or ``jax.numpy``."""
+    as_float = at_least_float32 if xp is jnp else (lambda x: np.asarray(x, np.float64))
+    per_px = xp.maximum((as_float(std) / xp.maximum(as_float(sigma_px), 1e-30)) ** 2, 1e-30)
+    known = xp.all(xp.where(accepted, xp.isfinite(per_px), True), axis=-1, keepdims=True)
+    per_px = xp.where(accepted & xp.isfinite(per_px), per_px, xp.inf)
+    weights = xp.where(accepted, xp.min(per_px, axis=-1, keepdims=True) / per_px, 0.0)
     return xp.where(known, weights, xp.asarray(accepted, weights.dtype))
 
 
@@ -70,25 +68,26 @@ def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
     return R_mean, masked_mean(at_least_float32(t_local), accepted, trans_weights)
 
 
-def pair_pose_components(R_local, t_local, accepted, R_g, t_g, rot_noise=None, trans_noise=None, *,
+def pair_pose_components(R_local, t_local, accepted, R_g, t_g, rot_std=None, trans_std=None, sigma_px=None, *,
                          compat: str = "spec"):
     """Local poses (k, 3, 3), (k, 3), accepted (k,) against the camera's (3, 3), (3,) -> float32
     local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
-    Under spec each pose is weighted by its precision, 1 / ``rot_noise``² [deg] and 1 /
-    ``trans_noise``² [units] (k,; required there); under authors equally, the global rotation
+    Under spec each pose is weighted by its geometry (``pose_weights`` of ``rot_std``, ``trans_std``
+    and ``sigma_px``, (k,), required there); under authors equally, the global rotation
     term trimmed (docs/semantics.md §3.5). All NaN with no accepted pose; with one, the local ones
     are NaN under spec (one pose has no spread to measure) and 0 under authors (the authors' code)."""
     _check_compat(compat)
     authors = compat == "authors"
-    if not authors and (rot_noise is None or trans_noise is None):
-        raise ValueError("compat='spec' weights each local pose by its precision: rot_noise and trans_noise are needed")
+    if not authors and (rot_std is None or trans_std is None or sigma_px is None):
+        raise ValueError("compat='spec' weights each local pose by its geometry: rot_std, trans_std and sigma_px "
+                         "are needed")
     angle = rotation_angle_deg_authors if authors else rotation_angle_deg
     R_local, t_local = at_least_float32(R_local), at_least_float32(t_local)
     R_g, t_g = at_least_float32(R_g), at_least_float32(t_g)
     n = jnp.sum(accepted).astype(jnp.int32)
     none = n == 0
-    w_rot, w_trans = (None, None) if authors else (precision_weights(rot_noise, accepted),
-                                                    precision_weights(trans_noise, accepted))
+    w_rot, w_trans = (None, None) if authors else (pose_weights(rot_std, sigma_px, accepted),
+                                                    pose_weights(trans_std, sigma_px, accepted))
 
     R_mean, t_mean = mean_pose(R_local, t_local, accepted, w_rot, w_trans)
     R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=R_local.dtype), R_mean), jnp.nan_to_num(t_mean)
