@@ -130,6 +130,10 @@ def test_each_pose_counts_by_how_well_its_geometry_determines_it():
     accepted = jnp.ones(R_SLOTS, bool)
     weights = components.pose_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), jnp.ones(R_SLOTS), accepted)
     np.testing.assert_allclose(weights, [1, 1, 1, 0.25, 0.25, 0.25], rtol=RTOL)
+    # a pose fitted exactly (std and sigma 0) has no measured geometry: it takes the pair's median
+    exact = components.pose_weights(jnp.asarray([0.1, 0.2, 0.0, 0.2, 0.2, 0.2]),
+                                    jnp.asarray([1, 1, 0, 1, 1, 1.0]), accepted)
+    np.testing.assert_allclose(exact, [1, 0.25, 0.25, 0.25, 0.25, 0.25], rtol=RTOL)
     rng = np.random.default_rng(11)
     R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
     ones = np.ones(R_SLOTS)

@@ -404,12 +404,15 @@ def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray], rot_weights:
 
 def geometry_weights(std: np.ndarray, sigma_px: np.ndarray) -> np.ndarray:
     """(n,) weights of accepted poses, 1 / (std / sigma_px)², the largest 1 (docs/semantics.md §3.5:
-    by how well the region's geometry determines the pose, not how well it fits); equal weights
-    when some pose has no finite one."""
-    per_px = np.maximum((np.asarray(std, np.float64) / np.maximum(np.asarray(sigma_px, np.float64), 1e-30)) ** 2,
-                        1e-30)
-    if per_px.size == 0 or not np.isfinite(per_px).all():
-        return np.ones(per_px.size)
+    by how well the region's geometry determines the pose, not how well it fits); a pose fitted
+    exactly (std or sigma 0, or not finite) takes the median of the others' (equal weights when
+    none has one)."""
+    std, sigma = np.asarray(std, np.float64), np.asarray(sigma_px, np.float64)
+    measured = (std > 0) & (sigma > 0) & np.isfinite(std) & np.isfinite(sigma)
+    if not measured.any():
+        return np.ones(std.size)
+    per_px = np.where(measured, (std / np.where(measured, sigma, 1.0)) ** 2, 0.0)
+    per_px = np.where(measured, per_px, np.median(per_px[measured]))
     return per_px.min() / per_px
 
 

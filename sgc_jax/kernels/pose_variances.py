@@ -50,15 +50,21 @@ def masked_mean(values, valid, weights=None):
 def pose_weights(std, sigma_px, accepted, xp=jnp):
     """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / g_j, g_j = (std_j /
     sigma_j)² the variance of pose j per px² of tracking error (its region's geometry alone: not
-    how well the region fits), scaled so the largest is 1; equal weights when an accepted pose has
-    no finite g; 0 for the others. ``std`` (..., k) the pose's RMS error (``region_rot_std`` or
+    how well the region fits), scaled so the largest is 1; 0 for the others. A pose fitted exactly
+    (sigma or std 0, or not finite) has no measured g: it takes the median g of the pair's others
+    (equal weights when none has one). ``std`` (..., k) the pose's RMS error (``region_rot_std`` or
     ``region_trans_std``, any unit), ``sigma_px`` its fit's residual sigma; NumPy or ``jax.numpy``."""
     as_float = at_least_float32 if xp is jnp else (lambda x: np.asarray(x, np.float64))
-    per_px = xp.maximum((as_float(std) / xp.maximum(as_float(sigma_px), 1e-30)) ** 2, 1e-30)
-    known = xp.all(xp.where(accepted, xp.isfinite(per_px), True), axis=-1, keepdims=True)
-    per_px = xp.where(accepted & xp.isfinite(per_px), per_px, xp.inf)
-    weights = xp.where(accepted, xp.min(per_px, axis=-1, keepdims=True) / per_px, 0.0)
-    return xp.where(known, weights, xp.asarray(accepted, weights.dtype))
+    std, sigma = as_float(std), as_float(sigma_px)
+    measured = accepted & (std > 0) & (sigma > 0) & xp.isfinite(std) & xp.isfinite(sigma)
+    per_px = xp.where(measured, std / xp.where(measured, sigma, 1.0), xp.inf) ** 2
+    ordered = xp.sort(per_px, axis=-1)
+    n = xp.sum(measured, axis=-1, keepdims=True)
+    middle = lambda i: xp.take_along_axis(ordered, xp.clip(i, 0, per_px.shape[-1] - 1), axis=-1)  # noqa: E731
+    median = xp.where(n > 0, 0.5 * (middle((n - 1) // 2) + middle(n // 2)), 1.0)
+    per_px = xp.where(measured, per_px, median)
+    weights = xp.where(accepted, xp.min(xp.where(accepted, per_px, xp.inf), axis=-1, keepdims=True) / per_px, 0.0)
+    return weights
 
 
 def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
