@@ -786,7 +786,8 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     for pair in range(1, clip.n_frames):
         p = pair - 1
         R_list, t_list = posed[p]
-        spread = tuple(poses[name][p][accepted[p]] for name in ("region_rot_std", "region_trans_std", "region_sigma_px"))
+        spread = tuple(poses[name][p][accepted[p]]
+                       for name in ("region_rot_std", "region_trans_std", "region_sigma_px"))
         local_rot, local_trans = local_variances(R_list, t_list, config, spread)
         global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config, spread)
         if not config.global_pose:

@@ -4,9 +4,8 @@ their mean and about the camera's pose.
 Rotations in degrees (variances in deg^2), translations in the inputs' units. Local poses come as
 k region slots with an ``accepted`` mask. Under ``compat="spec"`` each pose counts by how well
 its region's geometry determines it (``pose_weights``: 1 / its variance per px² of tracking
-error); ``compat="authors"``
-reproduces the authors' code (§3.9): equal weights, a trimmed global rotation term, arccos-of-trace
-distances in float32, and IQR = 0 rejecting every value.
+error); ``compat="authors"`` reproduces the authors' code (§3.9): equal weights, a trimmed global
+rotation term, arccos-of-trace distances in float32, and IQR = 0 rejecting every value.
 """
 
 from __future__ import annotations

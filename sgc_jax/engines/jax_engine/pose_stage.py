@@ -94,7 +94,8 @@ def local_poses_pair(pair: PairInputs, image_hw, stage: PoseStage) -> LocalPoses
         rot_noise, trans_noise = fit.uncertainty.rot_noise_deg, fit.uncertainty.trans_noise
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
                       fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, rot_noise, trans_noise,
-                      fit.uncertainty.sigma_px, n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32), pair.region_pixels, fit.fitted)
+                      fit.uncertainty.sigma_px, n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32),
+                      pair.region_pixels, fit.fitted)
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, compat: str):

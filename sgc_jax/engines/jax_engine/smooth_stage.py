@@ -55,8 +55,8 @@ def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: d
     floors = jnp.stack([summary[name] for name in FLOOR_COLUMNS], axis=-1)
     return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
                                         pose["R_local"], pose["t_local"], pose["region_rot_std"],
-                                        pose["region_trans_std"], pose["region_sigma_px"], pose["R_g"], pose["t_g"], pose["scale"],
-                                        present, floors))
+                                        pose["region_trans_std"], pose["region_sigma_px"], pose["R_g"], pose["t_g"],
+                                        pose["scale"], present, floors))
 
 
 def check_differentiable(config: SGCConfig) -> None:
