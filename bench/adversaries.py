@@ -10,7 +10,8 @@ Noise: iid-both (independent Gaussian on both ends of every track). Prints, for 
    of their median);
 2. each adversary (``sgc_jax.research.adversaries``) at 1,000 tracks and ``--noise`` px: its median
    reward over the scenes against the honest median of the same scenes (the bar: <= 0.5x), its
-   statuses and one clip's reason;
+   statuses and one clip's reason; the unmasked mover also over the scenes where it is seen (at
+   least a pose's worth of usable tracks on it, ``protocol.hidden_movers``) and where it is hidden;
 3. the perturbation ladders (clean, 0.1, 0.25, 0.5 of each perturbation; 1,000 tracks): the share
    where the reward falls strictly with severity (the bar: all).
 
@@ -28,7 +29,7 @@ from collections import Counter
 
 import numpy as np
 
-from sgc_jax import score_batch
+from sgc_jax import SGCConfig, score_batch
 from sgc_jax.codes import SCORER_STATUSES
 from sgc_jax.research import protocol
 from sgc_jax.research.adversaries import ADVERSARIES, adversary
@@ -87,15 +88,21 @@ def print_honest(rows: list[dict]) -> float:
     return float(np.median([r["reward"] for r in honest if r["tracks"] == TRACKS]))
 
 
-def print_adversaries(rows: list[dict], noise: float) -> None:
+def print_adversaries(rows: list[dict], noise: float, split: str) -> None:
     honest = {r["scene"]: r["reward"] for r in rows
               if r["group"] == "honest" and r["tracks"] == TRACKS and r["noise_px"] == noise}
     print(f"\n2. Adversaries ({TRACKS} tracks, iid-both {noise:g} px): median reward over the scenes, and against "
           f"the same scenes' honest clips (median honest {np.median(list(honest.values())):.3f})")
     print("| adversary | median reward | x honest (median of scenes) | median SGC | statuses | a reason |")
     print("|---|---|---|---|---|---|")
-    for name in ADVERSARIES:
-        own = [r for r in rows if r["group"] == "adversary" and r["kind"] == name]
+    hidden = {scene for scene, _ in protocol.hidden_movers(split, (TRACKS,), SGCConfig())}
+    movers = [r for r in rows if r["group"] == "adversary" and r["kind"] == "unmasked_mover"]
+    for name, own in [(name, [r for r in rows if r["group"] == "adversary" and r["kind"] == name])
+                      for name in ADVERSARIES] + [
+            ("unmasked_mover, seen", [r for r in movers if r["scene"] not in hidden]),
+            ("unmasked_mover, hidden", [r for r in movers if r["scene"] in hidden])]:
+        if not own:
+            continue
         ratio = np.median([r["reward"] / honest[r["scene"]] for r in own if honest.get(r["scene"], 0) > 0])
         statuses = ", ".join(f"{s} {n}" for s, n in Counter(r["status"] for r in own).most_common())
         reason = next((r["reason"] for r in own if r["reason"]), "")
@@ -129,7 +136,7 @@ def main(argv=None) -> None:
         protocol.write_rows(args.out, rows)
     print(f"split {args.split}")
     print_honest(rows)
-    print_adversaries(rows, args.noise)
+    print_adversaries(rows, args.noise, args.split)
     print_ladders(rows, args.noise)
 
 

@@ -13,6 +13,8 @@ with ``--out`` instead of scoring. Prints, for the split:
    its rise from 0.5 to 2 px (the bar: <= 0.02) and the largest single clip (the bar: <= 0.10);
 2. detection: per inconsistency and severity, the share of cells (scene, model, level, tracks)
    where it scores strictly above its consistent twin (the bar at 0.25: >= 95 %), also per model;
+   the mover also apart in the cells where it is seen and those where it is hidden (fewer usable
+   tracks on it than a pose needs, ``protocol.hidden_movers``);
 3. floors: per noise model, the range over (level, tracks) cells of the median observed / floor of
    each pose component over the consistent scenes (the bar: within [0.5, 2]);
 4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
@@ -70,7 +72,7 @@ def print_consistent(rows: list[dict], models, levels, tracks) -> None:
               + f" | {rise:+.3f} | {np.nanmax([r['sgc'] for r in cell]):.3f} |")
 
 
-def print_detection(rows: list[dict], models) -> None:
+def print_detection(rows: list[dict], models, split: str, config: SGCConfig) -> None:
     keyed = [{**r, "cell": (r["scene"], r["model"], r["noise_px"], r["tracks"])} for r in rows]
     overall = protocol.detection_table(keyed)
     per_model = {m: protocol.detection_table([r for r in keyed if r["model"] == m]) for m in models}
@@ -80,6 +82,14 @@ def print_detection(rows: list[dict], models) -> None:
     for (kind, severity), share in overall.items():
         print(f"| {kind} | {severity:g} | {share:.0%} | "
               + " | ".join(f"{per_model[m].get((kind, severity), np.nan):.0%}" for m in models) + " |")
+    hidden = protocol.hidden_movers(split, sorted({r["tracks"] for r in rows}), config)
+    for label, keep in (("seen", False), ("hidden", True)):
+        movers = [r for r in keyed if r["kind"] in ("mover", "mover-masked") and ((r["scene"], r["tracks"]) in hidden) == keep]
+        cells = len({r["cell"] for r in movers})
+        share = protocol.detection_table(movers).get(("mover", 1.0), np.nan)
+        per = {m: protocol.detection_table([r for r in movers if r["model"] == m]).get(("mover", 1.0), np.nan)
+               for m in models}
+        print(f"| mover, {label} ({cells} cells) | 1 | {share:.0%} | " + " | ".join(f"{per[m]:.0%}" for m in models) + " |")
 
 
 def print_floors(rows: list[dict], models, levels, tracks) -> None:
@@ -138,7 +148,7 @@ def main() -> None:
         protocol.write_rows(args.out, rows)
     print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
     print_consistent(rows, args.models, args.levels, args.tracks)
-    print_detection(rows, args.models)
+    print_detection(rows, args.models, args.split, config)
     print_floors(rows, args.models, args.levels, args.tracks)
     if args.intervals:
         print_intervals(args, config)

@@ -14,7 +14,16 @@ from tolerances import FLOOR_RATIO_RANGE
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, smooth_field
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.protocol import FIT_SCENES, FIT_SEEDS, TEST_SCENES, TEST_SEEDS, Cell, cell_clips, detection_table
+from sgc_jax.research.protocol import (
+    FIT_SCENES,
+    FIT_SEEDS,
+    TEST_SCENES,
+    TEST_SEEDS,
+    Cell,
+    cell_clips,
+    detection_table,
+    tracks_on_mover,
+)
 from sgc_jax.research.synth import synth_clip
 
 # Sampling tolerances: RMS over 2 x (T-1) x P = 1,536 draws (SYNTH_SCENE) is within 10 % of its
@@ -186,3 +195,18 @@ def test_with_errors_at_both_track_ends_each_perturbation_scores_above_its_consi
     for (seed, kind), clip in both_ends_scores.items():
         if kind:
             assert clip.sgc > both_ends_scores[(seed, "")].sgc, (seed, kind, clip.sgc)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_movers_tracks_are_those_on_the_object_not_on_its_masks_margin(seed):
+    scene = dict(n_layers=2, moving_objects=1, with_frames=False, **SYNTH_SCENE)
+    masked = synth_clip(seed=seed, **scene)
+    exact_mask = synth_clip(seed=seed, mask_margin_px=0, **scene)  # the same tracks, the mask the object alone
+    H, W = exact_mask.image_size
+    column = np.clip(np.rint(exact_mask.track_prev[..., 0]).astype(int), 0, W - 1)
+    row = np.clip(np.rint(exact_mask.track_prev[..., 1]).astype(int), 0, H - 1)
+    on_object = ~exact_mask.static_mask[np.arange(exact_mask.n_pairs)[:, None], row, column]
+    expected = np.mean(np.sum(on_object & exact_mask.usable_tracks(0.0), axis=1))
+    assert expected > 0
+    assert tracks_on_mover(masked, 0.0) == expected
+    assert tracks_on_mover(synth_clip(seed=seed, n_layers=2, with_frames=False, **SYNTH_SCENE), 0.0) == 0.0

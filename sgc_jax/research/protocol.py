@@ -10,7 +10,10 @@ each inconsistency and its consistent twin:
 
 - ``warp``, ``squeeze``, ``depth_warp`` (:mod:`sgc_jax.research.perturb`) at :data:`SEVERITIES`,
   against the clean scene;
-- ``mover``: one moving object left unmasked, against the same scene with it masked.
+- ``mover``: one moving object left unmasked, against the same scene with it masked. A mover
+  with fewer usable tracks on it per pair than an accepted pose needs
+  (``SGCConfig.min_region_points``) is *hidden*: no pose can be fitted to it, and among a layer's
+  tracks it is RANSAC's outliers (:func:`tracks_on_mover`); the benchmarks report it apart.
 
 Noise is dealt after the inconsistency, from a seed of the cell, so a scene and its inconsistent
 version carry the same tracker errors.
@@ -24,13 +27,15 @@ import itertools
 import os
 from typing import Any, Iterator, Sequence
 
+import cv2
 import numpy as np
 
+from ..config import SGCConfig
 from ..io.clip import Clip
 from ..io.tables import write_csv
 from .noise import NOISE_MODELS, add_noise
 from .perturb import PERTURBATIONS, perturb_clip
-from .synth import synth_clip
+from .synth import SceneSpec, synth_clip
 
 #: Seeds of each split; FIT's include the shipped calibration corpus's (0, 1) and the benchmarks' (10-12).
 FIT_SEEDS = range(0, 100)
@@ -123,6 +128,26 @@ def exact_variants(scene: ProtocolScene, n_tracks: int, inconsistencies=INCONSIS
         else:
             out += [(perturb_clip(clean, kind, s, seed=scene.seed), kind, s) for s in severities]
     return out
+
+
+def tracks_on_mover(masked: Clip, min_track_conf: float) -> float:
+    """Mean over pairs of the usable tracks whose frame-i−1 position lies on the moving object of a
+    ``mover-masked`` clip: its dynamic mask less the synthetic mask's margin (``SceneSpec.mask_margin_px``)."""
+    margin = SceneSpec.mask_margin_px
+    kernel = np.ones((2 * margin + 1,) * 2, np.uint8)
+    on_object = np.stack([cv2.erode((~static).astype(np.uint8), kernel) > 0 for static in masked.static_mask[:-1]])
+    pairs, H, W = on_object.shape
+    column, row = (np.clip(np.rint(masked.track_prev[..., a]).astype(np.int64), 0, size - 1)
+                   for a, size in ((0, W), (1, H)))
+    hit = on_object[np.arange(pairs)[:, None], row, column] & masked.usable_tracks(min_track_conf)
+    return float(hit.sum(axis=1).mean())
+
+
+def hidden_movers(split: str, tracks: Sequence[int], config: SGCConfig) -> set[tuple[str, int]]:
+    """(scene, track count) pairs of a split whose mover carries fewer than
+    ``config.min_region_points`` usable tracks per pair (:func:`tracks_on_mover`)."""
+    return {(scene.name, n) for scene, n in itertools.product(SPLITS[split], tracks)
+            if tracks_on_mover(scene.clip(n, moving=True), config.min_track_conf) < config.min_region_points}
 
 
 def cell_clips(cell: Cell, inconsistencies=INCONSISTENCIES, severities=SEVERITIES,
