@@ -59,12 +59,13 @@ class Fit(NamedTuple):
 
 
 def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds, slots=None,
-                 start_fitted_on=None) -> LocalOptima:
+                 start_fitted_on=None, fitted_on_within=False) -> LocalOptima:
     """Every region's local optimum of the truncated cost at its cut (``cut_sq_point`` (N,): each
     point's region's squared cut) from ``start`` (k, 6): least squares on the members within the
     cut, again on the new ones, each fit kept only when it lowers the cost; a region stops at its
     first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits.
-    ``start_fitted_on`` (N,): the points the start was fitted on (default: those within its cut)."""
+    ``start_fitted_on`` (N,): the points the start was fitted on (default, or where
+    ``fitted_on_within`` (a traced bool) holds: those within its cut)."""
     k = start.shape[0]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -94,7 +95,8 @@ def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds,
     done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
     final = jax.lax.while_loop(lambda s: (s.rounds < max_rounds) & jnp.any(~s.done), refit,
                                Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0),
-                                   within if start_fitted_on is None else start_fitted_on))
+                                   within if start_fitted_on is None else jnp.where(fitted_on_within, within,
+                                                                                     start_fitted_on)))
     return LocalOptima(final.poses, final.err_sq, final.cost, final.fitted_on)
 
 
@@ -104,6 +106,11 @@ class RefinedPoses(NamedTuple):
     n_inliers: jax.Array  # (k,) int32
     ambiguous: jax.Array  # (k,) bool
     fitted: jax.Array  # (N,) bool: the points each region's pose is the least-squares fit of
+
+
+def _take(runs: LocalOptima, i: int) -> LocalOptima:
+    """Run i of optima stacked along a leading axis."""
+    return jax.tree.map(lambda a: a[i], runs)
 
 
 def _lowest(optima: LocalOptima, region) -> LocalOptima:
@@ -138,20 +145,55 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
     optimise = functools.partial(local_optima, X, uv, region, K, lm_steps=options.lm_steps,
                                  max_rounds=options.max_rounds, slots=region_slots(region, k, dtype))
     at_inlier_px = jnp.full(X.shape[:1], thr_sq)
+    n_starts = starts.shape[0]
+    # the runs by index: the M starts' coarse runs, then the pose, the rival at inlier_px, the rival
+    pose_run, rival_coarse_run, rival_run = n_starts, n_starts + 1, n_starts + 2
+
+    def coarse_of(runs):
+        return _lowest(jax.tree.map(lambda a: a[:n_starts], runs), region)
 
     def cut_of(err_sq):
         return point_values(onehot, noise_cut_sq(noise_sigma_sq(err_sq, member, onehot, thr_sq), inlier_px))
 
-    # one start after another: vmapped, each fit's loop would run until the slowest start is done
-    coarse = _lowest(jax.lax.map(lambda start: optimise(start, at_inlier_px), starts), region)
-    cut = cut_of(coarse.err_sq)
-    pose = optimise(coarse.poses, cut, start_fitted_on=coarse.fitted_on)
+    def rival_cut(runs):  # the region's cut, or the rival's where it beats the coarse optimum at inlier_px
+        coarse, rival_coarse = coarse_of(runs), _take(runs, rival_coarse_run)
+        rival_wins = point_values(onehot, is_lower(rival_coarse.cost, coarse.cost).astype(dtype)) > 0
+        return jnp.where(rival_wins, cut_of(rival_coarse.err_sq), cut_of(coarse.err_sq))
 
-    t = translation_for_rotation(X, uv, member & (pose.err_sq < cut), region, K, rival_R, k)
-    rival_coarse = optimise(jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1), at_inlier_px)
-    rival_wins = point_values(onehot, is_lower(rival_coarse.cost, coarse.cost).astype(dtype)) > 0
-    cut = jnp.where(rival_wins, cut_of(rival_coarse.err_sq), cut)
-    rival = optimise(rival_coarse.poses, cut, start_fitted_on=rival_coarse.fitted_on)
+    # Each run's start (poses, cut, points it was fitted on, whether those are the ones within the
+    # cut instead), from the runs before it. One traced optimisation serves every run, one after
+    # another: the program holds the least-squares loop once, and a start's loop is not vmapped
+    # with the others' (each would run until the slowest is done).
+    def coarse_start(i, runs):
+        return starts[jnp.minimum(i, n_starts - 1)], at_inlier_px, runs.fitted_on[0], jnp.bool_(True)
+
+    def pose_start(i, runs):
+        coarse = coarse_of(runs)
+        return coarse.poses, cut_of(coarse.err_sq), coarse.fitted_on, jnp.bool_(False)
+
+    def rival_coarse_start(i, runs):
+        pose = _take(runs, pose_run)
+        t = translation_for_rotation(X, uv, member & (pose.err_sq < cut_of(coarse_of(runs).err_sq)), region, K,
+                                     rival_R, k)
+        return jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1), at_inlier_px, \
+            runs.fitted_on[0], jnp.bool_(True)
+
+    def rival_start(i, runs):
+        rival_coarse = _take(runs, rival_coarse_run)
+        return rival_coarse.poses, rival_cut(runs), rival_coarse.fitted_on, jnp.bool_(False)
+
+    def run(i, runs):
+        branch = jnp.clip(i - n_starts + 1, 0, 3)
+        start, cut, fitted_on, within = jax.lax.switch(branch, (coarse_start, pose_start, rival_coarse_start,
+                                                                rival_start), i, runs)
+        optimum = optimise(start, cut, start_fitted_on=fitted_on, fitted_on_within=within)
+        return jax.tree.map(lambda a, b: a.at[i].set(b), runs, optimum)
+
+    empty = LocalOptima(jnp.zeros((n_starts + 3, k, 6), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], dtype),
+                        jnp.zeros((n_starts + 3, k), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], bool))
+    runs = jax.lax.fori_loop(0, n_starts + 3, run, empty)
+    pose, rival = _take(runs, pose_run), _take(runs, rival_run)
+    cut = rival_cut(runs)
 
     rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
     # the rival's cost is at the final cut already; the pose's is taken again there
