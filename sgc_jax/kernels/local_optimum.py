@@ -125,6 +125,29 @@ def _lowest(optima: LocalOptima, region) -> LocalOptima:
                        jnp.take_along_axis(optima.fitted_on, point_chosen[None], axis=0)[0])
 
 
+def _pose_or_rival(pose: LocalOptima, rival: LocalOptima, cut, member, onehot, options: RansacOptions
+                   ) -> RefinedPoses:
+    """Per region, the rival where it costs less at the final cut (N,) than the pose, and whether
+    the pose is ambiguous (``refine_poses`` step 3)."""
+    dtype = cut.dtype
+    thr_sq = jnp.asarray(options.inlier_px, dtype) ** 2
+    rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
+    # the rival's cost is at the final cut already; the pose's is taken again there
+    lower = rival_finite & is_lower(rival.cost, region_truncated_cost(pose.err_sq, member, cut, onehot))
+    poses = jnp.where(lower[:, None], rival.poses, pose.poses)
+    point_lower = point_values(onehot, lower.astype(dtype)) > 0
+    err_sq = jnp.where(point_lower, rival.err_sq, pose.err_sq)
+    near = member & (err_sq < cut)
+    m = region_sums(onehot, near.astype(dtype))
+    shared = region_sums(onehot, (near & (rival.err_sq < cut)).astype(dtype))
+    margin = jnp.maximum(1.0, jnp.floor(options.ambiguous_inlier_frac * m))
+    apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival.poses[:, :3])) > options.ambiguous_rot_deg
+    inliers = member & (err_sq < thr_sq)
+    return RefinedPoses(poses, inliers, region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32),
+                        rival_finite & apart & (shared >= m - margin),
+                        jnp.where(point_lower, rival.fitted_on, pose.fitted_on))
+
+
 def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> RefinedPoses:
     """The local pose of every region from M starts (M, k, 6):
 
@@ -195,21 +218,7 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
     pose, rival = _take(runs, pose_run), _take(runs, rival_run)
     cut = rival_cut(runs)
 
-    rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
-    # the rival's cost is at the final cut already; the pose's is taken again there
-    lower = rival_finite & is_lower(rival.cost, region_truncated_cost(pose.err_sq, member, cut, onehot))
-    poses = jnp.where(lower[:, None], rival.poses, pose.poses)
-    point_lower = point_values(onehot, lower.astype(dtype)) > 0
-    err_sq = jnp.where(point_lower, rival.err_sq, pose.err_sq)
-    near = member & (err_sq < cut)
-    m = region_sums(onehot, near.astype(dtype))
-    shared = region_sums(onehot, (near & (rival.err_sq < cut)).astype(dtype))
-    margin = jnp.maximum(1.0, jnp.floor(options.ambiguous_inlier_frac * m))
-    apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival.poses[:, :3])) > options.ambiguous_rot_deg
-    inliers = member & (err_sq < thr_sq)
-    return RefinedPoses(poses, inliers, region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32),
-                        rival_finite & apart & (shared >= m - margin),
-                        jnp.where(point_lower, rival.fitted_on, pose.fitted_on))
+    return _pose_or_rival(pose, rival, cut, member, onehot, options)
 
 
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
