@@ -58,14 +58,14 @@ class Fit(NamedTuple):
     fitted_on: jax.Array  # (N,) bool: the points the kept pose was fitted on
 
 
-def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds, slots=None,
-                 start_fitted_on=None, fitted_on_within=False) -> LocalOptima:
+def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_on_within, *, lm_steps, max_rounds,
+                 slots=None) -> LocalOptima:
     """Every region's local optimum of the truncated cost at its cut (``cut_sq_point`` (N,): each
     point's region's squared cut) from ``start`` (k, 6): least squares on the members within the
     cut, again on the new ones, each fit kept only when it lowers the cost; a region stops at its
     first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits.
-    ``start_fitted_on`` (N,): the points the start was fitted on (default, or where
-    ``fitted_on_within`` (a traced bool) holds: those within its cut)."""
+    ``start_fitted_on`` (N,): the points the start was fitted on; where ``fitted_on_within`` (a
+    traced bool) holds, those within its cut instead."""
     k = start.shape[0]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -95,8 +95,7 @@ def local_optima(X, uv, region, K, start, cut_sq_point, *, lm_steps, max_rounds,
     done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
     final = jax.lax.while_loop(lambda s: (s.rounds < max_rounds) & jnp.any(~s.done), refit,
                                Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0),
-                                   within if start_fitted_on is None else jnp.where(fitted_on_within, within,
-                                                                                     start_fitted_on)))
+                                   jnp.where(fitted_on_within, within, start_fitted_on)))
     return LocalOptima(final.poses, final.err_sq, final.cost, final.fitted_on)
 
 
@@ -209,7 +208,7 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
         branch = jnp.clip(i - n_starts + 1, 0, 3)
         start, cut, fitted_on, within = jax.lax.switch(branch, (coarse_start, pose_start, rival_coarse_start,
                                                                 rival_start), i, runs)
-        optimum = optimise(start, cut, start_fitted_on=fitted_on, fitted_on_within=within)
+        optimum = optimise(start, cut, fitted_on, within)
         return jax.tree.map(lambda a, b: a.at[i].set(b), runs, optimum)
 
     empty = LocalOptima(jnp.zeros((n_starts + 3, k, 6), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], dtype),

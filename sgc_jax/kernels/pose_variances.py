@@ -62,8 +62,7 @@ def pose_weights(std, sigma_px, accepted, xp=jnp):
     middle = lambda i: xp.take_along_axis(ordered, xp.clip(i, 0, per_px.shape[-1] - 1), axis=-1)  # noqa: E731
     median = xp.where(n > 0, 0.5 * (middle((n - 1) // 2) + middle(n // 2)), 1.0)
     per_px = xp.where(measured, per_px, median)
-    weights = xp.where(accepted, xp.min(xp.where(accepted, per_px, xp.inf), axis=-1, keepdims=True) / per_px, 0.0)
-    return weights
+    return xp.where(accepted, xp.min(xp.where(accepted, per_px, xp.inf), axis=-1, keepdims=True) / per_px, 0.0)
 
 
 def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
