@@ -90,6 +90,17 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
                 for s, r in zip(out["status"], rows)] == [True] * len(rows)
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="an accelerator runs the batch in one vectorized program")
+def test_on_one_cpu_the_scorer_runs_score_batchs_stage_programs(scorer, expected):
+    """docs/semantics.md §9.3: its calls' clips one after another through score_batch's one-clip
+    programs, so a Scorer of a bucket score_batch has compiled compiles no stage of its own."""
+    from sgc_jax.engines.jax_engine import programs
+
+    held = programs.compile_count()
+    Scorer((2, *SHAPE[1:]))
+    assert programs.compile_count() == held
+
+
 def test_the_tables_rewards_are_the_scorers(scorer, corpus, expected):
     """``BatchResult.rewards`` runs the Scorer's reward in float64 on the tables' columns."""
     host = expected.rewards()

@@ -122,6 +122,9 @@ class Scorer:
         self.call_size = -(-B // self.lanes) if self.lanes > 1 else -(-B // n) * n
         # one program over exactly the B clips: its outputs, ECD included, need no mending
         self._one_program = self.lanes == 1 and n == 1
+        # on one CPU the clips of a call run one after another anyway (``lax.map``): run them
+        # through score_batch's one-clip stage programs, so that the two share their compile
+        self._clip_by_clip = one_cpu and not self.vectorized and not self.differentiable
         self._mesh = jax.sharding.Mesh(np.array(self.devices), ("clips",))
         self._traced = self._traceable_programs()
         enable_compilation_cache()
@@ -158,8 +161,9 @@ class Scorer:
         return {**summary, **reward(summary, self.calibration, self.reward_options)}
 
     def _compile(self) -> dict:
-        """Each step compiled for one call's clips; the stages are ``score_batch``'s pipeline for
-        groups of this size (shared with it in this process)."""
+        """Each step compiled for one call's clips; the stages are ``score_batch``'s pipeline: its
+        one-clip programs on one CPU (shared with it, in this process and in the persistent cache),
+        else its programs for groups of this size."""
         B, T, H, W, P = self.shape
         n = len(self.devices)
         spread = f" in {self.lanes} lanes of {self.call_size}" if self.lanes > 1 else \
@@ -168,8 +172,12 @@ class Scorer:
         with CompileNotice(what, "prepare", loading=False, hint=cache_hint()):
             prepare = self._traced["prepare"].lower(self._example()).compile()
         padded = PaddedClips(*prepare.out_info)
-        stages = pipeline(self.config, self.bucket, padded, self.devices, self.vectorized)
-        out = stages.programs[-1].out_info
+        if self._clip_by_clip:
+            stages = pipeline(self.config, self.bucket, PaddedClips(*(_one_clip(leaf) for leaf in padded)))
+            out = {name: _one_clip(leaf, self.call_size) for name, leaf in stages.programs[-1].out_info.items()}
+        else:
+            stages = pipeline(self.config, self.bucket, padded, self.devices, self.vectorized)
+            out = stages.programs[-1].out_info
         summarize = self._traced["summarize"].lower(out, *summary_inputs(padded)).compile()  # small
         compiled = {"prepare": prepare, "stages": stages, "summarize": summarize}
         if self.differentiable:
@@ -259,7 +267,7 @@ class Scorer:
         """What the forward pass of ``batch`` chose (``smooth_stage.Frozen``, leading axis B), the
         choices ``sgc_smooth`` holds fixed (docs/semantics.md §10.1)."""
         clips = jax.device_put(self._rows(self.clip_arrays(batch), 0, self.call_size), self._sharding())
-        padded, outs = self._stages(self._compiled, clips)
+        padded, outs = self._stages(self._compiled, clips, every=True)
         summary = self._compiled["summarize"](outs[-1], *summary_inputs(padded))
         frozen = frozen_choices(*outs, padded.pair_valid, summary)
         return jax.tree.map(lambda leaf: leaf[:self.shape[0]], frozen)
@@ -281,10 +289,18 @@ class Scorer:
         out = {name: value[:B] for name, value in out.items()}
         return {**out, "ecd": batch_camera_dynamics(out["ecd_trans"], out["ecd_rot"])}
 
-    def _stages(self, programs: dict, clips: ClipArrays) -> tuple:
-        """(the padded clips, the three stages' outputs)."""
+    def _stages(self, programs: dict, clips: ClipArrays, every: bool = False) -> tuple:
+        """(the padded clips, the three stages' outputs); clip by clip where the Scorer runs so,
+        only the finish's put together unless ``every``."""
         padded = programs["prepare"](clips)
-        return padded, programs["stages"].outputs(padded)
+        if not (self._clip_by_clip and programs is self._compiled):
+            return padded, programs["stages"].outputs(padded)
+        each = [programs["stages"].outputs(PaddedClips(*(leaf[i:i + 1] for leaf in padded)))
+                for i in range(self.call_size)]
+        stages = range(len(each[0])) if every else [len(each[0]) - 1]
+        outs = {stage: {name: jnp.concatenate([clip[stage][name] for clip in each]) for name in each[0][stage]}
+                for stage in stages}
+        return padded, [outs.get(stage) for stage in range(len(each[0]))]
 
     def _run(self, programs: dict, clips: ClipArrays, live: ClipArrays | None = None) -> dict:
         """The steps on one call's clips; with ``live`` (the differentiable form: the same clips
@@ -295,6 +311,11 @@ class Scorer:
             return summary
         smooth = self._traced["smooth"] if _traced(live) else programs["smooth"]
         return {**summary, "sgc_smooth": smooth(live, frozen_choices(*outs, padded.pair_valid, summary))}
+
+
+def _one_clip(spec, clips: int = 1):
+    """A program's (B, ...) input or output shape with ``clips`` clips instead of B."""
+    return jax.ShapeDtypeStruct((clips,) + tuple(spec.shape[1:]), spec.dtype)
 
 
 def summary_inputs(padded: PaddedClips) -> tuple:
