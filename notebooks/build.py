@@ -647,11 +647,11 @@ GRADIENTS = [
                  for p in range(T - 1)]
         pair = int(np.argmax(ratio)) + 1  # pair i = frames i-1 -> i, row i-1
         # which pairs stand out (> 10x) is stable; the small ratios follow RANSAC's choices, which
-        # another CPU's rounding may change
+        # another CPU's rounding may change (1.8x on an Intel box, 2.0x on an AMD one): whole x only
         strong = [p + 1 for p in range(T - 1) if ratio[p] > 10]
         print(f"pairs where they carry > 10x the static gradient: {strong} "
               f"({', '.join(f'{ratio[i - 1]:.0f}x' for i in strong)}); elsewhere at most "
-              f"{max((r for p, r in enumerate(ratio) if p + 1 not in strong), default=0.0):.1f}x; shown: pair {pair}")"""),
+              f"{max((r for p, r in enumerate(ratio) if p + 1 not in strong), default=0.0):.0f}x; shown: pair {pair}")"""),
     _md("""
         Per pair the picture is sharper than the mean: where the sphere's tracks form a region of
         their own, its pose disagrees with the others and its tracks carry tens of times the

@@ -96,10 +96,12 @@ def test_notebook_names_the_default_calibration_and_units(name):
 # A number of a stored output and of a fresh run agree up to float noise: one unit in the last digit
 # shown (pandas shows 4), NOISE_RTOL of the value, or NOISE_ATOL. Another CPU fuses float32 sums
 # otherwise, and two roundings of one fit settle up to LM_SETTLE_RTOL apart in the pose, more in a
-# variance of differences between poses (measured across two CPUs, notebooks 01-04: at most
-# 2.0e-3; NOISE_RTOL leaves 2.5x). A rigid clip's variances (~1e-10 deg^2) and its local-global
-# gaps (~1e-6 px, differences of float32 values of order 1) are that noise itself.
-NOISE_RTOL, NOISE_ATOL = 5 * LM_SETTLE_RTOL, 1e-5
+# variance of differences between poses, most where a severe warp leaves RANSAC near-tied optima
+# (measured between an Intel Xeon and an AMD EPYC box: at most 8.6e-3, notebook 02's local
+# rotation variance of 129 deg^2 at warp 1; NOISE_RTOL leaves 2.3x). A rigid clip's variances
+# (~1e-10 deg^2) and its local-global gaps (~1e-6 px, differences of float32 values of order 1)
+# are that noise itself.
+NOISE_RTOL, NOISE_ATOL = 20 * LM_SETTLE_RTOL, 1e-5
 # A rank statistic moves in steps: noise that swaps two near-tied scores of n rows moves Spearman's
 # rho by 12 / (n (n^2 - 1)) (2e-4 for notebook 03's 40 rows); a few swaps per fold, with the folds'
 # std, stay within RANK_ATOL (measured across two CPUs: 6e-4).
