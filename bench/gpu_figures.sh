@@ -1,7 +1,7 @@
 #!/bin/bash
 # GPU figures in one device lease, logs and traces into $OUT (or ./gpu-figures). Run from the
 # repository root on the device machine:
-#   bench/gpu_figures.sh reward      issue 40: the Scorer's clips/s per B with a step profile and
+#   bench/gpu_figures.sh reward      issues 40, 61: the Scorer's clips/s per B with a step profile and
 #                                    kernel traces, then 1,000 standard clips from disk (~8 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
