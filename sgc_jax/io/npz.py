@@ -12,6 +12,7 @@ import contextlib
 import math
 import os
 import struct
+import threading
 import tokenize
 import zipfile
 import zlib
@@ -31,6 +32,10 @@ DEFLATE_MAX_RATIO = 1032
 _READ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error, struct.error, tokenize.TokenError,
                 SyntaxError, RuntimeError, OverflowError, MemoryError)
 FILE = "<file>"  # the array name given to problems of the archive as a whole
+# numpy parses an npy header with ast.literal_eval, which CPython before 3.11.8 / 3.12.1 can fail
+# with "SystemError: AST constructor recursion depth mismatch" when threads parse at once (cpython
+# gh-106905; seen in the readers of score_batch): one header is parsed at a time.
+_HEADER_LOCK = threading.Lock()
 
 
 class NpzError(ValueError):
@@ -50,16 +55,31 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _npy_header(fp: Any, path: Path, name: str) -> tuple[tuple[int, ...], np.dtype]:
-    """(shape, dtype) from the npy header at ``fp``; formats 1.0 and 2.0, what np.save writes for plain dtypes."""
+def _npy_header(fp: Any, path: Path, name: str) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran_order, dtype) from the npy header at ``fp``, which is left at the array's
+    data; formats 1.0 and 2.0, what np.save writes for plain dtypes."""
     version = np.lib.format.read_magic(fp)
-    if version == (1, 0):
-        shape, _, dtype = np.lib.format.read_array_header_1_0(fp)
-    elif version == (2, 0):
-        shape, _, dtype = np.lib.format.read_array_header_2_0(fp)
-    else:
+    if version not in ((1, 0), (2, 0)):
         raise NpzError(path, name, "an .npy array of format 1.0 or 2.0", f"format {version}")
-    return tuple(shape), dtype
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    with _HEADER_LOCK:
+        shape, fortran_order, dtype = read(fp)
+    return tuple(shape), bool(fortran_order), dtype
+
+
+def _npy_data(fp: Any, shape: tuple[int, ...], fortran_order: bool, dtype: np.dtype) -> np.ndarray:
+    """The array whose data follows its header at ``fp`` (``np.lib.format.read_array`` without
+    parsing the header again)."""
+    size = math.prod(shape) * dtype.itemsize
+    data, got = bytearray(size), 0
+    view = memoryview(data)
+    while got < size:
+        n = fp.readinto(view[got:])
+        if not n:
+            raise ValueError(f"EOF: reading array data, expected {size} bytes got {got}")
+        got += n
+    array = np.frombuffer(data, dtype=dtype)
+    return array.reshape(shape[::-1]).transpose() if fortran_order else array.reshape(shape)
 
 
 def _check_header(path: Path, name: str, shape: tuple[int, ...], dtype: np.dtype, room: int) -> None:
@@ -96,12 +116,11 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, archive_bytes:
     try:
         room = _member_room(info, archive_bytes, path, name)
         with archive.open(info) as fp:
-            shape, dtype = _npy_header(fp, path, name)
+            shape, fortran_order, dtype = _npy_header(fp, path, name)
             _check_header(path, name, shape, dtype, room - fp.tell())
-        if headers_only:
-            return shape, dtype
-        with archive.open(info) as fp:
-            array = np.lib.format.read_array(fp, allow_pickle=False)
+            if headers_only:
+                return shape, dtype
+            array = _npy_data(fp, shape, fortran_order, dtype)
             fp.read()  # on to the member's end: zipfile checks the CRC only there
         return array
     except NpzError:
