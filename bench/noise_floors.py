@@ -66,8 +66,7 @@ def parametric_floors(pairs, draws: int, rng: np.random.Generator) -> dict[str, 
         rot = rng.normal(size=(draws, n, 3)) * (rot_std / np.sqrt(3.0))[None, :, None]  # deg, per axis
         trans = rng.normal(size=(draws, n, 3)) * (trans_std / np.sqrt(3.0))[None, :, None]
         # each pose weighted by its geometry, as the components are (§3.5)
-        sigma = pairs.region_sigma_px[p, ok]
-        w_rot, w_trans = geometry_weights(rot_std, sigma), geometry_weights(trans_std, sigma)
+        w_rot, w_trans = geometry_weights(pairs.region_rot_per_px[p, ok]), geometry_weights(pairs.region_trans_per_px[p, ok])
 
         def local(x, w):
             mean = np.average(x, axis=1, weights=w)[:, None]

@@ -11,6 +11,8 @@ from scipy.spatial.transform import Rotation
 from sgc_jax import stats
 from sgc_jax.kernels import pose_variances as components
 from sgc_jax.kernels.pose_variances import masked_mean, rotation_angle_deg_authors
+from sgc_jax.kernels.so3 import so3_exp
+from sgc_jax.kernels.uncertainty import pose_uncertainty
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 pair_pose_components = jax.jit(components.pair_pose_components, static_argnames=("compat",))
@@ -44,12 +46,12 @@ def trimmed_mean_numpy(values, compat="spec") -> float:
     return float(kept.mean())
 
 
-def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px, compat="spec") -> dict:
+def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_per_px, trans_per_px, compat="spec") -> dict:
     """Float64 twin of docs/semantics.md §3.5 over the accepted slots (n >= 1): each pose weighted by
-    (sigma_px / std)² under spec; equally, the global rotation term trimmed, under authors."""
+    1 / per_px² under spec; equally, the global rotation term trimmed, under authors."""
     Rs, ts = R_local[accepted], t_local[accepted]
     w_rot, w_trans = ((None, None) if compat == "authors"
-                      else ((sigma_px / rot_std)[accepted] ** 2, (sigma_px / trans_std)[accepted] ** 2))
+                      else (1 / rot_per_px[accepted] ** 2, 1 / trans_per_px[accepted] ** 2))
     R_mean = Rotation.from_rotvec(np.average(Rotation.from_matrix(Rs).as_rotvec(), axis=0, weights=w_rot)).as_matrix()
     t_mean = np.average(ts, axis=0, weights=w_trans)
     single = len(Rs) < 2
@@ -64,7 +66,7 @@ def components_numpy(R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, s
 
 
 def random_pair(rng, n_accepted, spread_rad=0.05):
-    """(R_local, t_local, accepted, R_g, t_g, rot_std [deg], trans_std, sigma_px): the poses'
+    """(R_local, t_local, accepted, R_g, t_g, rot_per_px [deg / px], trans_per_px): the poses'
     uncertainties per px of error spread over two decades, so the weights matter."""
     R_g = rotations(rng.normal(0, 0.3, 3))
     t_g = rng.normal(0, 1, 3)
@@ -74,16 +76,15 @@ def random_pair(rng, n_accepted, spread_rad=0.05):
     accepted[rng.choice(R_SLOTS, n_accepted, replace=False)] = True
     R_local[~accepted] = 0.0  # padding slots carry garbage
     t_local[~accepted] = 1e6
-    sigma_px = 10.0 ** rng.uniform(-1, 0.5, R_SLOTS)
-    rot_std, trans_std = sigma_px * 10.0 ** rng.uniform(-2, 0, R_SLOTS), sigma_px * 10.0 ** rng.uniform(-3, -1, R_SLOTS)
-    rot_std[~accepted], trans_std[~accepted], sigma_px[~accepted] = np.nan, np.nan, np.nan
-    return R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px
+    rot_per_px, trans_per_px = 10.0 ** rng.uniform(-2, 0, R_SLOTS), 10.0 ** rng.uniform(-3, -1, R_SLOTS)
+    rot_per_px[~accepted], trans_per_px[~accepted] = np.nan, np.nan
+    return R_local, t_local, accepted, R_g, t_g, rot_per_px, trans_per_px
 
 
-def run(R_local, t_local, accepted, R_g, t_g, rot_std, trans_std, sigma_px, compat="spec"):
+def run(R_local, t_local, accepted, R_g, t_g, rot_per_px, trans_per_px, compat="spec"):
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     out = pair_pose_components(f32(R_local), f32(t_local), jnp.asarray(accepted), f32(R_g), f32(t_g),
-                               f32(rot_std), f32(trans_std), f32(sigma_px), compat=compat)
+                               f32(rot_per_px), f32(trans_per_px), compat=compat)
     return {key: np.asarray(value) for key, value in out.items()}
 
 
@@ -128,38 +129,45 @@ def test_matches_float64_formulas(n_accepted, compat):
 def test_each_pose_counts_by_how_well_its_geometry_determines_it():
     """Twice the uncertainty per px of error counts a quarter as much; equal ones give the plain means."""
     accepted = jnp.ones(R_SLOTS, bool)
-    weights = components.pose_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), jnp.ones(R_SLOTS), accepted)
+    weights = components.pose_weights(jnp.asarray([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]), accepted)
     np.testing.assert_allclose(weights, [1, 1, 1, 0.25, 0.25, 0.25], rtol=RTOL)
-    # a pose fitted exactly (std and sigma 0) has no measured geometry: it takes the pair's median
-    exact = components.pose_weights(jnp.asarray([0.1, 0.2, 0.0, 0.2, 0.2, 0.2]),
-                                    jnp.asarray([1, 1, 0, 1, 1, 1.0]), accepted)
-    np.testing.assert_allclose(exact, [1, 0.25, 0.25, 0.25, 0.25, 0.25], rtol=RTOL)
+    # one without a geometry (0 or not finite; an accepted pose's 4 inliers rule it out) takes the pair's median
+    unknown = components.pose_weights(jnp.asarray([0.1, 0.2, 0.0, 0.2, jnp.nan, 0.2]), accepted)
+    np.testing.assert_allclose(unknown, [1, 0.25, 0.25, 0.25, 0.25, 0.25], rtol=RTOL)
     rng = np.random.default_rng(11)
     R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
     ones = np.ones(R_SLOTS)
-    equal = run(R_local, t_local, accepted, R_g, t_g, 0.3 * ones, 0.01 * ones, ones)
-    plain = components_numpy(R_local, t_local, accepted, R_g, t_g, ones, ones, ones)
+    equal = run(R_local, t_local, accepted, R_g, t_g, 0.3 * ones, 0.01 * ones)
+    plain = components_numpy(R_local, t_local, accepted, R_g, t_g, ones, ones)
     for key in KEYS:
         assert float(equal[key]) == pytest.approx(plain[key], rel=1e-3), key
 
 
-def test_a_pose_that_fits_badly_counts_as_much_as_its_geometry_says():
-    """An unmasked mover's region fits badly: its residuals, and so its uncertainty, are large, but
-    its weight is its geometry's (uncertainty per px of residual), and its disagreement is not lost."""
-    sigma = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 2.0])  # px: five exact layers and a misfit
-    std = 0.5 * sigma  # deg or units: the same geometry for all six
-    np.testing.assert_allclose(components.pose_weights(jnp.asarray(std), jnp.asarray(sigma), jnp.ones(R_SLOTS, bool)),
-                               np.ones(R_SLOTS), rtol=RTOL)
-    rng = np.random.default_rng(12)
-    R_local, t_local, accepted, R_g, t_g, *_ = random_pair(rng, R_SLOTS)
-    R_local[:], t_local[:] = R_g, t_g
-    t_local[5] = t_g + 1.0  # the mover's pose, 3 units² off
-    out = run(R_local, t_local, accepted, R_g, t_g, std, std, sigma)
-    assert float(out["global_trans_var"]) == pytest.approx(3.0 / R_SLOTS, rel=RTOL)
+def test_a_poses_geometry_does_not_depend_on_how_well_it_fits():
+    """The weight's geometry, a pose's error per px of tracking error, is the same for a region
+    fitted exactly (residual sigma 0, an unmasked mover's lone layer) and one fitted through
+    residuals, and it is the pose's uncertainty over its residual sigma where that is not 0."""
+    rng = np.random.default_rng(13)
+    X = np.column_stack([rng.uniform(-1, 1, (60, 2)), rng.uniform(3, 6, 60)]).astype(np.float32)
+    K = np.array([[300.0, 0, 96], [0, 300.0, 72], [0, 0, 1]], np.float32)
+    pose = np.array([[0.01, -0.02, 0.005, 0.05, 0.0, 0.02]], np.float32)
+    R = np.asarray(so3_exp(jnp.asarray(pose[0, :3])))
+    Y = X @ R.T + pose[0, 3:]
+    exact_uv = (Y[:, :2] / Y[:, 2:]) * 300.0 + np.array([96.0, 72.0], np.float32)
+    noisy_uv = exact_uv + rng.normal(0, 0.7, exact_uv.shape).astype(np.float32)
+    region, inliers = np.ones(60, np.int32), np.ones(60, bool)
+    exact, noisy = (pose_uncertainty(jnp.asarray(X), jnp.asarray(uv), jnp.asarray(region), jnp.asarray(K),
+                                     jnp.asarray(pose), jnp.asarray(inliers)) for uv in (exact_uv, noisy_uv))
+    assert float(exact.sigma_px[0]) < 1e-3 < float(noisy.sigma_px[0])
+    for per_px in ("rot_per_px_deg", "trans_per_px"):
+        assert float(getattr(exact, per_px)[0]) > 0
+        np.testing.assert_allclose(getattr(exact, per_px), getattr(noisy, per_px), rtol=RTOL)
+    np.testing.assert_allclose(noisy.rot_std_deg / noisy.sigma_px, noisy.rot_per_px_deg, rtol=RTOL)
+    np.testing.assert_allclose(noisy.trans_std / noisy.sigma_px, noisy.trans_per_px, rtol=RTOL)
 
 
 def test_spec_needs_the_poses_geometry():
-    with pytest.raises(ValueError, match="rot_std, trans_std and sigma_px"):
+    with pytest.raises(ValueError, match="rot_per_px and trans_per_px"):
         components.pair_pose_components(jnp.zeros((3, 3, 3)), jnp.zeros((3, 3)), jnp.ones(3, bool), jnp.eye(3),
                                         jnp.zeros(3))
 

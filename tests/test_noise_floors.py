@@ -57,7 +57,8 @@ def one_pair(rot_std_deg, trans_std) -> PairArrays:
                       region_points=np.full((1, k), 50), region_reproj=np.zeros((1, k)),
                       region_rot_std=row(rot_std_deg), region_trans_std=row(trans_std),
                       region_rot_noise=row(rot_std_deg), region_trans_noise=row(trans_std),
-                      region_sigma_px=np.ones((1, k)))
+                      region_sigma_px=np.ones((1, k)), region_rot_per_px=row(rot_std_deg),
+                      region_trans_per_px=row(trans_std))
 
 
 def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitted_sizes():
@@ -70,7 +71,7 @@ def test_each_floor_is_its_components_formula_on_independent_errors_of_the_fitte
         rotvecs = np.deg2rad(rng.standard_normal((6, 3)) * (rot_std / np.sqrt(3))[:, None])
         R = list(Rotation.from_rotvec(rotvecs).as_matrix())
         t = list(100.0 * rng.standard_normal((6, 3)) * (trans_std / np.sqrt(3))[:, None])  # % of D
-        spread = (rot_std, trans_std, np.ones(6))  # each pose's uncertainty per px of error: its weight
+        spread = (rot_std, trans_std)  # each pose's uncertainty per px of error (sigma 1 px): its weight
         local = local_variances(R, t, config, spread)
         glob = global_variances(R, t, np.eye(3), np.zeros(3), config, spread)
         for name, value in zip(FLOOR_COLUMNS, (local[0], local[1], glob[0], glob[1])):
@@ -148,8 +149,7 @@ def test_floors_count_errors_that_nearby_tracks_share(shared_errors):
     assert np.all(pairs.region_rot_noise[accepted] >= pairs.region_rot_std[accepted])
     # the usual covariance alone, which takes every track's error as its own, would call this
     # consistent scene inconsistent
-    weights = tuple(pose_weights(std, pairs.region_sigma_px, accepted, np)
-                    for std in (pairs.region_rot_std, pairs.region_trans_std))
+    weights = tuple(pose_weights(per_px, accepted, np) for per_px in (pairs.region_rot_per_px, pairs.region_trans_per_px))
     usual = floors_of(pairs.region_status, pairs.region_rot_std, PERCENT * pairs.region_trans_std,
                       pairs.components(), weights)
     for name in FLOOR_COLUMNS:

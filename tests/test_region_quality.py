@@ -116,7 +116,7 @@ def test_each_kind_of_weak_region_gets_its_status_and_misfit_alone_is_kept():
     unc = PoseUncertainty(rot_std_deg=jnp.array([0.1, 0.1, 5.0, 0.1, 0.1, 0.1, 2.0, 0.1]),
                           trans_std=jnp.zeros(8), extent_px=jnp.array([50.0, 50, 50, 2, 50, 50, 50, 50]),
                           sigma_px=jnp.array([1.0, 1, 1, 1, 1, 1, 4, 4]), rot_noise_deg=jnp.zeros(8),
-                          trans_noise=jnp.zeros(8))
+                          trans_noise=jnp.zeros(8), rot_per_px_deg=jnp.zeros(8), trans_per_px=jnp.zeros(8))
     status = jnp.array([0, 0, 0, 0, 0, 2, 0, 0])
     n_inliers = jnp.array([100, 5, 100, 100, 100, 100, 100, 100])
     ambiguous = jnp.array([False, False, False, False, True, True, False, True])
@@ -132,7 +132,7 @@ def test_rotation_limit_is_the_larger_of_degrees_and_pixel_angle():
     assert float(rot_std_limit_deg(100.0, 1.0, 4.0)) == pytest.approx(np.degrees(0.04))
     unc = PoseUncertainty(rot_std_deg=jnp.array([0.8, 1.5, 3.0]), trans_std=jnp.zeros(3),
                           extent_px=jnp.full(3, 50.0), sigma_px=jnp.ones(3), rot_noise_deg=jnp.zeros(3),
-                          trans_noise=jnp.zeros(3))
+                          trans_noise=jnp.zeros(3), rot_per_px_deg=jnp.zeros(3), trans_per_px=jnp.zeros(3))
     args = (jnp.zeros(3, jnp.int32), jnp.full(3, 100), unc, jnp.zeros(3, bool), 500.0)
     I = REGION_ILL_CONDITIONED
     assert region_quality(*args, 400.0, RULE).tolist() == [0, I, I]

@@ -59,7 +59,6 @@ def pair_floors(pairs: Mapping[str, Any], compat: str, xp=np) -> dict[str, Any]:
         return {name: xp.full(xp.shape(pairs["global_rot_var"]), np.nan) for name in FLOOR_COLUMNS}
     with np.errstate(invalid="ignore", divide="ignore"):  # a pair without a pose: 0 / 0, masked in floors_of
         accepted = pairs["region_status"] == REGION_OK
-        weights = tuple(pose_weights(pairs[name], pairs["region_sigma_px"], accepted, xp)
-                        for name in ("region_rot_std", "region_trans_std"))
+        weights = tuple(pose_weights(pairs[name], accepted, xp) for name in ("region_rot_per_px", "region_trans_per_px"))
         return floors_of(pairs["region_status"], pairs["region_rot_noise"], PERCENT * pairs["region_trans_noise"],
                          {k: pairs[k] for k in COMPONENTS}, weights, xp=xp)

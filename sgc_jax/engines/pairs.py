@@ -45,6 +45,8 @@ class PairArrays:
     region_rot_noise: np.ndarray  # (n_pairs, k) RMS rotation error the noise floors count [deg] (NaN: no pose)
     region_trans_noise: np.ndarray  # (n_pairs, k) RMS translation error the noise floors count [units of D]
     region_sigma_px: np.ndarray  # (n_pairs, k) residual sigma of the pose's inliers per image coordinate [px]
+    region_rot_per_px: np.ndarray  # (n_pairs, k) RMS rotation error per px of tracking error [deg / px]: its geometry
+    region_trans_per_px: np.ndarray  # (n_pairs, k) RMS translation error per px of tracking error [units of D / px]
     scale: float = 1.0  # translation scale s applied to t_g (1 when not fitted)
     depth_unit: float = 1.0  # D, the clip's median static depth [input depth units] (1 under authors)
 
@@ -84,4 +86,4 @@ def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:
         region_status=np.full((n_pairs, k), REGION_EMPTY, np.int32),
         region_points=zeros(n_pairs, k), region_reproj=nan(n_pairs, k), region_rot_std=nan(n_pairs, k),
         region_trans_std=nan(n_pairs, k), region_rot_noise=nan(n_pairs, k), region_trans_noise=nan(n_pairs, k),
-        region_sigma_px=nan(n_pairs, k))
+        region_sigma_px=nan(n_pairs, k), region_rot_per_px=nan(n_pairs, k), region_trans_per_px=nan(n_pairs, k))

@@ -321,6 +321,18 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
             float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
 
 
+def geometry_per_px(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray
+                    ) -> tuple[float, float]:
+    """(RMS rotation error deg, RMS translation error) per px of tracking error of a pose fitted to
+    X (n, 3), uv (n, 2): ``pose_uncertainty``'s figures with sigma = 1, the region's geometry alone
+    (defined where the fit is exact). NaN under 4 points."""
+    if len(X) < 4:
+        return float("nan"), float("nan")
+    _, J = residual_jacobian(X, uv, K, R, t)
+    A = np.linalg.pinv(J.T @ J)
+    return (float(np.degrees(np.sqrt(max(np.trace(A[:3, :3]), 0.0)))), float(np.sqrt(max(np.trace(A[3:, 3:]), 0.0))))
+
+
 def block_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                      block_px: float) -> np.ndarray:
     """The cluster-robust covariance (6, 6) of the left-perturbed pose (w, dt) fitted to X (n, 3),
@@ -402,35 +414,35 @@ def mean_pose(R_local: list[np.ndarray], t_local: list[np.ndarray], rot_weights:
             np.average(t_local, axis=0, weights=trans_weights))
 
 
-def geometry_weights(std: np.ndarray, sigma_px: np.ndarray) -> np.ndarray:
-    """(n,) weights of accepted poses, 1 / (std / sigma_px)², the largest 1 (docs/semantics.md §3.5:
-    by how well the region's geometry determines the pose, not how well it fits); a pose fitted
-    exactly (std or sigma 0, or not finite) takes the median of the others' (equal weights when
-    none has one)."""
-    std, sigma = np.asarray(std, np.float64), np.asarray(sigma_px, np.float64)
-    measured = (std > 0) & (sigma > 0) & np.isfinite(std) & np.isfinite(sigma)
+def geometry_weights(per_px: np.ndarray) -> np.ndarray:
+    """(n,) weights of accepted poses, 1 / per_px², the largest 1 (docs/semantics.md §3.5: by how
+    well the region's geometry determines the pose, its RMS error per px of tracking error, not how
+    well it fits); one without a geometry (0 or not finite) takes the median of the others' (equal
+    weights when none has one)."""
+    per_px = np.asarray(per_px, np.float64)
+    measured = (per_px > 0) & np.isfinite(per_px)
     if not measured.any():
-        return np.ones(std.size)
-    per_px = np.where(measured, (std / np.where(measured, sigma, 1.0)) ** 2, 0.0)
+        return np.ones(per_px.size)
+    per_px = np.where(measured, per_px**2, 0.0)
     per_px = np.where(measured, per_px, np.median(per_px[measured]))
     return per_px.min() / per_px
 
 
-def pose_weights(spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None, config: SGCConfig
+def pose_weights(spread: tuple[np.ndarray, np.ndarray] | None, config: SGCConfig
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Each accepted pose's (rotation, translation) weight in the components: by its geometry under
-    spec, from ``spread`` = (rot_std, trans_std, sigma_px) (n,) each; equal (None) under authors."""
+    spec, from ``spread`` = (rot_per_px, trans_per_px) (n,) each; equal (None) under authors."""
     if config.compat == "authors":
         return None, None
     if spread is None:
-        raise ValueError("compat='spec' weights each local pose by its geometry: (rot_std, trans_std, sigma_px) "
+        raise ValueError("compat='spec' weights each local pose by its geometry: (rot_per_px, trans_per_px) "
                          "are needed")
-    rot_std, trans_std, sigma_px = spread
-    return geometry_weights(rot_std, sigma_px), geometry_weights(trans_std, sigma_px)
+    rot_per_px, trans_per_px = spread
+    return geometry_weights(rot_per_px), geometry_weights(trans_per_px)
 
 
 def local_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], config: SGCConfig,
-                    spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
+                    spread: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
     """(local_rot_var deg^2, local_trans_var) around the mean pose, each pose weighted by its
     geometry under spec (``pose_weights`` of ``spread``); NaN with none, and with one under spec (no
     spread to measure); 0 with one under authors."""
@@ -459,7 +471,7 @@ def trimmed_mean_iqr(values: np.ndarray, config: SGCConfig) -> float:
 
 def global_variances(R_local: list[np.ndarray], t_local: list[np.ndarray], R_g: np.ndarray,
                      t_g: np.ndarray, config: SGCConfig,
-                     spread: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
+                     spread: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
     """(global_rot_var deg^2, global_trans_var) of the local poses against (R_g, t_g): each pose
     weighted by its geometry under spec (``pose_weights``); equally, the rotation term trimmed,
     under authors."""
@@ -667,7 +679,8 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
         "region_points": np.zeros((n_pairs, k), np.int32), "region_reproj": np.full((n_pairs, k), np.nan),
         "region_rot_std": np.full((n_pairs, k), np.nan), "region_trans_std": np.full((n_pairs, k), np.nan),
         "region_rot_noise": np.full((n_pairs, k), np.nan), "region_trans_noise": np.full((n_pairs, k), np.nan),
-        "region_sigma_px": np.full((n_pairs, k), np.nan),
+        "region_sigma_px": np.full((n_pairs, k), np.nan), "region_rot_per_px": np.full((n_pairs, k), np.nan),
+        "region_trans_per_px": np.full((n_pairs, k), np.nan),
         "n_tracks": np.array([pp.n_usable for pp in points], np.int32),
         "n_regions": np.array([pp.labels.max() for pp in points], np.int32),
     }
@@ -688,6 +701,9 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
                 good, sigma, *usual = region_quality(X, uv, K, pose.R, pose.t, clip.image_size, config)
                 out["region_rot_std"][p, j], out["region_trans_std"][p, j] = usual
                 out["region_sigma_px"][p, j] = sigma
+                inliers = pose_inliers(X, uv, K, pose.R, pose.t, config.inlier_px)
+                out["region_rot_per_px"][p, j], out["region_trans_per_px"][p, j] = geometry_per_px(
+                    X[inliers], uv[inliers], K, pose.R, pose.t)
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
                         X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)
@@ -780,14 +796,13 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
     # reported in depth units per pose unit (1 when no global translation is scaled)
     out.scale, out.depth_unit = scale * unit if config.global_pose else 1.0, unit
     for key in ("R_local", "t_local", "region_status", "region_points", "region_reproj", "region_rot_std",
-                "region_trans_std", "region_rot_noise", "region_trans_noise", "region_sigma_px", "n_tracks",
-                "n_regions"):
+                "region_trans_std", "region_rot_noise", "region_trans_noise", "region_sigma_px", "region_rot_per_px",
+                "region_trans_per_px", "n_tracks", "n_regions"):
         setattr(out, key, poses[key])
     for pair in range(1, clip.n_frames):
         p = pair - 1
         R_list, t_list = posed[p]
-        spread = tuple(poses[name][p][accepted[p]]
-                       for name in ("region_rot_std", "region_trans_std", "region_sigma_px"))
+        spread = tuple(poses[name][p][accepted[p]] for name in ("region_rot_per_px", "region_trans_per_px"))
         local_rot, local_trans = local_variances(R_list, t_list, config, spread)
         global_rot, global_trans = global_variances(R_list, t_list, R_g[p], scale * t_g[p], config, spread)
         if not config.global_pose:

@@ -46,17 +46,17 @@ def masked_mean(values, valid, weights=None):
     return jnp.where(jnp.any(valid), total / jnp.maximum(jnp.sum(w, axis=0), jnp.finfo(values.dtype).tiny), jnp.nan)
 
 
-def pose_weights(std, sigma_px, accepted, xp=jnp):
-    """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / g_j, g_j = (std_j /
-    sigma_j)² the variance of pose j per px² of tracking error (its region's geometry alone: not
-    how well the region fits), scaled so the largest is 1; 0 for the others. A pose fitted exactly
-    (sigma or std 0, or not finite) has no measured g: it takes the median g of the pair's others
-    (equal weights when none has one). ``std`` (..., k) the pose's RMS error (``region_rot_std`` or
-    ``region_trans_std``, any unit), ``sigma_px`` its fit's residual sigma; NumPy or ``jax.numpy``."""
+def pose_weights(per_px, accepted, xp=jnp):
+    """(..., k) weights of the accepted poses (docs/semantics.md §3.5): 1 / g_j, g_j = per_px_j² the
+    variance of pose j per px² of tracking error (its region's geometry alone: not how well the
+    region fits), scaled so the largest is 1; 0 for the others. ``per_px`` (..., k): the pose's RMS
+    error per px (``region_rot_per_px`` or ``region_trans_per_px``, any unit). One without a
+    geometry (0 or not finite, which an accepted pose's 4 inliers rule out) takes the pair's median
+    (equal weights when none has one). NumPy or ``jax.numpy``."""
     as_float = at_least_float32 if xp is jnp else (lambda x: np.asarray(x, np.float64))
-    std, sigma = as_float(std), as_float(sigma_px)
-    measured = accepted & (std > 0) & (sigma > 0) & xp.isfinite(std) & xp.isfinite(sigma)
-    per_px = xp.where(measured, std / xp.where(measured, sigma, 1.0), xp.inf) ** 2
+    per_px = as_float(per_px)
+    measured = accepted & (per_px > 0) & xp.isfinite(per_px)
+    per_px = xp.where(measured, per_px, xp.inf) ** 2
     ordered = xp.sort(per_px, axis=-1)
     n = xp.sum(measured, axis=-1, keepdims=True)
     middle = lambda i: xp.take_along_axis(ordered, xp.clip(i, 0, per_px.shape[-1] - 1), axis=-1)  # noqa: E731
@@ -72,26 +72,26 @@ def mean_pose(R_local, t_local, accepted, rot_weights=None, trans_weights=None):
     return R_mean, masked_mean(at_least_float32(t_local), accepted, trans_weights)
 
 
-def pair_pose_components(R_local, t_local, accepted, R_g, t_g, rot_std=None, trans_std=None, sigma_px=None, *,
+def pair_pose_components(R_local, t_local, accepted, R_g, t_g, rot_per_px=None, trans_per_px=None, *,
                          compat: str = "spec"):
     """Local poses (k, 3, 3), (k, 3), accepted (k,) against the camera's (3, 3), (3,) -> float32
     local_rot_var, global_rot_var [deg^2], local_trans_var, global_trans_var [units^2], n_poses.
-    Under spec each pose is weighted by its geometry (``pose_weights`` of ``rot_std``, ``trans_std``
-    and ``sigma_px``, (k,), required there); under authors equally, the global rotation
+    Under spec each pose is weighted by its geometry (``pose_weights`` of ``rot_per_px`` and
+    ``trans_per_px``, (k,), required there); under authors equally, the global rotation
     term trimmed (docs/semantics.md §3.5). All NaN with no accepted pose; with one, the local ones
     are NaN under spec (one pose has no spread to measure) and 0 under authors (the authors' code)."""
     _check_compat(compat)
     authors = compat == "authors"
-    if not authors and (rot_std is None or trans_std is None or sigma_px is None):
-        raise ValueError("compat='spec' weights each local pose by its geometry: rot_std, trans_std and sigma_px "
-                         "are needed")
+    if not authors and (rot_per_px is None or trans_per_px is None):
+        raise ValueError("compat='spec' weights each local pose by its geometry: rot_per_px and trans_per_px are "
+                         "needed")
     angle = rotation_angle_deg_authors if authors else rotation_angle_deg
     R_local, t_local = at_least_float32(R_local), at_least_float32(t_local)
     R_g, t_g = at_least_float32(R_g), at_least_float32(t_g)
     n = jnp.sum(accepted).astype(jnp.int32)
     none = n == 0
-    w_rot, w_trans = (None, None) if authors else (pose_weights(rot_std, sigma_px, accepted),
-                                                    pose_weights(trans_std, sigma_px, accepted))
+    w_rot, w_trans = (None, None) if authors else (pose_weights(rot_per_px, accepted),
+                                                    pose_weights(trans_per_px, accepted))
 
     R_mean, t_mean = mean_pose(R_local, t_local, accepted, w_rot, w_trans)
     R_mean, t_mean = jnp.where(none, jnp.eye(3, dtype=R_local.dtype), R_mean), jnp.nan_to_num(t_mean)

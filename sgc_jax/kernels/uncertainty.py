@@ -33,6 +33,8 @@ class PoseUncertainty(NamedTuple):
     sigma_px: jax.Array  # inlier residual standard deviation per image coordinate [px]
     rot_noise_deg: jax.Array  # RMS rotation error the noise floors count (``block_covariance``) [deg]
     trans_noise: jax.Array  # RMS translation error the noise floors count [units of X]
+    rot_per_px_deg: jax.Array  # RMS rotation error per px of tracking error: the geometry alone [deg / px]
+    trans_per_px: jax.Array  # RMS translation error per px of tracking error [units of X / px]
 
 
 class InlierJacobians(NamedTuple):
@@ -111,6 +113,9 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     rot, trans = slice(0, 3), slice(3, 6)
     rot_var = sigma_sq * trace(covariance, rot) / fx**2
     trans_var = sigma_sq * trace(covariance, trans) * (mean_dist / fx) ** 2
+    # the same per px² of tracking error: the geometry alone, defined where a fit is exact (sigma 0)
+    rot_per_px_sq = trace(covariance, rot) / fx**2
+    trans_per_px_sq = trace(covariance, trans) * (mean_dist / fx) ** 2
     rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
     trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
@@ -120,7 +125,8 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     root = lambda v: jnp.where(enough, jnp.sqrt(jnp.maximum(v, 0.0)), nan)  # noqa: E731
     return PoseUncertainty(rot_std_deg=jnp.degrees(root(rot_var)), trans_std=root(trans_var),
                            extent_px=root(spread), sigma_px=root(sigma_sq),
-                           rot_noise_deg=jnp.degrees(root(rot_noise)), trans_noise=root(trans_noise))
+                           rot_noise_deg=jnp.degrees(root(rot_noise)), trans_noise=root(trans_noise),
+                           rot_per_px_deg=jnp.degrees(root(rot_per_px_sq)), trans_per_px=root(trans_per_px_sq))
 
 
 def rule_rot_std_deg(uncertainty: PoseUncertainty, quality_noise_px):

@@ -97,7 +97,8 @@ def pair_arrays(out: dict, b: int, prepared: PreparedClip, scale: float, config:
         region_status=status, region_points=take("region_points"), region_reproj=per_region("region_reproj"),
         region_rot_std=per_region("region_rot_std"), region_trans_std=per_region("region_trans_std"),
         region_rot_noise=per_region("region_rot_noise"), region_trans_noise=per_region("region_trans_noise"),
-        region_sigma_px=per_region("region_sigma_px"), scale=scale, depth_unit=prepared.depth_unit)
+        region_sigma_px=per_region("region_sigma_px"), region_rot_per_px=per_region("region_rot_per_px"),
+        region_trans_per_px=per_region("region_trans_per_px"), scale=scale, depth_unit=prepared.depth_unit)
 
 
 def collect(dispatched: Dispatched, config: SGCConfig) -> list[PairArrays]:

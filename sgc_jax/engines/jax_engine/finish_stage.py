@@ -43,8 +43,8 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
 def pair_components(poses: LocalPoses, R_g, t_g, err, stage: FinishStage) -> dict:
     """One pair's pose variances, diagnostics and reason code; ``err`` its depth error."""
     accepted = poses.region_status == REGION_OK
-    comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, poses.region_rot_std,
-                                 poses.region_trans_std, poses.region_sigma_px, compat=stage.compat)
+    comps = pair_pose_components(poses.R_local, poses.t_local, accepted, R_g, t_g, poses.region_rot_per_px,
+                                 poses.region_trans_per_px, compat=stage.compat)
     f2 = translation_factor(stage) ** 2
     if not stage.global_pose:  # the mean local pose is no independent reference
         comps["global_rot_var"] = comps["global_trans_var"] = jnp.float32(jnp.nan)

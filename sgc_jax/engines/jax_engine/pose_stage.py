@@ -41,6 +41,8 @@ class LocalPoses(NamedTuple):
     region_rot_noise: jax.Array  # (k,) deg, the RMS rotation error the noise floors count
     region_trans_noise: jax.Array  # (k,) units of D
     region_sigma_px: jax.Array  # (k,) px, the residual sigma of its fit's inliers
+    region_rot_per_px: jax.Array  # (k,) deg / px, RMS rotation error per px of tracking error: its weight's geometry
+    region_trans_per_px: jax.Array  # (k,) units of D / px
     n_tracks: jax.Array  # () usable tracks
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # () pixels of S_i
@@ -94,7 +96,8 @@ def local_poses_pair(pair: PairInputs, image_hw, stage: PoseStage) -> LocalPoses
         rot_noise, trans_noise = fit.uncertainty.rot_noise_deg, fit.uncertainty.trans_noise
     return LocalPoses(fit.R, fit.t, status.astype(jnp.int32), fit.n_members, fit.reproj_px,
                       fit.uncertainty.rot_std_deg, fit.uncertainty.trans_std, rot_noise, trans_noise,
-                      fit.uncertainty.sigma_px, n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32),
+                      fit.uncertainty.sigma_px, fit.uncertainty.rot_per_px_deg, fit.uncertainty.trans_per_px,
+                      n_tracks.astype(jnp.int32), pair.n_regions.astype(jnp.int32),
                       pair.region_pixels, fit.fitted)
 
 

@@ -38,9 +38,8 @@ class Frozen(NamedTuple):
     region_status: jax.Array  # (T-1, k) int32
     R_local: jax.Array  # (T-1, k, 3, 3) the local poses, where their Newton polish starts
     t_local: jax.Array  # (T-1, k, 3) units of D
-    rot_std: jax.Array  # (T-1, k) deg; with trans_std (units of D) and sigma_px (px), each pose's weight
-    trans_std: jax.Array
-    sigma_px: jax.Array
+    rot_per_px: jax.Array  # (T-1, k) deg / px; with trans_per_px (units of D / px), each pose's weight
+    trans_per_px: jax.Array
     R_g: jax.Array  # (T-1, 3, 3) the camera's relative poses, for the depth warp's and the scale's choices
     t_g: jax.Array  # (T-1, 3) pose units
     scale: jax.Array  # () s, units of D per pose unit
@@ -54,8 +53,8 @@ def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: d
     present = jnp.stack([pair_valid & ~jnp.isnan(finish[k]) for k in COMPONENTS], axis=-1)
     floors = jnp.stack([summary[name] for name in FLOOR_COLUMNS], axis=-1)
     return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
-                                        pose["R_local"], pose["t_local"], pose["region_rot_std"],
-                                        pose["region_trans_std"], pose["region_sigma_px"], pose["R_g"], pose["t_g"],
+                                        pose["R_local"], pose["t_local"], pose["region_rot_per_px"],
+                                        pose["region_trans_per_px"], pose["R_g"], pose["t_g"],
                                         pose["scale"], present, floors))
 
 
@@ -137,8 +136,8 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     X, used = pair_points(clip, frozen.track_labels)
     t_scaled = held_translation_scale(clip, X, used, fixed, frozen, R_g, t_g, config) * t_g
     R_local, t_local, accepted = local_poses(clip, X, frozen)
-    comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled, frozen.rot_std,
-                                           frozen.trans_std, frozen.sigma_px)
+    comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled, frozen.rot_per_px,
+                                           frozen.trans_per_px)
     source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
         fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
         frozen.scale * frozen.t_g)
