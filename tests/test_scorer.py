@@ -90,15 +90,32 @@ def test_scorer_gives_score_batchs_numbers_on_the_demo_corpus(scorer, corpus, ex
                 for s, r in zip(out["status"], rows)] == [True] * len(rows)
 
 
-@pytest.mark.skipif(jax.default_backend() != "cpu", reason="an accelerator runs the batch in one vectorized program")
-def test_on_one_cpu_the_scorer_runs_score_batchs_stage_programs(scorer, expected):
+# On one CPU (a process of its own that sees only the CPU, whatever this one runs on): score_batch,
+# then a Scorer of the same bucket; the stage programs held before and after the Scorer.
+ONE_CPU = """
+import json
+from sgc_jax import Scorer, score_batch
+from sgc_jax.engines.jax_engine import programs
+from sgc_jax.research.synth import demo_corpus
+from sgc_jax.scoring.scorer import batch_of
+clips = demo_corpus()[:2]
+rows = score_batch(clips, progress=False).clips
+held = programs.compile_count()
+out = Scorer((2, *{shape!r}))(batch_of(clips))
+print(json.dumps(dict(held=held, after=programs.compile_count(), scorer=out["sgc"].tolist(), batch=[r.sgc for r in rows])))
+"""
+
+
+def test_on_one_cpu_the_scorer_runs_score_batchs_stage_programs():
     """docs/semantics.md §9.3: its calls' clips one after another through score_batch's one-clip
     programs, so a Scorer of a bucket score_batch has compiled compiles no stage of its own."""
-    from sgc_jax.engines.jax_engine import programs
-
-    held = programs.compile_count()
-    Scorer((2, *SHAPE[1:]))
-    assert programs.compile_count() == held
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    done = subprocess.run([sys.executable, "-c", ONE_CPU.format(shape=SHAPE[1:])], capture_output=True, text=True,
+                          env=env, timeout=900)
+    assert done.returncode == 0, done.stderr
+    got = json.loads(done.stdout.strip().splitlines()[-1])
+    assert got["held"] > 0 and got["after"] == got["held"]
+    np.testing.assert_allclose(got["scorer"], got["batch"], rtol=CLIP_RTOL, atol=CLIP_ATOL)
 
 
 def test_the_tables_rewards_are_the_scorers(scorer, corpus, expected):

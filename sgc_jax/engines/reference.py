@@ -311,26 +311,23 @@ def pose_uncertainty(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
     left perturbation (w, dt): exp([w]) R X + t + dt, and sigma^2 = sum e^2 / (2n - 6);
     the figures are sqrt(trace) of the rotation and translation blocks. NaN under 4 points.
     """
+    rot_per_px, trans_per_px, sigma = uncertainty_per_px(X, uv, K, R, t)
+    return rot_per_px * sigma, trans_per_px * sigma, sigma
+
+
+def uncertainty_per_px(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray,
+                       t: np.ndarray) -> tuple[float, float, float]:
+    """(RMS rotation error deg, RMS translation error) per px of tracking error, the square roots of
+    the traces of (J^T J)^-1's blocks: the region's geometry alone, defined where the fit is exact;
+    and sigma px (``pose_uncertainty``'s errors are these times sigma). NaN under 4 points."""
     n = len(X)
     if n < 4:
         return float("nan"), float("nan"), float("nan")
     _, J = residual_jacobian(X, uv, K, R, t)
     sigma_sq = np.sum(reprojection_errors(X, uv, K, R, t) ** 2) / max(2 * n - 6, 1)
-    covariance = sigma_sq * np.linalg.pinv(J.T @ J)
-    return (float(np.degrees(np.sqrt(max(np.trace(covariance[:3, :3]), 0.0)))),
-            float(np.sqrt(max(np.trace(covariance[3:, 3:]), 0.0))), float(np.sqrt(sigma_sq)))
-
-
-def geometry_per_px(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray
-                    ) -> tuple[float, float]:
-    """(RMS rotation error deg, RMS translation error) per px of tracking error of a pose fitted to
-    X (n, 3), uv (n, 2): ``pose_uncertainty``'s figures with sigma = 1, the region's geometry alone
-    (defined where the fit is exact). NaN under 4 points."""
-    if len(X) < 4:
-        return float("nan"), float("nan")
-    _, J = residual_jacobian(X, uv, K, R, t)
     A = np.linalg.pinv(J.T @ J)
-    return (float(np.degrees(np.sqrt(max(np.trace(A[:3, :3]), 0.0)))), float(np.sqrt(max(np.trace(A[3:, 3:]), 0.0))))
+    return (float(np.degrees(np.sqrt(max(np.trace(A[:3, :3]), 0.0)))), float(np.sqrt(max(np.trace(A[3:, 3:]), 0.0))),
+            float(np.sqrt(sigma_sq)))
 
 
 def block_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
@@ -375,8 +372,10 @@ def rot_std_limit_deg(K: np.ndarray, config: SGCConfig) -> float:
 
 
 def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                   image_size: tuple[int, int], config: SGCConfig) -> tuple[bool, float, float, float]:
-    """The region-quality rule on an accepted pose: (well_conditioned, sigma px, rot std deg, trans std).
+                   image_size: tuple[int, int], config: SGCConfig
+                   ) -> tuple[bool, float, tuple[float, float], tuple[float, float]]:
+    """The region-quality rule on an accepted pose: (well_conditioned, sigma px, (rot std deg, trans
+    std), the same per px of tracking error, ``uncertainty_per_px``).
 
     On the inliers of the pose (error < inlier_px, in front of the camera): at least
     ``min_region_points`` of them, rotation uncertainty <= ``rot_std_limit_deg`` with sigma capped
@@ -384,12 +383,13 @@ def region_quality(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, 
     ``min_region_extent`` x the image diagonal (docs/semantics.md §3.3; ambiguity is the search's).
     """
     inliers = pose_inliers(X, uv, K, R, t, config.inlier_px)
-    rot_std, trans_std, sigma = pose_uncertainty(X[inliers], uv[inliers], K, R, t)
+    rot_per_px, trans_per_px, sigma = uncertainty_per_px(X[inliers], uv[inliers], K, R, t)
+    rot_std, trans_std = rot_per_px * sigma, trans_per_px * sigma
     judged_rot_std = rot_std * min(1.0, config.quality_noise_px / max(sigma, 1e-12))
     diagonal = float(np.hypot(*image_size))
     good = (inliers.sum() >= config.min_region_points and judged_rot_std <= rot_std_limit_deg(K, config)
             and pixel_extent(uv[inliers]) >= config.min_region_extent * diagonal)
-    return good, sigma, rot_std, trans_std
+    return good, sigma, (rot_std, trans_std), (rot_per_px, trans_per_px)
 
 
 def pose_inliers(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
@@ -698,12 +698,10 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
             X, uv = pp.X[member], pp.uv[member]
             status = pose.status
             if status == REGION_STATUS["ok"]:
-                good, sigma, *usual = region_quality(X, uv, K, pose.R, pose.t, clip.image_size, config)
+                good, sigma, usual, per_px = region_quality(X, uv, K, pose.R, pose.t, clip.image_size, config)
                 out["region_rot_std"][p, j], out["region_trans_std"][p, j] = usual
+                out["region_rot_per_px"][p, j], out["region_trans_per_px"][p, j] = per_px
                 out["region_sigma_px"][p, j] = sigma
-                inliers = pose_inliers(X, uv, K, pose.R, pose.t, config.inlier_px)
-                out["region_rot_per_px"][p, j], out["region_trans_per_px"][p, j] = geometry_per_px(
-                    X[inliers], uv[inliers], K, pose.R, pose.t)
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
                         X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)

@@ -111,11 +111,12 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     blocks = block_covariance(jac, uv, region, block_px)
     trace = lambda cov, part: jnp.trace(cov[:, part, part], axis1=-2, axis2=-1)  # noqa: E731
     rot, trans = slice(0, 3), slice(3, 6)
-    rot_var = sigma_sq * trace(covariance, rot) / fx**2
-    trans_var = sigma_sq * trace(covariance, trans) * (mean_dist / fx) ** 2
+    rot_trace, trans_trace = trace(covariance, rot), trace(covariance, trans)
+    rot_var = sigma_sq * rot_trace / fx**2
+    trans_var = sigma_sq * trans_trace * (mean_dist / fx) ** 2
     # the same per px² of tracking error: the geometry alone, defined where a fit is exact (sigma 0)
-    rot_per_px_sq = trace(covariance, rot) / fx**2
-    trans_per_px_sq = trace(covariance, trans) * (mean_dist / fx) ** 2
+    rot_per_px_sq = rot_trace / fx**2
+    trans_per_px_sq = trans_trace * (mean_dist / fx) ** 2
     rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
     trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]

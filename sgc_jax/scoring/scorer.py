@@ -122,9 +122,11 @@ class Scorer:
         self.call_size = -(-B // self.lanes) if self.lanes > 1 else -(-B // n) * n
         # one program over exactly the B clips: its outputs, ECD included, need no mending
         self._one_program = self.lanes == 1 and n == 1
-        # on one CPU the clips of a call run one after another anyway (``lax.map``): run them
-        # through score_batch's one-clip stage programs, so that the two share their compile
-        self._clip_by_clip = one_cpu and not self.vectorized and not self.differentiable
+        # on the default device, a CPU, the clips of a call run one after another anyway
+        # (``lax.map``): run them through score_batch's one-clip stage programs, so that the two
+        # share their compile
+        self._clip_by_clip = (one_cpu and self.devices[0] == jax.local_devices()[0] and not self.vectorized
+                              and not self.differentiable)
         self._mesh = jax.sharding.Mesh(np.array(self.devices), ("clips",))
         self._traced = self._traceable_programs()
         enable_compilation_cache()
@@ -293,14 +295,14 @@ class Scorer:
         """(the padded clips, the three stages' outputs); clip by clip where the Scorer runs so,
         only the finish's put together unless ``every``."""
         padded = programs["prepare"](clips)
-        if not (self._clip_by_clip and programs is self._compiled):
+        if programs is self._traced or not self._clip_by_clip:  # traced: one program over the batch
             return padded, programs["stages"].outputs(padded)
-        each = [programs["stages"].outputs(PaddedClips(*(leaf[i:i + 1] for leaf in padded)))
-                for i in range(self.call_size)]
-        stages = range(len(each[0])) if every else [len(each[0]) - 1]
-        outs = {stage: {name: jnp.concatenate([clip[stage][name] for clip in each]) for name in each[0][stage]}
-                for stage in stages}
-        return padded, [outs.get(stage) for stage in range(len(each[0]))]
+        per_clip = [programs["stages"].outputs(PaddedClips(*(leaf[i:i + 1] for leaf in padded)))
+                    for i in range(self.call_size)]
+        by_stage = list(zip(*per_clip))
+        joined = lambda outs: {name: jnp.concatenate([out[name] for out in outs]) for name in outs[0]}  # noqa: E731
+        return padded, [joined(outs) if every or stage == len(by_stage) - 1 else None
+                        for stage, outs in enumerate(by_stage)]
 
     def _run(self, programs: dict, clips: ClipArrays, live: ClipArrays | None = None) -> dict:
         """The steps on one call's clips; with ``live`` (the differentiable form: the same clips
