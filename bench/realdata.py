@@ -3,6 +3,7 @@ with ground-truth depth and cameras and real tracks; its README says how they we
 default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
+                             [--config FILE] [--regions N]
 
 Prints
 
@@ -12,18 +13,22 @@ Prints
    §9.4), sorted by that distance (the bars: SGC <= 0.05 where the 95th percentile is within 2 px);
 2. the paper's perturbations (§4.3 protocol: warp, squeeze, depth_warp at severities 0.25, 0.5, 1)
    on every clip: SGC and reward by severity, 0 the clean clip (the bars: every ladder's SGC rises
-   strictly, its reward falls strictly).
+   strictly, its reward falls strictly);
+3. with ``--regions N``: per clean clip, the N accepted local poses farthest from the camera's
+   rotation, with their tracks' distance to the ground-truth motion (what a pose there measured:
+   the world, or the tracker's failure; sgc_jax.research.ground_truth.region_motion_errors).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
 
-from sgc_jax import COMPONENTS, load_clip, score_batch
-from sgc_jax.research.ground_truth import motion_errors
+from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
+from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
@@ -49,13 +54,25 @@ def print_clean(clips, result) -> None:
               + f" | {scored.components['depth_error']:.2f} | {tracks} | {scored.evidence:.2f} | {reward:.3f} |")
 
 
-def print_ladders(clips, clean, engine: str) -> None:
+def print_regions(clips, result, config: SGCConfig, count: int) -> None:
+    print(f"\nThe {count} local poses of each clean clip farthest from the camera's rotation")
+    print("| clip | pair | region | members | rotation off the camera's, deg | its tracks to GT motion, median px "
+          "| share beyond 3 px |")
+    print("|---|---|---|---|---|---|---|")
+    for clip, scored in zip(clips, result.clips):
+        records = sorted(region_motion_errors(clip, scored.pairs, config), key=lambda r: -r["deg_off"])
+        for r in records[:count]:
+            print(f"| {clip.clip_id} | {r['pair']} | {r['region']} | {r['members']} | {r['deg_off']:.2f} | "
+                  f"{r['median_px']:.2f} | {r['share_off']:.2f} |")
+
+
+def print_ladders(clips, clean, engine: str, config: SGCConfig) -> None:
     print("\nPerturbation ladders: SGC (reward) at severity 0 (clean), " + ", ".join(f"{s:g}" for s in LADDER_SEVERITIES))
     print("| clip | perturbation | " + " | ".join(f"{s:g}" for s in (0.0, *LADDER_SEVERITIES))
           + " | SGC rises strictly | reward falls strictly |")
     print("|---|---|" + "---|" * (len(LADDER_SEVERITIES) + 3))
     variants = [perturb_clip(clip, kind, s, seed=0) for clip in clips for kind in PERTURBATIONS for s in LADDER_SEVERITIES]
-    result = score_batch(variants, engine=engine, progress=False)
+    result = score_batch(variants, engine=engine, config=config, progress=False)
     scored = iter(zip(result.clips, result.rewards()["reward"]))  # in the order made
     rising = falling = 0
     for clip, (clean_sgc, clean_reward) in zip(clips, clean):
@@ -77,17 +94,24 @@ def main() -> None:
     parser.add_argument("--engine", default="jax")
     parser.add_argument("--out", default=None, help="CSV of the clean clips' rows")
     parser.add_argument("--no-ladders", action="store_true")
+    parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    parser.add_argument("--regions", type=int, default=0, help="also print each clean clip's N local poses "
+                                                               "farthest from the camera's rotation")
     args = parser.parse_args()
+    config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
     paths = sorted(Path(args.dir).glob("*.npz"))
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
     clips = [load_clip(str(p)) for p in paths]
-    result = score_batch(clips, engine=args.engine, progress=False)
+    result = score_batch(clips, engine=args.engine, config=config, progress=False)
     print_clean(clips, result)
     if args.out:
         result.to_pandas().to_csv(args.out, index=False)
+    if args.regions:
+        print_regions(clips, result, config, args.regions)
     if not args.no_ladders:
-        print_ladders(clips, list(zip([c.sgc for c in result.clips], result.rewards()["reward"])), args.engine)
+        print_ladders(clips, list(zip([c.sgc for c in result.clips], result.rewards()["reward"])), args.engine,
+                      config)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 truth, under the default config and calibration.
 
     python bench/track_errors.py [--dir ../shared/realdata] [--seed 0] [--scale-fits]
-                                 [--lk-windows 7 11 21 31] [--coherence]
+                                 [--lk-windows 7 11 21 31] [--coherence] [--aperture [--synthetic fit|test]]
 
 Every variant keeps the clip's frame i-1 positions and its usable tracks that have a ground truth
 (valid depth at frame i-1's floor pixel, in front of camera i); per pair, with e = real - exact:
@@ -28,6 +28,15 @@ the same tracker with more or less overlap between neighbouring tracks' windows.
 distance in frame i-1, and at one scene point between consecutive pairs; for the real clips and
 for a synthetic scene of their size under ``warp``, ``squeeze`` and ``depth_warp`` at 0.25 (there e
 is the perturbation's own displacement: the synthetic tracks are exact).
+``--aperture`` prints, instead, whether the tracks that miss the ground-truth motion by more than
+``MISS_PX`` sit on lines and slide along them (the aperture problem): the image structure at their
+frame i-1 positions (the ratio of the structure tensor's eigenvalues over a 9x9 window, 0 on a
+straight edge), how much of each miss lies along the line, and SGC with the real tracks, with
+every line-like track's miss along its line taken out (``APERTURE_RATIO``; a diagnosis that uses
+the ground truth) and with the line-like tracks left out (no ground truth: the frames alone).
+With ``--synthetic SPLIT`` the clips are the protocol split's scenes instead (sgc_jax.research.protocol,
+1,000 tracks, rendered frames: checkerboards and stripes), their frame-i positions retracked by
+LK with 21 px windows from the exact frame i-1 positions.
 """
 
 from __future__ import annotations
@@ -42,6 +51,7 @@ from scipy.spatial import cKDTree
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.engines.reference import back_project, global_relative_pose
+from sgc_jax.research import protocol
 from sgc_jax.research.ground_truth import exact_positions, points_prev
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.synth import synth_clip
@@ -52,6 +62,8 @@ VARIANTS = ("real", "exact", "iid", "shuffled")
 DISTANCE_BINS_PX = (0, 8, 32, 64, 128, np.inf)
 CLIP_ERROR_PX = 5.0  # e clipped per axis: tartan_000080's 37 px failures would swamp the sums
 SAME_POINT_PX = 1.5  # a pair's track starts at the scene point another ended at (frame i positions)
+MISS_PX = 3.0  # a track this far from its exact frame-i position misses the ground-truth motion
+APERTURE_RATIO = 0.05  # structure tensor eigenvalue ratio under which a track sits on a line
 
 
 def variants(clip, rng: np.random.Generator) -> dict:
@@ -203,6 +215,62 @@ def print_coherence(clips: list) -> None:
               + f" | {over_time:.2f} ({points}) |")
 
 
+# ----------------------------------------------------------------------------- aperture
+
+
+def line_structure(frame: np.ndarray, xy: np.ndarray, window: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """At positions xy (P, 2) of an RGB frame: the structure tensor's eigenvalue ratio
+    lambda_min / lambda_max over a window x window box (P,), 0 on a straight edge, and its weak
+    direction (P, 2), along the edge (unit vectors)."""
+    gray = frame.astype(np.float32).mean(axis=-1)
+    gx, gy = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    xx, yy, xy_ = (cv2.boxFilter(a, -1, (window, window)) for a in (gx * gx, gy * gy, gx * gy))
+    col = np.clip(np.rint(xy[:, 0]).astype(int), 0, gray.shape[1] - 1)
+    row = np.clip(np.rint(xy[:, 1]).astype(int), 0, gray.shape[0] - 1)
+    tensor = np.stack([np.stack([xx[row, col], xy_[row, col]], -1), np.stack([xy_[row, col], yy[row, col]], -1)], -2)
+    values, vectors = np.linalg.eigh(tensor.astype(np.float64))
+    return values[:, 0] / np.maximum(values[:, 1], 1e-12), vectors[:, :, 0]
+
+
+def print_aperture(clips: list) -> None:
+    print(f"| clip | tracks off the GT motion by > {MISS_PX:g} px | structure ratio, median: those / the others | "
+          "share of their miss along the line, median abs cos | SGC | SGC, line-like misses along the line "
+          "taken out | SGC, line-like tracks left out (their share) |")
+    print("|---|---|---|---|---|---|---|")
+    usable_conf = SGCConfig().min_track_conf
+    rows, normal_only, corners_only = [], [], []
+    for clip in clips:
+        usable = clip.usable_tracks(usable_conf)
+        curr = clip.track_curr.astype(np.float64).copy()
+        corner = clip.track_vis.copy()
+        ratios, misses, cosines = [], [], []
+        for pair in range(1, clip.n_frames):
+            exact, front = exact_positions(clip, pair)
+            keep = usable[pair - 1] & front
+            ratio, weak = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1][keep].astype(np.float64))
+            e = curr[pair - 1][keep] - exact[keep]
+            along = np.sum(e * weak, axis=1)
+            line = ratio < APERTURE_RATIO
+            curr[pair - 1][np.flatnonzero(keep)[line]] -= along[line, None] * weak[line]
+            all_ratio, _ = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1].astype(np.float64))
+            corner[pair - 1] &= all_ratio >= APERTURE_RATIO
+            miss = np.linalg.norm(e, axis=1)
+            ratios.append(ratio)
+            misses.append(miss)
+            cosines.append(np.abs(along) / np.maximum(miss, 1e-12))
+        ratio, miss, cosine = map(np.concatenate, (ratios, misses, cosines))
+        rows.append((clip.clip_id, miss > MISS_PX, ratio, cosine))
+        normal_only.append(dataclasses.replace(clip, clip_id=f"{clip.clip_id}/normal", track_curr=curr.astype(np.float32)))
+        corners_only.append(dataclasses.replace(clip, clip_id=f"{clip.clip_id}/corners", track_vis=corner))
+    scored = score_batch(clips + normal_only + corners_only, progress=False).clips
+    n = len(clips)
+    for i, (name, off, ratio, cosine) in enumerate(rows):
+        left_out = 1.0 - corners_only[i].usable_tracks(usable_conf).sum() / clips[i].usable_tracks(usable_conf).sum()
+        print(f"| {name} | {off.sum()} of {len(off)} | {np.median(ratio[off]):.3f} / {np.median(ratio[~off]):.3f} | "
+              f"{np.median(cosine[off]):.2f} | {scored[i].sgc:.3f} | {scored[n + i].sgc:.3f} | "
+              f"{scored[2 * n + i].sgc:.3f} ({left_out:.0%}) |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
@@ -210,12 +278,20 @@ def main() -> None:
     parser.add_argument("--scale-fits", action="store_true")
     parser.add_argument("--lk-windows", type=int, nargs="*", default=[])
     parser.add_argument("--coherence", action="store_true")
+    parser.add_argument("--aperture", action="store_true")
+    parser.add_argument("--synthetic", choices=sorted(protocol.SPLITS), default=None,
+                        help="with --aperture: the split's synthetic scenes retracked by LK instead of --dir")
     args = parser.parse_args()
     paths = sorted(Path(args.dir).glob("*.npz"))
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
     if args.coherence:
         return print_coherence([load_clip(str(path)) for path in paths])
+    if args.aperture and args.synthetic:
+        return print_aperture([retracked(synth_clip(seed=scene.seed, clip_id=scene.name, n_tracks=1000, **scene.spec), 21)
+                               for scene in protocol.SPLITS[args.synthetic]])
+    if args.aperture:
+        return print_aperture([load_clip(str(path)) for path in paths])
     rng = np.random.default_rng(args.seed)
     clips = []
     for path in paths:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import SGCConfig
-from ..engines.reference import back_project_tracks, global_relative_pose, project
+from ..engines.reference import back_project_tracks, global_relative_pose, pair_points, project, rotation_angle_deg
 from ..io.clip import Clip
 
 
@@ -40,3 +40,25 @@ def motion_errors(clip: Clip, min_track_conf: float = SGCConfig().min_track_conf
         keep = usable[pair - 1] & exists
         errors.append(np.linalg.norm(clip.track_curr[pair - 1][keep].astype(np.float64) - exact[keep], axis=1))
     return np.concatenate(errors)
+
+
+def region_motion_errors(clip: Clip, pairs, config: SGCConfig | None = None, off_px: float = 3.0) -> list[dict]:
+    """Every accepted local pose of a scored clip (``pairs``: its PairArrays, status ``ok``)
+    against the clip's own geometry, one record per pose: pair (0-based), region slot, members,
+    ``deg_off`` (its rotation's angle from the clip's relative camera rotation), the median
+    distance [px] of its members' tracks from their exact positions and the share beyond
+    ``off_px``. Members as the reference engine assigns them (``pair_points``) under ``config``."""
+    config = config or SGCConfig()
+    records = []
+    for p in range(clip.n_pairs):
+        points = pair_points(clip, p + 1, config)
+        R, t = global_relative_pose(clip, p + 1, config)
+        exact = project(clip.K[p + 1], points.X @ R.T + t)
+        distance = np.linalg.norm(points.uv - exact, axis=1)
+        for j in np.flatnonzero(np.asarray(pairs.region_status[p]) == 0):
+            member = points.region == j + 1
+            records.append(dict(pair=p, region=int(j), members=int(member.sum()),
+                                deg_off=rotation_angle_deg(np.asarray(pairs.R_local[p, j], np.float64), R),
+                                median_px=float(np.median(distance[member])) if member.any() else float("nan"),
+                                share_off=float(np.mean(distance[member] > off_px)) if member.any() else float("nan")))
+    return records
