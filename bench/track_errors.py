@@ -32,7 +32,7 @@ is the perturbation's own displacement: the synthetic tracks are exact).
 ``MISS_PX`` sit on lines and slide along them (the aperture problem): the image structure at their
 frame i-1 positions (the ratio of the structure tensor's eigenvalues over a 9x9 window, 0 on a
 straight edge), how much of each miss lies along the line, and SGC with the real tracks, with
-every line-like track's miss along its line taken out (``APERTURE_RATIO``; a diagnosis that uses
+every line-like track's miss along its line taken out (``LINE_RATIO``; a diagnosis that uses
 the ground truth) and with the line-like tracks left out (no ground truth: the frames alone).
 With ``--synthetic SPLIT`` the clips are the protocol split's scenes instead (sgc_jax.research.protocol,
 1,000 tracks, rendered frames: checkerboards and stripes), their frame-i positions retracked by
@@ -50,6 +50,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
+from sgc_jax.adapters.line_tracks import LINE_RATIO, line_structure
 from sgc_jax.engines.reference import back_project, global_relative_pose
 from sgc_jax.research import protocol
 from sgc_jax.research.ground_truth import exact_positions, points_prev
@@ -63,7 +64,6 @@ DISTANCE_BINS_PX = (0, 8, 32, 64, 128, np.inf)
 CLIP_ERROR_PX = 5.0  # e clipped per axis: tartan_000080's 37 px failures would swamp the sums
 SAME_POINT_PX = 1.5  # a pair's track starts at the scene point another ended at (frame i positions)
 MISS_PX = 3.0  # a track this far from its exact frame-i position misses the ground-truth motion
-APERTURE_RATIO = 0.05  # structure tensor eigenvalue ratio under which a track sits on a line
 
 
 def variants(clip, rng: np.random.Generator) -> dict:
@@ -218,20 +218,6 @@ def print_coherence(clips: list) -> None:
 # ----------------------------------------------------------------------------- aperture
 
 
-def line_structure(frame: np.ndarray, xy: np.ndarray, window: int = 9) -> tuple[np.ndarray, np.ndarray]:
-    """At positions xy (P, 2) of an RGB frame: the structure tensor's eigenvalue ratio
-    lambda_min / lambda_max over a window x window box (P,), 0 on a straight edge, and its weak
-    direction (P, 2), along the edge (unit vectors)."""
-    gray = frame.astype(np.float32).mean(axis=-1)
-    gx, gy = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-    xx, yy, xy_ = (cv2.boxFilter(a, -1, (window, window)) for a in (gx * gx, gy * gy, gx * gy))
-    col = np.clip(np.rint(xy[:, 0]).astype(int), 0, gray.shape[1] - 1)
-    row = np.clip(np.rint(xy[:, 1]).astype(int), 0, gray.shape[0] - 1)
-    tensor = np.stack([np.stack([xx[row, col], xy_[row, col]], -1), np.stack([xy_[row, col], yy[row, col]], -1)], -2)
-    values, vectors = np.linalg.eigh(tensor.astype(np.float64))
-    return values[:, 0] / np.maximum(values[:, 1], 1e-12), vectors[:, :, 0]
-
-
 def print_aperture(clips: list) -> None:
     print(f"| clip | tracks off the GT motion by > {MISS_PX:g} px | structure ratio, median: those / the others | "
           "share of their miss along the line, median abs cos | SGC | SGC, line-like misses along the line "
@@ -250,10 +236,10 @@ def print_aperture(clips: list) -> None:
             ratio, weak = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1][keep].astype(np.float64))
             e = curr[pair - 1][keep] - exact[keep]
             along = np.sum(e * weak, axis=1)
-            line = ratio < APERTURE_RATIO
+            line = ratio < LINE_RATIO
             curr[pair - 1][np.flatnonzero(keep)[line]] -= along[line, None] * weak[line]
             all_ratio, _ = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1].astype(np.float64))
-            corner[pair - 1] &= all_ratio >= APERTURE_RATIO
+            corner[pair - 1] &= all_ratio >= LINE_RATIO
             miss = np.linalg.norm(e, axis=1)
             ratios.append(ratio)
             misses.append(miss)
