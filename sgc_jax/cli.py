@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from .adapters.delta import DELTA_VIS_THRESHOLD
+from .adapters.line_tracks import LINE_RATIO
 from .adapters.vggt import MODES as VGGT_MODES
 from .calibration import COMPONENTS
 from .codes import CLIP_STATUSES
@@ -611,7 +612,8 @@ def cmd_import(args: argparse.Namespace) -> int:
                 depth_kind=args.depth_kind, depth_scale=args.depth_scale, depth_key=args.depth_key, size=args.size,
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
-                align_depth=not args.no_align_depth, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+                align_depth=not args.no_align_depth, line_ratio=args.leave_out_line_tracks,
+                clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             raise UsageError(str(exc)) from None
     for warning in caught:
@@ -620,6 +622,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     record = clip.meta["import"]
     for key in ("intrinsics", "depth_rule", "track_visibility", "masks"):
         print(f"sgc-jax import: {key.replace('_', ' ')}: {record[key]}", file=sys.stderr)
+    if "line_tracks" in record:
+        print(f"sgc-jax import: tracks on lines left out: {record['line_tracks']['left_out']:.0%} of the visible ones",
+              file=sys.stderr)
     H, W = clip.image_size
     print(f"wrote {path}: {clip.n_frames} frames, {H}x{W}, {clip.n_tracks} tracks per pair"
           + (" (reference-compat)" if args.reference_compat else ""), file=sys.stderr)
@@ -727,6 +732,11 @@ def _register_import(sub) -> None:
     conversion.add_argument("--vis-threshold", type=float,
                             help="visibility above this is visible (default: the tracker's own, DELTA "
                                  f"{DELTA_VIS_THRESHOLD:g}, CoTracker3 0.6 where its visibility is not boolean)")
+    conversion.add_argument("--leave-out-line-tracks", type=float, nargs="?", const=LINE_RATIO, default=None,
+                            metavar="RATIO",
+                            help="make unusable the tracks whose first frame's image structure is a line "
+                                 f"(structure tensor eigenvalue ratio below RATIO, default {LINE_RATIO:g}), which a "
+                                 "tracker like LK can slide along; needs --frames (docs/semantics.md §1.7)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")

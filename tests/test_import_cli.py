@@ -11,6 +11,7 @@ from estimator_fixtures import vggt_intrinsics, write_all
 from scenes import IMPORT_SCENE
 
 from sgc_jax import load_clip, load_clips
+from sgc_jax.adapters import LINE_RATIO, leave_out_line_tracks
 from sgc_jax.io.clip import clip_to_arrays, save_clip
 from sgc_jax.io.loading import clip_from_arrays
 from sgc_jax.research.synth import synth_clip
@@ -84,6 +85,21 @@ def test_import_reference_compat_keeps_the_authors_choices(tmp_path, outputs):
     back = load_clip(out)
     np.testing.assert_allclose(back.K, np.load(outputs["cameras"])["intrinsic"], rtol=1e-6)
     np.testing.assert_allclose(back.depth, np.load(outputs["depth"])["depths"][:, ::2, ::2] / 1000, rtol=1e-6)
+
+
+def test_import_can_leave_out_the_tracks_on_lines_and_needs_the_frames_for_it(tmp_path, clip, outputs):
+    out = tmp_path / "lines.npz"
+    proc = run(*import_args(outputs, out, "--depth-kind", "disparity", "--leave-out-line-tracks"))
+    assert proc.returncode == 0, proc.stderr
+    back = load_clip(out)
+    expected = leave_out_line_tracks(clip)
+    np.testing.assert_array_equal(back.track_vis, expected.track_vis)
+    record = back.meta["import"]["line_tracks"]
+    assert record["max_ratio"] == LINE_RATIO and 0 < record["left_out"] < 1
+    assert f"tracks on lines left out: {record['left_out']:.0%}" in proc.stderr
+    proc = run("import", "--cameras", outputs["cameras"], "--depth", outputs["depth"], "--tracks", outputs["tracks"],
+               "--depth-kind", "disparity", "--size", "96x128", "--out", tmp_path / "x.npz", "--leave-out-line-tracks")
+    assert proc.returncode == 2 and "--frames" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_pack_stacks_clips_and_refuses_broken_ones(tmp_path, clip):

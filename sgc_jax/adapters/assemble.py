@@ -23,6 +23,7 @@ from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta
 from .depth_alignment import align_depth_to_vggt
 from .depth_anything_3 import read_da3, read_da3_hw
 from .frames import read_frames
+from .line_tracks import STRUCTURE_WINDOW_PX, leave_out_line_tracks
 from .seganymo import read_mask_hw, read_seganymo
 from .vggt import read_vggt
 from .video_depth_anything import read_depth_hw, read_video_depth
@@ -47,6 +48,7 @@ class ImportOptions:
     da3_min_conf: float | None = None  # Depth Anything 3: depth of conf below this is invalid (None: all kept)
     reference_compat: bool = False  # the SGC authors' pipeline (K at 518 px, depth = VDA / 1000, no threshold)
     align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
+    line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
 
     @property
     def fits_disparity(self) -> bool:
@@ -107,13 +109,16 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     keywords, e.g. ``depth_kind="disparity"``): an ImportOptions. ``reference_compat`` reproduces
     the SGC authors' pipeline so the paper calibration applies; ``align_depth``, with
     ``depth_kind="disparity"`` and a ``depth`` map in the VGGT file, fits the disparity's scale and
-    shift to it so depth and cameras share units. Every choice is recorded in ``meta["import"]``;
+    shift to it so depth and cameras share units; ``line_ratio`` (with ``frames``) leaves out the tracks
+    that start on a line (docs/semantics.md §1.7). Every choice is recorded in ``meta["import"]``;
     the clip is validated like a loaded one (problems raise or warn).
     """
     o = dataclasses.replace(options or ImportOptions(), **option_fields)
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
     _check_depth_sources(cameras, depth, da3, o)
+    if o.line_ratio is not None and frames is None:
+        raise ValueError("leaving out the tracks on lines (--leave-out-line-tracks) reads the frames: give them (--frames)")
     loaded_frames = read_frames(frames) if frames is not None else None
     names = loaded_frames.names if loaded_frames is not None else None
     H, W = o.size or (loaded_frames.frames.shape[1:3] if loaded_frames is not None
@@ -163,4 +168,15 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     clip_meta["clip_id"] = clip_id
     arrays["meta"] = clip_meta
     keep_all = SGCConfig(max_tracks=max(track_prev.shape[1], 1))
-    return clip_from_arrays(arrays, clip_id=clip_id, config=keep_all)
+    clip = clip_from_arrays(arrays, clip_id=clip_id, config=keep_all)
+    return clip if o.line_ratio is None else _without_line_tracks(clip, o.line_ratio)
+
+
+def _without_line_tracks(clip: Clip, max_ratio: float) -> Clip:
+    """The imported clip with its line-like tracks left out (§1.7), the share recorded in meta."""
+    out = leave_out_line_tracks(clip, max_ratio)
+    visible = int(clip.track_vis.sum())
+    left_out = 1.0 - int(out.track_vis.sum()) / visible if visible else 0.0
+    record = {**clip.meta["import"], "line_tracks": {"max_ratio": float(max_ratio), "window_px": STRUCTURE_WINDOW_PX,
+                                                     "left_out": round(left_out, 4)}}
+    return dataclasses.replace(out, meta={**clip.meta, "import": record})
