@@ -3,7 +3,7 @@ with ground-truth depth and cameras and real tracks; its README says how they we
 default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
-                             [--config FILE] [--regions N]
+                             [--config FILE] [--regions N] [--line-ratio 0.05]
 
 Prints
 
@@ -17,6 +17,9 @@ Prints
 3. with ``--regions N``: per clean clip, the N accepted local poses farthest from the camera's
    rotation, with their tracks' distance to the ground-truth motion (what a pose there measured:
    the world, or the tracker's failure; sgc_jax.research.ground_truth.region_motion_errors).
+
+``--line-ratio R`` scores every clip (and its ladders) with the tracks that start on a line left
+out first (sgc_jax.adapters.leave_out_line_tracks, docs/semantics.md §1.7).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
+from sgc_jax.adapters import leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 
@@ -95,6 +99,8 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="CSV of the clean clips' rows")
     parser.add_argument("--no-ladders", action="store_true")
     parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    parser.add_argument("--line-ratio", type=float, default=None,
+                        help="leave out the tracks that start on a line (structure ratio below this) first")
     parser.add_argument("--regions", type=int, default=0, help="also print each clean clip's N local poses "
                                                                "farthest from the camera's rotation")
     args = parser.parse_args()
@@ -103,6 +109,8 @@ def main() -> None:
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
     clips = [load_clip(str(p)) for p in paths]
+    if args.line_ratio is not None:
+        clips = [leave_out_line_tracks(clip, args.line_ratio) for clip in clips]
     result = score_batch(clips, engine=args.engine, config=config, progress=False)
     print_clean(clips, result)
     if args.out:
