@@ -6,7 +6,7 @@ tracker, with and without the tracks that start on lines (sgc_jax.adapters.line_
 
 Each scene of the split (sgc_jax.research.protocol), with its rendered frames (checkerboards and
 stripes), is retracked by pyramidal LK (``--window`` px windows, 3 levels, forward-backward check
-under 0.5 px) from its exact frame i-1 positions: the tracker's own errors on a consistent world,
+under 0.5 px; bench/track_errors.py's ``retracked``) from its exact frame i-1 positions: the tracker's own errors on a consistent world,
 at both ends after the first pair as LK chains them per pair. Then each perturbation at severity
 0.25 on those tracks. For every ratio (0: every track kept) the table gives the median and largest
 consistent SGC over the scenes, the median share of usable tracks left out, the median evidence,
@@ -19,11 +19,10 @@ and the share of (scene, perturbation) where the perturbed clip scores above its
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
+from pathlib import Path
 
-import cv2
 import numpy as np
 
 from sgc_jax import score_batch
@@ -32,29 +31,17 @@ from sgc_jax.research import protocol
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.synth import synth_clip
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from track_errors import retracked  # noqa: E402
+
 SEVERITY = 0.25
-LK_LEVELS, LK_AGREE_PX = 3, 0.5
-
-
-def lk_retracked(clip, window: int):
-    """The clip with frame-i positions from pyramidal LK on its frames, from its frame i-1 positions."""
-    gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in clip.frames]
-    curr, vis = clip.track_curr.copy(), clip.track_vis.copy()
-    lk = {"winSize": (window, window), "maxLevel": LK_LEVELS}
-    for i in range(clip.n_pairs):
-        start = clip.track_prev[i].astype(np.float32).reshape(-1, 1, 2)
-        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[i], gray[i + 1], start, None, **lk)
-        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[i + 1], gray[i], ahead, None, **lk)
-        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < LK_AGREE_PX
-        curr[i], vis[i] = ahead[:, 0], vis[i] & (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
-    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}/lk{window}", track_curr=curr, track_vis=vis)
 
 
 def scene_clips(split: str, tracks: int, window: int) -> list[tuple[str, str, object]]:
     """(scene, kind or "" for consistent, clip): each scene retracked, then perturbed."""
     out = []
     for scene in protocol.SPLITS[split]:
-        tracked = lk_retracked(synth_clip(seed=scene.seed, clip_id=scene.name, n_tracks=tracks, **scene.spec), window)
+        tracked = retracked(synth_clip(seed=scene.seed, clip_id=scene.name, n_tracks=tracks, **scene.spec), window)
         out.append((scene.name, "", tracked))
         out += [(scene.name, kind, perturb_clip(tracked, kind, SEVERITY, seed=scene.seed)) for kind in PERTURBATIONS]
     return out
