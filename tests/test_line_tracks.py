@@ -25,7 +25,7 @@ def _image(kind: str) -> np.ndarray:
 
 
 @pytest.mark.parametrize("kind, lowest, highest", [("edge", 0.0, 1e-6), ("flat", 0.0, 0.0), ("corner", 0.3, 1.0)])
-def test_the_structure_ratio_is_zero_on_an_edge_and_a_flat_patch_and_high_at_a_corner(kind, lowest, highest):
+def test_the_structure_ratio_is_zero_on_an_edge_and_a_uniform_patch_and_high_at_a_corner(kind, lowest, highest):
     ratio, _ = line_structure(_image(kind), np.array([[32.0, 32.0]]))
     assert lowest <= ratio[0] <= highest
 

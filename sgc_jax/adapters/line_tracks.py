@@ -27,7 +27,7 @@ def line_structure(frame: np.ndarray, xy: np.ndarray, window: int = STRUCTURE_WI
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The image structure around positions xy (P, 2) [px, x right, y down; the nearest pixel] of an
     RGB or grey frame (H, W[, 3]), from the structure tensor summed over a window x window box:
-    lambda_min / lambda_max (P,), 0 on a straight edge or a flat patch, up to 1 at a corner; and
+    lambda_min / lambda_max (P,), 0 on a straight edge or a uniform patch, up to 1 at a corner; and
     the unit direction (P, 2) of lambda_min, along the edge."""
     gray = frame.astype(np.float32)
     if gray.ndim == 3:
