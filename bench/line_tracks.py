@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgc_jax import score_batch
+from sgc_jax import SGCConfig, score_batch
 from sgc_jax.adapters.line_tracks import leave_out_line_tracks
 from sgc_jax.research import protocol
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
@@ -55,6 +55,7 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=21)
     args = parser.parse_args()
     started = time.perf_counter()
+    conf = SGCConfig().min_track_conf
     clips = scene_clips(args.split, args.tracks, args.window)
     print(f"split {args.split}: {len(protocol.SPLITS[args.split])} scenes, {args.tracks} tracks, LK {args.window} px; "
           f"perturbations at {SEVERITY}", file=sys.stderr)
@@ -62,12 +63,12 @@ def main() -> None:
           "| detection at 0.25 |")
     print("|---|---|---|---|---|---|")
     for ratio in args.ratios:
-        variants = [leave_out_line_tracks(clip, ratio) if ratio > 0 else clip for _, _, clip in clips]
+        variants = [leave_out_line_tracks(clip, ratio) for _, _, clip in clips]  # 0 keeps every track
         scored = score_batch(variants, progress=False).clips
         consistent = {scene: s for (scene, kind, _), s in zip(clips, scored) if kind == ""}
         sgc = np.array([s.sgc for s in consistent.values()])
         detected = [s.sgc > consistent[scene].sgc for (scene, kind, _), s in zip(clips, scored) if kind]
-        left_out = [1.0 - v.usable_tracks(0.5).sum() / max(1, c.usable_tracks(0.5).sum())
+        left_out = [1.0 - v.usable_tracks(conf).sum() / max(1, c.usable_tracks(conf).sum())
                     for (_, kind, c), v in zip(clips, variants) if kind == ""]
         evidence = np.median([s.evidence for s in consistent.values()])
         print(f"| {ratio:g} | {np.median(sgc):.3f} | {sgc.max():.3f} | {np.median(left_out):.0%} | {evidence:.2f} "

@@ -50,7 +50,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
-from sgc_jax.adapters.line_tracks import LINE_RATIO, line_structure
+from sgc_jax.adapters.line_tracks import LINE_RATIO, leave_out_line_tracks, line_structure
 from sgc_jax.engines.reference import back_project, global_relative_pose
 from sgc_jax.research import protocol
 from sgc_jax.research.ground_truth import exact_positions, points_prev
@@ -224,22 +224,20 @@ def print_aperture(clips: list) -> None:
           "taken out | SGC, line-like tracks left out (their share) |")
     print("|---|---|---|---|---|---|---|")
     usable_conf = SGCConfig().min_track_conf
-    rows, normal_only, corners_only = [], [], []
+    rows, normal_only = [], []
     for clip in clips:
         usable = clip.usable_tracks(usable_conf)
         curr = clip.track_curr.astype(np.float64).copy()
-        corner = clip.track_vis.copy()
         ratios, misses, cosines = [], [], []
         for pair in range(1, clip.n_frames):
             exact, front = exact_positions(clip, pair)
             keep = usable[pair - 1] & front
-            ratio, weak = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1][keep].astype(np.float64))
+            ratio, weak = (a[keep] for a in line_structure(clip.frames[pair - 1],
+                                                            clip.track_prev[pair - 1].astype(np.float64)))
             e = curr[pair - 1][keep] - exact[keep]
             along = np.sum(e * weak, axis=1)
             line = ratio < LINE_RATIO
             curr[pair - 1][np.flatnonzero(keep)[line]] -= along[line, None] * weak[line]
-            all_ratio, _ = line_structure(clip.frames[pair - 1], clip.track_prev[pair - 1].astype(np.float64))
-            corner[pair - 1] &= all_ratio >= LINE_RATIO
             miss = np.linalg.norm(e, axis=1)
             ratios.append(ratio)
             misses.append(miss)
@@ -247,7 +245,7 @@ def print_aperture(clips: list) -> None:
         ratio, miss, cosine = map(np.concatenate, (ratios, misses, cosines))
         rows.append((clip.clip_id, miss > MISS_PX, ratio, cosine))
         normal_only.append(dataclasses.replace(clip, clip_id=f"{clip.clip_id}/normal", track_curr=curr.astype(np.float32)))
-        corners_only.append(dataclasses.replace(clip, clip_id=f"{clip.clip_id}/corners", track_vis=corner))
+    corners_only = [leave_out_line_tracks(clip) for clip in clips]
     scored = score_batch(clips + normal_only + corners_only, progress=False).clips
     n = len(clips)
     for i, (name, off, ratio, cosine) in enumerate(rows):
