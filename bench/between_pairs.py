@@ -11,10 +11,9 @@ config and calibration). Two tables:
 1. the median of each pose component per (model, level, kind): which inconsistency scatters the
    poses as much as a noise model does;
 2. a candidate floor. A tracker's errors are drawn anew for every pair, a generator's inconsistency
-   persists, so half the mean squared change of a depth layer's deviation from its pair's weighted
-   mean pose (layer slot j of pair t against slot j of pair t+1, each weighted as in §3.5) estimates
-   the noise that the poses actually carry; its ratio kappa to what the fits' own covariances say
-   (the floors' pose noise, `region_rot_noise`) scales the floor where it exceeds 1. Per
+   persists, so how much each depth layer's pose changes between pairs estimates the noise the
+   poses actually carry: its ratio kappa to what the fits' own noise gives that change
+   (sgc_jax.research.pose_jitter) scales the floor where it exceeds 1. Per
    (model, kind, severity): the median observed / floor now and with kappa, and the share of cells
    where the excess over 1.25 x floor (rotation plus translation, local components) is above the
    consistent twin's, now and with kappa.
@@ -27,63 +26,23 @@ import itertools
 import sys
 import time
 
-import cv2
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.codes import REGION_OK
 from sgc_jax.research import protocol
+from sgc_jax.research.pose_jitter import pose_jitter
 
 BAND = 1.25  # the floors' band of sgc-spec-2026 (docs/semantics.md §5.4)
 COMPONENTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error")
 
 
-def rotvec_deg(R: np.ndarray) -> np.ndarray:
-    return np.degrees(cv2.Rodrigues(np.asarray(R, np.float64))[0][:, 0])
-
-
-def layer_deviations(pairs, t: int, part: str) -> dict | None:
-    """Pair t's accepted poses: their slots, weights, deviations from the weighted mean pose
-    (deg or % of D), observed and floor (§3.5, §3.10) and each pose's expected squared deviation."""
-    ok = (pairs.region_status[t] == REGION_OK) & np.isfinite(pairs.region_rot_per_px[t])
-    if ok.sum() < 2:
-        return None
-    if part == "rot":
-        w = 1.0 / pairs.region_rot_per_px[t][ok] ** 2
-        sig2 = pairs.region_rot_noise[t][ok] ** 2
-        vecs = np.stack([rotvec_deg(R) for R in pairs.R_local[t][ok]])
-    else:
-        w = 1.0 / pairs.region_trans_per_px[t][ok] ** 2
-        sig2 = (100.0 * pairs.region_trans_noise[t][ok]) ** 2
-        vecs = 100.0 * pairs.t_local[t][ok]
-    total = w.sum()
-    dev = vecs - (w[:, None] * vecs).sum(0) / total
-    shared = (w**2 * sig2).sum() / total**2
-    return dict(slots=np.flatnonzero(ok), w=w, dev=dev, observed=(w * (dev**2).sum(1)).sum() / total,
-                floor=(w * sig2).sum() / total - shared, expected=sig2 * (1.0 - 2.0 * w / total) + shared)
-
-
-def between_pair_ratio(per_pair: list) -> float:
-    """kappa: the squared change of each layer's deviation between consecutive pairs over what the
-    poses' own noise gives it, summed over layer slots present in both."""
-    num = den = 0.0
-    for a, b in zip(per_pair[:-1], per_pair[1:]):
-        if a is None or b is None:
-            continue
-        _, ia, ib = np.intersect1d(a["slots"], b["slots"], return_indices=True)
-        u = 1.0 / (1.0 / a["w"][ia] + 1.0 / b["w"][ib])
-        num += (u * ((a["dev"][ia] - b["dev"][ib]) ** 2).sum(1)).sum()
-        den += (u * (a["expected"][ia] + b["expected"][ib])).sum()
-    return num / den if den > 0 else np.nan
-
-
-def clip_row(result, part: str) -> tuple[float, float]:
-    """(observed / floor, kappa) of a clip's local component ``part``."""
-    per_pair = [layer_deviations(result.pairs, t, part) for t in range(result.pairs.n_pairs)]
-    kept = [p for p in per_pair if p is not None]
-    if not kept:
-        return np.nan, np.nan
-    return np.mean([p["observed"] for p in kept]) / np.mean([p["floor"] for p in kept]), between_pair_ratio(per_pair)
+def ratios(result) -> dict[str, float]:
+    """Observed / floor of the clip's two local components and its pose jitter (kappa)."""
+    jitter = pose_jitter(result.pairs)
+    out = {"rot_kappa": jitter.rot, "trans_kappa": jitter.trans}
+    for part, name in (("rot", "local_rot_var"), ("trans", "local_trans_var")):
+        out[f"{part}_ratio"] = result.components[name] / result.floors[f"{name}_floor"]
+    return out
 
 
 def excess(ratio: float, kappa: float = 1.0) -> float:
@@ -106,9 +65,7 @@ def main() -> None:
             for (_, kind, severity), result in zip(variants, score_batch([c for c, _, _ in variants], progress=False).clips):
                 row = dict(scene=scene.name, model=model, px=px, kind=kind or "consistent", severity=severity,
                            sgc=result.sgc, **{c: result.components[c] for c in COMPONENTS})
-                for part in ("rot", "trans"):
-                    row[f"{part}_ratio"], row[f"{part}_kappa"] = clip_row(result, part)
-                rows.append(row)
+                rows.append(dict(row, **ratios(result)))
         print(f"{scene.name} done, {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     print_scatter(rows)
     print_candidate(rows)

@@ -7,8 +7,9 @@ default config and calibration.
 
 Prints
 
-1. per clean clip: SGC, its interval, each pose component against its noise floor, the depth error
-   and the tracks' distance to the ground-truth motion (median and 95th percentile over the usable
+1. per clean clip: SGC, its interval, each pose component against its noise floor, the pose jitter
+   of the local rotations and translations (sgc_jax.research.pose_jitter: how much two layers'
+   relative pose changes between pairs against the floors' noise), the depth error and the tracks' distance to the ground-truth motion (median and 95th percentile over the usable
    tracks, px; sgc_jax.research.ground_truth), its evidence and reward (docs/semantics.md §3.11,
    §9.4), sorted by that distance (the bars: SGC <= 0.05 where the 95th percentile is within 2 px);
 2. the paper's perturbations (§4.3 protocol: warp, squeeze, depth_warp at severities 0.25, 0.5, 1)
@@ -34,6 +35,7 @@ from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.adapters import leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+from sgc_jax.research.pose_jitter import pose_jitter
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -42,9 +44,9 @@ LADDER_SEVERITIES = (0.25, 0.5, 1.0)
 
 def print_clean(clips, result) -> None:
     print("| clip | tracks to GT motion, median / p95 px | SGC | 90 % interval | "
-          + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " | depth_error % | tracks per pair | evidence "
-          "| reward |")
-    print("|---|---|---|---|" + "---|" * (len(POSE_COMPONENTS) + 4))
+          + " | ".join(f"{k} / floor" for k in POSE_COMPONENTS) + " | pose jitter, rot / trans | depth_error % "
+          "| tracks per pair | evidence | reward |")
+    print("|---|---|---|---|" + "---|" * (len(POSE_COMPONENTS) + 5))
     rows = []
     rewards = result.rewards()["reward"]
     for clip, scored, reward in zip(clips, result.clips, rewards):
@@ -53,8 +55,10 @@ def print_clean(clips, result) -> None:
     for p95, clip, scored, median, reward in sorted(rows, key=lambda r: r[0]):
         ratios = [scored.components[k] / scored.floors[f"{k}_floor"] for k in POSE_COMPONENTS]
         tracks = int(scored.pairs.n_tracks.mean()) if scored.pairs is not None else 0
+        jitter = pose_jitter(scored.pairs) if scored.pairs is not None else None
         print(f"| {clip.clip_id} | {median:.2f} / {p95:.2f} | {scored.sgc:.3f} | "
               f"{scored.sgc_lo:.3f}-{scored.sgc_hi:.3f} | " + " | ".join(f"{r:.2f}" for r in ratios)
+              + (f" | {jitter.rot:.2f} / {jitter.trans:.2f}" if jitter else " | -")
               + f" | {scored.components['depth_error']:.2f} | {tracks} | {scored.evidence:.2f} | {reward:.3f} |")
 
 
