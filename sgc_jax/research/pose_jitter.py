@@ -7,12 +7,12 @@ accepted poses in pairs t and t+1, layer j's pose relative to layer l's (deg, % 
 between the two pairs: the squared change, over the variance the floors' pose noise gives it
 (``region_rot_noise``, ``region_trans_noise``; §3.10), each two weighted by their geometry as the
 components weigh poses (§3.5). Relative to each other, not to the pair's mean pose, whose weights
-change from pair to pair. The ratio is
-about 1 when the poses carry the noise the floors count and the world persists, above 1 when
-their errors change between pairs by more (errors nearby tracks share, depth that flickers, an
-inconsistency that changes from frame to frame); a persistent disagreement raises the pose
-components over their floors and leaves it near 1. Research only: the score does not use it
-(bench/history/issue-58.md, "Shared errors scatter the poses").
+change from pair to pair. The ratio is about 1 when the poses carry the noise the floors count
+and the world persists, above 1 when their errors change between pairs by more (errors nearby
+tracks share, depth that flickers, an inconsistency that changes from frame to frame); a
+persistent disagreement raises the pose components over their floors and leaves it near 1.
+Research only: the score does not use it (bench/history/issue-58.md, "Shared errors scatter the
+poses"). NaN under compat="authors", which has no floors.
 """
 
 from __future__ import annotations
@@ -22,13 +22,15 @@ from typing import NamedTuple
 import numpy as np
 
 from ..codes import REGION_OK
+from ..engines import reference
 from ..engines.pairs import PairArrays
 from ..engines.units import PERCENT
 
 
 class PoseJitter(NamedTuple):
-    """Squared change of the layers' deviations between consecutive pairs over its expected value
-    from the fits' noise, for the rotations and the translations; NaN with no layer to compare."""
+    """Squared change of every two layers' relative pose between consecutive pairs over its
+    expected value from the fits' noise, for the rotations and the translations; NaN with no two
+    layers to compare."""
 
     rot: float
     trans: float
@@ -40,25 +42,6 @@ class _Poses(NamedTuple):
     weight: np.ndarray  # (n,) their weights in the components (§3.5)
     pose: np.ndarray  # (n, 3, 3) rotations or (n, 3) translations [% of D]
     noise_sq: np.ndarray  # (n,) squared RMS noise the floors count [deg² or (% of D)²]
-
-
-def rotation_log_deg(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors [deg] (..., 3) of rotations (..., 3, 3), accurate from 1e-8 deg to ~179 deg."""
-    vee = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    sine = np.linalg.norm(vee, axis=-1, keepdims=True)
-    angle = np.arctan2(sine, 0.5 * (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1.0))
-    return np.degrees(vee * np.where(sine > 1e-12, angle / np.maximum(sine, 1e-300), 1.0))
-
-
-def rotation_exp_deg(rotvec: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3) of a rotation vector [deg] (3,) (Rodrigues' formula)."""
-    w = np.radians(rotvec)
-    angle = np.linalg.norm(w)
-    if angle < 1e-12:
-        return np.eye(3)
-    k = w / angle
-    hat = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * hat + (1.0 - np.cos(angle)) * hat @ hat
 
 
 def _accepted(pairs: PairArrays, t: int, part: str) -> _Poses:
@@ -74,7 +57,7 @@ def _accepted(pairs: PairArrays, t: int, part: str) -> _Poses:
 def _between_layers(poses: _Poses, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(m, 3): pose a[i] relative to pose b[i] [deg or % of D]."""
     if poses.pose.ndim == 3:
-        return rotation_log_deg(np.swapaxes(poses.pose[b], -1, -2) @ poses.pose[a])
+        return np.degrees([reference.so3_log(R_b.T @ R_a) for R_a, R_b in zip(poses.pose[a], poses.pose[b])])
     return poses.pose[a] - poses.pose[b]
 
 
