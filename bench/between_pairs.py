@@ -28,11 +28,11 @@ import time
 
 import numpy as np
 
-from sgc_jax import score_batch
+from sgc_jax import Calibration, default_calibration, score_batch
 from sgc_jax.research import protocol
 from sgc_jax.research.pose_jitter import pose_jitter
 
-BAND = 1.25  # the floors' band of sgc-spec-2026 (docs/semantics.md §5.4)
+BAND = Calibration.load(default_calibration("spec")).floor_band  # docs/semantics.md §5.4
 COMPONENTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error")
 
 
