@@ -10,7 +10,7 @@ import pytest
 from sgc_jax.codes import REGION_OK
 from sgc_jax.engines.pairs import empty_pair_arrays
 from sgc_jax.engines.reference import so3_exp
-from sgc_jax.research.pose_jitter import pose_jitter
+from sgc_jax.research.pose_jitter import pose_jitter, rotation_log_deg
 
 N_PAIRS, SLOTS = 200, 8
 # 200 pairs of 8 layers: the ratio's spread over 20 seeds is 3.7 % (relative); four of it.
@@ -35,6 +35,12 @@ def hand_made_pairs(offsets_deg: float, offsets_pct: float, noise_scale: float, 
     pairs.R_local[:] = np.array([[so3_exp(np.radians(v)) for v in row] for row in rotvecs])
     pairs.t_local[:] = 0.01 + slot_trans + noise_scale * error(pairs.region_trans_noise)
     return pairs
+
+
+def test_rotation_vectors_hold_from_tiny_to_large_angles():
+    for angle in (1e-6, 1e-3, 3.0, 90.0, 170.0):
+        v = angle * np.array([0.6, -0.48, 0.64])
+        assert np.allclose(rotation_log_deg(so3_exp(np.radians(v))), v, rtol=1e-6, atol=0.0)
 
 
 def test_jitter_is_one_when_the_poses_carry_the_noise_the_floors_count():

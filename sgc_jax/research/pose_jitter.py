@@ -22,7 +22,6 @@ from typing import NamedTuple
 import numpy as np
 
 from ..codes import REGION_OK
-from ..engines import reference
 from ..engines.pairs import PairArrays
 from ..engines.units import PERCENT
 
@@ -44,6 +43,16 @@ class _Poses(NamedTuple):
     noise_sq: np.ndarray  # (n,) squared RMS noise the floors count [deg² or (% of D)²]
 
 
+def rotation_log_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors [deg] (..., 3) of rotations (..., 3, 3), accurate from 1e-6 deg to ~179 deg
+    (atan2 of the sine and cosine parts; OpenCV's Rodrigues returns 0 below ~6e-4 deg, where the
+    poses of exact tracks differ)."""
+    vee = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sine = np.linalg.norm(vee, axis=-1, keepdims=True)
+    angle = np.arctan2(sine, 0.5 * (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1.0))
+    return np.degrees(vee * np.where(sine > 0.0, angle / np.where(sine > 0.0, sine, 1.0), 1.0))
+
+
 def _accepted(pairs: PairArrays, t: int, part: str) -> _Poses:
     per_px = pairs.region_rot_per_px if part == "rot" else pairs.region_trans_per_px
     accepted = (pairs.region_status[t] == REGION_OK) & np.isfinite(per_px[t]) & (per_px[t] > 0)
@@ -57,7 +66,7 @@ def _accepted(pairs: PairArrays, t: int, part: str) -> _Poses:
 def _between_layers(poses: _Poses, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(m, 3): pose a[i] relative to pose b[i] [deg or % of D]."""
     if poses.pose.ndim == 3:
-        return np.degrees([reference.so3_log(R_b.T @ R_a) for R_a, R_b in zip(poses.pose[a], poses.pose[b])])
+        return rotation_log_deg(np.swapaxes(poses.pose[b], -1, -2) @ poses.pose[a])
     return poses.pose[a] - poses.pose[b]
 
 
