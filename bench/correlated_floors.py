@@ -1,7 +1,7 @@
 """A candidate floor for errors nearby tracks share (issue 58): the reference engine with the
 floors' block covariance (docs/semantics.md §3.10) replaced by a propagated one, on FIT scenes.
 
-    python bench/correlated_floors.py [--scenes 2] [--correlation-px 16] [--tracks 1000]
+    python bench/correlated_floors.py [--scenes 2] [--correlation-px 16] [--tracks 1000] [--shares]
 
 The candidate, per accepted pose on its m inliers (pixels u_a in frame i, residuals e_a, Jacobian
 rows J_a, A = (JᵀJ)⁻¹ as in §3.3):
@@ -17,6 +17,11 @@ length ℓ cannot be told from a smooth misfit of the region (only ψ/ℓ² is s
 Prints, per scene, noise model, level and kind (clean, warp and squeeze at 0.25), SGC and each pose
 component over its floor, under the current floors and the candidate. O(m²) per region: the JAX
 engine would need it without the pairwise matrix (a grid or a neighbour list).
+
+With ``--shares``: per clip, ν and ψ fitted without the bound at 0 and pooled over the clip's
+regions (weighted by their pairs of nearby inliers), the shared share ψ / (ν + ψ), and the mean of ψ
+bounded at 0 region by region as step 1 has it: how much the bound alone lifts ψ under independent
+errors, and how much of a perturbation's misfit a pooled ψ would read as shared error.
 """
 
 from __future__ import annotations
@@ -46,19 +51,58 @@ def propagated_covariance(correlation_px: float):
         e = np.stack([residuals[:n], residuals[n:]], axis=1)
         A = np.linalg.pinv(J.T @ J)
         d = np.linalg.norm(uv[:, None] - uv[None], axis=-1)
-        a, b = np.triu_indices(n, 1)
-        near = d[a, b] < 2 * correlation_px
         shared = np.exp(-d ** 2 / (2 * correlation_px ** 2))
         own_var, shared_var = np.sum(e ** 2) / max(2 * n - 6, 1), 0.0
-        if near.sum() >= 10:
-            semivariance = np.sum((e[a] - e[b]) ** 2, axis=1)[near] / 4
-            design = np.column_stack([np.ones(near.sum()), 1 - shared[a, b][near]])
-            own_var, shared_var = np.maximum(np.linalg.lstsq(design, semivariance, rcond=None)[0], 0.0)
+        fitted = semivariogram_fit(e, d, correlation_px)
+        if fitted is not None:
+            own_var, shared_var = np.maximum(fitted[:2], 0.0)
         sigma = shared_var * shared + own_var * np.eye(n)
         rows = np.stack([J[:n], J[n:]], axis=1)  # (n, 2, 6)
         return A @ np.einsum("aci,ab,bcj->ij", rows, sigma, rows) @ A
 
     return covariance
+
+
+def semivariogram_fit(e, d, correlation_px: float):
+    """(ν, ψ, pairs used) of step 1 without the bound at 0, from residuals e (n, 2) and pixel
+    distances d (n, n); None with fewer than 10 pairs of inliers closer than 2ℓ."""
+    a, b = np.triu_indices(len(e), 1)
+    near = d[a, b] < 2 * correlation_px
+    if near.sum() < 10:
+        return None
+    semivariance = np.sum((e[a] - e[b]) ** 2, axis=1)[near] / 4
+    design = np.column_stack([np.ones(near.sum()), 1 - np.exp(-d[a, b][near] ** 2 / (2 * correlation_px ** 2))])
+    own_var, shared_var = np.linalg.lstsq(design, semivariance, rcond=None)[0]
+    return own_var, shared_var, int(near.sum())
+
+
+def recording_fits(correlation_px: float, fits: list):
+    """The current floors' covariance, appending each region's ``semivariogram_fit`` to ``fits``."""
+
+    def covariance(X, uv, K, R, t, block_px):
+        if len(X) >= 4:
+            residuals, _ = residual_jacobian(X, uv, K, R, t)
+            e = np.stack([residuals[:len(X)], residuals[len(X):]], axis=1)
+            fitted = semivariogram_fit(e, np.linalg.norm(uv[:, None] - uv[None], axis=-1), correlation_px)
+            if fitted is not None:
+                fits.append(fitted)
+        return CURRENT_BLOCK_COVARIANCE(X, uv, K, R, t, block_px)
+
+    return covariance
+
+
+def print_shares(args) -> None:
+    print("| scene | noise | px | kind | regions | pooled ν | pooled ψ | ψ / (ν + ψ) | ψ bounded region by region, mean |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for scene, model, px in itertools.product(FIT_SCENES[:args.scenes], ("iid-both", "correlated"), (0.5, 2.0)):
+        clips = cell_clips(Cell(scene, model, px, args.tracks), inconsistencies=("warp", "squeeze"), severities=(0.25,))
+        for clip, kind, _ in clips:
+            fits: list = []
+            score([clip], recording_fits(args.correlation_px, fits))
+            own, shared, pairs = np.array(fits).T
+            nu, psi = np.average(own, weights=pairs), np.average(shared, weights=pairs)
+            print(f"| {scene.name} | {model} | {px:g} | {kind or 'clean'} | {len(fits)} | {nu:.4f} | {psi:.4f} | "
+                  f"{psi / (nu + psi):.3f} | {np.maximum(shared, 0.0).mean():.4f} |", flush=True)
 
 
 def score(clips, covariance):
@@ -74,7 +118,11 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=2)
     parser.add_argument("--correlation-px", type=float, default=16.0)
     parser.add_argument("--tracks", type=int, default=1000)
+    parser.add_argument("--shares", action="store_true", help="print the pooled shared share per clip instead")
     args = parser.parse_args()
+    if args.shares:
+        print_shares(args)
+        return
     print("| scene | noise | px | kind | SGC now | SGC candidate | observed / floor now | observed / floor candidate |")
     print("|---|---|---|---|---|---|---|---|")
     for scene, model, px in itertools.product(FIT_SCENES[:args.scenes], ("iid-both", "correlated"), (0.5, 2.0)):
