@@ -1,7 +1,7 @@
 """A candidate floor for errors nearby tracks share (issue 58): the reference engine with the
 floors' block covariance (docs/semantics.md §3.10) replaced by a propagated one, on FIT scenes.
 
-    python bench/correlated_floors.py [--scenes 2] [--correlation-px 16] [--tracks 1000] [--shares]
+    python bench/correlated_floors.py [--scenes 2] [--correlation-px 16] [--tracks 1000] [--shares | --pooled]
 
 The candidate, per accepted pose on its m inliers (pixels u_a in frame i, residuals e_a, Jacobian
 rows J_a, A = (JᵀJ)⁻¹ as in §3.3):
@@ -21,7 +21,8 @@ engine would need it without the pairwise matrix (a grid or a neighbour list).
 With ``--shares``: per clip, ν and ψ fitted without the bound at 0 and pooled over the clip's
 regions (weighted by their pairs of nearby inliers), the shared share ψ / (ν + ψ), and the mean of ψ
 bounded at 0 region by region as step 1 has it: how much the bound alone lifts ψ under independent
-errors, and how much of a perturbation's misfit a pooled ψ would read as shared error.
+errors, and how much of a perturbation's misfit a pooled ψ would read as shared error. With
+``--pooled``: the candidate with that pooled share ψ / (ν + ψ) applied to every region's own total.
 """
 
 from __future__ import annotations
@@ -40,8 +41,10 @@ POSE_COMPONENTS = COMPONENTS[:4]
 CURRENT_BLOCK_COVARIANCE = reference.block_covariance
 
 
-def propagated_covariance(correlation_px: float):
-    """A ``reference.block_covariance`` stand-in: the candidate's (6, 6) covariance (module docstring)."""
+def propagated_covariance(correlation_px: float, shared_share: float | None = None):
+    """A ``reference.block_covariance`` stand-in: the candidate's (6, 6) covariance (module docstring).
+    ``shared_share``: ψ / (ν + ψ) pooled over the clip (``--pooled``), applied to each region's own
+    total ν + ψ (at least its residual variance) instead of its ν, ψ bounded at 0."""
 
     def covariance(X, uv, K, R, t, block_px):
         n = len(X)
@@ -54,7 +57,10 @@ def propagated_covariance(correlation_px: float):
         shared = np.exp(-d ** 2 / (2 * correlation_px ** 2))
         own_var, shared_var = np.sum(e ** 2) / max(2 * n - 6, 1), 0.0
         fitted = semivariogram_fit(e, d, correlation_px)
-        if fitted is not None:
+        if fitted is not None and shared_share is not None:
+            total = max(fitted[0] + fitted[1], own_var)
+            own_var, shared_var = (1.0 - shared_share) * total, shared_share * total
+        elif fitted is not None:
             own_var, shared_var = np.maximum(fitted[:2], 0.0)
         sigma = shared_var * shared + own_var * np.eye(n)
         rows = np.stack([J[:n], J[n:]], axis=1)  # (n, 2, 6)
@@ -91,6 +97,15 @@ def recording_fits(correlation_px: float, fits: list):
     return covariance
 
 
+def pooled_share(clip, correlation_px: float) -> float:
+    """ψ / (ν + ψ) of the clip's regions pooled (weighted by their pairs of nearby inliers), in [0, 1]."""
+    fits: list = []
+    score([clip], recording_fits(correlation_px, fits))
+    own, shared, pairs = np.array(fits).T
+    nu, psi = np.average(own, weights=pairs), np.average(shared, weights=pairs)
+    return float(np.clip(psi / (nu + psi), 0.0, 1.0))
+
+
 def print_shares(args) -> None:
     print("| scene | noise | px | kind | regions | pooled ν | pooled ψ | ψ / (ν + ψ) | ψ bounded region by region, mean |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -119,6 +134,7 @@ def main() -> None:
     parser.add_argument("--correlation-px", type=float, default=16.0)
     parser.add_argument("--tracks", type=int, default=1000)
     parser.add_argument("--shares", action="store_true", help="print the pooled shared share per clip instead")
+    parser.add_argument("--pooled", action="store_true", help="the candidate with the clip's pooled shared share")
     args = parser.parse_args()
     if args.shares:
         print_shares(args)
@@ -128,7 +144,11 @@ def main() -> None:
     for scene, model, px in itertools.product(FIT_SCENES[:args.scenes], ("iid-both", "correlated"), (0.5, 2.0)):
         clips = cell_clips(Cell(scene, model, px, args.tracks), inconsistencies=("warp", "squeeze"), severities=(0.25,))
         now = score([c for c, _, _ in clips], CURRENT_BLOCK_COVARIANCE)
-        candidate = score([c for c, _, _ in clips], propagated_covariance(args.correlation_px))
+        if args.pooled:
+            candidate = [score([c], propagated_covariance(args.correlation_px, pooled_share(c, args.correlation_px)))[0]
+                         for c, _, _ in clips]
+        else:
+            candidate = score([c for c, _, _ in clips], propagated_covariance(args.correlation_px))
         for (_, kind, _), a, b in zip(clips, now, candidate):
             ratios = [" ".join(f"{r.components[k] / r.floors[f'{k}_floor']:.2f}" for k in POSE_COMPONENTS)
                       for r in (a, b)]
