@@ -97,12 +97,19 @@ def recording_fits(correlation_px: float, fits: list):
     return covariance
 
 
-def pooled_share(clip, correlation_px: float) -> float:
-    """ψ / (ν + ψ) of the clip's regions pooled (weighted by their pairs of nearby inliers), in [0, 1]."""
+def pooled_fit(clip, correlation_px: float) -> tuple[float, float, float, int]:
+    """The clip's regions' ``semivariogram_fit`` pooled (weighted by their pairs of nearby inliers):
+    (ν, ψ, the mean of ψ bounded at 0 region by region, regions)."""
     fits: list = []
     score([clip], recording_fits(correlation_px, fits))
     own, shared, pairs = np.array(fits).T
-    nu, psi = np.average(own, weights=pairs), np.average(shared, weights=pairs)
+    return (float(np.average(own, weights=pairs)), float(np.average(shared, weights=pairs)),
+            float(np.maximum(shared, 0.0).mean()), len(fits))
+
+
+def pooled_share(clip, correlation_px: float) -> float:
+    """ψ / (ν + ψ) of ``pooled_fit``, in [0, 1]."""
+    nu, psi, _, _ = pooled_fit(clip, correlation_px)
     return float(np.clip(psi / (nu + psi), 0.0, 1.0))
 
 
@@ -112,12 +119,9 @@ def print_shares(args) -> None:
     for scene, model, px in itertools.product(FIT_SCENES[:args.scenes], ("iid-both", "correlated"), (0.5, 2.0)):
         clips = cell_clips(Cell(scene, model, px, args.tracks), inconsistencies=("warp", "squeeze"), severities=(0.25,))
         for clip, kind, _ in clips:
-            fits: list = []
-            score([clip], recording_fits(args.correlation_px, fits))
-            own, shared, pairs = np.array(fits).T
-            nu, psi = np.average(own, weights=pairs), np.average(shared, weights=pairs)
-            print(f"| {scene.name} | {model} | {px:g} | {kind or 'clean'} | {len(fits)} | {nu:.4f} | {psi:.4f} | "
-                  f"{psi / (nu + psi):.3f} | {np.maximum(shared, 0.0).mean():.4f} |", flush=True)
+            nu, psi, bounded, regions = pooled_fit(clip, args.correlation_px)
+            print(f"| {scene.name} | {model} | {px:g} | {kind or 'clean'} | {regions} | {nu:.4f} | {psi:.4f} | "
+                  f"{psi / (nu + psi):.3f} | {bounded:.4f} |", flush=True)
 
 
 def score(clips, covariance):

@@ -9,9 +9,10 @@ Prints
 
 1. per clean clip: SGC, its interval, each pose component against its noise floor, the pose jitter
    of the local rotations and translations (sgc_jax.research.pose_jitter: how much two layers'
-   relative pose changes between pairs against the floors' noise), the depth error and the tracks' distance to the ground-truth motion (median and 95th percentile over the usable
-   tracks, px; sgc_jax.research.ground_truth), its evidence and reward (docs/semantics.md §3.11,
-   §9.4), sorted by that distance (the bars: SGC <= 0.05 where the 95th percentile is within 2 px);
+   relative pose changes between pairs against the floors' noise), the depth error and the
+   tracks' distance to the ground-truth motion (median and 95th percentile over the usable tracks,
+   px; sgc_jax.research.ground_truth), its evidence and reward (docs/semantics.md §3.11, §9.4),
+   sorted by that distance (the bars: SGC <= 0.05 where the 95th percentile is within 2 px);
 2. the paper's perturbations (§4.3 protocol: warp, squeeze, depth_warp at severities 0.25, 0.5, 1)
    on every clip: SGC and reward by severity, 0 the clean clip (the bars: every ladder's SGC rises
    strictly, its reward falls strictly);
