@@ -20,10 +20,12 @@ SCALES = (0.01, 0.1, 10.0, 100.0)
 # The bar for "unchanged" under a change of units (depth scaled in float64, so the scaled
 # clip is the same data: the engines divide by D in float64 and see identical float32 depth).
 SCALE_REL_TOL = 1e-3
-# Depth scaled and stored in float32 is different data: every depth moves by up to 6e-8 relative,
-# and discrete decisions (a point at the refinement's noise-level cut) can flip. Measured worst:
-# 1.9e-3 (bench/scale_free.py); the bar leaves room for other scenes.
-FLOAT32_STORAGE_REL_TOL = 1e-2
+# Depth scaled and stored in float32 is different data: every depth moves by up to 6e-8 relative.
+# The final poses are polished to first order (docs/semantics.md §7.1), so the components keep
+# SCALE_REL_TOL (measured worst 3.6e-4 here, 3.6e-5 in bench/scale_free.py). SGC, an excess over the
+# floors, moves by the components' change over its own small size: it is held to a tenth of the
+# third decimal it is read at (measured 9.3e-6 at SGC 0.0059).
+STORED_SGC_ATOL = 1e-4
 # Below NUMERICAL_FLOOR a component is float32 rounding of a clean fit: relative differences of
 # such values mean nothing. The bars for a rigid scene with a masked moving object:
 DEPTH_ERROR_RATIO_BAR = 1.5  # against the same scene without the object
@@ -37,11 +39,12 @@ def rescaled(clip, depth_factor, pose_factor, dtype=np.float64):
                                t_wc=clip.t_wc * pose_factor)
 
 
-def assert_components_equal(result, reference_result, what, rel_tol=SCALE_REL_TOL):
+def assert_components_equal(result, reference_result, what, sgc_atol=None):
     for k in (*COMPONENTS, "sgc"):
         got = result.sgc if k == "sgc" else result.components[k]
         want = reference_result.sgc if k == "sgc" else reference_result.components[k]
-        assert abs(got - want) <= rel_tol * abs(want) + NUMERICAL_FLOOR, (what, k, got, want)
+        bar = sgc_atol if k == "sgc" and sgc_atol is not None else SCALE_REL_TOL * abs(want) + NUMERICAL_FLOOR
+        assert abs(got - want) <= bar, (what, k, got, want)
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +73,7 @@ def test_scaling_depth_and_camera_translations_together_changes_nothing(moving_c
     for i, scored in enumerate(result.clips[len(clips):]):
         original = base[scored.clip_id.split("*")[0]]
         assert scored.status == original.status == "ok"
-        tol = SCALE_REL_TOL if i < len(variants) else FLOAT32_STORAGE_REL_TOL
-        assert_components_equal(scored, original, scored.clip_id, tol)
+        assert_components_equal(scored, original, scored.clip_id, None if i < len(variants) else STORED_SGC_ATOL)
         factor = float(scored.clip_id.split("*")[1].split("/")[0])
         assert scored.depth_unit == pytest.approx(original.depth_unit * factor, rel=1e-6)
         assert scored.ecd_trans == pytest.approx(original.ecd_trans, rel=SCALE_REL_TOL)

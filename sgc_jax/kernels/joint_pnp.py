@@ -20,6 +20,9 @@ from .so3 import so3_exp, so3_log
 LM_RTOL = 1e-6
 LM_ATOL_PX = 1e-4
 LM_MAX_DAMPING = 1e8
+# A final Gauss-Newton step is taken where it moves a pose by less than this [px-scaled units]:
+# a settled fit is ~1e-3 away, a start of the search tens.
+POLISH_PX = 0.05
 
 
 class Linearisation(NamedTuple):
@@ -40,6 +43,65 @@ class LMState(NamedTuple):
     step: jax.Array  # () int32
 
 
+class Problem(NamedTuple):
+    """A pair's weighted points in the slot layout, and each region's pixel scaling of the pose."""
+
+    cols: tuple  # (x, y, z, u, v, sqrt_w), each (n_chunks, SLOT_CHUNK)
+    slots: RegionSlots
+    scale: jax.Array  # (k, 6) pixel-scaled units per parameter unit
+    K: jax.Array  # (3, 3)
+
+
+def problem_of(X, uv, weight, region, K, k: int, slots: RegionSlots | None = None) -> Problem:
+    """The slot layout of X (N, 3), uv (N, 2), weight (N,) by region (N,) in 1..k, and the
+    scaling: rotation by fx, translation by fx / the region's mean point distance."""
+    dtype = X.dtype
+    slots = region_slots(region, k, dtype) if slots is None else slots
+    weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
+    cols = point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
+                         to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
+    x, y, z, _, _, sqrt_w = cols
+    valid = (sqrt_w > 0).astype(dtype)
+    sums = block_sums(slots.chunk_onehot, jnp.stack([valid * jnp.sqrt(x * x + y * y + z * z), valid]))
+    mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
+    # finite for an empty region
+    scale = jnp.concatenate([jnp.broadcast_to(K[0, 0], (k, 3)),
+                             jnp.broadcast_to((K[0, 0] / jnp.maximum(mean_dist, 1e-12))[:, None], (k, 3))], axis=-1)
+    return Problem(cols, slots, scale, K)
+
+
+def linearise(problem: Problem, R, t) -> Linearisation:
+    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3)."""
+    slots, onehot = problem.slots, problem.slots.chunk_onehot
+    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
+    chunk_scale = problem.scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
+    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), problem.K, problem.cols)
+
+    def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled
+        return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
+                          g[0], g[1], g[2]]) / chunk_scale
+
+    J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
+    cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
+    return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
+
+
+def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
+    """poses (k, 6) moved by one undamped Gauss-Newton step on their weighted points, each where
+    that step is finite and below POLISH_PX: a settled fit resolves its optimum only to where the
+    drop of its cost is float32's rounding (a square root of that in the pose), the step to first
+    order, so a polished pose is a smooth function of the data (docs/semantics.md §7.1)."""
+    k = poses.shape[0]
+    problem = problem_of(X, uv, weight, region, K, k, slots)
+    R, t = so3_exp(poses[:, :3]), poses[:, 3:]
+    at = linearise(problem, R, t)
+    scaled = -jax.vmap(solve_spd)(at.normal, at.grad)
+    small = jnp.all(jnp.isfinite(scaled), -1) & (jnp.max(jnp.abs(scaled), -1) < POLISH_PX)
+    delta = jnp.where(small[:, None], scaled / problem.scale, 0.0)
+    polished = jnp.concatenate([so3_log(small_matmul(so3_exp(delta[:, :3]), R)), t + delta[:, 3:]], axis=-1)
+    return jnp.where((small & jnp.all(jnp.isfinite(poses), -1))[:, None], polished, poses)
+
+
 def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSlots | None = None):
     """Minimise each region's sum weight |project(R X + t) - uv|^2 -> (pose6 (k, 6), converged (k,)).
 
@@ -51,31 +113,8 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     Needs >= 3 weighted points per region."""
     k = pose0.shape[0]
     dtype = X.dtype
-    slots = region_slots(region, k, dtype) if slots is None else slots
-    onehot = slots.chunk_onehot
-    weight = jnp.where((region >= 1) & (region <= k), weight, 0.0)
-    cols = point_columns(to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], dtype)), to_slots(slots, uv, 0.0),
-                         to_slots(slots, weight, 0.0))  # (n_chunks, SLOT_CHUNK) each
-    x, y, z, _, _, sqrt_w = cols
-    valid = (sqrt_w > 0).astype(dtype)
-    sums = block_sums(onehot, jnp.stack([valid * jnp.sqrt(x * x + y * y + z * z), valid]))
-    mean_dist = sums[:, 0] / jnp.maximum(sums[:, 1], 1.0)
-    # (k, 6) pixel-scaled units per parameter unit, finite for an empty region
-    scale = jnp.concatenate([jnp.broadcast_to(K[0, 0], (k, 3)),
-                             jnp.broadcast_to((K[0, 0] / jnp.maximum(mean_dist, 1e-12))[:, None], (k, 3))], axis=-1)
-    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
-    chunk_scale = scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
-
-    def linearise(R, t) -> Linearisation:
-        (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), K, cols)
-
-        def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled
-            return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
-                              g[0], g[1], g[2]]) / chunk_scale
-
-        J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
-        cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
-        return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
+    problem = problem_of(X, uv, weight, region, K, k, slots)
+    scale = problem.scale
 
     def step(state: LMState) -> LMState:
         at, damping, growth, done = state.at, state.damping, state.growth, state.done
@@ -83,7 +122,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         damped = at.normal + (damping[:, None] * diag + 1e-12)[:, :, None] * jnp.eye(6, dtype=dtype)
         delta = -jax.vmap(solve_spd)(damped, at.grad) / scale  # (k, 6) in (w [rad], dt)
         R_new, t_new = small_matmul(so3_exp(delta[:, :3]), state.R), state.t + delta[:, 3:]
-        new = linearise(R_new, t_new)
+        new = linearise(problem, R_new, t_new)
         scaled = delta * scale
         predicted = -(2.0 * jnp.sum(at.grad * scaled, -1) + jnp.einsum("ki,kij,kj->k", scaled, at.normal, scaled))
         rho = (at.cost - new.cost) / jnp.maximum(predicted, 1e-30)
@@ -103,7 +142,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
                        done | settled | (damping > LM_MAX_DAMPING), state.step + 1)
 
     R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
-    at0 = linearise(R0, t0)
+    at0 = linearise(problem, R0, t0)
     done0 = ~jnp.isfinite(at0.cost) | ~jnp.all(jnp.isfinite(pose0), axis=-1)
     state = LMState(R0, t0, at0, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype), done0, jnp.int32(0))
     final = jax.lax.while_loop(lambda s: (s.step < steps) & jnp.any(~s.done), step, state)

@@ -101,8 +101,6 @@ def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_
 
 class RefinedPoses(NamedTuple):
     poses: jax.Array  # (k, 6)
-    inliers: jax.Array  # (N,) bool: within inlier_px of its own region's final pose
-    n_inliers: jax.Array  # (k,) int32
     ambiguous: jax.Array  # (k,) bool
     fitted: jax.Array  # (N,) bool: the points each region's pose is the least-squares fit of
 
@@ -129,7 +127,6 @@ def _pose_or_rival(pose: LocalOptima, rival: LocalOptima, cut, member, onehot, o
     """Per region, the rival where it costs less at the final cut (N,) than the pose, and whether
     the pose is ambiguous (``refine_poses`` step 3)."""
     dtype = cut.dtype
-    thr_sq = jnp.asarray(options.inlier_px, dtype) ** 2
     rival_finite = jnp.all(jnp.isfinite(rival.poses), axis=-1)
     # the rival's cost is at the final cut already; the pose's is taken again there
     lower = rival_finite & is_lower(rival.cost, region_truncated_cost(pose.err_sq, member, cut, onehot))
@@ -141,13 +138,11 @@ def _pose_or_rival(pose: LocalOptima, rival: LocalOptima, cut, member, onehot, o
     shared = region_sums(onehot, (near & (rival.err_sq < cut)).astype(dtype))
     margin = jnp.maximum(1.0, jnp.floor(options.ambiguous_inlier_frac * m))
     apart = rotation_angle_deg(so3_exp(poses[:, :3]), so3_exp(rival.poses[:, :3])) > options.ambiguous_rot_deg
-    inliers = member & (err_sq < thr_sq)
-    return RefinedPoses(poses, inliers, region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32),
-                        rival_finite & apart & (shared >= m - margin),
+    return RefinedPoses(poses, rival_finite & apart & (shared >= m - margin),
                         jnp.where(point_lower, rival.fitted_on, pose.fitted_on))
 
 
-def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> RefinedPoses:
+def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slots=None) -> RefinedPoses:
     """The local pose of every region from M starts (M, k, 6):
 
     1. each start's local optimum at inlier_px; the lowest is the coarse optimum, and its
@@ -165,7 +160,8 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions) -> R
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
     optimise = functools.partial(local_optima, X, uv, region, K, lm_steps=options.lm_steps,
-                                 max_rounds=options.max_rounds, slots=region_slots(region, k, dtype))
+                                 max_rounds=options.max_rounds,
+                                 slots=region_slots(region, k, dtype) if slots is None else slots)
     at_inlier_px = jnp.full(X.shape[:1], thr_sq)
     n_starts = starts.shape[0]
     # the runs by index: the M starts' coarse runs, then the pose, the rival at inlier_px, the rival

@@ -15,10 +15,11 @@ import jax
 import jax.numpy as jnp
 
 from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
+from .joint_pnp import polish_poses
 from .local_optimum import borrow_region_poses, refine_poses
 from .pnp import initial_pose, projected_columns, solve_pnp, translation_for_rotation
 from .ransac_options import RansacOptions
-from .regions import group_by_region, region_onehot, region_sums
+from .regions import group_by_region, region_onehot, region_slots, region_sums
 from .so3 import so3_exp, so3_log
 from .truncated_cost import msac_score, own_pose_errors_sq, truncated_errors_sq
 from .uncertainty import PoseUncertainty, pose_uncertainty
@@ -207,18 +208,22 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
         starts.append(borrow_region_poses(X, uv, region, K, own_best, inlier_px=options.inlier_px))
     if global_t is not None:
         starts.append(camera_start(X, uv, region, K, rival_R, jnp.asarray(global_t, dtype), options.inlier_px, k))
-    refined = refine_poses(X, uv, region, K, jnp.stack(starts), rival_R, options)
+    slots = region_slots(region, k, dtype)
+    refined = refine_poses(X, uv, region, K, jnp.stack(starts), rival_R, options, slots)
+    poses = polish_poses(X, uv, refined.fitted.astype(dtype), region, K, refined.poses, slots)
 
-    R, t = so3_exp(refined.poses[:, :3]), refined.poses[:, 3:]
+    R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
-    err = jnp.sqrt(jnp.where(member, own_pose_errors_sq(refined.poses, X, uv, K, onehot)[0], 0.0))
-    reproj_px = region_sums(onehot, err) / jnp.maximum(n_members, 1).astype(dtype)
+    err_sq, in_front = own_pose_errors_sq(poses, X, uv, K, onehot)
+    inliers = member & in_front & (err_sq < jnp.asarray(options.inlier_px, dtype) ** 2)
+    n_inliers = region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
+    reproj_px = region_sums(onehot, jnp.sqrt(jnp.where(member, err_sq, 0.0))) / jnp.maximum(n_members, 1).astype(dtype)
     need = jnp.maximum(4, jnp.floor(options.min_inlier_frac * n_members).astype(jnp.int32))
     proper = jnp.abs(jnp.linalg.det(R) - 1.0) < 1e-3
-    good = (refined.n_inliers >= need) & jnp.all(jnp.isfinite(refined.poses), axis=-1) & proper & jnp.isfinite(reproj_px)
+    good = (n_inliers >= need) & jnp.all(jnp.isfinite(poses), axis=-1) & proper & jnp.isfinite(reproj_px)
     status = jnp.where(n_members < options.min_points, REGION_TOO_FEW_POINTS, jnp.where(good, REGION_OK, REGION_REJECTED))
-    uncertainty = pose_uncertainty(X, uv, region, K, refined.poses, refined.inliers, noise_block_px)
-    return PnPResult(R, t, status.astype(jnp.int32), n_members, refined.n_inliers, refined.inliers, reproj_px,
+    uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers, noise_block_px)
+    return PnPResult(R, t, status.astype(jnp.int32), n_members, n_inliers, inliers, reproj_px,
                      refined.ambiguous, uncertainty, refined.fitted)
 
 
