@@ -87,8 +87,8 @@ def linearise(problem: Problem, R, t) -> Linearisation:
 
 
 def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
-    """poses (k, 6) moved by one undamped Gauss-Newton step on their weighted points, each where
-    that step is finite and below POLISH_PX: a settled fit resolves its optimum only to where the
+    """poses (k, 6) moved by one undamped Gauss-Newton step on their points (arguments as
+    ``solve_pnp_regions``), each where that step is finite and below POLISH_PX: a settled fit resolves its optimum only to where the
     drop of its cost is float32's rounding (a square root of that in the pose), the step to first
     order, so a polished pose is a smooth function of the data (docs/semantics.md §7.1)."""
     k = poses.shape[0]

@@ -152,7 +152,9 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slot
        members within the cut, optimised at inlier_px (where it beats the coarse optimum, its cut
        replaces the region's), then at the cut. It replaces the pose where it costs less there;
        otherwise the pose is ambiguous where the rival lies more than ambiguous_rot_deg away and
-       keeps all but max(1, floor(ambiguous_inlier_frac m)) of the pose's m members within the cut."""
+       keeps all but max(1, floor(ambiguous_inlier_frac m)) of the pose's m members within the cut.
+
+    ``slots``: ``region_slots(region, k)``, made here when not given."""
     k = starts.shape[1]
     dtype = X.dtype
     inlier_px = options.inlier_px

@@ -190,8 +190,9 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
     (None: the identity) and global_t (3,) its translation s t_g in the units of X (None: unknown).
     Starts of each region's search: its best RANSAC candidate (``region_start``), with
     ``options.borrow`` the pair's other region pose that fits it best, and the camera's pose; then
-    ``refine_poses``. Status: too_few_points with fewer than min_points members; ok with inliers >=
-    max(4, floor(min_inlier_frac members)), a finite pose and det(R) ~ 1; else rejected.
+    ``refine_poses``, and ``polish_poses`` on the points each pose is the fit of. Status:
+    too_few_points with fewer than min_points members; ok with inliers >= max(4, floor(min_inlier_frac
+    members)), a finite pose and det(R) ~ 1; else rejected.
     noise_block_px: side [px] of the squares of the noise the floors count (``pose_uncertainty``)."""
     k, dtype = keys.shape[0], X.dtype
     region = jnp.where(jnp.isfinite(X).all(-1) & jnp.isfinite(uv).all(-1), region, 0).astype(jnp.int32)
