@@ -33,6 +33,15 @@ class Linearisation(NamedTuple):
     grad: jax.Array
 
 
+class Proposal(NamedTuple):
+    """The damped step from a pose, before the error is taken there (k regions)."""
+
+    delta: jax.Array  # (k, 6) in (w [rad], dt)
+    scaled: jax.Array  # (k, 6) the same in pixel-scaled units
+    predicted: jax.Array  # (k,) drop of the squared error the linear model predicts
+    negligible: jax.Array  # (k,) bool: the prediction or the step below the stop's resolution
+
+
 class LMState(NamedTuple):
     R: jax.Array  # (k, 3, 3)
     t: jax.Array  # (k, 3)
@@ -41,6 +50,8 @@ class LMState(NamedTuple):
     growth: jax.Array  # (k,) Nielsen's nu
     done: jax.Array  # (k,) bool
     step: jax.Array  # () int32
+    proposal: Proposal  # from (R, t) at this damping
+    started: jax.Array  # () bool: ``at`` is (R, t)'s; the first pass only linearises there
 
 
 class Problem(NamedTuple):
@@ -116,35 +127,50 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     problem = problem_of(X, uv, weight, region, K, k, slots)
     scale = problem.scale
 
-    def step(state: LMState) -> LMState:
-        at, damping, growth, done = state.at, state.damping, state.growth, state.done
+    def propose(at: Linearisation, damping) -> Proposal:
         diag = jnp.diagonal(at.normal, axis1=1, axis2=2)
         damped = at.normal + (damping[:, None] * diag + 1e-12)[:, :, None] * jnp.eye(6, dtype=dtype)
-        delta = -jax.vmap(solve_spd)(damped, at.grad) / scale  # (k, 6) in (w [rad], dt)
-        R_new, t_new = small_matmul(so3_exp(delta[:, :3]), state.R), state.t + delta[:, 3:]
-        new = linearise(problem, R_new, t_new)
+        delta = -jax.vmap(solve_spd)(damped, at.grad) / scale
         scaled = delta * scale
         predicted = -(2.0 * jnp.sum(at.grad * scaled, -1) + jnp.einsum("ki,kij,kj->k", scaled, at.normal, scaled))
-        rho = (at.cost - new.cost) / jnp.maximum(predicted, 1e-30)
+        negligible = (predicted <= LM_RTOL * at.cost + LM_ATOL_PX**2) | (jnp.max(jnp.abs(scaled), -1) < LM_ATOL_PX)
+        return Proposal(delta, scaled, predicted, negligible)
+
+    def step(state: LMState) -> LMState:
+        at, damping, growth, done, proposal = state.at, state.damping, state.growth, state.done, state.proposal
+        first = ~state.started  # the proposal is the start itself (delta 0): take its linearisation
+        delta = proposal.delta
+        R_new, t_new = small_matmul(so3_exp(delta[:, :3]), state.R), state.t + delta[:, 3:]
+        new = linearise(problem, R_new, t_new)
+        rho = (at.cost - new.cost) / jnp.maximum(proposal.predicted, 1e-30)
         # taken only where the error drops by more than float32's rounding of the sum, so that
         # programs fused otherwise (one device or several) take the same steps; settled where the
         # drop, the model's prediction or the step is below that: nothing is left to gain
         lower = jnp.isfinite(new.cost) & (new.cost < at.cost)
         significant = lower & (at.cost - new.cost > LM_RTOL * at.cost + LM_ATOL_PX**2)
-        settled = ~done & ((lower & ~significant) | (predicted <= LM_RTOL * at.cost + LM_ATOL_PX**2)
-                           | (jnp.max(jnp.abs(scaled), -1) < LM_ATOL_PX))
-        accept = ~done & ~settled & significant
+        settled = ~done & ((lower & ~significant) | proposal.negligible)
+        accept = ~done & (first | (~settled & significant))
         damping = jnp.where(accept, jnp.maximum(damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12),
                             jnp.where(done, damping, damping * growth))
         growth = jnp.where(accept, 2.0, jnp.where(done, growth, growth * 2.0))
+        damping, growth = jnp.where(first, state.damping, damping), jnp.where(first, state.growth, growth)
+        done = jnp.where(first, done | ~jnp.isfinite(new.cost), done | settled | (damping > LM_MAX_DAMPING))
         pick = lambda new, old: jnp.where(accept.reshape((k,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
-        return LMState(pick(R_new, state.R), pick(t_new, state.t), jax.tree.map(pick, new, at), damping, growth,
-                       done | settled | (damping > LM_MAX_DAMPING), state.step + 1)
+        at = jax.tree.map(pick, new, at)
+        return LMState(pick(R_new, state.R), pick(t_new, state.t), at, damping, growth, done,
+                       state.step + state.started.astype(jnp.int32), propose(at, damping), jnp.bool_(True))
 
-    R0, t0 = so3_exp(pose0[:, :3]), pose0[:, 3:]
-    at0 = linearise(problem, R0, t0)
-    done0 = ~jnp.isfinite(at0.cost) | ~jnp.all(jnp.isfinite(pose0), axis=-1)
-    state = LMState(R0, t0, at0, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype), done0, jnp.int32(0))
-    final = jax.lax.while_loop(lambda s: (s.step < steps) & jnp.any(~s.done), step, state)
+    def more(state: LMState):
+        # a region whose next step is negligible would only be marked settled by it: the loop ends
+        # once every region is done or there, without the error at that step (the same poses)
+        return (state.step < steps) & jnp.any(~state.done & ~state.proposal.negligible)
+
+    zeros = jnp.zeros((k, 6), dtype)
+    unmoved = Proposal(zeros, zeros, jnp.full(k, jnp.inf, dtype), jnp.zeros(k, bool))
+    unknown = Linearisation(jnp.full(k, jnp.inf, dtype), jnp.zeros((k, 6, 6), dtype), zeros)
+    state = LMState(so3_exp(pose0[:, :3]), pose0[:, 3:], unknown, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype),
+                    ~jnp.all(jnp.isfinite(pose0), axis=-1), jnp.int32(0), unmoved, jnp.bool_(False))
+    final = jax.lax.while_loop(more, step, state)
+    done = final.done | (final.proposal.negligible & (final.step < steps))
     pose6 = jnp.concatenate([so3_log(final.R), final.t], axis=-1)
-    return pose6, final.done & jnp.all(jnp.isfinite(pose6), axis=-1)
+    return pose6, done & jnp.all(jnp.isfinite(pose6), axis=-1)
