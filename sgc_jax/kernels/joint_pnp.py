@@ -37,7 +37,6 @@ class Proposal(NamedTuple):
     """The damped step from a pose, before the error is taken there (k regions)."""
 
     delta: jax.Array  # (k, 6) in (w [rad], dt)
-    scaled: jax.Array  # (k, 6) the same in pixel-scaled units
     predicted: jax.Array  # (k,) drop of the squared error the linear model predicts
     negligible: jax.Array  # (k,) bool: the prediction or the step below the stop's resolution
 
@@ -134,7 +133,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         scaled = delta * scale
         predicted = -(2.0 * jnp.sum(at.grad * scaled, -1) + jnp.einsum("ki,kij,kj->k", scaled, at.normal, scaled))
         negligible = (predicted <= LM_RTOL * at.cost + LM_ATOL_PX**2) | (jnp.max(jnp.abs(scaled), -1) < LM_ATOL_PX)
-        return Proposal(delta, scaled, predicted, negligible)
+        return Proposal(delta, predicted, negligible)
 
     def step(state: LMState) -> LMState:
         at, damping, growth, done, proposal = state.at, state.damping, state.growth, state.done, state.proposal
@@ -166,7 +165,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         return (state.step < steps) & jnp.any(~state.done & ~state.proposal.negligible)
 
     zeros = jnp.zeros((k, 6), dtype)
-    unmoved = Proposal(zeros, zeros, jnp.full(k, jnp.inf, dtype), jnp.zeros(k, bool))
+    unmoved = Proposal(zeros, jnp.full(k, jnp.inf, dtype), jnp.zeros(k, bool))
     unknown = Linearisation(jnp.full(k, jnp.inf, dtype), jnp.zeros((k, 6, 6), dtype), zeros)
     state = LMState(so3_exp(pose0[:, :3]), pose0[:, 3:], unknown, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype),
                     ~jnp.all(jnp.isfinite(pose0), axis=-1), jnp.int32(0), unmoved, jnp.bool_(False))
