@@ -21,7 +21,7 @@ class RansacOptions(eqx.Module):
     chunk: int = eqx.field(static=True, default=10)  # samples drawn between two checks of the adaptive stop
     sample_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps on a minimal sample
     score_points: int = eqx.field(static=True, default=512)  # members candidates are scored on, at most
-    lo_candidates: int = eqx.field(static=True, default=16)  # best candidates given a least-squares fit
+    lo_candidates: int = eqx.field(static=True, default=8)  # best candidates given a least-squares fit
     fit_points: int = eqx.field(static=True, default=128)  # scored members that fit uses, at most
     lo_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps of that fit
     max_rounds: int = eqx.field(static=True, default=5)  # least-squares fits per local optimum, at most
