@@ -3,7 +3,7 @@ synthetic scenes under each noise model, level and track count, consistent and i
 
     python bench/validation.py [--split test|fit] [--models iid-curr iid-both ...] [--levels 0.25 0.5 1 2]
                                [--tracks 200 1000 4096] [--scenes N] [--out rows.csv] [--rows rows.csv]
-                               [--intervals] [--config FILE]
+                               [--intervals] [--config FILE] [--against rows.csv]
 
 Constants are fitted on ``--split fit``; the figures of RESULTS and the docs come from ``--split
 test`` (sgc_jax.research.protocol). ``--rows`` prints the tables from a CSV an earlier run wrote
@@ -19,7 +19,11 @@ with ``--out`` instead of scoring. Prints, for the split:
 3. floors: per noise model, the range over (level, tracks) cells of the median observed / floor of
    each pose component over the consistent scenes (the bar: within [0.5, 2]);
 4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
-   of 20 draws (consistent scenes and warp at 0.5, 1 px, 1000 tracks; the bar: >= 85 %).
+   of 20 draws (consistent scenes and warp at 0.5, 1 px, 1000 tracks; the bar: >= 85 %);
+5. with ``--against ROWS`` (rows of the same grid from another tree, config or seed): clip by clip,
+   how far these rows are from those: statuses, the change of each clip's SGC, and the largest
+   change of a detection share, of a consistent cell's median and of a floors range bound (how a
+   constant of the pose search is chosen on FIT: bench/history/issue-61.md, "Eight leading fits").
 """
 
 from __future__ import annotations
@@ -97,21 +101,29 @@ def print_detection(rows: list[dict], models, split: str, config: SGCConfig) -> 
         print(f"| mover, {label} ({cells} cells) | 1 | {share:.0%} | " + " | ".join(f"{per[m]:.0%}" for m in models) + " |")
 
 
+def floor_spans(rows: list[dict], models, levels, tracks) -> dict[tuple[str, str], tuple[float, float]]:
+    """(model, pose component) -> the lowest and highest, over (level, tracks) cells, of the median
+    observed / floor of the consistent scenes (NaN, NaN without a floor)."""
+    spans = {}
+    for model, k in itertools.product(models, POSE_COMPONENTS):
+        medians = []
+        for n, t in itertools.product(levels, tracks):
+            cell = [r for r in rows if (r["kind"], r["model"], r["noise_px"], r["tracks"]) == ("", model, n, t)]
+            ratios = [r[k] / r[f"{k}_floor"] for r in cell if r[f"{k}_floor"] > 0]
+            if ratios:
+                medians.append(np.median(ratios))
+        spans[model, k] = (min(medians), max(medians)) if medians else (np.nan, np.nan)
+    return spans
+
+
 def print_floors(rows: list[dict], models, levels, tracks) -> None:
     print("\n3. Floors: range over (level, tracks) cells of the median observed / floor (consistent scenes)")
     print("| noise model | " + " | ".join(POSE_COMPONENTS) + " |")
     print("|---|" + "---|" * len(POSE_COMPONENTS))
+    spans = floor_spans(rows, models, levels, tracks)
     for model in models:
-        spans = []
-        for k in POSE_COMPONENTS:
-            medians = []
-            for n, t in itertools.product(levels, tracks):
-                cell = [r for r in rows if (r["kind"], r["model"], r["noise_px"], r["tracks"]) == ("", model, n, t)]
-                ratios = [r[k] / r[f"{k}_floor"] for r in cell if r[f"{k}_floor"] > 0]
-                if ratios:
-                    medians.append(np.median(ratios))
-            spans.append(f"{min(medians):.2f}-{max(medians):.2f}" if medians else "n/a")
-        print(f"| {model} | " + " | ".join(spans) + " |")
+        print(f"| {model} | " + " | ".join("n/a" if np.isnan(spans[model, k][0]) else
+                                           f"{spans[model, k][0]:.2f}-{spans[model, k][1]:.2f}" for k in POSE_COMPONENTS) + " |")
 
 
 def print_intervals(args, config: SGCConfig) -> None:
@@ -135,6 +147,61 @@ def print_intervals(args, config: SGCConfig) -> None:
               f"| {np.nanmedian(widths):.3f} |", flush=True)
 
 
+CLIP_KEY = ("scene", "model", "noise_px", "tracks", "kind", "severity")
+
+
+def consistent_medians(rows: list[dict]) -> dict[tuple, float]:
+    """(model, tracks, level) -> the median SGC of the consistent scenes."""
+    cells: dict[tuple, list[float]] = {}
+    for r in rows:
+        if r["kind"] == "":
+            cells.setdefault((r["model"], r["tracks"], r["noise_px"]), []).append(r["sgc"])
+    return {cell: float(np.nanmedian(scores)) for cell, scores in cells.items()}
+
+
+def largest_change(before: dict, after: dict) -> tuple[float, object]:
+    """The largest absolute change of a value between two tables of the same keys, and its key."""
+    changes = {key: abs(after[key] - before[key]) for key in before if np.isfinite(after[key] - before[key])}
+    key = max(changes, key=changes.get) if changes else None
+    return (changes[key] if key is not None else 0.0), key
+
+
+def print_against(rows: list[dict], other: list[dict], path: str, models, levels, tracks) -> None:
+    """Section 5: these rows against ``other`` (the same clips scored otherwise), clip by clip."""
+    mine, theirs = {tuple(r[c] for c in CLIP_KEY): r for r in rows}, {tuple(r[c] for c in CLIP_KEY): r for r in other}
+    shared = [key for key in mine if key in theirs]
+    print(f"\n5. Against {path}: {len(shared)} clips in both ({len(mine) - len(shared)} only here, "
+          f"{len(theirs) - len(shared)} only there)")
+    if not shared:
+        return
+    same_status = sum(mine[k]["status"] == theirs[k]["status"] for k in shared)
+    print(f"statuses the same: {same_status} of {len(shared)}")
+    print("| clips | abs. change of SGC: median | 99th pct. | largest | share above 0.05 |")
+    print("|---|---|---|---|---|")
+    groups = [("all", shared)] + [(f"{n:g} px", [k for k in shared if k[2] == n]) for n in levels] \
+        + [(m, [k for k in shared if k[1] == m]) for m in models] + [("consistent", [k for k in shared if k[4] == ""])]
+    for label, keys in groups:
+        change = np.array([abs(mine[k]["sgc"] - theirs[k]["sgc"]) for k in keys])
+        change = change[np.isfinite(change)]
+        if change.size:
+            print(f"| {label} | {np.median(change):.1e} | {np.percentile(change, 99):.3f} | {change.max():.3f} "
+                  f"| {np.mean(change > 0.05):.1%} |")
+    worst = max(shared, key=lambda k: np.nan_to_num(abs(mine[k]["sgc"] - theirs[k]["sgc"])))
+    print(f"largest: {dict(zip(CLIP_KEY, worst))}: {theirs[worst]['sgc']:.3f} there, {mine[worst]['sgc']:.3f} here")
+    keyed = [[{**r, "cell": (r["scene"], r["model"], r["noise_px"], r["tracks"])} for r in (table[k] for k in shared)]
+             for table in (theirs, mine)]
+    detection, medians, spans = ([f(keyed[0]), f(keyed[1])] for f in (
+        protocol.detection_table, consistent_medians, lambda rs: floor_spans(rs, models, levels, tracks)))
+    change, key = largest_change(*detection)
+    drop = min(detection[1][k] - detection[0][k] for k in detection[0])
+    print(f"detection shares: the largest change {change:.1%} ({key}), the largest drop {drop:+.1%}")
+    print("consistent cells' medians: the largest change {:.4f} ({}); clips above {:.2f}: {} there, {} here".format(
+        *largest_change(*medians), CONSISTENT_MAX,
+        *(sum(r["sgc"] > CONSISTENT_MAX for r in rs if r["kind"] == "") for rs in keyed)))
+    bounds = [{(*key, end): span[end] for key, span in table.items() for end in (0, 1)} for table in spans]
+    print("floors' range bounds: the largest change {:.3f} ({})".format(*largest_change(*bounds)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", default="test", choices=sorted(protocol.SPLITS))
@@ -146,6 +213,7 @@ def main() -> None:
     parser.add_argument("--rows", default=None, help="print the tables from this CSV instead of scoring")
     parser.add_argument("--intervals", action="store_true", help="also measure the intervals' coverage")
     parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    parser.add_argument("--against", default=None, help="rows (CSV) of the same grid scored otherwise: compared clip by clip")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
     rows = protocol.read_rows(args.rows, ("scene", "model", "kind", "status"), ("tracks",)) if args.rows else score_rows(args, config)
@@ -157,6 +225,9 @@ def main() -> None:
     print_floors(rows, args.models, args.levels, args.tracks)
     if args.intervals:
         print_intervals(args, config)
+    if args.against:
+        other = protocol.read_rows(args.against, ("scene", "model", "kind", "status"), ("tracks",))
+        print_against(rows, other, args.against, args.models, args.levels, args.tracks)
 
 
 if __name__ == "__main__":
