@@ -66,14 +66,24 @@ def score_rows(args, config: SGCConfig) -> list[dict]:
     return rows
 
 
+def consistent_medians(rows: list[dict]) -> dict[tuple, float]:
+    """(model, tracks, level) -> the median SGC of the consistent scenes."""
+    cells: dict[tuple, list[float]] = {}
+    for r in rows:
+        if r["kind"] == "":
+            cells.setdefault((r["model"], r["tracks"], r["noise_px"]), []).append(r["sgc"])
+    return {cell: float(np.nanmedian(scores)) for cell, scores in cells.items()}
+
+
 def print_consistent(rows: list[dict], models, levels, tracks) -> None:
     print("\n1. Consistent scenes: median SGC over scenes at each noise level (px)")
     print("| noise model | tracks | " + " | ".join(f"{n:g} px" for n in levels)
           + f" | rise 0.5 -> 2 | largest clip | clips above {CONSISTENT_MAX:.2f} |")
     print("|---|---|" + "---|" * (len(levels) + 3))
+    cell_medians = consistent_medians(rows)
     for model, t in itertools.product(models, tracks):
         cell = [r for r in rows if (r["kind"], r["model"], r["tracks"]) == ("", model, t)]
-        medians = {n: np.nanmedian([r["sgc"] for r in cell if r["noise_px"] == n]) for n in levels}
+        medians = {n: cell_medians.get((model, t, n), np.nan) for n in levels}
         rise = medians.get(2.0, np.nan) - medians.get(0.5, np.nan)
         scores = [r["sgc"] for r in cell]
         above = sum(score > CONSISTENT_MAX for score in scores)
@@ -150,15 +160,6 @@ def print_intervals(args, config: SGCConfig) -> None:
 CLIP_KEY = ("scene", "model", "noise_px", "tracks", "kind", "severity")
 
 
-def consistent_medians(rows: list[dict]) -> dict[tuple, float]:
-    """(model, tracks, level) -> the median SGC of the consistent scenes."""
-    cells: dict[tuple, list[float]] = {}
-    for r in rows:
-        if r["kind"] == "":
-            cells.setdefault((r["model"], r["tracks"], r["noise_px"]), []).append(r["sgc"])
-    return {cell: float(np.nanmedian(scores)) for cell, scores in cells.items()}
-
-
 def largest_change(before: dict, after: dict) -> tuple[float, object]:
     """The largest absolute change of a value between two tables of the same keys, and its key."""
     changes = {key: abs(after[key] - before[key]) for key in before if np.isfinite(after[key] - before[key])}
@@ -188,17 +189,18 @@ def print_against(rows: list[dict], other: list[dict], path: str, models, levels
                   f"| {np.mean(change > 0.05):.1%} |")
     worst = max(shared, key=lambda k: np.nan_to_num(abs(mine[k]["sgc"] - theirs[k]["sgc"])))
     print(f"largest: {dict(zip(CLIP_KEY, worst))}: {theirs[worst]['sgc']:.3f} there, {mine[worst]['sgc']:.3f} here")
-    keyed = [[{**r, "cell": (r["scene"], r["model"], r["noise_px"], r["tracks"])} for r in (table[k] for k in shared)]
-             for table in (theirs, mine)]
-    detection, medians, spans = ([f(keyed[0]), f(keyed[1])] for f in (
-        protocol.detection_table, consistent_medians, lambda rs: floor_spans(rs, models, levels, tracks)))
-    change, key = largest_change(*detection)
-    drop = min(detection[1][k] - detection[0][k] for k in detection[0])
+    before = [{**theirs[k], "cell": k[:4]} for k in shared]  # cell: (scene, model, noise_px, tracks)
+    after = [{**mine[k], "cell": k[:4]} for k in shared]
+    detection_before, detection_after = protocol.detection_table(before), protocol.detection_table(after)
+    change, key = largest_change(detection_before, detection_after)
+    drop = min(detection_after[k] - detection_before[k] for k in detection_before)
     print(f"detection shares: the largest change {change:.1%} ({key}), the largest drop {drop:+.1%}")
-    print("consistent cells' medians: the largest change {:.4f} ({}); clips above {:.2f}: {} there, {} here".format(
-        *largest_change(*medians), CONSISTENT_MAX,
-        *(sum(r["sgc"] > CONSISTENT_MAX for r in rs if r["kind"] == "") for rs in keyed)))
-    bounds = [{(*key, end): span[end] for key, span in table.items() for end in (0, 1)} for table in spans]
+    change, key = largest_change(consistent_medians(before), consistent_medians(after))
+    above = [sum(r["sgc"] > CONSISTENT_MAX for r in table if r["kind"] == "") for table in (before, after)]
+    print(f"consistent cells' medians: the largest change {change:.4f} ({key}); "
+          f"clips above {CONSISTENT_MAX:.2f}: {above[0]} there, {above[1]} here")
+    bounds = [{(*cell, end): span[end] for cell, span in floor_spans(table, models, levels, tracks).items() for end in (0, 1)}
+              for table in (before, after)]
     print("floors' range bounds: the largest change {:.3f} ({})".format(*largest_change(*bounds)))
 
 
