@@ -13,7 +13,8 @@ with ``--out`` instead of scoring. Prints, for the split:
    its rise from 0.5 to 2 px (the bar: <= 0.02), the largest single clip and how many of the
    cell's clips score above 0.10 (the bar: none);
 2. detection: per inconsistency and severity, the share of cells (scene, model, level, tracks)
-   where it scores strictly above its consistent twin (the bar at 0.25: >= 95 %), also per model;
+   where it scores strictly above its consistent twin, which carries the same noise draw (the bar
+   at 0.25: >= 95 %; bench/information_limit.py counts it against independent draws), also per model;
    the mover also apart in the cells where it is seen and those where it is hidden (fewer usable
    tracks on it than a pose needs, ``protocol.hidden_movers``);
 3. floors: per noise model, the range over (level, tracks) cells of the median observed / floor of
