@@ -55,9 +55,13 @@ def score_rows(args) -> list[dict]:
         result = score_batch([b[-1] for b in batch], progress=False)
         for (model, px, draw, kind, _), clip in zip(batch, result.clips):
             rows.append(dict(scene=scene.name, model=model, noise_px=px, draw=draw, kind=kind, sgc=clip.sgc,
-                             **clip.components))
+                             **clip.components, **clip.floors))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     return rows
+
+
+def column(rows: list[dict], key: str) -> np.ndarray:
+    return np.array([r[key] for r in rows], np.float64)
 
 
 def above_all(values: np.ndarray, consistent: np.ndarray) -> float:
@@ -69,15 +73,16 @@ def scene_shares(rows: list[dict], kind: str) -> dict[str, float]:
     """One scene's draws under one model and level -> its paired, calm and oracle shares for ``kind``."""
     consistent = sorted((r for r in rows if r["kind"] == ""), key=lambda r: r["draw"])
     perturbed = sorted((r for r in rows if r["kind"] == kind), key=lambda r: r["draw"])
-    column = lambda rs, k: np.array([r[k] for r in rs], np.float64)  # noqa: E731
-    median = {k: np.nanmedian(column(consistent, k)) for k in COMPONENTS}
-    log_ratio = lambda rs: sum(np.log(np.maximum(column(rs, k), 1e-12) / max(median[k], 1e-12))  # noqa: E731
-                               for k in COMPONENTS)
-    return dict(paired=float(np.mean(np.nan_to_num(column(perturbed, "sgc"), nan=-1.0)
-                                     > np.nan_to_num(column(consistent, "sgc"), nan=0.0))),
+    median = {k: max(np.nanmedian(column(consistent, k)), 1e-12) for k in COMPONENTS}
+
+    def log_ratios(draws):  # the oracle's sum over the five components
+        return sum(np.log(np.maximum(column(draws, k), 1e-12) / median[k]) for k in COMPONENTS)
+
+    paired = np.nan_to_num(column(perturbed, "sgc"), nan=-1.0) > np.nan_to_num(column(consistent, "sgc"), nan=0.0)
+    return dict(paired=float(np.mean(paired)),
                 calm=above_all(column(perturbed, "sgc"), column(consistent, "sgc")),
                 best=max(above_all(column(perturbed, k), column(consistent, k)) for k in COMPONENTS),
-                combined=above_all(log_ratio(perturbed), log_ratio(consistent)),
+                combined=above_all(log_ratios(perturbed), log_ratios(consistent)),
                 largest=float(np.nanmax(column(consistent, "sgc"))))
 
 
@@ -103,7 +108,7 @@ def main() -> None:
     parser.add_argument("--split", default="test", choices=sorted(protocol.SPLITS))
     parser.add_argument("--draws", type=int, default=12, help="noise draws per scene, model and level")
     parser.add_argument("--tracks", type=int, default=1000)
-    parser.add_argument("--out", default=None, help="CSV of every clip's score and components")
+    parser.add_argument("--out", default=None, help="CSV of every clip's score, components and floors")
     parser.add_argument("--rows", default=None, help="print the table from this CSV instead of scoring")
     args = parser.parse_args()
     rows = protocol.read_rows(args.rows, ("scene", "model", "kind"), ("draw",)) if args.rows else score_rows(args)
