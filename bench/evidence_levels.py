@@ -122,9 +122,7 @@ def main(argv=None) -> None:
     parser.add_argument("--out", help="write the rows to this CSV")
     parser.add_argument("--rows", help="print the tables from a CSV written with --out")
     args = parser.parse_args(argv)
-    rows = protocol.read_rows(args.rows, ("scene", "sweep", "kind", "status")) if args.rows else score_rows(args)
-    if args.out and not args.rows:
-        protocol.write_rows(args.out, rows)
+    rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args), ("scene", "sweep", "kind", "status"))
     print(f"split {args.split}, noise iid-both at {args.levels} px")
     print_sweeps(rows)
 

@@ -111,9 +111,7 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="CSV of every clip's score, components and floors")
     parser.add_argument("--rows", default=None, help="print the table from this CSV instead of scoring")
     args = parser.parse_args()
-    rows = protocol.read_rows(args.rows, ("scene", "model", "kind"), ("draw",)) if args.rows else score_rows(args)
-    if args.out and not args.rows:
-        protocol.write_rows(args.out, rows)
+    rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args), ("scene", "model", "kind"), ("draw",))
     print(f"split {args.split}, {args.tracks} tracks")
     print_table(rows)
 

@@ -219,9 +219,8 @@ def main() -> None:
     parser.add_argument("--against", default=None, help="rows (CSV) of the same grid scored otherwise: compared clip by clip")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
-    rows = protocol.read_rows(args.rows, ("scene", "model", "kind", "status"), ("tracks",)) if args.rows else score_rows(args, config)
-    if args.out and not args.rows:
-        protocol.write_rows(args.out, rows)
+    rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, config),
+                                        ("scene", "model", "kind", "status"), ("tracks",))
     print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
     print_consistent(rows, args.models, args.levels, args.tracks)
     print_detection(rows, args.models, args.split, config)

@@ -22,6 +22,7 @@ from sgc_jax.research.protocol import (
     Cell,
     cell_clips,
     detection_table,
+    rows_scored_or_read,
     tracks_on_mover,
 )
 from sgc_jax.research.synth import synth_clip
@@ -195,6 +196,17 @@ def test_with_errors_at_both_track_ends_each_perturbation_scores_above_its_consi
     for (seed, kind), clip in both_ends_scores.items():
         if kind:
             assert clip.sgc > both_ends_scores[(seed, "")].sgc, (seed, kind, clip.sgc)
+
+
+def test_benchmark_rows_are_written_when_scored_and_read_back_unscored(tmp_path):
+    rows = [dict(scene="fit-0", kind="", tracks=200, sgc=0.5), dict(scene="fit-0", kind="warp", tracks=200, sgc=np.nan)]
+    path = tmp_path / "rows.csv"
+    scored = rows_scored_or_read(None, path, lambda: rows, ("scene", "kind"), ("tracks",))
+    read = rows_scored_or_read(path, None, lambda: pytest.fail("read rows are not scored again"), ("scene", "kind"),
+                               ("tracks",))
+    assert scored == rows
+    assert [r["scene"] for r in read] == ["fit-0", "fit-0"] and [r["tracks"] for r in read] == [200, 200]
+    assert read[0]["sgc"] == 0.5 and np.isnan(read[1]["sgc"]) and [r["kind"] for r in read] == ["", "warp"]
 
 
 @pytest.mark.parametrize("seed", [3, 4])

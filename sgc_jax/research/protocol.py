@@ -25,7 +25,7 @@ import csv
 import dataclasses
 import itertools
 import os
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -210,4 +210,16 @@ def read_rows(path: str | os.PathLike, text: Sequence[str], integers: Sequence[s
                 r[key] = int(value)
             elif key not in text:
                 r[key] = float(value) if value not in ("", "nan") else float("nan")
+    return rows
+
+
+def rows_scored_or_read(rows_path: str | None, out_path: str | None, score: Callable[[], list[dict]],
+                        text: Sequence[str], integers: Sequence[str] = ()) -> list[dict]:
+    """A benchmark's rows: read from ``rows_path`` (a CSV an earlier run wrote, ``read_rows``), or
+    made by ``score()`` and written to ``out_path`` when one is given."""
+    if rows_path:
+        return read_rows(rows_path, text, integers)
+    rows = score()
+    if out_path:
+        write_rows(out_path, rows)
     return rows
