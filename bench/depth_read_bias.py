@@ -19,10 +19,10 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sgc_jax.engines.reference_pose import least_squares_pose, residual_jacobian
 from sgc_jax.research import protocol
+from sgc_jax.research.pose_jitter import rotation_log_deg
 
 
 def lift(depth: np.ndarray, K: np.ndarray, ray_px: np.ndarray, depth_px: np.ndarray):
@@ -63,7 +63,7 @@ def pair_bias(clip, i: int, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarr
         X, valid = lift(depth, K0, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
         curr = c + args.px * rng.standard_normal(c.shape)
         fitted = least_squares_pose(X[valid], curr[valid], K1, (R, t))
-        errors.append(np.degrees(Rotation.from_matrix(fitted.R @ R.T).as_rotvec()))
+        errors.append(rotation_log_deg(fitted.R @ R.T))
     errors = np.array(errors)
     return (errors.mean(0), errors.std(0, ddof=1) / np.sqrt(len(errors)), predicted,
             float(np.sqrt(np.trace(np.cov(errors.T)))))
