@@ -213,8 +213,9 @@ def read_rows(path: str | os.PathLike, text: Sequence[str], integers: Sequence[s
     return rows
 
 
-def rows_scored_or_read(rows_path: str | None, out_path: str | None, score: Callable[[], list[dict]],
-                        text: Sequence[str], integers: Sequence[str] = ()) -> list[dict]:
+def rows_scored_or_read(rows_path: str | os.PathLike | None, out_path: str | os.PathLike | None,
+                        score: Callable[[], list[dict]], text: Sequence[str],
+                        integers: Sequence[str] = ()) -> list[dict]:
     """A benchmark's rows: read from ``rows_path`` (a CSV an earlier run wrote, ``read_rows``), or
     made by ``score()`` and written to ``out_path`` when one is given."""
     if rows_path:
