@@ -3,6 +3,7 @@
 error's size alone.
 
     python bench/depth_read_bias.py [--scenes fit-0 fit-2] [--px 2] [--draws 30] [--samples 200] [--read both|ray|depth]
+                                    [--regions [--min-tracks 30]]
 
 One region per pair, every static track with depth: the scene's exact tracks plus Gaussian errors
 of ``--px`` at both ends, each draw fitted by the reference engine's least squares from the true
@@ -12,16 +13,21 @@ pixel), ``--read depth`` the depth read only. Prints per pair the mean rotation 
 draws (and its standard error), the prediction −(E[JᵀJ])⁻¹ E[Jᵀ r] at the true pose, J and r of
 the points lifted at displaced pixels and the exact frame-i track, the expectations over
 ``--samples`` displacements of every track (no draw of the clip is fitted), and one draw's spread.
+With ``--regions``, one pose per depth layer of the pair (the engine's regions, read at the exact
+frame-(i−1) pixel; every member fitted, without RANSAC or a cut), and the layers' bias² over
+spread², observed and predicted.
 """
 
 from __future__ import annotations
 
 import argparse
+from typing import NamedTuple
 
 import numpy as np
 
 from sgc_jax.engines.reference_pose import least_squares_pose, residual_jacobian
 from sgc_jax.research import protocol
+from sgc_jax.research.diagnostics import region_labels
 from sgc_jax.research.pose_jitter import rotation_log_deg
 
 
@@ -40,17 +46,33 @@ def displaced(read: str, exact: np.ndarray, noisy: np.ndarray) -> tuple[np.ndarr
     return (exact if read == "depth" else noisy), (exact if read == "ray" else noisy)
 
 
-def pair_bias(clip, i: int, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """(observed mean rotation error (3,) [deg], its standard error (3,), predicted (3,), spread) of pair i."""
+class PairTracks(NamedTuple):
+    """A pair's static tracks with depth at their exact frame-(i−1) pixel, and its true pose."""
+
+    R: np.ndarray  # (3, 3) camera i-1 -> i
+    t: np.ndarray  # (3,)
+    K_prev: np.ndarray
+    K_curr: np.ndarray
+    depth: np.ndarray  # (H, W) of frame i-1
+    prev: np.ndarray  # (n, 2) px
+    curr: np.ndarray  # (n, 2) px
+
+
+def pair_tracks(clip, i: int) -> PairTracks:
+    """Pair i's (frames i -> i+1) exact static tracks with depth and its true relative pose."""
     R = clip.R_wc[i + 1] @ clip.R_wc[i].T
-    t = clip.t_wc[i + 1] - R @ clip.t_wc[i]
-    K0, K1, depth = clip.K[i], clip.K[i + 1], clip.depth[i]
     p, c = clip.track_prev[i].astype(np.float64), clip.track_curr[i].astype(np.float64)
     H, W = clip.image_size
     static = clip.static_mask[i][np.clip(np.floor(p[:, 1]).astype(int), 0, H - 1),
                                  np.clip(np.floor(p[:, 0]).astype(int), 0, W - 1)]
-    has_depth = lift(depth, K0, p, p)[1]
-    p, c = p[clip.track_vis[i] & static & has_depth], c[clip.track_vis[i] & static & has_depth]
+    keep = clip.track_vis[i] & static & lift(clip.depth[i], clip.K[i], p, p)[1]
+    return PairTracks(R, clip.t_wc[i + 1] - R @ clip.t_wc[i], clip.K[i], clip.K[i + 1], clip.depth[i], p[keep], c[keep])
+
+
+def rotation_bias(tracks: PairTracks, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(observed mean rotation error (3,) [deg] over ``args.draws`` fits, its standard error (3,),
+    predicted (3,), one draw's spread [deg]) of one pose fitted to ``tracks``."""
+    R, t, K0, K1, depth, p, c = tracks
     gradient, normal = np.zeros(6), np.zeros((6, 6))
     for _ in range(args.samples):
         X, valid = lift(depth, K0, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
@@ -69,6 +91,33 @@ def pair_bias(clip, i: int, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarr
             float(np.sqrt(np.trace(np.cov(errors.T)))))
 
 
+def region_subsets(clip, i: int, tracks: PairTracks, min_tracks: int) -> list[tuple[int, PairTracks]]:
+    """(label, tracks) of each depth layer of pair i (``research.diagnostics.region_labels``, read at
+    the exact frame-(i−1) pixel) holding at least ``min_tracks`` of them."""
+    labels = region_labels(clip, i + 1)
+    H, W = labels.shape
+    label = labels[np.clip(np.floor(tracks.prev[:, 1]).astype(int), 0, H - 1),
+                   np.clip(np.floor(tracks.prev[:, 0]).astype(int), 0, W - 1)]
+    return [(int(k), tracks._replace(prev=tracks.prev[label == k], curr=tracks.curr[label == k]))
+            for k in np.unique(label) if k > 0 and np.sum(label == k) >= min_tracks]
+
+
+def fmt(v) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
+
+
+def print_regions(clip, name: str, args, rng) -> list[tuple[float, float, float]]:
+    """One row per depth layer; returns (observed bias², predicted bias², spread²) per layer [deg²]."""
+    out = []
+    for i in range(clip.track_prev.shape[0]):
+        for label, tracks in region_subsets(clip, i, pair_tracks(clip, i), args.min_tracks):
+            mean, stderr, predicted, spread = rotation_bias(tracks, args, rng)
+            out.append((float(mean @ mean - stderr @ stderr), float(predicted @ predicted), spread ** 2))
+            print(f"| {name} | {i} | {label} ({len(tracks.prev)}) | {fmt(mean)} | {fmt(stderr)} | {fmt(predicted)} "
+                  f"| {spread:.3f} |", flush=True)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=["fit-0", "fit-2"], help="FIT scenes (protocol.FIT_SCENES)")
@@ -77,18 +126,30 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=200, help="displacements per track for the prediction")
     parser.add_argument("--read", choices=("both", "ray", "depth"), default="both")
     parser.add_argument("--tracks", type=int, default=1000)
+    parser.add_argument("--regions", action="store_true", help="one pose per depth layer instead of per pair")
+    parser.add_argument("--min-tracks", type=int, default=30, help="with --regions: the layers' fewest tracks")
     args = parser.parse_args()
     scenes = {scene.name: scene for scene in protocol.FIT_SCENES}
     rng = np.random.default_rng(0)
-    print(f"errors {args.px:g} px at both ends, read displaced: {args.read}; {args.draws} draws a pair")
-    print("| scene | pair | mean rotation error [deg] | its standard error | predicted [deg] | spread of one draw [deg] |")
-    print("|---|---|---|---|---|---|")
+    print(f"errors {args.px:g} px at both ends, read displaced: {args.read}; {args.draws} draws a "
+          + ("depth layer" if args.regions else "pair"))
+    print("| scene | pair | " + ("layer (tracks) | " if args.regions else "")
+          + "mean rotation error [deg] | its standard error | predicted [deg] | spread of one draw [deg] |")
+    print("|---|---|" + ("---|" if args.regions else "") + "---|---|---|---|")
+    layers = []
     for name in args.scenes:
         clip = scenes[name].clip(args.tracks)
+        if args.regions:
+            layers += print_regions(clip, name, args, rng)
+            continue
         for i in range(clip.track_prev.shape[0]):
-            mean, stderr, predicted, spread = pair_bias(clip, i, args, rng)
-            fmt = lambda v: "(" + ", ".join(f"{x:.3f}" for x in v) + ")"  # noqa: E731
+            mean, stderr, predicted, spread = rotation_bias(pair_tracks(clip, i), args, rng)
             print(f"| {name} | {i} | {fmt(mean)} | {fmt(stderr)} | {fmt(predicted)} | {spread:.3f} |", flush=True)
+    if layers:
+        observed, predicted, spread = np.array(layers).T
+        print(f"{len(layers)} layers: bias² / spread², observed (less its sampling share) median "
+              f"{np.median(observed / spread):.2f}, mean {np.mean(observed / spread):.2f}; predicted median "
+              f"{np.median(predicted / spread):.2f}, mean {np.mean(predicted / spread):.2f}")
 
 
 if __name__ == "__main__":
