@@ -25,20 +25,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sgc_jax.engines import reference
 from sgc_jax.engines.reference_pose import least_squares_pose, residual_jacobian
 from sgc_jax.research import protocol
 from sgc_jax.research.diagnostics import region_labels
 from sgc_jax.research.pose_jitter import rotation_log_deg
 
 
-def lift(depth: np.ndarray, K: np.ndarray, ray_px: np.ndarray, depth_px: np.ndarray):
-    """Points (n, 3) on the rays of ``ray_px`` at the depth read at ``depth_px`` (the floor pixel), and
-    whether that depth is valid (n,)."""
-    H, W = depth.shape
-    col = np.clip(np.floor(depth_px[:, 0]).astype(int), 0, W - 1)
-    row = np.clip(np.floor(depth_px[:, 1]).astype(int), 0, H - 1)
-    Z = depth[row, col].astype(np.float64)
-    return np.linalg.solve(K, np.column_stack([ray_px, np.ones(len(ray_px))]).T).T * Z[:, None], Z > 0
+def lift(clip, i: int, ray_px: np.ndarray, depth_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (n, 3) in camera i on the rays of ``ray_px`` at the depth frame i's map has at
+    ``depth_px`` (the engines' read, ``reference.back_project_tracks``), and where it is valid (n,)."""
+    at_read, valid = reference.back_project_tracks(clip, i + 1, depth_px)
+    return reference.back_project(clip.K[i], ray_px, at_read[:, 2]), valid
 
 
 def displaced(read: str, exact: np.ndarray, noisy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,11 +47,9 @@ def displaced(read: str, exact: np.ndarray, noisy: np.ndarray) -> tuple[np.ndarr
 class PairTracks(NamedTuple):
     """A pair's static tracks with depth at their exact frame-(i−1) pixel, and its true pose."""
 
-    R: np.ndarray  # (3, 3) camera i-1 -> i
+    i: int  # frames i -> i+1
+    R: np.ndarray  # (3, 3) camera i -> i+1
     t: np.ndarray  # (3,)
-    K_prev: np.ndarray
-    K_curr: np.ndarray
-    depth: np.ndarray  # (H, W) of frame i-1
     prev: np.ndarray  # (n, 2) px
     curr: np.ndarray  # (n, 2) px
 
@@ -62,29 +58,28 @@ def pair_tracks(clip, i: int) -> PairTracks:
     """Pair i's (frames i -> i+1) exact static tracks with depth and its true relative pose."""
     R = clip.R_wc[i + 1] @ clip.R_wc[i].T
     p, c = clip.track_prev[i].astype(np.float64), clip.track_curr[i].astype(np.float64)
-    H, W = clip.image_size
-    static = clip.static_mask[i][np.clip(np.floor(p[:, 1]).astype(int), 0, H - 1),
-                                 np.clip(np.floor(p[:, 0]).astype(int), 0, W - 1)]
-    keep = clip.track_vis[i] & static & lift(clip.depth[i], clip.K[i], p, p)[1]
-    return PairTracks(R, clip.t_wc[i + 1] - R @ clip.t_wc[i], clip.K[i], clip.K[i + 1], clip.depth[i], p[keep], c[keep])
+    static = reference.point_regions(clip.static_mask[i].astype(np.int32), p) > 0
+    keep = clip.track_vis[i] & static & lift(clip, i, p, p)[1]
+    return PairTracks(i, R, clip.t_wc[i + 1] - R @ clip.t_wc[i], p[keep], c[keep])
 
 
-def rotation_bias(tracks: PairTracks, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def rotation_bias(clip, tracks: PairTracks, args, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """(observed mean rotation error (3,) [deg] over ``args.draws`` fits, its standard error (3,),
     predicted (3,), one draw's spread [deg]) of one pose fitted to ``tracks``."""
-    R, t, K0, K1, depth, p, c = tracks
+    i, R, t, p, c = tracks
+    K_curr = clip.K[i + 1]
     gradient, normal = np.zeros(6), np.zeros((6, 6))
     for _ in range(args.samples):
-        X, valid = lift(depth, K0, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
-        r, J = residual_jacobian(X[valid], c[valid], K1, R, t)
+        X, valid = lift(clip, i, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
+        r, J = residual_jacobian(X[valid], c[valid], K_curr, R, t)
         gradient += J.T @ r / args.samples
         normal += J.T @ J / args.samples
     predicted = np.degrees(-np.linalg.solve(normal, gradient)[:3])
     errors = []
     for _ in range(args.draws):
-        X, valid = lift(depth, K0, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
+        X, valid = lift(clip, i, *displaced(args.read, p, p + args.px * rng.standard_normal(p.shape)))
         curr = c + args.px * rng.standard_normal(c.shape)
-        fitted = least_squares_pose(X[valid], curr[valid], K1, (R, t))
+        fitted = least_squares_pose(X[valid], curr[valid], K_curr, (R, t))
         errors.append(rotation_log_deg(fitted.R @ R.T))
     errors = np.array(errors)
     return (errors.mean(0), errors.std(0, ddof=1) / np.sqrt(len(errors)), predicted,
@@ -94,10 +89,7 @@ def rotation_bias(tracks: PairTracks, args, rng) -> tuple[np.ndarray, np.ndarray
 def region_subsets(clip, i: int, tracks: PairTracks, min_tracks: int) -> list[tuple[int, PairTracks]]:
     """(label, tracks) of each depth layer of pair i (``research.diagnostics.region_labels``, read at
     the exact frame-(i−1) pixel) holding at least ``min_tracks`` of them."""
-    labels = region_labels(clip, i + 1)
-    H, W = labels.shape
-    label = labels[np.clip(np.floor(tracks.prev[:, 1]).astype(int), 0, H - 1),
-                   np.clip(np.floor(tracks.prev[:, 0]).astype(int), 0, W - 1)]
+    label = reference.point_regions(region_labels(clip, i + 1), tracks.prev)
     return [(int(k), tracks._replace(prev=tracks.prev[label == k], curr=tracks.curr[label == k]))
             for k in np.unique(label) if k > 0 and np.sum(label == k) >= min_tracks]
 
@@ -111,7 +103,7 @@ def print_regions(clip, name: str, args, rng) -> list[tuple[float, float, float]
     out = []
     for i in range(clip.track_prev.shape[0]):
         for label, tracks in region_subsets(clip, i, pair_tracks(clip, i), args.min_tracks):
-            mean, stderr, predicted, spread = rotation_bias(tracks, args, rng)
+            mean, stderr, predicted, spread = rotation_bias(clip, tracks, args, rng)
             out.append((float(mean @ mean - stderr @ stderr), float(predicted @ predicted), spread ** 2))
             print(f"| {name} | {i} | {label} ({len(tracks.prev)}) | {fmt(mean)} | {fmt(stderr)} | {fmt(predicted)} "
                   f"| {spread:.3f} |", flush=True)
@@ -143,7 +135,7 @@ def main() -> None:
             layers += print_regions(clip, name, args, rng)
             continue
         for i in range(clip.track_prev.shape[0]):
-            mean, stderr, predicted, spread = rotation_bias(pair_tracks(clip, i), args, rng)
+            mean, stderr, predicted, spread = rotation_bias(clip, pair_tracks(clip, i), args, rng)
             print(f"| {name} | {i} | {fmt(mean)} | {fmt(stderr)} | {fmt(predicted)} | {spread:.3f} |", flush=True)
     if layers:
         observed, predicted, spread = np.array(layers).T

@@ -159,6 +159,7 @@ def print_intervals(args, config: SGCConfig) -> None:
 
 
 CLIP_KEY = ("scene", "model", "noise_px", "tracks", "kind", "severity")
+ROW_TEXT, ROW_INTEGERS = ("scene", "model", "kind", "status"), ("tracks",)  # the rows' columns read as written
 
 
 def largest_change(before: dict, after: dict) -> tuple[float, object]:
@@ -219,8 +220,7 @@ def main() -> None:
     parser.add_argument("--against", default=None, help="rows (CSV) of the same grid scored otherwise: compared clip by clip")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
-    rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, config),
-                                        ("scene", "model", "kind", "status"), ("tracks",))
+    rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, config), ROW_TEXT, ROW_INTEGERS)
     print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
     print_consistent(rows, args.models, args.levels, args.tracks)
     print_detection(rows, args.models, args.split, config)
@@ -228,7 +228,7 @@ def main() -> None:
     if args.intervals:
         print_intervals(args, config)
     if args.against:
-        other = protocol.read_rows(args.against, ("scene", "model", "kind", "status"), ("tracks",))
+        other = protocol.read_rows(args.against, ROW_TEXT, ROW_INTEGERS)
         print_against(rows, other, args.against, args.models, args.levels, args.tracks)
 
 
