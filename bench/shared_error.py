@@ -84,7 +84,8 @@ def analyse(clip, config: SGCConfig, block_fracs, calibration):
                 X, uv = pp.X[member], pp.uv[member]
                 usual = (pairs.region_rot_std[p, j], pairs.region_trans_std[p, j])
                 noise[f][0][p, j], noise[f][1][p, j] = floor_noise(
-                    X, uv, K, pairs.R_local[p, j], pairs.t_local[p, j], usual, f * diagonal, config.inlier_px)
+                    X, uv, K, pairs.R_local[p, j], pairs.t_local[p, j], usual, pairs.region_sigma_px[p, j],
+                    f * diagonal, config.inlier_px)
             ratios[f] += scatter_ratios(R, [noise[f][0][p, j] for j in accepted])
         if accepted and not clip.clip_id.startswith("synth"):
             outliers += outlying_regions(clip, scaled, pairs, pair, pp, accepted, config)

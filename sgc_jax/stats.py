@@ -181,3 +181,29 @@ def trimmed(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
 def trimmed_mean(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
     """The mean of ``trimmed`` values over the last axis; NaN where none is."""
     return nanmean(values, trimmed(values, valid, compat, xp), xp)
+
+
+# The least-squares fit on the residuals within a cut, corrected as an isotropic 2-D Gaussian's
+# (docs/semantics.md §3.10): iterations of the fixed point for its sigma, and the largest factor the
+# floors take, chosen on FIT (1.5 and 4 calmed as many clips and cost more warp detection;
+# bench/history/issue-58.md, "The floors' noise corrected for the inlier cut").
+CUT_ITERATIONS = 16
+MAX_CUT_FACTOR = 1.25
+
+
+def cut_variance_factor(sigma_sq: Any, cut_px: Any, xp=np, max_factor: float = MAX_CUT_FACTOR) -> Any:
+    """How much larger the covariance of a least-squares fit on the points whose 2-D residual is
+    within ``cut_px`` is than sigma_sq (J^T J)^-1 with ``sigma_sq`` their own residual variance per
+    coordinate, for isotropic Gaussian errors: (p / g)^2, p = 1 - e^-a the share of the points the
+    cut keeps and g = p - a e^-a that of their variance, a = cut² / (2 s²), s² = sigma_sq p / g the
+    errors' variance before the cut (a fixed point). 1 without a cut (inf), at most ``max_factor``.
+    The cut takes the tail's variance from sigma_sq (p / g) and the points it drops lower the fit's
+    efficiency (p / g again: the hard cut's sandwich covariance). NumPy or ``jax.numpy``."""
+    sigma_sq = xp.maximum(xp.asarray(sigma_sq), 1e-30)
+    true_sq = sigma_sq
+    for _ in range(CUT_ITERATIONS):
+        a = xp.minimum(cut_px**2 / (2.0 * true_sq), 60.0)  # beyond 60 the cut keeps everything
+        kept = -xp.expm1(-a)
+        kept_variance = xp.maximum(kept - a * xp.exp(-a), 1e-6)
+        true_sq = sigma_sq * kept / kept_variance
+    return xp.minimum((kept / kept_variance) ** 2, max_factor)

@@ -22,7 +22,7 @@ import numpy as np
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
-from ..stats import trimmed
+from ..stats import cut_variance_factor, trimmed
 from . import reference_pose as reference_pose_search
 from .evidence import parallax_px
 from .pairs import PairArrays, empty_pair_arrays
@@ -349,14 +349,16 @@ def block_covariance(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray
 
 
 def floor_noise(X: np.ndarray, uv: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                usual: tuple[float, float], block_px: float, inlier_px: float) -> tuple[float, float]:
+                usual: tuple[float, float], sigma: float, block_px: float, inlier_px: float) -> tuple[float, float]:
     """(RMS rotation error deg, RMS translation error) the noise floors count for an accepted pose
     (docs/semantics.md §3.10): each the larger of ``usual`` (``pose_uncertainty``'s) and the block
-    covariance's on the pose's inliers."""
+    covariance's on the pose's inliers, times the square root of ``stats.cut_variance_factor`` of
+    their residual sigma px and the cut inlier_px."""
     inliers = pose_inliers(X, uv, K, R, t, inlier_px)
     blocks = block_covariance(X[inliers], uv[inliers], K, R, t, block_px)
-    return (float(np.maximum(usual[0], np.degrees(np.sqrt(max(np.trace(blocks[:3, :3]), 0.0))))),
-            float(np.maximum(usual[1], np.sqrt(max(np.trace(blocks[3:, 3:]), 0.0)))))
+    cut = float(np.sqrt(cut_variance_factor(sigma**2, inlier_px)))
+    return (cut * float(np.maximum(usual[0], np.degrees(np.sqrt(max(np.trace(blocks[:3, :3]), 0.0))))),
+            cut * float(np.maximum(usual[1], np.sqrt(max(np.trace(blocks[3:, 3:]), 0.0)))))
 
 
 def pixel_extent(uv: np.ndarray) -> float:
@@ -704,7 +706,7 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
                 out["region_sigma_px"][p, j] = sigma
                 if config.compat != "authors":  # no floors there
                     out["region_rot_noise"][p, j], out["region_trans_noise"][p, j] = floor_noise(
-                        X, uv, K, pose.R, pose.t, usual, block_px, config.inlier_px)
+                        X, uv, K, pose.R, pose.t, usual, sigma, block_px, config.inlier_px)
                 if config.applies_quality_rule and pose.ambiguous and sigma <= config.quality_noise_px:
                     status = REGION_STATUS["ambiguous"]
                 elif config.applies_quality_rule and not good:

@@ -223,7 +223,7 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
     proper = jnp.abs(jnp.linalg.det(R) - 1.0) < 1e-3
     good = (n_inliers >= need) & jnp.all(jnp.isfinite(poses), axis=-1) & proper & jnp.isfinite(reproj_px)
     status = jnp.where(n_members < options.min_points, REGION_TOO_FEW_POINTS, jnp.where(good, REGION_OK, REGION_REJECTED))
-    uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers, noise_block_px)
+    uncertainty = pose_uncertainty(X, uv, region, K, poses, inliers, noise_block_px, cut_px=options.inlier_px)
     return PnPResult(R, t, status.astype(jnp.int32), n_members, n_inliers, inliers, reproj_px,
                      refined.ambiguous, uncertainty, refined.fitted)
 

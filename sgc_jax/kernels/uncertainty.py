@@ -16,6 +16,7 @@ import jax.numpy as jnp
 
 from ..codes import REGION_AMBIGUOUS, REGION_ILL_CONDITIONED, REGION_OK
 from ..config import BLOCKS_PER_AXIS
+from ..stats import cut_variance_factor
 from .fence import materialise
 from .linalg import solve_spd
 from .pnp import point_columns, pointwise_residuals
@@ -100,10 +101,11 @@ def block_covariance(jac: InlierJacobians, uv, region, block_px):
     return jac.covariance @ meat @ jac.covariance * correction[:, None, None]
 
 
-def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> PoseUncertainty:
+def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf, cut_px=jnp.inf) -> PoseUncertainty:
     """Covariance sigma^2 (J^T J)^-1 of each region's pose6 (k, 6), sigma^2 = sum e^2 / (2 n - 6)
     over its n inliers (arguments as ``inlier_jacobians``); the noise the floors count is the larger
-    of it and ``block_covariance`` over squares of side block_px (inf: one square, the usual)."""
+    of it and ``block_covariance`` over squares of side block_px (inf: one square, the usual), times
+    ``stats.cut_variance_factor`` of the inliers' cut cut_px (their error < cut_px; inf: none)."""
     jac = inlier_jacobians(X, uv, region, K, poses, inliers)
     onehot, covariance, mean_dist, fx = jac.onehot, jac.covariance, jac.mean_dist, jac.fx
     n = jnp.sum(onehot, axis=1)
@@ -117,8 +119,9 @@ def pose_uncertainty(X, uv, region, K, poses, inliers, block_px=jnp.inf) -> Pose
     # the same per px² of tracking error: the geometry alone, defined where a fit is exact (sigma 0)
     rot_per_px_sq = rot_trace / fx**2
     trans_per_px_sq = trans_trace * (mean_dist / fx) ** 2
-    rot_noise = jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
-    trans_noise = jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
+    cut = cut_variance_factor(sigma_sq, cut_px, xp=jnp)
+    rot_noise = cut * jnp.maximum(rot_var, trace(blocks, rot) / fx**2)
+    trans_noise = cut * jnp.maximum(trans_var, trace(blocks, trans) * (mean_dist / fx) ** 2)
     centroid = (onehot @ uv) / jnp.maximum(n, 1.0)[:, None]
     spread = onehot @ jnp.sum(uv**2, axis=-1) / jnp.maximum(n, 1.0) - jnp.sum(centroid**2, axis=-1)
     enough = n >= 4
