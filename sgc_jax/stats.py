@@ -1,7 +1,7 @@
 """Agreement statistics for score lists (docs/semantics.md §6.5): rank correlations, bootstrap CIs,
 min-max scaling; the median of a clip's depth values (§4) without a float64 copy; and the means
-both engines, the noise floors and the summaries share (NaN-aware, trimmed), written once for
-NumPy and ``jax.numpy``.
+both engines, the noise floors and the summaries share (NaN-aware, trimmed) and the inlier cut's
+variance factor the floors apply (§3.10), written once for NumPy and ``jax.numpy``.
 
 A thin layer over ``scipy.stats`` that fixes our conventions: every paired function drops the pairs
 where either value is NaN (or missing, ``None``) and returns NaN, without a warning, when fewer than
