@@ -30,6 +30,10 @@ MIN_CUT_PX = 1.0
 # so at most BLOCKS_PER_AXIS along either side of the image (W, H <= diagonal).
 NOISE_BLOCK_FRAC = 0.05
 BLOCKS_PER_AXIS = 21
+# The largest factor by which the floors count the inlier cut (docs/semantics.md §3.10,
+# ``stats.cut_variance_factor``), chosen on FIT: 1.5 and 4 calmed as many clips and cost more warp
+# detection (bench/history/issue-58.md, "The floors' noise corrected for the inlier cut").
+MAX_CUT_FACTOR = 1.25
 # Field names of earlier releases that config files and ``SGCConfig.from_dict`` still accept, with
 # a DeprecationWarning: old name -> field.
 DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}

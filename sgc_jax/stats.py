@@ -16,6 +16,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .config import MAX_CUT_FACTOR
+
 
 def _as_float(values: Any) -> np.ndarray:
     return np.asarray(values, np.float64).ravel()  # None -> NaN
@@ -183,12 +185,9 @@ def trimmed_mean(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
     return nanmean(values, trimmed(values, valid, compat, xp), xp)
 
 
-# The least-squares fit on the residuals within a cut, corrected as an isotropic 2-D Gaussian's
-# (docs/semantics.md §3.10): iterations of the fixed point for its sigma, and the largest factor the
-# floors take, chosen on FIT (1.5 and 4 calmed as many clips and cost more warp detection;
-# bench/history/issue-58.md, "The floors' noise corrected for the inlier cut").
+# Iterations of the fixed point for the errors' sigma before a cut (converged to 1e-9 relative
+# under MAX_CUT_FACTOR).
 CUT_ITERATIONS = 16
-MAX_CUT_FACTOR = 1.25
 
 
 def cut_variance_factor(sigma_sq: Any, cut_px: Any, xp=np, max_factor: float = MAX_CUT_FACTOR) -> Any:
