@@ -22,6 +22,10 @@ TRACKS_PER_LAYER = 70
 # nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
 # depth edge, not the slope of one surface).
 HOLE_DEPTH_MARGIN = 0.05
+# A surface that comes nearer by more than 2x between frames leaves gaps wider than a pixel between
+# its splats: a point magnified m times (2^l <= m < 2^(l+1)) also covers the pixels of its square
+# on a grid of side 2^l, for l = 1 .. HOLE_LEVELS (magnifications up to 2^(HOLE_LEVELS+1)).
+HOLE_LEVELS = 6
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5

@@ -205,3 +205,48 @@ def test_footprint_cover_is_the_nearest_point_whose_2x2_footprint_covers_each_pi
                         expected[iv, iu] = min(expected[iv, iu], zi)
     cover = jax.jit(warp._footprint_cover, static_argnums=(4, 5))(u, v, z, front, H, W)
     np.testing.assert_array_equal(np.asarray(cover).reshape(H, W), expected)
+
+
+def approach_to_a_square(magnification):
+    """A fronto-parallel square at depth 2 before a wall at depth 8 on a 48x64 image, and the
+    forward motion that magnifies the square ``magnification`` times to about 34 px a side ->
+    (depth0, K, t, square, wall): frame-1 masks of the square 1 px within its edge and of the wall
+    2 px beyond it there."""
+    K2 = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]], np.float32)
+    v, u = np.mgrid[:48, :64]
+    square = lambda half: (np.abs(u - K2[0, 2]) <= half) & (np.abs(v - K2[1, 2]) <= half)  # noqa: E731
+    half = np.floor(16.0 / magnification) + 0.5
+    depth0 = np.where(square(half), 2.0, 8.0).astype(np.float32)
+    t = np.array([0.0, 0.0, -(2.0 - 2.0 / magnification)], np.float32)
+    half *= magnification
+    return depth0, K2, t, square(half - 1.0), ~square(half + 2.0)
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+@pytest.mark.parametrize("magnification", [3.0, 5.0, 12.0])
+def test_no_background_shows_through_a_surface_magnified_many_times(engine, magnification):
+    depth0, K2, t, square, wall = approach_to_a_square(magnification)
+    if engine == "jax":
+        warped, hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K2, K2, I3, t, mask_holes=True))
+    else:
+        warped = reference.warp_depth(depth0, K2, K2, np.eye(3), t.astype(np.float64), mask_holes=True)
+        hit = warped > 0
+    near = 2.0 / magnification
+    assert hit[square].any() and hit[wall].any()
+    np.testing.assert_allclose(warped[square & hit], near, rtol=Z_RTOL)  # the square's own splats only
+    np.testing.assert_allclose(warped[wall & hit], 8.0 + t[2], rtol=Z_RTOL)
+
+
+def test_magnified_cover_matches_the_reference_level_by_level():
+    rng = np.random.default_rng(11)
+    Hm, Wm, n = 40, 56, 600
+    u = rng.uniform(-40.0, Wm + 40.0, n).astype(np.float32)
+    v = rng.uniform(-40.0, Hm + 40.0, n).astype(np.float32)
+    z = rng.uniform(0.1, 5.0, n).astype(np.float32)
+    magnification = np.exp2(rng.uniform(-1.0, warp.HOLE_LEVELS + 2.0, n)).astype(np.float32)
+    front = rng.uniform(size=n) > 0.1
+    points = warp.Splat(np.zeros(n, np.int32), z, u, v, front, magnification)
+    cover = jax.jit(warp._magnified_cover, static_argnums=(1, 2))(points, Hm, Wm)
+    expected = reference._magnified_cover(np.stack([u, v])[:, front].astype(np.float64), z[front].astype(np.float64),
+                                          magnification[front].astype(np.float64), Hm, Wm)
+    np.testing.assert_array_equal(np.asarray(cover).reshape(Hm, Wm), expected.astype(np.float32))

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, NOISE_BLOCK_FRAC, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, HOLE_LEVELS, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
 from ..stats import cut_variance_factor, trimmed
 from . import reference_pose as reference_pose_search
@@ -495,7 +495,8 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
     nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
     ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN`` lands among
-    the 2x2 pixels around its exact position (the splat is seen through a hole in that surface).
+    the 2x2 pixels around its exact position, or, magnified 2^l to 2^(l+1) times, among the 2x2
+    squares of side 2^l around it (the splat is seen through a hole in that surface).
     """
     H, W = depth_prev.shape
     rows, cols = np.nonzero(valid_depth(depth_prev))
@@ -507,6 +508,8 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     front = z > 1e-5
     proj = K_curr @ (cam[:, front] / z[front])
     z_front = z[front]
+    focal_ratio = np.sqrt(K_curr[0, 0] * K_curr[1, 1] / (K_prev[0, 0] * K_prev[1, 1]))
+    magnification = d[front] * focal_ratio / z_front
     iu, iv, z = np.floor(proj[0] + 0.5).astype(np.int64), np.floor(proj[1] + 0.5).astype(np.int64), z_front
     inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
     iu, iv, z = iu[inside], iv[inside], z[inside]
@@ -514,7 +517,8 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
         buffer = np.full((H, W), np.inf)
         np.minimum.at(buffer, (iv, iu), z)
         if mask_holes:
-            buffer[buffer > (1.0 + HOLE_DEPTH_MARGIN) * _footprint_cover(proj, z_front, H, W)] = np.inf
+            cover = np.minimum(_footprint_cover(proj, z_front, H, W), _magnified_cover(proj, z_front, magnification, H, W))
+            buffer[buffer > (1.0 + HOLE_DEPTH_MARGIN) * cover] = np.inf
         return np.where(np.isfinite(buffer), buffer, 0.0)
     buffer = np.zeros((H, W))
     np.maximum.at(buffer, (iv, iu), z)
@@ -530,6 +534,25 @@ def _footprint_cover(proj: np.ndarray, z: np.ndarray, H: int, W: int) -> np.ndar
             iu, iv = np.floor(proj[0]) + du, np.floor(proj[1]) + dv
             inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
             np.minimum.at(cover, (iv[inside].astype(np.int64), iu[inside].astype(np.int64)), z[inside])
+    return cover
+
+
+def _magnified_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: int, W: int) -> np.ndarray:
+    """(H, W) nearest z among the points magnified m times, 2^l <= m < 2^(l+1), l = 1 .. HOLE_LEVELS
+    (the last level also beyond), whose squares floor(u / 2^l) + {0, 1}, floor(v / 2^l) + {0, 1}
+    on the grid of side 2^l include the pixel's; inf where none."""
+    cover = np.full((H, W), np.inf)
+    level = np.clip(np.floor(np.log2(np.maximum(magnification, 1.0))), 0, HOLE_LEVELS)
+    for lv in range(1, HOLE_LEVELS + 1):
+        side, on = 2**lv, level == lv
+        rows, cols = -(-H // side), -(-W // side)
+        grid = np.full((rows, cols), np.inf)
+        for du in (0, 1):
+            for dv in (0, 1):
+                iu, iv = np.floor(proj[0][on] / side) + du, np.floor(proj[1][on] / side) + dv
+                inside = (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows)
+                np.minimum.at(grid, (iv[inside].astype(np.int64), iu[inside].astype(np.int64)), z[on][inside])
+        cover = np.minimum(cover, np.repeat(np.repeat(grid, side, axis=0), side, axis=1)[:H, :W])
     return cover
 
 

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..config import HOLE_DEPTH_MARGIN
+from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS
 from .camera import back_project_xyz, project_xyz, transform_xyz
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
@@ -27,6 +27,7 @@ class Splat(NamedTuple):
     u: jax.Array  # its pixel coordinates in frame i, unrounded
     v: jax.Array
     front: jax.Array  # bool: valid and z > MIN_WARP_Z
+    magnification: jax.Array  # how many times larger its pixel is in frame i: depth i-1 / z, focal-scaled
 
 
 def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
@@ -47,7 +48,10 @@ def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
     iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
     keep = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
     target = jnp.where(keep, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W).reshape(-1)
-    return Splat(target, z.reshape(-1), u_c.reshape(-1), v_c.reshape(-1), front.reshape(-1))
+    focal_ratio = jnp.sqrt(K_curr[0, 0] * K_curr[1, 1] / (K_prev[0, 0] * K_prev[1, 1]))
+    magnification = jnp.where(front, Z * focal_ratio / jnp.where(front, z, 1.0), 0.0)
+    return Splat(target, z.reshape(-1), u_c.reshape(-1), v_c.reshape(-1), front.reshape(-1),
+                 magnification.reshape(-1))
 
 
 def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool):
@@ -55,7 +59,8 @@ def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool):
     buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[points.target].min(points.z, mode="drop")
     hit = buffer < jnp.inf
     if mask_holes:
-        cover = _footprint_cover(points.u, points.v, points.z, points.front, H, W)
+        cover = jnp.minimum(_footprint_cover(points.u, points.v, points.z, points.front, H, W),
+                            _magnified_cover(points, H, W))
         hit = hit & (buffer <= (1.0 + HOLE_DEPTH_MARGIN) * cover)
     return buffer, hit
 
@@ -64,7 +69,8 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
     hit (H, W) bool) (``splat``). Collisions keep the nearest z (``nearest``, a z-buffer) or the
     farthest (the authors' code). ``mask_holes`` (spec): no hit where a point nearer by more than
-    HOLE_DEPTH_MARGIN lands within one pixel, since what reached it is seen through a gap between
+    HOLE_DEPTH_MARGIN lands within one pixel (within its square of side 2^l when magnified
+    2^l to 2^(l+1) times, ``_magnified_cover``), since what reached it is seen through a gap between
     a magnified nearer surface's splats."""
     H, W = depth_prev.shape
     points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
@@ -101,6 +107,30 @@ def _footprint_cover(u_c, v_c, z, front, H, W):
     nearest = jnp.full((H + 1) * (W + 1), jnp.inf, jnp.float32).at[corner.reshape(-1)].min(z.reshape(-1), mode="drop")
     nearest = nearest.reshape(H + 1, W + 1)  # [1 + floor(v), 1 + floor(u)]
     cover = jnp.minimum(jnp.minimum(nearest[1:, 1:], nearest[1:, :-1]), jnp.minimum(nearest[:-1, 1:], nearest[:-1, :-1]))
+    return cover.reshape(-1)
+
+
+def _magnified_cover(points: Splat, H: int, W: int):
+    """(H W,) nearest z of the points magnified m >= 2 times whose footprint on the grid of side
+    s = 2^l, 2^l <= m < 2^(l+1) (cells floor(u / s) + {0, 1}, floor(v / s) + {0, 1}) covers each
+    pixel, inf where none does: their splats lie less than 2 s apart, so each window of 2 s holds one."""
+    sides = [2**lv for lv in range(1, HOLE_LEVELS + 1)]
+    shapes = [(-(-H // s) + 1, -(-W // s) + 1) for s in sides]  # a row and column before the image's
+    starts = [sum(h * w for h, w in shapes[:lv]) for lv in range(len(shapes) + 1)]
+    level = jnp.clip(jnp.floor(jnp.log2(jnp.maximum(points.magnification, 1.0))), 0, HOLE_LEVELS).astype(jnp.int32)
+    pick = lambda values: jnp.array([0] + values, jnp.int32)[level]  # noqa: E731  (level 0: none)
+    width, height, start = pick([w for _, w in shapes]), pick([h for h, _ in shapes]), pick(starts[:-1])
+    side = jnp.exp2(level.astype(jnp.float32))
+    u0, v0 = jnp.floor(points.u / side), jnp.floor(points.v / side)  # in float: no int overflow
+    inside = points.front & (level >= 1) & (u0 >= -1) & (u0 < width - 1) & (v0 >= -1) & (v0 < height - 1)
+    cell = start + (v0.astype(jnp.int32) + 1) * width + u0.astype(jnp.int32) + 1
+    total = starts[-1]
+    nearest = jnp.full(total, jnp.inf, jnp.float32).at[jnp.where(inside, cell, total)].min(points.z, mode="drop")
+    cover = jnp.full((H, W), jnp.inf, jnp.float32)
+    for s, (h, w), first in zip(sides, shapes, starts):  # static: one grid per level
+        grid = nearest[first:first + h * w].reshape(h, w)
+        coarse = jnp.minimum(jnp.minimum(grid[1:, 1:], grid[1:, :-1]), jnp.minimum(grid[:-1, 1:], grid[:-1, :-1]))
+        cover = jnp.minimum(cover, jnp.repeat(jnp.repeat(coarse, s, axis=0), s, axis=1)[:H, :W])
     return cover.reshape(-1)
 
 
