@@ -250,3 +250,43 @@ def test_magnified_cover_matches_the_reference_level_by_level():
     expected = reference._magnified_cover(np.stack([u, v])[:, front].astype(np.float64), z[front].astype(np.float64),
                                           magnification[front].astype(np.float64), Hm, Wm)
     np.testing.assert_array_equal(np.asarray(cover).reshape(Hm, Wm), expected.astype(np.float32))
+
+
+def entering_square():
+    """A wall at depth 8 and, in frame 1 only, a square at depth 2 in the last 6 columns that frame 0
+    could not see: the camera moved 0.4 to the right, shifting the square 6 px and the wall 1.5 px
+    -> (depth0, depth1, t, square)."""
+    depth0 = np.full((H, W), 8.0, np.float32)
+    square = np.zeros((H, W), bool)
+    square[8:16, W - 6:] = True
+    depth1 = np.where(square, 2.0, 8.0).astype(np.float32)
+    return depth0, depth1, np.array([-0.4, 0.0, 0.0], np.float32), square
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_surface_entering_the_view_is_not_compared_with_what_it_covers(engine):
+    depth0, depth1, t, square = entering_square()
+    if engine == "jax":
+        warped, hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K, K, I3, t, mask_holes=True))
+        seen = np.asarray(warp.seen_from_previous(depth1, depth1 > 0, K, K, I3, t))
+    else:
+        warped = reference.warp_depth(depth0, K, K, np.eye(3), t.astype(np.float64), mask_holes=True)
+        hit, seen = warped > 0, reference.seen_from_previous(depth1, K, K, np.eye(3), t.astype(np.float64))
+    assert np.any(hit & square)  # the wall frame 0 saw lands where the square now is: 300 % errors
+    np.testing.assert_array_equal(seen[square], False)
+    assert seen[:, : W - 2][~square[:, : W - 2]].all()  # the wall frame 0 saw, but for its last 1.5 px
+    compared = hit & seen
+    np.testing.assert_allclose(warped[compared], depth1[compared], rtol=Z_RTOL)
+
+
+def test_seen_from_previous_agrees_between_the_engines():
+    normal = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])
+    depth1 = plane_depth(K, normal, 3.0).astype(np.float32)
+    depth1[:3, :5] = 0.0  # invalid pixels are never seen
+    R = np.asarray(so3_exp(np.radians(np.array([2.0, -6.0, 1.0], np.float32))))
+    t = np.array([0.6, -0.3, 0.5], np.float32)
+    seen = np.asarray(warp.seen_from_previous(depth1, depth1 > 0, K, K, R, t))
+    expected = reference.seen_from_previous(depth1, K.astype(np.float64), K.astype(np.float64), R.astype(np.float64),
+                                            t.astype(np.float64))
+    assert 0.2 < expected.mean() < 0.95 and not expected[:3, :5].any()
+    assert np.sum(seen != expected) <= 2  # a rounded pixel half-way between two, in float32

@@ -566,6 +566,24 @@ def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndar
     return float(np.mean(error / depth_curr[both] if relative else error))
 
 
+def seen_from_previous(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
+                       t: np.ndarray) -> np.ndarray:
+    """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
+    (z > 1e-5) and inside its image when rounded half up; (R, t) moves camera i-1's points into
+    camera i. Only there can a warp from frame i-1 be compared (§3.6)."""
+    H, W = depth_curr.shape
+    rows, cols = np.mgrid[:H, :W]
+    valid = valid_depth(depth_curr)
+    d = np.where(valid, depth_curr, 1.0).astype(np.float64)
+    pix = np.stack([cols.ravel(), rows.ravel(), np.ones(H * W)]).astype(np.float64)
+    cam = R.T @ ((np.linalg.inv(K_curr) @ pix) * d.ravel() - t[:, None])
+    z = cam[2]
+    front = valid.ravel() & (z > 1e-5)
+    proj = K_prev @ (cam / np.where(front, z, 1.0))
+    iu, iv = np.floor(proj[0] + 0.5), np.floor(proj[1] + 0.5)
+    return (front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)).reshape(H, W)
+
+
 def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
     """Depth of frame pair-1 that the depth check warps: its static, valid pixels under spec (a
     masked moving object must not cover static pixels of frame pair), every valid one (authors)."""
@@ -581,6 +599,8 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     spec = config.compat != "authors"
     warped = warp_depth(warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
                         nearest=spec, mask_holes=spec)
+    if spec:
+        warped = np.where(seen_from_previous(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t), warped, 0.0)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
     error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free)
     return warped, error * (PERCENT if config.scale_free else 1.0)

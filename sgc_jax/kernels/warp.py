@@ -134,6 +134,25 @@ def _magnified_cover(points: Splat, H: int, W: int):
     return cover.reshape(-1)
 
 
+def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t):
+    """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
+    (z > MIN_WARP_Z) and inside its image when rounded half up, (R, t) moving camera i-1's points
+    into camera i. What frame i-1 could not see, nothing warped from it can be compared with: a
+    nearer surface entering the view covers background frame i-1 saw."""
+    H, W = depth_curr.shape
+    depth_curr = depth_curr.astype(jnp.float32)
+    valid = _valid_depth(depth_curr, valid_curr)
+    K_prev, K_curr, R, t = (a.astype(jnp.float32) for a in (K_prev, K_curr, R, t))
+    v = jnp.arange(H, dtype=jnp.float32)[:, None]
+    u = jnp.arange(W, dtype=jnp.float32)[None, :]
+    X, Y, Z = back_project_xyz(K_curr, u, v, jnp.where(valid, depth_curr, 1.0))
+    Xp, Yp, z = transform_xyz(R.T, -(R.T @ t), X, Y, Z)
+    front = valid & (z > MIN_WARP_Z)
+    u_p, v_p = project_xyz(K_prev, Xp, Yp, jnp.where(front, z, 1.0))
+    iu, iv = jnp.floor(u_p + 0.5), jnp.floor(v_p + 0.5)
+    return front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
+
+
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
     """Mean |warped - depth_curr| over hit & valid (depth > 0, finite) & static (H, W) -> (float32,
     int32 count): in depth units, or relative to depth_curr (AbsRel, a fraction); NaN with no overlap."""

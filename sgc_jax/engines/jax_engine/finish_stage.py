@@ -14,7 +14,7 @@ from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
 from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
-from ...kernels.warp import depth_error, warp_depth
+from ...kernels.warp import depth_error, seen_from_previous, warp_depth
 from ..units import translation_factor
 from .buckets import Bucket, PaddedClips
 from .pixel_stage import pairs_flat
@@ -25,7 +25,8 @@ from .stages import POSE_PER_TRACK, Stage, each
 def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
                       stage: FinishStage):
     """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
-    (AbsRel in %), under authors every valid one (depth units). One pair at a time on CPU, for the
+    (AbsRel in %) and compared where frame i-1 could see (``seen_from_previous``), under authors
+    every valid one (depth units). One pair at a time on CPU, for the
     unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
 
@@ -34,6 +35,8 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
         source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
         warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors,
                                  mask_holes=not authors)
+        if not authors:
+            hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
 
     errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g), stage.vectorized)

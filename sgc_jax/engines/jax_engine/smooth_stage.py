@@ -22,7 +22,7 @@ from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
-from ...kernels.warp import warp_sources
+from ...kernels.warp import seen_from_previous, warp_sources
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
@@ -141,6 +141,8 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
         fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
         frozen.scale * frozen.t_g)
+    hit = hit & jax.vmap(seen_from_previous)(fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:],
+                                             frozen.R_g, frozen.scale * frozen.t_g)
     errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
                                    fixed.static[1:])
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
