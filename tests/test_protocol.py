@@ -19,11 +19,13 @@ from sgc_jax.research.protocol import (
     FIT_SEEDS,
     TEST_SCENES,
     TEST_SEEDS,
+    UNSEEN_SEEDS,
     Cell,
     cell_clips,
     detection_table,
     rows_scored_or_read,
     tracks_on_mover,
+    unseen_scene,
 )
 from sgc_jax.research.synth import synth_clip
 
@@ -124,6 +126,11 @@ def test_test_split_shares_no_seed_with_the_fit_split():
     assert {s.seed for s in TEST_SCENES} <= set(TEST_SEEDS)
     assert {s.seed for s in FIT_SCENES} <= set(FIT_SEEDS)
     assert not set(FIT_SEEDS) & set(TEST_SEEDS)
+
+
+def test_unseen_scenes_share_no_seed_with_either_split():
+    assert not set(UNSEEN_SEEDS) & (set(FIT_SEEDS) | set(TEST_SEEDS))
+    assert unseen_scene(3).spec == unseen_scene(3).spec and unseen_scene(3).seed == UNSEEN_SEEDS[3]
 
 
 def test_shipped_calibration_corpus_shares_no_seed_with_the_test_split():
