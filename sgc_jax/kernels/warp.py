@@ -30,25 +30,34 @@ class Splat(NamedTuple):
     magnification: jax.Array  # how many times larger its pixel is in frame i: depth i-1 / z, focal-scaled
 
 
-def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
-    """Valid pixels of frame i-1 (H, W) back-projected, moved by (R, t), projected into frame i and
-    rounded half up; those with z > MIN_WARP_Z inside the image keep their target."""
-    H, W = depth_prev.shape
-    depth_prev = depth_prev.astype(jnp.float32)
-    valid = _valid_depth(depth_prev, valid_prev)
-    K_prev, K_curr, R, t = (a.astype(jnp.float32) for a in (K_prev, K_curr, R, t))
+def _moved_pixels(depth, valid, K_from, K_to, R, t):
+    """Valid pixels (H, W) of one frame back-projected at ``depth`` with K_from, moved by (R, t) and
+    projected with K_to -> (Z, their depth before; z, after; u, v unrounded; iu, iv rounded half
+    up; front: valid and z > MIN_WARP_Z; inside: front and (iu, iv) in the image), all (H, W)."""
+    H, W = depth.shape
+    depth = depth.astype(jnp.float32)
+    valid = _valid_depth(depth, valid)
+    K_from, K_to, R, t = (a.astype(jnp.float32) for a in (K_from, K_to, R, t))
     # Coordinate arrays, not (H, W, 3) stacks: back-project, R X + t and project fuse into one
     # elementwise pass over the pixels (a (H W, 3) @ (3, 3) matmul and stacks cost more on CPU).
     v = jnp.arange(H, dtype=jnp.float32)[:, None]
     u = jnp.arange(W, dtype=jnp.float32)[None, :]
-    X, Y, Z = back_project_xyz(K_prev, u, v, jnp.where(valid, depth_prev, 1.0))
+    X, Y, Z = back_project_xyz(K_from, u, v, jnp.where(valid, depth, 1.0))
     Xc, Yc, z = transform_xyz(R, t, X, Y, Z)
     front = valid & (z > MIN_WARP_Z)
-    u_c, v_c = project_xyz(K_curr, Xc, Yc, jnp.where(front, z, 1.0))
+    u_c, v_c = project_xyz(K_to, Xc, Yc, jnp.where(front, z, 1.0))
     iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
-    keep = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
+    inside = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
+    return Z, z, u_c, v_c, iu, iv, front, inside
+
+
+def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
+    """Valid pixels of frame i-1 (H, W) back-projected, moved by (R, t), projected into frame i and
+    rounded half up; those with z > MIN_WARP_Z inside the image keep their target."""
+    H, W = depth_prev.shape
+    Z, z, u_c, v_c, iu, iv, front, keep = _moved_pixels(depth_prev, valid_prev, K_prev, K_curr, R, t)
     target = jnp.where(keep, iv.astype(jnp.int32) * W + iu.astype(jnp.int32), H * W).reshape(-1)
-    focal_ratio = jnp.sqrt(K_curr[0, 0] * K_curr[1, 1] / (K_prev[0, 0] * K_prev[1, 1]))
+    focal_ratio = jnp.sqrt(K_curr[0, 0] * K_curr[1, 1] / (K_prev[0, 0] * K_prev[1, 1])).astype(jnp.float32)
     magnification = jnp.where(front, Z * focal_ratio / jnp.where(front, z, 1.0), 0.0)
     return Splat(target, z.reshape(-1), u_c.reshape(-1), v_c.reshape(-1), front.reshape(-1),
                  magnification.reshape(-1))
@@ -139,18 +148,8 @@ def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t):
     (z > MIN_WARP_Z) and inside its image when rounded half up, (R, t) moving camera i-1's points
     into camera i. What frame i-1 could not see, nothing warped from it can be compared with: a
     nearer surface entering the view covers background frame i-1 saw."""
-    H, W = depth_curr.shape
-    depth_curr = depth_curr.astype(jnp.float32)
-    valid = _valid_depth(depth_curr, valid_curr)
-    K_prev, K_curr, R, t = (a.astype(jnp.float32) for a in (K_prev, K_curr, R, t))
-    v = jnp.arange(H, dtype=jnp.float32)[:, None]
-    u = jnp.arange(W, dtype=jnp.float32)[None, :]
-    X, Y, Z = back_project_xyz(K_curr, u, v, jnp.where(valid, depth_curr, 1.0))
-    Xp, Yp, z = transform_xyz(R.T, -(R.T @ t), X, Y, Z)
-    front = valid & (z > MIN_WARP_Z)
-    u_p, v_p = project_xyz(K_prev, Xp, Yp, jnp.where(front, z, 1.0))
-    iu, iv = jnp.floor(u_p + 0.5), jnp.floor(v_p + 0.5)
-    return front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
+    R, t = R.astype(jnp.float32), t.astype(jnp.float32)
+    return _moved_pixels(depth_curr, valid_curr, K_curr, K_prev, R.T, -(R.T @ t))[-1]
 
 
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):
