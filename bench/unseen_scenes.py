@@ -2,19 +2,22 @@
 layouts, sizes, frame counts, camera motions and fields of view, each scene drawn once per noise
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
-    python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--out rows.csv]
+    python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02] [--out rows.csv]
 
 Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor
 TEST's): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres,
 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view from
 ``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5
-and 2 px (research.noise). Prints each scene's row and, per cell, the clips above 0.10, the
-largest and the statuses; ``--out`` writes one row per clip (pandas-ready).
+and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
+depth multiplied by exp(r N(0, 1)), a per-frame scale error such as monocular depth estimated frame
+by frame leaves. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
+statuses; ``--out`` writes one row per clip (pandas-ready).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -24,8 +27,15 @@ from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.protocol import unseen_scene, write_rows
 
-CELLS = (("iid-curr", 0.5), ("iid-both", 0.5), ("iid-curr", 2.0), ("iid-both", 2.0))
+CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))  # model, px, depth scale
 CALM = 0.10  # issue 58's bar for a single consistent clip
+FLICKER_STREAM = 3  # the per-frame depth scales' stream, apart from research.noise's
+
+
+def scale_each_frame(clip, rms: float, seed: int):
+    """The clip with each frame's depth times exp(rms N(0, 1)), one factor a frame."""
+    factors = np.exp(rms * np.random.default_rng((seed, FLICKER_STREAM)).standard_normal(clip.depth.shape[0]))
+    return dataclasses.replace(clip, depth=(clip.depth * factors[:, None, None]).astype(np.float32))
 
 
 def main() -> None:
@@ -33,30 +43,35 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--tracks", type=int, default=1000)
     parser.add_argument("--fovs", type=float, nargs="+", default=[60.0], help="fields of view to draw from [deg]")
+    parser.add_argument("--depth-scale-rms", type=float, default=0.0,
+                        help="also a cell with a per-frame depth scale error of this relative RMS")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     args = parser.parse_args()
+    cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
     rows = []
     for k in range(args.scenes):
         scene = unseen_scene(k, args.fovs)
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
-        clips = [add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=seed * 10 + j)
-                 for j, (model, px) in enumerate(CELLS)]
-        for (model, px), scored in zip(CELLS, score_batch(clips).clips):
+        clips = [add_noise(scale_each_frame(clean, scale, seed) if scale else clean,
+                           NOISE_MODELS[model].replace(px=px), seed=seed * 10 + j)
+                 for j, (model, px, scale) in enumerate(cells)]
+        for (model, px, scale), scored in zip(cells, score_batch(clips).clips):
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,
-                             status=scored.status, reason=scored.reason, sgc=scored.sgc, evidence=scored.evidence,
-                             **scored.components))
-        print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(CELLS):])
+                             depth_scale_rms=scale, status=scored.status, reason=scored.reason, sgc=scored.sgc,
+                             evidence=scored.evidence, **scored.components))
+        print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(cells):])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
     print(f"{args.scenes} unseen scenes, {args.tracks} tracks, fields of view {args.fovs}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
-    for model, px in CELLS:
-        cell = [r for r in rows if r["model"] == model and r["noise_px"] == px]
+    for model, px, scale in cells:
+        cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == (model, px, scale)]
         sgc = np.array([r["sgc"] for r in cell])
         statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
-        print(f"| {model} {px} px | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
+        label = f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+        print(f"| {label} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
               f"{np.nanmedian(sgc):.3f} | {statuses} |")
     if args.out:
         write_rows(args.out, rows)

@@ -122,25 +122,37 @@ def _footprint_cover(u_c, v_c, z, front, H, W):
 def _magnified_cover(points: Splat, H: int, W: int):
     """(H W,) nearest z of the points magnified m >= 2 times whose footprint on the grid of side
     s = 2^l, 2^l <= m < 2^(l+1) (cells floor(u / s) + {0, 1}, floor(v / s) + {0, 1}) covers each
-    pixel, inf where none does: their splats lie less than 2 s apart, so each window of 2 s holds one."""
+    pixel, inf where none does: their splats lie less than 2 s apart, so each window of 2 s holds
+    one. A pair without such a point skips the grids (on a CPU, where pairs run one by one)."""
+    magnified = points.front & (points.magnification >= 2.0)
+    none = jnp.full(H * W, jnp.inf, jnp.float32)
+    return jax.lax.cond(jnp.any(magnified), lambda: _level_cover(points, magnified, H, W), lambda: none)
+
+
+def _level_cover(points: Splat, magnified, H: int, W: int):
+    """``_magnified_cover``'s grids: one scatter into all of them, then each level's 2x2 minimum,
+    carried from the coarsest grid to the pixels by doubling (each pixel's cell at side s / 2 lies
+    in its cell at side s)."""
     sides = [2**lv for lv in range(1, HOLE_LEVELS + 1)]
-    shapes = [(-(-H // s) + 1, -(-W // s) + 1) for s in sides]  # a row and column before the image's
+    cells = [(-(-H // s), -(-W // s)) for s in sides]
+    shapes = [(h + 1, w + 1) for h, w in cells]  # a row and column before the image's
     starts = [sum(h * w for h, w in shapes[:lv]) for lv in range(len(shapes) + 1)]
-    level = jnp.clip(jnp.floor(jnp.log2(jnp.maximum(points.magnification, 1.0))), 0, HOLE_LEVELS).astype(jnp.int32)
-    pick = lambda values: jnp.array([0] + values, jnp.int32)[level]  # noqa: E731  (level 0: none)
+    level = jnp.clip(jnp.floor(jnp.log2(jnp.maximum(points.magnification, 1.0))), 1, HOLE_LEVELS).astype(jnp.int32)
+    pick = lambda values: jnp.array(values, jnp.int32)[level - 1]  # noqa: E731
     width, height, start = pick([w for _, w in shapes]), pick([h for h, _ in shapes]), pick(starts[:-1])
     side = jnp.exp2(level.astype(jnp.float32))
     u0, v0 = jnp.floor(points.u / side), jnp.floor(points.v / side)  # in float: no int overflow
-    inside = points.front & (level >= 1) & (u0 >= -1) & (u0 < width - 1) & (v0 >= -1) & (v0 < height - 1)
+    inside = magnified & (u0 >= -1) & (u0 < width - 1) & (v0 >= -1) & (v0 < height - 1)
     cell = start + (v0.astype(jnp.int32) + 1) * width + u0.astype(jnp.int32) + 1
     total = starts[-1]
     nearest = jnp.full(total, jnp.inf, jnp.float32).at[jnp.where(inside, cell, total)].min(points.z, mode="drop")
-    cover = jnp.full((H, W), jnp.inf, jnp.float32)
-    for s, (h, w), first in zip(sides, shapes, starts):  # static: one grid per level
+    cover = None
+    for (h, w), first, (ch, cw) in reversed(list(zip(shapes, starts, cells))):  # static: coarsest first
         grid = nearest[first:first + h * w].reshape(h, w)
         coarse = jnp.minimum(jnp.minimum(grid[1:, 1:], grid[1:, :-1]), jnp.minimum(grid[:-1, 1:], grid[:-1, :-1]))
-        cover = jnp.minimum(cover, jnp.repeat(jnp.repeat(coarse, s, axis=0), s, axis=1)[:H, :W])
-    return cover.reshape(-1)
+        cover = coarse if cover is None else jnp.minimum(coarse, cover[:ch, :cw])
+        cover = jnp.repeat(jnp.repeat(cover, 2, axis=0), 2, axis=1)  # to the next finer grid's cells
+    return cover[:H, :W].reshape(-1)
 
 
 def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t):
