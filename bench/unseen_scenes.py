@@ -9,15 +9,14 @@ TEST's): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2
 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view from
 ``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5
 and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
-depth multiplied by exp(r N(0, 1)), a per-frame scale error such as monocular depth estimated frame
-by frame leaves. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
+depth multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such
+as monocular depth estimated frame by frame leaves. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
 statuses; ``--out`` writes one row per clip (pandas-ready).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 
@@ -29,13 +28,6 @@ from sgc_jax.research.protocol import unseen_scene, write_rows
 
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))  # model, px, depth scale
 CALM = 0.10  # issue 58's bar for a single consistent clip
-FLICKER_STREAM = 3  # the per-frame depth scales' stream, apart from research.noise's
-
-
-def scale_each_frame(clip, rms: float, seed: int):
-    """The clip with each frame's depth times exp(rms N(0, 1)), one factor a frame."""
-    factors = np.exp(rms * np.random.default_rng((seed, FLICKER_STREAM)).standard_normal(clip.depth.shape[0]))
-    return dataclasses.replace(clip, depth=(clip.depth * factors[:, None, None]).astype(np.float32))
 
 
 def main() -> None:
@@ -54,8 +46,7 @@ def main() -> None:
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
-        clips = [add_noise(scale_each_frame(clean, scale, seed) if scale else clean,
-                           NOISE_MODELS[model].replace(px=px), seed=seed * 10 + j)
+        clips = [add_noise(clean, NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale), seed=seed * 10 + j)
                  for j, (model, px, scale) in enumerate(cells)]
         for (model, px, scale), scored in zip(cells, score_batch(clips).clips):
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,

@@ -122,6 +122,17 @@ def test_a_draw_depends_on_its_seed_only(exact_clip):
     assert not np.array_equal(a.track_curr, c.track_curr)
 
 
+def test_a_depth_scale_error_scales_each_frame_by_one_factor(exact_clip):
+    noisy = add_noise(exact_clip, NoiseModel(depth_scale_rel=0.02), seed=4)
+    valid = exact_clip.depth > 0
+    ratio = np.where(valid, noisy.depth / np.where(valid, exact_clip.depth, 1.0), np.nan)
+    per_frame = np.nanmedian(ratio, axis=(1, 2))
+    np.testing.assert_allclose(ratio[valid], np.broadcast_to(per_frame[:, None, None], ratio.shape)[valid],
+                               rtol=1e-6)  # float32 depth
+    assert np.ptp(per_frame) > 0.005 and np.all(np.abs(np.log(per_frame)) < 0.1)
+    np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
+
+
 def test_test_split_shares_no_seed_with_the_fit_split():
     assert {s.seed for s in TEST_SCENES} <= set(TEST_SEEDS)
     assert {s.seed for s in FIT_SCENES} <= set(FIT_SEEDS)

@@ -18,6 +18,8 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
   ``DEPTH_CORRELATION_PX``), and at depth edges (a jump of more than ``DEPTH_EDGE_JUMP`` between
   neighbouring pixels) pixels within ``depth_edge_px`` of the edge blended at random between the
   two sides, as monocular estimators smear edges ("flying pixels").
+- A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
+  factor a frame, as depth estimated frame by frame and aligned per clip can leave.
 
 Every draw is from ``numpy.random.default_rng((NOISE_SEED, seed, stream))``: the same clip, model
 and seed give the same arrays, and the track and depth draws are independent streams.
@@ -50,6 +52,7 @@ class NoiseModel:
     outlier_frac: float = 0.0  # tracks per pair moved to a uniform random pixel of frame i
     depth_rel: float = 0.0  # relative RMS of the smooth multiplicative depth error
     depth_edge_px: int = 0  # pixels on each side of a depth edge blended across it
+    depth_scale_rel: float = 0.0  # relative RMS of one depth scale factor per frame
 
     def __post_init__(self) -> None:
         checks = {
@@ -60,6 +63,7 @@ class NoiseModel:
             "0 <= outlier_frac <= 1": 0 <= self.outlier_frac <= 1,
             "0 <= depth_rel < 0.5": 0 <= self.depth_rel < 0.5,
             "depth_edge_px >= 0": self.depth_edge_px >= 0,
+            "0 <= depth_scale_rel < 0.5": 0 <= self.depth_scale_rel < 0.5,
         }
         failed = [rule for rule, ok in checks.items() if not ok]
         if failed:
@@ -148,6 +152,8 @@ def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) 
         farthest = np.stack([cv2.dilate(np.where(v, d, 0.0).astype(np.float32), kernel) for d, v in zip(out, valid)])
         blend = rng.uniform(0.0, 1.0, size=out.shape)
         out = np.where(near_edge, nearest + blend * (farthest.astype(np.float64) - nearest), out)
+    if model.depth_scale_rel > 0:  # drawn last: the other errors' draws stay as they were
+        out = np.where(valid, out * np.exp(model.depth_scale_rel * rng.standard_normal(T))[:, None, None], out)
     return out.astype(np.float32)
 
 
@@ -172,7 +178,7 @@ def add_noise(clip: Clip, model: NoiseModel, seed: int = 0) -> Clip:
             curr[pair, bad] = rng_tracks.uniform([0.0, 0.0], [W - 1, H - 1], size=(n_out, 2))
             vis[pair, bad] = True
     depth = clip.depth
-    if model.depth_rel > 0 or model.depth_edge_px > 0:
+    if model.depth_rel > 0 or model.depth_edge_px > 0 or model.depth_scale_rel > 0:
         depth = noisy_depth(model, clip.depth, rng_depth)
     return dataclasses.replace(clip, track_prev=prev.astype(np.float32), track_curr=curr.astype(np.float32),
                                track_vis=vis, depth=depth, clip_id=f"{clip.clip_id}-noise{seed}")
