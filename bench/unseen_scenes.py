@@ -2,7 +2,8 @@
 layouts, sizes, frame counts, camera motions and fields of view, each scene drawn once per noise
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
-    python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02] [--out rows.csv]
+    python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02]
+                                  [--perturb 0.25] [--out rows.csv]
 
 Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor
 TEST's): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres,
@@ -10,8 +11,12 @@ TEST's): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2
 ``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5
 and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
 depth multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such
-as monocular depth estimated frame by frame leaves. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
-statuses; ``--out`` writes one row per clip (pandas-ready).
+as monocular depth estimated frame by frame leaves. With ``--perturb s`` each cell also scores the
+three perturbations at severity s, made on the exact clip and given the consistent clip's noise draw
+(paired, as bench/validation.py), and prints the share of cells where each scores above its
+consistent twin: detection on layouts no constant was fitted to. Prints each scene's row and, per
+cell, the clips above 0.10, the largest and the statuses; ``--out`` writes one row per clip
+(pandas-ready).
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
-from sgc_jax.research.protocol import unseen_scene, write_rows
+from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+from sgc_jax.research.protocol import detection_table, unseen_scene, write_rows
 
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))  # model, px, depth scale
 CALM = 0.10  # issue 58's bar for a single consistent clip
@@ -37,6 +43,8 @@ def main() -> None:
     parser.add_argument("--fovs", type=float, nargs="+", default=[60.0], help="fields of view to draw from [deg]")
     parser.add_argument("--depth-scale-rms", type=float, default=0.0,
                         help="also a cell with a per-frame depth scale error of this relative RMS")
+    parser.add_argument("--perturb", type=float, default=0.0,
+                        help="also score the three perturbations at this severity, paired with each cell's noise")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     args = parser.parse_args()
     cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
@@ -46,26 +54,48 @@ def main() -> None:
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
-        clips = [add_noise(clean, NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale), seed=seed * 10 + j)
-                 for j, (model, px, scale) in enumerate(cells)]
-        for (model, px, scale), scored in zip(cells, score_batch(clips).clips):
+        variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
+                                         for kind in (PERTURBATIONS if args.perturb > 0 else ())]
+        jobs = [(j, kind, severity, add_noise(exact, NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale),
+                                              seed=seed * 10 + j))
+                for j, (model, px, scale) in enumerate(cells) for kind, severity, exact in variants]
+        for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
+            model, px, scale = cells[j]
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,
-                             depth_scale_rms=scale, status=scored.status, reason=scored.reason, sgc=scored.sgc,
-                             evidence=scored.evidence, **scored.components))
-        print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(cells):])
+                             depth_scale_rms=scale, kind=kind, severity=severity, status=scored.status,
+                             reason=scored.reason, sgc=scored.sgc, evidence=scored.evidence, **scored.components))
+        print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
+                                                    if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
     print(f"{args.scenes} unseen scenes, {args.tracks} tracks, fields of view {args.fovs}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
     for model, px, scale in cells:
-        cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == (model, px, scale)]
+        cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (model, px, scale, "")]
         sgc = np.array([r["sgc"] for r in cell])
         statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
         label = f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
         print(f"| {label} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
               f"{np.nanmedian(sgc):.3f} | {statuses} |")
+    if args.perturb > 0:
+        print_detection(rows, cells, args.perturb)
     if args.out:
         write_rows(args.out, rows)
+
+
+def print_detection(rows: list[dict], cells, severity: float) -> None:
+    """Per noise cell, the share of scenes where each perturbation scores above its consistent twin."""
+    print(f"\nDetection at severity {severity} (paired: the twin carries the same noise draw)\n")
+    print("| noise | " + " | ".join(PERTURBATIONS) + " |")
+    print("|---|" + "---|" * len(PERTURBATIONS))
+    for model, px, scale in cells:
+        cell = [dict(r, cell=r["scene"]) for r in rows
+                if (r["model"], r["noise_px"], r["depth_scale_rms"]) == (model, px, scale)]
+        shares = detection_table(cell)
+        label = f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+        scenes = len({r["scene"] for r in cell})
+        print(f"| {label} | " + " | ".join(f"{shares[(kind, severity)]:.0%} of {scenes}" for kind in PERTURBATIONS)
+              + " |")
 
 
 if __name__ == "__main__":
