@@ -3,20 +3,21 @@ layouts, sizes, frame counts, camera motions and fields of view, each scene draw
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
     python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02]
-                                  [--perturb 0.25] [--out rows.csv]
+                                  [--models correlated depth outliers] [--perturb 0.25] [--out rows.csv]
 
-Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor
-TEST's): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres,
-0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view from
-``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5
-and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
-depth multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such
-as monocular depth estimated frame by frame leaves. With ``--perturb s`` each cell also scores the
-three perturbations at severity s, made on the exact clip and given the consistent clip's noise draw
-(paired, as bench/validation.py), and prints the share of cells where each scores above its
-consistent twin: detection on layouts no constant was fitted to. Prints each scene's row and, per
-cell, the clips above 0.10, the largest and the statuses; ``--out`` writes one row per clip
-(pandas-ready).
+Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's):
+size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg
+and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view from ``--fovs``.
+Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5 and 2 px
+(research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's depth
+multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such as
+monocular depth estimated frame by frame leaves; with ``--models`` also those protocol noise models
+(correlated track errors, depth noise, outliers; research.noise) at 0.5 and 2 px.
+With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
+clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
+share of cells where each scores above its consistent twin: detection on layouts no constant was
+fitted to. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
+statuses; ``--out`` writes one row per clip (pandas-ready).
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import detection_table, unseen_scene, write_rows
 
-CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))  # model, px, depth scale
+# model, px, depth scale; a cell's noise seed is scene seed * 10 + its index here (the depth-scale cell: 4)
+CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
+EXTRA_LEVELS_PX = (0.5, 2.0)
 CALM = 0.10  # issue 58's bar for a single consistent clip
 
 
@@ -43,11 +46,15 @@ def main() -> None:
     parser.add_argument("--fovs", type=float, nargs="+", default=[60.0], help="fields of view to draw from [deg]")
     parser.add_argument("--depth-scale-rms", type=float, default=0.0,
                         help="also a cell with a per-frame depth scale error of this relative RMS")
+    parser.add_argument("--models", nargs="+", default=[], choices=sorted(set(NOISE_MODELS) - {"iid-curr", "iid-both"}),
+                        help="also these noise models (research.noise) at 0.5 and 2 px")
     parser.add_argument("--perturb", type=float, default=0.0,
                         help="also score the three perturbations at this severity, paired with each cell's noise")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     args = parser.parse_args()
     cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
+    builtin = len(cells)
+    cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = []
     for k in range(args.scenes):
         scene = unseen_scene(k, args.fovs)
@@ -57,7 +64,7 @@ def main() -> None:
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         jobs = [(j, kind, severity, add_noise(exact, NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale),
-                                              seed=seed * 10 + j))
+                                              seed=noise_seed(seed, j, builtin)))
                 for j, (model, px, scale) in enumerate(cells) for kind, severity, exact in variants]
         for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
             model, px, scale = cells[j]
@@ -81,6 +88,12 @@ def main() -> None:
         print_detection(rows, cells, args.perturb)
     if args.out:
         write_rows(args.out, rows)
+
+
+def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
+    """The noise draw of a scene's cell: the built-in cells' as before (scene seed * 10 + index), each
+    ``--models`` cell its own (scene seed * 100 + 10 + its index among them)."""
+    return scene_seed * 10 + cell if cell < builtin else scene_seed * 100 + 10 + cell - builtin
 
 
 def print_detection(rows: list[dict], cells, severity: float) -> None:
