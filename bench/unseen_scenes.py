@@ -81,8 +81,7 @@ def main() -> None:
         cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (model, px, scale, "")]
         sgc = np.array([r["sgc"] for r in cell])
         statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
-        label = f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
-        print(f"| {label} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
+        print(f"| {cell_label(model, px, scale)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
               f"{np.nanmedian(sgc):.3f} | {statuses} |")
     if args.perturb > 0:
         print_detection(rows, cells, args.perturb)
@@ -96,6 +95,10 @@ def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
     return scene_seed * 10 + cell if cell < builtin else scene_seed * 100 + 10 + cell - builtin
 
 
+def cell_label(model: str, px: float, scale: float) -> str:
+    return f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+
+
 def print_detection(rows: list[dict], cells, severity: float) -> None:
     """Per noise cell, the share of scenes where each perturbation scores above its consistent twin."""
     print(f"\nDetection at severity {severity} (paired: the twin carries the same noise draw)\n")
@@ -105,9 +108,8 @@ def print_detection(rows: list[dict], cells, severity: float) -> None:
         cell = [dict(r, cell=r["scene"]) for r in rows
                 if (r["model"], r["noise_px"], r["depth_scale_rms"]) == (model, px, scale)]
         shares = detection_table(cell)
-        label = f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
         scenes = len({r["scene"] for r in cell})
-        print(f"| {label} | " + " | ".join(f"{shares[(kind, severity)]:.0%} of {scenes}" for kind in PERTURBATIONS)
+        print(f"| {cell_label(model, px, scale)} | " + " | ".join(f"{shares[(kind, severity)]:.0%} of {scenes}" for kind in PERTURBATIONS)
               + " |")
 
 
