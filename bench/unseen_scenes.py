@@ -3,14 +3,16 @@ layouts, sizes, frame counts, camera motions and fields of view, each scene draw
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
     python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02]
-                                  [--models correlated depth outliers] [--perturb 0.25] [--out rows.csv]
+                                  [--models correlated depth outliers] [--perturb 0.25] [--pool fit]
+                                  [--out rows.csv]
 
-Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's):
-size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg
-and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view from ``--fovs``.
-Noise cells: independent Gaussian track errors at frame i only and at both ends, 0.5 and 2 px
-(research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's depth
-multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such as
+Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's;
+with ``--pool fit`` the same sampler on FIT's seeds 30-99, ``FIT_POOL_SEEDS``, where constants may
+be chosen): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static
+spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view
+from ``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends,
+0.5 and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
+depth multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such as
 monocular depth estimated frame by frame leaves; with ``--models`` also those protocol noise models
 (correlated track errors, depth noise, outliers; research.noise) at 0.5 and 2 px.
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
@@ -31,7 +33,7 @@ import numpy as np
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.protocol import detection_table, unseen_scene, write_rows
+from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, unseen_scene, write_rows
 
 # model, px, depth scale; a cell's noise seed is scene seed * 10 + its index here (the depth-scale cell: 4)
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
@@ -50,6 +52,8 @@ def main() -> None:
                         help="also these noise models (research.noise) at 0.5 and 2 px")
     parser.add_argument("--perturb", type=float, default=0.0,
                         help="also score the three perturbations at this severity, paired with each cell's noise")
+    parser.add_argument("--pool", choices=sorted(RANDOM_POOLS), default="unseen",
+                        help="unseen: report-only seeds 7200-7299; fit: FIT's seeds 30-99")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     args = parser.parse_args()
     cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
@@ -57,7 +61,7 @@ def main() -> None:
     cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = []
     for k in range(args.scenes):
-        scene = unseen_scene(k, args.fovs)
+        scene = unseen_scene(k, args.fovs, args.pool)
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
@@ -74,7 +78,7 @@ def main() -> None:
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
-    print(f"{args.scenes} unseen scenes, {args.tracks} tracks, fields of view {args.fovs}\n")
+    print(f"{args.scenes} scenes of the {args.pool} pool, {args.tracks} tracks, fields of view {args.fovs}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
     for model, px, scale in cells:

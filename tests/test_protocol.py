@@ -15,6 +15,7 @@ from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, smooth_field
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
+    FIT_POOL_SEEDS,
     FIT_SCENES,
     FIT_SEEDS,
     TEST_SCENES,
@@ -142,6 +143,16 @@ def test_test_split_shares_no_seed_with_the_fit_split():
 def test_unseen_scenes_share_no_seed_with_either_split():
     assert not set(UNSEEN_SEEDS) & (set(FIT_SEEDS) | set(TEST_SEEDS))
     assert unseen_scene(3).spec == unseen_scene(3).spec and unseen_scene(3).seed == UNSEEN_SEEDS[3]
+
+
+def test_fit_pool_lies_in_fit_and_shares_no_seed_with_other_fit_scenes():
+    assert set(FIT_POOL_SEEDS) <= set(FIT_SEEDS)
+    text = resources.files("sgc_jax.calibration").joinpath("sgc-spec-2026.json").read_text()
+    bench_scenes = {10, 11, 12}  # bench/excess_score.py, intervals.py, noise_floors.py: seed 10 + s
+    taken = {s.seed for s in FIT_SCENES} | set(json.loads(text)["corpus"]["seeds"]) | bench_scenes
+    assert not set(FIT_POOL_SEEDS) & taken
+    scene = unseen_scene(5, pool="fit")
+    assert scene.seed == FIT_POOL_SEEDS[5] and scene.name == "fit-pool-5"
 
 
 def test_shipped_calibration_corpus_shares_no_seed_with_the_test_split():

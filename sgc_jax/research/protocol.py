@@ -95,20 +95,25 @@ SPLITS = {"fit": FIT_SCENES, "test": TEST_SCENES}
 #: scenes sample few layouts. Scene k has seed UNSEEN_SEEDS[k] and its spec from ``unseen_scene``.
 UNSEEN_SEEDS = range(7200, 7300)
 UNSEEN_SIZES = ((96, 128), (120, 160), (144, 192), (192, 256))
+#: FIT's own random scenes, drawn as the unseen ones from FIT seeds no other FIT scene uses (the
+#: calibration corpus 0-1, the benchmarks 10-12, FIT_SCENES 20-25): constants may be chosen on them.
+FIT_POOL_SEEDS = range(30, 100)
+RANDOM_POOLS = {"unseen": UNSEEN_SEEDS, "fit": FIT_POOL_SEEDS}
 
 
-def unseen_scene(k: int, fovs: Sequence[float] = (60.0,)) -> ProtocolScene:
-    """Unseen scene k: size among ``UNSEEN_SIZES``, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static
-    spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit (2 in 3) or forward, the
-    field of view among ``fovs`` [deg]; drawn from ``numpy.random.default_rng(UNSEEN_SEEDS[k])``."""
-    seed = UNSEEN_SEEDS[k]
+def unseen_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") -> ProtocolScene:
+    """Scene k of a random pool (``RANDOM_POOLS``: "unseen", report-only, or "fit"): size among
+    ``UNSEEN_SIZES``, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and
+    0.05-0.3 depth units of motion a frame, orbit (2 in 3) or forward, the field of view among
+    ``fovs`` [deg]; drawn from ``numpy.random.default_rng(RANDOM_POOLS[pool][k])``."""
+    seed = RANDOM_POOLS[pool][k]
     rng = np.random.default_rng(seed)
     height, width = UNSEEN_SIZES[rng.integers(len(UNSEEN_SIZES))]
     spec = dict(height=height, width=width, n_frames=int(rng.choice([6, 8, 12])), n_layers=int(rng.integers(1, 6)),
                 static_spheres=int(rng.integers(2, 7)), rot_deg_per_frame=round(float(rng.uniform(0.5, 3.0)), 2),
                 trans_per_frame=round(float(rng.uniform(0.05, 0.3)), 2),
                 camera_motion=str(rng.choice(["orbit", "orbit", "forward"])), fov_deg=float(rng.choice(fovs)))
-    return ProtocolScene(f"unseen-{k}", seed, spec)
+    return ProtocolScene(f"unseen-{k}" if pool == "unseen" else f"{pool}-pool-{k}", seed, spec)
 
 
 @dataclasses.dataclass(frozen=True)
