@@ -30,10 +30,11 @@ class Splat(NamedTuple):
     magnification: jax.Array  # how many times larger its pixel is in frame i: depth i-1 / z, focal-scaled
 
 
-def _moved_pixels(depth, valid, K_from, K_to, R, t):
+def _moved_pixels(depth, valid, K_from, K_to, R, t, image_hw=None):
     """Valid pixels (H, W) of one frame back-projected at ``depth`` with K_from, moved by (R, t) and
     projected with K_to -> (Z, their depth before; z, after; u, v unrounded; iu, iv rounded half
-    up; front: valid and z > MIN_WARP_Z; inside: front and (iu, iv) in the image), all (H, W)."""
+    up; front: valid and z > MIN_WARP_Z; inside: front and (iu, iv) in the image), all (H, W).
+    ``image_hw`` (2,): the true image size within a padded (H, W), which ``inside`` keeps to."""
     H, W = depth.shape
     depth = depth.astype(jnp.float32)
     valid = _valid_depth(depth, valid)
@@ -47,7 +48,8 @@ def _moved_pixels(depth, valid, K_from, K_to, R, t):
     front = valid & (z > MIN_WARP_Z)
     u_c, v_c = project_xyz(K_to, Xc, Yc, jnp.where(front, z, 1.0))
     iu, iv = jnp.floor(u_c + 0.5), jnp.floor(v_c + 0.5)
-    inside = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)  # False for NaN coordinates too
+    height, width = (H, W) if image_hw is None else (image_hw[0].astype(jnp.float32), image_hw[1].astype(jnp.float32))
+    inside = front & (iu >= 0) & (iu < width) & (iv >= 0) & (iv < height)  # False for NaN coordinates too
     return Z, z, u_c, v_c, iu, iv, front, inside
 
 
@@ -155,13 +157,14 @@ def _level_cover(points: Splat, magnified, H: int, W: int):
     return cover[:H, :W].reshape(-1)
 
 
-def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t):
+def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None):
     """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
     (z > MIN_WARP_Z) and inside its image when rounded half up, (R, t) moving camera i-1's points
-    into camera i. What frame i-1 could not see, nothing warped from it can be compared with: a
-    nearer surface entering the view covers background frame i-1 saw."""
+    into camera i; ``image_hw`` (2,): the frames' true size when (H, W) is padded (the padding is no
+    part of frame i-1's image). What frame i-1 could not see, nothing warped from it can be compared
+    with: a nearer surface entering the view covers background frame i-1 saw."""
     R, t = R.astype(jnp.float32), t.astype(jnp.float32)
-    return _moved_pixels(depth_curr, valid_curr, K_curr, K_prev, R.T, -(R.T @ t))[-1]
+    return _moved_pixels(depth_curr, valid_curr, K_curr, K_prev, R.T, -(R.T @ t), image_hw)[-1]
 
 
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False):

@@ -22,24 +22,25 @@ from .pose_stage import LocalPoses
 from .stages import POSE_PER_TRACK, Stage, each
 
 
-def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g,
+def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw,
                       stage: FinishStage):
     """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
-    (AbsRel in %) and compared where frame i-1 could see (``seen_from_previous``), under authors
-    every valid one (depth units). One pair at a time on CPU, for the
-    unbatched z-buffer scatter."""
+    (AbsRel in %) and compared where frame i-1 could see (``seen_from_previous`` within the true
+    size ``image_hw`` (F, 2)), under authors every valid one (depth units). One pair at a time on
+    CPU, for the unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
 
     def one(pair):
-        depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g = pair
+        depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw = pair
         source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
         warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors,
                                  mask_holes=not authors)
         if not authors:
-            hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g)
+            hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
 
-    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g), stage.vectorized)
+    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw),
+                  stage.vectorized)
     return errors * translation_factor(stage)
 
 
@@ -92,15 +93,15 @@ class FinishStage(Stage):
 
     def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
         regions = {name: value for name, value in previous.items() if name not in POSE_PER_TRACK}
-        return (regions, batch.depth, batch.static, batch.K)
+        return (regions, batch.depth, batch.static, batch.K, batch.image_hw)
 
     def __call__(self, inputs: tuple, key) -> dict:
         return finish_stage(*inputs, self)
 
 
-def finish_stage(pose: dict, depth, static, K, stage: FinishStage) -> dict:
-    """The pose stage's per-region output and the clips' depth (B, T, H, W), masks and K -> per-clip,
-    per-pair and per-region arrays (leading axes B, T-1)."""
+def finish_stage(pose: dict, depth, static, K, image_hw, stage: FinishStage) -> dict:
+    """The pose stage's per-region output and the clips' depth (B, T, H, W), masks, K and true sizes
+    (B, 2) -> per-clip, per-pair and per-region arrays (leading axes B, T-1)."""
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     regions = {name: pose[name] for name in LocalPoses._fields if name not in POSE_PER_TRACK}
@@ -109,7 +110,7 @@ def finish_stage(pose: dict, depth, static, K, stage: FinishStage) -> dict:
     t_g_scaled = scale[:, None, None] * t_g
     err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
                                    flat(static[:, 1:]), flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
-                                   flat(t_g_scaled), stage))
+                                   flat(t_g_scaled), flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), stage))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g

@@ -141,8 +141,9 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
         fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
         frozen.scale * frozen.t_g)
-    hit = hit & jax.vmap(seen_from_previous)(fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:],
-                                             frozen.R_g, frozen.scale * frozen.t_g)
+    seen = jax.vmap(seen_from_previous, in_axes=(0, 0, 0, 0, 0, 0, None))
+    hit = hit & seen(fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g,
+                     frozen.scale * frozen.t_g, fixed.image_hw)
     errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
                                    fixed.static[1:])
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
