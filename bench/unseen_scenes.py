@@ -6,7 +6,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--models correlated depth outliers] [--perturb 0.25] [--pool fit]
                                   [--out rows.csv]
 
-Scene k is ``research.protocol.unseen_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's;
+Scene k is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's;
 with ``--pool fit`` the same sampler on FIT's seeds 30-99, ``FIT_POOL_SEEDS``, where constants may
 be chosen): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static
 spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view
@@ -33,7 +33,7 @@ import numpy as np
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, unseen_scene, write_rows
+from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scene, write_rows
 
 # model, px, depth scale; a cell's noise seed is scene seed * 10 + its index here (the depth-scale cell: 4)
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
@@ -61,7 +61,7 @@ def main() -> None:
     cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = []
     for k in range(args.scenes):
-        scene = unseen_scene(k, args.fovs, args.pool)
+        scene = random_scene(k, args.fovs, args.pool)
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)

@@ -24,9 +24,9 @@ from sgc_jax.research.protocol import (
     Cell,
     cell_clips,
     detection_table,
+    random_scene,
     rows_scored_or_read,
     tracks_on_mover,
-    unseen_scene,
 )
 from sgc_jax.research.synth import synth_clip
 
@@ -142,7 +142,7 @@ def test_test_split_shares_no_seed_with_the_fit_split():
 
 def test_unseen_scenes_share_no_seed_with_either_split():
     assert not set(UNSEEN_SEEDS) & (set(FIT_SEEDS) | set(TEST_SEEDS))
-    assert unseen_scene(3).spec == unseen_scene(3).spec and unseen_scene(3).seed == UNSEEN_SEEDS[3]
+    assert random_scene(3).spec == random_scene(3).spec and random_scene(3).seed == UNSEEN_SEEDS[3]
 
 
 def test_fit_pool_lies_in_fit_and_shares_no_seed_with_other_fit_scenes():
@@ -151,7 +151,7 @@ def test_fit_pool_lies_in_fit_and_shares_no_seed_with_other_fit_scenes():
     bench_scenes = {10, 11, 12}  # bench/excess_score.py, intervals.py, noise_floors.py: seed 10 + s
     taken = {s.seed for s in FIT_SCENES} | set(json.loads(text)["corpus"]["seeds"]) | bench_scenes
     assert not set(FIT_POOL_SEEDS) & taken
-    scene = unseen_scene(5, pool="fit")
+    scene = random_scene(5, pool="fit")
     assert scene.seed == FIT_POOL_SEEDS[5] and scene.name == "fit-pool-5"
 
 

@@ -92,7 +92,7 @@ TEST_SCENES = (
 SPLITS = {"fit": FIT_SCENES, "test": TEST_SCENES}
 
 #: UNSEEN: scenes drawn at random over (and beyond) both splits' ranges, for reports only: six TEST
-#: scenes sample few layouts. Scene k has seed UNSEEN_SEEDS[k] and its spec from ``unseen_scene``.
+#: scenes sample few layouts. Scene k has seed UNSEEN_SEEDS[k] and its spec from ``random_scene``.
 UNSEEN_SEEDS = range(7200, 7300)
 UNSEEN_SIZES = ((96, 128), (120, 160), (144, 192), (192, 256))
 #: FIT's own random scenes, drawn as the unseen ones from FIT seeds no other FIT scene uses (the
@@ -101,7 +101,7 @@ FIT_POOL_SEEDS = range(30, 100)
 RANDOM_POOLS = {"unseen": UNSEEN_SEEDS, "fit": FIT_POOL_SEEDS}
 
 
-def unseen_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") -> ProtocolScene:
+def random_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") -> ProtocolScene:
     """Scene k of a random pool (``RANDOM_POOLS``: "unseen", report-only, or "fit"): size among
     ``UNSEEN_SIZES``, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and
     0.05-0.3 depth units of motion a frame, orbit (2 in 3) or forward, the field of view among
