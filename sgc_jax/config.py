@@ -19,13 +19,15 @@ TRACKS_PER_LAYER = 70
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
-# nearer surface when a point nearer by more than this fraction lands within one pixel of it (a
-# depth edge, not the slope of one surface).
+# nearer surface when a point nearer by more than this fraction covers it (a depth edge, not the
+# slope of one surface).
 HOLE_DEPTH_MARGIN = 0.05
-# A surface that comes nearer by more than 2x between frames leaves gaps wider than a pixel between
-# its splats: a point magnified m times (2^l <= m < 2^(l+1)) also covers the pixels of its square
-# on a grid of side 2^l, for l = 1 .. HOLE_LEVELS (magnifications up to 2^(HOLE_LEVELS+1)).
+# A point magnified m times (its surface's splats lie about m px apart) covers the pixels within
+# its reach of it: the gaps between its surface's splats and, at an edge, the up to m px its
+# surface extends past its last splat. The reach is m from 2x on (levels 2^l <= m < 2^(l+1),
+# l = 1 .. HOLE_LEVELS), at most MAX_HOLE_REACH_PX; 1 or 2 px below (docs/semantics.md §3.6 step 3).
 HOLE_LEVELS = 6
+MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5

@@ -11,7 +11,7 @@ from sgc_jax.kernels import warp
 from sgc_jax.kernels.so3 import so3_exp
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
-warp_depth = jax.jit(warp.warp_depth, static_argnames=("nearest", "mask_holes"))
+warp_depth = jax.jit(warp.warp_depth, static_argnames=("nearest", "mask_holes", "magnified"))
 depth_error = jax.jit(warp.depth_error, static_argnames=("relative",))
 
 H, W = 24, 32
@@ -188,23 +188,52 @@ def test_hole_rule_keeps_every_pixel_of_a_smooth_surface():
     np.testing.assert_array_equal(masked, plain)
 
 
-def test_footprint_cover_is_the_nearest_point_whose_2x2_footprint_covers_each_pixel():
-    rng = np.random.default_rng(5)
-    n = H * W
-    u = rng.uniform(-3.0, W + 2.0, n).astype(np.float32)
-    v = rng.uniform(-3.0, H + 2.0, n).astype(np.float32)
-    u[:4], v[:4] = [-1.0, W - 1e-3, np.nan, -1.5], [-0.5, H - 0.5, 1.0, 2.0]  # edges, NaN, out by one
+def random_points(rng, n, Hc, Wc, magnifications):
+    """n random front (90 %) points around and beyond an (Hc, Wc) image, magnified as drawn."""
+    u = rng.uniform(-40.0, Wc + 40.0, n).astype(np.float32)
+    v = rng.uniform(-40.0, Hc + 40.0, n).astype(np.float32)
+    u[:4], v[:4] = [-1.0, Wc - 1e-3, np.nan, -2.5], [-0.5, Hc - 0.5, 1.0, 2.0]  # edges, NaN, out by a little
     z = rng.uniform(0.1, 5.0, n).astype(np.float32)
-    front = rng.uniform(size=n) > 0.2
-    expected = np.full((H, W), np.inf, np.float32)
-    for ui, vi, zi, fi in zip(u, v, z, front):
-        if fi and np.isfinite(ui) and np.isfinite(vi):
-            for iv in (int(np.floor(vi)), int(np.floor(vi)) + 1):
-                for iu in (int(np.floor(ui)), int(np.floor(ui)) + 1):
-                    if 0 <= iu < W and 0 <= iv < H:
-                        expected[iv, iu] = min(expected[iv, iu], zi)
-    cover = jax.jit(warp._footprint_cover, static_argnums=(4, 5))(u, v, z, front, H, W)
-    np.testing.assert_array_equal(np.asarray(cover).reshape(H, W), expected)
+    front = (rng.uniform(size=n) > 0.1) & np.isfinite(u)
+    return warp.Splat(np.zeros(n, np.int32), z, u, v, front, magnifications.astype(np.float32))
+
+
+def reference_cover(points, Hc, Wc):
+    on = points.front
+    return reference._hole_cover(np.stack([points.u, points.v])[:, on].astype(np.float64),
+                                 points.z[on].astype(np.float64), points.magnification[on].astype(np.float64), Hc, Wc)
+
+
+@pytest.mark.parametrize("largest_level", [0, warp.HOLE_LEVELS + 1])
+def test_hole_cover_matches_the_reference(largest_level):
+    rng = np.random.default_rng(11 + largest_level)
+    Hc, Wc, n = 40, 56, 600
+    points = random_points(rng, n, Hc, Wc, np.exp2(rng.uniform(-1.0, largest_level + 1.0, n)))
+    cover = jax.jit(warp._hole_cover, static_argnums=(1, 2))(points, Hc, Wc)
+    np.testing.assert_array_equal(np.asarray(cover).reshape(Hc, Wc), reference_cover(points, Hc, Wc).astype(np.float32))
+
+
+def documented_reach(magnification):
+    """docs/semantics.md §3.6 step 3: m from 2x on (up to the largest), else 1 below 1x and 2 below 2x."""
+    return 1.0 if magnification < 1.0 else 2.0 if magnification < 2.0 else min(magnification, warp.MAX_HOLE_REACH_PX)
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_point_covers_the_pixels_within_its_reach(engine):
+    rng = np.random.default_rng(8)
+    Hc = Wc = 160
+    rows, cols = np.mgrid[:Hc, :Wc]
+    for magnification in np.exp2(rng.uniform(-1.0, 5.0, 24)):
+        u, v = rng.uniform(60.0, 100.0, 2)
+        points = warp.Splat(np.zeros(1, np.int32), np.ones(1, np.float32), np.float32([u]), np.float32([v]),
+                            np.ones(1, bool), np.float32([magnification]))
+        if engine == "jax":
+            cover = np.asarray(jax.jit(warp._hole_cover, static_argnums=(1, 2))(points, Hc, Wc)).reshape(Hc, Wc)
+        else:
+            cover = reference_cover(points, Hc, Wc)
+        r = documented_reach(magnification)
+        within = (cols > u - r) & (cols <= u + r) & (rows > v - r) & (rows <= v + r)
+        np.testing.assert_array_equal(np.isfinite(cover), within, err_msg=f"m = {magnification}")
 
 
 def approach_to_a_square(magnification):
@@ -237,19 +266,46 @@ def test_no_background_shows_through_a_surface_magnified_many_times(engine, magn
     np.testing.assert_allclose(warped[wall & hit], 8.0 + t[2], rtol=Z_RTOL)
 
 
-def test_magnified_cover_matches_the_reference_level_by_level():
-    rng = np.random.default_rng(11)
-    Hm, Wm, n = 40, 56, 600
-    u = rng.uniform(-40.0, Wm + 40.0, n).astype(np.float32)
-    v = rng.uniform(-40.0, Hm + 40.0, n).astype(np.float32)
-    z = rng.uniform(0.1, 5.0, n).astype(np.float32)
-    magnification = np.exp2(rng.uniform(-1.0, warp.HOLE_LEVELS + 2.0, n)).astype(np.float32)
-    front = rng.uniform(size=n) > 0.1
-    points = warp.Splat(np.zeros(n, np.int32), z, u, v, front, magnification)
-    cover = jax.jit(warp._magnified_cover, static_argnums=(1, 2))(points, Hm, Wm)
-    expected = reference._magnified_cover(np.stack([u, v])[:, front].astype(np.float64), z[front].astype(np.float64),
-                                          magnification[front].astype(np.float64), Hm, Wm)
-    np.testing.assert_array_equal(np.asarray(cover).reshape(Hm, Wm), expected.astype(np.float32))
+def approach_to_a_square_edge(magnification):
+    """A fronto-parallel square at depth 2 before a wall at depth 8 on a 48x64 image, its true edge
+    0.95 px beyond its last pixel centres (the next centres lie on the wall), and the forward motion
+    that magnifies it ``magnification`` times -> (depth0, K, t, frame-1 mask of the true square)."""
+    K2 = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]], np.float32)
+    v, u = np.mgrid[:48, :64]
+    square = lambda half: (np.abs(u - K2[0, 2]) <= half) & (np.abs(v - K2[1, 2]) <= half)  # noqa: E731
+    half = np.floor(14.0 / magnification) + 0.5 + 0.95
+    depth0 = np.where(square(half), 2.0, 8.0).astype(np.float32)
+    t = np.array([0.0, 0.0, -(2.0 - 2.0 / magnification)], np.float32)
+    return depth0, K2, t, square(half * magnification)
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+@pytest.mark.parametrize("magnification", [1.5, 2.2, 5.0])
+def test_the_wall_does_not_show_where_a_magnified_square_grows_beyond_its_splats(engine, magnification):
+    depth0, K2, t, square = approach_to_a_square_edge(magnification)
+    plain, plain_hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K2, K2, I3, t))
+    assert np.any(plain[square & plain_hit] > 2.0)  # without the rule the wall lands inside the square's edge
+    if engine == "jax":
+        warped, hit = map(np.asarray, warp_depth(depth0, depth0 > 0, K2, K2, I3, t, mask_holes=True))
+    else:
+        warped = reference.warp_depth(depth0, K2, K2, np.eye(3), t.astype(np.float64), mask_holes=True)
+        hit = warped > 0
+    assert hit[square].any() and hit[~square].any()
+    np.testing.assert_allclose(warped[square & hit], 2.0 / magnification, rtol=Z_RTOL)
+
+
+def test_the_larger_squares_change_nothing_where_no_point_comes_2x_nearer():
+    has_magnified = jax.jit(warp.has_magnified)
+    for magnification, t in ((1.5, None), (3.0, None), (1.0, np.array([0.2, -0.1, -0.3], np.float32))):
+        depth0, K2, t_square, _ = approach_to_a_square_edge(magnification)
+        t = t_square if t is None else t
+        full, small = (np.asarray(warp_depth(depth0, depth0 > 0, K2, K2, I3, t, mask_holes=True, magnified=m)[1])
+                       for m in (True, False))
+        assert bool(has_magnified(depth0, depth0 > 0, K2, K2, I3, t)) == (magnification >= 2.0)
+        if magnification < 2.0:
+            np.testing.assert_array_equal(small, full)
+        else:
+            assert (small & ~full).any()  # without them the wall shows beyond the square's splats
 
 
 def entering_square():

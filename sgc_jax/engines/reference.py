@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, HOLE_LEVELS, NOISE_BLOCK_FRAC, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, MAX_HOLE_REACH_PX, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
 from ..stats import cut_variance_factor, trimmed
 from . import reference_pose as reference_pose_search
@@ -494,9 +494,9 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
 
     Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
     nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
-    ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN`` lands among
-    the 2x2 pixels around its exact position, or, magnified 2^l to 2^(l+1) times, among the 2x2
-    squares of side 2^l around it (the splat is seen through a hole in that surface).
+    ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN``, magnified m
+    times, lies within max(m, 1) px (1 or 2 px below m = 2; ``hole_squares``): the splat is seen
+    through a hole in that surface or beyond its last splat.
     """
     H, W = depth_prev.shape
     rows, cols = np.nonzero(valid_depth(depth_prev))
@@ -517,7 +517,7 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
         buffer = np.full((H, W), np.inf)
         np.minimum.at(buffer, (iv, iu), z)
         if mask_holes:
-            cover = np.minimum(_footprint_cover(proj, z_front, H, W), _magnified_cover(proj, z_front, magnification, H, W))
+            cover = _hole_cover(proj, z_front, magnification, H, W)
             buffer[buffer > (1.0 + HOLE_DEPTH_MARGIN) * cover] = np.inf
         return np.where(np.isfinite(buffer), buffer, 0.0)
     buffer = np.zeros((H, W))
@@ -525,34 +525,31 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     return buffer
 
 
-def _footprint_cover(proj: np.ndarray, z: np.ndarray, H: int, W: int) -> np.ndarray:
-    """(H, W) nearest z among the points (projections (2+, n), depths (n,)) whose four pixels
-    floor(u) + {0, 1}, floor(v) + {0, 1} include the pixel; inf where none."""
-    cover = np.full((H, W), np.inf)
-    for du in (0, 1):
-        for dv in (0, 1):
-            iu, iv = np.floor(proj[0]) + du, np.floor(proj[1]) + dv
-            inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
-            np.minimum.at(cover, (iv[inside].astype(np.int64), iu[inside].astype(np.int64)), z[inside])
-    return cover
+def hole_squares(centre: np.ndarray, magnification: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis, the pixels first .. last - 1 a point at ``centre`` (n,) covers in the hole rule:
+    k with centre - r < k <= centre + r, its reach r its magnification m up to MAX_HOLE_REACH_PX
+    where m >= 2, and 1 (m < 1) or 2 below -> (first, last) int64 (n,)."""
+    reach = np.where(magnification < 1.0, 1.0, np.where(magnification < 2.0, 2.0,
+                                                         np.minimum(magnification, MAX_HOLE_REACH_PX)))
+    return (np.floor(centre - reach) + 1).astype(np.int64), (np.floor(centre + reach) + 1).astype(np.int64)
 
 
-def _magnified_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: int, W: int) -> np.ndarray:
-    """(H, W) nearest z among the points magnified m times, 2^l <= m < 2^(l+1), l = 1 .. HOLE_LEVELS
-    (the last level also beyond), whose squares floor(u / 2^l) + {0, 1}, floor(v / 2^l) + {0, 1}
-    on the grid of side 2^l include the pixel's; inf where none."""
+def _hole_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: int, W: int) -> np.ndarray:
+    """(H, W) nearest z among the points (projections (2+, n), depths (n,)) whose squares
+    (``hole_squares``) include the pixel; inf where none: squares of up to 4 pixels a side (every
+    point magnified less than 2x) by their offsets, larger ones point by point."""
+    u0, u1 = hole_squares(proj[0], magnification)
+    v0, v1 = hole_squares(proj[1], magnification)
     cover = np.full((H, W), np.inf)
-    level = np.clip(np.floor(np.log2(np.maximum(magnification, 1.0))), 0, HOLE_LEVELS)
-    for lv in range(1, HOLE_LEVELS + 1):
-        side, on = 2**lv, level == lv
-        rows, cols = -(-H // side), -(-W // side)
-        grid = np.full((rows, cols), np.inf)
-        for du in (0, 1):
-            for dv in (0, 1):
-                iu, iv = np.floor(proj[0][on] / side) + du, np.floor(proj[1][on] / side) + dv
-                inside = (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows)
-                np.minimum.at(grid, (iv[inside].astype(np.int64), iu[inside].astype(np.int64)), z[on][inside])
-        cover = np.minimum(cover, np.repeat(np.repeat(grid, side, axis=0), side, axis=1)[:H, :W])
+    small = (u1 - u0 <= 4) & (v1 - v0 <= 4)
+    for du in range(4):
+        for dv in range(4):
+            iu, iv = u0 + du, v0 + dv
+            on = small & (iu < u1) & (iv < v1) & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+            np.minimum.at(cover, (iv[on], iu[on]), z[on])
+    for k in np.nonzero(~small)[0]:
+        window = cover[max(v0[k], 0):max(v1[k], 0), max(u0[k], 0):max(u1[k], 0)]
+        np.minimum(window, z[k], out=window)
     return cover
 
 

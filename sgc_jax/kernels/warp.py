@@ -3,12 +3,14 @@ poses as in ``camera``."""
 
 from __future__ import annotations
 
+import functools
+import itertools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS
+from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS, MAX_HOLE_REACH_PX
 from .camera import back_project_xyz, project_xyz, transform_xyz
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
@@ -65,28 +67,37 @@ def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
                  magnification.reshape(-1))
 
 
-def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool):
-    """The z-buffer (H W,) of the nearest z landing on each pixel (inf where none) and hit (H W,)."""
+def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool, magnified: bool = True):
+    """The z-buffer (H W,) of the nearest z landing on each pixel (inf where none) and hit (H W,);
+    ``mask_holes``: the hole rule (``_hole_cover``; ``magnified``: for points magnified 2x or more
+    too, which may be left out only where there are none, ``has_magnified``)."""
     buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[points.target].min(points.z, mode="drop")
     hit = buffer < jnp.inf
     if mask_holes:
-        cover = jnp.minimum(_footprint_cover(points.u, points.v, points.z, points.front, H, W),
-                            _magnified_cover(points, H, W))
+        cover = _hole_cover(points, H, W) if magnified else _ordinary_cover(points, H, W)
         hit = hit & (buffer <= (1.0 + HOLE_DEPTH_MARGIN) * cover)
     return buffer, hit
 
 
-def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False):
+def has_magnified(depth_prev, valid_prev, K_prev, K_curr, R, t):
+    """bool: some valid pixel of frame i-1 comes 2x or more nearer in frame i (``splat``): only then
+    does the hole rule need its larger squares, which cost a pair several times the rest."""
+    points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
+    return jnp.any(points.front & (points.magnification >= 2.0))
+
+
+def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False,
+               magnified: bool = True):
     """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
     hit (H, W) bool) (``splat``). Collisions keep the nearest z (``nearest``, a z-buffer) or the
     farthest (the authors' code). ``mask_holes`` (spec): no hit where a point nearer by more than
-    HOLE_DEPTH_MARGIN lands within one pixel (within its square of side 2^l when magnified
-    2^l to 2^(l+1) times, ``_magnified_cover``), since what reached it is seen through a gap between
-    a magnified nearer surface's splats."""
+    HOLE_DEPTH_MARGIN lies within its reach (``hole_reach``, ``_hole_cover``), since what reached
+    it is seen through a gap between a nearer surface's splats or past its last one;
+    ``magnified``: as in ``nearest_hits``."""
     H, W = depth_prev.shape
     points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
     if nearest:
-        buffer, hit = nearest_hits(points, H, W, mask_holes)
+        buffer, hit = nearest_hits(points, H, W, mask_holes, magnified)
     else:
         buffer = jnp.full(H * W, -jnp.inf, jnp.float32).at[points.target].max(points.z, mode="drop")
         hit = buffer > -jnp.inf
@@ -94,12 +105,12 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     return warped.reshape(H, W), hit.reshape(H, W)
 
 
-def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bool = True):
+def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bool = True, magnified: bool = True):
     """The nearest-z warp's choice: (source (H W,) int32, the pixel of frame i-1 whose point each
     pixel of frame i keeps (the first of equal z), H W where none; hit (H, W) bool)."""
     H, W = depth_prev.shape
     points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
-    buffer, hit = nearest_hits(points, H, W, mask_holes)
+    buffer, hit = nearest_hits(points, H, W, mask_holes, magnified)
     won = points.target < H * W
     won = won & (points.z == buffer[jnp.minimum(points.target, H * W - 1)])
     index = jnp.arange(H * W, dtype=jnp.int32)
@@ -107,54 +118,78 @@ def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bo
     return jnp.where(hit, source, H * W), hit.reshape(H, W)
 
 
-def _footprint_cover(u_c, v_c, z, front, H, W):
-    """(H W,) nearest z of the points whose 2x2 footprint (floor(u) + {0, 1}, floor(v) + {0, 1})
-    covers each pixel, inf where none does: holes up to a magnification of 2 are covered."""
-    # one scatter to each footprint's corner on a grid with a row and column before the image's,
-    # then the minimum over the 2x2 corners that reach a pixel: four scatters' minimum, for one
-    u0, v0 = jnp.floor(u_c), jnp.floor(v_c)
-    inside = front & (u0 >= -1) & (u0 < W) & (v0 >= -1) & (v0 < H)  # in float: no int overflow
-    corner = jnp.where(inside, (v0.astype(jnp.int32) + 1) * (W + 1) + u0.astype(jnp.int32) + 1, (H + 1) * (W + 1))
-    nearest = jnp.full((H + 1) * (W + 1), jnp.inf, jnp.float32).at[corner.reshape(-1)].min(z.reshape(-1), mode="drop")
-    nearest = nearest.reshape(H + 1, W + 1)  # [1 + floor(v), 1 + floor(u)]
-    cover = jnp.minimum(jnp.minimum(nearest[1:, 1:], nearest[1:, :-1]), jnp.minimum(nearest[:-1, 1:], nearest[:-1, :-1]))
-    return cover.reshape(-1)
+def hole_reach(magnification):
+    """A point's reach r [px] in the hole rule (docs/semantics.md §3.6 step 3): its magnification
+    m where m >= 2, up to MAX_HOLE_REACH_PX; below, m rounded up to 1 or 2, so that an ordinary
+    pair's squares have fixed sides (one scatter and fixed windows, ``_ordinary_cover``)."""
+    return jnp.where(magnification < 1.0, 1.0, jnp.where(magnification < 2.0, 2.0,
+                                                          jnp.minimum(magnification, MAX_HOLE_REACH_PX)))
+
+
+def _hole_cover(points: Splat, H: int, W: int):
+    """(H W,) nearest z of the front points whose square covers each pixel, inf where none does:
+    a point of reach r (``hole_reach``) at (u, v) covers the pixels (k, j) with u - r < k <= u + r
+    and v - r < j <= v + r."""
+    return jnp.minimum(_ordinary_cover(points, H, W), _magnified_cover(points, H, W))
+
+
+def _ordinary_cover(points: Splat, H: int, W: int):
+    """``_hole_cover`` for the points magnified less than 2x: squares of 2 (reach 1) or 4 pixels
+    from floor(u - r) + 1. One scatter of their first pixels into a grid per reach (with a margin of
+    3 before the image's), then each grid's sliding minimum."""
+    ordinary = points.front & (points.magnification < 2.0)
+    reach = hole_reach(points.magnification)
+    col, row = jnp.floor(points.u - reach) + 4.0, jnp.floor(points.v - reach) + 4.0  # in float: no int overflow
+    gh, gw = H + 3, W + 3
+    inside = ordinary & (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
+    grid = (reach > 1.0).astype(jnp.int32)
+    cell = jnp.where(inside, grid * gh * gw + row.astype(jnp.int32) * gw + col.astype(jnp.int32), 2 * gh * gw)
+    firsts = jnp.full(2 * gh * gw, jnp.inf, jnp.float32).at[cell].min(points.z, mode="drop").reshape(2, gh, gw)
+    return jnp.minimum(_sliding_min(firsts[0, 2:, 2:], 2), _sliding_min(firsts[1], 4)).reshape(-1)
 
 
 def _magnified_cover(points: Splat, H: int, W: int):
-    """(H W,) nearest z of the points magnified m >= 2 times whose footprint on the grid of side
-    s = 2^l, 2^l <= m < 2^(l+1) (cells floor(u / s) + {0, 1}, floor(v / s) + {0, 1}) covers each
-    pixel, inf where none does: their splats lie less than 2 s apart, so each window of 2 s holds
-    one. A pair without such a point skips the grids (on a CPU, where pairs run one by one)."""
-    magnified = points.front & (points.magnification >= 2.0)
-    none = jnp.full(H * W, jnp.inf, jnp.float32)
-    return jax.lax.cond(jnp.any(magnified), lambda: _level_cover(points, magnified, H, W), lambda: none)
-
-
-def _level_cover(points: Splat, magnified, H: int, W: int):
-    """``_magnified_cover``'s grids: one scatter into all of them, then each level's 2x2 minimum,
-    carried from the coarsest grid to the pixels by doubling (each pixel's cell at side s / 2 lies
-    in its cell at side s)."""
-    sides = [2**lv for lv in range(1, HOLE_LEVELS + 1)]
-    cells = [(-(-H // s), -(-W // s)) for s in sides]
-    shapes = [(h + 1, w + 1) for h, w in cells]  # a row and column before the image's
-    starts = [sum(h * w for h, w in shapes[:lv]) for lv in range(len(shapes) + 1)]
-    level = jnp.clip(jnp.floor(jnp.log2(jnp.maximum(points.magnification, 1.0))), 1, HOLE_LEVELS).astype(jnp.int32)
-    pick = lambda values: jnp.array(values, jnp.int32)[level - 1]  # noqa: E731
-    width, height, start = pick([w for _, w in shapes]), pick([h for h, _ in shapes]), pick(starts[:-1])
-    side = jnp.exp2(level.astype(jnp.float32))
-    u0, v0 = jnp.floor(points.u / side), jnp.floor(points.v / side)  # in float: no int overflow
-    inside = magnified & (u0 >= -1) & (u0 < width - 1) & (v0 >= -1) & (v0 < height - 1)
-    cell = start + (v0.astype(jnp.int32) + 1) * width + u0.astype(jnp.int32) + 1
+    """``_hole_cover`` for the points magnified 2x or more -> (H W,): per level l (2^l <= r <
+    2^(l+1)) a grid of the first pixels of P = 2^(l+1) wide squares, then its sliding P x P minimum.
+    A point's square (P to 2 P a side) is the union of the four P-squares anchored at its corners."""
+    levels = range(1, HOLE_LEVELS + 1)
+    reach = hole_reach(points.magnification)
+    level = jnp.clip(jnp.floor(jnp.log2(reach)), 1, HOLE_LEVELS).astype(jnp.int32)
+    on = points.front & (points.magnification >= 2.0)
+    sides = [2 ** (lv + 1) for lv in levels]
+    shapes = [(H + side - 1, W + side - 1) for side in sides]  # a square's first pixel, from 1 - P on
+    starts = [sum(h * w for h, w in shapes[:k]) for k in range(len(shapes) + 1)]
+    of_level = [level == lv for lv in levels]
+    pick = lambda values: jnp.select(of_level, [jnp.asarray(x) for x in values], values[0])  # noqa: E731
+    side, width, start = pick(sides), pick([w for _, w in shapes]), pick(starts[:-1])
+    firsts = []
+    for centre, extent in ((points.v, H), (points.u, W)):  # per axis, in float: no int overflow
+        firsts.append([(first + (side - 1), (first > -side) & (first < extent))
+                       for first in (jnp.floor(centre - reach) + 1.0, jnp.floor(centre + reach) + 1.0 - side)])
     total = starts[-1]
-    nearest = jnp.full(total, jnp.inf, jnp.float32).at[jnp.where(inside, cell, total)].min(points.z, mode="drop")
-    cover = None
-    for (h, w), first, (ch, cw) in reversed(list(zip(shapes, starts, cells))):  # static: coarsest first
-        grid = nearest[first:first + h * w].reshape(h, w)
-        coarse = jnp.minimum(jnp.minimum(grid[1:, 1:], grid[1:, :-1]), jnp.minimum(grid[:-1, 1:], grid[:-1, :-1]))
-        cover = coarse if cover is None else jnp.minimum(coarse, cover[:ch, :cw])
-        cover = jnp.repeat(jnp.repeat(cover, 2, axis=0), 2, axis=1)  # to the next finer grid's cells
-    return cover[:H, :W].reshape(-1)
+    grids = jnp.full(total, jnp.inf, jnp.float32)
+    for (row, row_in), (col, col_in) in itertools.product(*firsts):
+        cell = jnp.where(on & row_in & col_in, start + row.astype(jnp.int32) * width + col.astype(jnp.int32), total)
+        # four scatters of n points, each apart from the computation of its cells: one scatter of
+        # 4 n, or the cells fused into it, runs several times slower on a CPU
+        cell, z = jax.lax.optimization_barrier((cell, points.z))
+        grids = grids.at[cell].min(z, mode="drop")
+    covers = [_sliding_min(grids[first:first + h * w].reshape(h, w), side)
+              for (h, w), first, side in zip(shapes, starts, sides)]
+    return functools.reduce(jnp.minimum, covers).reshape(-1)
+
+
+def _sliding_min(grid, side: int):
+    """(h - side + 1, w - side + 1): the minimum over each side x side window of ``grid`` (h, w),
+    ``side`` a power of two, by doubling the window along each axis."""
+    for axis in (0, 1):
+        width = 1
+        while width < side:
+            n = grid.shape[axis]
+            grid = jnp.minimum(jax.lax.slice_in_dim(grid, 0, n - width, axis=axis),
+                               jax.lax.slice_in_dim(grid, width, n, axis=axis))
+            width *= 2
+    return grid
 
 
 def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None):

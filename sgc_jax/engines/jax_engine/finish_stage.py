@@ -14,7 +14,7 @@ from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
 from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
-from ...kernels.warp import depth_error, seen_from_previous, warp_depth
+from ...kernels.warp import depth_error, has_magnified, seen_from_previous, warp_depth
 from ..units import translation_factor
 from .buckets import Bucket, PaddedClips
 from .pixel_stage import pairs_flat
@@ -29,18 +29,28 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
     size ``image_hw`` (F, 2)), under authors every valid one (depth units). One pair at a time on
     CPU, for the unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
+    pairs = (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw)
 
-    def one(pair):
-        depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw = pair
-        source = depth_prev > 0 if authors else (depth_prev > 0) & static_prev
-        warped, hit = warp_depth(depth_prev, source, K_prev, K_curr, R_g, t_g, nearest=not authors,
-                                 mask_holes=not authors)
+    def source(pair):
+        depth_prev, static_prev = pair[:2]
+        return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
+
+    def one(pair, magnified: bool):
+        _, _, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw = pair
+        warped, hit = warp_depth(*source(pair), K_prev, K_curr, R_g, t_g, nearest=not authors, mask_holes=not authors,
+                                 magnified=magnified)
         if not authors:
             hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
 
-    errors = each(one, (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw),
-                  stage.vectorized)
+    def all_pairs(magnified: bool):
+        return each(functools.partial(one, magnified=magnified), pairs, stage.vectorized)
+
+    if authors:
+        errors = all_pairs(False)
+    else:  # the hole rule's larger squares only for a batch with a surface coming 2x nearer
+        magnified = jnp.any(each(lambda pair: has_magnified(*source(pair), *pair[4:8]), pairs, stage.vectorized))
+        errors = jax.lax.cond(magnified, lambda: all_pairs(True), lambda: all_pairs(False))
     return errors * translation_factor(stage)
 
 

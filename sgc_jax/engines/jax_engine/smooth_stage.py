@@ -22,7 +22,7 @@ from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
-from ...kernels.warp import seen_from_previous, warp_sources
+from ...kernels.warp import has_magnified, seen_from_previous, warp_sources
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
@@ -138,9 +138,15 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     R_local, t_local, accepted = local_poses(clip, X, frozen)
     comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled, frozen.rot_per_px,
                                            frozen.trans_per_px)
-    source, hit = jax.vmap(functools.partial(warp_sources, mask_holes=True))(
-        fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
-        frozen.scale * frozen.t_g)
+    frames = (fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
+              frozen.scale * frozen.t_g)
+
+    def warp_all(magnified: bool):
+        return jax.vmap(functools.partial(warp_sources, mask_holes=True, magnified=magnified))(*frames)
+
+    # the hole rule's larger squares only for a clip with a surface coming 2x nearer
+    source, hit = jax.lax.cond(jnp.any(jax.vmap(has_magnified)(*frames)), lambda: warp_all(True),
+                               lambda: warp_all(False))
     seen = jax.vmap(seen_from_previous, in_axes=(0, 0, 0, 0, 0, 0, None))
     hit = hit & seen(fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g,
                      frozen.scale * frozen.t_g, fixed.image_hw)
