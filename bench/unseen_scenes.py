@@ -2,18 +2,19 @@
 layouts, sizes, frame counts, camera motions and fields of view, each scene drawn once per noise
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
-    python bench/unseen_scenes.py [--scenes 24] [--tracks 1000] [--fovs 60] [--depth-scale-rms 0.02]
-                                  [--models correlated depth outliers] [--perturb 0.25] [--pool fit]
-                                  [--out rows.csv]
+    python bench/unseen_scenes.py [--scenes 24] [--first 0] [--tracks 1000] [--fovs 60]
+                                  [--depth-scale-rms 0.02] [--models correlated depth outliers]
+                                  [--perturb 0.25] [--pool fit] [--out rows.csv]
 
-Scene k is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299, neither FIT's nor TEST's;
-with ``--pool fit`` the same sampler on FIT's seeds 30-99, ``FIT_POOL_SEEDS``, where constants may
-be chosen): size among the protocol's four, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static
-spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a frame, orbit or forward, the field of view
-from ``--fovs``. Noise cells: independent Gaussian track errors at frame i only and at both ends,
-0.5 and 2 px (research.noise); with ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's
-depth multiplied by exp(r N(0, 1)) (``NoiseModel.depth_scale_rel``), a per-frame scale error such as
-monocular depth estimated frame by frame leaves; with ``--models`` also those protocol noise models
+Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
+neither FIT's nor TEST's; with ``--pool fit`` the same sampler on FIT's seeds 30-99,
+``FIT_POOL_SEEDS``, where constants may be chosen): size among the protocol's four, 6, 8 or 12
+frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a
+frame, orbit or forward, the field of view from ``--fovs``. Noise cells: independent Gaussian
+track errors at frame i only and at both ends, 0.5 and 2 px (research.noise); with
+``--depth-scale-rms r`` also iid-both 0.5 px with each frame's depth multiplied by exp(r N(0, 1))
+(``NoiseModel.depth_scale_rel``), a per-frame scale error such as monocular depth estimated frame
+by frame leaves; with ``--models`` also those protocol noise models
 (correlated track errors, depth noise, outliers; research.noise) at 0.5 and 2 px.
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
@@ -44,6 +45,7 @@ CALM = 0.10  # issue 58's bar for a single consistent clip
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=24)
+    parser.add_argument("--first", type=int, default=0, help="the first scene's index k in its pool")
     parser.add_argument("--tracks", type=int, default=1000)
     parser.add_argument("--fovs", type=float, nargs="+", default=[60.0], help="fields of view to draw from [deg]")
     parser.add_argument("--depth-scale-rms", type=float, default=0.0,
@@ -60,7 +62,7 @@ def main() -> None:
     builtin = len(cells)
     cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = []
-    for k in range(args.scenes):
+    for k in range(args.first, args.first + args.scenes):
         scene = random_scene(k, args.fovs, args.pool)
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
@@ -78,7 +80,8 @@ def main() -> None:
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
-    print(f"{args.scenes} scenes of the {args.pool} pool, {args.tracks} tracks, fields of view {args.fovs}\n")
+    print(f"{args.scenes} scenes of the {args.pool} pool from k = {args.first}, {args.tracks} tracks, fields of view "
+          f"{args.fovs}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
     for model, px, scale in cells:

@@ -23,9 +23,9 @@ TRACKS_PER_LAYER = 70
 # slope of one surface).
 HOLE_DEPTH_MARGIN = 0.05
 # A point magnified m times (its surface's splats lie about m px apart) covers the pixels within
-# its reach of it: the gaps between its surface's splats and, at an edge, the up to m px its
-# surface extends past its last splat. The reach is m from 2x on (levels 2^l <= m < 2^(l+1),
-# l = 1 .. HOLE_LEVELS), at most MAX_HOLE_REACH_PX; 1 or 2 px below (docs/semantics.md §3.6 step 3).
+# max(m, 1) px of it (its reach, at most MAX_HOLE_REACH_PX): the gaps between its surface's splats
+# and, at an edge, the up to m px its surface extends past its last splat. Reaches fall into levels
+# 2^l <= r < 2^(l+1), l = 0 .. HOLE_LEVELS (docs/semantics.md §3.6 step 3).
 HOLE_LEVELS = 6
 MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,

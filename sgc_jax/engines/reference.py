@@ -495,8 +495,8 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
     nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
     ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN``, magnified m
-    times, lies within max(m, 1) px (1 or 2 px below m = 2; ``hole_squares``): the splat is seen
-    through a hole in that surface or beyond its last splat.
+    times, lies within max(m, 1) px (``hole_squares``): the splat is seen through a hole in that
+    surface or past its last splat.
     """
     H, W = depth_prev.shape
     rows, cols = np.nonzero(valid_depth(depth_prev))
@@ -527,10 +527,9 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
 
 def hole_squares(centre: np.ndarray, magnification: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per axis, the pixels first .. last - 1 a point at ``centre`` (n,) covers in the hole rule:
-    k with centre - r < k <= centre + r, its reach r its magnification m up to MAX_HOLE_REACH_PX
-    where m >= 2, and 1 (m < 1) or 2 below -> (first, last) int64 (n,)."""
-    reach = np.where(magnification < 1.0, 1.0, np.where(magnification < 2.0, 2.0,
-                                                         np.minimum(magnification, MAX_HOLE_REACH_PX)))
+    k with centre - r < k <= centre + r, its reach r its magnification m, at least 1 and at most
+    MAX_HOLE_REACH_PX -> (first, last) int64 (n,)."""
+    reach = np.clip(magnification, 1.0, MAX_HOLE_REACH_PX)
     return (np.floor(centre - reach) + 1).astype(np.int64), (np.floor(centre + reach) + 1).astype(np.int64)
 
 

@@ -120,10 +120,8 @@ def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bo
 
 def hole_reach(magnification):
     """A point's reach r [px] in the hole rule (docs/semantics.md §3.6 step 3): its magnification
-    m where m >= 2, up to MAX_HOLE_REACH_PX; below, m rounded up to 1 or 2, so that an ordinary
-    pair's squares have fixed sides (one scatter and fixed windows, ``_ordinary_cover``)."""
-    return jnp.where(magnification < 1.0, 1.0, jnp.where(magnification < 2.0, 2.0,
-                                                          jnp.minimum(magnification, MAX_HOLE_REACH_PX)))
+    m, at least 1 (a pixel's neighbours) and at most MAX_HOLE_REACH_PX."""
+    return jnp.clip(magnification, 1.0, MAX_HOLE_REACH_PX)
 
 
 def _hole_cover(points: Splat, H: int, W: int):
@@ -134,28 +132,22 @@ def _hole_cover(points: Splat, H: int, W: int):
 
 
 def _ordinary_cover(points: Splat, H: int, W: int):
-    """``_hole_cover`` for the points magnified less than 2x: squares of 2 (reach 1) or 4 pixels
-    from floor(u - r) + 1. One scatter of their first pixels into a grid per reach (with a margin of
-    3 before the image's), then each grid's sliding minimum."""
-    ordinary = points.front & (points.magnification < 2.0)
-    reach = hole_reach(points.magnification)
-    col, row = jnp.floor(points.u - reach) + 4.0, jnp.floor(points.v - reach) + 4.0  # in float: no int overflow
-    gh, gw = H + 3, W + 3
-    inside = ordinary & (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
-    grid = (reach > 1.0).astype(jnp.int32)
-    cell = jnp.where(inside, grid * gh * gw + row.astype(jnp.int32) * gw + col.astype(jnp.int32), 2 * gh * gw)
-    firsts = jnp.full(2 * gh * gw, jnp.inf, jnp.float32).at[cell].min(points.z, mode="drop").reshape(2, gh, gw)
-    return jnp.minimum(_sliding_min(firsts[0, 2:, 2:], 2), _sliding_min(firsts[1], 4)).reshape(-1)
+    """``_hole_cover`` for the points magnified less than 2x (level 0: squares of 2 to 4 pixels)."""
+    return _level_squares(points, points.front & (points.magnification < 2.0), (0,), H, W)
 
 
 def _magnified_cover(points: Splat, H: int, W: int):
-    """``_hole_cover`` for the points magnified 2x or more -> (H W,): per level l (2^l <= r <
-    2^(l+1)) a grid of the first pixels of P = 2^(l+1) wide squares, then its sliding P x P minimum.
-    A point's square (P to 2 P a side) is the union of the four P-squares anchored at its corners."""
-    levels = range(1, HOLE_LEVELS + 1)
+    """``_hole_cover`` for the points magnified 2x or more (levels 1 .. HOLE_LEVELS)."""
+    return _level_squares(points, points.front & (points.magnification >= 2.0), tuple(range(1, HOLE_LEVELS + 1)), H, W)
+
+
+def _level_squares(points: Splat, on, levels: tuple[int, ...], H: int, W: int):
+    """``_hole_cover`` for the points ``on`` (H W,), all of reach 2^l <= r < 2^(l+1) for some l in
+    ``levels`` -> (H W,). Per level a grid of the first pixels of P = 2^(l+1) wide squares, then its
+    sliding P x P minimum: a point's square (P to 2 P a side) is the union of the four P-squares
+    anchored at its corners, one scatter each."""
     reach = hole_reach(points.magnification)
-    level = jnp.clip(jnp.floor(jnp.log2(reach)), 1, HOLE_LEVELS).astype(jnp.int32)
-    on = points.front & (points.magnification >= 2.0)
+    level = jnp.clip(jnp.floor(jnp.log2(reach)), levels[0], levels[-1]).astype(jnp.int32)
     sides = [2 ** (lv + 1) for lv in levels]
     shapes = [(H + side - 1, W + side - 1) for side in sides]  # a square's first pixel, from 1 - P on
     starts = [sum(h * w for h, w in shapes[:k]) for k in range(len(shapes) + 1)]
