@@ -20,7 +20,7 @@ from sgc_jax import score_batch
 from sgc_jax.adapters import EstimatorFormatError, import_clip, read_cotracker, read_da3, read_tracks
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.cli import main
-from sgc_jax.research.synth import synth_clip
+from sgc_jax.research.synth import CLEAN_SGC_MAX, synth_clip
 
 
 @pytest.fixture(scope="module")
@@ -135,8 +135,8 @@ def test_import_cli_takes_da3_with_cotracker_and_refuses_mixed_sources(tmp_path,
 
 def test_a_da3_and_cotracker3_clip_imported_by_the_cli_scores_its_world_consistent_and_a_squeeze_not(tmp_path):
     """A rigid scene through DA3's file and CoTracker3-like long-range tracks (projected through
-    its own geometry), imported by `sgc-jax import`, scores as the clip itself does (0, its depth
-    error); the same tracks compressed vertically over time score above 0.1."""
+    its own geometry), imported by `sgc-jax import`, scores as the clip itself does (about 0, its
+    depth error); the same tracks compressed vertically over time score above 0.1."""
     clip = synth_clip(seed=3, clip_id="rigid", **SCENE)
     tracks, visibility = long_range_tracks_of(clip, SCENE["n_tracks"])
     squeeze = 1.0 - 0.3 * np.arange(clip.n_frames)[:, None] / (clip.n_frames - 1)
@@ -150,6 +150,6 @@ def test_a_da3_and_cotracker3_clip_imported_by_the_cli_scores_its_world_consiste
         assert main(["import", *common, "--tracks", str(track_file), "--out", str(tmp_path / f"{name}.npz")]) == 0
     original, honest, broken = score_batch([clip, tmp_path / "honest.npz", tmp_path / "squeezed.npz"]).clips
     assert original.status == honest.status == broken.status == "ok"
-    assert original.sgc == honest.sgc == 0.0
+    assert max(original.sgc, honest.sgc) < CLEAN_SGC_MAX
     assert honest.components["depth_error"] == pytest.approx(original.components["depth_error"], rel=SCORE_RTOL)
     assert broken.sgc > 0.1

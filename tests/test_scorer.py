@@ -257,7 +257,7 @@ def test_degenerate_clips_get_a_status_and_never_the_best_reward(scorer, corpus)
 
 def test_the_reward_ranks_clips_the_calibration_scores_zero(scorer, corpus):
     by_id = {c.clip_id: c for c in corpus}
-    out = outputs(scorer, [by_id[name] for name in ("rigid-a", "rigid-b", "drift-0.05", "drift-0.20")])
+    out = outputs(scorer, [by_id[name] for name in ("moving-masked", "noisy-mild", "drift-0.05", "drift-0.20")])
     assert out["sgc"][0] == out["sgc"][1] == 0.0  # a tie in the score ...
     assert out["sgc_unclipped"][0] != out["sgc_unclipped"][1] and out["reward"][0] != out["reward"][1]  # ... not here
     assert out["reward"][3] < out["reward"][2] < min(out["reward"][:2])

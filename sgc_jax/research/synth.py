@@ -487,11 +487,17 @@ def demo_corpus(seed: int = 0) -> list[Clip]:
             for name, group, offset, changes in recipes]
 
 
+#: The most a clean clip of a consistent world scores: its depth error, which has no floor, is the
+#: warp's own rounding at depth edges, and sits above the calibration's zero (the 90th percentile
+#: of its clean clips) on some scenes (docs/semantics.md §3.10); a tenth of issue 58's calm bar.
+CLEAN_SGC_MAX = 0.01
+
 #: What ``sgc-jax demo`` says about its corpus: (claim, test on {clip_id: sgc}). Each holds in
 #: both engines under the default config and calibration (tests/test_demo.py).
 DEMO_CLAIMS = (
-    ("clean rigid clips and masked moving objects score 0: one consistent static world",
-     lambda sgc: max(sgc["rigid-a"], sgc["rigid-b"], sgc["moving-masked"]) == 0.0),
+    ("clean rigid clips and masked moving objects score about 0 (below 0.01, the warp's own rounding): one "
+     "consistent static world",
+     lambda sgc: max(sgc["rigid-a"], sgc["rigid-b"], sgc["moving-masked"]) < CLEAN_SGC_MAX),
     ("a drifting layer raises the score, and more drift raises it more (drift-0.20 > drift-0.05 > 0)",
      lambda sgc: sgc["drift-0.20"] > sgc["drift-0.05"] > 0.0),
     ("tracker noise is not inconsistency: strong noise and outliers (noisy-strong) score below the mildest "
