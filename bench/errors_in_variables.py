@@ -4,8 +4,9 @@ jumps. Each accepted pose gets the expected squared shift of its members' reads 
 per-end noise, propagated through its fit, and the consistent clips and their perturbed twins are
 rescored with it used in one of four ways:
 
-    python bench/errors_in_variables.py [--form floors|cut|refit|weights] [--scenes 24] [--first 0]
-                                        [--pool fit] [--tracks 1000] [--end-px PX]
+    python bench/errors_in_variables.py [--form floors|cut|refit|weights|reject] [--scenes 24]
+                                        [--first 0] [--pool fit] [--tracks 1000] [--end-px PX]
+                                        [--reject-ratio 4]
 
 - ``floors``: the extra covariance A (Σ_i E[ΔD_i²] J_iᵀ g_i g_iᵀ J_i) A added to each pose's floor
   noise (A = (JᵀJ)⁻¹ on the pose's inliers, g_i the pixel shift per depth unit of member i, ΔD_i
@@ -15,7 +16,9 @@ rescored with it used in one of four ways:
 - ``refit``: each pose refitted on its inliers with weights σ² / (σ² + E[shift_i²]) (σ the pose's
   residual sigma), its noise and its weight's geometry scaled by the weighted covariance's growth;
 - ``weights``: the poses kept, their weight in the components (§3.5) lowered by the extra
-  covariance (1 / (usual² + extra²)).
+  covariance (1 / (usual² + extra²));
+- ``reject``: a pose whose extra rotation variance exceeds ``--reject-ratio`` times its floor
+  noise² left out of its pair's components and floors (its pair's reason and evidence as scored).
 
 s, the noise at one end, is the pose's residual sigma over √2 (the tool cannot know whether a
 tracker errs at one end or both), or ``--end-px``. Scenes: the random pool's (``--pool fit``: FIT's
@@ -116,12 +119,12 @@ class Extra:
         return R, t, np.trace(Aw[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Aw[3:, 3:]) / np.trace(self.A[3:, 3:])
 
 
-def rescored(clip, form: str, end_px: float | None, calibration: Calibration):
+def rescored(clip, form: str, end_px: float | None, reject_ratio: float, calibration: Calibration):
     """(SGC as shipped, SGC with the reads' errors used as ``form``, rows (n, 4): each accepted
     pose's squared rotation error [deg²] and floor noise [deg], before and after)."""
     pairs = score_batch([clip]).clips[0].pairs
     unit = depth_unit(clip, CONFIG)
-    names = ("R_local", "t_local", "region_rot_noise", "region_trans_noise", "region_rot_per_px", "region_trans_per_px",
+    names = ("region_status", "R_local", "t_local", "region_rot_noise", "region_trans_noise", "region_rot_per_px", "region_trans_per_px",
              "local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var")
     new = {name: getattr(pairs, name).copy() for name in names}
     rows = []
@@ -146,7 +149,10 @@ def rescored(clip, form: str, end_px: float | None, calibration: Calibration):
             else:
                 C = extra.covariance()
                 rot_deg, trans = np.degrees(np.sqrt(np.trace(C[:3, :3]))), np.sqrt(np.trace(C[3:, 3:])) / unit
-                if form == "weights":
+                if form == "reject":
+                    if rot_deg**2 > reject_ratio * noise**2:
+                        new["region_status"][i, r] = REGION_STATUS["ill_conditioned"]
+                elif form == "weights":
                     new["region_rot_per_px"][i, r] *= np.hypot(1.0, rot_deg / pairs.region_rot_std[i, r])
                     new["region_trans_per_px"][i, r] *= np.hypot(1.0, trans / pairs.region_trans_std[i, r])
                 else:
@@ -154,7 +160,13 @@ def rescored(clip, form: str, end_px: float | None, calibration: Calibration):
                     new["region_trans_noise"][i, r] = np.hypot(pairs.region_trans_noise[i, r], trans)
             rows.append((np.sum(rotation_log_deg(pairs.R_local[i, r] @ R_true.T) ** 2), noise,
                          np.sum(rotation_log_deg(new["R_local"][i, r] @ R_true.T) ** 2), new["region_rot_noise"][i, r]))
-        if accepted.sum() >= 2 and form in ("refit", "weights"):  # the components from the new poses and weights
+        if form == "reject":
+            accepted = new["region_status"][i] == OK
+            if accepted.sum() < 2:
+                new["local_rot_var"][i] = new["local_trans_var"][i] = np.nan
+            if accepted.sum() < 1:
+                new["global_rot_var"][i] = new["global_trans_var"][i] = np.nan
+        if accepted.sum() >= 2 and form in ("refit", "weights", "reject"):  # the components from the new poses, weights
             Rs, ts = list(new["R_local"][i][accepted]), list(new["t_local"][i][accepted])
             spread = (new["region_rot_per_px"][i][accepted], new["region_trans_per_px"][i][accepted])
             R_g = reference.nearest_rotation(R_true)
@@ -170,11 +182,12 @@ def rescored(clip, form: str, end_px: float | None, calibration: Calibration):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--form", choices=("floors", "cut", "refit", "weights"), default="floors")
+    parser.add_argument("--form", choices=("floors", "cut", "refit", "weights", "reject"), default="floors")
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--pool", default="fit")
     parser.add_argument("--tracks", type=int, default=1000)
+    parser.add_argument("--reject-ratio", type=float, default=4.0)
     parser.add_argument("--end-px", type=float, default=None, help="the noise at one end [px] (default: sigma / √2)")
     args = parser.parse_args()
     calibration = Calibration.load("sgc-spec-2026")
@@ -189,12 +202,12 @@ def main() -> None:
                 continue
             noise = NOISE_MODELS[model].replace(px=px, depth_scale_rel=0.0)
             before, after, rows = rescored(add_noise(clean, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                           args.form, args.end_px, calibration)
+                                           args.form, args.end_px, args.reject_ratio, calibration)
             consistent.setdefault(model, []).append((before, after, rows))
             line = f"{scene.name} {model} {px} px: {before:.3f} -> {after:.3f};"
             for kind, exact in variants:
                 p_before, p_after, _ = rescored(add_noise(exact, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                                args.form, args.end_px, calibration)
+                                                args.form, args.end_px, args.reject_ratio, calibration)
                 detected.setdefault((model, kind), []).append((p_before > before, p_after > after))
                 line += f" {kind} {p_before:.3f} -> {p_after:.3f}"
             print(line, flush=True)

@@ -159,8 +159,9 @@ def percentile_of_sorted(ordered: Any, n: Any, q: int, xp=np) -> Any:
     hi = xp.minimum(lo + 1, last)
     at = lambda i: xp.take_along_axis(ordered, xp.asarray(i)[..., None].astype(np.int32), axis=-1)[..., 0]  # noqa: E731
     a, b = at(lo), at(hi)
-    diff = xp.where(hi > lo, b - a, 0.0)  # never inf - inf
-    return xp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
+    with np.errstate(invalid="ignore"):  # NumPy evaluates both branches: inf - inf where masked out
+        diff = xp.where(hi > lo, b - a, 0.0)  # never inf - inf
+        return xp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
 
 
 def trimmed(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
@@ -170,10 +171,11 @@ def trimmed(values: Any, valid: Any, compat: str = "spec", xp=np) -> Any:
     n = xp.sum(valid, axis=-1)
     ordered = xp.sort(xp.where(valid, values, xp.inf), axis=-1)
     q1, q3, p98 = (percentile_of_sorted(ordered, n, q, xp)[..., None] for q in (25, 75, 98))
-    iqr = q3 - q1
-    iqr_safe = xp.where(iqr > 0, iqr, 1.0)
-    c = (p98 - q3) / iqr_safe
-    kept = valid & (values >= q1 - c * iqr_safe) & (values <= p98)
+    with np.errstate(invalid="ignore"):  # no valid value: the percentiles are inf, and inf - inf is masked below
+        iqr = q3 - q1
+        iqr_safe = xp.where(iqr > 0, iqr, 1.0)
+        c = (p98 - q3) / iqr_safe
+        kept = valid & (values >= q1 - c * iqr_safe) & (values <= p98)
     if compat == "authors":
         return kept & (iqr > 0)
     keep_all = (iqr == 0) | ~xp.any(kept, axis=-1, keepdims=True)
