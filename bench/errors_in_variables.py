@@ -2,11 +2,11 @@
 track's error at frame i−1 also moves where its depth is read, and near a depth edge the read
 jumps. Each accepted pose gets the expected squared shift of its members' reads within the
 per-end noise, propagated through its fit, and the consistent clips and their perturbed twins are
-rescored with it used in one of four ways:
+rescored with it used in one of these ways:
 
-    python bench/errors_in_variables.py [--form floors|cut|refit|weights|reject] [--scenes 24]
+    python bench/errors_in_variables.py [--form floors|cut|refit|weights|reject|gate] [--scenes 24]
                                         [--first 0] [--pool fit] [--tracks 1000] [--end-px PX]
-                                        [--reject-ratio 4]
+                                        [--reject-ratio 4] [--gate 0.05]
 
 - ``floors``: the extra covariance A (Σ_i E[ΔD_i²] J_iᵀ g_i g_iᵀ J_i) A added to each pose's floor
   noise (A = (JᵀJ)⁻¹ on the pose's inliers, g_i the pixel shift per depth unit of member i, ΔD_i
@@ -18,7 +18,10 @@ rescored with it used in one of four ways:
 - ``weights``: the poses kept, their weight in the components (§3.5) lowered by the extra
   covariance (1 / (usual² + extra²));
 - ``reject``: a pose whose extra rotation variance exceeds ``--reject-ratio`` times its floor
-  noise² left out of its pair's components and floors (its pair's reason and evidence as scored).
+  noise² left out of its pair's components and floors (its pair's reason and evidence as scored);
+- ``gate`` (no propagation): each pose refitted on its inliers whose depth read at frame i agrees
+  with the pose's predicted depth within ``--gate`` (relative), a test of both ends' reads, its
+  noise and geometry grown with its covariance.
 
 s, the noise at one end, is the pose's residual sigma over √2 (the tool cannot know whether a
 tracker errs at one end or both), or ``--end-px``. Scenes: the random pool's (``--pool fit``: FIT's
@@ -106,6 +109,25 @@ class Extra:
         Jg = np.einsum("nia,ni->na", self.J, self.direction)
         return self.A @ np.einsum("n,na,nb->ab", self.shift_sq, Jg, Jg) @ self.A
 
+    def gate_refit(self, R, t, depth_curr, gate):
+        """The pose refitted on the inliers whose frame-i depth read agrees with its predicted depth
+        within ``gate`` (relative) -> (R, t, growth of the rotation and translation covariance's
+        trace); as it is where fewer than 6 would remain."""
+        H, W = depth_curr.shape
+        read = depth_curr[np.clip(np.floor(self.uv[:, 1]).astype(int), 0, H - 1),
+                          np.clip(np.floor(self.uv[:, 0]).astype(int), 0, W - 1)]
+        keep = np.isfinite(read) & (read > 0) & (np.abs((self.X @ R.T + t)[:, 2] - read) <= gate * read)
+        if keep.sum() < 6:
+            return R, t, 1.0, 1.0
+        X, uv = self.X[keep], self.uv[keep]
+        for _ in range(REFIT_STEPS):
+            base, J = jacobian(X, self.K, R, t)
+            step = -np.linalg.solve(np.einsum("nia,nib->ab", J, J), np.einsum("nia,ni->a", J, base - uv))
+            R, t = reference.so3_exp(step[:3]) @ R, t + step[3:]
+        J = jacobian(X, self.K, R, t)[1]
+        Ag = np.linalg.inv(np.einsum("nia,nib->ab", J, J))
+        return R, t, np.trace(Ag[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Ag[3:, 3:]) / np.trace(self.A[3:, 3:])
+
     def refit(self, R, t, sigma):
         """The pose refitted with weights sigma² / (sigma² + shift²) -> (R, t, growth of the rotation
         and translation covariance's trace)."""
@@ -119,7 +141,7 @@ class Extra:
         return R, t, np.trace(Aw[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Aw[3:, 3:]) / np.trace(self.A[3:, 3:])
 
 
-def rescored(clip, form: str, end_px: float | None, reject_ratio: float, calibration: Calibration):
+def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: float, calibration: Calibration):
     """(SGC as shipped, SGC with the reads' errors used as ``form``, rows (n, 4): each accepted
     pose's squared rotation error [deg²] and floor noise [deg], before and after)."""
     pairs = score_batch([clip]).clips[0].pairs
@@ -140,8 +162,9 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, calibra
             extra = Extra(points.X[member], points.uv[member], points.uv_prev[member], clip.K[i + 1], R, t, clip.depth[i],
                           end_px if end_px is not None else sigma / np.sqrt(2), CONFIG.inlier_px if form == "cut" else None)
             noise = pairs.region_rot_noise[i, r]
-            if form == "refit":
-                R, t, grow_rot, grow_trans = extra.refit(R, t, sigma)
+            if form in ("refit", "gate"):
+                R, t, grow_rot, grow_trans = (extra.refit(R, t, sigma) if form == "refit"
+                                              else extra.gate_refit(R, t, clip.depth[i + 1], gate))
                 new["R_local"][i, r], new["t_local"][i, r] = R, t / unit
                 for name, grow in (("rot_noise", grow_rot), ("rot_per_px", grow_rot), ("trans_noise", grow_trans),
                                    ("trans_per_px", grow_trans)):
@@ -166,7 +189,7 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, calibra
                 new["local_rot_var"][i] = new["local_trans_var"][i] = np.nan
             if accepted.sum() < 1:
                 new["global_rot_var"][i] = new["global_trans_var"][i] = np.nan
-        if accepted.sum() >= 2 and form in ("refit", "weights", "reject"):  # the components from the new poses, weights
+        if accepted.sum() >= 2 and form in ("refit", "weights", "reject", "gate"):  # the components from the new poses, weights
             Rs, ts = list(new["R_local"][i][accepted]), list(new["t_local"][i][accepted])
             spread = (new["region_rot_per_px"][i][accepted], new["region_trans_per_px"][i][accepted])
             R_g = reference.nearest_rotation(R_true)
@@ -182,12 +205,13 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, calibra
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--form", choices=("floors", "cut", "refit", "weights", "reject"), default="floors")
+    parser.add_argument("--form", choices=("floors", "cut", "refit", "weights", "reject", "gate"), default="floors")
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--pool", default="fit")
     parser.add_argument("--tracks", type=int, default=1000)
     parser.add_argument("--reject-ratio", type=float, default=4.0)
+    parser.add_argument("--gate", type=float, default=0.05)
     parser.add_argument("--end-px", type=float, default=None, help="the noise at one end [px] (default: sigma / √2)")
     args = parser.parse_args()
     calibration = Calibration.load("sgc-spec-2026")
@@ -202,12 +226,12 @@ def main() -> None:
                 continue
             noise = NOISE_MODELS[model].replace(px=px, depth_scale_rel=0.0)
             before, after, rows = rescored(add_noise(clean, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                           args.form, args.end_px, args.reject_ratio, calibration)
+                                           args.form, args.end_px, args.reject_ratio, args.gate, calibration)
             consistent.setdefault(model, []).append((before, after, rows))
             line = f"{scene.name} {model} {px} px: {before:.3f} -> {after:.3f};"
             for kind, exact in variants:
                 p_before, p_after, _ = rescored(add_noise(exact, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                                args.form, args.end_px, args.reject_ratio, calibration)
+                                                args.form, args.end_px, args.reject_ratio, args.gate, calibration)
                 detected.setdefault((model, kind), []).append((p_before > before, p_after > after))
                 line += f" {kind} {p_before:.3f} -> {p_after:.3f}"
             print(line, flush=True)
