@@ -6,7 +6,8 @@ rescored with it used in one of these ways:
 
     python bench/errors_in_variables.py [--form floors|cut|refit|weights|reject|gate] [--scenes 24]
                                         [--first 0] [--pool fit] [--tracks 1000] [--end-px PX]
-                                        [--reject-ratio 4] [--gate 0.05]
+                                        [--reject-ratio 4] [--gate 0.05] [--gate-pose region|camera]
+                                        [--mover]
 
 - ``floors``: the extra covariance A (Σ_i E[ΔD_i²] J_iᵀ g_i g_iᵀ J_i) A added to each pose's floor
   noise (A = (JᵀJ)⁻¹ on the pose's inliers, g_i the pixel shift per depth unit of member i, ΔD_i
@@ -20,13 +21,16 @@ rescored with it used in one of these ways:
 - ``reject``: a pose whose extra rotation variance exceeds ``--reject-ratio`` times its floor
   noise² left out of its pair's components and floors (its pair's reason and evidence as scored);
 - ``gate`` (no propagation): each pose refitted on its inliers whose depth read at frame i agrees
-  with the pose's predicted depth within ``--gate`` (relative), a test of both ends' reads, its
-  noise and geometry grown with its covariance.
+  with the depth a pose predicts within ``--gate`` (relative), a test of both ends' reads, its
+  noise and geometry grown with its covariance; the prediction's pose is the region's own or, with
+  ``--gate-pose camera``, the camera's (R_g, s t_g), which a score could apply before the search.
 
 s, the noise at one end, is the pose's residual sigma over √2 (the tool cannot know whether a
 tracker errs at one end or both), or ``--end-px``. Scenes: the random pool's (``--pool fit``: FIT's
 seeds 30-99), at 2 px under iid-curr and iid-both, each with the three perturbations at 0.25 made
-on the exact clip and given the same noise draw (as bench/unseen_scenes.py). The JAX engine scores;
+on the exact clip and given the same noise draw (as bench/unseen_scenes.py); with ``--mover`` also
+the scene with one moving object unmasked against the same scene masked (research.protocol's
+``mover``). The JAX engine scores;
 each pose's members come from the reference engine's partition (a pose whose member count differs
 is left as it is). Prints, per model, each accepted pose's squared rotation error over its floor
 noise² (z²) before and after, the consistent clips above 0.10 and the detections (a perturbation
@@ -109,14 +113,15 @@ class Extra:
         Jg = np.einsum("nia,ni->na", self.J, self.direction)
         return self.A @ np.einsum("n,na,nb->ab", self.shift_sq, Jg, Jg) @ self.A
 
-    def gate_refit(self, R, t, depth_curr, gate):
-        """The pose refitted on the inliers whose frame-i depth read agrees with its predicted depth
-        within ``gate`` (relative) -> (R, t, growth of the rotation and translation covariance's
-        trace); as it is where fewer than 6 would remain."""
+    def gate_refit(self, R, t, depth_curr, gate, predictor=None):
+        """The pose refitted on the inliers whose frame-i depth read agrees with the depth that
+        ``predictor`` (R, t; default the pose) predicts within ``gate`` (relative) -> (R, t, growth
+        of the rotation and translation covariance's trace); as it is where fewer than 6 would remain."""
+        R_p, t_p = predictor if predictor is not None else (R, t)
         H, W = depth_curr.shape
         read = depth_curr[np.clip(np.floor(self.uv[:, 1]).astype(int), 0, H - 1),
                           np.clip(np.floor(self.uv[:, 0]).astype(int), 0, W - 1)]
-        keep = np.isfinite(read) & (read > 0) & (np.abs((self.X @ R.T + t)[:, 2] - read) <= gate * read)
+        keep = np.isfinite(read) & (read > 0) & (np.abs((self.X @ R_p.T + t_p)[:, 2] - read) <= gate * read)
         if keep.sum() < 6:
             return R, t, 1.0, 1.0
         X, uv = self.X[keep], self.uv[keep]
@@ -141,7 +146,8 @@ class Extra:
         return R, t, np.trace(Aw[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Aw[3:, 3:]) / np.trace(self.A[3:, 3:])
 
 
-def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: float, calibration: Calibration):
+def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: float, gate_pose: str,
+             calibration: Calibration):
     """(SGC as shipped, SGC with the reads' errors used as ``form``, rows (n, 4): each accepted
     pose's squared rotation error [deg²] and floor noise [deg], before and after)."""
     pairs = score_batch([clip]).clips[0].pairs
@@ -153,6 +159,8 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
     for i in range(pairs.n_pairs):
         points = reference.pair_points(clip, i + 1, CONFIG)
         R_true = clip.R_wc[i + 1] @ clip.R_wc[i].T
+        R_g = reference.nearest_rotation(R_true)
+        camera = (R_g, pairs.scale * (clip.t_wc[i + 1] - R_g @ clip.t_wc[i]))  # in the clip's depth units
         accepted = pairs.region_status[i] == OK
         for r in np.flatnonzero(accepted):
             member = points.region == r + 1
@@ -164,7 +172,7 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
             noise = pairs.region_rot_noise[i, r]
             if form in ("refit", "gate"):
                 R, t, grow_rot, grow_trans = (extra.refit(R, t, sigma) if form == "refit"
-                                              else extra.gate_refit(R, t, clip.depth[i + 1], gate))
+                                              else extra.gate_refit(R, t, clip.depth[i + 1], gate, camera if gate_pose == "camera" else None))
                 new["R_local"][i, r], new["t_local"][i, r] = R, t / unit
                 for name, grow in (("rot_noise", grow_rot), ("rot_per_px", grow_rot), ("trans_noise", grow_trans),
                                    ("trans_per_px", grow_trans)):
@@ -192,11 +200,9 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
         if accepted.sum() >= 2 and form in ("refit", "weights", "reject", "gate"):  # the components from the new poses, weights
             Rs, ts = list(new["R_local"][i][accepted]), list(new["t_local"][i][accepted])
             spread = (new["region_rot_per_px"][i][accepted], new["region_trans_per_px"][i][accepted])
-            R_g = reference.nearest_rotation(R_true)
-            t_g = pairs.scale * (clip.t_wc[i + 1] - R_g @ clip.t_wc[i]) / unit
             rot, trans = reference.local_variances(Rs, ts, CONFIG, spread)
             new["local_rot_var"][i], new["local_trans_var"][i] = rot, trans * PERCENT**2
-            rot, trans = reference.global_variances(Rs, ts, R_g, t_g, CONFIG, spread)
+            rot, trans = reference.global_variances(Rs, ts, camera[0], camera[1] / unit, CONFIG, spread)
             new["global_rot_var"][i], new["global_trans_var"][i] = rot, trans * PERCENT**2
     after = summarize_clip(clip.clip_id, dataclasses.replace(pairs, **new), calibration, compat="spec")
     before = summarize_clip(clip.clip_id, pairs, calibration, compat="spec")
@@ -212,6 +218,8 @@ def main() -> None:
     parser.add_argument("--tracks", type=int, default=1000)
     parser.add_argument("--reject-ratio", type=float, default=4.0)
     parser.add_argument("--gate", type=float, default=0.05)
+    parser.add_argument("--gate-pose", choices=("region", "camera"), default="region")
+    parser.add_argument("--mover", action="store_true", help="also an unmasked moving object against it masked")
     parser.add_argument("--end-px", type=float, default=None, help="the noise at one end [px] (default: sigma / √2)")
     args = parser.parse_args()
     calibration = Calibration.load("sgc-spec-2026")
@@ -221,29 +229,38 @@ def main() -> None:
         scene = random_scene(k, (60.0,), args.pool)
         clean = scene.clip(args.tracks)
         variants = [(kind, perturb_clip(clean, kind, 0.25, seed=scene.seed)) for kind in PERTURBATIONS]
+        masked = scene.clip(args.tracks, moving=True) if args.mover else None
         for j, (model, px, _) in enumerate(CELLS):
             if px != 2.0:
                 continue
             noise = NOISE_MODELS[model].replace(px=px, depth_scale_rel=0.0)
             before, after, rows = rescored(add_noise(clean, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                           args.form, args.end_px, args.reject_ratio, args.gate, calibration)
+                                           args.form, args.end_px, args.reject_ratio, args.gate, args.gate_pose, calibration)
             consistent.setdefault(model, []).append((before, after, rows))
             line = f"{scene.name} {model} {px} px: {before:.3f} -> {after:.3f};"
             for kind, exact in variants:
                 p_before, p_after, _ = rescored(add_noise(exact, noise, seed=noise_seed(scene.seed, j, len(CELLS))),
-                                                args.form, args.end_px, args.reject_ratio, args.gate, calibration)
+                                                args.form, args.end_px, args.reject_ratio, args.gate, args.gate_pose, calibration)
                 detected.setdefault((model, kind), []).append((p_before > before, p_after > after))
                 line += f" {kind} {p_before:.3f} -> {p_after:.3f}"
+            if masked is not None:
+                unmasked = dataclasses.replace(masked, static_mask=np.ones_like(masked.static_mask), mask_source="none")
+                twin, mover = (rescored(add_noise(c, noise, seed=noise_seed(scene.seed, j, len(CELLS))), args.form,
+                                        args.end_px, args.reject_ratio, args.gate, args.gate_pose, calibration)[:2]
+                               for c in (masked, unmasked))
+                detected.setdefault((model, "mover"), []).append((mover[0] > twin[0], mover[1] > twin[1]))
+                line += f" mover {mover[0]:.3f} -> {mover[1]:.3f} (masked {twin[0]:.3f} -> {twin[1]:.3f})"
             print(line, flush=True)
     print(f"\n{args.scenes} scenes of the {args.pool} pool from {args.first}, {args.tracks} tracks, form {args.form}\n")
     print("| noise | poses | mean z² | 99th pct. z² | mean squared rotation error [deg²] | consistent clips above 0.10 "
-          "| their median | detections at 0.25: warp, squeeze, depth_warp |")
+          "| their median | detections at 0.25: warp, squeeze, depth_warp (, the mover) |")
     print("|---|---|---|---|---|---|---|---|")
     for model, items in consistent.items():
         rows = np.concatenate([r for *_, r in items])
         z_before, z_after = rows[:, 0] / rows[:, 1] ** 2, rows[:, 2] / rows[:, 3] ** 2
         before, after = np.array([b for b, *_ in items]), np.array([a for _, a, _ in items])
-        hits = [np.array(detected[(model, kind)]).sum(axis=0) for kind in PERTURBATIONS]
+        hits = [np.array(detected[(model, kind)]).sum(axis=0) for kind in (*PERTURBATIONS, "mover")
+                if (model, kind) in detected]
         print(f"| {model} 2 px | {len(rows)} | {z_before.mean():.2f} -> {z_after.mean():.2f} | "
               f"{np.percentile(z_before, 99):.1f} -> {np.percentile(z_after, 99):.1f} | "
               f"{rows[:, 0].mean():.2f} -> {rows[:, 2].mean():.2f} | {np.sum(before > 0.1)} -> {np.sum(after > 0.1)} of "
