@@ -7,7 +7,7 @@ rescored with it used in one of these ways:
     python bench/errors_in_variables.py [--form floors|cut|refit|weights|reject|gate] [--scenes 24]
                                         [--first 0] [--pool fit] [--tracks 1000] [--end-px PX]
                                         [--reject-ratio 4] [--gate 0.05] [--gate-pose region|camera]
-                                        [--mover]
+                                        [--mover] [--models correlated depth outliers]
 
 - ``floors``: the extra covariance A (Σ_i E[ΔD_i²] J_iᵀ g_i g_iᵀ J_i) A added to each pose's floor
   noise (A = (JᵀJ)⁻¹ on the pose's inliers, g_i the pixel shift per depth unit of member i, ΔD_i
@@ -27,7 +27,8 @@ rescored with it used in one of these ways:
 
 s, the noise at one end, is the pose's residual sigma over √2 (the tool cannot know whether a
 tracker errs at one end or both), or ``--end-px``. Scenes: the random pool's (``--pool fit``: FIT's
-seeds 30-99), at 2 px under iid-curr and iid-both, each with the three perturbations at 0.25 made
+seeds 30-99), at 2 px under iid-curr and iid-both (and ``--models``, with bench/unseen_scenes.py's
+draws), each with the three perturbations at 0.25 made
 on the exact clip and given the same noise draw (as bench/unseen_scenes.py); with ``--mover`` also
 the scene with one moving object unmasked against the same scene masked (research.protocol's
 ``mover``). The JAX engine scores;
@@ -43,7 +44,7 @@ import argparse
 import dataclasses
 
 import numpy as np
-from unseen_scenes import CELLS, noise_seed
+from unseen_scenes import CELLS, EXTRA_LEVELS_PX, noise_seed
 
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.calibration import Calibration
@@ -106,7 +107,7 @@ class Extra:
         g = (project(K, (self.X * (1 + STEP)) @ R.T + t) - base) / (STEP * self.X[:, 2:3])
         self.direction = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-30)
         self.shift_sq = read_shift_sq(depth, prev[inl], np.linalg.norm(g, axis=1), sigma_end, cut)
-        self.A = np.linalg.inv(np.einsum("nia,nib->ab", self.J, self.J))
+        self.A = np.linalg.pinv(np.einsum("nia,nib->ab", self.J, self.J))  # a degenerate pose's too
 
     def covariance(self):
         """(6, 6) the reads' covariance of the pose, A (Σ shift² J^T ĝ ĝ^T J) A."""
@@ -127,10 +128,10 @@ class Extra:
         X, uv = self.X[keep], self.uv[keep]
         for _ in range(REFIT_STEPS):
             base, J = jacobian(X, self.K, R, t)
-            step = -np.linalg.solve(np.einsum("nia,nib->ab", J, J), np.einsum("nia,ni->a", J, base - uv))
+            step = -np.linalg.lstsq(np.einsum("nia,nib->ab", J, J), np.einsum("nia,ni->a", J, base - uv), rcond=None)[0]
             R, t = reference.so3_exp(step[:3]) @ R, t + step[3:]
         J = jacobian(X, self.K, R, t)[1]
-        Ag = np.linalg.inv(np.einsum("nia,nib->ab", J, J))
+        Ag = np.linalg.pinv(np.einsum("nia,nib->ab", J, J))
         return R, t, np.trace(Ag[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Ag[3:, 3:]) / np.trace(self.A[3:, 3:])
 
     def refit(self, R, t, sigma):
@@ -139,10 +140,11 @@ class Extra:
         w = sigma**2 / (sigma**2 + self.shift_sq)
         for _ in range(REFIT_STEPS):
             base, J = jacobian(self.X, self.K, R, t)
-            step = -np.linalg.solve(np.einsum("n,nia,nib->ab", w, J, J), np.einsum("n,nia,ni->a", w, J, base - self.uv))
+            step = -np.linalg.lstsq(np.einsum("n,nia,nib->ab", w, J, J), np.einsum("n,nia,ni->a", w, J, base - self.uv),
+                                    rcond=None)[0]
             R, t = reference.so3_exp(step[:3]) @ R, t + step[3:]
         J = jacobian(self.X, self.K, R, t)[1]
-        Aw = np.linalg.inv(np.einsum("n,nia,nib->ab", w, J, J))
+        Aw = np.linalg.pinv(np.einsum("n,nia,nib->ab", w, J, J))
         return R, t, np.trace(Aw[:3, :3]) / np.trace(self.A[:3, :3]), np.trace(Aw[3:, 3:]) / np.trace(self.A[3:, 3:])
 
 
@@ -220,6 +222,8 @@ def main() -> None:
     parser.add_argument("--gate", type=float, default=0.05)
     parser.add_argument("--gate-pose", choices=("region", "camera"), default="region")
     parser.add_argument("--mover", action="store_true", help="also an unmasked moving object against it masked")
+    parser.add_argument("--models", nargs="*", default=[], choices=sorted(set(NOISE_MODELS) - {"iid-curr", "iid-both"}),
+                        help="more noise models at 2 px (research.noise)")
     parser.add_argument("--end-px", type=float, default=None, help="the noise at one end [px] (default: sigma / √2)")
     args = parser.parse_args()
     calibration = Calibration.load("sgc-spec-2026")
@@ -230,7 +234,8 @@ def main() -> None:
         clean = scene.clip(args.tracks)
         variants = [(kind, perturb_clip(clean, kind, 0.25, seed=scene.seed)) for kind in PERTURBATIONS]
         masked = scene.clip(args.tracks, moving=True) if args.mover else None
-        for j, (model, px, _) in enumerate(CELLS):
+        cells = CELLS + tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
+        for j, (model, px, _) in enumerate(cells):
             if px != 2.0:
                 continue
             noise = NOISE_MODELS[model].replace(px=px, depth_scale_rel=0.0)
