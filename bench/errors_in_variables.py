@@ -63,19 +63,15 @@ REFIT_STEPS = 5  # Gauss-Newton steps of the weighted refit (converged well befo
 STEP = 1e-6  # of the numerical derivatives
 
 
-def project(K, Y):
-    return (Y[:, :2] / Y[:, 2:3]) @ K[:2, :2].T + K[:2, 2]
-
-
 def jacobian(X, K, R, t):
     """(pixels (n, 2), d pixels / d (left rotation vector [rad], translation) (n, 2, 6))."""
-    base = project(K, X @ R.T + t)
+    base = reference.project(K, X @ R.T + t)
     J = np.zeros((len(X), 2, 6))
     dt = STEP * max(np.abs(t).max(), 1e-3)
     for a in range(3):
         e = np.eye(3)[a]
-        J[:, :, a] = (project(K, X @ (reference.so3_exp(STEP * e) @ R).T + t) - base) / STEP
-        J[:, :, 3 + a] = (project(K, X @ R.T + t + dt * e) - base) / dt
+        J[:, :, a] = (reference.project(K, X @ (reference.so3_exp(STEP * e) @ R).T + t) - base) / STEP
+        J[:, :, 3 + a] = (reference.project(K, X @ R.T + t + dt * e) - base) / dt
     return base, J
 
 
@@ -101,10 +97,10 @@ class Extra:
 
     def __init__(self, X, uv, prev, K, R, t, depth, sigma_end, cut):
         Y = X @ R.T + t
-        inl = (np.linalg.norm(project(K, Y) - uv, axis=1) < CONFIG.inlier_px) & (Y[:, 2] > 0)
+        inl = (np.linalg.norm(reference.project(K, Y) - uv, axis=1) < CONFIG.inlier_px) & (Y[:, 2] > 0)
         self.X, self.uv, self.K = X[inl], uv[inl], K
         base, self.J = jacobian(self.X, K, R, t)
-        g = (project(K, (self.X * (1 + STEP)) @ R.T + t) - base) / (STEP * self.X[:, 2:3])
+        g = (reference.project(K, (self.X * (1 + STEP)) @ R.T + t) - base) / (STEP * self.X[:, 2:3])
         self.direction = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-30)
         self.shift_sq = read_shift_sq(depth, prev[inl], np.linalg.norm(g, axis=1), sigma_end, cut)
         self.A = np.linalg.pinv(np.einsum("nia,nib->ab", self.J, self.J))  # a degenerate pose's too
@@ -152,7 +148,8 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
              calibration: Calibration):
     """(SGC as shipped, SGC with the reads' errors used as ``form``, rows (n, 4): each accepted
     pose's squared rotation error [deg²] and floor noise [deg], before and after)."""
-    pairs = score_batch([clip]).clips[0].pairs
+    scored = score_batch([clip]).clips[0]
+    pairs = scored.pairs
     unit = depth_unit(clip, CONFIG)
     names = ("region_status", "R_local", "t_local", "region_rot_noise", "region_trans_noise", "region_rot_per_px", "region_trans_per_px",
              "local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var")
@@ -193,13 +190,11 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
                     new["region_trans_noise"][i, r] = np.hypot(pairs.region_trans_noise[i, r], trans)
             rows.append((np.sum(rotation_log_deg(pairs.R_local[i, r] @ R_true.T) ** 2), noise,
                          np.sum(rotation_log_deg(new["R_local"][i, r] @ R_true.T) ** 2), new["region_rot_noise"][i, r]))
-        if form == "reject":
-            accepted = new["region_status"][i] == OK
-            if accepted.sum() < 2:
-                new["local_rot_var"][i] = new["local_trans_var"][i] = np.nan
-            if accepted.sum() < 1:
-                new["global_rot_var"][i] = new["global_trans_var"][i] = np.nan
-        if accepted.sum() >= 2 and form in ("refit", "weights", "reject", "gate"):  # the components from the new poses, weights
+        accepted = new["region_status"][i] == OK
+        if form in ("refit", "weights", "reject", "gate") and not accepted.any():
+            for name in ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var"):
+                new[name][i] = np.nan
+        elif form in ("refit", "weights", "reject", "gate"):  # the components from the new poses and weights
             Rs, ts = list(new["R_local"][i][accepted]), list(new["t_local"][i][accepted])
             spread = (new["region_rot_per_px"][i][accepted], new["region_trans_per_px"][i][accepted])
             rot, trans = reference.local_variances(Rs, ts, CONFIG, spread)
@@ -207,8 +202,7 @@ def rescored(clip, form: str, end_px: float | None, reject_ratio: float, gate: f
             rot, trans = reference.global_variances(Rs, ts, camera[0], camera[1] / unit, CONFIG, spread)
             new["global_rot_var"][i], new["global_trans_var"][i] = rot, trans * PERCENT**2
     after = summarize_clip(clip.clip_id, dataclasses.replace(pairs, **new), calibration, compat="spec")
-    before = summarize_clip(clip.clip_id, pairs, calibration, compat="spec")
-    return before.sgc, after.sgc, np.array(rows, dtype=float).reshape(-1, 4)
+    return scored.sgc, after.sgc, np.array(rows, dtype=float).reshape(-1, 4)
 
 
 def main() -> None:
