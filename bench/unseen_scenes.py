@@ -4,11 +4,12 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
 
     python bench/unseen_scenes.py [--scenes 24] [--first 0] [--tracks 1000] [--fovs 60]
                                   [--depth-scale-rms 0.02] [--models correlated depth outliers]
-                                  [--perturb 0.25] [--pool fit] [--out rows.csv]
+                                  [--perturb 0.25] [--pool fit|held-out] [--out rows.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
 neither FIT's nor TEST's; with ``--pool fit`` the same sampler on FIT's seeds 30-99,
-``FIT_POOL_SEEDS``, where constants may be chosen): size among the protocol's four, 6, 8 or 12
+``FIT_POOL_SEEDS``, where constants may be chosen; with ``--pool held-out`` on seeds 7300-7399,
+unread until a candidate's rule is written): size among the protocol's four, 6, 8 or 12
 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a
 frame, orbit or forward, the field of view from ``--fovs``. Noise cells: independent Gaussian
 track errors at frame i only and at both ends, 0.5 and 2 px (research.noise); with

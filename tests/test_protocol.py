@@ -18,6 +18,7 @@ from sgc_jax.research.protocol import (
     FIT_POOL_SEEDS,
     FIT_SCENES,
     FIT_SEEDS,
+    HELD_OUT_SEEDS,
     TEST_SCENES,
     TEST_SEEDS,
     UNSEEN_SEEDS,
@@ -142,6 +143,7 @@ def test_test_split_shares_no_seed_with_the_fit_split():
 
 def test_unseen_scenes_share_no_seed_with_either_split():
     assert not set(UNSEEN_SEEDS) & (set(FIT_SEEDS) | set(TEST_SEEDS))
+    assert not set(HELD_OUT_SEEDS) & (set(FIT_SEEDS) | set(TEST_SEEDS) | set(UNSEEN_SEEDS))
     assert random_scene(3).spec == random_scene(3).spec and random_scene(3).seed == UNSEEN_SEEDS[3]
 
 

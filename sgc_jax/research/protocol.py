@@ -98,11 +98,14 @@ UNSEEN_SIZES = ((96, 128), (120, 160), (144, 192), (192, 256))
 #: FIT's own random scenes, drawn as the unseen ones from FIT seeds no other FIT scene uses (the
 #: calibration corpus 0-1, the benchmarks 10-12, FIT_SCENES 20-25): constants may be chosen on them.
 FIT_POOL_SEEDS = range(30, 100)
-RANDOM_POOLS = {"unseen": UNSEEN_SEEDS, "fit": FIT_POOL_SEEDS}
+#: HELD_OUT: drawn as the unseen scenes, kept unread for the next candidate's report once its rule is
+#: written (the unseen pool has been read whole; docs/semantics.md §7.4).
+HELD_OUT_SEEDS = range(7300, 7400)
+RANDOM_POOLS = {"unseen": UNSEEN_SEEDS, "fit": FIT_POOL_SEEDS, "held-out": HELD_OUT_SEEDS}
 
 
 def random_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") -> ProtocolScene:
-    """Scene k of a random pool (``RANDOM_POOLS``: "unseen", report-only, or "fit"): size among
+    """Scene k of a random pool (``RANDOM_POOLS``: "unseen" and "held-out", report-only, or "fit"): size among
     ``UNSEEN_SIZES``, 6, 8 or 12 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and
     0.05-0.3 depth units of motion a frame, orbit (2 in 3) or forward, the field of view among
     ``fovs`` [deg]; drawn from ``numpy.random.default_rng(RANDOM_POOLS[pool][k])``."""
