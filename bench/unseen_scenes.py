@@ -5,6 +5,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
     python bench/unseen_scenes.py [--scenes 24] [--first 0] [--tracks 1000] [--fovs 60]
                                   [--depth-scale-rms 0.02] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--out rows.csv]
+                                  [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
 neither FIT's nor TEST's; with ``--pool fit`` the same sampler on FIT's seeds 30-99,
@@ -21,7 +22,10 @@ With ``--perturb s`` each cell also scores the three perturbations at severity s
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
 fitted to. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
-statuses; ``--out`` writes one row per clip (pandas-ready).
+statuses; ``--out`` writes one row per clip (pandas-ready), ``--rows`` prints the tables from such
+a file, and ``--against ROWS`` compares them with rows of the same scenes scored otherwise (another
+tree, config or calibration): per cell the clips above 0.10 and the detections there -> here, their
+sums and the largest fall of one cell's perturbation (the terms issue 58's rules are written in).
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scene, write_rows
+from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scene, read_rows, rows_scored_or_read
 
 # model, px, depth scale; a cell's noise seed is scene seed * 10 + its index here (the depth-scale cell: 4)
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
@@ -58,10 +62,37 @@ def main() -> None:
     parser.add_argument("--pool", choices=sorted(RANDOM_POOLS), default="unseen",
                         help="unseen: report-only seeds 7200-7299; fit: FIT's seeds 30-99")
     parser.add_argument("--out", help="write one row per clip (CSV)")
+    parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
+    parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
+                                          "per cell, clips above 0.10 and detections there -> here")
     args = parser.parse_args()
     cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
     builtin = len(cells)
     cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
+    rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, cells, builtin), ROW_TEXT, ROW_INTEGERS)
+    scenes = len({r["scene"] for r in rows})
+    print(f"{scenes} scenes of the {args.pool} pool, {sorted({r['tracks'] for r in rows})} tracks, fields of view "
+          f"{sorted({r['fov_deg'] for r in rows})}\n")
+    print("| noise | clips above 0.10 | largest | median | statuses |")
+    print("|---|---|---|---|---|")
+    for model, px, scale in cells:
+        cell = consistent(rows, (model, px, scale))
+        sgc = np.array([r["sgc"] for r in cell])
+        statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
+        print(f"| {cell_label(model, px, scale)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
+              f"{np.nanmedian(sgc):.3f} | {statuses} |")
+    severity = args.perturb if args.perturb > 0 else max(r["severity"] for r in rows)
+    if severity > 0:
+        print_detection(rows, cells, severity)
+    if args.against:
+        print_against(rows, read_rows(args.against, ROW_TEXT, ROW_INTEGERS), args.against, cells, severity)
+
+
+ROW_TEXT, ROW_INTEGERS = ("model", "kind", "status", "reason", "camera_motion"), ("scene", "seed", "tracks")
+
+
+def score_rows(args, cells, builtin: int) -> list[dict]:
+    """One row per (scene, noise cell, variant): the consistent clip and its perturbations."""
     rows = []
     for k in range(args.first, args.first + args.scenes):
         scene = random_scene(k, args.fovs, args.pool)
@@ -81,20 +112,45 @@ def main() -> None:
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
-    print(f"{args.scenes} scenes of the {args.pool} pool from k = {args.first}, {args.tracks} tracks, fields of view "
-          f"{args.fovs}\n")
-    print("| noise | clips above 0.10 | largest | median | statuses |")
-    print("|---|---|---|---|---|")
-    for model, px, scale in cells:
-        cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (model, px, scale, "")]
-        sgc = np.array([r["sgc"] for r in cell])
-        statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
-        print(f"| {cell_label(model, px, scale)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
-              f"{np.nanmedian(sgc):.3f} | {statuses} |")
-    if args.perturb > 0:
-        print_detection(rows, cells, args.perturb)
-    if args.out:
-        write_rows(args.out, rows)
+    return rows
+
+
+def consistent(rows: list[dict], cell) -> list[dict]:
+    """The consistent clips of a noise cell (model, px, depth scale)."""
+    return [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (*cell, "")]
+
+
+def detections(rows: list[dict], cell, severity: float) -> dict[str, int]:
+    """Per perturbation, the scenes of a noise cell where it scores above its consistent twin."""
+    keyed = [dict(r, cell=r["scene"]) for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == cell]
+    scenes = len({r["scene"] for r in keyed})
+    shares = detection_table(keyed)
+    return {kind: round(shares.get((kind, severity), 0.0) * scenes) for kind in PERTURBATIONS}
+
+
+def print_against(rows: list[dict], other: list[dict], path: str, cells, severity: float) -> None:
+    """Per noise cell, the consistent clips above 0.10 and the detections at ``severity`` in
+    ``other`` -> in these rows, their sums, and the largest fall of one cell's perturbation."""
+    shared = {r["scene"] for r in rows} & {r["scene"] for r in other}
+    rows, other = ([r for r in x if r["scene"] in shared] for x in (rows, other))
+    print(f"\nAgainst {path}: {len(shared)} scenes in both; there -> here\n")
+    print("| noise | consistent clips above 0.10 | " + " | ".join(PERTURBATIONS) + " |")
+    print("|---|---|" + "---|" * len(PERTURBATIONS))
+    totals, falls = np.zeros((2, 2), int), []
+    for cell in cells:
+        above = [int(sum(r["sgc"] > CALM for r in consistent(x, cell))) for x in (other, rows)]
+        seen = [detections(x, cell, severity) for x in (other, rows)]
+        totals += np.array([above, [sum(d.values()) for d in seen]]).T
+        falls += [(seen[1][kind] - seen[0][kind], cell_label(*cell), kind) for kind in PERTURBATIONS]
+        print(f"| {cell_label(*cell)} | {above[0]} -> {above[1]} | "
+              + " | ".join(f"{seen[0][kind]} -> {seen[1][kind]}" for kind in PERTURBATIONS) + " |")
+    print(f"\nconsistent clips above 0.10: {totals[0, 0]} -> {totals[1, 0]}", end="")
+    if severity > 0:
+        fall = min(falls)
+        print(f"; detections at {severity}: {totals[0, 1]} -> {totals[1, 1]} of "
+              f"{len(shared) * len(cells) * len(PERTURBATIONS)}; the largest fall of one cell's perturbation: "
+              f"{fall[0]} ({fall[1]}, {fall[2]})", end="")
+    print()
 
 
 def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
