@@ -54,7 +54,7 @@ STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "parti
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
 VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
                 "seed", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px",
-                "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac", "depth_read_gate")
+                "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
 def _field(default: Any, help: str, *, flag: str | None = None, choices: tuple[str, ...] | None = None) -> Any:
@@ -122,11 +122,6 @@ class SGCConfig:
                                            "rotation, degrees, that loses at most --ambiguous-inlier-frac of the "
                                            "inliers makes the pose ambiguous")
     ambiguous_inlier_frac: float = _field(0.05, "quality rule: see --ambiguous-rot-deg; in [0, 1)")
-    depth_read_gate: float = _field(0.0, "with a global pose, not under --compat authors: a track whose depth read "
-                                         "at frame i differs from the depth the camera's pose (R_g, s t_g) gives "
-                                         "its frame-(i-1) point by more than this fraction of the read leaves its "
-                                         "region before the pose search (a region the gate would leave with fewer "
-                                         "than --min-region-points keeps all); 0: off (docs/semantics.md §3.2)")
     borrow_region_poses: bool = _field(True, "JAX engine: each region's search also starts from the pair's other "
                                              "region pose that fits its points best (docs/semantics.md §7.1)")
 
@@ -151,8 +146,6 @@ class SGCConfig:
         for name in ("max_rot_std_deg", "max_rot_std_px", "quality_noise_px", "ambiguous_rot_deg"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        if not float(self.depth_read_gate) >= 0:
-            raise ValueError(f"depth_read_gate must be >= 0 (0: off), got {self.depth_read_gate!r}")
         for name in ("min_region_extent", "ambiguous_inlier_frac"):
             if not 0.0 <= float(getattr(self, name)) < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")

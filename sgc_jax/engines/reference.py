@@ -631,29 +631,6 @@ def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
     return PairPoints(labels, X, uv, uv_prev, point_regions(labels, where), n_usable)
 
 
-def gate_depth_reads(points: PairPoints, depth_curr: np.ndarray, R_g: np.ndarray, t_g: np.ndarray,
-                     config: SGCConfig) -> PairPoints:
-    """``points`` with the tracks that fail the depth-read gate taken out of their regions
-    (docs/semantics.md §3.2 step 5b): kept where frame i's depth ``depth_curr`` (H, W) at the
-    track's frame-i floor pixel is > 0 and within ``depth_read_gate`` of it from z, the depth of
-    R_g X + t_g (X's units); a region the gate would leave with fewer than ``min_region_points``
-    keeps all of its own. Unchanged where the gate is 0 or the camera's pose is not finite."""
-    if not (config.depth_read_gate > 0 and np.isfinite(R_g).all() and np.isfinite(t_g).all()):
-        return points
-    H, W = depth_curr.shape
-    col = np.clip(np.floor(points.uv[:, 0]).astype(np.int64), 0, W - 1)
-    row = np.clip(np.floor(points.uv[:, 1]).astype(np.int64), 0, H - 1)
-    read = depth_curr[row, col].astype(np.float64)
-    z = points.X @ R_g[2].astype(np.float64) + t_g[2]
-    agrees = np.isfinite(read) & (read > 0) & (np.abs(z - read) <= config.depth_read_gate * read)
-    region = points.region.copy()
-    for label in range(1, points.labels.max() + 1):
-        member = points.region == label
-        if np.sum(member & agrees) >= config.min_region_points:
-            region[member & ~agrees] = 0
-    return points._replace(region=region)
-
-
 class RegionPose(NamedTuple):
     """One region's local pose before the quality rule: status (``ok``, ``rejected`` or
     ``too_few_points``), R, t (NaN unless found) and whether a rival makes it ambiguous (spec)."""
@@ -843,9 +820,6 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         members = [(pp.X[pp.region > 0], pp.uv[pp.region > 0]) for pp in points]  # the scale fit uses them all
         scale = (fit_translation_scale(members, clip.K, R_g, t_g, 1.0 / unit) if config.fits_translation_scale
                  else 1.0 / unit)
-        if config.compat != "authors":  # §3.2 step 5b, after the scale: s is fitted on every track
-            points = [gate_depth_reads(pp, clip.depth[p + 1], R_g[p], scale * t_g[p], config)
-                      for p, pp in enumerate(points)]
         poses = local_poses(clip, points, config, [(R_g[p], scale * t_g[p]) for p in range(n_pairs)])
     else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one
         poses = local_poses(clip, points, config)

@@ -1,6 +1,6 @@
 """The pixel stage (docs/semantics.md §3.2 steps 1-2 and 5): the region of every track (in frame i's
-partition, or frame i-1's under ``region_frame="previous"``), and frames i-1's and i's depth at every
-track (at its frame i-1 and frame i pixel), for every pair of the clips of a bucket."""
+partition, or frame i-1's under ``region_frame="previous"``), and frame i-1's depth at every track,
+for every pair of the clips of a bucket."""
 
 from __future__ import annotations
 
@@ -56,12 +56,12 @@ def frame_regions(depth, static, points, counted, image_hw, stage: PixelStage):
             jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
 
 
-def depth_at_tracks(depth, points, image_hw):
-    """Depth (P,) of a frame (H, W) at each point's (P, 2) floor pixel, clamped to the true image (2,)."""
+def depth_at_tracks(depth_prev, track_prev, image_hw):
+    """Depth (P,) of frame i-1 (H, W) at each track's floor pixel, clamped to the true image (2,)."""
     H, W = image_hw[0], image_hw[1]
-    col = jnp.clip(jnp.floor(points[:, 0]).astype(jnp.int32), 0, W - 1)
-    row = jnp.clip(jnp.floor(points[:, 1]).astype(jnp.int32), 0, H - 1)
-    return depth[row, col]
+    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
+    return depth_prev[row, col]
 
 
 def pairs_flat(B, T):
@@ -101,8 +101,8 @@ class PixelStage(Stage):
 
 
 def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
-    """Clips (leading axis B) -> track_labels (B, T-1, P), n_regions, region_pixels (B, T-1),
-    Z_prev and Z_curr (B, T-1, P), frame by frame over the B (T-1) frames."""
+    """Clips (leading axis B) -> track_labels (B, T-1, P), n_regions, region_pixels (B, T-1) and
+    Z_prev (B, T-1, P), frame by frame over the B (T-1) frames."""
     B, T = x.depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
@@ -112,6 +112,5 @@ def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
     counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
     labels, n_regions, region_pixels = map(unflat, frame_regions(
         flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), counted, image_hw, stage))
-    Z_curr = jax.vmap(depth_at_tracks)(flat(x.depth[:, 1:]), flat(x.track_curr), image_hw)  # the depth-read gate's
-    return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=unflat(Z_prev),
-                Z_curr=unflat(Z_curr))
+    Z_prev = unflat(Z_prev)
+    return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 from ...codes import REGION_EMPTY, REGION_OK
 from ...config import NOISE_BLOCK_FRAC, SGCConfig
 from ...kernels.camera import back_project
-from ...kernels.depth_read_gate import gate_depth_reads
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import QualityRule, RansacOptions
@@ -54,7 +53,6 @@ class PairInputs(NamedTuple):
     """One pair's share of the pose stage's inputs (frames i-1 -> i)."""
 
     Z_prev: jax.Array  # (P,) depth of frame i-1 at the tracks
-    Z_curr: jax.Array  # (P,) depth of frame i at the tracks' frame-i pixels
     track_label: jax.Array  # (P,) region of each track in the region frame (§3.2 step 5)
     n_regions: jax.Array  # ()
     region_pixels: jax.Array  # ()
@@ -65,7 +63,6 @@ class PairInputs(NamedTuple):
     usable: jax.Array  # (P,) bool
     key: jax.Array  # RANSAC's key of the pair
     rival_R: jax.Array  # (3, 3) R_g, the identity without a global pose
-    global_R: jax.Array | None  # (3, 3) R_g, NaN where the camera's pose is not finite; None without a global pose
     global_t: jax.Array | None  # (3,) s t_g in units of D; None without a global pose
 
 
@@ -84,9 +81,6 @@ def local_poses_pair(pair: PairInputs, image_hw, stage: PoseStage) -> LocalPoses
     regions = jnp.arange(1, stage.k_seg + 1)
     point_region = jnp.where(has_depth, pair.track_label, 0)
     point_region = jnp.where((point_region <= pair.n_regions) & enough_tracks, point_region, 0)
-    if pair.global_t is not None and stage.compat != "authors":  # §3.2 step 5b
-        point_region = gate_depth_reads(point_region, X, pair.Z_curr, pair.global_R, pair.global_t,
-                                        stage.depth_read_gate, stage.quality.min_region_points, stage.k_seg)
     keys = jax.vmap(lambda r: jax.random.fold_in(pair.key, r))(regions)
     diagonal = jnp.hypot(H.astype(X.dtype), W.astype(X.dtype))
     fit = ransac_pnp_regions(X, pair.track_curr, point_region, pair.K_curr, keys, stage.ransac,
@@ -158,12 +152,12 @@ def clip_poses(x: PoseInputs, key, stage: PoseStage):
         rival_R = jnp.where(jnp.all(jnp.isfinite(R_g), axis=(1, 2))[:, None, None], R_g, jnp.eye(3, dtype=R_g.dtype))
         # s does not depend on the local poses, which start from the camera's pose (R_g, s t_g)
         scale = translation_scale(x, usable, R_g, t_g, stage)
-        global_R, global_t = R_g, scale * t_g
+        global_t = scale * t_g
     else:
         rival_R = jnp.broadcast_to(jnp.eye(3, dtype=x.K.dtype), (n_pairs, 3, 3))
-        global_R = global_t = None  # no camera start (an empty pytree under vmap)
-    pairs = PairInputs(x.Z_prev, x.Z_curr, x.track_labels, x.n_regions, x.region_pixels, x.K[:-1], x.K[1:],
-                       x.track_prev, x.track_curr, usable, pair_keys, rival_R, global_R, global_t)
+        global_t = None  # no camera start (an empty pytree under vmap)
+    pairs = PairInputs(x.Z_prev, x.track_labels, x.n_regions, x.region_pixels, x.K[:-1], x.K[1:], x.track_prev,
+                       x.track_curr, usable, pair_keys, rival_R, global_t)
     poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, stage), pairs, n_pairs, stage.vectorized)
     if not stage.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
@@ -188,7 +182,6 @@ class PoseStage(Stage):
     ransac: RansacOptions
     quality: QualityRule
     quality_rule: Any  # int32 (): the region-quality rule on (1) or off (0), one program for both
-    depth_read_gate: Any  # float32 (): the depth-read gate's relative tolerance, 0 = off
 
     @classmethod
     def of(cls, config: SGCConfig, vectorized: bool = False) -> PoseStage:
@@ -204,14 +197,13 @@ class PoseStage(Stage):
             quality_noise_px=as_float(config.quality_noise_px))
         return cls(k_seg=config.k_seg, compat=config.compat, global_pose=config.global_pose,
                    fits_translation_scale=config.fits_translation_scale, vectorized=vectorized, ransac=ransac,
-                   quality=quality, quality_rule=as_int(config.quality_rule),
-                   depth_read_gate=as_float(config.depth_read_gate))
+                   quality=quality, quality_rule=as_int(config.quality_rule))
 
     def sizes(self, bucket: Bucket) -> tuple[int, ...]:
         return bucket.T, bucket.P
 
     def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
-        return tuple(PoseInputs(previous["Z_prev"], previous["Z_curr"], previous["track_labels"], previous["n_regions"],
+        return tuple(PoseInputs(previous["Z_prev"], previous["track_labels"], previous["n_regions"],
                                 previous["region_pixels"], batch.K, batch.R_wc, batch.t_wc, batch.track_prev,
                                 batch.track_curr, batch.usable, batch.pair_valid, batch.image_hw, batch.depth_unit))
 

@@ -37,7 +37,6 @@ class PixelInputs(NamedTuple):
 
 class PoseInputs(NamedTuple):
     Z_prev: jax.Array  # (B, T-1, P) depth of frame i-1 at the tracks
-    Z_curr: jax.Array  # (B, T-1, P) depth of frame i at the tracks' frame-i pixels
     track_labels: jax.Array  # (B, T-1, P) region of each track in the region frame (§3.2 step 5)
     n_regions: jax.Array  # (B, T-1)
     region_pixels: jax.Array  # (B, T-1)
