@@ -70,9 +70,10 @@ def main() -> None:
     builtin = len(cells)
     cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, cells, builtin), ROW_TEXT, ROW_INTEGERS)
-    scenes = len({r["scene"] for r in rows})
-    print(f"{scenes} scenes of the {args.pool} pool, {sorted({r['tracks'] for r in rows})} tracks, fields of view "
-          f"{sorted({r['fov_deg'] for r in rows})}\n")
+    cells = tuple(dict.fromkeys((r["model"], r["noise_px"], r["depth_scale_rms"]) for r in rows))  # as scored or read
+    pool = next(name for name, seeds in RANDOM_POOLS.items() if rows[0]["seed"] in seeds)
+    print(f"{len({r['scene'] for r in rows})} scenes of the {pool} pool, {sorted({r['tracks'] for r in rows})} tracks, "
+          f"fields of view {sorted({r['fov_deg'] for r in rows})}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
     for model, px, scale in cells:
@@ -120,12 +121,13 @@ def consistent(rows: list[dict], cell) -> list[dict]:
     return [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (*cell, "")]
 
 
-def detections(rows: list[dict], cell, severity: float) -> dict[str, int]:
-    """Per perturbation, the scenes of a noise cell where it scores above its consistent twin."""
+def detections(rows: list[dict], cell, severity: float) -> tuple[dict[str, int], int]:
+    """(per perturbation, the scenes of a noise cell where it scores above its consistent twin; the
+    cell's scenes)."""
     keyed = [dict(r, cell=r["scene"]) for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == cell]
     scenes = len({r["scene"] for r in keyed})
     shares = detection_table(keyed)
-    return {kind: round(shares.get((kind, severity), 0.0) * scenes) for kind in PERTURBATIONS}
+    return {kind: round(shares.get((kind, severity), 0.0) * scenes) for kind in PERTURBATIONS}, scenes
 
 
 def print_against(rows: list[dict], other: list[dict], path: str, cells, severity: float) -> None:
@@ -136,21 +138,20 @@ def print_against(rows: list[dict], other: list[dict], path: str, cells, severit
     print(f"\nAgainst {path}: {len(shared)} scenes in both; there -> here\n")
     print("| noise | consistent clips above 0.10 | " + " | ".join(PERTURBATIONS) + " |")
     print("|---|---|" + "---|" * len(PERTURBATIONS))
-    totals, falls = np.zeros((2, 2), int), []
+    above, seen, falls = np.zeros(2, int), np.zeros(2, int), []
     for cell in cells:
-        above = [int(sum(r["sgc"] > CALM for r in consistent(x, cell))) for x in (other, rows)]
-        seen = [detections(x, cell, severity) for x in (other, rows)]
-        totals += np.array([above, [sum(d.values()) for d in seen]]).T
-        falls += [(seen[1][kind] - seen[0][kind], cell_label(*cell), kind) for kind in PERTURBATIONS]
-        print(f"| {cell_label(*cell)} | {above[0]} -> {above[1]} | "
-              + " | ".join(f"{seen[0][kind]} -> {seen[1][kind]}" for kind in PERTURBATIONS) + " |")
-    print(f"\nconsistent clips above 0.10: {totals[0, 0]} -> {totals[1, 0]}", end="")
+        calm = [int(sum(r["sgc"] > CALM for r in consistent(x, cell))) for x in (other, rows)]
+        there, here = (detections(x, cell, severity)[0] for x in (other, rows))
+        above, seen = above + calm, seen + [sum(there.values()), sum(here.values())]
+        falls += [(here[kind] - there[kind], cell_label(*cell), kind) for kind in PERTURBATIONS]
+        print(f"| {cell_label(*cell)} | {calm[0]} -> {calm[1]} | "
+              + " | ".join(f"{there[kind]} -> {here[kind]}" for kind in PERTURBATIONS) + " |")
+    summary = f"\nconsistent clips above 0.10: {above[0]} -> {above[1]}"
     if severity > 0:
         fall = min(falls)
-        print(f"; detections at {severity}: {totals[0, 1]} -> {totals[1, 1]} of "
-              f"{len(shared) * len(cells) * len(PERTURBATIONS)}; the largest fall of one cell's perturbation: "
-              f"{fall[0]} ({fall[1]}, {fall[2]})", end="")
-    print()
+        summary += (f"; detections at {severity}: {seen[0]} -> {seen[1]} of {len(shared) * len(cells) * len(PERTURBATIONS)}; "
+                    f"the largest fall of one cell's perturbation: {fall[0]} ({fall[1]}, {fall[2]})")
+    print(summary)
 
 
 def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
@@ -168,12 +169,9 @@ def print_detection(rows: list[dict], cells, severity: float) -> None:
     print(f"\nDetection at severity {severity} (paired: the twin carries the same noise draw)\n")
     print("| noise | " + " | ".join(PERTURBATIONS) + " |")
     print("|---|" + "---|" * len(PERTURBATIONS))
-    for model, px, scale in cells:
-        cell = [dict(r, cell=r["scene"]) for r in rows
-                if (r["model"], r["noise_px"], r["depth_scale_rms"]) == (model, px, scale)]
-        shares = detection_table(cell)
-        scenes = len({r["scene"] for r in cell})
-        print(f"| {cell_label(model, px, scale)} | " + " | ".join(f"{shares[(kind, severity)]:.0%} of {scenes}" for kind in PERTURBATIONS)
+    for cell in cells:
+        hits, scenes = detections(rows, cell, severity)
+        print(f"| {cell_label(*cell)} | " + " | ".join(f"{hits[kind] / scenes:.0%} of {scenes}" for kind in PERTURBATIONS)
               + " |")
 
 
