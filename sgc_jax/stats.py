@@ -159,8 +159,8 @@ def percentile_of_sorted(ordered: Any, n: Any, q: int, xp=np) -> Any:
     hi = xp.minimum(lo + 1, last)
     at = lambda i: xp.take_along_axis(ordered, xp.asarray(i)[..., None].astype(np.int32), axis=-1)[..., 0]  # noqa: E731
     a, b = at(lo), at(hi)
-    with np.errstate(invalid="ignore"):  # NumPy evaluates both branches: inf - inf where masked out
-        diff = xp.where(hi > lo, b - a, 0.0)  # never inf - inf
+    with np.errstate(invalid="ignore"):  # NumPy evaluates both branches: inf - inf where hi == lo, masked out
+        diff = xp.where(hi > lo, b - a, 0.0)
         return xp.where(frac >= 0.5, b - diff * (1.0 - frac), a + diff * frac)
 
 
