@@ -101,6 +101,44 @@ def initial_pose(X, uv, weight, K, n_iter=3):
     return jnp.concatenate([so3_log(R), t])
 
 
+def pixel_scaling(K, cols):
+    """(rotation, translation) units per pixel of image motion for points ``cols`` (as
+    ``point_columns``): fx, and fx / the weighted points' mean distance."""
+    x, y, z, _, _, sqrt_w = cols
+    valid = sqrt_w > 0
+    mean_dist = jnp.sum(jnp.where(valid, jnp.sqrt(x * x + y * y + z * z), 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+    return K[0, 0], K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+
+
+def gauss_newton_updates(X, uv, weight, K, pose0, *, updates: int):
+    """pose6 (6,) after ``updates`` undamped Gauss-Newton updates from pose0 (6,), each
+    re-linearised at its pose on the left perturbation exp([w]) R, t + dt, scaled as in
+    ``solve_pnp``; no stopping test. For the minimal samples, where a few points make the
+    least-squares solve's machinery cost more than its arithmetic (``solve_pnp`` with ``steps``
+    takes ``steps - 1`` updates: its first step only linearises)."""
+    cols = point_columns(X, uv, weight)
+    scale_rot, scale_t = pixel_scaling(K, cols)
+    scale = jnp.stack([scale_rot] * 3 + [scale_t] * 3)[:, None]  # (6, 1)
+    n = X.shape[0]
+
+    def update(_, pose):
+        R, t = pose
+        (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(jnp.broadcast_to(R, (n, 3, 3)),
+                                                             jnp.broadcast_to(t, (n, 3)), K, cols)
+
+        def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled: (6, n)
+            return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
+                              g[0], g[1], g[2]]) / scale
+
+        J_u, J_v = rows(grad_u), rows(grad_v)
+        normal = jnp.sum(J_u[:, None] * J_u[None, :] + J_v[:, None] * J_v[None, :], axis=-1)
+        delta = -solve_spd(normal, jnp.sum(J_u * du + J_v * dv, axis=-1)) / scale[:, 0]
+        return small_matmul(so3_exp(delta[:3]), R), t + delta[3:]
+
+    R, t = jax.lax.fori_loop(0, updates, update, (so3_exp(pose0[:3]), pose0[3:]))
+    return jnp.concatenate([so3_log(R), t])
+
+
 def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
     """Minimise sum weight |project(R X + t) - uv|^2 -> (pose6 (6,), converged () bool).
 
@@ -113,10 +151,7 @@ def solve_pnp(X, uv, weight, K, *, steps, pose0=None):
         pose0 = initial_pose(X, uv, weight, K)
     R0, t0 = so3_exp(pose0[:3]), pose0[3:]
     x, y, z, u, v, sqrt_w = point_columns(X, uv, weight)
-    valid = sqrt_w > 0
-    mean_dist = jnp.sum(jnp.where(valid, jnp.sqrt(x * x + y * y + z * z), 0.0)) / jnp.maximum(jnp.sum(valid), 1)
-    scale_rot = K[0, 0]
-    scale_t = K[0, 0] / jnp.maximum(mean_dist, 1e-12)
+    scale_rot, scale_t = pixel_scaling(K, (x, y, z, u, v, sqrt_w))
 
     def pose_of(increment):
         return small_matmul(so3_exp(increment[:3] / scale_rot), R0), t0 + increment[3:] / scale_t

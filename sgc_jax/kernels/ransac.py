@@ -17,7 +17,7 @@ import jax.numpy as jnp
 from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from .joint_pnp import polish_poses
 from .local_optimum import borrow_region_poses, refine_poses
-from .pnp import initial_pose, projected_columns, solve_pnp, translation_for_rotation
+from .pnp import gauss_newton_updates, initial_pose, projected_columns, solve_pnp, translation_for_rotation
 from .ransac_options import RansacOptions
 from .regions import group_by_region, region_onehot, region_slots, region_sums
 from .so3 import so3_exp, so3_log
@@ -83,16 +83,16 @@ def scoring_subset(key, order, start, n_members, score_points):
     return order[jnp.clip(start + pos, 0, N - 1)], i < n_members
 
 
-def sample_candidates(X, uv, K, sample_idx, *, sample_steps):
+def sample_candidates(X, uv, K, sample_idx, *, sample_updates):
     """Candidate poses (H (s + 1), 6) from H samples of s points (sample_idx (H, s)): the s-point
-    fit (``initial_pose``, then ``sample_steps`` Gauss-Newton steps) and the s leave-one-out
+    fit (``initial_pose``, then ``sample_updates`` Gauss-Newton updates) and the s leave-one-out
     algebraic fits, so a sample with one outlier still yields a clean candidate."""
     H, s = sample_idx.shape
     masks = jnp.concatenate([jnp.ones((1, s), X.dtype), 1.0 - jnp.eye(s, dtype=X.dtype)])  # (s + 1, s)
 
     def one_sample(Xs, uvs):
         starts = jax.vmap(lambda w: initial_pose(Xs, uvs, w, K))(masks)
-        full, _ = solve_pnp(Xs, uvs, masks[0], K, steps=sample_steps, pose0=starts[0])
+        full = gauss_newton_updates(Xs, uvs, masks[0], K, starts[0], updates=sample_updates)
         return starts.at[0].set(full)
 
     return jax.vmap(one_sample)(X[sample_idx], uv[sample_idx]).reshape(H * (s + 1), 6)
@@ -137,7 +137,7 @@ def region_start(X, uv, K, order, start, n_members, key, options: RansacOptions)
 
     def draw(state: Draws) -> Draws:
         idx = jax.lax.dynamic_slice_in_dim(sample_idx, state.chunk * o.chunk, o.chunk)
-        poses = sample_candidates(X, uv, K, idx, sample_steps=o.sample_steps)
+        poses = sample_candidates(X, uv, K, idx, sample_updates=o.sample_updates)
         ok = jnp.all(jnp.isfinite(poses), axis=-1) & jnp.repeat(drawn[state.chunk], per_sample)
         poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
         inliers, trunc_sq = truncated_errors_sq(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid,

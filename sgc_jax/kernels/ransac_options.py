@@ -19,11 +19,11 @@ class RansacOptions(eqx.Module):
     borrow: bool = eqx.field(static=True, default=True)  # also start from the pair's other regions' poses
     sample_size: int = eqx.field(static=True, default=4)  # points per minimal sample
     chunk: int = eqx.field(static=True, default=10)  # samples drawn between two checks of the adaptive stop
-    sample_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps on a minimal sample
+    sample_updates: int = eqx.field(static=True, default=2)  # Gauss-Newton updates of a minimal sample's fit
     score_points: int = eqx.field(static=True, default=512)  # members candidates are scored on, at most
     lo_candidates: int = eqx.field(static=True, default=8)  # best candidates given a least-squares fit
     fit_points: int = eqx.field(static=True, default=128)  # scored members that fit uses, at most
-    lo_steps: int = eqx.field(static=True, default=3)  # Gauss-Newton steps of that fit
+    lo_steps: int = eqx.field(static=True, default=3)  # optimistix Gauss-Newton steps of that fit (2 updates)
     max_rounds: int = eqx.field(static=True, default=5)  # least-squares fits per local optimum, at most
 
 
