@@ -20,9 +20,13 @@ from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.torch import TensorCopyWarning, TorchScorer, batch_tensors, to_jax
 
 # torch's float32 gradient (at the float32 inputs) against float64 central differences of the
-# score with the forward pass's choices held (test_gradients.py's check, FD_STEP there): measured
-# 0.02-0.64 % over the six inputs, float32's rounding of a sum of near-cancelling terms.
+# score with the forward pass's choices held (test_gradients.py's check, FD_STEP there): float32's
+# rounding of a sum of near-cancelling terms. Measured <= 0.04 % for five inputs and 0.6 %, 1.35 %
+# and 2.8 % for K on three trees whose choices differ (the last two: b200925 and the minimal samples'
+# written-out updates): K's terms cancel ~195-fold and each passes through a back-projection and a
+# projection with the same K, so its rounding follows the choices; the other inputs' stay far below.
 TORCH_FD_RTOL = 0.02
+TORCH_FD_RTOL_K = 0.05
 
 
 @pytest.fixture(scope="module")
@@ -136,4 +140,5 @@ def test_torch_gradients_agree_with_finite_differences_of_the_score_with_its_cho
             finite = float(score({**base, name: base[name] + FD_STEP * direction})
                            - score({**base, name: base[name] - FD_STEP * direction})) / (2 * FD_STEP)
             analytic = float(np.sum(torch_gradients[name].numpy().astype(np.float64) * direction))
-            assert abs(finite - analytic) <= TORCH_FD_RTOL * abs(analytic), (name, finite, analytic)
+            rtol = TORCH_FD_RTOL_K if name == "K" else TORCH_FD_RTOL
+            assert abs(finite - analytic) <= rtol * abs(analytic), (name, finite, analytic)
