@@ -20,13 +20,12 @@ from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.torch import TensorCopyWarning, TorchScorer, batch_tensors, to_jax
 
 # torch's float32 gradient (at the float32 inputs) against float64 central differences of the
-# score with the forward pass's choices held (test_gradients.py's check, FD_STEP there): float32's
-# rounding of a sum of near-cancelling terms. Measured <= 0.04 % for five inputs and 0.6 %, 1.35 %
-# and 2.8 % for K on three trees whose choices differ (the last two: b200925 and the minimal samples'
-# written-out updates): K's terms cancel ~195-fold and each passes through a back-projection and a
-# projection with the same K, so its rounding follows the choices; the other inputs' stay far below.
-TORCH_FD_RTOL = 0.02
-TORCH_FD_RTOL_K = 0.05
+# score with the forward pass's choices held (test_gradients.py's check, FD_STEP there), along a
+# random direction d: the error of sum_i g_i d_i relative to sum_i |g_i d_i|, float32's rounding of
+# its terms (the sum itself may cancel: K's terms along the test's direction cancel 195-fold).
+# Measured over 8 directions: <= 2e-5 for five inputs, <= 1.4e-4 for K, each of whose terms passes
+# through a back-projection and a projection with the same K (0.01-2.8 % of the sum itself).
+TORCH_FD_RTOL = 5e-4
 
 
 @pytest.fixture(scope="module")
@@ -139,6 +138,6 @@ def test_torch_gradients_agree_with_finite_differences_of_the_score_with_its_cho
             direction = np.abs(x) * np.clip(rng.standard_normal(x.shape), -2.5, 2.5)  # relative moves
             finite = float(score({**base, name: base[name] + FD_STEP * direction})
                            - score({**base, name: base[name] - FD_STEP * direction})) / (2 * FD_STEP)
-            analytic = float(np.sum(torch_gradients[name].numpy().astype(np.float64) * direction))
-            rtol = TORCH_FD_RTOL_K if name == "K" else TORCH_FD_RTOL
-            assert abs(finite - analytic) <= rtol * abs(analytic), (name, finite, analytic)
+            terms = torch_gradients[name].numpy().astype(np.float64) * direction
+            analytic = float(np.sum(terms))
+            assert abs(finite - analytic) <= TORCH_FD_RTOL * np.sum(np.abs(terms)), (name, finite, analytic)
