@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 from .fence import materialise
 from .linalg import small_matmul, solve_spd
-from .pnp import point_columns, pointwise_residuals
+from .pnp import point_columns, pointwise_residuals, pose_jacobian_rows
 from .regions import RegionSlots, block_normals, block_sums, region_slots, to_slots
 from .so3 import so3_exp, so3_log
 
@@ -86,12 +86,8 @@ def linearise(problem: Problem, R, t) -> Linearisation:
     per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
     chunk_scale = problem.scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
     (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), problem.K, problem.cols)
-
-    def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled
-        return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
-                          g[0], g[1], g[2]]) / chunk_scale
-
-    J_u, J_v = materialise((rows(grad_u), rows(grad_v)))  # (6, n_chunks, SLOT_CHUNK) each
+    J_u, J_v = materialise((pose_jacobian_rows(RX, grad_u) / chunk_scale,
+                            pose_jacobian_rows(RX, grad_v) / chunk_scale))  # (6, n_chunks, SLOT_CHUNK) each, scaled
     cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
     return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
 

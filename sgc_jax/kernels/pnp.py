@@ -72,6 +72,13 @@ def pointwise_residuals(R_pt, t_pt, K, cols):
     return (sqrt_w * (p.u - u), sqrt_w * (p.v - v)), (RX, grad_u, grad_v)
 
 
+def pose_jacobian_rows(RX, grad):
+    """d residual / d (w, dt) of the left-perturbed pose exp([w]) R, t + dt: (RX x grad, grad),
+    stacked (6, *points), from ``pointwise_residuals``' R X and one axis's d residual / dY."""
+    return jnp.stack([RX[1] * grad[2] - RX[2] * grad[1], RX[2] * grad[0] - RX[0] * grad[2],
+                      RX[0] * grad[1] - RX[1] * grad[0], grad[0], grad[1], grad[2]])
+
+
 def initial_pose(X, uv, weight, K, n_iter=3):
     """A pose6 (6,) without a prior: iterated linearised algebraic solve of b x (R X + t) = 0
     (b the unit bearing of each pixel), each row divided by the point's current distance so the
@@ -125,12 +132,7 @@ def gauss_newton_updates(X, uv, weight, K, pose0, *, updates: int):
         R, t = pose
         (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(jnp.broadcast_to(R, (n, 3, 3)),
                                                              jnp.broadcast_to(t, (n, 3)), K, cols)
-
-        def rows(g):  # d residual / d (w, dt) = (RX x g, g), scaled: (6, n)
-            return jnp.stack([RX[1] * g[2] - RX[2] * g[1], RX[2] * g[0] - RX[0] * g[2], RX[0] * g[1] - RX[1] * g[0],
-                              g[0], g[1], g[2]]) / scale
-
-        J_u, J_v = rows(grad_u), rows(grad_v)
+        J_u, J_v = pose_jacobian_rows(RX, grad_u) / scale, pose_jacobian_rows(RX, grad_v) / scale  # (6, n)
         normal = jnp.sum(J_u[:, None] * J_u[None, :] + J_v[:, None] * J_v[None, :], axis=-1)
         delta = -solve_spd(normal, jnp.sum(J_u * du + J_v * dv, axis=-1)) / scale[:, 0]
         return small_matmul(so3_exp(delta[:3]), R), t + delta[3:]
