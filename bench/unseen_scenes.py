@@ -21,7 +21,8 @@ by frame leaves; with ``--models`` also those protocol noise models
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
-fitted to. Prints each scene's row and, per cell, the clips above 0.10, the largest and the
+fitted to; and, unpaired, the share of consistent and perturbed clips whose SGC and whose ``sgc_lo``
+lie above 0.05, 0.1 and 0.2 (what a threshold on a corpus without twins would flag). Prints each scene's row and, per cell, the clips above 0.10, the largest and the
 statuses; ``--out`` writes one row per clip (pandas-ready), ``--rows`` prints the tables from such
 a file, and ``--against ROWS`` compares them with rows of the same scenes scored otherwise (another
 tree, config or calibration): per cell the clips above 0.10 and the detections there -> here, their
@@ -45,6 +46,7 @@ from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scen
 CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
 EXTRA_LEVELS_PX = (0.5, 2.0)
 CALM = 0.10  # issue 58's bar for a single consistent clip
+THRESHOLDS = (0.05, 0.1, 0.2)
 
 
 def main() -> None:
@@ -85,6 +87,8 @@ def main() -> None:
     severity = args.perturb if args.perturb > 0 else max(r["severity"] for r in rows)
     if severity > 0:
         print_detection(rows, cells, severity)
+        if "sgc_lo" in rows[0]:
+            print_thresholds(rows, cells, severity)
     if args.against:
         print_against(rows, read_rows(args.against, ROW_TEXT, ROW_INTEGERS), args.against, cells, severity)
 
@@ -109,7 +113,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
             model, px, scale = cells[j]
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,
                              depth_scale_rms=scale, kind=kind, severity=severity, status=scored.status,
-                             reason=scored.reason, sgc=scored.sgc, evidence=scored.evidence, **scored.components))
+                             reason=scored.reason, sgc=scored.sgc, sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi,
+                             evidence=scored.evidence, **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
@@ -162,6 +167,20 @@ def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
 
 def cell_label(model: str, px: float, scale: float) -> str:
     return f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+
+
+def print_thresholds(rows: list[dict], cells, severity: float) -> None:
+    """Per noise cell, unpaired: the share of consistent clips and of each perturbation whose SGC,
+    and whose ``sgc_lo``, lies above each of THRESHOLDS (what a corpus user's cut would flag)."""
+    print(f"\nAbove a threshold, unpaired (consistent; {', '.join(PERTURBATIONS)} at {severity}), by sgc and by sgc_lo\n")
+    print("| noise | " + " | ".join(f"sgc > {t}" for t in THRESHOLDS) + " | " + " | ".join(f"sgc_lo > {t}" for t in THRESHOLDS) + " |")
+    print("|---|" + "---|" * (2 * len(THRESHOLDS)))
+    for cell in cells:
+        of_cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == cell]
+        groups = [[r for r in of_cell if r["kind"] == kind and r["severity"] in (0.0, severity)] for kind in ("", *PERTURBATIONS)]
+        shares = [" / ".join(f"{np.mean([r[column] > t for r in group]):.0%}" for group in groups)
+                  for column in ("sgc", "sgc_lo") for t in THRESHOLDS]
+        print(f"| {cell_label(*cell)} | " + " | ".join(shares) + " |")
 
 
 def print_detection(rows: list[dict], cells, severity: float) -> None:
