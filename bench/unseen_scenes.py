@@ -114,7 +114,7 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,
                              depth_scale_rms=scale, kind=kind, severity=severity, status=scored.status,
                              reason=scored.reason, sgc=scored.sgc, sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi,
-                             evidence=scored.evidence, **scored.components))
+                             evidence=scored.evidence, scale=scored.scale, **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
