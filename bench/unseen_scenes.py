@@ -22,8 +22,8 @@ With ``--perturb s`` each cell also scores the three perturbations at severity s
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
 fitted to; and, unpaired, the share of consistent and perturbed clips whose SGC and whose ``sgc_lo``
-lie above 0.05, 0.1 and 0.2 (what a threshold on a corpus without twins would flag). Prints each scene's row and, per cell, the clips above 0.10, the largest and the
-statuses; ``--out`` writes one row per clip (pandas-ready), ``--rows`` prints the tables from such
+lie above 0.05, 0.1 and 0.2 (what a threshold on a corpus without twins would flag). Prints each
+scene's row and, per cell, the clips above 0.10, the largest and the statuses; ``--out`` writes one row per clip (pandas-ready), ``--rows`` prints the tables from such
 a file, and ``--against ROWS`` compares them with rows of the same scenes scored otherwise (another
 tree, config or calibration): per cell the clips above 0.10 and the detections there -> here, their
 sums and the largest fall of one cell's perturbation (the terms issue 58's rules are written in).
