@@ -758,32 +758,48 @@ def local_poses(clip: Clip, points: list[PairPoints], config: SGCConfig,
 
 
 def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, R_g: np.ndarray,
-                          t_g: np.ndarray, fallback: float = 1.0) -> float:
+                          t_g: np.ndarray, cut_px: float, fallback: float = 1.0) -> float:
     """Robust s with which (R_g, s t_g) best explains the static tracks (docs/semantics.md §3.4).
 
     Each region point X (camera pair-1) observed at uv in frame pair, with n = K^-1 (u, v, 1)
     and Y = R_g X, must satisfy n_k (Y_3 + s t_3) = Y_k + s t_k on both image axes k: a line in s
-    whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. s is the slope-weighted median of the
-    lines' roots over every pair (the L1 fit of the reprojection residuals, linearised), or
-    ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
+    whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. From the start of lowest truncated cost
+    (sum of min(slope |s - root|, cut_px)) among the slope-weighted and the plain median of every
+    pair's roots together and of each pair's own, s is the weighted median of the lines within
+    cut_px of it; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
     roots, slopes = [], []
     for p, (X, uv) in enumerate(members):
-        if len(X) == 0:
-            continue
-        Y = X @ R_g[p].T
-        n = (np.linalg.inv(K[p + 1].astype(np.float64)) @ np.column_stack([uv, np.ones(len(uv))]).T).T
-        for k, focal in ((0, K[p + 1][0, 0]), (1, K[p + 1][1, 1])):
-            a = n[:, k] * t_g[p][2] - t_g[p][k]
-            b = Y[:, k] - n[:, k] * Y[:, 2]
-            ok = (Y[:, 2] > 0) & (a != 0)
-            roots.append(b[ok] / a[ok])
-            slopes.append(np.abs(a[ok]) * focal / Y[ok, 2])
-    roots, slopes = (np.concatenate(x) if x else np.zeros(0) for x in (roots, slopes))
-    if not slopes.sum() > 0:
-        return fallback
-    order = np.argsort(roots, kind="stable")
-    cumulative = np.cumsum(slopes[order])
-    return float(roots[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+        pair_roots, pair_slopes = [np.zeros(0)], [np.zeros(0)]
+        if len(X):
+            Y = X @ R_g[p].T
+            n = (np.linalg.inv(K[p + 1].astype(np.float64)) @ np.column_stack([uv, np.ones(len(uv))]).T).T
+            for k, focal in ((0, K[p + 1][0, 0]), (1, K[p + 1][1, 1])):
+                a = n[:, k] * t_g[p][2] - t_g[p][k]
+                b = Y[:, k] - n[:, k] * Y[:, 2]
+                ok = (Y[:, 2] > 0) & (a != 0)
+                pair_roots.append(b[ok] / a[ok])
+                pair_slopes.append(np.abs(a[ok]) * focal / Y[ok, 2])
+        roots.append(np.concatenate(pair_roots))
+        slopes.append(np.concatenate(pair_slopes))
+    every_root, every_slope = np.concatenate(roots), np.concatenate(slopes)
+    overall = weighted_median(every_root, every_slope, fallback)
+    starts = [overall, weighted_median(every_root, np.ones_like(every_slope), overall)]
+    starts += [weighted_median(r, w, overall) for r, w in zip(roots, slopes)]
+    starts += [weighted_median(r, np.ones_like(w), overall) for r, w in zip(roots, slopes)]
+    costs = [np.minimum(every_slope * np.abs(start - every_root), cut_px).sum() for start in starts]
+    start = starts[int(np.argmin(costs))]
+    near = every_slope * np.abs(start - every_root) < cut_px
+    return weighted_median(every_root[near], every_slope[near], start)
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray, fallback: float) -> float:
+    """The smallest value whose cumulative weight (in ascending order) reaches half the total;
+    ``fallback`` when the total is 0."""
+    if not weights.sum() > 0:
+        return float(fallback)
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def pair_reason(n_tracks: int, region_mask_pixels: int, n_regions: int, n_poses: int, depth_err: float,
@@ -818,7 +834,7 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         t_g = np.stack([g[1] for g in globals_])
         # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
         members = [(pp.X[pp.region > 0], pp.uv[pp.region > 0]) for pp in points]  # the scale fit uses them all
-        scale = (fit_translation_scale(members, clip.K, R_g, t_g, 1.0 / unit) if config.fits_translation_scale
+        scale = (fit_translation_scale(members, clip.K, R_g, t_g, config.inlier_px, 1.0 / unit) if config.fits_translation_scale
                  else 1.0 / unit)
         poses = local_poses(clip, points, config, [(R_g[p], scale * t_g[p]) for p in range(n_pairs)])
     else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one

@@ -16,7 +16,7 @@ from ...kernels.camera import back_project
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import QualityRule, RansacOptions
-from ...kernels.scale import scale_equations, weighted_median
+from ...kernels.scale import robust_scale, scale_equations
 from ...kernels.so3 import nearest_rotation
 from ...kernels.uncertainty import region_quality
 from .buckets import Bucket, PaddedClips
@@ -124,8 +124,9 @@ def pair_groups(pose_pair, args, n_pairs: int, vectorized: bool):
 
 
 def translation_scale(x: PoseInputs, usable, R_g, t_g, stage: PoseStage):
-    """s (units of D per pose unit): the weighted median of every pair's scale equations, or 1 / D
-    (the units taken as shared) where it is not fitted or undefined."""
+    """s (units of D per pose unit): the robust weighted median of every pair's scale equations
+    (``robust_scale``, cut at RANSAC's inlier_px), or 1 / D (the units taken as shared) where it is
+    not fitted or undefined."""
     scale = 1.0 / x.depth_unit
     if not stage.fits_translation_scale:
         return scale
@@ -136,7 +137,7 @@ def translation_scale(x: PoseInputs, usable, R_g, t_g, stage: PoseStage):
 
     ratios, weights = jax.vmap(equations)(x.Z_prev, x.track_labels, x.K[:-1], x.K[1:], x.track_prev, x.track_curr,
                                           usable, R_g, t_g)
-    return weighted_median(ratios, weights, fallback=scale)
+    return robust_scale(ratios, weights, stage.ransac.inlier_px, fallback=scale)
 
 
 def clip_poses(x: PoseInputs, key, stage: PoseStage):
