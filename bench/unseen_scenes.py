@@ -10,7 +10,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
 neither FIT's nor TEST's; with ``--pool fit`` the same sampler on FIT's seeds 30-99,
 ``FIT_POOL_SEEDS``, where constants may be chosen; with ``--pool held-out`` on seeds 7300-7399,
-unread until a candidate's rule is written): size among the protocol's four, 6, 8 or 12
+read once, to report the translation scale's cut): size among the protocol's four, 6, 8 or 12
 frames, 1-5 planar layers, 2-6 static spheres, 0.5-3 deg and 0.05-0.3 depth units of motion a
 frame, orbit or forward, the field of view from ``--fovs``. Noise cells: independent Gaussian
 track errors at frame i only and at both ends, 0.5 and 2 px (research.noise); with

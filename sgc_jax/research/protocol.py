@@ -98,8 +98,8 @@ UNSEEN_SIZES = ((96, 128), (120, 160), (144, 192), (192, 256))
 #: FIT's own random scenes, drawn as the unseen ones from FIT seeds no other FIT scene uses (the
 #: calibration corpus 0-1, the benchmarks 10-12, FIT_SCENES 20-25): constants may be chosen on them.
 FIT_POOL_SEEDS = range(30, 100)
-#: HELD_OUT: drawn as the unseen scenes, kept unread for the next candidate's report once its rule is
-#: written (the unseen pool has been read whole; scene 0 here once, to check the bench; docs/semantics.md §7.4).
+#: HELD_OUT: drawn as the unseen scenes, kept unread until the translation scale's cut was chosen on FIT, then
+#: read once to report it (2026-12-01, docs/semantics.md §7.4); like the unseen pool, no longer unread.
 HELD_OUT_SEEDS = range(7300, 7400)
 RANDOM_POOLS = {"unseen": UNSEEN_SEEDS, "fit": FIT_POOL_SEEDS, "held-out": HELD_OUT_SEEDS}
 
