@@ -766,7 +766,8 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. From the start of lowest truncated cost
     (sum of min(slope |s - root|, cut_px)) among the slope-weighted and the plain median of every
     pair's roots together and of each pair's own, s is the weighted median of the lines within
-    cut_px of it; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
+    cut_px of it; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` /
+    ``t_g`` per pair."""
     roots, slopes = [], []
     for p, (X, uv) in enumerate(members):
         pair_roots, pair_slopes = [np.zeros(0)], [np.zeros(0)]
@@ -834,8 +835,8 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         t_g = np.stack([g[1] for g in globals_])
         # s maps pose units to units of D; undefined, the units are taken as shared (s = 1 / D)
         members = [(pp.X[pp.region > 0], pp.uv[pp.region > 0]) for pp in points]  # the scale fit uses them all
-        scale = (fit_translation_scale(members, clip.K, R_g, t_g, config.inlier_px, 1.0 / unit) if config.fits_translation_scale
-                 else 1.0 / unit)
+        scale = (fit_translation_scale(members, clip.K, R_g, t_g, config.inlier_px, 1.0 / unit)
+                 if config.fits_translation_scale else 1.0 / unit)
         poses = local_poses(clip, points, config, [(R_g[p], scale * t_g[p]) for p in range(n_pairs)])
     else:  # the "w/o VGGT" variant: each pair's mean local pose stands in for the global one
         poses = local_poses(clip, points, config)

@@ -58,9 +58,9 @@ def robust_scale(ratios, weights, cut_px, fallback):
     equation has a weight. The plain medians are starts where a few near tracks hold most of the
     weight in every pair."""
     by_pair, pair_weights = ratios.reshape(ratios.shape[0], -1), weights.reshape(weights.shape[0], -1)
-    both = jnp.stack([pair_weights, (pair_weights > 0).astype(weights.dtype)])  # (2, T-1, 2P): weighted, plain
-    overall = weighted_medians(by_pair.reshape(-1), both.reshape(2, -1), fallback)  # (2,)
-    per_pair = weighted_medians(by_pair, both, overall[0])  # (2, T-1)
+    weight_sets = jnp.stack([pair_weights, (pair_weights > 0).astype(weights.dtype)])  # (2, T-1, 2P): weighted, plain
+    overall = weighted_medians(by_pair.reshape(-1), weight_sets.reshape(2, -1), fallback)  # (2,)
+    per_pair = weighted_medians(by_pair, weight_sets, overall[0])  # (2, T-1)
     starts = jnp.concatenate([overall, per_pair.reshape(-1)])
     costs = jax.vmap(truncated_cost, in_axes=(0, None, None, None))(starts, ratios, weights, cut_px)
     start = starts[jnp.argmin(costs)]
