@@ -28,6 +28,10 @@ HOLE_DEPTH_MARGIN = 0.05
 # 2^l <= r < 2^(l+1), l = 0 .. HOLE_LEVELS (docs/semantics.md §3.6 step 3).
 HOLE_LEVELS = 6
 MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
+# Where frame i sees a surface more than this many times nearer than the warp put (a relative error
+# beyond 900 %, which near the camera has no bound), the depth check also looks the pixel up in frame
+# i-1 and keeps the lesser error (docs/semantics.md §3.6 step 5; 3 % of FIT's pairs hold such a pixel).
+LOOK_BACK_RATIO = 10.0
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from sgc_jax.engines import reference
+from sgc_jax.io.clip import Clip
 from sgc_jax.kernels import warp
 from sgc_jax.kernels.so3 import so3_exp
 
@@ -376,3 +377,51 @@ def test_padding_is_no_part_of_what_frame_i_minus_1_saw():
     assert np.sum(seen[:H, :W] != expected) <= SEEN_ROUNDING_PIXELS
     unbounded = np.asarray(warp.seen_from_previous(padded, padded > 0, K, K, R, t))
     assert np.sum(unbounded[:H, :W] & ~expected) > 20  # what the padding would have let through
+
+
+def card_whose_depth_errs_in_frame_i_minus_1(card_depth: float):
+    """A wall at depth 10 and a card (rows 6-17) at ``card_depth``, the camera moved 0.4 to the right
+    (the card shifts 0.4 f / card_depth px): frame i exact, frame i-1's card 30 % too far, so its
+    warp falls short and the wall's splats land on the card's leading columns in frame i -> a
+    two-frame Clip with R_wc, t_wc of the move."""
+    Hc, Wc, f = 24, 64, 30.0
+    Kc = np.array([[f, 0.0, 31.5], [0.0, f, 11.5], [0.0, 0.0, 1.0]])
+    shift = int(round(f * 0.4 / card_depth))
+    depth = np.full((2, Hc, Wc), 10.0, np.float32)
+    depth[0, 6:18, 40:56] = 1.3 * card_depth
+    depth[1, 6:18, 40 - shift:56 - shift] = card_depth
+    no_tracks = np.zeros((1, 1, 2), np.float32)
+    return Clip(clip_id="card", depth=depth, K=np.stack([Kc, Kc]), R_wc=np.stack([np.eye(3)] * 2),
+                          t_wc=np.array([[0.0, 0.0, 0.0], [-0.4, 0.0, 0.0]]), static_mask=np.ones((2, Hc, Wc), bool),
+                          track_prev=no_tracks, track_curr=no_tracks, track_vis=np.ones((1, 1), bool),
+                          track_conf=np.ones((1, 1), np.float32))
+
+
+def forward_only_depth_error(clip) -> float:
+    """The pair's depth error [%] with no look back into frame i-1 (§3.6 steps 1-4 alone)."""
+    R, t = np.eye(3), clip.t_wc[1]
+    warped = reference.warp_depth(clip.depth[0], clip.K[0], clip.K[1], R, t, mask_holes=True)
+    warped = np.where(reference.seen_from_previous(clip.depth[1], clip.K[0], clip.K[1], R, t), warped, 0.0)
+    return 100.0 * reference.depth_error(warped, clip.depth[1], clip.static_mask[1], relative=True)
+
+
+@pytest.mark.parametrize("vectorized", [False, True])
+@pytest.mark.parametrize("card_depth", [0.5, 2.0])
+def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_farther(card_depth, vectorized):
+    from sgc_jax.config import SGCConfig
+    from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
+
+    clip = card_whose_depth_errs_in_frame_i_minus_1(card_depth)
+    R, t = np.eye(3), clip.t_wc[1]
+    expected = reference.pair_depth_error(clip, 1, R, t, SGCConfig())[1]
+    as_pairs = (clip.depth[:1], clip.static_mask[:1], clip.depth[1:], clip.static_mask[1:], clip.K[:1].astype(np.float32),
+                clip.K[1:].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
+                np.array([clip.image_size], np.int32))
+    stage = FinishStage.of(SGCConfig(), vectorized=vectorized)
+    got = float(jax.jit(pair_depth_errors, static_argnames="stage")(*as_pairs, stage=stage)[0])
+    np.testing.assert_allclose(got, expected, rtol=Z_RTOL)
+    forward = forward_only_depth_error(clip)
+    if card_depth == 0.5:  # the wall 20x farther: 60 pixels at 1,900 % (96 % for the pair) read 30 % instead
+        assert forward > 50.0 and expected < 0.2 * forward
+    else:  # the wall 5x farther: its bounded error (400 %) stands
+        assert expected == pytest.approx(forward, rel=1e-12)

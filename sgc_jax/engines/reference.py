@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, MAX_HOLE_REACH_PX, NOISE_BLOCK_FRAC, SGCConfig
+from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX, NOISE_BLOCK_FRAC, SGCConfig
 from ..io.clip import Clip
 from ..stats import cut_variance_factor, trimmed
 from . import reference_pose as reference_pose_search
@@ -552,21 +552,33 @@ def _hole_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: i
     return cover
 
 
-def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False) -> float:
+def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
+                looked_back: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Mean |warped - depth_curr| where both are valid and the pixel is static, divided by
-    depth_curr pixel by pixel when ``relative`` (AbsRel); NaN if no pixel is compared."""
+    depth_curr pixel by pixel when ``relative`` (AbsRel); NaN if no pixel is compared.
+    ``looked_back``: (z, depth) (H, W), each pixel's point's depth in camera i-1 and frame i-1's
+    depth where it lands (0 where unread): where read, the lesser of the error and |depth - z|
+    (relative to z) (§3.6 step 5)."""
     both = (warped > 0) & valid_depth(depth_curr) & static_curr
     if not both.any():
         return float("nan")
     error = np.abs(warped[both] - depth_curr[both])
-    return float(np.mean(error / depth_curr[both] if relative else error))
+    if relative:
+        error = error / depth_curr[both]
+    if looked_back is not None:
+        z, depth = (a[both] for a in looked_back)
+        read = depth > 0
+        back = np.abs(depth - z) / np.where(read, z, 1.0) if relative else np.abs(depth - z)
+        error = np.where(read, np.minimum(error, back), error)
+    return float(np.mean(error))
 
 
-def seen_from_previous(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
-                       t: np.ndarray) -> np.ndarray:
-    """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
-    (z > 1e-5) and inside its image when rounded half up; (R, t) moves camera i-1's points into
-    camera i. Only there can a warp from frame i-1 be compared (§3.6)."""
+def previous_view(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
+                  t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frame i's valid pixels (H, W) at depth_curr moved into camera i-1 ((R, t) moves camera i-1's
+    points into camera i) and projected with K_prev -> (seen (H, W) bool: in front (z > 1e-5) and
+    inside its image when rounded half up; z (H, W) their depth there; iu, iv (H, W) int64 the pixel,
+    0 where not seen)."""
     H, W = depth_curr.shape
     rows, cols = np.mgrid[:H, :W]
     valid = valid_depth(depth_curr)
@@ -577,7 +589,17 @@ def seen_from_previous(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.nd
     front = valid.ravel() & (z > 1e-5)
     proj = K_prev @ (cam / np.where(front, z, 1.0))
     iu, iv = np.floor(proj[0] + 0.5), np.floor(proj[1] + 0.5)
-    return (front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)).reshape(H, W)
+    seen = front & (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+    iu, iv = (np.where(seen, a, 0).astype(np.int64).reshape(H, W) for a in (iu, iv))
+    return seen.reshape(H, W), z.reshape(H, W), iu, iv
+
+
+def seen_from_previous(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
+                       t: np.ndarray) -> np.ndarray:
+    """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
+    (z > 1e-5) and inside its image when rounded half up; (R, t) moves camera i-1's points into
+    camera i. Only there can a warp from frame i-1 be compared (§3.6)."""
+    return previous_view(depth_curr, K_prev, K_curr, R, t)[0]
 
 
 def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
@@ -595,10 +617,17 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     spec = config.compat != "authors"
     warped = warp_depth(warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
                         nearest=spec, mask_holes=spec)
-    if spec:
-        warped = np.where(seen_from_previous(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t), warped, 0.0)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
-    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free)
+    looked_back = None
+    if spec:
+        seen, z, iu, iv = previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
+        warped = np.where(seen, warped, 0.0)
+        # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
+        source = warp_source(clip, pair, config)
+        source = np.where(valid_depth(source), source, 0.0)
+        needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
+        looked_back = z, np.where(needed, source[iv, iu], 0.0)
+    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free, looked_back=looked_back)
     return warped, error * (PERCENT if config.scale_free else 1.0)
 
 

@@ -14,7 +14,14 @@ from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
 from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
-from ...kernels.warp import depth_error, has_magnified, seen_from_previous, warp_depth
+from ...kernels.warp import (
+    depth_error,
+    depth_error_looking_back,
+    has_magnified,
+    may_look_back,
+    seen_from_previous,
+    warp_depth,
+)
 from ..units import translation_factor
 from .buckets import Bucket, PaddedClips
 from .pixel_stage import pairs_flat
@@ -26,7 +33,8 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
                       stage: FinishStage):
     """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
     (AbsRel in %) and compared where frame i-1 could see (``seen_from_previous`` within the true
-    size ``image_hw`` (F, 2)), under authors every valid one (depth units). One pair at a time on
+    size ``image_hw`` (F, 2)), looked up in frame i-1 where the warp put a surface 10x farther
+    (``depth_error_looking_back``); under authors every valid one (depth units). One pair at a time on
     CPU, for the unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
     pairs = (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw)
@@ -35,22 +43,34 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
         depth_prev, static_prev = pair[:2]
         return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
 
-    def one(pair, magnified: bool):
+    def one(pair, magnified: bool, look_back: bool):
         _, _, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw = pair
         warped, hit = warp_depth(*source(pair), K_prev, K_curr, R_g, t_g, nearest=not authors, mask_holes=not authors,
                                  magnified=magnified)
-        if not authors:
-            hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
+        if authors:
+            return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
+        if look_back:
+            return depth_error_looking_back(warped, hit, depth_curr, depth_curr > 0, static_curr, *source(pair),
+                                            K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
+        hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
 
-    def all_pairs(magnified: bool):
-        return each(functools.partial(one, magnified=magnified), pairs, stage.vectorized)
+    def all_pairs(magnified: bool, look_back: bool = False):
+        return each(functools.partial(one, magnified=magnified, look_back=look_back), pairs, stage.vectorized)
 
     if authors:
         errors = all_pairs(False)
-    else:  # the hole rule's larger squares only for a batch with a surface coming 2x nearer
-        magnified = jnp.any(each(lambda pair: has_magnified(*source(pair), *pair[4:8]), pairs, stage.vectorized))
-        errors = jax.lax.cond(magnified, lambda: all_pairs(True), lambda: all_pairs(False))
+    else:
+        # the hole rule's larger squares only for a batch with a surface coming 2x nearer; the look back
+        # into frame i-1 (with them) only for a batch whose depth spans LOOK_BACK_RATIO between frames
+        def needs(pair):
+            return (has_magnified(*source(pair), *pair[4:8]),
+                    may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
+
+        magnified, far = (jnp.any(flags) for flags in each(needs, pairs, stage.vectorized))
+        branch = jnp.where(far, 2, magnified.astype(jnp.int32))
+        errors = jax.lax.switch(branch, [lambda: all_pairs(False), lambda: all_pairs(True),
+                                         lambda: all_pairs(True, look_back=True)])
     return errors * translation_factor(stage)
 
 

@@ -22,7 +22,7 @@ from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
-from ...kernels.warp import has_magnified, seen_from_previous, warp_sources
+from ...kernels.warp import has_magnified, looked_back_depth, previous_view, warp_sources
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
@@ -113,18 +113,32 @@ def local_poses(clip: PaddedClips, X, frozen: Frozen):
     return so3_exp(poses[..., :3]), poses[..., 3:], accepted
 
 
-def held_warp_depth_error(depth_prev, depth_curr, K_prev, R, t, source, hit, static_curr):
-    """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
-    (H W,), ``hit`` (H, W) from ``warp_sources``): each hit pixel's warped depth is the z in
-    camera i of the pixel of frame i-1 that won it."""
+def held_warped_depth(depth_prev, K_prev, R, t, source):
+    """(H W,) each pixel's warped depth with the nearest-z warp's winners held fixed (``source``
+    (H W,) from ``warp_sources``): the z in camera i of the pixel of frame i-1 that won it."""
     H, W = depth_prev.shape
-    both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
     source = jnp.minimum(source, H * W - 1)
     x, y, z = back_project_xyz(K_prev, (source % W).astype(depth_prev.dtype), (source // W).astype(depth_prev.dtype),
                                depth_prev.reshape(-1)[source])
-    warped = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    return R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+
+
+def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, hit, static_curr, landing, read):
+    """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
+    (H W,), ``hit`` (H, W) from ``warp_sources``), and the look back into frame i-1 where the
+    forward pass read it (``read`` (H, W), at the held pixel ``landing`` (H, W) of frame i-1)."""
+    H, W = depth_prev.shape
+    both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
+    warped = held_warped_depth(depth_prev, K_prev, R, t, source)
     target = jnp.where(both, depth_curr.reshape(-1), 1.0)
-    error = jnp.where(both, jnp.abs(warped - target) / target, 0.0)
+    error = jnp.abs(warped - target) / target
+    # frame i's point in camera i-1: the depth row of R^T (X - t)
+    x, y, z = back_project_xyz(K_curr, jnp.tile(jnp.arange(W, dtype=depth_curr.dtype), H),
+                               jnp.repeat(jnp.arange(H, dtype=depth_curr.dtype), W), target)
+    read = both & read.reshape(-1)
+    z_back = jnp.where(read, R[0, 2] * (x - t[0]) + R[1, 2] * (y - t[1]) + R[2, 2] * (z - t[2]), 1.0)
+    back = jnp.abs(depth_prev.reshape(-1)[landing.reshape(-1)] - z_back) / z_back
+    error = jnp.where(both, jnp.where(read, jnp.minimum(error, back), error), 0.0)
     n = jnp.sum(both)
     return PERCENT * jnp.sum(error) / jnp.maximum(n, 1)
 
@@ -147,11 +161,17 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     # the hole rule's larger squares only for a clip with a surface coming 2x nearer
     source, hit = jax.lax.cond(jnp.any(jax.vmap(has_magnified)(*frames)), lambda: warp_all(True),
                                lambda: warp_all(False))
-    seen = jax.vmap(seen_from_previous, in_axes=(0, 0, 0, 0, 0, 0, None))
-    hit = hit & seen(fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g,
-                     frozen.scale * frozen.t_g, fixed.image_hw)
-    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], R_g, t_scaled, source, hit,
-                                   fixed.static[1:])
+    view = jax.vmap(previous_view, in_axes=(0, 0, 0, 0, 0, 0, None))(
+        fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g, frozen.scale * frozen.t_g,
+        fixed.image_hw)
+    hit = hit & view.seen
+    # where the forward pass looked frame i-1 up (``looked_back_depth``) is held too
+    warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_g, frozen.scale * frozen.t_g,
+                                         source).reshape(hit.shape)
+    compared = hit & (fixed.depth[1:] > 0) & fixed.static[1:]
+    read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], *frames[:2], view) > 0
+    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_g, t_scaled,
+                                             source, hit, fixed.static[1:], view.landing, read)
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
                 global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * PERCENT**2,
                 depth_error=errors)
