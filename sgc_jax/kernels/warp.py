@@ -237,11 +237,12 @@ def looked_back_depth(warped, compared, depth_curr, depth_prev, valid_prev, view
     return jnp.where(needed, source[view.landing.reshape(-1)].reshape(needed.shape), 0.0)
 
 
-def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, depth_prev, valid_prev, K_prev, K_curr,
-                             R, t, image_hw=None, *, relative: bool = False):
+def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t,
+                             image_hw=None, *, relative: bool = False):
     """The spec depth check's error (docs/semantics.md §3.6 steps 4-5) of ``warp_depth``'s output:
-    ``depth_error`` within ``seen_from_previous``, frame i-1 looked up where frame i sees a surface
-    more than LOOK_BACK_RATIO times nearer than the warp put. Only a pair holding such a pixel reads
+    ``depth_error`` within ``seen_from_previous``, frame i-1 (``source``: its depth and valid mask,
+    (H, W) each) looked up where frame i sees a surface more than LOOK_BACK_RATIO times nearer than
+    the warp put. Only a pair holding such a pixel reads
     frame i-1 (a gather of every pixel, about 8 % of a clip on a CPU; 3 % of FIT's pairs need it);
     each branch computes what it needs from the inputs, so nothing of the image's size crosses it."""
     # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
@@ -250,7 +251,7 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, d
     def looked_back():
         view = previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
         compared = hit & view.seen & _valid_depth(depth_curr, valid_curr) & static_curr
-        read = looked_back_depth(warped, compared, depth_curr, depth_prev, valid_prev, view)
+        read = looked_back_depth(warped, compared, depth_curr, *source, view)
         return depth_error(warped, hit & view.seen, depth_curr, valid_curr, static_curr, relative=relative,
                            looked_back=(view.z, read))
 

@@ -50,7 +50,7 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
         if authors:
             return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
         if look_back:
-            return depth_error_looking_back(warped, hit, depth_curr, depth_curr > 0, static_curr, *source(pair),
+            return depth_error_looking_back(warped, hit, depth_curr, depth_curr > 0, static_curr, source(pair),
                                             K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
         hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
         return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
@@ -61,16 +61,15 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
     if authors:
         errors = all_pairs(False)
     else:
-        # the hole rule's larger squares only for a batch with a surface coming 2x nearer; the look back
-        # into frame i-1 (with them) only for a batch whose depth spans LOOK_BACK_RATIO between frames
+        # the hole rule's larger squares and the look back into frame i-1 only for a batch with a surface
+        # coming 2x nearer or whose depth spans LOOK_BACK_RATIO between frames (one program fewer to
+        # compile than a branch for each; both are rare)
         def needs(pair):
-            return (has_magnified(*source(pair), *pair[4:8]),
-                    may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
+            return (has_magnified(*source(pair), *pair[4:8])
+                    | may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
 
-        magnified, far = (jnp.any(flags) for flags in each(needs, pairs, stage.vectorized))
-        branch = jnp.where(far, 2, magnified.astype(jnp.int32))
-        errors = jax.lax.switch(branch, [lambda: all_pairs(False), lambda: all_pairs(True),
-                                         lambda: all_pairs(True, look_back=True)])
+        errors = jax.lax.cond(jnp.any(each(needs, pairs, stage.vectorized)),
+                              lambda: all_pairs(True, look_back=True), lambda: all_pairs(False))
     return errors * translation_factor(stage)
 
 
