@@ -6,7 +6,9 @@ import jax
 import numpy as np
 import pytest
 
+from sgc_jax.config import LOOK_BACK_RATIO, SGCConfig
 from sgc_jax.engines import reference
+from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
 from sgc_jax.io.clip import Clip
 from sgc_jax.kernels import warp
 from sgc_jax.kernels.so3 import so3_exp
@@ -408,9 +410,6 @@ def forward_only_depth_error(clip) -> float:
 @pytest.mark.parametrize("vectorized", [False, True])
 @pytest.mark.parametrize("card_depth", [0.5, 2.0])
 def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_farther(card_depth, vectorized):
-    from sgc_jax.config import SGCConfig
-    from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
-
     clip = card_whose_depth_errs_in_frame_i_minus_1(card_depth)
     R, t = np.eye(3), clip.t_wc[1]
     expected = reference.pair_depth_error(clip, 1, R, t, SGCConfig())[1]
@@ -425,3 +424,21 @@ def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_fart
         assert forward > 50.0 and expected < 0.2 * forward
     else:  # the wall 5x farther: its bounded error (400 %) stands
         assert expected == pytest.approx(forward, rel=1e-12)
+
+
+def test_the_batch_bound_holds_wherever_a_pixel_needs_the_look_back():
+    """``may_look_back`` decides, for a batch of pairs, whether the JAX engine runs §3.6 step 5 at
+    all: it must be true wherever the warp puts a surface more than 10x farther than frame i sees."""
+    rng = np.random.default_rng(7)
+    needed, bound = [], []
+    for _ in range(24):  # frame i's near pixels just beyond a tenth of frame i-1's farthest depth (20):
+        depth0 = rng.uniform(1.0, 20.0, (H, W)).astype(np.float32)  # only the camera's move can make them 10x
+        depth1 = np.where(rng.random((H, W)) < 0.05, rng.uniform(2.05, 3.0, (H, W)), rng.uniform(3.0, 20.0, (H, W)))
+        depth1 = depth1.astype(np.float32)
+        R = np.asarray(so3_exp(np.radians(rng.normal(0.0, 5.0, 3)).astype(np.float32)))
+        t = np.array([*rng.normal(0.0, 0.5, 2), rng.uniform(0.0, 12.0)], np.float32)
+        warped = np.asarray(warp_depth(depth0, depth0 > 0, K, K, R, t, mask_holes=True)[0])
+        needed.append(bool(np.any(warped > LOOK_BACK_RATIO * depth1)))
+        bound.append(bool(jax.jit(warp.may_look_back)(depth0, depth0 > 0, depth1, depth1 > 0, K, K, R, t)))
+    assert 0 < sum(needed) < len(needed)  # both kinds of pair were drawn
+    assert all(b for n, b in zip(needed, bound) if n)
