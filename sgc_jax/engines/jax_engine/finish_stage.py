@@ -43,33 +43,40 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
         depth_prev, static_prev = pair[:2]
         return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
 
-    def one(pair, magnified: bool, look_back: bool):
-        _, _, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw = pair
-        warped, hit = warp_depth(*source(pair), K_prev, K_curr, R_g, t_g, nearest=not authors, mask_holes=not authors,
-                                 magnified=magnified)
-        if authors:
-            return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
-        if look_back:
-            return depth_error_looking_back(warped, hit, depth_curr, depth_curr > 0, static_curr, source(pair),
-                                            K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
-        hit = hit & seen_from_previous(depth_curr, depth_curr > 0, K_prev, K_curr, R_g, t_g, image_hw)
-        return depth_error(warped, hit, depth_curr, depth_curr > 0, static_curr, relative=stage.scale_free)[0]
+    def warps(magnified: bool):  # the warped depth alone: a pixel is hit where it is > 0 (z > MIN_WARP_Z)
+        def one(pair):
+            return warp_depth(*source(pair), *pair[4:8], nearest=not authors, mask_holes=not authors,
+                              magnified=magnified)[0]
 
-    def all_pairs(magnified: bool, look_back: bool = False):
-        return each(functools.partial(one, magnified=magnified, look_back=look_back), pairs, stage.vectorized)
+        return each(one, pairs, stage.vectorized)
+
+    def errors_of(warped, look_back: bool):
+        def one(pair_warp):
+            (_, _, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw), warped = pair_warp
+            hit = warped > 0
+            valid = depth_curr > 0
+            if authors:
+                return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
+            if look_back:
+                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr, source(pair_warp[0]),
+                                                K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
+            hit = hit & seen_from_previous(depth_curr, valid, K_prev, K_curr, R_g, t_g, image_hw)
+            return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
+
+        return each(one, (pairs, warped), stage.vectorized)
 
     if authors:
-        errors = all_pairs(False)
+        errors = errors_of(warps(False), look_back=False)
     else:
-        # the hole rule's larger squares and the look back into frame i-1 only for a batch with a surface
-        # coming 2x nearer or whose depth spans LOOK_BACK_RATIO between frames (one program fewer to
-        # compile than a branch for each; both are rare)
+        # the hole rule's larger squares only for a batch with a surface coming 2x nearer; the look back
+        # into frame i-1 only for one whose depth may span LOOK_BACK_RATIO between frames
         def needs(pair):
-            return (has_magnified(*source(pair), *pair[4:8])
-                    | may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
+            return (has_magnified(*source(pair), *pair[4:8]),
+                    may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
 
-        errors = jax.lax.cond(jnp.any(each(needs, pairs, stage.vectorized)),
-                              lambda: all_pairs(True, look_back=True), lambda: all_pairs(False))
+        magnified, far = (jnp.any(flags) for flags in each(needs, pairs, stage.vectorized))
+        warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
+        errors = jax.lax.cond(far, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
     return errors * translation_factor(stage)
 
 
