@@ -33,12 +33,11 @@ NOISE_PX = 0.5
 def pair_readings(clip, pair: int, R, t, config: SGCConfig):
     """One pair's compared pixels -> (forward error, the read from frame i−1 (inf where none), the
     warped depth over frame i's), each (n,), relative."""
-    warped = reference.warp_depth(reference.warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
-                                  mask_holes=True)
+    source = reference.warp_source(clip, pair, config)
+    warped = reference.warp_depth(source, clip.K[pair - 1], clip.K[pair], R, t, mask_holes=True)
     seen, z, iu, iv = reference.previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
     depth = clip.depth[pair]
     both = seen & (warped > 0) & reference.valid_depth(depth) & clip.static_mask[pair]
-    source = reference.warp_source(clip, pair, config)
     before = np.where(reference.valid_depth(source), source, 0.0)[iv, iu]
     back = np.where(before > 0, np.abs(before - z) / np.where(seen, z, 1.0), np.inf)
     return np.abs(warped - depth)[both] / depth[both], back[both], warped[both] / depth[both]

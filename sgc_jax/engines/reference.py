@@ -615,15 +615,14 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     """(warped depth (H, W), the pair's depth error): frame pair-1 warped into frame pair with
     (R, t), compared on the static, valid pixels of frame pair; percent of depth under spec."""
     spec = config.compat != "authors"
-    warped = warp_depth(warp_source(clip, pair, config), clip.K[pair - 1], clip.K[pair], R, t,
-                        nearest=spec, mask_holes=spec)
+    source = warp_source(clip, pair, config)
+    warped = warp_depth(source, clip.K[pair - 1], clip.K[pair], R, t, nearest=spec, mask_holes=spec)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
     looked_back = None
     if spec:
         seen, z, iu, iv = previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
         warped = np.where(seen, warped, 0.0)
         # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
-        source = warp_source(clip, pair, config)
         source = np.where(valid_depth(source), source, 0.0)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
         looked_back = z, np.where(needed, source[iv, iu], 0.0)
