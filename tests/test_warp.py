@@ -413,8 +413,8 @@ def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_fart
     clip = card_whose_depth_errs_in_frame_i_minus_1(card_depth)
     R, t = np.eye(3), clip.t_wc[1]
     expected = reference.pair_depth_error(clip, 1, R, t, SGCConfig())[1]
-    as_pairs = (clip.depth[:1], clip.static_mask[:1], clip.depth[1:], clip.static_mask[1:], clip.K[:1].astype(np.float32),
-                clip.K[1:].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
+    as_pairs = (clip.depth[:2], clip.static_mask[:2], np.array([0], np.int32), clip.K[:1].astype(np.float32),
+                clip.K[1:2].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
                 np.array([clip.image_size], np.int32))
     stage = FinishStage.of(SGCConfig(), vectorized=vectorized)
     got = float(jax.jit(pair_depth_errors, static_argnames="stage")(*as_pairs, stage=stage)[0])

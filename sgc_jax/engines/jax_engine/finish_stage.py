@@ -29,36 +29,43 @@ from .pose_stage import LocalPoses
 from .stages import POSE_PER_TRACK, Stage, each
 
 
-def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw,
-                      stage: FinishStage):
-    """Pairs (F, ...) -> depth errors (F,): under spec the static valid pixels of frame i-1 warped
-    (AbsRel in %) and compared where frame i-1 could see (``seen_from_previous`` within the true
-    size ``image_hw`` (F, 2)), looked up in frame i-1 where the warp put a surface 10x farther
-    (``depth_error_looking_back``); under authors every valid one (depth units). One pair at a time on
-    CPU, for the unbatched z-buffer scatter."""
+def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, stage: FinishStage):
+    """Frames (n, H, W) of depth and static masks, each pair's frame i-1 as an index into them
+    (F,) int32 (frame i is the next), and the pairs' (F, ...) cameras and true sizes -> depth
+    errors (F,): under spec the static valid pixels of frame i-1 warped (AbsRel in %) and compared
+    where frame i-1 could see (``seen_from_previous`` within the true size ``image_hw`` (F, 2)),
+    looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
+    under authors every valid one (depth units). One pair at a time on CPU, for the unbatched
+    z-buffer scatter; each reads its frames by index, so no stack of frame pairs is copied."""
     authors = stage.compat == "authors"
-    pairs = (depth_prev, static_prev, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw)
+    pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
+
+    def frames(pair):  # (depth_prev, static_prev, depth_curr, static_curr) of one pair
+        at = lambda frames, i: jax.lax.dynamic_index_in_dim(frames, i, keepdims=False)  # noqa: E731
+        return at(depth, pair[0]), at(static, pair[0]), at(depth, pair[0] + 1), at(static, pair[0] + 1)
 
     def source(pair):
-        depth_prev, static_prev = pair[:2]
+        depth_prev, static_prev = frames(pair)[:2]
         return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
 
     def warps(magnified: bool):  # the warped depth alone: a pixel is hit where it is > 0 (z > MIN_WARP_Z)
         def one(pair):
-            return warp_depth(*source(pair), *pair[4:8], nearest=not authors, mask_holes=not authors,
+            return warp_depth(*source(pair), *pair[1:5], nearest=not authors, mask_holes=not authors,
                               magnified=magnified)[0]
 
         return each(one, pairs, stage.vectorized)
 
     def errors_of(warped, look_back: bool):
         def one(pair_warp):
-            (_, _, depth_curr, static_curr, K_prev, K_curr, R_g, t_g, image_hw), warped = pair_warp
+            pair, warped = pair_warp
+            _, _, depth_curr, static_curr = frames(pair)
+            K_prev, K_curr, R_g, t_g, image_hw = pair[1:]
             hit = warped > 0
             valid = depth_curr > 0
             if authors:
                 return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
             if look_back:
-                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr, source(pair_warp[0]),
+                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr, source(pair),
                                                 K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
             hit = hit & seen_from_previous(depth_curr, valid, K_prev, K_curr, R_g, t_g, image_hw)
             return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
@@ -71,8 +78,9 @@ def pair_depth_errors(depth_prev, static_prev, depth_curr, static_curr, K_prev, 
         # the hole rule's larger squares only for a batch with a surface coming 2x nearer; the look back
         # into frame i-1 only for one whose depth may span LOOK_BACK_RATIO between frames
         def needs(pair):
-            return (has_magnified(*source(pair), *pair[4:8]),
-                    may_look_back(*source(pair), pair[2], pair[2] > 0, *pair[4:8]))
+            depth_curr = frames(pair)[2]
+            return (has_magnified(*source(pair), *pair[1:5]),
+                    may_look_back(*source(pair), depth_curr, depth_curr > 0, *pair[1:5]))
 
         magnified, far = (jnp.any(flags) for flags in each(needs, pairs, stage.vectorized))
         warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
@@ -144,9 +152,10 @@ def finish_stage(pose: dict, depth, static, K, image_hw, stage: FinishStage) -> 
     poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # FinishStage.inputs keeps the per-track fields back
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
-    err = unflat(pair_depth_errors(flat(depth[:, :-1]), flat(static[:, :-1]), flat(depth[:, 1:]),
-                                   flat(static[:, 1:]), flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
-                                   flat(t_g_scaled), flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), stage))
+    previous = flat(jnp.arange(B, dtype=jnp.int32)[:, None] * T + jnp.arange(T - 1, dtype=jnp.int32))
+    err = unflat(pair_depth_errors(depth.reshape((B * T,) + depth.shape[2:]), static.reshape((B * T,) + static.shape[2:]),
+                                   previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g), flat(t_g_scaled),
+                                   flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), stage))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g
