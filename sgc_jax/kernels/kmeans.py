@@ -187,11 +187,29 @@ class Backtrack(NamedTuple):
     cluster: jax.Array  # (bins,) int32
 
 
+def first_layer(sums: Histogram, bins):
+    """The DP's first layer: one cluster of bins 0..b for every last bin b -> (best (bins,), first
+    (bins,) int32, all 0), as ``dp_step`` gives it from D(-1) = 0 and +inf before."""
+    take = lambda idx: jax.tree.map(lambda x: x[idx], sums)  # noqa: E731
+    best = 0.0 + range_cost(take(jnp.zeros(bins, jnp.int32)), take(jnp.arange(1, bins + 1)))
+    return best, jnp.zeros(bins, jnp.int32)
+
+
+def last_bin_step(prev, sums: Histogram, bins):
+    """One DP layer at the last bin only (the layer no later one reads, whose backtrack starts
+    there): min over a of prev[a] + cost(a, bins - 1) -> (best (), first () int32), ties to the
+    smallest a; prev as ``dp_step``'s."""
+    end = jax.tree.map(lambda x: jnp.broadcast_to(x[bins], x.shape), sums)
+    total = prev + range_cost(sums, end)  # rows a = 0..bins; a = bins: an empty last cluster
+    return jnp.min(total), jnp.argmin(total).astype(jnp.int32)
+
+
 def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
     """The k-layer DP, then the backtrack -> cluster 0..k_used-1 of each bin (bins,), by increasing
     value; every bin in cluster 0 when the values span no range. ``k_used`` (traced, 1..k; default
     k): the DP's row j holds the optimum for j + 1 clusters, so fewer clusters is a backtrack from
-    an earlier row, the same program."""
+    an earlier row, the same program. The first layer is closed-form and the last is needed at the
+    last bin only (its backtrack's start); the layers between search every column."""
     plan = search_plan(bins)
     k_used = k if k_used is None else k_used
 
@@ -199,8 +217,15 @@ def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
         best, first = dp_step(prev, sums, plan, bins)
         return jnp.concatenate([jnp.zeros(1, jnp.float32), best]), first
 
-    prev0 = jnp.concatenate([jnp.zeros(1, jnp.float32), jnp.full(bins, jnp.inf, jnp.float32)])
-    _, first_bin = lax.scan(forward, prev0, None, length=k)  # (k, bins): A_j(b) at row j - 1
+    best, first = first_layer(sums, bins)
+    rows = [first[None]]
+    prev = jnp.concatenate([jnp.zeros(1, jnp.float32), best])
+    if k > 2:
+        prev, middle = lax.scan(forward, prev, None, length=k - 2)
+        rows.append(middle)
+    if k > 1:
+        rows.append(jnp.broadcast_to(last_bin_step(prev, sums, bins)[1], (1, bins)))
+    first_bin = jnp.concatenate(rows)  # (k, bins): A_j(b) at row j - 1; the last row valid at bins - 1
     bin_ids = jnp.arange(bins, dtype=jnp.int32)
 
     def backward(state: Backtrack, step) -> tuple[Backtrack, None]:
