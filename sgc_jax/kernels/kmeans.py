@@ -56,14 +56,21 @@ def bin_of(u, bins):
     return jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
 
 
-def histogram(y, bins_of, valid, bins) -> tuple[Histogram, jax.Array]:
+def histogram(y, bins_of, valid, bins, packed: bool = False) -> tuple[Histogram, jax.Array]:
     """Prefix sums of positions y (N,) [bin units, 0..bins] -> (Histogram, entries per bin (bins,)).
 
     Each bin's sums are an exact part at the bin centre plus float32 sums of the offsets from it
-    (|d| <= 0.5), so Q - S^2 / n keeps the spread of a tight cluster far from the origin."""
+    (|d| <= 0.5), so Q - S^2 / n keeps the spread of a tight cluster far from the origin.
+    ``packed``: the offsets and their squares summed as one complex segment sum, the same sums
+    (complex addition is per part) in half the time of two on a CPU."""
     d = jnp.where(valid, y - (bins_of.astype(jnp.float32) + 0.5), 0.0)
-    # three 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
-    n_c, d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (valid.astype(jnp.float32), d, d * d))
+    # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
+    n_c = jax.ops.segment_sum(valid.astype(jnp.float32), bins_of, num_segments=bins)
+    if packed:
+        sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
+        d_c, e_c = jnp.real(sums), jnp.imag(sums)
+    else:
+        d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
     centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
     zero = jnp.zeros(bins, jnp.float32)
     s_c = df_add(two_prod(n_c, centre), (d_c, zero))
