@@ -73,7 +73,7 @@ def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_
     slots = region_slots(region, k, dtype) if slots is None else slots
 
     def evaluate(poses):
-        err_sq = pose_errors_sq(poses, X, uv, K, onehot)
+        err_sq = pose_errors_sq(poses, X, uv, K, slots)
         within = member & (err_sq < cut_sq_point)
         cost = region_truncated_cost(err_sq, member, cut_sq_point, onehot)
         return err_sq, within, cost, region_sums(onehot, within.astype(dtype))

@@ -215,7 +215,7 @@ def ransac_pnp_regions(X, uv, region, K, keys, options: RansacOptions, rival_R=N
 
     R, t = so3_exp(poses[:, :3]), poses[:, 3:]
     onehot = region_onehot(region, k, dtype)
-    err_sq, in_front = own_pose_errors_sq(poses, X, uv, K, onehot)
+    err_sq, in_front = own_pose_errors_sq(poses, X, uv, K, slots)
     inliers = member & in_front & (err_sq < jnp.asarray(options.inlier_px, dtype) ** 2)
     n_inliers = region_sums(onehot, inliers.astype(dtype)).astype(jnp.int32)
     reproj_px = region_sums(onehot, jnp.sqrt(jnp.where(member, err_sq, 0.0))) / jnp.maximum(n_members, 1).astype(dtype)

@@ -68,6 +68,7 @@ class RegionSlots(NamedTuple):
     point: jax.Array  # (S,) int32 point in each slot, N for an empty one
     chunk_region: jax.Array  # (n_chunks,) int32 region 0..k-1 of each chunk (0 for empty chunks)
     chunk_onehot: jax.Array  # (k, n_chunks) 1 where a chunk holds that region's points
+    slot: jax.Array  # (N,) int32 slot of each point, S for a point of no region
 
 
 def region_slots(region, k: int, dtype=jnp.float32) -> RegionSlots:
@@ -84,13 +85,18 @@ def region_slots(region, k: int, dtype=jnp.float32) -> RegionSlots:
     point = jnp.full(S, N, jnp.int32).at[slot].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
     chunk_first = jnp.arange(S // C, dtype=jnp.int32) * C
     holds = (chunk_first[None, :] >= slot_start[:, None]) & (chunk_first[None, :] < (slot_start + count)[:, None])
-    return RegionSlots(point, jnp.argmax(holds, axis=0).astype(jnp.int32), holds.astype(dtype))
+    return RegionSlots(point, jnp.argmax(holds, axis=0).astype(jnp.int32), holds.astype(dtype), slot.astype(jnp.int32))
 
 
 def to_slots(slots: RegionSlots, values, fill):
     """Per-point values (N, ...) -> (n_chunks, SLOT_CHUNK, ...); empty slots hold ``fill``."""
     padded = jnp.concatenate([values, jnp.broadcast_to(jnp.asarray(fill, values.dtype), (1,) + values.shape[1:])])
     return padded[slots.point].reshape((-1, SLOT_CHUNK) + values.shape[1:])
+
+
+def from_slots(slots: RegionSlots, values, fill):
+    """Per-slot values (n_chunks, SLOT_CHUNK) -> (N,) each point's; ``fill`` for points of no region."""
+    return jnp.concatenate([values.reshape(-1), jnp.full(1, fill, values.dtype)])[slots.slot]
 
 
 def block_sums(onehot, values):

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .camera import homogeneous_pixels
 from .pnp import projected_pointwise
-from .regions import point_values, region_sums
+from .regions import RegionSlots, from_slots, region_sums, to_slots
 from .so3 import so3_exp
 
 # One truncated cost is lower than another when by more than this fraction of it, beyond float32's
@@ -42,22 +42,23 @@ def msac_score(R, t, X, uv, K, member, inlier_px):
     return inliers, jnp.sum(inliers, axis=-1, dtype=jnp.int32), jnp.sum(trunc, axis=-1)
 
 
-def own_pose_errors_sq(poses, X, uv, K, onehot):
-    """(squared errors (N,) [px^2] of each point under its own region's pose6 (poses (k, 6), onehot
-    (k, N)), in_front (N,)); finite behind the camera (the depth floor), identity pose for none."""
-    k = poses.shape[0]
-    Rt = jnp.concatenate([so3_exp(poses[:, :3]).reshape(k, 9), poses[:, 3:]], axis=-1)
-    own = point_values(onehot, Rt)  # (N, 12); 0 for no region
-    identity = jnp.concatenate([jnp.eye(3, dtype=X.dtype).reshape(9), jnp.zeros(3, X.dtype)])
-    own = own + (1.0 - jnp.sum(onehot, axis=0))[:, None] * identity
-    u_hat, v_hat, in_front = projected_pointwise(own[:, :9].reshape(-1, 3, 3), own[:, 9:], K, X[:, 0], X[:, 1], X[:, 2])
-    return (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2, in_front
+def own_pose_errors_sq(poses, X, uv, K, slots: RegionSlots):
+    """(squared errors (N,) [px^2] of each point under its own region's pose6 (poses (k, 6)),
+    in_front (N,)); finite behind the camera (the depth floor), 0 and not in front for points of
+    no region. Computed in the slot layout of ``slots`` (``region_slots``): each chunk's pose
+    broadcast over its points, not one pose gathered per point."""
+    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
+    Xs, uvs = to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], X.dtype)), to_slots(slots, uv, 0.0)
+    u_hat, v_hat, in_front = projected_pointwise(per_chunk(so3_exp(poses[:, :3])), per_chunk(poses[:, 3:]), K,
+                                                 Xs[..., 0], Xs[..., 1], Xs[..., 2])
+    err_sq = (u_hat - uvs[..., 0]) ** 2 + (v_hat - uvs[..., 1]) ** 2
+    return from_slots(slots, err_sq, 0.0), from_slots(slots, in_front, False)
 
 
-def pose_errors_sq(poses, X, uv, K, onehot):
+def pose_errors_sq(poses, X, uv, K, slots: RegionSlots):
     """``own_pose_errors_sq``, +inf behind the camera and for points of no region."""
-    err_sq, in_front = own_pose_errors_sq(poses, X, uv, K, onehot)
-    return jnp.where(in_front & (jnp.sum(onehot, axis=0) > 0), err_sq, jnp.inf)
+    err_sq, in_front = own_pose_errors_sq(poses, X, uv, K, slots)
+    return jnp.where(in_front, err_sq, jnp.inf)
 
 
 def region_truncated_cost(err_sq, member, cut_sq_point, onehot):

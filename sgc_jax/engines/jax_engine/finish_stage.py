@@ -41,7 +41,7 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
 
     def frames(pair):  # (depth_prev, static_prev, depth_curr, static_curr) of one pair
-        at = lambda frames, i: jax.lax.dynamic_index_in_dim(frames, i, keepdims=False)  # noqa: E731
+        at = lambda stack, i: jax.lax.dynamic_index_in_dim(stack, i, keepdims=False)  # noqa: E731
         return at(depth, pair[0]), at(static, pair[0]), at(depth, pair[0] + 1), at(static, pair[0] + 1)
 
     def source(pair):
