@@ -21,6 +21,7 @@ from sgc_jax.kernels.pnp import gauss_newton_updates, initial_pose, reprojection
 from sgc_jax.kernels.ransac import ransac_pnp
 from sgc_jax.kernels.regions import SLOT_CHUNK, group_by_region, label_ranks, region_slots
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp, so3_log
+from sgc_jax.kernels.truncated_cost import own_pose_errors_sq
 
 W, H = 512, 288
 F = 0.5 * W / np.tan(np.radians(30.0))  # 60 deg horizontal field of view
@@ -188,6 +189,33 @@ def test_region_slots_put_each_member_once_in_chunks_of_its_own_region():
             np.testing.assert_array_equal(np.asarray(slots.chunk_onehot[:, c]), np.eye(k)[slots.chunk_region[c]])
         else:
             np.testing.assert_array_equal(np.asarray(slots.chunk_onehot[:, c]), 0.0)
+    S = point.size
+    slot = np.asarray(slots.slot)
+    np.testing.assert_array_equal(point.reshape(-1)[slot[members]], members)  # each member's slot holds it
+    assert np.all(slot[np.setdiff1d(np.arange(N), members)] == S)  # the others have none
+
+
+# float32 pixels of a few hundred px: a squared error's rounding is ~1e-6 of it
+OWN_ERROR_RTOL = 1e-5
+
+
+def test_each_points_error_is_under_its_own_regions_pose_and_none_off_the_regions():
+    rng = np.random.default_rng(9)
+    k, N = 4, 300
+    region = rng.choice([0, 1, 2, 3, 4, 7], size=N)  # 0 and 7 > k: no region
+    X = rng.uniform([-1.0, -1.0, 2.0], [1.0, 1.0, 6.0], (N, 3))
+    uv = rng.uniform(0.0, [W, H], (N, 2))
+    poses = np.concatenate([rng.normal(0.0, 0.05, (k, 3)), rng.normal(0.0, 0.2, (k, 3))], axis=1)
+    slots = jax.jit(region_slots, static_argnums=1)(jnp.asarray(region), k)
+    err_sq, in_front = jax.jit(own_pose_errors_sq)(*f32(poses, X, uv, K), slots)
+    member = (region >= 1) & (region <= k)
+    R = np.asarray(so3_exp(jnp.asarray(poses[:, :3])), np.float64)[np.clip(region - 1, 0, k - 1)]
+    Y = np.einsum("nij,nj->ni", R, X) + poses[np.clip(region - 1, 0, k - 1), 3:]
+    pixel = (Y @ K.T)[:, :2] / Y[:, 2:]
+    expected = np.sum((pixel - uv) ** 2, axis=1)
+    np.testing.assert_allclose(np.asarray(err_sq)[member], expected[member], rtol=OWN_ERROR_RTOL)
+    assert np.all(np.asarray(in_front)[member])
+    assert np.all(np.asarray(err_sq)[~member] == 0.0) and not np.any(np.asarray(in_front)[~member])
 
 
 def test_initial_pose_alone_converges_from_30_degrees():
