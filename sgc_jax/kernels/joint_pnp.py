@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from .fence import materialise
 from .linalg import small_matmul, solve_spd
 from .pnp import point_columns, pointwise_residuals, pose_jacobian_rows
-from .regions import RegionSlots, block_normals, block_sums, region_slots, to_slots
+from .regions import RegionSlots, block_normals, block_sums, per_chunk, region_slots, to_slots
 from .so3 import so3_exp, so3_log
 
 # A region stops once a step would lower its squared error by less than LM_RTOL of it (float32
@@ -83,9 +83,9 @@ def problem_of(X, uv, weight, region, K, k: int, slots: RegionSlots | None = Non
 def linearise(problem: Problem, R, t) -> Linearisation:
     """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3)."""
     slots, onehot = problem.slots, problem.slots.chunk_onehot
-    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
     chunk_scale = problem.scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
-    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(R), per_chunk(t), problem.K, problem.cols)
+    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(slots, R), per_chunk(slots, t), problem.K,
+                                                         problem.cols)
     J_u, J_v = materialise((pose_jacobian_rows(RX, grad_u) / chunk_scale,
                             pose_jacobian_rows(RX, grad_v) / chunk_scale))  # (6, n_chunks, SLOT_CHUNK) each, scaled
     cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]

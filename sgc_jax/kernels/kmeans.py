@@ -197,8 +197,8 @@ class Backtrack(NamedTuple):
 def first_layer(sums: Histogram, bins):
     """The DP's first layer: one cluster of bins 0..b for every last bin b -> (best (bins,), first
     (bins,) int32, all 0), as ``dp_step`` gives it from D(-1) = 0 and +inf before."""
-    take = lambda idx: jax.tree.map(lambda x: x[idx], sums)  # noqa: E731
-    best = 0.0 + range_cost(take(jnp.zeros(bins, jnp.int32)), take(jnp.arange(1, bins + 1)))
+    start = jax.tree.map(lambda x: jnp.broadcast_to(x[0], (bins,)), sums)
+    best = 0.0 + range_cost(start, jax.tree.map(lambda x: x[1:], sums))  # 0.0 +: prev[0] + cost, as dp_step
     return best, jnp.zeros(bins, jnp.int32)
 
 

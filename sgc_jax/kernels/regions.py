@@ -94,6 +94,11 @@ def to_slots(slots: RegionSlots, values, fill):
     return padded[slots.point].reshape((-1, SLOT_CHUNK) + values.shape[1:])
 
 
+def per_chunk(slots: RegionSlots, table):
+    """Per-region values (k, ...) -> each chunk's (n_chunks, ..., 1), broadcastable over its slots."""
+    return table[slots.chunk_region][..., None]
+
+
 def from_slots(slots: RegionSlots, values, fill):
     """Per-slot values (n_chunks, SLOT_CHUNK) -> (N,) each point's; ``fill`` for points of no region."""
     return jnp.concatenate([values.reshape(-1), jnp.full(1, fill, values.dtype)])[slots.slot]

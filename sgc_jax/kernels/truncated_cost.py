@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .camera import homogeneous_pixels
 from .pnp import projected_pointwise
-from .regions import RegionSlots, from_slots, region_sums, to_slots
+from .regions import RegionSlots, from_slots, per_chunk, region_sums, to_slots
 from .so3 import so3_exp
 
 # One truncated cost is lower than another when by more than this fraction of it, beyond float32's
@@ -47,10 +47,9 @@ def own_pose_errors_sq(poses, X, uv, K, slots: RegionSlots):
     in_front (N,)); finite behind the camera (the depth floor), 0 and not in front for points of
     no region. Computed in the slot layout of ``slots`` (``region_slots``): each chunk's pose
     broadcast over its points, not one pose gathered per point."""
-    per_chunk = lambda table: table[slots.chunk_region][..., None]  # noqa: E731  (k, ...) -> (n_chunks, ..., 1)
     Xs, uvs = to_slots(slots, X, jnp.array([0.0, 0.0, 1.0], X.dtype)), to_slots(slots, uv, 0.0)
-    u_hat, v_hat, in_front = projected_pointwise(per_chunk(so3_exp(poses[:, :3])), per_chunk(poses[:, 3:]), K,
-                                                 Xs[..., 0], Xs[..., 1], Xs[..., 2])
+    u_hat, v_hat, in_front = projected_pointwise(per_chunk(slots, so3_exp(poses[:, :3])), per_chunk(slots, poses[:, 3:]),
+                                                 K, Xs[..., 0], Xs[..., 1], Xs[..., 2])
     err_sq = (u_hat - uvs[..., 0]) ** 2 + (v_hat - uvs[..., 1]) ** 2
     return from_slots(slots, err_sq, 0.0), from_slots(slots, in_front, False)
 
