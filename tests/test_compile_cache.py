@@ -103,16 +103,18 @@ class _Lowered:
         return "executable"
 
 
-def test_the_pose_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lacks_them():
+def test_each_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lacks_them():
     from sgc_jax.engines.jax_engine.programs import compile_stage, stages_of
+    from sgc_jax.engines.jax_engine.stages import CPU_COMPILER_OPTIONS
 
-    pixel, pose, _ = stages_of(SGCConfig())
+    pixel, pose, finish = stages_of(SGCConfig())
     options = pose.cpu_compiler_options
-    assert options  # the pose stage has some
+    assert options.items() > CPU_COMPILER_OPTIONS.items()  # the pose stage has one more
+    assert pixel.cpu_compiler_options == finish.cpu_compiler_options == CPU_COMPILER_OPTIONS
     knows = _Lowered(options)
     assert compile_stage(knows, pose, "cpu") == "executable" and knows.calls == [options]
     lacks = _Lowered()
     assert compile_stage(lacks, pose, "cpu") == "executable" and lacks.calls == [options, None]
     elsewhere = _Lowered()
     assert compile_stage(elsewhere, pose, "gpu") == "executable" and elsewhere.calls == [None]
-    assert compile_stage(elsewhere, pixel, "cpu") == "executable" and elsewhere.calls == [None, None]
+    assert compile_stage(elsewhere, pixel, "gpu") == "executable" and elsewhere.calls == [None, None]

@@ -20,7 +20,7 @@ from ...kernels.scale import robust_scale, scale_equations
 from ...kernels.so3 import nearest_rotation
 from ...kernels.uncertainty import region_quality
 from .buckets import Bucket, PaddedClips
-from .stages import PoseInputs, Stage, as_float, as_int, each
+from .stages import CPU_COMPILER_OPTIONS, PoseInputs, Stage, as_float, as_int, each
 
 # Pairs posed at once (vmapped), at most: every loop of a vmapped group runs until its slowest pair
 # is done, and fewer than ~4 pay more per-op overhead than they save (bench/history/issue-21.md,
@@ -174,7 +174,7 @@ class PoseStage(Stage):
     # XLA CPU's YNNPACK fusions run this stage's many small reductions slower than its own loops
     # (~175 against ~220 ms per standard clip, bench/history/issue-21.md, "The pose stage without
     # YNNPACK fusions")
-    cpu_compiler_options: ClassVar[dict[str, str]] = {"xla_cpu_experimental_ynn_fusion_type": ""}
+    cpu_compiler_options: ClassVar[dict[str, str]] = {**CPU_COMPILER_OPTIONS, "xla_cpu_experimental_ynn_fusion_type": ""}
     k_seg: int = eqx.field(static=True)
     compat: str = eqx.field(static=True)
     global_pose: bool = eqx.field(static=True)
