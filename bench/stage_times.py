@@ -30,7 +30,7 @@ def main() -> None:
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
-    from stream import write_corpus
+    from stream import host_cpu, write_corpus
 
     import sgc_jax
     from sgc_jax import SGCConfig, enable_compilation_cache
@@ -61,7 +61,7 @@ def main() -> None:
     print(f"{Path(sgc_jax.__file__).parent.parent}: "
           + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in medians.items())
           + f"; a clip {sum(medians.values()):.0f} ms ({len(times['pixel'])} warm calls per stage)")
-    print("  CPU time (all threads): " + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in cpu_medians.items())
+    print(f"  {host_cpu()}; CPU time (all threads): " + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in cpu_medians.items())
           + f"; a clip {sum(cpu_medians.values()):.0f} ms")
 
 

@@ -48,6 +48,17 @@ SCENE = dict(n_frames=16, height=288, width=512, n_tracks=4096, n_layers=4, stat
 DISTINCT_SCENES = 16
 
 
+def host_cpu() -> str:
+    """The CPU's model name and whether it has AVX-512, from /proc/cpuinfo: the CPU programs'
+    vectors are 512 bits wide only with it (docs/semantics.md §7.1), so speed figures depend on it."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "CPU unknown"
+    model = next((line.split(":", 1)[1].strip() for line in info.splitlines() if line.startswith("model name")), "?")
+    return f"{model}, AVX-512 {'yes' if ' avx512f' in info else 'no'}"
+
+
 def write_corpus(folder: Path, n: int) -> list[Path]:
     """The first n standard clips in ``folder``, written where missing (so a run with fewer clips
     reuses a larger corpus's files)."""

@@ -50,6 +50,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=2, help="processes per tree, alternating")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
+    sys.path.insert(0, str(HERE / "bench"))
+    from stream import host_cpu
+
     from sgc_jax import save_clip
     from sgc_jax.research.synth import synth_clip
 
@@ -61,7 +64,7 @@ def main() -> None:
             save_clip(work / "clips" / f"c{seed}.npz", synth_clip(
                 seed=seed, clip_id=f"c{seed}", n_frames=16, height=288, width=512, n_tracks=4096, n_layers=4,
                 static_spheres=3, noise_px=0.5, outlier_frac=0.1))
-        print(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} CPUs", flush=True)
+        print(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} CPUs ({host_cpu()})", flush=True)
         for round_ in range(args.rounds):
             for name, tree in trees.items():
                 rates[name].append(warm_rate(tree, work / "clips", args.repeat, work / f"cache-{name}"))
