@@ -118,3 +118,15 @@ def test_each_stage_compiles_with_its_cpu_options_and_without_them_where_xla_lac
     elsewhere = _Lowered()
     assert compile_stage(elsewhere, pose, "gpu") == "executable" and elsewhere.calls == [None]
     assert compile_stage(elsewhere, pixel, "gpu") == "executable" and elsewhere.calls == [None, None]
+
+
+def test_an_xla_flag_the_user_sets_wins_over_a_stages_cpu_option(monkeypatch):
+    from sgc_jax.engines.jax_engine.programs import stage_compiler_options, stages_of
+
+    _, pose, finish = stages_of(SGCConfig())
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2 --xla_cpu_prefer_vector_width=256")
+    assert "xla_cpu_prefer_vector_width" not in stage_compiler_options(pose, "cpu")
+    assert stage_compiler_options(pose, "cpu") == {"xla_cpu_experimental_ynn_fusion_type": ""}
+    assert stage_compiler_options(finish, "cpu") == {}
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    assert stage_compiler_options(finish, "cpu") == finish.cpu_compiler_options

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import os
 import threading
 import time
 from typing import Any, Callable, NamedTuple, Sequence
@@ -144,10 +145,19 @@ def _traced(stage: Stage, mesh=None) -> Callable:
                                  check_vma=False))
 
 
+def stage_compiler_options(stage: Stage, platform: str) -> dict[str, str] | None:
+    """The stage's ``cpu_compiler_options`` on a CPU ``platform`` (None elsewhere), less those the
+    user sets in ``XLA_FLAGS``: theirs win (e.g. ``--xla_cpu_prefer_vector_width=256``)."""
+    if platform != "cpu":
+        return None
+    user_flags = os.environ.get("XLA_FLAGS", "")
+    return {name: value for name, value in stage.cpu_compiler_options.items() if f"--{name}=" not in user_flags}
+
+
 def compile_stage(lowered, stage: Stage, platform: str):
-    """``lowered.compile()`` with the stage's ``cpu_compiler_options`` on a CPU ``platform``; an
-    XLA that no longer knows an option compiles without it."""
-    options = stage.cpu_compiler_options if platform == "cpu" else None
+    """``lowered.compile()`` with ``stage_compiler_options``; an XLA that no longer knows an
+    option compiles without it."""
+    options = stage_compiler_options(stage, platform)
     if options:
         try:
             return lowered.compile(compiler_options=options)

@@ -63,7 +63,7 @@ def as_float(value) -> np.ndarray:
 
 # XLA:CPU vectorises loops 256 bits wide by default; on a CPU with AVX-512, 512 bits run a warm
 # standard clip ~8 % faster (AMD EPYC; bench/history/issue-61.md, "Loops vectorised 512 bits wide").
-# A CPU without AVX-512 keeps its widest vectors.
+# A CPU without AVX-512 keeps its widest vectors; a flag set in XLA_FLAGS wins (stage_compiler_options).
 CPU_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": "512"}
 
 
