@@ -22,6 +22,7 @@ import argparse
 import dataclasses
 import json
 import os
+import platform
 import resource
 import shutil
 import subprocess
@@ -33,6 +34,7 @@ from pathlib import Path
 import jax
 
 from sgc_jax import enable_compilation_cache, save_clip, score_batch
+from sgc_jax.engines.jax_engine.compile_cache import _cpu_features
 from sgc_jax.io.loading import load_clips
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.readers import reading_plan
@@ -49,14 +51,16 @@ DISTINCT_SCENES = 16
 
 
 def host_cpu() -> str:
-    """The CPU's model name and whether it has AVX-512, from /proc/cpuinfo: the CPU programs'
-    vectors are 512 bits wide only with it (docs/semantics.md §7.1), so speed figures depend on it."""
+    """The CPU's model name and whether it has AVX-512 (the flags the compilation cache keys on):
+    the CPU programs' vectors are 512 bits wide only with it (docs/semantics.md §7.1), so speed
+    figures depend on it."""
     try:
         info = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return "CPU unknown"
-    model = next((line.split(":", 1)[1].strip() for line in info.splitlines() if line.startswith("model name")), "?")
-    return f"{model}, AVX-512 {'yes' if ' avx512f' in info else 'no'}"
+        info = ""
+    model = next((line.split(":", 1)[1].strip() for line in info.splitlines() if line.startswith("model name")),
+                 platform.processor() or "CPU unknown")
+    return f"{model}, AVX-512 {'yes' if 'avx512f' in _cpu_features().split() else 'no'}"
 
 
 def write_corpus(folder: Path, n: int) -> list[Path]:
