@@ -14,7 +14,7 @@ from ..config import MIN_CUT_PX, NOISE_CUT
 from .joint_pnp import solve_pnp_regions
 from .pnp import translation_for_rotation
 from .ransac_options import RansacOptions
-from .regions import HIGHEST, point_values, region_onehot, region_slots, region_sums
+from .regions import point_values, region_onehot, region_slots, region_sums
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 from .truncated_cost import is_lower, pose_errors_sq, region_truncated_cost, truncated_errors_sq
 
@@ -58,15 +58,14 @@ class Fit(NamedTuple):
     fitted_on: jax.Array  # (N,) bool: the points the kept pose was fitted on
 
 
-def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_on_within, skip, *, lm_steps,
-                 max_rounds, slots=None) -> LocalOptima:
+def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_on_within, *, lm_steps, max_rounds,
+                 slots=None) -> LocalOptima:
     """Every region's local optimum of the truncated cost at its cut (``cut_sq_point`` (N,): each
     point's region's squared cut) from ``start`` (k, 6): least squares on the members within the
     cut, again on the new ones, each fit kept only when it lowers the cost; a region stops at its
     first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits.
     ``start_fitted_on`` (N,): the points the start was fitted on; where ``fitted_on_within`` (a
-    traced bool) holds, those within its cut instead. Regions where ``skip`` (k,) holds are not
-    optimised (they keep their start)."""
+    traced bool) holds, those within its cut instead."""
     k = start.shape[0]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -93,59 +92,11 @@ def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_
                    jnp.where(point_better, weight > 0, state.fitted_on))
 
     err_sq, within, cost, n_within = evaluate(start)
-    done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1) | skip
+    done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
     final = jax.lax.while_loop(lambda s: (s.rounds < max_rounds) & jnp.any(~s.done), refit,
                                Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0),
                                    jnp.where(fitted_on_within, within, start_fitted_on)))
     return LocalOptima(final.poses, final.err_sq, final.cost, final.fitted_on)
-
-
-def repeated_starts(starts, X, uv, K, member, onehot, thr_sq, slots):
-    """(M, k) bool: where a start (M, k, 6) leaves exactly the members within inlier_px (thr_sq
-    [px^2]) of an earlier start of its region. Its local optimum there would refit the points the
-    earlier start's first fit was made on, so it is not run again (docs/semantics.md §7.1)."""
-    n_starts = starts.shape[0]
-    within = jax.vmap(lambda poses: member & (pose_errors_sq(poses, X, uv, K, slots) < thr_sq))(starts)  # (M, N)
-    differ = jnp.einsum("kn,ijn->ijk", onehot, (within[:, None] != within[None]).astype(onehot.dtype),
-                        precision=HIGHEST)  # (M, M, k)
-    earlier = jnp.tril(jnp.ones((n_starts, n_starts), bool), -1)  # [i, j]: j before i
-    return jnp.any((differ == 0) & earlier[..., None], axis=1)
-
-
-def rival_repeats_coarse(start, coarse: LocalOptima, X, uv, K, member, onehot, thr_sq, slots):
-    """(k,) bool: where the rival's start (k, 6) leaves the coarse optimum's members within
-    inlier_px (thr_sq [px^2]) and costs no less there: its local optimum at inlier_px would refit
-    the coarse optimum's points, so the coarse optimum stands for it (docs/semantics.md §7.1)."""
-    err_sq = pose_errors_sq(start, X, uv, K, slots)
-    same = region_sums(onehot, (((err_sq < thr_sq) != (coarse.err_sq < thr_sq)) & member).astype(onehot.dtype)) == 0
-    cost = region_truncated_cost(err_sq, member, jnp.full(err_sq.shape, thr_sq), onehot)
-    return same & ~is_lower(cost, coarse.cost)
-
-
-def _left_out(start, member) -> LocalOptima:
-    """A repeated start's run (``repeated_starts``): left out of the coarse optimum's choice."""
-    k = start.shape[0]
-    return LocalOptima(start, jnp.zeros(member.shape, start.dtype), jnp.full((k,), jnp.inf, start.dtype),
-                       jnp.zeros_like(member))
-
-
-class Known(NamedTuple):
-    """A run's regions (k,) bool whose local optimum is known without running it, and that optimum."""
-
-    regions: jax.Array
-    optimum: LocalOptima
-
-    @classmethod
-    def nothing(cls, optimum: LocalOptima) -> Known:
-        return cls(jnp.zeros(optimum.cost.shape, bool), optimum)
-
-    def where_known(self, optimum: LocalOptima, onehot) -> LocalOptima:
-        """``optimum`` (of a run that left these regions alone) with the known one in them."""
-        point_known = point_values(onehot, self.regions.astype(onehot.dtype)) > 0
-        return LocalOptima(jnp.where(self.regions[:, None], self.optimum.poses, optimum.poses),
-                           jnp.where(point_known, self.optimum.err_sq, optimum.err_sq),
-                           jnp.where(self.regions, self.optimum.cost, optimum.cost),
-                           jnp.where(point_known, self.optimum.fitted_on, optimum.fitted_on))
 
 
 class RefinedPoses(NamedTuple):
@@ -194,16 +145,14 @@ def _pose_or_rival(pose: LocalOptima, rival: LocalOptima, cut, member, onehot, o
 def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slots=None) -> RefinedPoses:
     """The local pose of every region from M starts (M, k, 6):
 
-    1. each start's local optimum at inlier_px (not again where it repeats an earlier start's
-       members there: ``repeated_starts``); the lowest is the coarse optimum, and its noise-level
-       cut (``noise_cut_sq``) the region's cut;
+    1. each start's local optimum at inlier_px; the lowest is the coarse optimum, and its
+       noise-level cut (``noise_cut_sq``) the region's cut;
     2. the pose: the local optimum at the cut from the coarse optimum;
     3. the rival: rotation rival_R (3, 3) with the translation that best explains the pose's
        members within the cut, optimised at inlier_px (where it beats the coarse optimum, its cut
        replaces the region's), then at the cut. It replaces the pose where it costs less there;
        otherwise the pose is ambiguous where the rival lies more than ambiguous_rot_deg away and
        keeps all but max(1, floor(ambiguous_inlier_frac m)) of the pose's m members within the cut.
-       The coarse optimum and the pose stand for its two where ``rival_repeats_coarse``.
 
     ``slots``: ``region_slots(region, k)``, made here when not given."""
     k = starts.shape[1]
@@ -212,12 +161,11 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slot
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
-    slots = region_slots(region, k, dtype) if slots is None else slots
     optimise = functools.partial(local_optima, X, uv, region, K, lm_steps=options.lm_steps,
-                                 max_rounds=options.max_rounds, slots=slots)
+                                 max_rounds=options.max_rounds,
+                                 slots=region_slots(region, k, dtype) if slots is None else slots)
     at_inlier_px = jnp.full(X.shape[:1], thr_sq)
     n_starts = starts.shape[0]
-    repeats = repeated_starts(starts, X, uv, K, member, onehot, thr_sq, slots)
     # the runs by index: the M starts' coarse runs, then the pose, the rival at inlier_px, the rival
     pose_run, rival_coarse_run, rival_run = n_starts, n_starts + 1, n_starts + 2
 
@@ -233,43 +181,41 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slot
         return jnp.where(rival_wins, cut_of(rival_coarse.err_sq), cut_of(coarse.err_sq))
 
     # Each run's start (poses, cut, points it was fitted on, whether those are the ones within the
-    # cut instead) and what is ``Known`` of it, from the runs before it. One traced optimisation
-    # serves every run, one after another: the program holds the least-squares loop once, and a
-    # start's loop is not vmapped with the others' (each would run until the slowest is done).
+    # cut instead), from the runs before it. One traced optimisation serves every run, one after
+    # another: the program holds the least-squares loop once, and a start's loop is not vmapped
+    # with the others' (each would run until the slowest is done).
     def coarse_start(i, runs):
-        start = starts[jnp.minimum(i, n_starts - 1)]
-        return (start, at_inlier_px, runs.fitted_on[0], jnp.bool_(True)), \
-            Known(repeats[jnp.minimum(i, n_starts - 1)], _left_out(start, member))
+        return starts[jnp.minimum(i, n_starts - 1)], at_inlier_px, runs.fitted_on[0], jnp.bool_(True)
 
     def pose_start(i, runs):
         coarse = coarse_of(runs)
-        return (coarse.poses, cut_of(coarse.err_sq), coarse.fitted_on, jnp.bool_(False)), Known.nothing(coarse)
+        return coarse.poses, cut_of(coarse.err_sq), coarse.fitted_on, jnp.bool_(False)
 
     def rival_coarse_start(i, runs):
-        pose, coarse = _take(runs, pose_run), coarse_of(runs)
-        t = translation_for_rotation(X, uv, member & (pose.err_sq < cut_of(coarse.err_sq)), region, K, rival_R, k)
-        start = jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1)
-        repeat = rival_repeats_coarse(start, coarse, X, uv, K, member, onehot, thr_sq, slots)
-        return (start, at_inlier_px, runs.fitted_on[0], jnp.bool_(True)), Known(repeat, coarse)
+        pose = _take(runs, pose_run)
+        t = translation_for_rotation(X, uv, member & (pose.err_sq < cut_of(coarse_of(runs).err_sq)), region, K,
+                                     rival_R, k)
+        return jnp.concatenate([jnp.broadcast_to(so3_log(rival_R), (k, 3)), t], axis=-1), at_inlier_px, \
+            runs.fitted_on[0], jnp.bool_(True)
 
     def rival_start(i, runs):
-        rival_coarse, coarse = _take(runs, rival_coarse_run), coarse_of(runs)
-        # from the coarse optimum the rival's run is the pose's run, input for input
-        repeat = jnp.all(rival_coarse.poses == coarse.poses, axis=-1) & (rival_coarse.cost == coarse.cost)
-        return (rival_coarse.poses, rival_cut(runs), rival_coarse.fitted_on, jnp.bool_(False)), \
-            Known(repeat, _take(runs, pose_run))
+        rival_coarse = _take(runs, rival_coarse_run)
+        return rival_coarse.poses, rival_cut(runs), rival_coarse.fitted_on, jnp.bool_(False)
 
     def run(i, runs):
         branch = jnp.clip(i - n_starts + 1, 0, 3)
-        (start, cut, fitted_on, within), known = jax.lax.switch(
-            branch, (coarse_start, pose_start, rival_coarse_start, rival_start), i, runs)
-        optimum = known.where_known(optimise(start, cut, fitted_on, within, known.regions), onehot)
+        start, cut, fitted_on, within = jax.lax.switch(branch, (coarse_start, pose_start, rival_coarse_start,
+                                                                rival_start), i, runs)
+        optimum = optimise(start, cut, fitted_on, within)
         return jax.tree.map(lambda a, b: a.at[i].set(b), runs, optimum)
 
     empty = LocalOptima(jnp.zeros((n_starts + 3, k, 6), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], dtype),
                         jnp.zeros((n_starts + 3, k), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], bool))
     runs = jax.lax.fori_loop(0, n_starts + 3, run, empty)
-    return _pose_or_rival(_take(runs, pose_run), _take(runs, rival_run), rival_cut(runs), member, onehot, options)
+    pose, rival = _take(runs, pose_run), _take(runs, rival_run)
+    cut = rival_cut(runs)
+
+    return _pose_or_rival(pose, rival, cut, member, onehot, options)
 
 
 def borrow_region_poses(X, uv, region, K, poses, *, inlier_px):
