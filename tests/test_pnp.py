@@ -16,10 +16,10 @@ from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
 from sgc_jax.engines.jax_engine.pose_stage import PoseStage
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
-from sgc_jax.kernels.local_optimum import borrow_region_poses
+from sgc_jax.kernels.local_optimum import borrow_region_poses, refine_poses, repeated_starts
 from sgc_jax.kernels.pnp import gauss_newton_updates, initial_pose, reprojection_residuals, solve_pnp
 from sgc_jax.kernels.ransac import ransac_pnp
-from sgc_jax.kernels.regions import SLOT_CHUNK, group_by_region, label_ranks, region_slots
+from sgc_jax.kernels.regions import SLOT_CHUNK, group_by_region, label_ranks, region_onehot, region_slots
 from sgc_jax.kernels.so3 import rotation_angle_deg, so3_exp, so3_log
 from sgc_jax.kernels.truncated_cost import own_pose_errors_sq
 
@@ -364,6 +364,44 @@ def test_each_region_is_offered_the_other_regions_pose_that_fits_its_points_best
             rodrigues(poses[j, :3]), poses[j, 3:]), X[member], uv[member], K), 8.0) for j in (0, 1, 2, 4) if j != r}
         np.testing.assert_array_equal(out[r], np.float32(poses[min(costs, key=costs.get)]), err_msg=str(r))
     assert out[1].tolist() == np.float32(poses[0]).tolist()  # the region 5 deg off is offered the right pose
+
+
+def starts_of_two_regions(seed):
+    """Two regions of one rigid motion (1 px noise, 20 % outliers) and three starts of each: the
+    motion, the motion 0.01 deg off (the same members within 8 px) and 8 deg off (others)."""
+    rng = np.random.default_rng(seed)
+    R, t = random_pose(rng, 10.0)
+    X, uv = zip(*(correspondences(rng, 60, R, t, noise_px=1.0, outlier_frac=0.2) for _ in range(2)))
+    X, uv, region = np.concatenate(X), np.concatenate(uv), np.repeat(np.arange(1, 3), 60)
+    rotvecs = [so3_log(jnp.asarray(rodrigues(np.radians(d)) @ R, jnp.float32)) for d in ([0, 0, 0], [0.01, 0, 0],
+                                                                                          [0, 8, 0])]
+    starts = np.stack([np.broadcast_to(np.concatenate([w, t]), (2, 6)) for w in rotvecs])
+    return X, uv, region, R, f32(starts)[0]
+
+
+def test_a_start_is_marked_repeated_where_it_leaves_an_earlier_starts_members_within_inlier_px():
+    X, uv, region, _, starts = starts_of_two_regions(8)
+    Xj, uvj, Kj = f32(X, uv, K)
+    region_j = jnp.asarray(region)
+    repeats = np.asarray(repeated_starts(starts, Xj, uvj, Kj, region_j >= 1, region_onehot(region_j, 2, jnp.float32),
+                                         jnp.float32(OPTIONS.inlier_px) ** 2, region_slots(region_j, 2)))
+    within = [np.asarray(own_pose_errors_sq(s, Xj, uvj, Kj, region_slots(region_j, 2))[0]) < OPTIONS.inlier_px**2
+              for s in starts]
+    expected = [[any(np.array_equal(within[i][region == r], within[j][region == r]) for j in range(i))
+                 for r in (1, 2)] for i in range(3)]
+    np.testing.assert_array_equal(repeats, expected)
+    assert repeats[1].all() and not repeats[2].any()  # the scene's premise: 0.01 deg repeats, 8 deg does not
+
+
+def test_a_repeated_start_changes_no_pose():
+    """The local search from (motion, its repeat, 8 deg off) gives the poses of (motion, 8 deg off)."""
+    X, uv, region, R, starts = starts_of_two_regions(8)
+    search = jax.jit(lambda starts: refine_poses(*f32(X, uv), jnp.asarray(region), jnp.asarray(K, jnp.float32),
+                                                 starts, jnp.asarray(R, jnp.float32), OPTIONS))
+    with_repeat, without = search(starts), search(starts[jnp.array([0, 2])])
+    np.testing.assert_array_equal(np.asarray(with_repeat.ambiguous), np.asarray(without.ambiguous))
+    np.testing.assert_array_equal(np.asarray(with_repeat.fitted), np.asarray(without.fitted))
+    np.testing.assert_allclose(np.asarray(with_repeat.poses), np.asarray(without.poses), atol=1e-6)
 
 
 def test_reference_least_squares_reaches_the_optimum_in_a_few_steps_when_the_camera_moves_far():

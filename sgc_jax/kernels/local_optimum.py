@@ -14,7 +14,7 @@ from ..config import MIN_CUT_PX, NOISE_CUT
 from .joint_pnp import solve_pnp_regions
 from .pnp import translation_for_rotation
 from .ransac_options import RansacOptions
-from .regions import point_values, region_onehot, region_slots, region_sums
+from .regions import HIGHEST, point_values, region_onehot, region_slots, region_sums
 from .so3 import rotation_angle_deg, so3_exp, so3_log
 from .truncated_cost import is_lower, pose_errors_sq, region_truncated_cost, truncated_errors_sq
 
@@ -58,14 +58,15 @@ class Fit(NamedTuple):
     fitted_on: jax.Array  # (N,) bool: the points the kept pose was fitted on
 
 
-def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_on_within, *, lm_steps, max_rounds,
-                 slots=None) -> LocalOptima:
+def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_on_within, skip, *, lm_steps,
+                 max_rounds, slots=None) -> LocalOptima:
     """Every region's local optimum of the truncated cost at its cut (``cut_sq_point`` (N,): each
     point's region's squared cut) from ``start`` (k, 6): least squares on the members within the
     cut, again on the new ones, each fit kept only when it lowers the cost; a region stops at its
     first fit that does not, with fewer than 4 such members, or after ``max_rounds`` fits.
     ``start_fitted_on`` (N,): the points the start was fitted on; where ``fitted_on_within`` (a
-    traced bool) holds, those within its cut instead."""
+    traced bool) holds, those within its cut instead. Regions where ``skip`` (k,) holds are not
+    optimised (they keep their start)."""
     k = start.shape[0]
     dtype = X.dtype
     onehot = region_onehot(region, k, dtype)
@@ -92,11 +93,23 @@ def local_optima(X, uv, region, K, start, cut_sq_point, start_fitted_on, fitted_
                    jnp.where(point_better, weight > 0, state.fitted_on))
 
     err_sq, within, cost, n_within = evaluate(start)
-    done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1)
+    done = (n_within < 4) | ~jnp.all(jnp.isfinite(start), axis=-1) | skip
     final = jax.lax.while_loop(lambda s: (s.rounds < max_rounds) & jnp.any(~s.done), refit,
                                Fit(start, err_sq, cost, within, n_within, done, jnp.int32(0),
                                    jnp.where(fitted_on_within, within, start_fitted_on)))
     return LocalOptima(final.poses, final.err_sq, final.cost, final.fitted_on)
+
+
+def repeated_starts(starts, X, uv, K, member, onehot, thr_sq, slots):
+    """(M, k) bool: where a start (M, k, 6) leaves exactly the members within inlier_px (thr_sq
+    [px^2]) of an earlier start of its region. Its local optimum there would begin by refitting the
+    points the earlier start's did, so it is not run (docs/semantics.md §7.1)."""
+    n_starts = starts.shape[0]
+    within = jax.vmap(lambda poses: member & (pose_errors_sq(poses, X, uv, K, slots) < thr_sq))(starts)  # (M, N)
+    differ = jnp.einsum("kn,ijn->ijk", onehot, (within[:, None] != within[None]).astype(onehot.dtype),
+                        precision=HIGHEST)  # (M, M, k)
+    earlier = jnp.tril(jnp.ones((n_starts, n_starts), bool), -1)  # [i, j]: j before i
+    return jnp.any((differ == 0) & earlier[..., None], axis=1)
 
 
 class RefinedPoses(NamedTuple):
@@ -145,8 +158,9 @@ def _pose_or_rival(pose: LocalOptima, rival: LocalOptima, cut, member, onehot, o
 def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slots=None) -> RefinedPoses:
     """The local pose of every region from M starts (M, k, 6):
 
-    1. each start's local optimum at inlier_px; the lowest is the coarse optimum, and its
-       noise-level cut (``noise_cut_sq``) the region's cut;
+    1. each start's local optimum at inlier_px (not run where the start repeats an earlier one's
+       members there: ``repeated_starts``); the lowest is the coarse optimum, and its noise-level
+       cut (``noise_cut_sq``) the region's cut;
     2. the pose: the local optimum at the cut from the coarse optimum;
     3. the rival: rotation rival_R (3, 3) with the translation that best explains the pose's
        members within the cut, optimised at inlier_px (where it beats the coarse optimum, its cut
@@ -161,11 +175,12 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slot
     onehot = region_onehot(region, k, dtype)
     member = region >= 1
     thr_sq = jnp.asarray(inlier_px, dtype) ** 2
+    slots = region_slots(region, k, dtype) if slots is None else slots
     optimise = functools.partial(local_optima, X, uv, region, K, lm_steps=options.lm_steps,
-                                 max_rounds=options.max_rounds,
-                                 slots=region_slots(region, k, dtype) if slots is None else slots)
+                                 max_rounds=options.max_rounds, slots=slots)
     at_inlier_px = jnp.full(X.shape[:1], thr_sq)
     n_starts = starts.shape[0]
+    repeats = repeated_starts(starts, X, uv, K, member, onehot, thr_sq, slots)
     # the runs by index: the M starts' coarse runs, then the pose, the rival at inlier_px, the rival
     pose_run, rival_coarse_run, rival_run = n_starts, n_starts + 1, n_starts + 2
 
@@ -206,7 +221,10 @@ def refine_poses(X, uv, region, K, starts, rival_R, options: RansacOptions, slot
         branch = jnp.clip(i - n_starts + 1, 0, 3)
         start, cut, fitted_on, within = jax.lax.switch(branch, (coarse_start, pose_start, rival_coarse_start,
                                                                 rival_start), i, runs)
-        optimum = optimise(start, cut, fitted_on, within)
+        # a repeated start is not run, and left out of the coarse optimum's choice
+        repeat = (i < n_starts) & repeats[jnp.minimum(i, n_starts - 1)]
+        optimum = optimise(start, cut, fitted_on, within, repeat)
+        optimum = optimum._replace(cost=jnp.where(repeat, jnp.inf, optimum.cost))
         return jax.tree.map(lambda a, b: a.at[i].set(b), runs, optimum)
 
     empty = LocalOptima(jnp.zeros((n_starts + 3, k, 6), dtype), jnp.zeros((n_starts + 3,) + X.shape[:1], dtype),
