@@ -385,8 +385,8 @@ def test_a_start_is_marked_repeated_where_it_leaves_an_earlier_starts_members_wi
     region_j = jnp.asarray(region)
     repeats = np.asarray(repeated_starts(starts, Xj, uvj, Kj, region_j >= 1, region_onehot(region_j, 2, jnp.float32),
                                          jnp.float32(OPTIONS.inlier_px) ** 2, region_slots(region_j, 2)))
-    within = [np.asarray(own_pose_errors_sq(s, Xj, uvj, Kj, region_slots(region_j, 2))[0]) < OPTIONS.inlier_px**2
-              for s in starts]
+    errors = [own_pose_errors_sq(s, Xj, uvj, Kj, region_slots(region_j, 2)) for s in starts]
+    within = [np.asarray(in_front) & (np.asarray(err_sq) < OPTIONS.inlier_px**2) for err_sq, in_front in errors]
     expected = [[any(np.array_equal(within[i][region == r], within[j][region == r]) for j in range(i))
                  for r in (1, 2)] for i in range(3)]
     np.testing.assert_array_equal(repeats, expected)
