@@ -1,7 +1,7 @@
 """The adversary battery (issue 59, docs/semantics.md §3.11, §9.4): what the reward pays clips a
 generator could learn to make, against honest clips of the same scenes.
 
-    python bench/adversaries.py [--split test|fit] [--noise 1] [--out rows.csv] [--rows rows.csv]
+    python bench/adversaries.py [--split test|fit] [--noise 1] [--curve] [--out rows.csv] [--rows rows.csv]
 
 Noise: iid-both (independent Gaussian on both ends of every track). Prints, for the split:
 
@@ -13,7 +13,10 @@ Noise: iid-both (independent Gaussian on both ends of every track). Prints, for 
    statuses and one clip's reason; the unmasked mover also over the scenes where it is seen (at
    least a pose's worth of usable tracks on it, ``protocol.hidden_movers``) and where it is hidden;
 3. the perturbation ladders (clean, 0.1, 0.25, 0.5 of each perturbation; 1,000 tracks): the share
-   where the reward falls strictly with severity (the bar: all).
+   where the reward falls strictly with severity (the bar: all);
+4. with ``--curve``, the reward below full evidence: honest clips at 50-600 tracks as well (0.5 and
+   2 px), the median pose tracks, evidence, reward and status share per track count, beside the
+   honest clips of table 1.
 
 The rewards are ``BatchResult.rewards`` (the Scorer's, computed from the tables; tests/test_scorer.py
 holds the two equal).
@@ -40,6 +43,8 @@ HONEST_TRACKS = (200, 1000, 4096)
 HONEST_NOISE = (0.5, 1.0, 2.0)
 LADDER = (0.1, 0.25, 0.5)
 TRACKS = 1000
+CURVE_TRACKS = (50, 100, 150, 300, 400, 600)
+CURVE_NOISE = (0.5, 2.0)
 
 
 def noisy(clip, scene, px: float):
@@ -52,6 +57,9 @@ def score_rows(args) -> list[dict]:
         started = time.perf_counter()
         batch = [("honest", "", 0.0, n, px, noisy(scene.clip(n), scene, px))
                  for n, px in itertools.product(HONEST_TRACKS, HONEST_NOISE)]
+        if args.curve:
+            batch += [("curve", "", 0.0, n, px, noisy(scene.clip(n), scene, px))
+                      for n, px in itertools.product(CURVE_TRACKS, CURVE_NOISE)]
         batch += [("adversary", name, 0.0, TRACKS, args.noise, noisy(adversary(name, scene, TRACKS), scene, args.noise))
                   for name in ADVERSARIES]
         clean = scene.clip(TRACKS)
@@ -63,7 +71,7 @@ def score_rows(args) -> list[dict]:
         for i, ((group, kind, severity, n, px, _), c) in enumerate(zip(batch, result.clips)):
             rows.append(dict(scene=scene.name, group=group, kind=kind, severity=severity, tracks=n, noise_px=px,
                              status=SCORER_STATUSES[int(rewards["status"][i])], reason=c.reason, sgc=c.sgc,
-                             sgc_hi=c.sgc_hi, evidence=c.evidence, reward=float(rewards["reward"][i]),
+                             sgc_hi=c.sgc_hi, evidence=c.evidence, pose_tracks=c.pose_tracks, reward=float(rewards["reward"][i]),
                              camera_motion=float(rewards["camera_motion"][i])))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     return rows
@@ -124,10 +132,30 @@ def print_ladders(rows: list[dict], noise: float) -> None:
     print(f"\n3. Ladders: the reward falls strictly with severity in {sum(falls)} of {len(falls)}")
 
 
+def print_curve(rows: list[dict]) -> None:
+    """Honest clips by track count (table 1's and ``--curve``'s) at CURVE_NOISE: what the reward pays
+    below the evidence levels (docs/semantics.md §9.4)."""
+    honest = [r for r in rows if r["group"] in ("honest", "curve") and r["noise_px"] in CURVE_NOISE]
+    counts = sorted({r["tracks"] for r in honest})
+    print("\n4. Honest consistent clips by tracks per pair (iid-both "
+          + " and ".join(f"{px:g}" for px in CURVE_NOISE) + " px): medians over the scenes and noise levels")
+    print("| tracks per pair | pose tracks | evidence | reward | reward / at 1,000 tracks | low_evidence |")
+    print("|---|---|---|---|---|---|")
+    full = np.median([r["reward"] for r in honest if r["tracks"] == TRACKS])
+    for n in counts:
+        cell = [r for r in honest if r["tracks"] == n]
+        low = sum(r["status"] == "low_evidence" for r in cell)
+        reward = np.median([r["reward"] for r in cell])
+        print(f"| {n} | {np.nanmedian([r['pose_tracks'] for r in cell]):.0f} | "
+              f"{np.median([r['evidence'] for r in cell]):.2f} | {reward:.3f} | {reward / full:.2f} | "
+              f"{low} of {len(cell)} |")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--split", choices=sorted(protocol.SPLITS), default="test")
     parser.add_argument("--noise", type=float, default=1.0, help="iid-both noise of the adversaries and ladders [px]")
+    parser.add_argument("--curve", action="store_true", help="also honest clips at 50-600 tracks (table 4)")
     parser.add_argument("--out", help="write the rows to this CSV")
     parser.add_argument("--rows", help="print the tables from a CSV written with --out")
     args = parser.parse_args(argv)
@@ -137,6 +165,8 @@ def main(argv=None) -> None:
     print_honest(rows)
     print_adversaries(rows, args.noise, args.split)
     print_ladders(rows, args.noise)
+    if any(r["group"] == "curve" for r in rows):
+        print_curve(rows)
 
 
 if __name__ == "__main__":
