@@ -38,7 +38,8 @@ FUNCTIONS = ("region_start", "sample_distinct", "sample_candidates", "solve_pnp"
 
 
 class CapturedStderr:
-    """File descriptor 2 (where XLA logs) into a temporary file while open; ``text()`` reads it."""
+    """File descriptor 2 (where XLA logs) into a temporary file while open; ``text()`` reads it
+    (inside the ``with``)."""
 
     def __enter__(self):
         sys.stderr.flush()
@@ -51,6 +52,7 @@ class CapturedStderr:
         sys.stderr.flush()
         os.dup2(self.saved, 2)
         os.close(self.saved)
+        self.log.close()
 
     def text(self) -> str:
         sys.stderr.flush()
@@ -105,21 +107,13 @@ def main() -> None:
 def profile(args) -> tuple:
     """Trace, lower and compile the stage's program -> (options, traced s, compile wall s, CPU s, HLO text)."""
     import jax
-    from program_size import zero_batch
+    from program_size import padded_bucket, stage_calls
 
     from sgc_jax.config import SGCConfig
-    from sgc_jax.engines.jax_engine.buckets import Bucket
-    from sgc_jax.engines.jax_engine.programs import stages_of
 
-    bucket = Bucket(args.T, -(-args.H // 64) * 64, -(-args.W // 64) * 64, args.P)
-    key = jax.random.PRNGKey(0)
-    batch, previous = zero_batch(bucket), None
-    for stage in stages_of(SGCConfig()):
-        inputs = stage.inputs(batch, previous)
-        run = lambda x, stage=stage: stage(x, key)  # noqa: E731
+    for stage, run, inputs in stage_calls(padded_bucket(args.T, args.H, args.W, args.P), SGCConfig()):
         if stage.name == args.stage:
             break
-        previous = jax.eval_shape(run, inputs)
     start = time.perf_counter()
     lowered = jax.jit(run).lower(inputs)
     traced = time.perf_counter() - start

@@ -34,25 +34,38 @@ def zero_batch(bucket: Bucket, B: int = 1) -> PaddedClips:
                        np.zeros((B, 2), np.int32), np.ones((B,), f32))
 
 
+def padded_bucket(T: int, H: int, W: int, P: int) -> Bucket:
+    """The shape bucket of clips of T frames, H x W px and P tracks (H and W up to a multiple of 64)."""
+    return Bucket(T, -(-H // 64) * 64, -(-W // 64) * 64, P)
+
+
+def stage_calls(bucket: Bucket, config: SGCConfig):
+    """Each stage of ``config`` in pipeline order as (stage, its one-clip call, its zero inputs for
+    ``bucket``, B = 1); a stage's inputs come from the shapes of the previous one's outputs."""
+    key = jax.random.PRNGKey(config.seed)
+    batch, previous = zero_batch(bucket), None
+    for stage in stages_of(config):
+        inputs = stage.inputs(batch, previous)
+        run = lambda x, stage=stage: stage(x, key)  # noqa: E731
+        yield stage, run, inputs
+        previous = jax.eval_shape(run, inputs)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     for name, default in (("T", 16), ("H", 288), ("W", 512), ("P", 4096)):
         parser.add_argument(f"--{name}", type=int, default=default)
     args = parser.parse_args()
-    bucket = Bucket(args.T, -(-args.H // 64) * 64, -(-args.W // 64) * 64, args.P)
-    config = SGCConfig()
-    key = jax.random.PRNGKey(config.seed)
-    batch, previous, total = zero_batch(bucket), None, 0
-    for stage in stages_of(config):
-        inputs = stage.inputs(batch, previous)
-        run = lambda x, stage=stage: stage(x, key)  # noqa: E731
+    bucket = padded_bucket(args.T, args.H, args.W, args.P)
+    total = 0
+    for stage, run, inputs in stage_calls(bucket, SGCConfig()):
         start = time.perf_counter()
         closed = jax.make_jaxpr(run)(inputs)
         traced_s = time.perf_counter() - start
-        previous = jax.eval_shape(run, inputs)
         total += count_equations(closed)
         print(f"bucket {bucket}, {stage.name} stage: {count_equations(closed)} jaxpr equations (traced in {traced_s:.1f} s)")
     print(f"bucket {bucket}: {total} jaxpr equations in all")
+
 
 if __name__ == "__main__":
     main()
