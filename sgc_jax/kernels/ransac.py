@@ -84,18 +84,14 @@ def scoring_subset(key, order, start, n_members, score_points):
 
 
 def sample_candidates(X, uv, K, sample_idx, *, sample_updates):
-    """Candidate poses (H (s + 1), 6) from H samples of s points (sample_idx (H, s)): the s-point
-    fit (``initial_pose``, then ``sample_updates`` Gauss-Newton updates) and the s leave-one-out
-    algebraic fits, so a sample with one outlier still yields a clean candidate."""
-    H, s = sample_idx.shape
-    masks = jnp.concatenate([jnp.ones((1, s), X.dtype), 1.0 - jnp.eye(s, dtype=X.dtype)])  # (s + 1, s)
+    """Candidate poses (H, 6) from H samples of s points (sample_idx (H, s)): each sample's fit
+    (``initial_pose``, then ``sample_updates`` Gauss-Newton updates)."""
+    weight = jnp.ones(sample_idx.shape[1], X.dtype)
 
     def one_sample(Xs, uvs):
-        starts = jax.vmap(lambda w: initial_pose(Xs, uvs, w, K))(masks)
-        full = gauss_newton_updates(Xs, uvs, masks[0], K, starts[0], updates=sample_updates)
-        return starts.at[0].set(full)
+        return gauss_newton_updates(Xs, uvs, weight, K, initial_pose(Xs, uvs, weight, K), updates=sample_updates)
 
-    return jax.vmap(one_sample)(X[sample_idx], uv[sample_idx]).reshape(H * (s + 1), 6)
+    return jax.vmap(one_sample)(X[sample_idx], uv[sample_idx])
 
 
 def samples_needed(inlier_frac, sample_size, confidence):
@@ -129,16 +125,15 @@ def region_start(X, uv, K, order, start, n_members, key, options: RansacOptions)
     n_chunks = -(-o.hypotheses // o.chunk)
     positions = sample_distinct(key_sample, n_members, n_chunks * o.chunk, o.sample_size)
     sample_idx = order[jnp.clip(start + positions, 0, N - 1)]
-    per_sample = o.sample_size + 1
     drawn = (jnp.arange(n_chunks * o.chunk) < o.hypotheses).reshape(n_chunks, o.chunk)
-    n_keep = min(o.lo_candidates, o.hypotheses * per_sample)
+    n_keep = min(o.lo_candidates, o.hypotheses)
     n_valid = jnp.minimum(n_members, n_scored)
     close_sq = jnp.minimum(jnp.asarray(ADAPTIVE_PX, dtype), o.inlier_px) ** 2
 
     def draw(state: Draws) -> Draws:
         idx = jax.lax.dynamic_slice_in_dim(sample_idx, state.chunk * o.chunk, o.chunk)
         poses = sample_candidates(X, uv, K, idx, sample_updates=o.sample_updates)
-        ok = jnp.all(jnp.isfinite(poses), axis=-1) & jnp.repeat(drawn[state.chunk], per_sample)
+        ok = jnp.all(jnp.isfinite(poses), axis=-1) & drawn[state.chunk]
         poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
         inliers, trunc_sq = truncated_errors_sq(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid,
                                                 o.inlier_px)
