@@ -94,8 +94,9 @@ def main() -> None:
         with np.load(part) as two:
             kept.update({key: two[key] for key in two.files})
         os.remove(part)
-    np.savez(args.out, **kept)
-    print(f"{len(kept)} columns -> {args.out}")
+    out = args.out if args.out.endswith(".npz") else args.out + ".npz"  # np.savez adds the suffix
+    np.savez(out, **kept)
+    print(f"{len(kept)} columns -> {out}")
     if args.against:
         with np.load(args.against) as before:
             differ = [key for key in sorted(set(before.files) | set(kept))
