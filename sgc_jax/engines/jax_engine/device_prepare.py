@@ -96,14 +96,35 @@ def divide_rounded(x, divisor):
     return jnp.where(jnp.isfinite(q), rounded, q)
 
 
-def valid_without_absurd_depth(depth, positive):
+def positive_depth(clip: ClipArrays):
+    """(T, H, W) bool: the clip's finite, positive depth inside its true frames and image size."""
+    T, H, W = clip.depth.shape
+    frame = jnp.arange(T) < clip.n_frames
+    inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
+    return inside & jnp.isfinite(clip.depth) & (clip.depth > 0)
+
+
+def may_hold_absurd_depth(depth, positive):
+    """Whether some positive depth can lie beyond DEPTH_RATIO_LIMIT of their median: the largest
+    beyond the smallest times it, in float32, as ``io.clip.without_absurd_depth`` decides."""
+    lo = jnp.min(jnp.where(positive, depth, jnp.inf))
+    hi = jnp.max(jnp.where(positive, depth, -jnp.inf))
+    return hi > lo * jnp.float32(DEPTH_RATIO_LIMIT)
+
+
+def valid_without_absurd_depth(depth, positive, check=True):
     """``positive`` less the absurd depth (beyond DEPTH_RATIO_LIMIT of the median of the positive
-    values; docs/semantics.md §1.2), compared as float64 would."""
-    median = masked_median(depth, positive)
-    too_far = greater_than(depth, df_mul(median, (jnp.float32(DEPTH_RATIO_LIMIT), jnp.float32(0.0))))
-    low = df_div(median, jnp.float32(DEPTH_RATIO_LIMIT))
-    too_near = (depth < low[0]) | ((depth == low[0]) & (low[1] > 0))
-    return positive & ~too_far & ~too_near
+    values; docs/semantics.md §1.2), compared as float64 would; ``check`` (traced bool) False:
+    ``positive``, without the median, where ``may_hold_absurd_depth`` says none can be."""
+
+    def without_absurd():
+        median = masked_median(depth, positive)
+        too_far = greater_than(depth, df_mul(median, (jnp.float32(DEPTH_RATIO_LIMIT), jnp.float32(0.0))))
+        low = df_div(median, jnp.float32(DEPTH_RATIO_LIMIT))
+        too_near = (depth < low[0]) | ((depth == low[0]) & (low[1] > 0))
+        return positive & ~too_far & ~too_near
+
+    return jax.lax.cond(check, without_absurd, lambda: positive)
 
 
 def select_tracks(usable, limit: int):
@@ -115,14 +136,17 @@ def select_tracks(usable, limit: int):
     return jnp.where(n > limit, spaced, order[:limit])
 
 
-def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
-    """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them."""
+def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None) -> PaddedClips:
+    """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them.
+    ``check_absurd``: whether to look for absurd depth (default: ``may_hold_absurd_depth``)."""
     T, H, W = clip.depth.shape
     P = clip.track_prev.shape[1]
     frame = jnp.arange(T) < clip.n_frames
     inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
-    positive = inside & jnp.isfinite(clip.depth) & (clip.depth > 0)
-    valid = valid_without_absurd_depth(clip.depth, positive)
+    positive = positive_depth(clip)
+    if check_absurd is None:
+        check_absurd = may_hold_absurd_depth(clip.depth, positive)
+    valid = valid_without_absurd_depth(clip.depth, positive, check_absurd)
     static = clip.static_mask if config.use_mos else jnp.ones_like(clip.static_mask)
     depth = clip.depth
     if config.scale_free:  # D: the median static valid depth, of all valid depth when none is static
@@ -189,5 +213,8 @@ def prepare_differentiable(clip: ClipArrays, bucket: Bucket, config: SGCConfig) 
 
 
 def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
-    """B clips -> the padded batch (leading axis B) the stages take."""
-    return jax.vmap(lambda clip: prepare_one(clip, bucket, config))(clips)
+    """B clips -> the padded batch (leading axis B) the stages take. Absurd depth is looked for
+    in every clip when any clip may hold some: one decision for the batch stays a conditional
+    under the vmap, where each clip's own would compute both branches (the median's passes)."""
+    check = jnp.any(jax.vmap(lambda clip: may_hold_absurd_depth(clip.depth, positive_depth(clip)))(clips))
+    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check))(clips)
