@@ -31,6 +31,7 @@ import statistics
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import jax
@@ -77,12 +78,15 @@ def timed_steps(scorer: Scorer, batch: dict) -> dict[str, float]:
     seconds = {}
 
     def waited(name, program):
-        def timed_call(*args):  # the trace's window of the step (kernel_summary)
-            begin = time.perf_counter()
-            value = jax.block_until_ready(program(*args))
-            seconds[name] = time.perf_counter() - begin
-            return value
-        return timed_call
+        def timed(call):
+            def timed_call(*args):  # the trace's window of the step (kernel_summary)
+                begin = time.perf_counter()
+                value = jax.block_until_ready(call(*args))
+                seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - begin  # clip by clip on a CPU
+                return value
+            return timed_call
+        # the stage pipeline: the Scorer calls its ``outputs``, once per clip where it runs them one by one
+        return types.SimpleNamespace(outputs=timed(program.outputs)) if hasattr(program, "outputs") else timed(program)
 
     scorer._run({name: waited(name, program) for name, program in scorer._compiled.items()}, clips)
     return seconds
@@ -98,7 +102,7 @@ def profile_steps(scorer: Scorer, batch: dict, repeats: int, folder: Path, with_
         f"{name} {1000 * statistics.median(r[name] for r in runs):.1f} ms" for name in runs[0]), flush=True)
     if with_hlo:
         with gzip.open(folder / "pose_hlo.txt.gz", "wt") as f:
-            f.write(scorer._compiled["pose"].as_text())
+            f.write(scorer._compiled["stages"].programs[1].as_text())  # pixel, pose, finish
     trace_dir = folder / "trace"
     with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
         steps = list(timed_steps(scorer, batch))
