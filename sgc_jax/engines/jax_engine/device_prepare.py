@@ -96,12 +96,16 @@ def divide_rounded(x, divisor):
     return jnp.where(jnp.isfinite(q), rounded, q)
 
 
-def positive_depth(clip: ClipArrays):
-    """(T, H, W) bool: the clip's finite, positive depth inside its true frames and image size."""
+def true_extent(clip: ClipArrays):
+    """(frame (T,), inside (T, H, W)) bool: the clip's true frames, and its true image in them."""
     T, H, W = clip.depth.shape
     frame = jnp.arange(T) < clip.n_frames
-    inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
-    return inside & jnp.isfinite(clip.depth) & (clip.depth > 0)
+    return frame, frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
+
+
+def positive_depth(clip: ClipArrays):
+    """(T, H, W) bool: the clip's finite, positive depth inside its true extent."""
+    return true_extent(clip)[1] & jnp.isfinite(clip.depth) & (clip.depth > 0)
 
 
 def may_hold_absurd_depth(depth, positive):
@@ -139,10 +143,9 @@ def select_tracks(usable, limit: int):
 def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None) -> PaddedClips:
     """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them.
     ``check_absurd``: whether to look for absurd depth (default: ``may_hold_absurd_depth``)."""
-    T, H, W = clip.depth.shape
+    T = clip.depth.shape[0]
     P = clip.track_prev.shape[1]
-    frame = jnp.arange(T) < clip.n_frames
-    inside = frame[:, None, None] & (jnp.arange(H) < clip.heights)[:, None] & (jnp.arange(W) < clip.widths)
+    frame, inside = true_extent(clip)
     positive = positive_depth(clip)
     if check_absurd is None:
         check_absurd = may_hold_absurd_depth(clip.depth, positive)
