@@ -180,6 +180,12 @@ def _use_compilation_cache(engine: str) -> None:
         enable_compilation_cache()
 
 
+def _progress(args: argparse.Namespace) -> bool | None:
+    """A progress bar on a terminal unless ``-q``; piped (a log), none: its carriage returns would
+    cut the compile notices' lines (docs/semantics.md §7.1)."""
+    return False if args.quiet else None
+
+
 def _read_config_file(path: str) -> dict[str, Any]:
     """``--config FILE``: a JSON object (TOML when the name ends in ``.toml``) of SGCConfig fields,
     each value of its field's type."""
@@ -281,7 +287,7 @@ def cmd_score(args: argparse.Namespace) -> int:
             print(f"sgc-jax score: scoring on the Ray cluster at {args.ray}"
                   + (f" with {args.ray_scorers} scorer(s)" if args.ray_scorers else ""), file=sys.stderr)
     result = score_batch(list(args.paths), config=config, calibration=calibration, engine=args.engine,
-                         progress=not args.quiet, out=out, pairs_out=args.pairs, resume=args.resume,
+                         progress=_progress(args), out=out, pairs_out=args.pairs, resume=args.resume,
                          devices=args.devices or None, lanes=args.lanes or None, readers=args.readers or None,
                          read_in=args.read_in, ray_address=args.ray, ray_scorers=args.ray_scorers or None,
                          stats=stats)
@@ -321,7 +327,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         paths = write_demo_corpus(out_dir, seed=args.seed)
         where = f"in {out_dir}" if args.out else "for this run only (--out DIR keeps them)"
         print(f"synthesised {len(paths)} demo clips {where}", file=sys.stderr)
-        result = score_batch(out_dir, engine=args.engine, progress=not args.quiet)
+        result = score_batch(out_dir, engine=args.engine, progress=_progress(args))
     print(result.table(("clip_id", "group", "status", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, "n_pairs_scored",
                         "evidence")))
     print(_summary_line(result), file=sys.stderr)
@@ -362,7 +368,7 @@ def _register_score(sub) -> None:
                         help="keep the clips --out already holds for the same file content, version, engine, "
                              "configuration and calibration; score the rest (docs/semantics.md §4.1)")
     _add_algorithm_flags(score)
-    score.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no table when --out")
+    score.add_argument("-q", "--quiet", action="store_true", help="no progress bar (shown on a terminal), no table when --out")
     score.set_defaults(func=cmd_score)
 
 
@@ -375,7 +381,7 @@ def _register_demo(sub) -> None:
     demo.add_argument("--engine", choices=ENGINES, default="jax",
                       help="jax: jitted kernels (default); reference: NumPy + OpenCV oracle")
     demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic corpus (default 0)")
-    demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar (shown on a terminal)")
     demo.set_defaults(func=cmd_demo)
 
 
@@ -795,7 +801,7 @@ def cmd_perturb(args: argparse.Namespace) -> int:
         raise UsageError(f"--chunk-size must be >= 1, got {args.chunk_size}")
     _use_compilation_cache(args.engine)
     study = sensitivity_study(list(args.paths), args.kinds, args.severities, config=config, calibration=calibration,
-                              engine=args.engine, perturb_seed=args.perturb_seed, progress=not args.quiet,
+                              engine=args.engine, perturb_seed=args.perturb_seed, progress=_progress(args),
                               chunk_size=args.chunk_size)
     failed = sorted({r["base"] for r in study.rows if r["status"] == "error" and r["severity"] == 0})
     for base in failed:
@@ -837,7 +843,7 @@ def _register_perturb(sub) -> None:
     output.add_argument("--summary", help="per kind and severity means (CSV)")
     output.add_argument("--plot", help="figure of SGC and components vs severity (PNG/PDF; needs matplotlib)")
     _add_algorithm_flags(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (shown on a terminal)")
     p.set_defaults(func=cmd_perturb)
 
 

@@ -55,6 +55,14 @@ def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):
     assert missing.returncode == 2 and "nothing_here" in missing.stderr
 
 
+def test_a_piped_score_draws_no_progress_bar_between_its_lines(tmp_path):
+    save_clip(tmp_path / "a.npz", synth_clip(seed=0, clip_id="a", **TINY))
+    proc = run("score", tmp_path / "a.npz", "--engine", "reference")  # stderr a pipe, no -q
+    assert proc.returncode == 0, proc.stderr
+    assert "\r" not in proc.stderr and "clip/s" not in proc.stderr
+    assert proc.stderr.splitlines()[-1].startswith("1 clip(s):")
+
+
 def test_synth_writes_the_demo_corpus_and_demo_prints_units_and_intervals(tmp_path):
     proc = run("synth", "--out", tmp_path / "demo")
     assert proc.returncode == 0 and len(list((tmp_path / "demo").glob("*.npz"))) == 8
