@@ -31,6 +31,19 @@ def test_on_a_terminal_the_elapsed_seconds_count_up():
     assert lines[-1].endswith(" s\n") and stream.getvalue().count("\n") == 1
 
 
+def test_on_a_narrow_terminal_each_rewrite_fits_one_row_and_the_last_line_is_whole(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "60")  # a wrapped row would stay behind at every rewrite
+    stream = Terminal()
+    with CompileNotice("clips of up to 4 frames, 288x512 px, 4096 tracks per pair", "pixel, pose, finish",
+                       loading=False, stream=stream):
+        time.sleep(1.2)
+    *rewrites, last = stream.getvalue().split("\r\x1b[K")[1:]
+    assert len(rewrites) >= 2 and all(len(line) < 60 for line in rewrites)
+    assert rewrites[-1].endswith("... 1 s")
+    assert last.startswith("sgc-jax: compiling the JAX program for clips of up to 4 frames, 288x512 px, 4096 tracks")
+    assert "(pixel, pose, finish; once per shape bucket" in last and last.endswith(" s\n")
+
+
 def test_piped_the_notice_is_one_line_with_the_seconds():
     stream = io.StringIO()
     with CompileNotice("clips of up to 4 frames", "pixel, pose", loading=True, stream=stream):

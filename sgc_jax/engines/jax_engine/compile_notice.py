@@ -1,9 +1,11 @@
 """The word on stderr while programs compile: on a terminal one line whose elapsed seconds count
-up, piped one line when it is done. ``SGC_JAX_COMPILE_MESSAGES=off`` silences it."""
+up (cut to the terminal's width while it counts: a wrapped line cannot be rewritten in place), piped
+one line when it is done. ``SGC_JAX_COMPILE_MESSAGES=off`` silences it."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import threading
 import time
@@ -41,14 +43,24 @@ class CompileNotice:
         self.stream.write(text)
         self.stream.flush()
 
+    def _fitted(self, suffix: str) -> str:
+        """The text and ``suffix`` cut to one row of the terminal, so that ``\\r`` rewrites all of it."""
+        try:
+            columns = os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError):
+            columns = shutil.get_terminal_size().columns
+        room = max(columns - 1 - len(suffix), 4)
+        text = self.text if len(self.text) <= room else self.text[:room - 3] + "..."
+        return text + suffix
+
     def _tick(self) -> None:
         while not self._stop.wait(1.0):
-            self._write(f"\r\x1b[K{self.text} {time.perf_counter() - self.start:.0f} s")
+            self._write("\r\x1b[K" + self._fitted(f" {time.perf_counter() - self.start:.0f} s"))
 
     def __enter__(self) -> "CompileNotice":
         self.start = time.perf_counter()
         if compile_messages_on():
-            self._write(("\r\x1b[K" if self.live else "") + self.text)
+            self._write("\r\x1b[K" + self._fitted("") if self.live else self.text)
             if self.live:
                 self._ticker = threading.Thread(target=self._tick, name="sgc-compile-notice", daemon=True)
                 self._ticker.start()
