@@ -170,7 +170,7 @@ class Scorer:
         n = len(self.devices)
         spread = f" in {self.lanes} lanes of {self.call_size}" if self.lanes > 1 else \
             f" over {n} devices" if n > 1 else ""
-        what = f"{B} clip{'s' if B > 1 else ''}{spread} of {T} frames, {H}x{W} px, {P} tracks per pair (Scorer)"
+        what = f"a Scorer of {B} clip{'s' if B > 1 else ''}{spread} of {T} frames, {H}x{W} px, {P} tracks per pair"
         with CompileNotice(what, "prepare", loading=False, hint=cache_hint()):
             prepare = self._traced["prepare"].lower(self._example()).compile()
         padded = PaddedClips(*prepare.out_info)
