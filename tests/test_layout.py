@@ -197,6 +197,14 @@ def test_subpackage_init_holds_a_docstring_and_at_most_re_exports(package):
             assert isinstance(node, ast.Assign) and node.targets[0].id == "__all__", ast.dump(node)
 
 
+def test_the_readme_lists_every_public_name():
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    (names,) = [ast.literal_eval(node.value) for node in tree.body
+                if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", None) == "__all__"]
+    readme = (ROOT / "README.md").read_text()
+    assert [name for name in names if name != "__version__" and f"`{name}`" not in readme] == []
+
+
 def test_pyproject_ships_every_subpackage_and_the_calibrations():
     """CI installs non-editable (pip install ".[dev]"): a package missing from the explicit list is not installed."""
     setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
