@@ -63,9 +63,9 @@ def host_cpu() -> str:
     return f"{model}, AVX-512 {'yes' if 'avx512f' in _cpu_features().split() else 'no'}"
 
 
-def write_corpus(folder: Path, n: int) -> list[Path]:
-    """The first n standard clips in ``folder``, written where missing (so a run with fewer clips
-    reuses a larger corpus's files)."""
+def write_corpus(folder: Path, n: int, scene: dict | None = None) -> list[Path]:
+    """The first n clips of ``scene`` (default: standard clips) in ``folder``, written where
+    missing (so a run with fewer clips reuses a larger corpus's files)."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / f"clip{i:05d}.npz" for i in range(n)]
     for i, path in enumerate(paths):
@@ -73,9 +73,9 @@ def write_corpus(folder: Path, n: int) -> list[Path]:
             continue
         partial = path.with_name(path.stem + ".partial.npz")
         if i < DISTINCT_SCENES:
-            save_clip(partial, dataclasses.replace(synth_clip(seed=i, **SCENE), clip_id=""))
+            save_clip(partial, dataclasses.replace(synth_clip(seed=i, **(scene or SCENE)), clip_id=""))
         else:
-            shutil.copyfile(write_corpus(folder, i % DISTINCT_SCENES + 1)[-1], partial)
+            shutil.copyfile(write_corpus(folder, i % DISTINCT_SCENES + 1, scene)[-1], partial)
         os.replace(partial, path)
     return paths
 

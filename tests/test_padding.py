@@ -138,6 +138,23 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
             np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
 
 
+# frame counts video generators make (4n + 1: SVD, Wan, CogVideoX, HunyuanVideo, LTX-Video)
+GENERATOR_FRAME_COUNTS = (17, 25, 33, 49, 65, 81, 97, 129, 161, 257)
+
+
+def test_video_generators_frame_counts_are_buckets_of_their_own():
+    for T in GENERATOR_FRAME_COUNTS:
+        assert buckets.bucket_for_shape(T, 480, 832, 4096).T == T
+
+
+def test_beyond_16_frames_padding_adds_under_a_quarter_of_a_clips_pairs_and_short_clips_keep_their_buckets():
+    for T in range(17, 2050):
+        padded = buckets.bucket_for_shape(T, 64, 64, 64).T
+        assert T <= padded and padded - 1 < 1.25 * (T - 1), T
+    assert [buckets.bucket_for_shape(T, 64, 64, 64).T for T in range(1, 17)] == [
+        2, 2, 4, 4, 8, 8, 8, 8, 12, 12, 12, 12, 16, 16, 16, 16]
+
+
 def test_padded_host_arrays_are_aligned_for_device_put_to_keep_them():
     clip = synth_clip(seed=3, clip_id="small-noisy", **SMALL_NOISY)
     batch = buckets.pad_clip(clip, LARGER["frames"], SGCConfig())

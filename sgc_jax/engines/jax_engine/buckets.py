@@ -11,7 +11,11 @@ import numpy as np
 from ...config import SGCConfig
 from ...io.clip import Clip
 
-FRAME_BUCKETS = (2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128)
+SHORT_FRAME_BUCKETS = (2, 4, 8, 12, 16)
+# Beyond 16 frames a bucket's pair count (T - 1) is m * 2**k with m in 4..7: a quarter octave apart,
+# so padding adds under a quarter of a clip's pairs, and none to video generators' 4n + 1 frame
+# counts (17, 25, 33, 49, 65, 81, 97, 129, 161, 257), which power-of-two frame counts padded by up to half.
+BUCKET_PAIR_MANTISSAS = (4, 5, 6, 7)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
 MIN_TRACK_BUCKET = 64
 
@@ -35,10 +39,20 @@ def bucket_for(clip: Clip) -> Bucket:
     return bucket_for_shape(clip.n_frames, *clip.image_size, clip.n_tracks)
 
 
+def frame_bucket(T: int) -> int:
+    """T frames padded to: the next of SHORT_FRAME_BUCKETS, beyond them 1 + the next pair count of
+    the form m * 2**k, m in BUCKET_PAIR_MANTISSAS."""
+    if T <= SHORT_FRAME_BUCKETS[-1]:
+        return next(b for b in SHORT_FRAME_BUCKETS if b >= T)
+    pairs = T - 1
+    octave = 1 << max(pairs.bit_length() - 3, 0)  # pairs <= 8 * octave
+    return 1 + min(m * octave for m in (*BUCKET_PAIR_MANTISSAS, 8) if m * octave >= pairs)
+
+
 def bucket_for_shape(T: int, H: int, W: int, P: int) -> Bucket:
-    """The bucket of clips of T frames, H x W pixels and P tracks per pair: T to the next of
-    FRAME_BUCKETS, H and W to a multiple of 64, P to the next power of two (at least 64)."""
-    T = next((b for b in FRAME_BUCKETS if b >= T), _round_up(T, 64))
+    """The bucket of clips of T frames, H x W pixels and P tracks per pair: T to ``frame_bucket(T)``,
+    H and W to a multiple of 64, P to the next power of two (at least 64)."""
+    T = frame_bucket(T)
     H, W = (_round_up(s, PIXEL_MULTIPLE) for s in (H, W))
     P = max(MIN_TRACK_BUCKET, 1 << max(P - 1, 0).bit_length())
     return Bucket(T, H, W, P)
