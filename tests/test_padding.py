@@ -138,6 +138,26 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
             np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
 
 
+def test_a_padded_pair_never_switches_a_clips_warps_to_their_costlier_forms():
+    """The last frame warped by the first padded frame's camera (identity, at the origin) may bring
+    a surface 2x nearer; the larger squares and the look back (docs/semantics.md §3.6) are then
+    chosen for a clip's real pairs only."""
+    from sgc_jax.engines.jax_engine.finish_stage import warp_choices
+
+    H = W = 16
+    depth = np.stack([np.full((H, W), 4.0), np.full((H, W), 4.0), np.zeros((H, W))]).astype(np.float32)
+    static = depth > 0
+    K = np.array([[16.0, 0, 8], [0, 16.0, 8], [0, 0, 1]], np.float32)
+    R_g = np.stack([np.eye(3)] * 2).astype(np.float32)
+    t_g = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -2.5]], np.float32)  # the padded camera: the wall 4 -> 1.5
+    pairs = (np.arange(2, dtype=np.int32), np.stack([K] * 2), np.stack([K] * 2), R_g, t_g,
+             np.array([[H, W]] * 2, np.int32))
+    choose = jax.jit(warp_choices, static_argnums=4)
+    assert bool(choose(depth, static, pairs, np.array([True, True]), False)[0])  # it would ask for the squares
+    for vectorized in (False, True):
+        assert [bool(c) for c in choose(depth, static, pairs, np.array([True, False]), vectorized)] == [False, False]
+
+
 # frame counts video generators make (4n + 1: SVD, Wan, CogVideoX, HunyuanVideo, LTX-Video)
 GENERATOR_FRAME_COUNTS = (17, 25, 33, 49, 65, 81, 97, 129, 161, 257)
 

@@ -415,7 +415,7 @@ def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_fart
     expected = reference.pair_depth_error(clip, 1, R, t, SGCConfig())[1]
     as_pairs = (clip.depth[:2], clip.static_mask[:2], np.array([0], np.int32), clip.K[:1].astype(np.float32),
                 clip.K[1:2].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
-                np.array([clip.image_size], np.int32))
+                np.array([clip.image_size], np.int32), np.array([True]))
     stage = FinishStage.of(SGCConfig(), vectorized=vectorized)
     got = float(jax.jit(pair_depth_errors, static_argnames="stage")(*as_pairs, stage=stage)[0])
     np.testing.assert_allclose(got, expected, rtol=Z_RTOL)

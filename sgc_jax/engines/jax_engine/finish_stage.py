@@ -29,44 +29,68 @@ from .pose_stage import LocalPoses
 from .stages import POSE_PER_TRACK, Stage, each
 
 
-def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, stage: FinishStage):
+def pair_frames(depth, static, previous):
+    """(depth_prev, static_prev, depth_curr, static_curr) (H, W) of the pair whose frame i-1 is
+    ``previous`` (an index into the frames (n, H, W)), read by index: no stack of pairs is copied."""
+    at = lambda stack, i: jax.lax.dynamic_index_in_dim(stack, i, keepdims=False)  # noqa: E731
+    return at(depth, previous), at(static, previous), at(depth, previous + 1), at(static, previous + 1)
+
+
+def warp_source(depth, static, previous, authors: bool):
+    """Frame i-1's depth (H, W) and the pixels the warp moves (H, W): every valid one under
+    authors, the static valid ones under spec."""
+    depth_prev, static_prev = pair_frames(depth, static, previous)[:2]
+    return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
+
+
+def warp_choices(depth, static, pairs, pair_valid, vectorized: bool):
+    """(magnified, far) () bool under spec, for a batch of pairs (``pair_depth_errors``'s frames
+    and pairs): whether any pair has a surface coming 2x nearer (the hole rule's larger squares)
+    and whether any pair's depth may span LOOK_BACK_RATIO between frames (the look back into frame
+    i-1). A padded pair (``pair_valid`` False) is no part of either: the last frame warped by a
+    padded frame's camera could ask for both, and each costs every pair of the batch."""
+    def needs(pair_valid):
+        pair, valid = pair_valid
+        source = warp_source(depth, static, pair[0], authors=False)
+        depth_curr = pair_frames(depth, static, pair[0])[2]
+        return (valid & has_magnified(*source, *pair[1:5]),
+                valid & may_look_back(*source, depth_curr, depth_curr > 0, *pair[1:5]))
+
+    magnified, far = each(needs, (pairs, pair_valid), vectorized)
+    return jnp.any(magnified), jnp.any(far)
+
+
+def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage: FinishStage):
     """Frames (n, H, W) of depth and static masks, each pair's frame i-1 as an index into them
-    (F,) int32 (frame i is the next), and the pairs' (F, ...) cameras and true sizes -> depth
-    errors (F,): under spec the static valid pixels of frame i-1 warped (AbsRel in %) and compared
-    where frame i-1 could see (``seen_from_previous`` within the true size ``image_hw`` (F, 2)),
-    looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
-    under authors every valid one (depth units). One pair at a time on CPU, for the unbatched
-    z-buffer scatter; each reads its frames by index, so no stack of frame pairs is copied."""
+    (F,) int32 (frame i is the next), the pairs' (F, ...) cameras and true sizes, and which pairs
+    are the clip's, not padding (F,) bool -> depth errors (F,): under spec the static valid pixels
+    of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see
+    (``seen_from_previous`` within the true size ``image_hw`` (F, 2)), looked up in frame i-1
+    where the warp put a surface 10x farther (``depth_error_looking_back``); under authors every
+    valid one (depth units). One pair at a time on CPU, for the unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
     pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
 
-    def frames(pair):  # (depth_prev, static_prev, depth_curr, static_curr) of one pair
-        at = lambda stack, i: jax.lax.dynamic_index_in_dim(stack, i, keepdims=False)  # noqa: E731
-        return at(depth, pair[0]), at(static, pair[0]), at(depth, pair[0] + 1), at(static, pair[0] + 1)
-
-    def source(pair):
-        depth_prev, static_prev = frames(pair)[:2]
-        return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
-
     def warps(magnified: bool):  # the warped depth alone: a pixel is hit where it is > 0 (z > MIN_WARP_Z)
         def one(pair):
-            return warp_depth(*source(pair), *pair[1:5], nearest=not authors, mask_holes=not authors,
-                              magnified=magnified)[0]
+            return warp_depth(*warp_source(depth, static, pair[0], authors), *pair[1:5], nearest=not authors,
+                              mask_holes=not authors, magnified=magnified)[0]
 
         return each(one, pairs, stage.vectorized)
 
     def errors_of(warped, look_back: bool):
         def one(pair_warp):
             pair, warped = pair_warp
-            _, _, depth_curr, static_curr = frames(pair)
+            _, _, depth_curr, static_curr = pair_frames(depth, static, pair[0])
             K_prev, K_curr, R_g, t_g, image_hw = pair[1:]
             hit = warped > 0
             valid = depth_curr > 0
             if authors:
                 return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
             if look_back:
-                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr, source(pair),
-                                                K_prev, K_curr, R_g, t_g, image_hw, relative=stage.scale_free)[0]
+                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr,
+                                                warp_source(depth, static, pair[0], authors), K_prev, K_curr, R_g,
+                                                t_g, image_hw, relative=stage.scale_free)[0]
             hit = hit & seen_from_previous(depth_curr, valid, K_prev, K_curr, R_g, t_g, image_hw)
             return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
 
@@ -75,14 +99,7 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     if authors:
         errors = errors_of(warps(False), look_back=False)
     else:
-        # the hole rule's larger squares only for a batch with a surface coming 2x nearer; the look back
-        # into frame i-1 only for one whose depth may span LOOK_BACK_RATIO between frames
-        def needs(pair):
-            depth_curr = frames(pair)[2]
-            return (has_magnified(*source(pair), *pair[1:5]),
-                    may_look_back(*source(pair), depth_curr, depth_curr > 0, *pair[1:5]))
-
-        magnified, far = (jnp.any(flags) for flags in each(needs, pairs, stage.vectorized))
+        magnified, far = warp_choices(depth, static, pairs, pair_valid, stage.vectorized)
         warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
         errors = jax.lax.cond(far, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
     return errors * translation_factor(stage)
@@ -137,15 +154,16 @@ class FinishStage(Stage):
 
     def inputs(self, batch: PaddedClips, previous: dict | None) -> tuple:
         regions = {name: value for name, value in previous.items() if name not in POSE_PER_TRACK}
-        return (regions, batch.depth, batch.static, batch.K, batch.image_hw)
+        return (regions, batch.depth, batch.static, batch.K, batch.image_hw, batch.pair_valid)
 
     def __call__(self, inputs: tuple, key) -> dict:
         return finish_stage(*inputs, self)
 
 
-def finish_stage(pose: dict, depth, static, K, image_hw, stage: FinishStage) -> dict:
-    """The pose stage's per-region output and the clips' depth (B, T, H, W), masks, K and true sizes
-    (B, 2) -> per-clip, per-pair and per-region arrays (leading axes B, T-1)."""
+def finish_stage(pose: dict, depth, static, K, image_hw, pair_valid, stage: FinishStage) -> dict:
+    """The pose stage's per-region output and the clips' depth (B, T, H, W), masks, K, true sizes
+    (B, 2) and the pairs that are not padding (B, T-1) -> per-clip, per-pair and per-region arrays
+    (leading axes B, T-1)."""
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     regions = {name: pose[name] for name in LocalPoses._fields if name not in POSE_PER_TRACK}
@@ -155,7 +173,7 @@ def finish_stage(pose: dict, depth, static, K, image_hw, stage: FinishStage) -> 
     previous = flat(jnp.arange(B, dtype=jnp.int32)[:, None] * T + jnp.arange(T - 1, dtype=jnp.int32))
     err = unflat(pair_depth_errors(depth.reshape((B * T,) + depth.shape[2:]), static.reshape((B * T,) + static.shape[2:]),
                                    previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g), flat(t_g_scaled),
-                                   flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), stage))
+                                   flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), flat(pair_valid), stage))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g

@@ -158,9 +158,10 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     def warp_all(magnified: bool):
         return jax.vmap(functools.partial(warp_sources, mask_holes=True, magnified=magnified))(*frames)
 
-    # the hole rule's larger squares only for a clip with a surface coming 2x nearer
-    source, hit = jax.lax.cond(jnp.any(jax.vmap(has_magnified)(*frames)), lambda: warp_all(True),
-                               lambda: warp_all(False))
+    # the hole rule's larger squares only for a clip with a surface coming 2x nearer (the forward's
+    # choice, padded pairs no part of it)
+    magnified = jnp.any(jax.vmap(has_magnified)(*frames) & fixed.pair_valid)
+    source, hit = jax.lax.cond(magnified, lambda: warp_all(True), lambda: warp_all(False))
     view = jax.vmap(previous_view, in_axes=(0, 0, 0, 0, 0, 0, None))(
         fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g, frozen.scale * frozen.t_g,
         fixed.image_hw)
