@@ -13,8 +13,8 @@ from ...io.clip import Clip
 
 SHORT_FRAME_BUCKETS = (2, 4, 8, 12, 16)
 # Beyond 16 frames a bucket's pair count (T - 1) is m * 2**k with m in 4..7: a quarter octave apart,
-# so padding adds under a quarter of a clip's pairs, and none to video generators' 4n + 1 frame
-# counts (17, 25, 33, 49, 65, 81, 97, 129, 161, 257), which power-of-two frame counts padded by up to half.
+# so padding adds under a quarter of a clip's pairs (a padded pair costs about what a real one does),
+# and none to video generators' 4n + 1 frame counts (17, 25, 33, 49, 65, 81, 97, 129, 161, 257).
 BUCKET_PAIR_MANTISSAS = (4, 5, 6, 7)
 PIXEL_MULTIPLE = 64  # H and W are rounded up to a multiple of this
 MIN_TRACK_BUCKET = 64
@@ -45,8 +45,8 @@ def frame_bucket(T: int) -> int:
     if T <= SHORT_FRAME_BUCKETS[-1]:
         return next(b for b in SHORT_FRAME_BUCKETS if b >= T)
     pairs = T - 1
-    octave = 1 << max(pairs.bit_length() - 3, 0)  # pairs <= 8 * octave
-    return 1 + min(m * octave for m in (*BUCKET_PAIR_MANTISSAS, 8) if m * octave >= pairs)
+    octave = 1 << max(pairs.bit_length() - 3, 0)  # 4 * octave <= pairs < 8 * octave
+    return 1 + min(m * octave for m in (*BUCKET_PAIR_MANTISSAS, 8) if m * octave >= pairs)  # 8: the next octave's 4
 
 
 def bucket_for_shape(T: int, H: int, W: int, P: int) -> Bucket:
