@@ -7,6 +7,7 @@ import functools
 
 import cv2
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -98,6 +99,22 @@ def test_both_engines_build_the_same_label_map_on_a_synthetic_frame(rigid_clip, 
                                 min_region_pixels=config.min_region_pixels)
     np.testing.assert_array_equal(np.asarray(jx), ref)
     assert int(n) == ref.max() >= 2
+
+
+def test_a_depth_partition_read_in_place_is_the_sliced_frames_and_counts_their_masks_finite_pixels():
+    depth, mask = two_depth_map()
+    far = np.where(mask, depth * 1.5, 0.0).astype(np.float32)
+    far[5, 5] = np.nan  # on the mask, without a depth: no pixel of the partition
+    frames = np.stack([np.zeros_like(depth), depth, far])  # frame 0 is not partitioned
+    masks = np.stack([mask, mask, mask])
+    regions = dict(k=CONFIG.k_seg, bins=CONFIG.kmeans_bins, min_region_pixels=CONFIG.min_region_pixels)
+    sliced = jax.jit(lambda d, m: partitions.depth_partition(d, m, **regions))(frames[1:], masks[1:])
+    pick = jnp.array([1, 2])
+    in_place = jax.jit(lambda d, m: partitions.depth_partition_of(lambda i: (d[pick[i]], m[pick[i]]), 2, **regions))(
+        frames, masks)
+    for got, want in zip(in_place, sliced):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    np.testing.assert_array_equal(np.asarray(in_place.n_pixels), [mask.sum(), mask.sum() - 1])
 
 
 def test_grid_cells_are_row_major_squarest_cells():

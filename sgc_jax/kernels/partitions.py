@@ -37,30 +37,41 @@ class DepthPartition(NamedTuple):
     span: jax.Array  # (F,) depth range the bins cover
     region_of_bin: jax.Array  # (F, bins) int32, 0 = none
     n_regions: jax.Array  # (F,) int32
+    n_pixels: jax.Array  # (F,) int32 pixels the layers split: the mask's, of finite depth
 
 
 def depth_partition(depth, region_mask, *, k: int, bins: int, min_region_pixels, layers=None,
                     frames_at_once: bool = False) -> DepthPartition:
     """Depth layers of frames (F, H, W) over their masks (F, H, W), ``layers`` (F,) int32 in 1..k
-    per frame (default k); ``region_of_depth`` labels pixels. The histograms are built frame by
-    frame (unbatched scatters are several times faster on a CPU; the offsets' sums packed,
-    ``histogram``) or, ``frames_at_once``, all in one batched step (an accelerator would otherwise
-    run F loop iterations of tiny kernels)."""
-    F = depth.shape[0]
+    per frame (default k); ``region_of_depth`` labels pixels. ``depth_partition_of`` with the frames
+    given as arrays."""
+    return depth_partition_of(lambda i: (depth[i], region_mask[i]), depth.shape[0], k=k, bins=bins,
+                              min_region_pixels=min_region_pixels, layers=layers, frames_at_once=frames_at_once)
 
-    def frame_histogram(frame):
-        u, valid, has_span, (lo, span) = normalise(*frame)
+
+def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_region_pixels, layers=None,
+                       frames_at_once: bool = False) -> DepthPartition:
+    """Depth layers of the frames ``read_frame(i)`` -> (depth (H, W), region mask (H, W)), i in
+    0..n_frames-1 (traced), ``layers`` (F,) as ``depth_partition``'s. The histograms are built frame
+    by frame, each frame read where it lies (unbatched scatters are several times faster on a CPU;
+    the offsets' sums packed, ``histogram``) or, ``frames_at_once``, all in one batched step (an
+    accelerator would otherwise run F loop iterations of tiny kernels)."""
+    F = n_frames
+
+    def frame_histogram(i):
+        depth, region_mask = read_frame(i)
+        u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
         sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, packed=not frames_at_once)
         return sums, n_bin, has_span, lo, span
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
-    sums, n_bin, has_span, lo, span = over_frames((depth.reshape(F, -1), region_mask.reshape(F, -1)))
+    sums, n_bin, has_span, lo, span = over_frames(jnp.arange(F))
     layers = jnp.full(F, k, jnp.int32) if layers is None else layers
     # the DP gains from batching
     cluster = jax.vmap(lambda s, h, n: cluster_of_bins(s, h, k, bins, n))(sums, has_span, layers)
     counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster)
     region_of_bin, n_regions = renumber_kept(cluster, counts, min_region_pixels)
-    return DepthPartition(lo, span, region_of_bin, n_regions)
+    return DepthPartition(lo, span, region_of_bin, n_regions, sums.count[:, -1])
 
 
 def region_of_depth(partition: DepthPartition, depth, region_mask):

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from ...config import SGCConfig
-from ...kernels.partitions import depth_partition, depth_spatial_regions, grid_regions, region_of_depth
+from ...kernels.partitions import depth_partition_of, depth_spatial_regions, grid_regions, region_of_depth
 from .buckets import Bucket, PaddedClips
 from .stages import PixelInputs, Stage, as_int, each
 
@@ -27,41 +27,52 @@ def layer_count(tracks_on_mask, stage: PixelStage):
                      stage.k_seg).astype(jnp.int32)
 
 
-def frame_regions(depth, static, points, counted, image_hw, stage: PixelStage):
-    """Frames (F, H, W), their pairs' points in them (F, P, 2), the points that count towards the
-    layer count (F, P) and true sizes (F, 2) -> (region at each point's floor pixel (F, P) int32,
-    0 = none or outside; N_s (F,); |S| (F,))."""
-    region_mask = static if stage.compat == "authors" else static & (depth > 0)
+def region_mask(depth, static, compat: str):
+    """S_i's pixels (...) bool: the static ones, with a depth unless compat="authors"."""
+    return static if compat == "authors" else static & (depth > 0)
+
+
+def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelStage):
+    """The clips' frames (B T, H, W), the frame (F,) of each pair's partition among them, the pairs'
+    points in it (F, P, 2), the points that count towards the layer count (F, P) and true sizes (F, 2)
+    -> (region at each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S| (F,)).
+    Each frame is read where it lies: the pairs' frames sliced out first would be a copy of the
+    clip's depth and mask, which at video generators' sizes costs a third of the stage."""
     H_pad, W_pad = depth.shape[1:]
     col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
     inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
     pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
-    at_points = jax.vmap(lambda image, p: image.reshape(-1)[p])
+    at_points = lambda image: image.reshape(image.shape[0], -1)[frame[:, None], pixel]  # noqa: E731
     regions = dict(k=stage.k_seg, min_region_pixels=stage.min_region_pixels)
     if stage.partition == "depth":  # the points labelled from each bin's region, never whole label maps
-        on_mask = inside & at_points(region_mask, pixel)
-        layers = layer_count(jnp.sum(counted & on_mask, axis=1), stage)
-        partition = depth_partition(depth, region_mask, bins=stage.kmeans_bins, **regions, layers=layers,
-                                    frames_at_once=stage.vectorized)
-        labels = jax.vmap(region_of_depth)(partition, at_points(depth, pixel), at_points(region_mask, pixel))
-        n_regions = partition.n_regions
+        depth_at = at_points(depth)
+        on_mask = region_mask(depth_at, at_points(static), stage.compat)
+        layers = layer_count(jnp.sum(counted & inside & on_mask, axis=1), stage)
+        read_frame = lambda i: (depth[frame[i]], region_mask(depth[frame[i]], static[frame[i]], stage.compat))  # noqa: E731
+        partition = depth_partition_of(read_frame, frame.shape[0], bins=stage.kmeans_bins, **regions, layers=layers,
+                                       frames_at_once=stage.vectorized)
+        labels = jax.vmap(region_of_depth)(partition, depth_at, on_mask)
+        n_regions, n_pixels = partition.n_regions, partition.n_pixels
     else:  # frame by frame on CPU: unbatched scatters run several times faster there
+        frames = depth[frame]
+        mask = region_mask(frames, static[frame], stage.compat)
         if stage.partition == "grid":
             label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
         else:
             label_frame = lambda frame: depth_spatial_regions(*frame, bins=stage.kmeans_bins, **regions)  # noqa: E731
-        labels, n_regions = each(label_frame, (depth, region_mask), stage.vectorized)
-        labels = at_points(labels, pixel)
-    return (jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32),
-            jnp.sum(region_mask, axis=(1, 2)).astype(jnp.int32))
+        labels, n_regions = each(label_frame, (frames, mask), stage.vectorized)
+        labels = jax.vmap(lambda image, p: image.reshape(-1)[p])(labels, pixel)
+        n_pixels = jnp.sum(mask, axis=(1, 2))
+    return jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32), n_pixels.astype(jnp.int32)
 
 
-def depth_at_tracks(depth_prev, track_prev, image_hw):
-    """Depth (P,) of frame i-1 (H, W) at each track's floor pixel, clamped to the true image (2,)."""
+def depth_at_tracks(depth, frame, track_prev, image_hw):
+    """Depth (P,) of frame i-1 (``depth[frame]``, frames (N, H, W)) at each track's floor pixel,
+    clamped to the true image (2,)."""
     H, W = image_hw[0], image_hw[1]
     col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
     row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
-    return depth_prev[row, col]
+    return depth[frame, row, col]
 
 
 def pairs_flat(B, T):
@@ -106,11 +117,13 @@ def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
     B, T = x.depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
+    depth, static = (a.reshape((B * T,) + a.shape[2:]) for a in (x.depth, x.static))  # frames in place
+    previous = flat(jnp.arange(B)[:, None] * T + jnp.arange(T - 1)[None, :])  # (B (T-1),) frame i-1 of each pair
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
-    frames, points = (slice(None, -1), x.track_prev) if stage.reads_previous_frame else (slice(1, None), x.track_curr)
-    Z_prev = jax.vmap(depth_at_tracks)(flat(x.depth[:, :-1]), flat(x.track_prev), image_hw)
+    frame, points = (previous, x.track_prev) if stage.reads_previous_frame else (previous + 1, x.track_curr)
+    Z_prev = jax.vmap(depth_at_tracks, (None, 0, 0, 0))(depth, previous, flat(x.track_prev), image_hw)
     counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
-    labels, n_regions, region_pixels = map(unflat, frame_regions(
-        flat(x.depth[:, frames]), flat(x.static[:, frames]), flat(points), counted, image_hw, stage))
+    labels, n_regions, region_pixels = map(unflat, frame_regions(depth, static, frame, flat(points), counted,
+                                                                 image_hw, stage))
     Z_prev = unflat(Z_prev)
     return dict(track_labels=labels, n_regions=n_regions, region_pixels=region_pixels, Z_prev=Z_prev)

@@ -75,7 +75,9 @@ def camera_poses(R_wc, t_wc):
 def pair_points(clip: PaddedClips, track_labels):
     """Every pair's tracks of frame i-1 back-projected (T-1, P, 3) and which have depth and a
     region (T-1, P) (the pose stage's points)."""
-    Z = jax.vmap(depth_at_tracks, in_axes=(0, 0, None))(clip.depth[:-1], clip.track_prev, clip.image_hw)
+    pairs = clip.track_prev.shape[0]
+    Z = jax.vmap(depth_at_tracks, in_axes=(None, 0, 0, None))(clip.depth, jnp.arange(pairs), clip.track_prev,
+                                                              clip.image_hw)
     X = jax.vmap(back_project)(clip.K[:-1], clip.track_prev, Z)
     return X, clip.usable & clip.pair_valid[:, None] & (Z > 0) & (track_labels > 0)
 
