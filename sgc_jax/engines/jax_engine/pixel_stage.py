@@ -37,7 +37,7 @@ def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelS
     points in it (F, P, 2), the points that count towards the layer count (F, P) and true sizes (F, 2)
     -> (region at each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S| (F,)).
     Each frame is read where it lies: the pairs' frames sliced out first would be a copy of the
-    clip's depth and mask, which at video generators' sizes costs a third of the stage."""
+    clip's depth and mask, which at video generators' sizes costs a quarter to a third of the stage."""
     H_pad, W_pad = depth.shape[1:]
     col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
     inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
