@@ -24,7 +24,7 @@ from ...kernels.warp import (
 )
 from ..units import translation_factor
 from .buckets import Bucket, PaddedClips
-from .pixel_stage import pairs_flat
+from .pixel_stage import frames_in_place, pairs_flat
 from .pose_stage import LocalPoses
 from .stages import POSE_PER_TRACK, Stage, each
 
@@ -170,10 +170,10 @@ def finish_stage(pose: dict, depth, static, K, image_hw, pair_valid, stage: Fini
     poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # FinishStage.inputs keeps the per-track fields back
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
-    previous = flat(jnp.arange(B, dtype=jnp.int32)[:, None] * T + jnp.arange(T - 1, dtype=jnp.int32))
-    err = unflat(pair_depth_errors(depth.reshape((B * T,) + depth.shape[2:]), static.reshape((B * T,) + static.shape[2:]),
-                                   previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g), flat(t_g_scaled),
-                                   flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), flat(pair_valid), stage))
+    (depth_frames, static_frames), previous = frames_in_place(depth, static)
+    err = unflat(pair_depth_errors(depth_frames, static_frames, previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
+                                   flat(t_g_scaled), flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)),
+                                   flat(pair_valid), stage))
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g

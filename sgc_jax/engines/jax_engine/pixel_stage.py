@@ -48,7 +48,10 @@ def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelS
         depth_at = at_points(depth)
         on_mask = region_mask(depth_at, at_points(static), stage.compat)
         layers = layer_count(jnp.sum(counted & inside & on_mask, axis=1), stage)
-        read_frame = lambda i: (depth[frame[i]], region_mask(depth[frame[i]], static[frame[i]], stage.compat))  # noqa: E731
+        def read_frame(i):
+            frame_depth = depth[frame[i]]
+            return frame_depth, region_mask(frame_depth, static[frame[i]], stage.compat)
+
         partition = depth_partition_of(read_frame, frame.shape[0], bins=stage.kmeans_bins, **regions, layers=layers,
                                        frames_at_once=stage.vectorized)
         labels = jax.vmap(region_of_depth)(partition, depth_at, on_mask)
@@ -79,6 +82,14 @@ def pairs_flat(B, T):
     """(flat, unflat): (B, T-1, ...) <-> (B (T-1), ...)."""
     return (lambda x: x.reshape((B * (T - 1),) + x.shape[2:]),
             lambda x: x.reshape((B, T - 1) + x.shape[1:]))
+
+
+def frames_in_place(*stacks):
+    """Clips' frames (B, T, ...) -> (each stack as (B T, ...), a reshape that copies nothing; the
+    index (B (T-1),) int32 of every pair's frame i-1 among them, frame i the next)."""
+    B, T = stacks[0].shape[:2]
+    previous = pairs_flat(B, T)[0](jnp.arange(B, dtype=jnp.int32)[:, None] * T + jnp.arange(T - 1, dtype=jnp.int32))
+    return tuple(s.reshape((B * T,) + s.shape[2:]) for s in stacks), previous
 
 
 class PixelStage(Stage):
@@ -117,8 +128,7 @@ def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
     B, T = x.depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     image_hw = flat(jnp.broadcast_to(x.image_hw[:, None], (B, T - 1, 2)))
-    depth, static = (a.reshape((B * T,) + a.shape[2:]) for a in (x.depth, x.static))  # frames in place
-    previous = flat(jnp.arange(B)[:, None] * T + jnp.arange(T - 1)[None, :])  # (B (T-1),) frame i-1 of each pair
+    (depth, static), previous = frames_in_place(x.depth, x.static)
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
     frame, points = (previous, x.track_prev) if stage.reads_previous_frame else (previous + 1, x.track_curr)
     Z_prev = jax.vmap(depth_at_tracks, (None, 0, 0, 0))(depth, previous, flat(x.track_prev), image_hw)
