@@ -879,7 +879,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; returns its exit code (argparse itself exits 2 on malformed arguments)."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unrecognized = parser.parse_known_args(argv)
+    if unrecognized:  # argparse's own message, with the likely cause where the words are not options
+        words = " ".join(unrecognized)
+        hint = "" if args.command != "perturb" or any(word.startswith("-") for word in unrecognized) else (
+            "; its list options take one comma-separated word (e.g. --severities 0.25,0.5 --kinds warp,squeeze)")
+        parser.error(f"unrecognized arguments: {words}{hint}")
     try:
         return args.func(args)
     except (UsageError, MissingExtraError) as exc:

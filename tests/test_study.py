@@ -227,6 +227,15 @@ def test_perturb_command_writes_rows_summary_and_plot(tmp_path):
     assert bad.returncode == 2 and "bend" in bad.stderr and "Traceback" not in bad.stderr
 
 
+def test_a_space_separated_list_is_refused_with_the_comma_form_named(tmp_path, capsys):
+    from sgc_jax import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["perturb", str(tmp_path / "none.npz"), "--severities", "0.25", "0.5"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "unrecognized arguments: 0.5" in err and "--severities 0.25,0.5" in err
+
+
 def test_missing_matplotlib_is_a_clear_error(monkeypatch, tmp_path, capsys):
     from sgc_jax import cli
     from sgc_jax.research.plot import import_pyplot
