@@ -211,3 +211,11 @@ def test_segment_minimum_of_nonnegative_values_by_their_bits_is_segment_min():
     want = jax.ops.segment_min(jnp.asarray(values), jnp.asarray(segment), num_segments=41)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))  # -0.0 == 0.0; empty: +inf
     assert np.isinf(np.asarray(got)[40])
+
+
+def test_a_bin_holding_more_than_two_to_the_24_entries_is_counted_exactly():
+    # an 8K frame (33 M pixels) of one flat wall: a float32 count would stop at 2^24
+    n = 2**24 + 3
+    y = jnp.full(n, 0.25, jnp.float32)
+    sums, n_bin = kmeans.histogram(y, jnp.zeros(n, jnp.int32), jnp.ones(n, bool), 4)
+    assert int(n_bin[0]) == n and int(sums.count[-1]) == n

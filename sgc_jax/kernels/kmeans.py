@@ -65,7 +65,9 @@ def histogram(y, bins_of, valid, bins, packed: bool = False) -> tuple[Histogram,
     (complex addition is per part) in half the time of two on a CPU."""
     d = jnp.where(valid, y - (bins_of.astype(jnp.float32) + 0.5), 0.0)
     # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
-    n_c = jax.ops.segment_sum(valid.astype(jnp.float32), bins_of, num_segments=bins)
+    # counted in int32: a float32 count stops at 2^24 entries in one bin (an 8K frame's flat wall)
+    n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
+    n_c = n_bin.astype(jnp.float32)
     if packed:
         sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
         d_c, e_c = jnp.real(sums), jnp.imag(sums)
@@ -80,7 +82,6 @@ def histogram(y, bins_of, valid, bins, packed: bool = False) -> tuple[Histogram,
         hi, lo = jax.lax.associative_scan(df_add, x)
         return jnp.concatenate([jnp.zeros(1, jnp.float32), hi]), jnp.concatenate([jnp.zeros(1, jnp.float32), lo])
 
-    n_bin = jnp.round(n_c).astype(jnp.int32)
     return Histogram(jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n_bin)]), prefix(s_c), prefix(q_c)), n_bin
 
 

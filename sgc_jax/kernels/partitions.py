@@ -62,8 +62,7 @@ def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_regi
         depth, region_mask = read_frame(i)
         u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
         sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, packed=not frames_at_once)
-        # counted apart: the histogram's float32 counts saturate at 2^24 pixels in one bin
-        return sums, n_bin, has_span, lo, span, jnp.sum(valid, dtype=jnp.int32)
+        return sums, n_bin, has_span, lo, span, jnp.sum(n_bin)
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
     sums, n_bin, has_span, lo, span, n_pixels = over_frames(jnp.arange(F))
