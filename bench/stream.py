@@ -3,6 +3,7 @@ run (docs/semantics.md §4.1).
 
     python bench/stream.py [--clips 64] [--memory-sizes 64 256] [--dir /tmp/sgc-stream-corpus]
     python bench/stream.py --clips 1000 --memory-sizes   # the 1,000-clip measurement (on a GPU)
+    python bench/stream.py --shape 81 480 832 4096 --clips 8 --in-memory 4 --memory-sizes   # generator-size clips
 
 Writes the standard corpus (T=16, 288x512, 4096 tracks per pair, ~10 regions; clip files of
 ~8 MB) to --dir once (kept for later runs), compiles the bucket's program, then, warm:
@@ -105,12 +106,18 @@ def main() -> None:
     parser.add_argument("--read-in", default="auto", choices=("auto", "threads", "processes"),
                         help="readers are threads or processes (default: the scorer's choice)")
     parser.add_argument("--lanes", type=int, default=None, help="clips scored at once (default: the scorer's)")
+    parser.add_argument("--shape", type=int, nargs=4, metavar=("T", "H", "W", "P"),
+                        help="clips of this size instead of standard ones, in a folder of --dir's name and the size")
     args = parser.parse_args()
     enable_compilation_cache()  # the peak-memory processes load the program compiled here
-    folder = Path(args.dir)
+    folder, scene, kind = Path(args.dir), SCENE, "standard"
+    if args.shape:
+        T, H, W, P = args.shape
+        scene, kind = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P), f"{T}x{H}x{W}x{P}"
+        folder = folder.with_name(f"{folder.name}-{kind}")
     begin = time.perf_counter()
-    paths = write_corpus(folder, max([args.clips, args.in_memory, *args.memory_sizes]))
-    print(f"corpus: {len(paths)} standard clips in {folder} ({time.perf_counter() - begin:.0f} s to write the missing)",
+    paths = write_corpus(folder, max([args.clips, args.in_memory, *args.memory_sizes]), scene)
+    print(f"corpus: {len(paths)} {kind} clips in {folder} ({time.perf_counter() - begin:.0f} s to write the missing)",
           flush=True)
     readers, processes = reading_plan(args.readers, args.read_in)
     print(f"devices: {jax.devices()}; {readers} reader {'processes' if processes else 'threads'}; load average "

@@ -96,8 +96,10 @@ def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 
     if (T > bucket.T) or (H > bucket.H) or (W > bucket.W) or (P > bucket.P):
         raise ValueError(f"clip {clip.clip_id!r} of shape {(T, H, W, P)} does not fit bucket {bucket}")
     depth = host_zeros((bucket.T, bucket.H, bucket.W), np.float32)
-    finite = np.isfinite(clip.depth) & (clip.depth > 0)
-    depth[:T, :H, :W] = np.where(finite, clip.depth, 0.0)
+    for frame, source in zip(depth, clip.depth):  # a frame at a time: no clip-sized temporaries
+        view = frame[:H, :W]
+        np.copyto(view, source)
+        np.copyto(view, 0.0, where=~((view > 0) & (view < np.inf)))  # NaN, inf and depth <= 0 invalid
     static = host_zeros((bucket.T, bucket.H, bucket.W), bool)
     static[:T, :H, :W] = clip.static_mask if config.use_mos else True
     K = host_zeros((bucket.T, 3, 3), np.float32)
