@@ -1,6 +1,8 @@
 """SPEC §2: the clip file, its accepted alternatives, validation errors, batch files."""
 
+import dataclasses
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -107,6 +109,25 @@ def test_clip_file_round_trip(tmp_path):
         if name != "meta":
             np.testing.assert_array_equal(value, clip_to_arrays(loaded)[name])
     assert loaded.meta == clip.meta
+
+
+def test_a_clip_file_stores_float_depth_deflate_cannot_halve_and_deflates_the_rest(tmp_path):
+    arrays = tiny_arrays(T=4, H=128, W=640)  # depth uniform in [1, 5): ~0.85 of its size deflated
+    arrays["K"] = np.array([[500.0, 0, 320], [0, 500.0, 64], [0, 0, 1]])
+    arrays["track_prev"] *= [90, 18]  # spread over the image, as the content checks expect
+    arrays["frames"] = np.random.default_rng(1).integers(0, 256, (4, 128, 640, 3), dtype=np.uint8)
+    clip = clip_from_arrays(arrays)
+    quantised = dataclasses.replace(clip, depth=np.round(clip.depth * 2) / 2)  # a sensor's steps
+    written = save_clip(tmp_path / "a.npz", clip)
+    with zipfile.ZipFile(written) as archive:
+        kinds = {info.filename: info.compress_type for info in archive.infolist()}
+    assert kinds["depth.npy"] == zipfile.ZIP_STORED and kinds["static_mask.npy"] == zipfile.ZIP_DEFLATED
+    assert kinds["frames.npy"] == zipfile.ZIP_DEFLATED  # not read when scoring: deflated whatever it saves
+    with zipfile.ZipFile(save_clip(tmp_path / "q.npz", quantised)) as archive:
+        assert archive.getinfo("depth.npy").compress_type == zipfile.ZIP_DEFLATED
+    with np.load(written) as data:  # numpy reads it; the same arrays give the same bytes
+        np.testing.assert_array_equal(data["depth"], clip.depth)
+    assert save_clip(tmp_path / "b.npz", clip).read_bytes() == written.read_bytes()
 
 
 def test_batch_file_round_trip_with_mixed_sizes(tmp_path):

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..stats import exact_median
+from .npz import write_npz
 
 # Values beyond these are not measurements and count as invalid points (docs/semantics.md §1.2):
 # a track position more than TRACK_REACH image sizes outside the image, a depth more than
@@ -132,11 +133,10 @@ def clip_to_arrays(clip: Clip) -> dict[str, np.ndarray]:
 
 
 def save_clip(path: str | os.PathLike, clip: Clip) -> Path:
-    """Write one clip as a compressed ``.npz``; returns the path."""
+    """Write one clip as an ``.npz`` (``npz.write_npz``: members deflated where that pays); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **clip_to_arrays(clip))
-    return path
+    return write_npz(path, clip_to_arrays(clip))
 
 
 def _pad_to(array: np.ndarray, shape: tuple[int, ...], fill: Any = 0) -> np.ndarray:
@@ -182,5 +182,4 @@ def save_batch(path: str | os.PathLike, clips: list[Clip]) -> Path:
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **arrays)
-    return path
+    return write_npz(path, arrays)

@@ -1,4 +1,5 @@
-"""Reading ``.npz`` archives of untrusted origin: nothing unpickled, nothing allocated unchecked.
+"""Reading ``.npz`` archives of untrusted origin: nothing unpickled, nothing allocated unchecked;
+and writing them (``write_npz``), each member deflated only where that pays.
 
 Every ``.npy`` header is read first (``numpy.lib.format``) and checked against the bytes the
 archive can hold for it, so a header claiming petabytes is refused before any allocation; object
@@ -36,6 +37,14 @@ FILE = "<file>"  # the array name given to problems of the archive as a whole
 # with "SystemError: AST constructor recursion depth mismatch" when threads parse at once (cpython
 # gh-106905; seen in the readers of score_batch): one header is parsed at a time.
 _HEADER_LOCK = threading.Lock()
+# A member that deflate does not halve (float depth from an estimator or a renderer: 0.77-0.85 of
+# its size) is stored as it is: inflating it costs ~4 ms per MB at every read, ~0.5 s of a
+# Wan-size clip (bench/history/issue-61.md "Clip files whose float depth is stored"). Sensor and
+# ground-truth depth (0.14-0.21) and masks stay deflated, and so do the frames, which scoring does
+# not read. Judged on SAMPLE_CHUNKS pieces spread over the member (a frame's top rows are often sky).
+STORE_RATIO = 0.5
+SAMPLE_CHUNKS, SAMPLE_BYTES = 16, 1 << 20
+ALWAYS_DEFLATED = ("frames",)
 
 
 class NpzError(ValueError):
@@ -170,3 +179,30 @@ def read_npz(path: str | os.PathLike, names: Iterable[str] | None = None,
 def npz_headers(path: str | os.PathLike) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
     """(shape, dtype) of every array of an ``.npz``, from the headers only; errors as :func:`read_npz`."""
     return _read(path, None, headers_only=True)
+
+
+def _member_compression(name: str, array: np.ndarray) -> int:
+    """ZIP_DEFLATED for a member that deflate halves (judged on a sample), a small one or one of
+    ALWAYS_DEFLATED; ZIP_STORED for the others."""
+    if array.nbytes <= SAMPLE_BYTES or name in ALWAYS_DEFLATED:
+        return zipfile.ZIP_DEFLATED
+    data = np.ravel(array).view(np.uint8)
+    chunk = SAMPLE_BYTES // SAMPLE_CHUNKS
+    starts = np.linspace(0, data.size - chunk, SAMPLE_CHUNKS).astype(np.int64)
+    sample = b"".join(data[start:start + chunk].tobytes() for start in starts)
+    return zipfile.ZIP_DEFLATED if len(zlib.compress(sample)) <= STORE_RATIO * len(sample) else zipfile.ZIP_STORED
+
+
+def write_npz(path: str | os.PathLike, arrays: dict[str, Any]) -> Path:
+    """Write ``arrays`` as an ``.npz`` that ``np.load`` reads (as ``np.savez_compressed``'s, without
+    pickles), each member deflated or stored (``_member_compression``), under a fixed timestamp so
+    that the same arrays give the same bytes."""
+    path = Path(path)
+    with zipfile.ZipFile(path, "w", allowZip64=True) as archive:
+        for name, value in arrays.items():
+            array = np.asanyarray(value)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = _member_compression(name, array)
+            with archive.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, array, allow_pickle=False)
+    return path
