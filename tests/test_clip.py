@@ -128,6 +128,7 @@ def test_a_clip_file_stores_float_depth_deflate_cannot_halve_and_deflates_the_re
     with np.load(written) as data:  # numpy reads it; the same arrays give the same bytes
         np.testing.assert_array_equal(data["depth"], clip.depth)
     assert save_clip(tmp_path / "b.npz", clip).read_bytes() == written.read_bytes()
+    assert save_clip(tmp_path / "c", clip) == tmp_path / "c.npz"  # the suffix added, as np.savez adds it
 
 
 def test_batch_file_round_trip_with_mixed_sizes(tmp_path):

@@ -196,8 +196,11 @@ def _member_compression(name: str, array: np.ndarray) -> int:
 def write_npz(path: str | os.PathLike, arrays: dict[str, Any]) -> Path:
     """Write ``arrays`` as an ``.npz`` that ``np.load`` reads (as ``np.savez_compressed``'s, without
     pickles), each member deflated or stored (``_member_compression``), under a fixed timestamp so
-    that the same arrays give the same bytes."""
+    that the same arrays give the same bytes. As ``np.savez``, appends ``.npz`` to a path without it;
+    returns the path written."""
     path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
     with zipfile.ZipFile(path, "w", allowZip64=True) as archive:
         for name, value in arrays.items():
             array = np.asanyarray(value)
