@@ -18,6 +18,7 @@ from scenes import MICRO
 from sgc_jax import ClipFormatError, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import discover_clips, validate_paths
+from sgc_jax.io.npz import NpzError, read_npz
 from sgc_jax.research.synth import synth_clip
 
 # Tiny scenes: loading takes milliseconds and the reference engine scores one in ~0.3 s.
@@ -217,6 +218,24 @@ def test_each_broken_file_is_a_format_error_naming_the_path(tmp_path, no_unpickl
     path.write_bytes(write(None))
     error = load_error(path)
     assert error.array == array and words in str(error) and str(path) in str(error), str(error)
+
+
+def test_stored_and_deflated_members_read_as_numpy_reads_them(tmp_path):
+    rng = np.random.default_rng(0)
+    arrays = {"c_order": rng.normal(size=(3, 5, 7)).astype(np.float32), "f_order": np.asfortranarray(
+        rng.integers(0, 9, (4, 6))), "flags": rng.random((2, 3)) > 0.5, "scalar": np.float64(2.5),
+        "empty": np.zeros((0, 3), np.float32), "text": np.asarray("a clip")}
+    for compressed in (False, True):
+        path = tmp_path / f"m{compressed}.npz"
+        path.write_bytes(npz_bytes(arrays, compressed))
+        read = read_npz(path)
+        for name, value in arrays.items():
+            assert read[name].dtype == np.asarray(value).dtype and np.array_equal(read[name], value), name
+    data = npz_bytes(arrays)
+    start, size = member_data_offset(data, "c_order.npy")
+    with pytest.raises(NpzError, match="c_order"):  # the member's data cut short, the archive's index kept
+        path.write_bytes(data[:start + size - 8] + data[start + size:])
+        read_npz(path)
 
 
 @pytest.mark.parametrize("kind", ["dangling_link", "link_loop", "directory_named_npz"])
