@@ -37,11 +37,12 @@ FILE = "<file>"  # the array name given to problems of the archive as a whole
 # with "SystemError: AST constructor recursion depth mismatch" when threads parse at once (cpython
 # gh-106905; seen in the readers of score_batch): one header is parsed at a time.
 _HEADER_LOCK = threading.Lock()
-# A member that deflate does not halve (float depth from an estimator or a renderer: 0.77-0.85 of
-# its size) is stored as it is: inflating it costs ~4 ms per MB at every read, ~0.5 s of a
-# Wan-size clip (bench/history/issue-61.md "Clip files whose float depth is stored"). Sensor and
-# ground-truth depth (0.14-0.21) and masks stay deflated, and so do the frames, which scoring does
-# not read. Judged on SAMPLE_CHUNKS pieces spread over the member (a frame's top rows are often sky).
+# A member that deflate does not halve is stored as it is: float depth whose mantissas vary from
+# pixel to pixel (the synthetic corpora's deflates to 0.77-0.85 of its size) costs ~4 ms per MB of
+# inflating at every read, ~0.6 s of a Wan-size clip (bench/history/issue-61.md "Clip files whose
+# float depth is stored"). Sensor and ground-truth depth (0.14-0.21) and masks stay deflated, and so
+# do the frames, which scoring does not read. Judged on SAMPLE_CHUNKS pieces spread over the member
+# (a frame's top rows are often sky).
 STORE_RATIO = 0.5
 SAMPLE_CHUNKS, SAMPLE_BYTES = 16, 1 << 20
 ALWAYS_DEFLATED = ("frames",)
