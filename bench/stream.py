@@ -6,7 +6,8 @@ run (docs/semantics.md §4.1).
     python bench/stream.py --shape 81 480 832 4096 --clips 8 --in-memory 4 --memory-sizes   # generator-size clips
 
 Writes the standard corpus (T=16, 288x512, 4096 tracks per pair, ~10 regions; clip files of
-~8 MB) to --dir once (kept for later runs), compiles the bucket's program, then, warm:
+~10 MB, their float depth stored) to --dir once (kept for later runs), compiles the bucket's
+program, then, warm:
 - in memory: ``score_batch`` of --in-memory clips already loaded (the device-only figure);
 - from disk: ``sgc-jax score``'s path, ``score_batch(folder, out=...)``: find, read, hash,
   validate and pad in readers (threads, or processes on a host of many cores), score, write the
