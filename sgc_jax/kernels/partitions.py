@@ -62,16 +62,16 @@ def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_regi
         depth, region_mask = read_frame(i)
         u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
         sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, packed=not frames_at_once)
-        return sums, n_bin, has_span, lo, span, jnp.sum(n_bin)
+        return sums, n_bin, has_span, lo, span
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
-    sums, n_bin, has_span, lo, span, n_pixels = over_frames(jnp.arange(F))
+    sums, n_bin, has_span, lo, span = over_frames(jnp.arange(F))
     layers = jnp.full(F, k, jnp.int32) if layers is None else layers
     # the DP gains from batching
     cluster = jax.vmap(lambda s, h, n: cluster_of_bins(s, h, k, bins, n))(sums, has_span, layers)
     counts = jax.vmap(lambda n, c: jax.ops.segment_sum(n, c, num_segments=k))(n_bin, cluster)
     region_of_bin, n_regions = renumber_kept(cluster, counts, min_region_pixels)
-    return DepthPartition(lo, span, region_of_bin, n_regions, n_pixels)
+    return DepthPartition(lo, span, region_of_bin, n_regions, sums.count[:, -1])  # int32 counts: exact
 
 
 def region_of_depth(partition: DepthPartition, depth, region_mask):
