@@ -338,6 +338,57 @@ def test_a_surface_entering_the_view_is_not_compared_with_what_it_covers(engine)
     np.testing.assert_allclose(warped[compared], depth1[compared], rtol=Z_RTOL)
 
 
+def square_frame_i_minus_1_did_not_warp(gap: str):
+    """A wall at depth 8 and a square at depth 2 in both frames, the camera moved 0.4 to the right
+    (the square shifts 12 px, the wall 3 px); frame 0 does not warp the square: its depth there is
+    invalid (``gap`` "invalid_depth", a sensor's dropout) or masked as a moving object ("mask") -> a two-frame Clip."""
+    f = 60.0
+    Kc = np.array([[f, 0.0, 15.5], [0.0, f, 11.5], [0.0, 0.0, 1.0]])
+    depth = np.full((2, H, W), 8.0, np.float32)
+    static = np.ones((2, H, W), bool)
+    depth[:, 8:16, 14:22] = 2.0
+    depth[1] = np.full((H, W), 8.0, np.float32)
+    depth[1, 8:16, 2:10] = 2.0
+    if gap == "invalid_depth":
+        depth[0, 8:16, 14:22] = 0.0
+    else:
+        static[0, 8:16, 14:22] = False
+    no_tracks = np.zeros((1, 1, 2), np.float32)
+    return Clip(clip_id="gap", depth=depth, K=np.stack([Kc, Kc]), R_wc=np.stack([np.eye(3)] * 2),
+                t_wc=np.array([[0.0, 0.0, 0.0], [-0.4, 0.0, 0.0]]), static_mask=static, track_prev=no_tracks,
+                track_curr=no_tracks, track_vis=np.ones((1, 1), bool), track_conf=np.ones((1, 1), np.float32))
+
+
+@pytest.mark.parametrize("vectorized", [False, True])
+@pytest.mark.parametrize("gap", ["invalid_depth", "mask"])
+def test_a_surface_frame_i_minus_1_did_not_warp_is_not_compared_with_what_lands_on_it(gap, vectorized):
+    clip = square_frame_i_minus_1_did_not_warp(gap)
+    R, t = np.eye(3), clip.t_wc[1]
+    warped = reference.warp_depth(reference.warp_source(clip, 1, SGCConfig()), clip.K[0], clip.K[1], R, t,
+                                  mask_holes=True)
+    square = clip.depth[1] == 2.0
+    assert (warped[square] == 8.0).sum() >= 8  # the wall frame 0 saw beside the gap lands on the square: 300 %
+    expected = reference.pair_depth_error(clip, 1, R, t, SGCConfig())[1]
+    assert expected < 1e-4  # only the wall, compared with itself
+    as_pairs = (clip.depth, clip.static_mask, np.array([0], np.int32), clip.K[:1].astype(np.float32),
+                clip.K[1:].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
+                np.array([clip.image_size], np.int32), np.array([True]))
+    stage = FinishStage.of(SGCConfig(), vectorized=vectorized)
+    got = float(jax.jit(pair_depth_errors, static_argnames="stage")(*as_pairs, stage=stage)[0])
+    assert got < 1e-4
+
+
+def test_a_frame_whose_every_pixel_is_warped_has_no_gaps_within_its_true_size():
+    """``source_has_gaps`` decides whether the JAX engine reads frame i-1 at all: a clip padded to
+    its bucket has no gap in its padding, and one invalid pixel of the true image is one."""
+    valid = np.zeros((H + 4, W + 4), bool)
+    valid[:H, :W] = True
+    size = np.array([H, W], np.int32)
+    assert not bool(warp.source_has_gaps(valid, size))
+    valid[H - 1, W - 1] = False
+    assert bool(warp.source_has_gaps(valid, size))
+
+
 # pixels that float32 rounds to the other side of a half-pixel than float64 does
 SEEN_ROUNDING_PIXELS = 2
 

@@ -621,9 +621,10 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     looked_back = None
     if spec:
         seen, z, iu, iv = previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
-        warped = np.where(seen, warped, 0.0)
-        # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         source = np.where(valid_depth(source), source, 0.0)
+        # compared only where frame i's point lands on a pixel frame i-1 warped (§3.6 step 4)
+        warped = np.where(seen & (source[iv, iu] > 0), warped, 0.0)
+        # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
         looked_back = z, np.where(needed, source[iv, iu], 0.0)
     error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free, looked_back=looked_back)

@@ -21,6 +21,11 @@ def _valid_depth(depth, valid):
     return valid & (depth > 0) & jnp.isfinite(depth)
 
 
+def source_pixels(depth_prev, valid_prev):
+    """(H, W) bool: the pixels of frame i-1 the warp moves (valid depth where ``valid_prev``)."""
+    return _valid_depth(depth_prev, valid_prev)
+
+
 class Splat(NamedTuple):
     """Frame i-1's pixels moved into frame i, flattened (H W,)."""
 
@@ -228,31 +233,54 @@ def previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None) -
     return PreviousView(seen, z, landing)
 
 
-def looked_back_depth(warped, compared, depth_curr, depth_prev, valid_prev, view: PreviousView):
-    """(H, W) frame i-1's depth (0 where invalid) at the pixel each compared pixel's point lands on,
-    read only for a pixel that sees a surface more than LOOK_BACK_RATIO times nearer than the warp
-    put (``compared`` (H, W) bool); 0 elsewhere."""
-    needed = compared & (warped > LOOK_BACK_RATIO * depth_curr)
-    source = jnp.where(_valid_depth(depth_prev, valid_prev), depth_prev.astype(jnp.float32), 0.0).reshape(-1)
-    return jnp.where(needed, source[view.landing.reshape(-1)].reshape(needed.shape), 0.0)
+def source_has_gaps(source_valid, image_hw=None):
+    """bool: some pixel of frame i-1's true image (``image_hw`` (2,) within a padded (H, W)) is not
+    warped (``source_valid`` (H, W) False: invalid depth, or masked under spec). Only then can a
+    pixel of frame i land on one (``depth_at_landing``), so only then is the lookup needed."""
+    H, W = source_valid.shape
+    if image_hw is None:
+        return ~jnp.all(source_valid)
+    inside = (jnp.arange(H)[:, None] < image_hw[0]) & (jnp.arange(W)[None, :] < image_hw[1])
+    return jnp.any(inside & ~source_valid)
+
+
+def depth_at_landing(depth_prev, valid_prev, view: PreviousView):
+    """(H, W) frame i-1's depth at the pixel each of frame i's pixels lands on (``view``), 0 where
+    it is not seen or lands on a pixel frame i-1 does not warp (invalid depth or not ``valid_prev``,
+    its static mask under spec). One gather serves both of its uses: where it is 0, frame i-1 never
+    saw the surface frame i shows (a sensor's dropout, a masked object), and what the warp put on
+    the pixel is background seen past it (``depth_error_looking_back``, docs/semantics.md §3.6 step
+    4); where the warp put a surface LOOK_BACK_RATIO times farther, it is read (step 5)."""
+    source = jnp.where(source_pixels(depth_prev, valid_prev), depth_prev.astype(jnp.float32), 0.0).reshape(-1)
+    return jnp.where(view.seen, source[view.landing.reshape(-1)].reshape(view.seen.shape), 0.0)
+
+
+def looked_back_depth(warped, compared, depth_curr, at_landing):
+    """(H, W) ``depth_at_landing`` read only for a compared pixel (``compared`` (H, W) bool) that
+    sees a surface more than LOOK_BACK_RATIO times nearer than the warp put; 0 elsewhere."""
+    return jnp.where(compared & (warped > LOOK_BACK_RATIO * depth_curr), at_landing, 0.0)
 
 
 def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t,
                              image_hw=None, *, relative: bool = False):
     """The spec depth check's error (docs/semantics.md §3.6 steps 4-5) of ``warp_depth``'s output:
-    ``depth_error`` within ``seen_from_previous``, frame i-1 (``source``: its depth and valid mask,
-    (H, W) each) looked up where frame i sees a surface more than LOOK_BACK_RATIO times nearer than
-    the warp put. Only a pair holding such a pixel reads
-    frame i-1 (a gather of every pixel, about 8 % of a clip on a CPU; 3 % of FIT's pairs need it);
-    each branch computes what it needs from the inputs, so nothing of the image's size crosses it."""
+    ``depth_error`` where frame i's point lands on a pixel frame i-1 warped (``depth_at_landing``;
+    ``source``: frame i-1's depth and the mask of what it warps, (H, W) each), frame i-1 looked up
+    where frame i sees a surface more than LOOK_BACK_RATIO times nearer than the warp put. Only a
+    pair that needs it reads frame i-1 (a gather of every pixel, about 8 % of a clip on a CPU): one
+    with such a pixel (3 % of FIT's pairs) or whose frame i-1 has a pixel it does not warp
+    (``source_has_gaps``); elsewhere every seen pixel lands on one it warps. Each branch computes
+    what it needs from the inputs, so nothing of the image's size crosses it."""
     # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
-    needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr)
+    needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr) | source_has_gaps(source_pixels(*source), image_hw)
 
     def looked_back():
         view = previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
-        compared = hit & view.seen & _valid_depth(depth_curr, valid_curr) & static_curr
-        read = looked_back_depth(warped, compared, depth_curr, *source, view)
-        return depth_error(warped, hit & view.seen, depth_curr, valid_curr, static_curr, relative=relative,
+        at_landing = depth_at_landing(*source, view)
+        seen = at_landing > 0  # seen, on a pixel frame i-1 warped
+        compared = hit & seen & _valid_depth(depth_curr, valid_curr) & static_curr
+        read = looked_back_depth(warped, compared, depth_curr, at_landing)
+        return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
                            looked_back=(view.z, read))
 
     def forward_only():

@@ -20,6 +20,8 @@ from ...kernels.warp import (
     has_magnified,
     may_look_back,
     seen_from_previous,
+    source_has_gaps,
+    source_pixels,
     warp_depth,
 )
 from ..units import translation_factor
@@ -44,20 +46,22 @@ def warp_source(depth, static, previous, authors: bool):
 
 
 def warp_choices(depth, static, pairs, pair_valid, vectorized: bool):
-    """(magnified, far) () bool under spec, for a batch of pairs (``pair_depth_errors``'s frames
-    and pairs): whether any pair has a surface coming 2x nearer (the hole rule's larger squares)
-    and whether any pair's depth may span LOOK_BACK_RATIO between frames (the look back into frame
-    i-1). A padded pair (``pair_valid`` False) is no part of either: the last frame warped by a
-    padded frame's camera could ask for both, and each costs every pair of the batch."""
+    """(magnified, reads_previous) () bool under spec, for a batch of pairs (``pair_depth_errors``'s
+    frames and pairs): whether any pair has a surface coming 2x nearer (the hole rule's larger
+    squares) and whether any pair must read frame i-1 at each pixel's landing: its depth may span
+    LOOK_BACK_RATIO between frames (the look back), or frame i-1 has pixels it does not warp
+    (``source_has_gaps``). A padded pair (``pair_valid`` False) is no part of either: the last frame
+    warped by a padded frame's camera could ask for both, and each costs every pair of the batch."""
     def needs(pair_valid):
         pair, valid = pair_valid
         source = warp_source(depth, static, pair[0], authors=False)
         depth_curr = pair_frames(depth, static, pair[0])[2]
-        return (valid & has_magnified(*source, *pair[1:5]),
-                valid & may_look_back(*source, depth_curr, depth_curr > 0, *pair[1:5]))
+        reads = may_look_back(*source, depth_curr, depth_curr > 0, *pair[1:5]) | source_has_gaps(
+            source_pixels(*source), pair[5])
+        return valid & has_magnified(*source, *pair[1:5]), valid & reads
 
-    magnified, far = each(needs, (pairs, pair_valid), vectorized)
-    return jnp.any(magnified), jnp.any(far)
+    magnified, reads_previous = each(needs, (pairs, pair_valid), vectorized)
+    return jnp.any(magnified), jnp.any(reads_previous)
 
 
 def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage: FinishStage):
@@ -65,8 +69,9 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     (F,) int32 (frame i is the next), the pairs' (F, ...) cameras and true sizes, and which pairs
     are the clip's, not padding (F,) bool -> depth errors (F,): under spec the static valid pixels
     of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see
-    (``seen_from_previous`` within the true size ``image_hw`` (F, 2)), looked up in frame i-1
-    where the warp put a surface 10x farther (``depth_error_looking_back``); under authors every
+    (``seen_from_previous`` within the true size ``image_hw`` (F, 2)) on a pixel it warped,
+    looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
+    under authors every
     valid one (depth units). One pair at a time on CPU, for the unbatched z-buffer scatter."""
     authors = stage.compat == "authors"
     pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
@@ -99,9 +104,9 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     if authors:
         errors = errors_of(warps(False), look_back=False)
     else:
-        magnified, far = warp_choices(depth, static, pairs, pair_valid, stage.vectorized)
+        magnified, reads_previous = warp_choices(depth, static, pairs, pair_valid, stage.vectorized)
         warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
-        errors = jax.lax.cond(far, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
+        errors = jax.lax.cond(reads_previous, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
     return errors * translation_factor(stage)
 
 

@@ -22,7 +22,7 @@ from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
-from ...kernels.warp import has_magnified, looked_back_depth, previous_view, warp_sources
+from ...kernels.warp import depth_at_landing, has_magnified, looked_back_depth, previous_view, warp_sources
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
@@ -167,12 +167,13 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     view = jax.vmap(previous_view, in_axes=(0, 0, 0, 0, 0, 0, None))(
         fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g, frozen.scale * frozen.t_g,
         fixed.image_hw)
-    hit = hit & view.seen
+    at_landing = jax.vmap(depth_at_landing)(*frames[:2], view)
+    hit = hit & (at_landing > 0)  # seen, on a pixel frame i-1 warped
     # where the forward pass looked frame i-1 up (``looked_back_depth``) is held too
     warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_g, frozen.scale * frozen.t_g,
                                          source).reshape(hit.shape)
     compared = hit & (fixed.depth[1:] > 0) & fixed.static[1:]
-    read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], *frames[:2], view) > 0
+    read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], at_landing) > 0
     errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_g, t_scaled,
                                              source, hit, fixed.static[1:], view.landing, read)
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
