@@ -3,6 +3,7 @@
     python bench/stage_times.py [--clips 6] [--repeat 3] [--corpus /tmp/sgc-stream-corpus]
     PYTHONPATH=<another checkout> python bench/stage_times.py     # checkouts from c50b066 on
     python bench/stage_times.py --shape 81 480 832 4096 --clips 2  # another clip size (T H W P)
+    python bench/stage_times.py --moving-objects 2  # standard clips with masked moving objects
 
 Scores --clips standard clips (bench/stream.py's corpus, written where missing) --repeat times,
 each stage called on its own and waited for, and prints each stage's median over the warm calls
@@ -30,6 +31,8 @@ def main() -> None:
     parser.add_argument("--corpus", type=Path, default=Path("/tmp/sgc-stream-corpus"))
     parser.add_argument("--shape", type=int, nargs=4, metavar=("T", "H", "W", "P"),
                         help="clips of this size instead of standard ones, in a folder of --corpus's name and the size")
+    parser.add_argument("--moving-objects", type=int, default=0,
+                        help="this many masked moving objects in each clip (a folder of --corpus's name and -moversN)")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
@@ -49,6 +52,9 @@ def main() -> None:
         T, H, W, P = args.shape
         scene = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P)
         corpus = corpus.with_name(f"{corpus.name}-{T}x{H}x{W}x{P}")
+    if args.moving_objects:
+        scene = dict(scene, moving_objects=args.moving_objects)
+        corpus = corpus.with_name(f"{corpus.name}-movers{args.moving_objects}")
     prepared = [prepare_clip(clip, config) for clip in load_clips(write_corpus(corpus, args.clips, scene))]
     names = ("pixel", "pose", "finish")
     times: dict[str, list[float]] = {name: [] for name in names}
@@ -67,7 +73,7 @@ def main() -> None:
     medians = {stage: statistics.median(t) * 1000 for stage, t in times.items()}
     cpu_medians = {stage: statistics.median(t) * 1000 for stage, t in cpu.items()}
     print(f"{Path(sgc_jax.__file__).parent.parent}, clips of T={scene['n_frames']}, {scene['height']}x{scene['width']}, "
-          f"{scene['n_tracks']} tracks: "
+          f"{scene['n_tracks']} tracks, {scene.get('moving_objects', 0)} masked moving objects: "
           + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in medians.items())
           + f"; a clip {sum(medians.values()):.0f} ms ({len(times['pixel'])} warm calls per stage)")
     print(f"  {host_cpu()}; CPU time (all threads): " + ", ".join(f"{stage} {ms:.0f} ms" for stage, ms in cpu_medians.items())
