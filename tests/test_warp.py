@@ -341,7 +341,8 @@ def test_a_surface_entering_the_view_is_not_compared_with_what_it_covers(engine)
 def square_frame_i_minus_1_did_not_warp(gap: str):
     """A wall at depth 8 and a square at depth 2 in both frames, the camera moved 0.4 to the right
     (the square shifts 12 px, the wall 3 px); frame 0 does not warp the square: its depth there is
-    invalid (``gap`` "invalid_depth", a sensor's dropout) or masked as a moving object ("mask") -> a two-frame Clip."""
+    invalid (``gap`` "invalid_depth", a sensor's dropout) or masked as a moving object ("mask")
+    -> a two-frame Clip."""
     f = 60.0
     Kc = np.array([[f, 0.0, 15.5], [0.0, f, 11.5], [0.0, 0.0, 1.0]])
     depth = np.full((2, H, W), 8.0, np.float32)

@@ -267,10 +267,10 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
     ``depth_error`` where frame i's point lands on a pixel frame i-1 warped (``depth_at_landing``;
     ``source``: frame i-1's depth and the mask of what it warps, (H, W) each), frame i-1 looked up
     where frame i sees a surface more than LOOK_BACK_RATIO times nearer than the warp put. Only a
-    pair that needs it reads frame i-1 (a gather of every pixel, about 8 % of a clip on a CPU): one
-    with such a pixel (3 % of FIT's pairs) or whose frame i-1 has a pixel it does not warp
-    (``source_has_gaps``); elsewhere every seen pixel lands on one it warps. Each branch computes
-    what it needs from the inputs, so nothing of the image's size crosses it."""
+    pair that needs it reads frame i-1 (a gather of every pixel): one with such a pixel, or whose
+    frame i-1 has a pixel it does not warp (``source_has_gaps``); elsewhere every seen pixel lands
+    on one it warps. Each branch computes what it needs from the inputs, so nothing of the image's
+    size crosses it."""
     # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
     needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr) | source_has_gaps(source_pixels(*source), image_hw)
 

@@ -71,8 +71,8 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see
     (``seen_from_previous`` within the true size ``image_hw`` (F, 2)) on a pixel it warped,
     looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
-    under authors every
-    valid one (depth units). One pair at a time on CPU, for the unbatched z-buffer scatter."""
+    under authors every valid one (depth units). One pair at a time on CPU, for the unbatched
+    z-buffer scatter."""
     authors = stage.compat == "authors"
     pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
 
