@@ -50,6 +50,12 @@ def vggt_K(clip):
     return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
 
 
+def camera_to_world(clip):
+    """The clip's poses as a camera->world file holds them (R_cw = R_wc^T, the camera centre)."""
+    R = np.swapaxes(clip.R_wc, 1, 2)
+    return {"R_wc": R, "t_wc": -np.einsum("tij,tj->ti", R, clip.t_wc)}
+
+
 # (changes to the clip, severity, code, array, words the line must contain)
 CASES = {
     "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
@@ -69,6 +75,8 @@ CASES = {
     "disparity stored as depth": (lambda c: {"depth": np.where(c.depth > 0, 1.0 / c.depth, 0.0).astype(np.float32)},
                                   "warning", "depth_like_disparity", "depth",
                                   ["larger values move more", "--depth-kind disparity"]),
+    "camera->world poses": (lambda c: camera_to_world(c), "warning", "camera_to_world_poses", "R_wc/t_wc",
+                            ["read as camera->world", "R_wc = R^T, t_wc = -R^T t"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }
