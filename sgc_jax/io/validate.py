@@ -167,6 +167,11 @@ def check_poses(clip: Clip) -> list[Problem]:
     return []
 
 
+def _outside(x: np.ndarray, y: np.ndarray, H: int, W: int) -> np.ndarray:
+    """Positions (x, y) beyond TRACK_MARGIN_PX of an H x W image."""
+    return (x < -TRACK_MARGIN_PX) | (x > W - 1 + TRACK_MARGIN_PX) | (y < -TRACK_MARGIN_PX) | (y > H - 1 + TRACK_MARGIN_PX)
+
+
 def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Visible track positions against the grid, their extent, and usable tracks per pair."""
     H, W = clip.image_size
@@ -177,11 +182,11 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
         visible &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
     n_points = 2 * int(visible.sum())
     if n_points:
-        n_out, x_max, y_max = 0, -np.inf, -np.inf
+        n_out, n_out_swapped, x_max, y_max = 0, 0, -np.inf, -np.inf
         for track in (clip.track_prev, clip.track_curr):
             x, y = track[..., 0], track[..., 1]
-            out = (x < -TRACK_MARGIN_PX) | (x > W - 1 + TRACK_MARGIN_PX) | (y < -TRACK_MARGIN_PX) | (y > H - 1 + TRACK_MARGIN_PX)
-            n_out += int((out & visible).sum())
+            n_out += int((_outside(x, y, H, W) & visible).sum())
+            n_out_swapped += int((_outside(y, x, H, W) & visible).sum())
             x_max = max(x_max, float(np.max(x, where=visible, initial=-np.inf)))
             y_max = max(y_max, float(np.max(y, where=visible, initial=-np.inf)))
         frac = n_out / n_points
@@ -191,6 +196,9 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                    f"{H}x{W} (`sgc-jax import --track-size HxW`)" if severity == "error" else
                    "positions outside the image are usually tracks marked visible after leaving the frame: "
                    "check the visibility threshold")
+            if n_out_swapped / n_points <= TRACKS_OUTSIDE_WARN:
+                fix = ("read as (y, x) the positions fit the image: store each position as (x, y) = (column, row) "
+                       "(docs/semantics.md §1.1)")
             if severity == "warning" and _is_reference_compat(clip):
                 severity, fix = "info", "deliberate: reference-compat does not threshold DELTA visibility"
             problems.append(Problem(severity, "tracks_outside", "track_prev/track_curr",
@@ -360,10 +368,10 @@ def check_pose_convention(clip: Clip, config: SGCConfig) -> tuple[list[Problem],
         "these look like camera->world poses: invert them (R_wc = R^T, t_wc = -R^T t)")], True
 
 
-def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False) -> list[Problem]:
-    """Valid depth per frame, its range, and whether it behaves like depth or like disparity (the
-    camera rotation read as ``relative_pose`` reads it: a rotation read the wrong way round leaves
-    a motion that can look like disparity's)."""
+def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tracks: bool = True) -> list[Problem]:
+    """Valid depth per frame, its range, and (``read_tracks``) whether it behaves like depth or like
+    disparity (the camera rotation read as ``relative_pose`` reads it: a rotation read the wrong way
+    round leaves a motion that can look like disparity's)."""
     problems = []
     T = clip.n_frames
     sample = clip.depth[:, ::4, ::4]  # depth statistics on a strided sample keep loading fast
@@ -379,7 +387,7 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False) -> list
         problems.append(Problem("info", "depth_range", "depth", "",
                                 f"median {mid:.4g}, 2-98% range [{lo:.4g}, {hi:.4g}], "
                                 f"{100 * valid_count.sum() / sample.size:.0f}% of pixels valid"))
-    rho = depth_parallax_rho(clip, config, transposed)
+    rho = depth_parallax_rho(clip, config, transposed) if read_tracks else float("nan")
     if np.isfinite(rho) and rho > DISPARITY_RHO_WARN:
         compat = _is_reference_compat(clip)
         problems.append(Problem(
@@ -414,11 +422,14 @@ def check_mask(clip: Clip) -> list[Problem]:
 def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> list[Problem]:
     """Every content check of one clip, errors first; ``arrays``: the stored arrays, for dtype checks."""
     config = config or SGCConfig()
-    poses = check_poses(clip)
-    # a reference-compat clip's K and depth are deliberately off (VGGT's grid, VDA / 1000): no test of its poses
-    convention, transposed = ([], False) if poses or _is_reference_compat(clip) else check_pose_convention(clip, config)
-    problems = (check_intrinsics(clip) + poses + convention + check_tracks(clip, config)
-                + check_depth(clip, config, transposed) + check_mask(clip))
+    poses, tracks = check_poses(clip), check_tracks(clip, config)
+    # the pose and depth tests read the tracks' motion: not where the tracks do not fit the image, nor
+    # for a reference-compat clip, whose K and depth are deliberately off (VGGT's grid, VDA / 1000)
+    tracks_fit = not any(p.code == "tracks_outside" and p.severity != "info" for p in tracks)
+    test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
+    convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
+    problems = (check_intrinsics(clip) + poses + convention + tracks
+                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_mask(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
