@@ -3,7 +3,8 @@ layouts, sizes, frame counts, camera motions and fields of view, each scene draw
 cell. A probe beside the protocol's six TEST scenes, for what they do not sample.
 
     python bench/unseen_scenes.py [--scenes 24] [--first 0] [--tracks 1000] [--fovs 60]
-                                  [--depth-scale-rms 0.02] [--models correlated depth outliers]
+                                  [--depth-scale-rms 0.02] [--camera-rot-deg 0.1 0.3]
+                                  [--camera-step-rel 0.1] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--out rows.csv]
                                   [--rows rows.csv] [--against other.csv]
 
@@ -16,7 +17,10 @@ frame, orbit or forward, the field of view from ``--fovs``. Noise cells: indepen
 track errors at frame i only and at both ends, 0.5 and 2 px (research.noise); with
 ``--depth-scale-rms r`` also iid-both 0.5 px with each frame's depth multiplied by exp(r N(0, 1))
 (``NoiseModel.depth_scale_rel``), a per-frame scale error such as monocular depth estimated frame
-by frame leaves; with ``--models`` also those protocol noise models
+by frame leaves; with ``--camera-rot-deg a ...`` / ``--camera-step-rel b ...`` also iid-both 0.5 px
+with each camera turned about its centre by a rotation of RMS a degrees per axis / its centre moved
+by b median camera steps per axis, independently per frame (``NoiseModel.camera_rot_deg``,
+``camera_step_rel``: a pose estimator's errors, which the score takes as exact); with ``--models`` also those protocol noise models
 (correlated track errors, depth noise, outliers; research.noise) at 0.5 and 2 px.
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
@@ -42,8 +46,11 @@ from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scene, read_rows, rows_scored_or_read
 
-# model, px, depth scale; a cell's noise seed is scene seed * 10 + its index here (the depth-scale cell: 4)
-CELLS = (("iid-curr", 0.5, 0.0), ("iid-both", 0.5, 0.0), ("iid-curr", 2.0, 0.0), ("iid-both", 2.0, 0.0))
+# model, px, depth scale, camera rotation [deg], camera centre [steps]; a cell's noise seed is scene
+# seed * 10 + its index among these and the --depth-scale-rms and camera cells (the depth-scale cell: 4)
+CELLS = tuple((model, px, 0.0, 0.0, 0.0) for model, px in (("iid-curr", 0.5), ("iid-both", 0.5), ("iid-curr", 2.0),
+                                                             ("iid-both", 2.0)))
+ROW_CELL = ("model", "noise_px", "depth_scale_rms", "camera_rot_deg", "camera_step_rel")
 EXTRA_LEVELS_PX = (0.5, 2.0)
 CALM = 0.10  # issue 58's bar for a single consistent clip
 THRESHOLDS = (0.05, 0.1, 0.2)
@@ -57,6 +64,10 @@ def main() -> None:
     parser.add_argument("--fovs", type=float, nargs="+", default=[60.0], help="fields of view to draw from [deg]")
     parser.add_argument("--depth-scale-rms", type=float, default=0.0,
                         help="also a cell with a per-frame depth scale error of this relative RMS")
+    parser.add_argument("--camera-rot-deg", type=float, nargs="+", default=[],
+                        help="also cells with each camera turned by a rotation of this RMS per axis [deg]")
+    parser.add_argument("--camera-step-rel", type=float, nargs="+", default=[],
+                        help="also cells with each camera centre moved by this RMS per axis [median camera steps]")
     parser.add_argument("--models", nargs="+", default=[], choices=sorted(set(NOISE_MODELS) - {"iid-curr", "iid-both"}),
                         help="also these noise models (research.noise) at 0.5 and 2 px")
     parser.add_argument("--perturb", type=float, default=0.0,
@@ -68,21 +79,23 @@ def main() -> None:
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
                                           "per cell, clips above 0.10 and detections there -> here")
     args = parser.parse_args()
-    cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms),) if args.depth_scale_rms > 0 else ())
+    cells = CELLS + ((("iid-both", 0.5, args.depth_scale_rms, 0.0, 0.0),) if args.depth_scale_rms > 0 else ())
+    cells += tuple(("iid-both", 0.5, 0.0, rot, 0.0) for rot in args.camera_rot_deg)
+    cells += tuple(("iid-both", 0.5, 0.0, 0.0, step) for step in args.camera_step_rel)
     builtin = len(cells)
-    cells += tuple((model, px, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
+    cells += tuple((model, px, 0.0, 0.0, 0.0) for model in args.models for px in EXTRA_LEVELS_PX)
     rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, cells, builtin), ROW_TEXT, ROW_INTEGERS)
-    cells = tuple(dict.fromkeys((r["model"], r["noise_px"], r["depth_scale_rms"]) for r in rows))  # as scored or read
+    cells = tuple(dict.fromkeys(cell_of(r) for r in rows))  # as scored or read
     pool = next(name for name, seeds in RANDOM_POOLS.items() if rows[0]["seed"] in seeds)
     print(f"{len({r['scene'] for r in rows})} scenes of the {pool} pool, {sorted({r['tracks'] for r in rows})} tracks, "
           f"fields of view {sorted({r['fov_deg'] for r in rows})}\n")
     print("| noise | clips above 0.10 | largest | median | statuses |")
     print("|---|---|---|---|---|")
-    for model, px, scale in cells:
-        cell = consistent(rows, (model, px, scale))
+    for noise in cells:
+        cell = consistent(rows, noise)
         sgc = np.array([r["sgc"] for r in cell])
         statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
-        print(f"| {cell_label(model, px, scale)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
+        print(f"| {cell_label(*noise)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
               f"{np.nanmedian(sgc):.3f} | {statuses} |")
     severity = args.perturb if args.perturb > 0 else max(r["severity"] for r in rows)
     if severity > 0:
@@ -106,13 +119,11 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
         clean = scene.clip(args.tracks)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
-        jobs = [(j, kind, severity, add_noise(exact, NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale),
-                                              seed=noise_seed(seed, j, builtin)))
-                for j, (model, px, scale) in enumerate(cells) for kind, severity, exact in variants]
+        jobs = [(j, kind, severity, add_noise(exact, NOISE_MODELS[model].replace(
+                    px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step), seed=noise_seed(seed, j, builtin)))
+                for j, (model, px, scale, rot, step) in enumerate(cells) for kind, severity, exact in variants]
         for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
-            model, px, scale = cells[j]
-            rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, model=model, noise_px=px,
-                             depth_scale_rms=scale, kind=kind, severity=severity, status=scored.status,
+            rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind, severity=severity, status=scored.status,
                              reason=scored.reason, sgc=scored.sgc, sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi,
                              evidence=scored.evidence, scale=scored.scale, **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
@@ -121,15 +132,20 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
     return rows
 
 
+def cell_of(row: dict) -> tuple:
+    """A row's noise cell, ROW_CELL's values (rows written before the camera cells: none)."""
+    return tuple(row.get(column, 0.0) for column in ROW_CELL)
+
+
 def consistent(rows: list[dict], cell) -> list[dict]:
-    """The consistent clips of a noise cell (model, px, depth scale)."""
-    return [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"], r["kind"]) == (*cell, "")]
+    """The consistent clips of a noise cell (ROW_CELL's values)."""
+    return [r for r in rows if cell_of(r) == cell and r["kind"] == ""]
 
 
 def detections(rows: list[dict], cell, severity: float) -> tuple[dict[str, int], int]:
     """(per perturbation, the scenes of a noise cell where it scores above its consistent twin; the
     cell's scenes)."""
-    keyed = [dict(r, cell=r["scene"]) for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == cell]
+    keyed = [dict(r, cell=r["scene"]) for r in rows if cell_of(r) == cell]
     scenes = len({r["scene"] for r in keyed})
     shares = detection_table(keyed)
     return {kind: round(shares.get((kind, severity), 0.0) * scenes) for kind in PERTURBATIONS}, scenes
@@ -165,8 +181,9 @@ def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
     return scene_seed * 10 + cell if cell < builtin else scene_seed * 100 + 10 + cell - builtin
 
 
-def cell_label(model: str, px: float, scale: float) -> str:
-    return f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+def cell_label(model: str, px: float, scale: float, rot: float = 0.0, step: float = 0.0) -> str:
+    return (f"{model} {px} px" + (f", depth scale {scale:.0%} a frame" if scale else "")
+            + (f", cameras turned {rot} deg" if rot else "") + (f", camera centres moved {step} steps" if step else ""))
 
 
 def print_thresholds(rows: list[dict], cells, severity: float) -> None:
@@ -176,7 +193,7 @@ def print_thresholds(rows: list[dict], cells, severity: float) -> None:
     print("| noise | " + " | ".join(f"sgc > {t}" for t in THRESHOLDS) + " | " + " | ".join(f"sgc_lo > {t}" for t in THRESHOLDS) + " |")
     print("|---|" + "---|" * (2 * len(THRESHOLDS)))
     for cell in cells:
-        of_cell = [r for r in rows if (r["model"], r["noise_px"], r["depth_scale_rms"]) == cell]
+        of_cell = [r for r in rows if cell_of(r) == cell]
         groups = [[r for r in of_cell if r["kind"] == kind and r["severity"] in (0.0, severity)] for kind in ("", *PERTURBATIONS)]
         shares = [" / ".join(f"{np.mean([r[column] > t for r in group]):.0%}" for group in groups)
                   for column in ("sgc", "sgc_lo") for t in THRESHOLDS]

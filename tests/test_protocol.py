@@ -48,7 +48,7 @@ def rms(values: np.ndarray) -> float:
 
 def test_the_zero_model_changes_no_array(exact_clip):
     noisy = add_noise(exact_clip, NoiseModel(), seed=1)
-    for name in ("track_prev", "track_curr", "track_vis", "depth"):
+    for name in ("track_prev", "track_curr", "track_vis", "depth", "R_wc", "t_wc"):
         np.testing.assert_array_equal(getattr(noisy, name), getattr(exact_clip, name))
 
 
@@ -133,6 +133,33 @@ def test_a_depth_scale_error_scales_each_frame_by_one_factor(exact_clip):
                                rtol=1e-6)  # float32 depth
     assert np.ptp(per_frame) > 0.005 and np.all(np.abs(np.log(per_frame)) < 0.1)
     np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
+
+
+def camera_centres(clip) -> np.ndarray:
+    return -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)
+
+
+def test_a_camera_rotation_error_turns_each_camera_about_its_centre(exact_clip):
+    noisy = add_noise(exact_clip, NoiseModel(camera_rot_deg=0.5), seed=5)
+    np.testing.assert_allclose(camera_centres(noisy), camera_centres(exact_clip), atol=1e-9)
+    turns = np.einsum("tij,tkj->tik", noisy.R_wc, exact_clip.R_wc)  # R_noisy R_exactᵀ
+    angles = np.degrees(np.arccos(np.clip((np.trace(turns, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    # |rotation vector| of RMS 0.5 deg per axis: a chi distribution with 3 degrees of freedom times 0.5
+    assert np.all(angles > 0) and np.all(angles < 0.5 * 5)
+    np.testing.assert_allclose(np.einsum("tij,tkj->tik", noisy.R_wc, noisy.R_wc), np.broadcast_to(np.eye(3), turns.shape),
+                               atol=1e-12)
+    np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
+    np.testing.assert_array_equal(noisy.depth, exact_clip.depth)
+
+
+def test_a_camera_centre_error_is_in_median_camera_steps(exact_clip):
+    noisy = add_noise(exact_clip, NoiseModel(camera_step_rel=0.5), seed=6)
+    np.testing.assert_allclose(noisy.R_wc, exact_clip.R_wc, atol=0)
+    centres = camera_centres(exact_clip)
+    step = np.median(np.linalg.norm(np.diff(centres, axis=0), axis=1))
+    moved = np.linalg.norm(camera_centres(noisy) - centres, axis=1) / step
+    # 3 axes of RMS 0.5 steps: each centre moves 0.87 steps RMS; four frames' RMS lies within a factor 2
+    assert 0.5 * 0.87 < rms(moved) < 2 * 0.87
 
 
 def test_test_split_shares_no_seed_with_the_fit_split():

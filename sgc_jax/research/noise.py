@@ -20,6 +20,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
   two sides, as monocular estimators smear edges ("flying pixels").
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
+- Camera errors, as a pose estimator's (VGGT's) per frame, independent between frames: each
+  camera turned about its centre by a rotation vector of RMS ``camera_rot_deg`` per axis, and its
+  centre moved by ``camera_step_rel`` times the clip's median step between camera centres per axis.
 
 Every draw is from ``numpy.random.default_rng((NOISE_SEED, seed, stream))``: the same clip, model
 and seed give the same arrays, and the track and depth draws are independent streams.
@@ -38,7 +41,7 @@ from ..io.clip import Clip
 NOISE_SEED = 58_000  # the streams of this module, apart from research.synth's and the perturbations'
 DEPTH_CORRELATION_PX = 32.0  # correlation length of the smooth depth error field
 DEPTH_EDGE_JUMP = 0.05  # relative depth jump between neighbouring pixels that makes an edge
-_TRACK_STREAM, _DEPTH_STREAM = 1, 2
+_TRACK_STREAM, _DEPTH_STREAM, _CAMERA_STREAM = 1, 2, 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +56,8 @@ class NoiseModel:
     depth_rel: float = 0.0  # relative RMS of the smooth multiplicative depth error
     depth_edge_px: int = 0  # pixels on each side of a depth edge blended across it
     depth_scale_rel: float = 0.0  # relative RMS of one depth scale factor per frame
+    camera_rot_deg: float = 0.0  # RMS per axis of each camera's rotation error [deg]
+    camera_step_rel: float = 0.0  # RMS per axis of each camera centre's error [median camera steps]
 
     def __post_init__(self) -> None:
         checks = {
@@ -64,6 +69,8 @@ class NoiseModel:
             "0 <= depth_rel < 0.5": 0 <= self.depth_rel < 0.5,
             "depth_edge_px >= 0": self.depth_edge_px >= 0,
             "0 <= depth_scale_rel < 0.5": 0 <= self.depth_scale_rel < 0.5,
+            "camera_rot_deg >= 0": self.camera_rot_deg >= 0,
+            "camera_step_rel >= 0": self.camera_step_rel >= 0,
         }
         failed = [rule for rule, ok in checks.items() if not ok]
         if failed:
@@ -157,11 +164,26 @@ def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) 
     return out.astype(np.float32)
 
 
+def noisy_cameras(model: NoiseModel, R_wc: np.ndarray, t_wc: np.ndarray,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(R_wc, t_wc) world->camera with the model's camera errors (module docstring), float64: each
+    camera rotated about its centre c = −Rᵀt, then its centre moved."""
+    T = R_wc.shape[0]
+    centres = -np.einsum("tji,tj->ti", R_wc, t_wc)
+    turns = np.stack([cv2.Rodrigues(v)[0] for v in np.deg2rad(model.camera_rot_deg) * rng.standard_normal((T, 3))])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    step = float(np.median(steps)) if steps.size else 0.0
+    centres = centres + model.camera_step_rel * step * rng.standard_normal((T, 3))
+    R = turns @ R_wc
+    return R, -np.einsum("tij,tj->ti", R, centres)
+
+
 def add_noise(clip: Clip, model: NoiseModel, seed: int = 0) -> Clip:
     """The clip with one seeded draw of the model's errors (module docstring); its id gets a
     ``-noise<seed>`` suffix. Identity for the zero model."""
     rng_tracks = np.random.default_rng((NOISE_SEED, seed, _TRACK_STREAM))
     rng_depth = np.random.default_rng((NOISE_SEED, seed, _DEPTH_STREAM))
+    rng_camera = np.random.default_rng((NOISE_SEED, seed, _CAMERA_STREAM))
     H, W = clip.image_size
     prev = clip.track_prev.astype(np.float64)
     curr = clip.track_curr.astype(np.float64)
@@ -180,5 +202,8 @@ def add_noise(clip: Clip, model: NoiseModel, seed: int = 0) -> Clip:
     depth = clip.depth
     if model.depth_rel > 0 or model.depth_edge_px > 0 or model.depth_scale_rel > 0:
         depth = noisy_depth(model, clip.depth, rng_depth)
+    R_wc, t_wc = clip.R_wc, clip.t_wc
+    if model.camera_rot_deg > 0 or model.camera_step_rel > 0:
+        R_wc, t_wc = noisy_cameras(model, clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64), rng_camera)
     return dataclasses.replace(clip, track_prev=prev.astype(np.float32), track_curr=curr.astype(np.float32),
-                               track_vis=vis, depth=depth, clip_id=f"{clip.clip_id}-noise{seed}")
+                               track_vis=vis, depth=depth, R_wc=R_wc, t_wc=t_wc, clip_id=f"{clip.clip_id}-noise{seed}")
