@@ -20,8 +20,9 @@ track errors at frame i only and at both ends, 0.5 and 2 px (research.noise); wi
 by frame leaves; with ``--camera-rot-deg a ...`` / ``--camera-step-rel b ...`` also iid-both 0.5 px
 with each camera turned about its centre by a rotation of RMS a degrees per axis / its centre moved
 by b median camera steps per axis, independently per frame (``NoiseModel.camera_rot_deg``,
-``camera_step_rel``: a pose estimator's errors, which the score takes as exact); with ``--models`` also those protocol noise models
-(correlated track errors, depth noise, outliers; research.noise) at 0.5 and 2 px.
+``camera_step_rel``: a pose estimator's errors, which the score takes as exact); with ``--models``
+also those protocol noise models (correlated track errors, depth noise, outliers; research.noise)
+at 0.5 and 2 px.
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -119,13 +120,15 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
         clean = scene.clip(args.tracks)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
-        jobs = [(j, kind, severity, add_noise(exact, NOISE_MODELS[model].replace(
-                    px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step), seed=noise_seed(seed, j, builtin)))
-                for j, (model, px, scale, rot, step) in enumerate(cells) for kind, severity, exact in variants]
+        models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
+                  for model, px, scale, rot, step in cells]
+        jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin)))
+                for j, noise in enumerate(models) for kind, severity, exact in variants]
         for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
-            rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind, severity=severity, status=scored.status,
-                             reason=scored.reason, sgc=scored.sgc, sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi,
-                             evidence=scored.evidence, scale=scored.scale, **scored.components))
+            rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind,
+                             severity=severity, status=scored.status, reason=scored.reason, sgc=scored.sgc,
+                             sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
+                             **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)

@@ -146,8 +146,8 @@ def test_a_camera_rotation_error_turns_each_camera_about_its_centre(exact_clip):
     angles = np.degrees(np.arccos(np.clip((np.trace(turns, axis1=1, axis2=2) - 1) / 2, -1, 1)))
     # |rotation vector| of RMS 0.5 deg per axis: a chi distribution with 3 degrees of freedom times 0.5
     assert np.all(angles > 0) and np.all(angles < 0.5 * 5)
-    np.testing.assert_allclose(np.einsum("tij,tkj->tik", noisy.R_wc, noisy.R_wc), np.broadcast_to(np.eye(3), turns.shape),
-                               atol=1e-12)
+    orthonormal = np.einsum("tij,tkj->tik", noisy.R_wc, noisy.R_wc)
+    np.testing.assert_allclose(orthonormal, np.broadcast_to(np.eye(3), turns.shape), atol=1e-12)
     np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
     np.testing.assert_array_equal(noisy.depth, exact_clip.depth)
 
