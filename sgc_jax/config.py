@@ -32,6 +32,18 @@ MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 # beyond 900 %, which near the camera has no bound), the depth check also looks the pixel up in frame
 # i-1 and keeps the lesser error (docs/semantics.md §3.6 step 5; 3 % of FIT's pairs hold such a pixel).
 LOOK_BACK_RATIO = 10.0
+# Where the camera's pose reprojects a pair's region points (median error, cut at inlier_px) worse
+# than this many times its refit to those points does, the refit also warps the depth check and the
+# lesser error counts (docs/semantics.md §3.6 step 6). With exact cameras the ratio sits at 1.00 (median
+# of FIT's pool); a camera turned 0.3 deg per frame reads 1.76, one moved a tenth of a step 1.36.
+CAMERA_REFIT_RATIO = 1.25
+# The refit and its gate use at most this many of a pair's region points, every n-th in track order:
+# on all 4,096 of a standard clip's, a local optimum as the refit cost a warm clip 15 %
+# (bench/history/issue-58.md, "The camera refitted to the tracks").
+REFIT_POINTS = 512
+# Gauss-Newton updates of that refit from the camera's pose (undamped, as a minimal sample's): it
+# starts within a few pixels of its optimum; a local optimum's loop cost a warm clip 6 %.
+REFIT_UPDATES = 3
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5

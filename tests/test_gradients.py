@@ -16,6 +16,7 @@ from sgc_jax.engines.jax_engine.smooth_stage import smooth_components, smooth_st
 from sgc_jax.io.tables import FLOOR_COLUMNS
 from sgc_jax.kernels.implicit_pose import least_squares_pose
 from sgc_jax.kernels.so3 import so3_exp
+from sgc_jax.research.noise import NoiseModel, add_noise
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import Scorer, batch_of
@@ -51,8 +52,15 @@ def scorer():
 
 @pytest.fixture(scope="module")
 def batch():
+    """A clip whose cameras err (0.3 deg per frame), so that its depth checks warp with the camera's
+    refit to the tracks (§3.6 step 6), and a depth_warp of it with exact cameras."""
     clean = gradient_clip(3)
-    return batch_of([clean, perturb_clip(clean, "depth_warp", 0.5)])
+    return batch_of([add_noise(clean, NoiseModel(camera_rot_deg=0.3), seed=3), perturb_clip(clean, "depth_warp", 0.5)])
+
+
+def test_the_batch_warps_depth_with_the_camera_and_with_its_refit(scorer, batch):
+    by_refit = np.asarray(scorer.choices(batch).depth_by_refit)
+    assert by_refit[0].any() and not by_refit[1].any()
 
 
 def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):

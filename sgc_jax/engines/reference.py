@@ -20,7 +20,17 @@ import cv2
 import numpy as np
 
 from ..codes import EXCLUDED_STATUSES, REGION_STATUS
-from ..config import BLOCKS_PER_AXIS, HOLE_DEPTH_MARGIN, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX, NOISE_BLOCK_FRAC, SGCConfig
+from ..config import (
+    BLOCKS_PER_AXIS,
+    CAMERA_REFIT_RATIO,
+    HOLE_DEPTH_MARGIN,
+    LOOK_BACK_RATIO,
+    MAX_HOLE_REACH_PX,
+    NOISE_BLOCK_FRAC,
+    REFIT_POINTS,
+    REFIT_UPDATES,
+    SGCConfig,
+)
 from ..io.clip import Clip
 from ..stats import cut_variance_factor, trimmed
 from . import reference_pose as reference_pose_search
@@ -611,6 +621,30 @@ def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
     return np.where(clip.static_mask[pair - 1], depth, 0.0)
 
 
+def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
+                 cut_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The camera's pose (R, t) refitted to the points X (n, 3) of the pair's regions, seen at uv
+    (n, 2): REFIT_UPDATES undamped Gauss-Newton updates from it on the points within ``cut_px`` of
+    it, returned where the camera's median of min(error, ``cut_px``) px exceeds CAMERA_REFIT_RATIO
+    times the refit's; None elsewhere (docs/semantics.md §3.6 step 6). All on every
+    ceil(n / REFIT_POINTS)-th point."""
+    stride = max(-(-len(X) // REFIT_POINTS), 1)  # every n-th point, at most REFIT_POINTS of them
+    X, uv = X[::stride], uv[::stride]
+    start = reference_pose_search.Pose(*camera)
+    within = reference_pose_search.pose_errors_sq(start, X, uv, K) < cut_px**2
+    if within.sum() < 6:
+        return None
+    R, t = camera
+    for _ in range(REFIT_UPDATES):
+        r, J = reference_pose_search.residual_jacobian(X[within], uv[within], K, R, t)
+        delta = -np.linalg.solve(J.T @ J, J.T @ r)
+        R, t = cv2.Rodrigues(delta[:3])[0] @ R, t + delta[3:]  # the perturbation exp([w]) R X + t + dt
+    refit = reference_pose_search.Pose(R, t)
+    medians = [np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
+               for pose in (start, refit)]
+    return (R, t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
+
+
 def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:
     """(warped depth (H, W), the pair's depth error): frame pair-1 warped into frame pair with
     (R, t), compared on the static, valid pixels of frame pair; percent of depth under spec."""
@@ -896,6 +930,13 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         out.global_rot_var[p], out.global_trans_var[p] = global_rot, global_trans * f**2
         if np.isfinite(R_g[p]).all():
             out.depth_error[p] = pair_depth_error(clip, pair, R_g[p], scale * t_g[p], config)[1]
+            if config.compat != "authors" and config.global_pose and R_list:
+                # where the camera fits the tracks worse than its refit to them, the refit warps too (§3.6 step 6)
+                member = points[p].region > 0
+                refit = camera_refit(points[p].X[member], points[p].uv[member], clip.K[pair],
+                                     (R_g[p], scale * t_g[p]), config.inlier_px)
+                if refit is not None:
+                    out.depth_error[p] = np.fmin(out.depth_error[p], pair_depth_error(clip, pair, *refit, config)[1])
             out.t_g_norm[p] = np.linalg.norm(scale * t_g[p] if config.scale_free else t_g[p]) * f
             out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.n_poses[p] = len(R_list)

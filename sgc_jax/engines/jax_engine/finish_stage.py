@@ -64,30 +64,41 @@ def warp_choices(depth, static, pairs, pair_valid, vectorized: bool):
     return jnp.any(magnified), jnp.any(reads_previous)
 
 
-def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage: FinishStage):
+def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage: FinishStage,
+                      active=None):
     """Frames (n, H, W) of depth and static masks, each pair's frame i-1 as an index into them
     (F,) int32 (frame i is the next), the pairs' (F, ...) cameras and true sizes, and which pairs
-    are the clip's, not padding (F,) bool -> depth errors (F,): under spec the static valid pixels
+    are the clip's, not padding (F,) bool -> depth errors (F,); with ``active`` (F,) bool only those
+    pairs' (the others NaN; a CPU program skips their work). Under spec the static valid pixels
     of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see
     (``seen_from_previous`` within the true size ``image_hw`` (F, 2)) on a pixel it warped,
     looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
     under authors every valid one (depth units). One pair at a time on CPU, for the unbatched
     z-buffer scatter."""
     authors = stage.compat == "authors"
-    pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw)
+    skips = active is not None and not stage.vectorized
+    active = jnp.ones_like(pair_valid) if active is None else active
+    pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw, active)
+
+    def only_active(compute, pair, skipped):  # each pair alone on a CPU: the inactive ones cost nothing
+        return jax.lax.cond(pair[6], compute, lambda: skipped) if skips else compute()
 
     def warps(magnified: bool):  # the warped depth alone: a pixel is hit where it is > 0 (z > MIN_WARP_Z)
         def one(pair):
-            return warp_depth(*warp_source(depth, static, pair[0], authors), *pair[1:5], nearest=not authors,
-                              mask_holes=not authors, magnified=magnified)[0]
+            return only_active(lambda: warp_depth(*warp_source(depth, static, pair[0], authors), *pair[1:5],
+                                                  nearest=not authors, mask_holes=not authors,
+                                                  magnified=magnified)[0],
+                               pair, jnp.zeros(depth.shape[1:], depth.dtype))
 
         return each(one, pairs, stage.vectorized)
 
     def errors_of(warped, look_back: bool):
         def one(pair_warp):
-            pair, warped = pair_warp
+            return only_active(lambda: error_of(*pair_warp, look_back), pair_warp[0], jnp.full((), jnp.nan, depth.dtype))
+
+        def error_of(pair, warped, look_back: bool):
             _, _, depth_curr, static_curr = pair_frames(depth, static, pair[0])
-            K_prev, K_curr, R_g, t_g, image_hw = pair[1:]
+            K_prev, K_curr, R_g, t_g, image_hw = pair[1:6]
             hit = warped > 0
             valid = depth_curr > 0
             if authors:
@@ -104,10 +115,32 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     if authors:
         errors = errors_of(warps(False), look_back=False)
     else:
-        magnified, reads_previous = warp_choices(depth, static, pairs, pair_valid, stage.vectorized)
+        magnified, reads_previous = warp_choices(depth, static, pairs[:6], pair_valid & active, stage.vectorized)
         warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
         errors = jax.lax.cond(reads_previous, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
-    return errors * translation_factor(stage)
+    return jnp.where(active, errors, jnp.nan) * translation_factor(stage)
+
+
+def depth_errors_checked(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, R_refit, t_refit,
+                         refit_gate, stage: FinishStage):
+    """``pair_depth_errors`` with the camera's poses, and under spec, for the pairs where the pose
+    stage found the camera fits their tracks worse than its refit to them (R_refit, t_refit;
+    ``refit_gate`` (F,), ``kernels.depth_pose.refit_camera``), the lesser of that and the error
+    warped with the refit (docs/semantics.md §3.6 step 6) -> (errors (F,), whether the refit gave
+    it (F,) bool, the pose each error was warped with (F, 3, 3), (F, 3))."""
+    errors = pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage)
+    if stage.compat == "authors" or not stage.global_pose:
+        return errors, jnp.zeros_like(pair_valid), R_g, t_g
+    R_refit = jnp.where(refit_gate[:, None, None], R_refit, R_g)  # finite wherever it is read
+    t_refit = jnp.where(refit_gate[:, None], t_refit, t_g)
+    by_refit = jax.lax.cond(
+        jnp.any(refit_gate),
+        lambda: pair_depth_errors(depth, static, previous, K_prev, K_curr, R_refit, t_refit, image_hw, pair_valid,
+                                  stage, active=refit_gate),
+        lambda: jnp.full_like(errors, jnp.nan))
+    refit_lower = refit_gate & ((by_refit < errors) | (jnp.isnan(errors) & ~jnp.isnan(by_refit)))
+    return (jnp.where(refit_lower, by_refit, errors), refit_lower,
+            jnp.where(refit_lower[:, None, None], R_refit, R_g), jnp.where(refit_lower[:, None], t_refit, t_g))
 
 
 def pair_components(poses: LocalPoses, R_g, t_g, err, stage: FinishStage) -> dict:
@@ -172,15 +205,19 @@ def finish_stage(pose: dict, depth, static, K, image_hw, pair_valid, stage: Fini
     B, T = depth.shape[:2]
     flat, unflat = pairs_flat(B, T)
     regions = {name: pose[name] for name in LocalPoses._fields if name not in POSE_PER_TRACK}
-    poses = LocalPoses(**regions, **dict.fromkeys(POSE_PER_TRACK))  # FinishStage.inputs keeps the per-track fields back
+    # FinishStage.inputs keeps the per-track fields back
+    poses = LocalPoses(**regions, **dict.fromkeys(name for name in LocalPoses._fields if name in POSE_PER_TRACK))
     R_g, t_g, scale = pose["R_g"], pose["t_g"], pose["scale"]
     t_g_scaled = scale[:, None, None] * t_g
     (depth_frames, static_frames), previous = frames_in_place(depth, static)
-    err = unflat(pair_depth_errors(depth_frames, static_frames, previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g),
-                                   flat(t_g_scaled), flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)),
-                                   flat(pair_valid), stage))
+    pairs = (depth_frames, static_frames, previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g), flat(t_g_scaled),
+             flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), flat(pair_valid))
+    checked = depth_errors_checked(*pairs, flat(pose["R_refit"]), flat(pose["t_refit"]), flat(pose["refit_gate"]),
+                                   stage)
+    err, depth_by_refit, R_depth, t_depth = (unflat(x) for x in checked)
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g
     comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(stage)
-    return dict(comps, **regions, scale=scale)
+    # which pose each depth error was warped with, for sgc_smooth's held choices
+    return dict(comps, **regions, scale=scale, depth_by_refit=depth_by_refit, R_depth=R_depth, t_depth=t_depth)

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from ...codes import REGION_EMPTY, REGION_OK
 from ...config import NOISE_BLOCK_FRAC, SGCConfig
 from ...kernels.camera import back_project
+from ...kernels.depth_pose import CameraRefit, refit_camera
 from ...kernels.pose_variances import mean_pose
 from ...kernels.ransac import ransac_pnp_regions
 from ...kernels.ransac_options import QualityRule, RansacOptions
@@ -140,8 +141,23 @@ def translation_scale(x: PoseInputs, usable, R_g, t_g, stage: PoseStage):
     return robust_scale(ratios, weights, stage.ransac.inlier_px, fallback=scale)
 
 
+def camera_refits(x: PoseInputs, poses: LocalPoses, usable, R_g, t_g, stage: PoseStage) -> CameraRefit:
+    """Per pair (T-1, ...) of one clip: the camera's pose (t_g in units of D) refitted to the points
+    of its regions and whether that refit also warps the depth check (``refit_camera``, at RANSAC's
+    inlier_px; only in pairs with an accepted local pose; §3.6 step 6)."""
+    def pair(has_pose, Z_prev, label, K_prev, K_curr, track_prev, track_curr, usable, R_g, t_g):
+        X, has_depth = points_prev(Z_prev, K_prev, track_prev, usable)
+        return refit_camera(X, track_curr, has_depth & (label > 0), K_curr, R_g, t_g, has_pose,
+                            stage.ransac.inlier_px)
+
+    has_pose = jnp.any(poses.region_status == REGION_OK, axis=-1)
+    return jax.vmap(pair)(has_pose, x.Z_prev, x.track_labels, x.K[:-1], x.K[1:], x.track_prev, x.track_curr, usable,
+                          R_g, t_g)
+
+
 def clip_poses(x: PoseInputs, key, stage: PoseStage):
-    """One padded clip (no B axis) -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), s).
+    """One padded clip (no B axis) -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), s, and
+    per pair the camera's refit to its tracks, CameraRefit (T-1, ...)).
     Without a global pose each pair's mean local pose (NaN without one) stands for the camera's."""
     n_pairs = x.pair_valid.shape[0]
     pair_keys = jax.vmap(lambda p: jax.random.fold_in(key, p))(jnp.arange(n_pairs) + 1)
@@ -162,8 +178,10 @@ def clip_poses(x: PoseInputs, key, stage: PoseStage):
     poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, stage), pairs, n_pairs, stage.vectorized)
     if not stage.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
-        return poses, R_g, t_g, jnp.float32(1.0)
-    return poses, R_g, t_g, scale
+        return poses, R_g, t_g, jnp.float32(1.0), CameraRefit(R_g, t_g, jnp.zeros(n_pairs, bool), jnp.zeros_like(usable))
+    if stage.compat == "authors":  # the camera alone warps there
+        return poses, R_g, t_g, scale, CameraRefit(R_g, global_t, jnp.zeros(n_pairs, bool), jnp.zeros_like(usable))
+    return poses, R_g, t_g, scale, camera_refits(x, poses, usable, R_g, global_t, stage)
 
 
 class PoseStage(Stage):
@@ -216,5 +234,7 @@ def pose_stage(x: PoseInputs, key, stage: PoseStage) -> dict:
     """Clips (leading axis B). On CPU one after another, each clip's pairs in groups of at most
     PAIRS_AT_ONCE: RANSAC's loops run until their slowest lane is done, so vmapping many pairs at
     once costs more than it saves there. Vectorized (accelerators): every pair of every clip at once."""
-    poses, R_g, t_g, scale = each(lambda clip: clip_poses(PoseInputs(*clip), key, stage), tuple(x), stage.vectorized)
-    return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale)
+    poses, R_g, t_g, scale, refit = each(lambda clip: clip_poses(PoseInputs(*clip), key, stage), tuple(x),
+                                         stage.vectorized)
+    return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale, R_refit=refit.R, t_refit=refit.t,
+                refit_gate=refit.warps, refit_fitted_on=refit.fitted_on)

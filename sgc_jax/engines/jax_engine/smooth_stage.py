@@ -1,7 +1,8 @@
 """The differentiable score (docs/semantics.md §10): ``sgc_smooth`` of B clips as a function of
 their depth, tracks, cameras and intrinsics, with every discrete choice of the forward pass held
 fixed (regions, the points each local pose was fitted on, the region statuses, the scale fit's
-equation, the depth warp's z-buffer winners, the median pixels of D) and everything continuous
+equation, which pose the depth warp took and the points its refit was fitted on, the depth warp's
+z-buffer winners, the median pixels of D) and everything continuous
 recomputed so that ``jax.grad`` reaches the inputs."""
 
 from __future__ import annotations
@@ -45,6 +46,10 @@ class Frozen(NamedTuple):
     scale: jax.Array  # () s, units of D per pose unit
     present: jax.Array  # (T-1, 5) bool: the pair has the component (COMPONENTS' order)
     floors: jax.Array  # (4,) the clip's noise floors (FLOOR_COLUMNS' order), for an excess calibration
+    depth_by_refit: jax.Array  # (T-1,) bool: the depth error is the camera's refit's warp's (§3.6 step 6)
+    refit_fitted_on: jax.Array  # (T-1, P) bool: the points that refit is the least-squares fit of
+    R_depth: jax.Array  # (T-1, 3, 3) the pose the depth check warped with, for the warp's choices
+    t_depth: jax.Array  # (T-1, 3) units of D
 
 
 def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: dict) -> Frozen:
@@ -55,7 +60,8 @@ def frozen_choices(pixel: dict, pose: dict, finish: dict, pair_valid, summary: d
     return jax.lax.stop_gradient(Frozen(pixel["track_labels"], pose["track_fitted"], pose["region_status"],
                                         pose["R_local"], pose["t_local"], pose["region_rot_per_px"],
                                         pose["region_trans_per_px"], pose["R_g"], pose["t_g"],
-                                        pose["scale"], present, floors))
+                                        pose["scale"], present, floors, finish["depth_by_refit"],
+                                        pose["refit_fitted_on"], finish["R_depth"], finish["t_depth"]))
 
 
 def check_differentiable(config: SGCConfig) -> None:
@@ -115,6 +121,19 @@ def local_poses(clip: PaddedClips, X, frozen: Frozen):
     return so3_exp(poses[..., :3]), poses[..., 3:], accepted
 
 
+def depth_check_pose(clip: PaddedClips, X, frozen: Frozen, R_g, t_scaled):
+    """Each pair's depth-check pose (T-1, 3, 3), (T-1, 3): the camera's (R_g, t_scaled), or where
+    the forward pass warped with the camera's refit to the tracks (§3.6 step 6), that refit's
+    least-squares optimum on the points it was fitted on (``least_squares_pose``)."""
+    pose0 = jnp.concatenate([so3_log(frozen.R_depth), frozen.t_depth], axis=-1).astype(X.dtype)
+    by_refit = frozen.depth_by_refit
+    pose0 = jnp.where(by_refit[:, None] & jnp.isfinite(pose0), pose0, 0.0)
+    refit = jax.vmap(least_squares_pose)(pose0, X, clip.track_curr, clip.K[1:],
+                                         frozen.refit_fitted_on.astype(X.dtype), by_refit)
+    return (jnp.where(by_refit[:, None, None], so3_exp(refit[:, :3]), R_g),
+            jnp.where(by_refit[:, None], refit[:, 3:], t_scaled))
+
+
 def held_warped_depth(depth_prev, K_prev, R, t, source):
     """(H W,) each pixel's warped depth with the nearest-z warp's winners held fixed (``source``
     (H W,) from ``warp_sources``): the z in camera i of the pixel of frame i-1 that won it."""
@@ -154,8 +173,9 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     R_local, t_local, accepted = local_poses(clip, X, frozen)
     comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled, frozen.rot_per_px,
                                            frozen.trans_per_px)
-    frames = (fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_g,
-              frozen.scale * frozen.t_g)
+    R_depth, t_depth = depth_check_pose(clip, X, frozen, R_g, t_scaled)
+    frames = (fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_depth,
+              frozen.t_depth)
 
     def warp_all(magnified: bool):
         return jax.vmap(functools.partial(warp_sources, mask_holes=True, magnified=magnified))(*frames)
@@ -165,17 +185,16 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     magnified = jnp.any(jax.vmap(has_magnified)(*frames) & fixed.pair_valid)
     source, hit = jax.lax.cond(magnified, lambda: warp_all(True), lambda: warp_all(False))
     view = jax.vmap(previous_view, in_axes=(0, 0, 0, 0, 0, 0, None))(
-        fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_g, frozen.scale * frozen.t_g,
-        fixed.image_hw)
+        fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_depth, frozen.t_depth, fixed.image_hw)
     at_landing = jax.vmap(depth_at_landing)(*frames[:2], view)
     hit = hit & (at_landing > 0)  # seen, on a pixel frame i-1 warped
     # where the forward pass looked frame i-1 up (``looked_back_depth``) is held too
-    warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_g, frozen.scale * frozen.t_g,
+    warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_depth, frozen.t_depth,
                                          source).reshape(hit.shape)
     compared = hit & (fixed.depth[1:] > 0) & fixed.static[1:]
     read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], at_landing) > 0
-    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_g, t_scaled,
-                                             source, hit, fixed.static[1:], view.landing, read)
+    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_depth,
+                                             t_depth, source, hit, fixed.static[1:], view.landing, read)
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
                 global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * PERCENT**2,
                 depth_error=errors)

@@ -23,7 +23,7 @@ from .buckets import Bucket, PaddedClips
 
 # The pose stage's per-track outputs (P axis): read by the differentiable score, not passed to the
 # finish stage, whose program must not depend on the track count (its key holds T, H, W only).
-POSE_PER_TRACK = ("track_fitted",)
+POSE_PER_TRACK = ("track_fitted", "refit_fitted_on")
 
 
 class PixelInputs(NamedTuple):
