@@ -121,16 +121,17 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     return jnp.where(active, errors, jnp.nan) * translation_factor(stage)
 
 
-def depth_errors_checked(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, R_refit, t_refit,
-                         refit_gate, stage: FinishStage):
+def depth_errors_checked(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, refit,
+                         stage: FinishStage):
     """``pair_depth_errors`` with the camera's poses, and under spec, for the pairs where the pose
-    stage found the camera fits their tracks worse than its refit to them (R_refit, t_refit;
-    ``refit_gate`` (F,), ``kernels.depth_pose.refit_camera``), the lesser of that and the error
-    warped with the refit (docs/semantics.md §3.6 step 6) -> (errors (F,), whether the refit gave
-    it (F,) bool, the pose each error was warped with (F, 3, 3), (F, 3))."""
+    stage found the camera fits their tracks worse than its refit to them (``refit``: R (F, 3, 3),
+    t (F, 3), gate (F,) bool; ``kernels.depth_pose.refit_camera``), the lesser of that and the
+    error warped with the refit (docs/semantics.md §3.6 step 6) -> (errors (F,), whether the refit
+    gave it (F,) bool, the pose each error was warped with (F, 3, 3), (F, 3))."""
     errors = pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage)
     if stage.compat == "authors" or not stage.global_pose:
         return errors, jnp.zeros_like(pair_valid), R_g, t_g
+    R_refit, t_refit, refit_gate = refit
     R_refit = jnp.where(refit_gate[:, None, None], R_refit, R_g)  # finite wherever it is read
     t_refit = jnp.where(refit_gate[:, None], t_refit, t_g)
     by_refit = jax.lax.cond(
@@ -212,8 +213,8 @@ def finish_stage(pose: dict, depth, static, K, image_hw, pair_valid, stage: Fini
     (depth_frames, static_frames), previous = frames_in_place(depth, static)
     pairs = (depth_frames, static_frames, previous, flat(K[:, :-1]), flat(K[:, 1:]), flat(R_g), flat(t_g_scaled),
              flat(jnp.repeat(image_hw[:, None], T - 1, axis=1)), flat(pair_valid))
-    checked = depth_errors_checked(*pairs, flat(pose["R_refit"]), flat(pose["t_refit"]), flat(pose["refit_gate"]),
-                                   stage)
+    refit = (flat(pose["R_refit"]), flat(pose["t_refit"]), flat(pose["refit_gate"]))
+    checked = depth_errors_checked(*pairs, refit, stage)
     err, depth_by_refit, R_depth, t_depth = (unflat(x) for x in checked)
     comps = jax.vmap(jax.vmap(functools.partial(pair_components, stage=stage)))(poses, R_g, t_g_scaled, err)
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
