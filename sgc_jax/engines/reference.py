@@ -637,7 +637,7 @@ def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.
     R, t = camera
     for _ in range(REFIT_UPDATES):
         r, J = reference_pose_search.residual_jacobian(X[within], uv[within], K, R, t)
-        delta = -np.linalg.solve(J.T @ J, J.T @ r)
+        delta = -np.linalg.lstsq(J, r, rcond=None)[0]  # a degenerate spread of points must not raise
         R, t = cv2.Rodrigues(delta[:3])[0] @ R, t + delta[3:]  # the perturbation exp([w]) R X + t + dt
     refit = reference_pose_search.Pose(R, t)
     medians = [np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
