@@ -32,6 +32,12 @@ MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 # beyond 900 %, which near the camera has no bound), the depth check also looks the pixel up in frame
 # i-1 and keeps the lesser error (docs/semantics.md §3.6 step 5; 3 % of FIT's pairs hold such a pixel).
 LOOK_BACK_RATIO = 10.0
+# The spec depth check reads each pair's error up to the pair's depth scale (docs/semantics.md §3.6
+# step 7): the median of frame i's depth over the warped one on every DEPTH_SCALE_STRIDE-th row and
+# column of the compared pixels (a standard pair's ~9,000 of ~150,000: one sort), 1 with fewer than
+# DEPTH_SCALE_MIN_PIXELS of them. A depth estimator's scale per frame is one number.
+DEPTH_SCALE_STRIDE = 4
+DEPTH_SCALE_MIN_PIXELS = 16
 # Where the camera's pose reprojects a pair's region points (median error, cut at inlier_px) worse
 # than this many times its refit to those points does, the refit also warps the depth check and the
 # lesser error counts (docs/semantics.md §3.6 step 6). With exact cameras the ratio sits at 1.00 (median

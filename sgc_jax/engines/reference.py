@@ -23,6 +23,8 @@ from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import (
     BLOCKS_PER_AXIS,
     CAMERA_REFIT_RATIO,
+    DEPTH_SCALE_MIN_PIXELS,
+    DEPTH_SCALE_STRIDE,
     HOLE_DEPTH_MARGIN,
     LOOK_BACK_RATIO,
     MAX_HOLE_REACH_PX,
@@ -562,23 +564,36 @@ def _hole_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: i
     return cover
 
 
+def pair_depth_scale(warped: np.ndarray, depth_curr: np.ndarray, both: np.ndarray) -> float:
+    """The pair's depth scale: the median of depth_curr / warped over the ``both`` (H, W) pixels of
+    every DEPTH_SCALE_STRIDE-th row and column, 1 with fewer than DEPTH_SCALE_MIN_PIXELS (§3.6 step 7)."""
+    s = DEPTH_SCALE_STRIDE
+    sub = both[::s, ::s]
+    if sub.sum() < DEPTH_SCALE_MIN_PIXELS:
+        return 1.0
+    return float(np.median((depth_curr[::s, ::s][sub] / warped[::s, ::s][sub]).astype(np.float32)))
+
+
 def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
-                looked_back: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+                looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False) -> float:
     """Mean |warped - depth_curr| where both are valid and the pixel is static, divided by
     depth_curr pixel by pixel when ``relative`` (AbsRel); NaN if no pixel is compared.
     ``looked_back``: (z, depth) (H, W), each pixel's point's depth in camera i-1 and frame i-1's
     depth where it lands (0 where unread): where read, the lesser of the error and |depth - z|
-    (relative to z) (§3.6 step 5)."""
+    (relative to z) (§3.6 step 5). ``pair_scale``: frame i-1's depths (warped and looked back) times
+    ``pair_depth_scale`` first (step 7)."""
     both = (warped > 0) & valid_depth(depth_curr) & static_curr
     if not both.any():
         return float("nan")
-    error = np.abs(warped[both] - depth_curr[both])
+    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale else 1.0
+    error = np.abs(scale * warped[both] - depth_curr[both])
     if relative:
         error = error / depth_curr[both]
     if looked_back is not None:
         z, depth = (a[both] for a in looked_back)
         read = depth > 0
-        back = np.abs(depth - z) / np.where(read, z, 1.0) if relative else np.abs(depth - z)
+        back = np.abs(scale * depth - z)
+        back = back / np.where(read, z, 1.0) if relative else back
         error = np.where(read, np.minimum(error, back), error)
     return float(np.mean(error))
 
@@ -661,7 +676,8 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
         # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
         looked_back = z, np.where(needed, source[iv, iu], 0.0)
-    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free, looked_back=looked_back)
+    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free, looked_back=looked_back,
+                        pair_scale=spec and config.scale_free)
     return warped, error * (PERCENT if config.scale_free else 1.0)
 
 

@@ -12,6 +12,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from ..config import CAMERA_REFIT_RATIO, REFIT_POINTS, REFIT_UPDATES
+from .medians import masked_median
 from .pnp import gauss_newton_updates
 from .so3 import so3_exp, so3_log
 from .truncated_cost import truncated_errors_sq
@@ -29,11 +30,7 @@ class CameraRefit(NamedTuple):
 def median_cut_error_px(R, t, X, uv, K, used, cut_px):
     """Median over the ``used`` (P,) points of min(reprojection error, ``cut_px``) [px] under the
     pose (R, t); a point behind the camera counts ``cut_px``; NaN with none used."""
-    error = jnp.sqrt(truncated_errors_sq(R, t, X, uv, K, used, cut_px)[1])
-    n = jnp.sum(used)
-    ranked = jnp.sort(jnp.where(used, error, jnp.inf))
-    middle = 0.5 * (ranked[jnp.maximum(n - 1, 0) // 2] + ranked[n // 2])
-    return jnp.where(n > 0, middle, jnp.nan)
+    return masked_median(jnp.sqrt(truncated_errors_sq(R, t, X, uv, K, used, cut_px)[1]), used)
 
 
 def strided_points(used, count: int):

@@ -10,8 +10,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX
+from ..config import (
+    DEPTH_SCALE_MIN_PIXELS,
+    DEPTH_SCALE_STRIDE,
+    HOLE_DEPTH_MARGIN,
+    HOLE_LEVELS,
+    LOOK_BACK_RATIO,
+    MAX_HOLE_REACH_PX,
+)
 from .camera import back_project_xyz, project_xyz, transform_xyz
+from .medians import masked_median
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
 
@@ -262,7 +270,7 @@ def looked_back_depth(warped, compared, depth_curr, at_landing):
 
 
 def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t,
-                             image_hw=None, *, relative: bool = False):
+                             image_hw=None, *, relative: bool = False, pair_scale: bool = False):
     """The spec depth check's error (docs/semantics.md §3.6 steps 4-5) of ``warp_depth``'s output:
     ``depth_error`` where frame i's point lands on a pixel frame i-1 warped (``depth_at_landing``;
     ``source``: frame i-1's depth and the mask of what it warps, (H, W) each), frame i-1 looked up
@@ -270,7 +278,7 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
     pair that needs it reads frame i-1 (a gather of every pixel): one with such a pixel, or whose
     frame i-1 has a pixel it does not warp (``source_has_gaps``); elsewhere every seen pixel lands
     on one it warps. Each branch computes what it needs from the inputs, so nothing of the image's
-    size crosses it."""
+    size crosses it. ``pair_scale``: as ``depth_error``'s (step 7)."""
     # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
     needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr) | source_has_gaps(source_pixels(*source), image_hw)
 
@@ -281,30 +289,44 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
         compared = hit & seen & _valid_depth(depth_curr, valid_curr) & static_curr
         read = looked_back_depth(warped, compared, depth_curr, at_landing)
         return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
-                           looked_back=(view.z, read))
+                           looked_back=(view.z, read), pair_scale=pair_scale)
 
     def forward_only():
         seen = seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
-        return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative)
+        return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
+                           pair_scale=pair_scale)
 
     return jax.lax.cond(needed, looked_back, forward_only)
 
 
-def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False, looked_back=None):
+def pair_depth_scale(warped, depth_curr, both):
+    """The pair's depth scale (): the median of depth_curr / warped over the ``both`` (H, W) pixels
+    of every DEPTH_SCALE_STRIDE-th row and column, 1 with fewer than DEPTH_SCALE_MIN_PIXELS of them
+    (docs/semantics.md §3.6 step 7)."""
+    s = DEPTH_SCALE_STRIDE
+    sub = both[::s, ::s].reshape(-1)
+    ratio = depth_curr[::s, ::s].reshape(-1) / jnp.where(sub, warped[::s, ::s].reshape(-1), 1.0)
+    return jnp.where(jnp.sum(sub) >= DEPTH_SCALE_MIN_PIXELS, masked_median(ratio, sub), 1.0)
+
+
+def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False, looked_back=None,
+                pair_scale: bool = False):
     """Mean |warped - depth_curr| over hit & valid (depth > 0, finite) & static (H, W) -> (float32,
     int32 count): in depth units, or relative to depth_curr (AbsRel, a fraction); NaN with no overlap.
     ``looked_back``: (z, depth) (H, W), each pixel's point's depth in camera i-1 and frame i-1's depth
     where it lands (``looked_back_depth``, 0 where unread): where read, the lesser of the error and
-    |depth - z| (relative to z) (docs/semantics.md §3.6 step 5)."""
+    |depth - z| (relative to z) (docs/semantics.md §3.6 step 5). ``pair_scale``: frame i-1's depths
+    (warped and looked back) times ``pair_depth_scale`` first (step 7)."""
     both = hit & _valid_depth(depth_curr, valid_curr) & static_curr
     n = jnp.sum(both).astype(jnp.int32)
-    error = jnp.abs(warped - depth_curr)
+    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale else 1.0
+    error = jnp.abs(scale * warped - depth_curr)
     if relative:
         error = error / jnp.where(both, depth_curr, 1.0)
     if looked_back is not None:
         z, depth = looked_back
         read = depth > 0
-        back = jnp.abs(depth - z)
+        back = jnp.abs(scale * depth - z)
         if relative:
             back = back / jnp.where(read, z, 1.0)
         error = jnp.where(read, jnp.minimum(error, back), error)

@@ -23,7 +23,14 @@ from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
-from ...kernels.warp import depth_at_landing, has_magnified, looked_back_depth, previous_view, warp_sources
+from ...kernels.warp import (
+    depth_at_landing,
+    has_magnified,
+    looked_back_depth,
+    pair_depth_scale,
+    previous_view,
+    warp_sources,
+)
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
@@ -147,18 +154,21 @@ def held_warped_depth(depth_prev, K_prev, R, t, source):
 def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, hit, static_curr, landing, read):
     """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
     (H W,), ``hit`` (H, W) from ``warp_sources``), and the look back into frame i-1 where the
-    forward pass read it (``read`` (H, W), at the held pixel ``landing`` (H, W) of frame i-1)."""
+    forward pass read it (``read`` (H, W), at the held pixel ``landing`` (H, W) of frame i-1), up to
+    the pair's depth scale (``pair_depth_scale``, §3.6 step 7)."""
     H, W = depth_prev.shape
     both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
     warped = held_warped_depth(depth_prev, K_prev, R, t, source)
     target = jnp.where(both, depth_curr.reshape(-1), 1.0)
+    scale = pair_depth_scale(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W))
+    warped = scale * warped
     error = jnp.abs(warped - target) / target
     # frame i's point in camera i-1: the depth row of R^T (X - t)
     x, y, z = back_project_xyz(K_curr, jnp.tile(jnp.arange(W, dtype=depth_curr.dtype), H),
                                jnp.repeat(jnp.arange(H, dtype=depth_curr.dtype), W), target)
     read = both & read.reshape(-1)
     z_back = jnp.where(read, R[0, 2] * (x - t[0]) + R[1, 2] * (y - t[1]) + R[2, 2] * (z - t[2]), 1.0)
-    back = jnp.abs(depth_prev.reshape(-1)[landing.reshape(-1)] - z_back) / z_back
+    back = jnp.abs(scale * depth_prev.reshape(-1)[landing.reshape(-1)] - z_back) / z_back
     error = jnp.where(both, jnp.where(read, jnp.minimum(error, back), error), 0.0)
     n = jnp.sum(both)
     return PERCENT * jnp.sum(error) / jnp.maximum(n, 1)
