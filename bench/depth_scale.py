@@ -1,5 +1,5 @@
-"""The depth error up to one scale per pair (issue 58, a lead; not part of the score): how much of
-it a depth estimator's per-frame scale makes, and what the inconsistencies keep.
+"""The depth error with and without the pair's depth scale (issue 58; docs/semantics.md §3.6 step
+7): how much of it a depth estimator's per-frame scale makes, and what the inconsistencies keep.
 
     python bench/depth_scale.py [--pool fit] [--first 0] [--scenes 24] [--tracks 1000]
     python bench/depth_scale.py --real ../shared/realdata
@@ -7,9 +7,10 @@ it a depth estimator's per-frame scale makes, and what the inconsistencies keep.
 Each pair's depth check as docs/semantics.md §3.6 defines it (the reference engine's warp, hole rule
 and comparison mask) under the exact relative pose of the clip's cameras, giving the warped depth ẑ
 and frame i's depth d at each compared pixel. Per clip, the mean over its pairs of:
-- ``depth %``: the mean of |ẑ − d| / d, the score's depth error;
-- ``scaled %``: the same after the pair's scale, |α ẑ − d| / d with α = the median of d / ẑ over the
-  compared pixels (what a depth check up to one scale per pair would read);
+- ``depth %``: the mean of |ẑ − d| / d, the depth error without the pair's scale (the score's until
+  2026-12-02);
+- ``scaled %``: the same after the pair's scale, |α ẑ − d| / d with α = the median of d / ẑ over all
+  the compared pixels (the score takes it on a sub-grid, step 7);
 - ``scale %``: the RMS over the pairs of log α, in % (a per-frame depth scale's size).
 Variants of each scene of a random pool (``protocol.random_scene``; FIT's pool by default, on which
 a constant may be chosen): ``clean``; the protocol's depth noise (``+depth``: a 1 % smooth field,

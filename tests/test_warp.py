@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from sgc_jax.config import LOOK_BACK_RATIO, SGCConfig
+from sgc_jax.config import DEPTH_SCALE_MIN_PIXELS, DEPTH_SCALE_STRIDE, LOOK_BACK_RATIO, SGCConfig
 from sgc_jax.engines import reference
 from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
 from sgc_jax.io.clip import Clip
@@ -137,6 +137,21 @@ def test_depth_error_is_masked_and_nan_without_overlap():
     assert int(n) == 1 and float(err) == pytest.approx(2.0)
     err, n = depth_error(warped, hit, curr, np.isfinite(curr), np.zeros((2, 2), bool))
     assert int(n) == 0 and np.isnan(float(err))
+
+
+def test_the_pairs_depth_scale_is_the_median_ratio_on_its_sub_grid_in_both_engines():
+    rng = np.random.default_rng(3)
+    warped = rng.uniform(1.0, 3.0, (40, 48)).astype(np.float32)
+    depth = (1.03 * warped).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.2] *= 2.0  # a fifth of the pixels disagree: the median keeps 1.03
+    both = rng.random(depth.shape) < 0.8
+    scales = [float(warp.pair_depth_scale(warped, depth, both)), reference.pair_depth_scale(warped, depth, both)]
+    np.testing.assert_allclose(scales, 1.03, rtol=1e-6)
+    few = np.zeros_like(both)
+    rows, cols = np.nonzero(np.ones_like(few[::DEPTH_SCALE_STRIDE, ::DEPTH_SCALE_STRIDE]))
+    few[rows[:DEPTH_SCALE_MIN_PIXELS - 1] * DEPTH_SCALE_STRIDE, cols[:DEPTH_SCALE_MIN_PIXELS - 1] * DEPTH_SCALE_STRIDE] = True
+    assert few[::DEPTH_SCALE_STRIDE, ::DEPTH_SCALE_STRIDE].sum() == DEPTH_SCALE_MIN_PIXELS - 1
+    assert float(warp.pair_depth_scale(warped, depth, few)) == reference.pair_depth_scale(warped, depth, few) == 1.0
 
 
 def test_batch_of_pairs_equals_loop():

@@ -299,14 +299,15 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
     return jax.lax.cond(needed, looked_back, forward_only)
 
 
-def pair_depth_scale(warped, depth_curr, both):
+def pair_depth_scale(warped, depth_curr, both, median=masked_median):
     """The pair's depth scale (): the median of depth_curr / warped over the ``both`` (H, W) pixels
     of every DEPTH_SCALE_STRIDE-th row and column, 1 with fewer than DEPTH_SCALE_MIN_PIXELS of them
-    (docs/semantics.md §3.6 step 7)."""
+    (docs/semantics.md §3.6 step 7). ``median(values, mask)``: one whose gradient reaches the
+    middle values, for ``sgc_smooth``."""
     s = DEPTH_SCALE_STRIDE
     sub = both[::s, ::s].reshape(-1)
     ratio = depth_curr[::s, ::s].reshape(-1) / jnp.where(sub, warped[::s, ::s].reshape(-1), 1.0)
-    return jnp.where(jnp.sum(sub) >= DEPTH_SCALE_MIN_PIXELS, masked_median(ratio, sub), 1.0)
+    return jnp.where(jnp.sum(sub) >= DEPTH_SCALE_MIN_PIXELS, median(ratio, sub), 1.0)
 
 
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False, looked_back=None,

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 from ...config import SGCConfig
 from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
 from ...io.loading import evenly_spaced_ranks
-from ...kernels.bisection import smallest_reaching
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
+from ...kernels.medians import order_statistics
 from .buckets import Bucket, PaddedClips
 
 
@@ -37,25 +37,12 @@ class ClipArrays(NamedTuple):
     widths: jax.Array  # (B,) int32
 
 
-def order_statistics(values, mask, ranks):
-    """The ranks (2,)-th smallest (0-based) of the positive finite values[mask], ranks[1] - ranks[0]
-    in {0, 1} (a median's middle values): the first by bisection on their bit patterns, which order
-    as the values do (31 counting passes, where XLA CPU's sort of a clip's pixels costs ~10x more),
-    the second from it in two more."""
-    bits = jax.lax.bitcast_convert_type(jnp.where(mask, values, jnp.inf), jnp.int32).ravel()
-    inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
-    lower = smallest_reaching(lambda mid: jnp.sum(bits <= mid) > ranks[0], jnp.int32(0), inf_bits, 31)
-    # the second from the first: itself while the values up to it reach its rank, else the next value
-    upper = jnp.where(jnp.sum(bits <= lower) > ranks[1], lower, jnp.min(jnp.where(bits > lower, bits, inf_bits)))
-    return jax.lax.bitcast_convert_type(jnp.stack([lower, upper]), jnp.float32)
-
-
 def masked_median(values, mask):
     """The median of the positive finite values[mask] as a double-float (hi, lo): the middle value,
     or the two middle values averaged exactly (as ``stats.exact_median`` does in float64); (1, 0)
     when mask is empty."""
     n = jnp.sum(mask, dtype=jnp.int32)
-    lower, upper = order_statistics(values, mask, jnp.stack([jnp.maximum((n - 1) // 2, 0), n // 2]))
+    lower, upper = order_statistics(values, mask)
     total, error = two_sum(lower, upper)  # lower + upper exactly; halving is exact
     hi, lo = jnp.where(n % 2 == 1, upper, 0.5 * total), jnp.where(n % 2 == 1, 0.0, 0.5 * error)
     return jnp.where(n > 0, hi, 1.0), jnp.where(n > 0, lo, 0.0)
@@ -67,7 +54,7 @@ def pixel_median(values, mask):
     pixels are chosen on the values as float32, held fixed."""
     n = jnp.sum(mask, dtype=jnp.int32)
     chosen = jax.lax.stop_gradient(values).astype(jnp.float32)
-    lower, upper = order_statistics(chosen, mask, jnp.stack([jnp.maximum((n - 1) // 2, 0), n // 2]))
+    lower, upper = order_statistics(chosen, mask)
     flat, pick = values.reshape(-1), mask.reshape(-1)
     at_lower = flat[jnp.argmax(pick & (chosen.reshape(-1) == lower))]
     at_upper = flat[jnp.argmax(pick & (chosen.reshape(-1) == upper))]

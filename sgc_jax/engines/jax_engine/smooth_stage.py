@@ -34,7 +34,7 @@ from ...kernels.warp import (
 from ...stats import nanmean
 from ..units import PERCENT
 from .buckets import Bucket, PaddedClips
-from .device_prepare import ClipArrays, prepare_differentiable
+from .device_prepare import ClipArrays, pixel_median, prepare_differentiable
 from .pixel_stage import depth_at_tracks
 
 
@@ -160,7 +160,7 @@ def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, 
     both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
     warped = held_warped_depth(depth_prev, K_prev, R, t, source)
     target = jnp.where(both, depth_curr.reshape(-1), 1.0)
-    scale = pair_depth_scale(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W))
+    scale = pair_depth_scale(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W), median=pixel_median)
     warped = scale * warped
     error = jnp.abs(warped - target) / target
     # frame i's point in camera i-1: the depth row of R^T (X - t)
