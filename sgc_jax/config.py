@@ -34,7 +34,7 @@ MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 LOOK_BACK_RATIO = 10.0
 # The spec depth check reads each pair's error up to the pair's depth scale (docs/semantics.md §3.6
 # step 7): the median of frame i's depth over the warped one on every DEPTH_SCALE_STRIDE-th row and
-# column of the compared pixels (a standard pair's ~9,000 of ~150,000: one sort), 1 with fewer than
+# column of the compared pixels (a standard pair's ~9,000 of ~150,000), 1 with fewer than
 # DEPTH_SCALE_MIN_PIXELS of them. A depth estimator's scale per frame is one number.
 DEPTH_SCALE_STRIDE = 4
 DEPTH_SCALE_MIN_PIXELS = 16

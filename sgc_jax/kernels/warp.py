@@ -270,7 +270,7 @@ def looked_back_depth(warped, compared, depth_curr, at_landing):
 
 
 def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t,
-                             image_hw=None, *, relative: bool = False, pair_scale: bool = False):
+                             image_hw=None, *, relative: bool = False):
     """The spec depth check's error (docs/semantics.md §3.6 steps 4-5) of ``warp_depth``'s output:
     ``depth_error`` where frame i's point lands on a pixel frame i-1 warped (``depth_at_landing``;
     ``source``: frame i-1's depth and the mask of what it warps, (H, W) each), frame i-1 looked up
@@ -278,7 +278,7 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
     pair that needs it reads frame i-1 (a gather of every pixel): one with such a pixel, or whose
     frame i-1 has a pixel it does not warp (``source_has_gaps``); elsewhere every seen pixel lands
     on one it warps. Each branch computes what it needs from the inputs, so nothing of the image's
-    size crosses it. ``pair_scale``: as ``depth_error``'s (step 7)."""
+    size crosses it. Relative errors are read up to the pair's depth scale (step 7)."""
     # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
     needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr) | source_has_gaps(source_pixels(*source), image_hw)
 
@@ -289,12 +289,12 @@ def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, s
         compared = hit & seen & _valid_depth(depth_curr, valid_curr) & static_curr
         read = looked_back_depth(warped, compared, depth_curr, at_landing)
         return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
-                           looked_back=(view.z, read), pair_scale=pair_scale)
+                           looked_back=(view.z, read), pair_scale=relative)
 
     def forward_only():
         seen = seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
         return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
-                           pair_scale=pair_scale)
+                           pair_scale=relative)
 
     return jax.lax.cond(needed, looked_back, forward_only)
 

@@ -106,8 +106,7 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
             if look_back:
                 return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr,
                                                 warp_source(depth, static, pair[0], authors), K_prev, K_curr, R_g,
-                                                t_g, image_hw, relative=stage.scale_free,
-                                                pair_scale=stage.scale_free)[0]
+                                                t_g, image_hw, relative=stage.scale_free)[0]
             hit = hit & seen_from_previous(depth_curr, valid, K_prev, K_curr, R_g, t_g, image_hw)
             return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free,
                                pair_scale=stage.scale_free)[0]
