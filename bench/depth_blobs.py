@@ -91,25 +91,47 @@ def variants(scene, n_tracks: int, config: SGCConfig) -> tuple[dict, bool, float
     return clips, hidden, area
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def pool_parser(description: str) -> argparse.ArgumentParser:
+    """The options of a depth study over a random pool's scenes, or over a directory of clips (--real)."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--pool", default="fit", choices=sorted(protocol.RANDOM_POOLS))
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--tracks", type=int, default=1000)
+    parser.add_argument("--real", help="a directory of clips to run as they are instead of the pool")
+    return parser
+
+
+def print_real_rows(directory: str, statistics) -> None:
+    """One row per clip of ``directory`` as recorded: ``statistics(clip)``, a list of figures."""
+    for path in sorted(glob.glob(os.path.join(directory, "*.npz"))):
+        clip = load_clip(path)
+        print(f"| {clip.clip_id} | as recorded | " + " | ".join(f"{v:.3f}" for v in statistics(clip)) + " |",
+              flush=True)
+
+
+def print_variant_summary(table: dict, header) -> None:
+    """Per variant of ``table`` (name -> rows of figures, one row per scene) the median and the
+    largest of each figure over its scenes."""
+    print("\n| variant | clips | " + " | ".join(f"{h}: median (largest)" for h in header) + " |\n|---|---|"
+          + "---|" * len(header))
+    for name, rows in table.items():
+        a = np.array(rows)
+        print(f"| {name} | {len(rows)} | " + " | ".join(f"{np.median(a[:, j]):.3f} ({a[:, j].max():.3f})"
+                                                       for j in range(a.shape[1])) + " |")
+
+
+def main() -> None:
+    parser = pool_parser(__doc__.splitlines()[0])
     parser.add_argument("--rel", type=float, default=0.1, help="relative depth error that counts as large")
     parser.add_argument("--erode", type=int, nargs="+", default=[1, 2], help="erosion radii [px]")
     parser.add_argument("--scale", type=float, default=1.0, help="translation scale of the warp (1: exact)")
-    parser.add_argument("--real", help="a directory of clips to run as they are instead of the pool")
     args = parser.parse_args()
     config = SGCConfig()
     header = ["depth %", "large %"] + [f"blob % ({r})" for r in args.erode]
     print("| clip | variant | " + " | ".join(header) + " |\n|---|---|" + "---|" * len(header))
     if args.real:
-        for path in sorted(glob.glob(os.path.join(args.real, "*.npz"))):
-            clip = load_clip(path)
-            values = blob_statistics(clip, args.rel, tuple(args.erode), args.scale, config)
-            print(f"| {clip.clip_id} | as recorded | " + " | ".join(f"{v:.3f}" for v in values) + " |", flush=True)
+        print_real_rows(args.real, lambda clip: blob_statistics(clip, args.rel, tuple(args.erode), args.scale, config))
         return
     table = defaultdict(list)
     for k in range(args.first, args.first + args.scenes):
@@ -122,12 +144,7 @@ def main() -> None:
             table[name].append(values)
             print(f"| {scene.name} (mover {area:.2f} % of the image) | {name} | "
                   + " | ".join(f"{v:.3f}" for v in values) + " |", flush=True)
-    print("\n| variant | clips | " + " | ".join(f"{h}: median, largest" for h in header) + " |\n|---|---|"
-          + "---|" * len(header))
-    for name, rows in table.items():
-        a = np.array(rows)
-        print(f"| {name} | {len(rows)} | " + " | ".join(f"{np.median(a[:, j]):.3f}, {a[:, j].max():.3f}"
-                                                       for j in range(a.shape[1])) + " |")
+    print_variant_summary(table, header)
     consistent_max = np.max([np.array(table[name]).max(axis=0) for name in CONSISTENT if name in table], axis=0)
     print("\nMovers above the largest value of any consistent variant (" + ", ".join(
         f"{h} {v:.3f}" for h, v in zip(header, consistent_max)) + "):")

@@ -23,17 +23,14 @@ and the largest over the scenes.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import glob
-import os
 from collections import defaultdict
 
 import numpy as np
+from depth_blobs import pool_parser, print_real_rows, print_variant_summary
 
 from sgc_jax import SGCConfig
 from sgc_jax.engines import reference
-from sgc_jax.io.loading import load_clip
 from sgc_jax.research import protocol
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import perturb_clip
@@ -78,20 +75,11 @@ def variants(scene, n_tracks: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--pool", default="fit", choices=sorted(protocol.RANDOM_POOLS))
-    parser.add_argument("--first", type=int, default=0)
-    parser.add_argument("--scenes", type=int, default=24)
-    parser.add_argument("--tracks", type=int, default=1000)
-    parser.add_argument("--real", help="a directory of clips to run as they are instead of the pool")
-    args = parser.parse_args()
+    args = pool_parser(__doc__.splitlines()[0]).parse_args()
     config = SGCConfig()
     print("| clip | variant | " + " | ".join(HEADER) + " |\n|---|---|" + "---|" * len(HEADER))
     if args.real:
-        for path in sorted(glob.glob(os.path.join(args.real, "*.npz"))):
-            clip = load_clip(path)
-            values = depth_statistics(clip, config)
-            print(f"| {clip.clip_id} | as recorded | " + " | ".join(f"{v:.3f}" for v in values) + " |", flush=True)
+        print_real_rows(args.real, lambda clip: depth_statistics(clip, config))
         return
     table = defaultdict(list)
     for k in range(args.first, args.first + args.scenes):
@@ -100,12 +88,7 @@ def main() -> None:
             values = depth_statistics(clip, config)
             table[name].append(values)
             print(f"| {scene.name} | {name} | " + " | ".join(f"{v:.3f}" for v in values) + " |", flush=True)
-    print("\n| variant | clips | " + " | ".join(f"{h}: median (largest)" for h in HEADER) + " |\n|---|---|"
-          + "---|" * len(HEADER))
-    for name, rows in table.items():
-        a = np.array(rows)
-        print(f"| {name} | {len(rows)} | " + " | ".join(f"{np.median(a[:, j]):.3f} ({a[:, j].max():.3f})"
-                                                       for j in range(a.shape[1])) + " |")
+    print_variant_summary(table, HEADER)
 
 
 if __name__ == "__main__":

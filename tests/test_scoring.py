@@ -70,50 +70,43 @@ def test_a_rigid_clip_with_depth_dropouts_keeps_its_depth_error(rigid_clip, engi
     assert dropouts.sgc < whole.sgc + DROPOUT_SGC_ATOL
 
 
-# A rigid clip's depth error with its cameras turned by 0.3 deg RMS per axis and frame, against its
-# exact cameras: where a camera fits the tracks worse than its refit to them, the refit also warps
-# and the lesser error counts (§3.6 step 6); measured 1.00x in both engines, 6.0x with the erring
-# cameras alone. A depth_warp at 0.5 of it with the same cameras stays 4.1x above it (both engines).
-CAMERA_ERROR_DEPTH_ERROR_RATIO = 1.25
+# The estimators' errors the depth check forgives, each dealt to a rigid clip, against its own
+# depth error (the bound), and a depth_warp at 0.5 of it with the same errors stays DEPTH_WARP_ABOVE
+# times above it:
+# - each camera turned by 0.3 deg RMS per axis and frame: where a camera fits the tracks worse than
+#   its refit to them, the refit also warps and the lesser error counts (§3.6 step 6); measured 1.00x
+#   in both engines, 6.0x with the erring cameras alone; the depth_warp 4.1x above;
+# - each frame's depth times its own factor (3 % RMS, as a depth estimator aligned per clip can
+#   leave): each pair's error is read up to the pair's depth scale (step 7); measured 1.0005x in both
+#   engines, 6.1x before; the depth_warp 3.4x above (1.23x before).
+FORGIVEN = {"cameras turned 0.3 deg": (NoiseModel(camera_rot_deg=0.3), 1.25),
+            "each frame's depth scaled 3 %": (NoiseModel(depth_scale_rel=0.03), 1.05)}
 DEPTH_WARP_ABOVE = 2.0
 
 
 @pytest.mark.parametrize("engine", ENGINES)
-def test_a_rigid_clip_whose_cameras_err_keeps_its_depth_error_and_its_global_components_see_them(rigid_clip, engine):
+@pytest.mark.parametrize("error", FORGIVEN)
+def test_a_rigid_clip_keeps_its_depth_error_under_what_the_depth_check_forgives(rigid_clip, engine, error):
+    model, bound = FORGIVEN[error]
     exact = pairs_of(rigid_clip, engine)
-    erring = pairs_of(add_noise(rigid_clip, NoiseModel(camera_rot_deg=0.3), seed=1), engine)
-    assert erring.components["depth_error"] < CAMERA_ERROR_DEPTH_ERROR_RATIO * exact.components["depth_error"]
-    assert erring.components["global_rot_var"] > 0.01 > exact.components["global_rot_var"]  # deg^2: (0.3 deg)^2 x 2
+    erring = pairs_of(add_noise(rigid_clip, model, seed=1), engine)
+    assert erring.components["depth_error"] < bound * exact.components["depth_error"]
 
 
 @pytest.mark.parametrize("engine", ENGINES)
-def test_the_cameras_refit_does_not_forgive_a_depth_inconsistency(rigid_clip, engine):
-    erring, warped = (add_noise(clip, NoiseModel(camera_rot_deg=0.3), seed=1)
+@pytest.mark.parametrize("error", FORGIVEN)
+def test_what_the_depth_check_forgives_does_not_forgive_a_depth_inconsistency(rigid_clip, engine, error):
+    erring, warped = (add_noise(clip, FORGIVEN[error][0], seed=1)
                       for clip in (rigid_clip, perturb_clip(rigid_clip, "depth_warp", 0.5)))
     warped_error, erring_error = (pairs_of(clip, engine).components["depth_error"] for clip in (warped, erring))
     assert warped_error > DEPTH_WARP_ABOVE * erring_error
 
 
-# A rigid clip with each frame's depth times its own factor (3 % RMS, as a depth estimator aligned
-# per clip can leave), against its own depth: each pair's error is read up to the pair's depth scale
-# (§3.6 step 7); measured 1.0005x in both engines, 6.1x before. A depth_warp at 0.5 of it stays 3.4x
-# above it (1.23x before); the bound is DEPTH_WARP_ABOVE, as for the cameras' refit.
-DEPTH_SCALE_DEPTH_ERROR_RATIO = 1.05
-
-
 @pytest.mark.parametrize("engine", ENGINES)
-def test_a_rigid_clip_whose_depth_is_scaled_frame_by_frame_keeps_its_depth_error(rigid_clip, engine):
+def test_the_global_components_see_the_cameras_errors(rigid_clip, engine):
     exact = pairs_of(rigid_clip, engine)
-    scaled = pairs_of(add_noise(rigid_clip, NoiseModel(depth_scale_rel=0.03), seed=1), engine)
-    assert scaled.components["depth_error"] < DEPTH_SCALE_DEPTH_ERROR_RATIO * exact.components["depth_error"]
-
-
-@pytest.mark.parametrize("engine", ENGINES)
-def test_the_pairs_depth_scale_does_not_forgive_a_depth_inconsistency(rigid_clip, engine):
-    scaled, warped = (add_noise(clip, NoiseModel(depth_scale_rel=0.03), seed=1)
-                      for clip in (rigid_clip, perturb_clip(rigid_clip, "depth_warp", 0.5)))
-    warped_error, scaled_error = (pairs_of(clip, engine).components["depth_error"] for clip in (warped, scaled))
-    assert warped_error > DEPTH_WARP_ABOVE * scaled_error
+    erring = pairs_of(add_noise(rigid_clip, FORGIVEN["cameras turned 0.3 deg"][0], seed=1), engine)
+    assert erring.components["global_rot_var"] > 0.01 > exact.components["global_rot_var"]  # deg^2: (0.3 deg)^2 x 2
 
 
 def test_rigid_clip_scores_lowest_in_a_corpus(rigid_clip, drift_clip):
