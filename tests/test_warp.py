@@ -11,6 +11,7 @@ from sgc_jax.engines import reference
 from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
 from sgc_jax.io.clip import Clip
 from sgc_jax.kernels import warp
+from sgc_jax.kernels.medians import masked_median
 from sgc_jax.kernels.so3 import so3_exp
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
@@ -137,6 +138,17 @@ def test_depth_error_is_masked_and_nan_without_overlap():
     assert int(n) == 1 and float(err) == pytest.approx(2.0)
     err, n = depth_error(warped, hit, curr, np.isfinite(curr), np.zeros((2, 2), bool))
     assert int(n) == 0 and np.isnan(float(err))
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 1000])
+def test_masked_median_is_the_middle_of_the_selected_values(n):
+    rng = np.random.default_rng(n)
+    values = rng.lognormal(size=1000).astype(np.float32)
+    values[:300] = values[-1]  # ties across the middle
+    mask = np.zeros(1000, bool)
+    mask[rng.permutation(1000)[:n]] = True
+    expected = np.median(values[mask]) if n else np.nan
+    np.testing.assert_array_equal(float(masked_median(values, mask)), expected)
 
 
 def test_the_pairs_depth_scale_is_the_median_ratio_on_its_sub_grid_in_both_engines():
