@@ -219,13 +219,15 @@ class DepthWarpError:
     forward-warped into frame pair with the global pose, in the clip's depth units (0 where nothing
     lands); ``error`` (H, W) |warped - depth[pair]| where compared (NaN elsewhere), in
     ``error_unit`` (% of depth under compat="spec", depth units under "authors"); ``mean`` its
-    mean (the pair's ``depth_error``)."""
+    mean (the pair's ``depth_error``); ``depth_scale`` the pair's depth scale α the error reads
+    ``warped`` up to (§3.6 step 7; 1 under "authors")."""
 
     pair: int
     warped: np.ndarray
     error: np.ndarray
     mean: float
     error_unit: str = "% of depth"
+    depth_scale: float = 1.0
 
     @property
     def compared(self) -> np.ndarray:
@@ -246,9 +248,11 @@ def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = Non
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
     depth = clip.depth[pair]
     compared = (warped > 0) & reference.valid_depth(depth) & static
-    difference = np.abs(warped - np.where(compared, depth, 1.0))
+    spec_scaled = config.compat != "authors" and config.scale_free
+    depth_scale = reference.pair_depth_scale(warped, depth, compared) if spec_scaled and compared.any() else 1.0
+    difference = np.abs(depth_scale * warped - np.where(compared, depth, 1.0))
     if config.scale_free:
         difference = PERCENT * difference / np.where(compared, depth, 1.0)
     error = np.where(compared, difference, np.nan)
     return DepthWarpError(pair=pair, warped=warped * unit, error=error, mean=mean,
-                          error_unit="% of depth" if config.scale_free else "depth units")
+                          error_unit="% of depth" if config.scale_free else "depth units", depth_scale=depth_scale)
