@@ -13,6 +13,7 @@ from sgc_jax.io.clip import Clip
 from sgc_jax.kernels import warp
 from sgc_jax.kernels.medians import masked_median
 from sgc_jax.kernels.so3 import so3_exp
+from sgc_jax.research import diagnostics
 
 # The kernels are traced inside the engine's program; called alone here, each is jitted once.
 warp_depth = jax.jit(warp.warp_depth, static_argnames=("nearest", "mask_holes", "magnified"))
@@ -503,6 +504,15 @@ def test_frame_i_minus_1_is_looked_up_only_where_the_warp_put_a_surface_10x_fart
         assert forward > 50.0 and expected < 0.2 * forward
     else:  # the wall 5x farther: its bounded error (400 %) stands
         assert expected == pytest.approx(forward, rel=1e-12)
+
+
+def test_the_depth_warp_error_map_reads_frame_i_minus_1_where_the_score_does():
+    """``research.diagnostics.depth_warp_error``'s map holds each pixel's error as the pair's mean
+    counts it: the wall's splats on the card read 30 %, not 1,900 % (§3.6 step 5)."""
+    clip = card_whose_depth_errs_in_frame_i_minus_1(0.5)
+    check = diagnostics.depth_warp_error(clip, 1)
+    assert np.nanmean(check.error) == pytest.approx(check.mean, rel=1e-9)
+    assert np.nanmax(check.error) < 100.0  # forward only, 60 of its pixels at 1,900 %
 
 
 def test_the_batch_bound_holds_wherever_a_pixel_needs_the_look_back():

@@ -574,18 +574,18 @@ def pair_depth_scale(warped: np.ndarray, depth_curr: np.ndarray, both: np.ndarra
     return float(np.median((depth_curr[::s, ::s][sub] / warped[::s, ::s][sub]).astype(np.float32)))
 
 
-def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
-                looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False) -> float:
-    """Mean |warped - depth_curr| where both are valid and the pixel is static, divided by
-    depth_curr pixel by pixel when ``relative`` (AbsRel); NaN if no pixel is compared.
-    ``looked_back``: (z, depth) (H, W), each pixel's point's depth in camera i-1 and frame i-1's
-    depth where it lands (0 where unread): where read, the lesser of the error and |depth - z|
-    (relative to z) (§3.6 step 5). ``pair_scale``: frame i-1's depths (warped and looked back) times
-    ``pair_depth_scale`` first (step 7)."""
+def depth_error_map(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
+                    looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+    """(error (n,) of the compared pixels in row-major order, compared (H, W) bool, the pair's
+    depth scale): |warped - depth_curr| where both are valid and the pixel is static, divided by
+    depth_curr pixel by pixel when ``relative`` (AbsRel). ``looked_back``: (z, depth) (H, W), each
+    pixel's point's depth in camera i-1 and frame i-1's depth where it lands (0 where unread):
+    where read, the lesser of the error and |depth - z| (relative to z) (§3.6 step 5).
+    ``pair_scale``: frame i-1's depths (warped and looked back) times ``pair_depth_scale`` first
+    (step 7; else the scale is 1)."""
     both = (warped > 0) & valid_depth(depth_curr) & static_curr
-    if not both.any():
-        return float("nan")
-    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale else 1.0
+    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale and both.any() else 1.0
     error = np.abs(scale * warped[both] - depth_curr[both])
     if relative:
         error = error / depth_curr[both]
@@ -595,7 +595,14 @@ def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndar
         back = np.abs(scale * depth - z)
         back = back / np.where(read, z, 1.0) if relative else back
         error = np.where(read, np.minimum(error, back), error)
-    return float(np.mean(error))
+    return error, both, scale
+
+
+def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
+                looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False) -> float:
+    """The mean of ``depth_error_map``'s errors (the same arguments); NaN if no pixel is compared."""
+    error, _, _ = depth_error_map(warped, depth_curr, static_curr, relative, looked_back, pair_scale)
+    return float(np.mean(error)) if error.size else float("nan")
 
 
 def previous_view(depth_curr: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
@@ -660,9 +667,20 @@ def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.
     return (R, t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
 
 
-def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:
-    """(warped depth (H, W), the pair's depth error): frame pair-1 warped into frame pair with
-    (R, t), compared on the static, valid pixels of frame pair; percent of depth under spec."""
+class PairDepthError(NamedTuple):
+    """A pair's depth check (``pair_depth_error``): frame i-1's depth warped into frame i (H, W) (0
+    where nothing is compared), each compared pixel's error (H, W) (NaN elsewhere; percent of depth
+    under spec), their mean and the pair's depth scale (§3.6 step 7; 1 where not applied)."""
+
+    warped: np.ndarray
+    error: np.ndarray
+    mean: float
+    depth_scale: float
+
+
+def pair_depth_check(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> PairDepthError:
+    """Frame pair-1 warped into frame pair with (R, t), compared on the static, valid pixels of
+    frame pair -> PairDepthError."""
     spec = config.compat != "authors"
     source = warp_source(clip, pair, config)
     warped = warp_depth(source, clip.K[pair - 1], clip.K[pair], R, t, nearest=spec, mask_holes=spec)
@@ -676,9 +694,19 @@ def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
         # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
         looked_back = z, np.where(needed, source[iv, iu], 0.0)
-    error = depth_error(warped, clip.depth[pair], static, relative=config.scale_free, looked_back=looked_back,
-                        pair_scale=spec and config.scale_free)
-    return warped, error * (PERCENT if config.scale_free else 1.0)
+    error, compared, scale = depth_error_map(warped, clip.depth[pair], static, relative=config.scale_free,
+                                             looked_back=looked_back, pair_scale=spec and config.scale_free)
+    unit = PERCENT if config.scale_free else 1.0
+    error_map = np.full(compared.shape, np.nan)
+    error_map[compared] = error * unit
+    mean = float(np.mean(error)) * unit if error.size else float("nan")
+    return PairDepthError(warped, error_map, mean, scale)
+
+
+def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:
+    """(warped depth (H, W), the pair's depth error) of ``pair_depth_check``."""
+    check = pair_depth_check(clip, pair, R, t, config)
+    return check.warped, check.mean
 
 
 # ----------------------------------------------------------------------------- the clip

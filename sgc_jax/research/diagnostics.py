@@ -21,7 +21,7 @@ from ..codes import REGION_STATUS
 from ..config import SGCConfig
 from ..engines import reference
 from ..engines.pairs import PairArrays
-from ..engines.units import PERCENT, in_depth_units
+from ..engines.units import in_depth_units
 from ..io.clip import Clip
 from ..io.loading import load_clip
 from ..scoring.result import ClipResult
@@ -218,9 +218,10 @@ class DepthWarpError:
     """The depth check of one pair (docs/semantics.md §3.6): ``warped`` (H, W) depth of frame pair-1
     forward-warped into frame pair with the global pose, in the clip's depth units (0 where nothing
     lands); ``error`` (H, W) |warped - depth[pair]| where compared (NaN elsewhere), in
-    ``error_unit`` (% of depth under compat="spec", depth units under "authors"); ``mean`` its
-    mean (the pair's ``depth_error``); ``depth_scale`` the pair's depth scale α the error reads
-    ``warped`` up to (§3.6 step 7; 1 under "authors")."""
+    ``error_unit`` (% of depth under compat="spec", depth units under "authors"), under spec the
+    lesser of that and what frame pair-1 shows where the warp put a far surface (§3.6 step 5);
+    ``mean`` its mean (the pair's ``depth_error`` with the global pose); ``depth_scale`` the pair's
+    depth scale α the error reads ``warped`` up to (§3.6 step 7; 1 under "authors")."""
 
     pair: int
     warped: np.ndarray
@@ -244,15 +245,7 @@ def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = Non
     original = clip
     clip, config, unit = _prepare_with_unit(clip, pair, config)
     R_g, t_g = global_pose(original, pair, config, scale=scale)
-    warped, mean = reference.pair_depth_error(clip, pair, R_g, t_g, config)
-    static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
-    depth = clip.depth[pair]
-    compared = (warped > 0) & reference.valid_depth(depth) & static
-    spec_scaled = config.compat != "authors" and config.scale_free
-    depth_scale = reference.pair_depth_scale(warped, depth, compared) if spec_scaled and compared.any() else 1.0
-    difference = np.abs(depth_scale * warped - np.where(compared, depth, 1.0))
-    if config.scale_free:
-        difference = PERCENT * difference / np.where(compared, depth, 1.0)
-    error = np.where(compared, difference, np.nan)
-    return DepthWarpError(pair=pair, warped=warped * unit, error=error, mean=mean,
-                          error_unit="% of depth" if config.scale_free else "depth units", depth_scale=depth_scale)
+    check = reference.pair_depth_check(clip, pair, R_g, t_g, config)
+    return DepthWarpError(pair=pair, warped=check.warped * unit, error=check.error, mean=check.mean,
+                          error_unit="% of depth" if config.scale_free else "depth units",
+                          depth_scale=check.depth_scale)
