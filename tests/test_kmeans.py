@@ -88,6 +88,26 @@ def test_matches_exact_dp_when_distinct_values_have_distinct_bins(seed):
             np.testing.assert_array_equal(kmeans_1d(values, valid, k=k, bins=256), labels)
 
 
+@jax.jit
+def partitions_by_form(values, valid):
+    """(double-float pairs', the CPU form's float64 sums') clusters (k 10, 1024 bins) of values (N,),
+    as the pixel stage partitions a frame (``partitions.depth_partition_of``)."""
+    u, valid, has_span, _ = kmeans.normalise(values, valid)
+    bins_of = kmeans.bin_of(u, 1024)
+    return tuple(kmeans.cluster_of_bins(kmeans.histogram(u * 1024, bins_of, valid, 1024, cpu_form=cpu_form)[0],
+                                        has_span, 10, 1024)
+                 for cpu_form in (False, True))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_cpu_forms_float64_sums_partition_as_the_double_float_pairs(seed):
+    rng = np.random.default_rng(seed)
+    depth = layered_depth(rng, noise=(0.0, 0.01, 0.05)[seed % 3]).reshape(-1)
+    pairs, wide = partitions_by_form(depth, depth > 0)
+    np.testing.assert_array_equal(np.asarray(wide), np.asarray(pairs))
+    assert len(np.unique(np.asarray(wide))) == 10
+
+
 def test_more_clusters_than_distinct_values_gives_zero_wcss():
     values = np.array([3.0, 1.0, 3.0, 2.0, 1.0, 2.0, 3.0], np.float32)
     labels = np.asarray(kmeans_1d(values, np.ones(7, bool), k=5, bins=64))

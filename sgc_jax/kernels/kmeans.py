@@ -3,8 +3,9 @@
 Values fall into ``bins`` equal-width bins; clusters are unions of whole bins, and among those the
 within-cluster sum of squares is minimal (exact k-means whenever distinct values fall in distinct
 bins). A dynamic programme over k layers, each a row-minima search that divide and conquer solves
-in O(bins log bins) (the SSE cost is Monge), on double-float prefix sums. Deterministic; ties go
-to the smallest first bin of the last cluster.
+in O(bins log bins) (the SSE cost is Monge), on prefix sums of ~44 significant bits or more
+(double-float pairs, or float64 where a CPU has it natively). Deterministic; ties go to the
+smallest first bin of the last cluster.
 """
 
 from __future__ import annotations
@@ -21,9 +22,10 @@ from .fence import materialise
 
 
 class Histogram(NamedTuple):
-    """Prefix sums over bins 0..c-1, c = 0..bins: counts (bins + 1,) int32 and double-float sums
-    of positions and of squared positions, each a pair of (bins + 1,) float32 [bin units about the
-    histogram's middle]."""
+    """Prefix sums over bins 0..c-1, c = 0..bins: counts (bins + 1,) int32 and the sums of
+    positions and of squared positions [bin units about the histogram's middle], each a
+    double-float pair of (bins + 1,) float32 or, in the CPU form (``histogram``), one (bins + 1,)
+    float64 array."""
 
     count: jax.Array
     sum: tuple
@@ -56,23 +58,23 @@ def bin_of(u, bins):
     return jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
 
 
-def histogram(y, bins_of, valid, bins, packed: bool = False) -> tuple[Histogram, jax.Array]:
+def histogram(y, bins_of, valid, bins, cpu_form: bool = False) -> tuple[Histogram, jax.Array]:
     """Prefix sums of positions y (N,) [bin units, 0..bins] -> (Histogram, entries per bin (bins,)).
 
     Each bin's sums are an exact part at the bin centre plus float32 sums of the offsets from it
     (|d| <= 0.5), so Q - S^2 / n keeps the spread of a tight cluster far from the origin.
-    ``packed``: the offsets and their squares summed as one complex segment sum, the same sums
-    (complex addition is per part) in half the time of two on a CPU."""
+    ``cpu_form``: the offsets and their squares summed as one complex segment sum (the same sums,
+    complex addition is per part, in half the time of two), and the prefix sums in float64, which
+    a CPU does natively, instead of double-float pairs (several times the arithmetic)."""
     d = jnp.where(valid, y - (bins_of.astype(jnp.float32) + 0.5), 0.0)
     # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
     # counted in int32: a float32 count stops at 2^24 entries in one bin (an 8K frame's flat wall)
     n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
     n_c = n_bin.astype(jnp.float32)
-    if packed:
+    if cpu_form:
         sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
-        d_c, e_c = jnp.real(sums), jnp.imag(sums)
-    else:
-        d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
+        return _wide_prefix_sums(n_bin, jnp.real(sums), jnp.imag(sums), bins), n_bin
+    d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
     centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
     zero = jnp.zeros(bins, jnp.float32)
     s_c = df_add(two_prod(n_c, centre), (d_c, zero))
@@ -85,8 +87,28 @@ def histogram(y, bins_of, valid, bins, packed: bool = False) -> tuple[Histogram,
     return Histogram(jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n_bin)]), prefix(s_c), prefix(q_c)), n_bin
 
 
+def _wide_prefix_sums(n_bin, d_c, e_c, bins) -> Histogram:
+    """The CPU form's Histogram from each bin's count n_bin (bins,) int32 and float32 sums of the
+    offsets d_c and of their squares e_c (bins,): float64 made and used only in a 64-bit scope, so
+    the rest of the program keeps JAX's default types."""
+    with jax.enable_x64(True):
+        n_c, d_c, e_c = (x.astype(jnp.float64) for x in (n_bin, d_c, e_c))
+        centre = jnp.arange(bins, dtype=jnp.float64) + (0.5 - 0.5 * bins)
+        zero = jnp.zeros(1, jnp.float64)
+        prefix = lambda x: jnp.concatenate([zero, jnp.cumsum(x)])  # noqa: E731
+        return Histogram(jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n_bin, dtype=jnp.int32)]),
+                         prefix(n_c * centre + d_c), prefix(n_c * centre * centre + 2.0 * centre * d_c + e_c))
+
+
 def range_cost(first: Histogram, last: Histogram):
-    """SSE of the values in bins first..last - 1 from the prefix entries at both boundaries; 0 when empty."""
+    """SSE (float32) of the values in bins first..last - 1 from the prefix entries at both
+    boundaries; 0 when empty."""
+    if not isinstance(first.sum, tuple):  # the CPU form: float64
+        with jax.enable_x64(True):
+            n = (last.count - first.count).astype(jnp.float64)
+            s_ab = last.sum - first.sum
+            sse = (last.sum_sq - first.sum_sq) - s_ab * s_ab / jnp.maximum(n, 1.0)
+            return jnp.where(n > 0, jnp.maximum(sse, 0.0), 0.0).astype(jnp.float32)
     n = (last.count - first.count).astype(jnp.float32)
     s_ab = df_sub(last.sum, first.sum)
     q_ab = df_sub(last.sum_sq, first.sum_sq)

@@ -54,14 +54,14 @@ def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_regi
     """Depth layers of the frames ``read_frame(i)`` -> (depth (H, W), region mask (H, W)), i in
     0..n_frames-1 (traced), ``layers`` (F,) as ``depth_partition``'s. The histograms are built frame
     by frame, each frame read where it lies (unbatched scatters are several times faster on a CPU;
-    the offsets' sums packed, ``histogram``) or, ``frames_at_once``, all in one batched step (an
+    ``histogram``'s CPU form) or, ``frames_at_once``, all in one batched step (an
     accelerator would otherwise run F loop iterations of tiny kernels)."""
     F = n_frames
 
     def frame_histogram(i):
         depth, region_mask = read_frame(i)
         u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
-        sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, packed=not frames_at_once)
+        sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, cpu_form=not frames_at_once)
         return sums, n_bin, has_span, lo, span
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
