@@ -668,7 +668,7 @@ def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.
 
 
 class PairDepthError(NamedTuple):
-    """A pair's depth check (``pair_depth_error``): frame i-1's depth warped into frame i (H, W) (0
+    """A pair's depth check (``pair_depth_check``): frame i-1's depth warped into frame i (H, W) (0
     where nothing is compared), each compared pixel's error (H, W) (NaN elsewhere; percent of depth
     under spec), their mean and the pair's depth scale (§3.6 step 7; 1 where not applied)."""
 

@@ -28,8 +28,8 @@ class Histogram(NamedTuple):
     float64 array."""
 
     count: jax.Array
-    sum: tuple
-    sum_sq: tuple
+    sum: tuple | jax.Array
+    sum_sq: tuple | jax.Array
 
 
 def normalise(values, valid):
@@ -70,11 +70,11 @@ def histogram(y, bins_of, valid, bins, cpu_form: bool = False) -> tuple[Histogra
     # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
     # counted in int32: a float32 count stops at 2^24 entries in one bin (an 8K frame's flat wall)
     n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
-    n_c = n_bin.astype(jnp.float32)
     if cpu_form:
         sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
         return _wide_prefix_sums(n_bin, jnp.real(sums), jnp.imag(sums), bins), n_bin
     d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
+    n_c = n_bin.astype(jnp.float32)
     centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
     zero = jnp.zeros(bins, jnp.float32)
     s_c = df_add(two_prod(n_c, centre), (d_c, zero))
