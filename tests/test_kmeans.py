@@ -91,12 +91,9 @@ def test_matches_exact_dp_when_distinct_values_have_distinct_bins(seed):
 @jax.jit
 def partitions_by_form(values, valid):
     """(double-float pairs', the CPU form's float64 sums') clusters (k 10, 1024 bins) of values (N,),
-    as the pixel stage partitions a frame (``partitions.depth_partition_of``)."""
-    u, valid, has_span, _ = kmeans.normalise(values, valid)
-    bins_of = kmeans.bin_of(u, 1024)
-    return tuple(kmeans.cluster_of_bins(kmeans.histogram(u * 1024, bins_of, valid, 1024, cpu_form=cpu_form)[0],
-                                        has_span, 10, 1024)
-                 for cpu_form in (False, True))
+    as the pixel stage partitions a frame (``partitions.depth_partition_of`` and, through
+    ``kmeans_1d``, the ``depth+spatial`` partition)."""
+    return tuple(kmeans.kmeans_1d(values, valid, k=10, bins=1024, cpu_form=cpu_form) for cpu_form in (False, True))
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -271,10 +271,11 @@ def cluster_of_bins(sums: Histogram, has_span, k, bins, k_used=None):
     return jnp.where(has_span, done.cluster, 0)
 
 
-def kmeans_1d(values, valid, *, k: int, bins: int, k_used=None):
+def kmeans_1d(values, valid, *, k: int, bins: int, k_used=None, cpu_form: bool = False):
     """(N,) values, (N,) bool valid -> (N,) int32 cluster 0..k_used-1 by increasing value, -1
-    invalid; ``k_used`` (traced, 1..k) defaults to k."""
+    invalid; ``k_used`` (traced, 1..k) defaults to k; ``cpu_form`` as ``histogram``'s (the same
+    clusters)."""
     u, valid, has_span, _ = normalise(values, valid)
     bins_of = bin_of(u, bins)
-    sums, _ = histogram(u * bins, bins_of, valid, bins)
+    sums, _ = histogram(u * bins, bins_of, valid, bins, cpu_form=cpu_form)
     return jnp.where(valid, cluster_of_bins(sums, has_span, k, bins, k_used)[bins_of], -1).astype(jnp.int32)

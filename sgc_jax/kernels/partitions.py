@@ -172,8 +172,8 @@ def spatial_regions(cluster, *, k: int, min_region_pixels):
     return region.reshape(H, W).astype(jnp.int32), jnp.sum(kept).astype(jnp.int32)
 
 
-def depth_spatial_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels):
+def depth_spatial_regions(depth, region_mask, *, k: int, bins: int, min_region_pixels, cpu_form: bool = False):
     """One frame (H, W) -> (regions (H, W) int32, N_s) of the ``depth+spatial`` partition: depth
-    clusters split into connected components."""
-    cluster = kmeans_1d(depth.reshape(-1), region_mask.reshape(-1), k=k, bins=bins)
+    clusters (``kmeans_1d``, ``cpu_form`` as there) split into connected components."""
+    cluster = kmeans_1d(depth.reshape(-1), region_mask.reshape(-1), k=k, bins=bins, cpu_form=cpu_form)
     return spatial_regions(cluster.reshape(depth.shape), k=k, min_region_pixels=min_region_pixels)

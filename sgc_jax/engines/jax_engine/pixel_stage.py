@@ -62,7 +62,8 @@ def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelS
         if stage.partition == "grid":
             label_frame = lambda frame: grid_regions(frame[1], **regions)  # noqa: E731
         else:
-            label_frame = lambda frame: depth_spatial_regions(*frame, bins=stage.kmeans_bins, **regions)  # noqa: E731
+            label_frame = lambda frame: depth_spatial_regions(*frame, bins=stage.kmeans_bins, **regions,  # noqa: E731
+                                                              cpu_form=not stage.vectorized)
         labels, n_regions = each(label_frame, (frames, mask), stage.vectorized)
         labels = jax.vmap(lambda image, p: image.reshape(-1)[p])(labels, pixel)
         n_pixels = jnp.sum(mask, axis=(1, 2))
