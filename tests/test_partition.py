@@ -83,6 +83,29 @@ def test_jax_connected_components_match_opencv():
     assert (root[cluster < 0] == np.iinfo(np.int32).max).all()
 
 
+def serpentine(H=41, W=56):
+    """Cluster 0: one path a pixel wide winding down the rows (ends joined alternately at the right
+    and left edge); cluster 1: the rows between, each its own component."""
+    cluster = np.zeros((H, W), np.int32)
+    cluster[1::2] = 1
+    cluster[1::4, -1] = 0
+    cluster[3::4, 0] = 0
+    return cluster
+
+
+@pytest.mark.parametrize("turn", [0, 1, 2])
+def test_jax_connected_components_match_opencv_on_a_winding_path(turn):
+    # the path's first pixel (in raster order) lies at one of its ends, or mid-path after a
+    # quarter turn: its root reaches every pixel only along the path, through the whole frame
+    cluster = np.ascontiguousarray(np.rot90(serpentine(), turn))
+    root = np.asarray(connected_components(cluster))
+    for c in range(2):
+        n, comp = cv2.connectedComponents((cluster == c).astype(np.uint8), connectivity=4)
+        for i in range(1, n):
+            pixels = comp == i
+            assert (root[pixels] == np.flatnonzero(pixels.ravel())[0]).all()
+
+
 @pytest.mark.parametrize("partition", ["grid", "depth+spatial"])
 def test_both_engines_build_the_same_label_map_on_a_synthetic_frame(rigid_clip, partition):
     config = SGCConfig(partition=partition)

@@ -135,23 +135,40 @@ def _neighbour_min(label, cluster):
 
 
 class Propagation(NamedTuple):
-    label: jax.Array  # (H, W) smallest raster index reached so far
+    label: jax.Array  # (H, W) each pixel's root so far: a pixel of its component, raster index <= its own
     changed: jax.Array  # () bool
+
+
+def _to_roots(parent):
+    """Flat parents (n,) (each <= its own index, NO_LABEL outside every cluster) -> each pixel's
+    root, by pointer jumping until every pixel points at a pixel that points at itself."""
+    n = parent.shape[0]
+
+    def jump(state):
+        pointer, _ = state
+        further = jnp.where(pointer < n, pointer[jnp.minimum(pointer, n - 1)], pointer)
+        return further, jnp.any(further != pointer)
+
+    return jax.lax.while_loop(lambda state: state[1], jump, (parent, jnp.bool_(True)))[0]
 
 
 def connected_components(cluster):
     """(H, W) int32 cluster ids (-1 = none) -> (H, W) int32 component root: the raster index of the
-    component's first pixel, NO_LABEL outside every cluster. Min-label propagation with pointer
-    jumping until nothing changes."""
+    component's first pixel, NO_LABEL outside every cluster. Min-label hooking with pointer
+    jumping (as Shiloach-Vishkin's): each step, every root takes the smallest root next to any of
+    its pixels in the same cluster, then every pixel jumps to its root; it ends when no root
+    changes, which leaves each component rooted at its smallest raster index."""
     H, W = cluster.shape
     valid = cluster >= 0
     start = jnp.where(valid, jnp.arange(H * W, dtype=jnp.int32).reshape(H, W), NO_LABEL)
 
     def step(state: Propagation) -> Propagation:
-        new = _neighbour_min(state.label, cluster)
-        jumped = jnp.where(valid, new.reshape(-1)[jnp.minimum(new, H * W - 1)].reshape(H, W), NO_LABEL)
-        new = jnp.minimum(new, jumped)
-        return Propagation(new, jnp.any(new != state.label))
+        root = state.label.reshape(-1)
+        lowest = _neighbour_min(state.label, cluster).reshape(-1)  # the smallest root beside each pixel
+        # out of bounds, and dropped, outside every cluster
+        hooked = jnp.minimum(root.at[root].min(lowest, mode="drop"), lowest)
+        new = _to_roots(hooked)
+        return Propagation(new.reshape(H, W), jnp.any(new != root))
 
     return jax.lax.while_loop(lambda s: s.changed, step, Propagation(start, jnp.bool_(True))).label
 
