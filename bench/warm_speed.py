@@ -2,12 +2,14 @@
 
     git worktree add /tmp/sgc-base 0082bfe       # main before issue 21
     python bench/warm_speed.py --baseline /tmp/sgc-base [--clips 8] [--repeat 3] [--rounds 2]
+    python bench/warm_speed.py --baseline /tmp/sgc-base --config '{"partition": "depth+spatial"}'
 
 Writes --clips standard clips (T=16, 288x512, 4096 tracks per pair) once, then for each round
 times each tree in a fresh process (``PYTHONPATH`` = the tree): ``score_batch`` of the clips held
 in memory, compiled first (each tree with a persistent cache of its own, empty in the first
 round), the best of --repeat calls. Trees alternate round by round so a drift in the box's load falls on both; the figure is
-each tree's best clips per second and their ratio.
+each tree's best clips per second and their ratio. ``--config``: the SGCConfig fields both trees
+score with (JSON; the defaults when not given).
 """
 
 from __future__ import annotations
@@ -21,23 +23,24 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent.parent
 WARM = """
-import glob, sys, time
+import glob, json, sys, time
 from sgc_jax import score_batch
 from sgc_jax.io.loading import load_clips
 clips = list(load_clips(sorted(glob.glob(sys.argv[1] + "/*.npz"))))
-score_batch(clips[:1], progress=False)
+config = json.loads(sys.argv[3])
+score_batch(clips[:1], config=config, progress=False)
 best = float("inf")
 for _ in range(int(sys.argv[2])):
     start = time.perf_counter()
-    score_batch(clips, progress=False)
+    score_batch(clips, config=config, progress=False)
     best = min(best, time.perf_counter() - start)
 print(len(clips) / best)
 """
 
 
-def warm_rate(tree: Path, clips: Path, repeat: int, cache: Path) -> float:
+def warm_rate(tree: Path, clips: Path, repeat: int, cache: Path, config: str = "{}") -> float:
     env = {**os.environ, "PYTHONPATH": str(tree), "SGC_JAX_COMPILATION_CACHE": str(cache)}
-    done = subprocess.run([sys.executable, "-c", WARM, str(clips), str(repeat)], env=env, text=True,
+    done = subprocess.run([sys.executable, "-c", WARM, str(clips), str(repeat), config], env=env, text=True,
                           capture_output=True, check=True, cwd=tree)
     return float(done.stdout.strip().splitlines()[-1])
 
@@ -48,6 +51,7 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=8, help="enough for the scorer's lanes to stay full")
     parser.add_argument("--repeat", type=int, default=3, help="warm calls per process; the fastest counts")
     parser.add_argument("--rounds", type=int, default=2, help="processes per tree, alternating")
+    parser.add_argument("--config", default="{}", help="SGCConfig fields as JSON, e.g. a partition")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     sys.path.insert(0, str(HERE / "bench"))
@@ -67,7 +71,7 @@ def main() -> None:
         print(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} CPUs ({host_cpu()})", flush=True)
         for round_ in range(args.rounds):
             for name, tree in trees.items():
-                rates[name].append(warm_rate(tree, work / "clips", args.repeat, work / f"cache-{name}"))
+                rates[name].append(warm_rate(tree, work / "clips", args.repeat, work / f"cache-{name}", args.config))
                 print(f"round {round_ + 1}, {name}: {rates[name][-1]:.3f} clips/s", flush=True)
         print(f"load average after: {os.getloadavg()[0]:.2f}")
     best = {name: max(values) for name, values in rates.items()}
