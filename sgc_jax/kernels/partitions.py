@@ -120,17 +120,26 @@ def grid_regions(region_mask, *, k: int, min_region_pixels):
     return region.reshape(H, W), n_regions
 
 
-def _neighbour_min(label, cluster):
-    """Each pixel's label lowered to the smallest label of its 4-neighbours in the same cluster."""
-    def shifted(a, fill, dy, dx):
-        pad = jnp.pad(a, ((1, 1), (1, 1)), constant_values=fill)
-        H, W = a.shape
-        return pad[1 + dy: 1 + dy + H, 1 + dx: 1 + dx + W]
+NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 4-connectivity: (dy, dx) of each neighbour
 
+
+def _shifted(a, fill, dy, dx):
+    """a (H, W) read at (y + dy, x + dx), ``fill`` beyond the edges."""
+    H, W = a.shape
+    return jnp.pad(a, ((1, 1), (1, 1)), constant_values=fill)[1 + dy: 1 + dy + H, 1 + dx: 1 + dx + W]
+
+
+def _same_cluster(cluster):
+    """(4, H, W) bool: whether each pixel's neighbour (``NEIGHBOURS``) lies in its cluster (>= 0)."""
+    return jnp.stack([(_shifted(cluster, -1, dy, dx) == cluster) & (cluster >= 0) for dy, dx in NEIGHBOURS])
+
+
+def _neighbour_min(label, same):
+    """Each pixel's label lowered to the smallest label of its 4-neighbours in the same cluster
+    (``same`` from ``_same_cluster``)."""
     out = label
-    for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):  # four static shifts
-        same = shifted(cluster, -1, dy, dx) == cluster
-        out = jnp.minimum(out, jnp.where(same & (cluster >= 0), shifted(label, NO_LABEL, dy, dx), NO_LABEL))
+    for near, (dy, dx) in zip(same, NEIGHBOURS):  # four static shifts
+        out = jnp.minimum(out, jnp.where(near, _shifted(label, NO_LABEL, dy, dx), NO_LABEL))
     return out
 
 
@@ -161,10 +170,11 @@ def connected_components(cluster):
     H, W = cluster.shape
     valid = cluster >= 0
     start = jnp.where(valid, jnp.arange(H * W, dtype=jnp.int32).reshape(H, W), NO_LABEL)
+    same = _same_cluster(cluster)
 
     def step(state: Propagation) -> Propagation:
         root = state.label.reshape(-1)
-        lowest = _neighbour_min(state.label, cluster).reshape(-1)  # the smallest root beside each pixel
+        lowest = _neighbour_min(state.label, same).reshape(-1)  # the smallest root beside each pixel
         # out of bounds, and dropped, outside every cluster
         hooked = jnp.minimum(root.at[root].min(lowest, mode="drop"), lowest)
         new = _to_roots(hooked)
