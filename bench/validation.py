@@ -222,6 +222,10 @@ def main() -> None:
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
     rows = protocol.rows_scored_or_read(args.rows, args.out, lambda: score_rows(args, config), ROW_TEXT, ROW_INTEGERS)
     print(f"split {args.split}: {len({r['scene'] for r in rows})} scenes, {len(rows)} clips")
+    # rows read back may hold part of the grid: the tables cover what they hold
+    args.models, args.levels, args.tracks = ([v for v in values if any(r[name] == v for r in rows)]
+                                             for name, values in (("model", args.models), ("noise_px", args.levels),
+                                                                  ("tracks", args.tracks)))
     print_consistent(rows, args.models, args.levels, args.tracks)
     print_detection(rows, args.models, args.split, config)
     print_floors(rows, args.models, args.levels, args.tracks)
