@@ -13,6 +13,7 @@ from typing import Any, Mapping
 PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
+TRACK_PIXELS = ("floor", "nearest")
 # Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers at 200 tracks,
 # k_seg from about 700 (bench/history/issue-41.md, "The excess score, the default").
 TRACKS_PER_LAYER = 70
@@ -75,7 +76,7 @@ STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "parti
                  "global_pose", "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
 VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
-                "seed", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px",
+                "seed", "track_pixel", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px",
                 "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
@@ -115,6 +116,10 @@ class SGCConfig:
                                            "region is read: previous (frame i-1, the track's query point, where its "
                                            "depth is read) or current (frame i, the paper's); compat='authors' always "
                                            "reads frame i (docs/semantics.md §3.2)", choices=REGION_FRAMES)
+    track_pixel: str = _field("floor", "the pixel where a track's depth and region are read: floor ((floor x, "
+                                       "floor y), the paper's code) or nearest (the pixel whose centre, at integer "
+                                       "coordinates, is nearest); compat='authors' always reads floor "
+                                       "(docs/semantics.md §1.1)", choices=TRACK_PIXELS)
     use_mos: bool = _field(True, "use the static masks; --no-mos ignores them (the paper's no-MOS ablation, "
                                  "docs/semantics.md §6.2)", flag="--mos")
     # None: on under compat="spec" (docs/semantics.md §3.4), off under compat="authors".
@@ -152,6 +157,8 @@ class SGCConfig:
             raise ValueError(f"partition must be one of {PARTITIONS}, got {self.partition!r}")
         if self.region_frame not in REGION_FRAMES:
             raise ValueError(f"region_frame must be one of {REGION_FRAMES}, got {self.region_frame!r}")
+        if self.track_pixel not in TRACK_PIXELS:
+            raise ValueError(f"track_pixel must be one of {TRACK_PIXELS}, got {self.track_pixel!r}")
         if self.compat not in COMPATS:
             raise ValueError(f"compat must be one of {COMPATS}, got {self.compat!r}")
         for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "lm_steps"):
@@ -182,6 +189,13 @@ class SGCConfig:
         """Depth in units of the clip's median static depth, translations and depth error in
         percent of it (``compat="spec"``); raw units under ``compat="authors"``."""
         return self.compat == "spec"
+
+    @property
+    def track_pixel_offset(self) -> float:
+        """Added to a track's (x, y) before flooring it to the pixel its depth and region are read
+        at: 0.5 reads the nearest pixel (``track_pixel`` "nearest", not under ``compat="authors"``),
+        0 the floor pixel."""
+        return 0.5 if self.track_pixel == "nearest" and self.compat != "authors" else 0.0
 
     @property
     def reads_previous_frame(self) -> bool:

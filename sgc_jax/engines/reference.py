@@ -154,12 +154,12 @@ def pair_region_mask(clip: Clip, frame: int, config: SGCConfig) -> np.ndarray:
 
 
 def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> int:
-    """Depth layers of a frame whose background (H, W) holds the points uv (n, 2) at their floor
-    pixels: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg unless ``layers_follow_tracks``
-    (docs/semantics.md §3.2)."""
+    """Depth layers of a frame whose background (H, W) holds the points uv (n, 2) at their pixels
+    (``track_pixel``): one per ``tracks_per_layer`` of them, 1..k_seg; k_seg unless
+    ``layers_follow_tracks`` (docs/semantics.md §3.2)."""
     if not config.layers_follow_tracks:
         return config.k_seg
-    on_mask = int((point_regions(region_mask.astype(np.int32), uv) > 0).sum())
+    on_mask = int((point_regions(region_mask.astype(np.int32), uv, config.track_pixel_offset) > 0).sum())
     return int(np.clip(on_mask // config.tracks_per_layer, 1, config.k_seg))
 
 
@@ -236,17 +236,25 @@ class UsablePoints(NamedTuple):
 def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
     usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
     prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
-    X, has_depth = back_project_tracks(clip, pair, prev)
+    X, has_depth = back_project_tracks(clip, pair, prev, config.track_pixel_offset)
     return UsablePoints(X[has_depth], curr[has_depth], prev[has_depth], int(usable.sum()))
 
 
-def back_project_tracks(clip: Clip, pair: int, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Frame pair-1 pixels prev (n, 2) back-projected from that frame's depth at their floor pixels
-    (docs/semantics.md §3.2 steps 3-4): X (n, 3) in camera pair-1, and where the depth is valid
-    (n,); depth 1 stands in where it is not."""
+def track_pixels(uv: np.ndarray, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(column, row) int64 (n,) of the pixels points uv (n, 2) are read at: floor(x + offset),
+    floor(y + offset); 0.5 reads the nearest pixel, 0 the floor pixel (``SGCConfig.track_pixel_offset``).
+    The offset is added in float32, as the JAX engine does, so both read the same pixel."""
+    shifted = uv.astype(np.float32) + np.float32(offset)
+    return np.floor(shifted[:, 0]).astype(np.int64), np.floor(shifted[:, 1]).astype(np.int64)
+
+
+def back_project_tracks(clip: Clip, pair: int, prev: np.ndarray, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Frame pair-1 pixels prev (n, 2) back-projected from that frame's depth at their pixels
+    (``track_pixels`` at ``offset``; docs/semantics.md §3.2 steps 3-4): X (n, 3) in camera pair-1,
+    and where the depth is valid (n,); depth 1 stands in where it is not."""
     H, W = clip.image_size
-    col = np.clip(np.floor(prev[:, 0]).astype(np.int64), 0, W - 1)
-    row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
+    col, row = track_pixels(prev, offset)
+    col, row = np.clip(col, 0, W - 1), np.clip(row, 0, H - 1)
     Z = clip.depth[pair - 1][row, col].astype(np.float64)
     has_depth = np.isfinite(Z) & (Z > 0)
     return back_project(clip.K[pair - 1], prev, np.where(has_depth, Z, 1.0)), has_depth
@@ -272,10 +280,11 @@ def project(K: np.ndarray, cam: np.ndarray) -> np.ndarray:
     return (np.column_stack([cam[:, :2] / z[:, None], np.ones(len(cam))]) @ K.astype(np.float64).T)[:, :2]
 
 
-def point_regions(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Region label (n,) at the floor pixels of uv (n, 2); 0 outside the image or outside every region."""
+def point_regions(labels: np.ndarray, uv: np.ndarray, offset: float = 0.0) -> np.ndarray:
+    """Region label (n,) at the pixels of uv (n, 2) (``track_pixels`` at ``offset``); 0 outside the
+    image or outside every region."""
     H, W = labels.shape
-    col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+    col, row = track_pixels(uv, offset)
     inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
     out = np.zeros(len(uv), np.int32)
     out[inside] = labels[row[inside], col[inside]]
@@ -735,7 +744,7 @@ def pair_points(clip: Clip, pair: int, config: SGCConfig) -> PairPoints:
     frame, where = region_frame(pair, config), uv_prev if config.reads_previous_frame else uv
     layers = layer_count(pair_region_mask(clip, frame, config), where, config)
     labels = partition_regions(clip, frame, config, layers)
-    return PairPoints(labels, X, uv, uv_prev, point_regions(labels, where), n_usable)
+    return PairPoints(labels, X, uv, uv_prev, point_regions(labels, where, config.track_pixel_offset), n_usable)
 
 
 class RegionPose(NamedTuple):

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from ...config import SGCConfig
 from ...kernels.partitions import depth_partition_of, depth_spatial_regions, grid_regions, region_of_depth
 from .buckets import Bucket, PaddedClips
-from .stages import PixelInputs, Stage, as_int, each
+from .stages import PixelInputs, Stage, as_float, as_int, each
 
 
 def layer_count(tracks_on_mask, stage: PixelStage):
@@ -35,11 +35,12 @@ def region_mask(depth, static, compat: str):
 def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelStage):
     """The clips' frames (B T, H, W), the frame (F,) of each pair's partition among them, the pairs'
     points in it (F, P, 2), the points that count towards the layer count (F, P) and true sizes (F, 2)
-    -> (region at each point's floor pixel (F, P) int32, 0 = none or outside; N_s (F,); |S| (F,)).
+    -> (region at each point's pixel (F, P) int32 (``track_pixel``), 0 = none or outside; N_s (F,);
+    |S| (F,)).
     Each frame is read where it lies: the pairs' frames sliced out first would be a copy of the
     clip's depth and mask, which at video generators' sizes costs a quarter to a third of the stage."""
     H_pad, W_pad = depth.shape[1:]
-    col, row = jnp.floor(points[..., 0]).astype(jnp.int32), jnp.floor(points[..., 1]).astype(jnp.int32)
+    col, row = track_pixels(points, stage.track_pixel_offset)
     inside = (col >= 0) & (col < image_hw[:, 1:]) & (row >= 0) & (row < image_hw[:, :1])
     pixel = jnp.clip(row, 0, H_pad - 1) * W_pad + jnp.clip(col, 0, W_pad - 1)  # (F, P)
     at_points = lambda image: image.reshape(image.shape[0], -1)[frame[:, None], pixel]  # noqa: E731
@@ -70,13 +71,18 @@ def frame_regions(depth, static, frame, points, counted, image_hw, stage: PixelS
     return jnp.where(inside, labels, 0).astype(jnp.int32), n_regions.astype(jnp.int32), n_pixels.astype(jnp.int32)
 
 
-def depth_at_tracks(depth, frame, track_prev, image_hw):
-    """Depth (P,) of frame i-1 (``depth[frame]``, frames (N, H, W)) at each track's floor pixel,
-    clamped to the true image (2,)."""
-    H, W = image_hw[0], image_hw[1]
-    col = jnp.clip(jnp.floor(track_prev[:, 0]).astype(jnp.int32), 0, W - 1)
-    row = jnp.clip(jnp.floor(track_prev[:, 1]).astype(jnp.int32), 0, H - 1)
-    return depth[frame, row, col]
+def track_pixels(points, offset):
+    """(column, row) int32 (...) of the pixels points (..., 2) are read at: floor(x + offset),
+    floor(y + offset); offset 0.5 reads the nearest pixel, 0 the floor pixel
+    (``SGCConfig.track_pixel_offset``)."""
+    return tuple(jnp.floor(points[..., axis] + offset).astype(jnp.int32) for axis in (0, 1))
+
+
+def depth_at_tracks(depth, frame, track_prev, image_hw, offset):
+    """Depth (P,) of frame i-1 (``depth[frame]``, frames (N, H, W)) at each track's pixel
+    (``track_pixels`` at ``offset``), clamped to the true image (2,)."""
+    col, row = track_pixels(track_prev, offset)
+    return depth[frame, jnp.clip(row, 0, image_hw[0] - 1), jnp.clip(col, 0, image_hw[1] - 1)]
 
 
 def pairs_flat(B, T):
@@ -105,12 +111,14 @@ class PixelStage(Stage):
     vectorized: bool = eqx.field(static=True)
     min_region_pixels: Any  # int32 ()
     tracks_per_layer: Any  # int32 ()
+    track_pixel_offset: Any  # float32 (): 0 reads a track's floor pixel, 0.5 its nearest
 
     @classmethod
     def of(cls, config: SGCConfig, vectorized: bool = False) -> PixelStage:
         return cls(k_seg=config.k_seg, kmeans_bins=config.kmeans_bins, partition=config.partition,
                    reads_previous_frame=config.reads_previous_frame, compat=config.compat, vectorized=vectorized,
-                   min_region_pixels=as_int(config.min_region_pixels), tracks_per_layer=as_int(config.tracks_per_layer))
+                   min_region_pixels=as_int(config.min_region_pixels), tracks_per_layer=as_int(config.tracks_per_layer),
+                   track_pixel_offset=as_float(config.track_pixel_offset))
 
     def sizes(self, bucket: Bucket) -> tuple[int, ...]:
         return bucket.T, bucket.H, bucket.W, bucket.P
@@ -132,7 +140,8 @@ def pixel_stage(x: PixelInputs, stage: PixelStage) -> dict:
     (depth, static), previous = frames_in_place(x.depth, x.static)
     # frame i-1 and the tracks' query points, or frame i and where the tracker put them
     frame, points = (previous, x.track_prev) if stage.reads_previous_frame else (previous + 1, x.track_curr)
-    Z_prev = jax.vmap(depth_at_tracks, (None, 0, 0, 0))(depth, previous, flat(x.track_prev), image_hw)
+    Z_prev = jax.vmap(depth_at_tracks, (None, 0, 0, 0, None))(depth, previous, flat(x.track_prev), image_hw,
+                                                              stage.track_pixel_offset)
     counted = flat(x.usable) & (Z_prev > 0)  # the tracks a local pose can use (pose stage)
     labels, n_regions, region_pixels = map(unflat, frame_regions(depth, static, frame, flat(points), counted,
                                                                  image_hw, stage))

@@ -85,12 +85,12 @@ def camera_poses(R_wc, t_wc):
     return R_g, t_wc[1:] - jnp.einsum("pij,pj->pi", R_g, t_wc[:-1])
 
 
-def pair_points(clip: PaddedClips, track_labels):
+def pair_points(clip: PaddedClips, track_labels, config: SGCConfig):
     """Every pair's tracks of frame i-1 back-projected (T-1, P, 3) and which have depth and a
     region (T-1, P) (the pose stage's points)."""
     pairs = clip.track_prev.shape[0]
-    Z = jax.vmap(depth_at_tracks, in_axes=(None, 0, 0, None))(clip.depth, jnp.arange(pairs), clip.track_prev,
-                                                              clip.image_hw)
+    Z = jax.vmap(depth_at_tracks, in_axes=(None, 0, 0, None, None))(clip.depth, jnp.arange(pairs), clip.track_prev,
+                                                                    clip.image_hw, config.track_pixel_offset)
     X = jax.vmap(back_project)(clip.K[:-1], clip.track_prev, Z)
     return X, clip.usable & clip.pair_valid[:, None] & (Z > 0) & (track_labels > 0)
 
@@ -103,7 +103,7 @@ def held_translation_scale(clip: PaddedClips, X, used, fixed: PaddedClips, froze
     fallback = 1.0 / clip.depth_unit
     if not config.fits_translation_scale:
         return fallback
-    X_fixed, used_fixed = pair_points(fixed, frozen.track_labels)
+    X_fixed, used_fixed = pair_points(fixed, frozen.track_labels, config)
     ratios, weights = jax.vmap(scale_equations)(X_fixed, used_fixed, fixed.K[1:], fixed.track_curr, frozen.R_g,
                                                 frozen.t_g)
     chosen = jnp.argmin(jnp.where(weights > 0, jnp.abs(ratios - frozen.scale), jnp.inf).reshape(-1))
@@ -178,7 +178,7 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     """One padded clip's per-pair components (T-1,) in the units of docs/semantics.md §4; ``fixed``:
     the forward pass's padded clip, on which the depth warp's and the scale's choices are made."""
     R_g, t_g = camera_poses(clip.R_wc, clip.t_wc)
-    X, used = pair_points(clip, frozen.track_labels)
+    X, used = pair_points(clip, frozen.track_labels, config)
     t_scaled = held_translation_scale(clip, X, used, fixed, frozen, R_g, t_g, config) * t_g
     R_local, t_local, accepted = local_poses(clip, X, frozen)
     comps = jax.vmap(pair_pose_components)(R_local, t_local, accepted, R_g, t_scaled, frozen.rot_per_px,
