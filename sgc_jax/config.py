@@ -76,8 +76,8 @@ STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "parti
                  "global_pose", "align_scale", "borrow_region_poses")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
 VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
-                "seed", "track_pixel", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px", "quality_noise_px",
-                "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
+                "seed", "track_pixel", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px",
+                "quality_noise_px", "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
 
 
 def _field(default: Any, help: str, *, flag: str | None = None, choices: tuple[str, ...] | None = None) -> Any:
