@@ -243,8 +243,8 @@ def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
 def track_pixels(uv: np.ndarray, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(column, row) int64 (n,) of the pixels points uv (n, 2) are read at: floor(x + offset),
     floor(y + offset); 0.5 reads the nearest pixel, 0 the floor pixel (``SGCConfig.track_pixel_offset``).
-    The offset is added in float32, as the JAX engine does, so both read the same pixel."""
-    shifted = uv.astype(np.float32) + np.float32(offset)
+    A non-zero offset is added in float32, as the JAX engine does, so both read the same pixel."""
+    shifted = uv.astype(np.float32) + np.float32(offset) if offset else uv
     return np.floor(shifted[:, 0]).astype(np.int64), np.floor(shifted[:, 1]).astype(np.int64)
 
 
