@@ -3,7 +3,7 @@ synthetic scenes under each noise model, level and track count, consistent and i
 
     python bench/validation.py [--split test|fit] [--models iid-curr iid-both ...] [--levels 0.25 0.5 1 2]
                                [--tracks 200 1000 4096] [--scenes N] [--out rows.csv] [--rows rows.csv]
-                               [--intervals] [--config FILE] [--against rows.csv]
+                               [--intervals] [--config FILE] [--noise-draw K] [--against rows.csv]
 
 Constants are fitted on ``--split fit``; the figures of RESULTS and the docs come from ``--split
 test`` (sgc_jax.research.protocol). ``--rows`` prints the tables from a CSV an earlier run wrote
@@ -21,7 +21,7 @@ with ``--out`` instead of scoring. Prints, for the split:
    each pose component over the consistent scenes (the bar: within [0.5, 2]);
 4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
    of 20 draws (consistent scenes and warp at 0.5, 1 px, 1000 tracks; the bar: >= 85 %);
-5. with ``--against ROWS`` (rows of the same grid from another tree, config or seed): clip by clip,
+5. with ``--against ROWS`` (rows of the same grid from another tree, config, seed or ``--noise-draw``): clip by clip,
    how far these rows are from those: statuses, the change of each clip's SGC, and the largest
    change of a detection share, of a consistent cell's median and of a floors range bound (how a
    constant of the pose search is chosen on FIT: bench/history/issue-61.md, "Eight leading fits").
@@ -54,7 +54,7 @@ def score_rows(args, config: SGCConfig) -> list[dict]:
     for scene, tracks in itertools.product(scenes, args.tracks):
         started = time.perf_counter()
         exact = protocol.exact_variants(scene, tracks)  # the same for every noise model and level
-        scene_cells = [c for c in protocol.cells(args.split, args.models, args.levels, (tracks,)) if c.scene == scene]
+        scene_cells = [c for c in protocol.cells(args.split, args.models, args.levels, (tracks,), args.noise_draw) if c.scene == scene]
         batch = [(cell, clip, kind, severity) for cell in scene_cells
                  for clip, kind, severity in protocol.cell_clips(cell, exact=exact)]
         result = score_batch([clip for _, clip, _, _ in batch], config=config, progress=False)
@@ -217,6 +217,8 @@ def main() -> None:
     parser.add_argument("--rows", default=None, help="print the tables from this CSV instead of scoring")
     parser.add_argument("--intervals", action="store_true", help="also measure the intervals' coverage")
     parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    parser.add_argument("--noise-draw", type=int, default=0,
+                        help="an independent draw of every cell's noise (default 0: the protocol's draw)")
     parser.add_argument("--against", default=None, help="rows (CSV) of the same grid scored otherwise: compared clip by clip")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()

@@ -24,6 +24,7 @@ from sgc_jax.research.protocol import (
     UNSEEN_SEEDS,
     Cell,
     cell_clips,
+    cells,
     detection_table,
     random_scene,
     rows_scored_or_read,
@@ -211,6 +212,11 @@ def test_cell_clips_share_the_noise_draw_of_their_cell():
     # squeeze moves only y: the x errors of the clean and the squeezed clip are the same draw
     np.testing.assert_allclose(clean.track_curr[..., 0] - exact.track_curr[..., 0],
                                squeezed.track_curr[..., 0] - exact.track_curr[..., 0], atol=1e-4)
+
+
+def test_every_cell_and_draw_has_its_own_noise_seed():
+    seeds = [cell.noise_seed for split in ("fit", "test") for draw in (0, 1, 2) for cell in cells(split, draw=draw)]
+    assert len(set(seeds)) == len(seeds)
 
 
 def test_detection_counts_a_cell_when_the_inconsistency_scores_above_its_twin():

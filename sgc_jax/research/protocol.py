@@ -121,23 +121,27 @@ def random_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") 
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
-    """One scene under one noise model, level and track count; its rows share one noise seed."""
+    """One scene under one noise model, level and track count; its rows share one noise seed.
+    ``draw`` > 0 deals an independent draw of the same noise (draw 0 is the protocol's)."""
 
     scene: ProtocolScene
     noise_model: str
     noise_px: float
     n_tracks: int
+    draw: int = 0
 
     @property
     def noise_seed(self) -> int:
-        return self.scene.seed * 1000 + NOISE_LEVELS_PX.index(self.noise_px) * 100 + sorted(NOISE_MODELS).index(
-            self.noise_model) * 10 + TRACK_COUNTS.index(self.n_tracks)
+        # Every split's seeds are below 10,000, so draws never share a seed.
+        return self.draw * 10_000_000 + self.scene.seed * 1000 + NOISE_LEVELS_PX.index(self.noise_px) * 100 + sorted(
+            NOISE_MODELS).index(self.noise_model) * 10 + TRACK_COUNTS.index(self.n_tracks)
 
 
-def cells(split: str, noise_models=tuple(NOISE_MODELS), levels=NOISE_LEVELS_PX, tracks=TRACK_COUNTS) -> Iterator[Cell]:
+def cells(split: str, noise_models=tuple(NOISE_MODELS), levels=NOISE_LEVELS_PX, tracks=TRACK_COUNTS,
+          draw: int = 0) -> Iterator[Cell]:
     """Every cell of a split, scene-major."""
     for scene, model, px, n in itertools.product(SPLITS[split], noise_models, levels, tracks):
-        yield Cell(scene, model, px, n)
+        yield Cell(scene, model, px, n, draw)
 
 
 def exact_variants(scene: ProtocolScene, n_tracks: int, inconsistencies=INCONSISTENCIES,
