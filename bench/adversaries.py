@@ -1,7 +1,7 @@
 """The adversary battery (issue 59, docs/semantics.md §3.11, §9.4): what the reward pays clips a
 generator could learn to make, against honest clips of the same scenes.
 
-    python bench/adversaries.py [--split test|fit] [--noise 1] [--curve] [--out rows.csv] [--rows rows.csv]
+    python bench/adversaries.py [--split test|fit] [--noise 1] [--curve] [--noise-draw K] [--out rows.csv] [--rows rows.csv]
 
 Noise: iid-both (independent Gaussian on both ends of every track). Prints, for the split:
 
@@ -47,24 +47,27 @@ CURVE_TRACKS = (50, 100, 150, 300, 400, 600)
 CURVE_NOISE = (0.5, 2.0)
 
 
-def noisy(clip, scene, px: float):
-    return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), scene.seed * 10 + int(px * 4))
+def noisy(clip, scene, px: float, draw: int = 0):
+    """The clip with iid-both noise of ``px``; every clip of a scene at one level shares the draw
+    (``draw`` > 0: an independent one, as ``protocol.Cell.draw``)."""
+    return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), draw * 10_000_000 + scene.seed * 10 + int(px * 4))
 
 
 def score_rows(args) -> list[dict]:
     rows = []
     for scene in protocol.SPLITS[args.split]:
         started = time.perf_counter()
-        batch = [("honest", "", 0.0, n, px, noisy(scene.clip(n), scene, px))
+        batch = [("honest", "", 0.0, n, px, noisy(scene.clip(n), scene, px, args.noise_draw))
                  for n, px in itertools.product(HONEST_TRACKS, HONEST_NOISE)]
         if args.curve:
-            batch += [("curve", "", 0.0, n, px, noisy(scene.clip(n), scene, px))
+            batch += [("curve", "", 0.0, n, px, noisy(scene.clip(n), scene, px, args.noise_draw))
                       for n, px in itertools.product(CURVE_TRACKS, CURVE_NOISE)]
-        batch += [("adversary", name, 0.0, TRACKS, args.noise, noisy(adversary(name, scene, TRACKS), scene, args.noise))
+        batch += [("adversary", name, 0.0, TRACKS, args.noise, noisy(adversary(name, scene, TRACKS), scene, args.noise,
+                                                                         args.noise_draw))
                   for name in ADVERSARIES]
         clean = scene.clip(TRACKS)
         batch += [("ladder", kind, s, TRACKS, args.noise, noisy(perturb_clip(clean, kind, s, seed=scene.seed), scene,
-                                                              args.noise))
+                                                              args.noise, args.noise_draw))
                   for kind, s in itertools.product(PERTURBATIONS, LADDER)]
         result = score_batch([b[-1] for b in batch], progress=False)
         rewards = result.rewards()
@@ -156,6 +159,8 @@ def main(argv=None) -> None:
     parser.add_argument("--split", choices=sorted(protocol.SPLITS), default="test")
     parser.add_argument("--noise", type=float, default=1.0, help="iid-both noise of the adversaries and ladders [px]")
     parser.add_argument("--curve", action="store_true", help="also honest clips at 50-600 tracks (table 4)")
+    parser.add_argument("--noise-draw", type=int, default=0,
+                        help="an independent draw of every clip's noise (default 0: the battery's draw)")
     parser.add_argument("--out", help="write the rows to this CSV")
     parser.add_argument("--rows", help="print the tables from a CSV written with --out")
     args = parser.parse_args(argv)
