@@ -1,7 +1,8 @@
 """The adversary battery (issue 59, docs/semantics.md §3.11, §9.4): what the reward pays clips a
 generator could learn to make, against honest clips of the same scenes.
 
-    python bench/adversaries.py [--split test|fit] [--noise 1] [--curve] [--noise-draw K] [--out rows.csv] [--rows rows.csv]
+    python bench/adversaries.py [--split test|fit] [--noise 1] [--curve] [--noise-draw K]
+                                [--out rows.csv] [--rows rows.csv]
 
 Noise: iid-both (independent Gaussian on both ends of every track). Prints, for the split:
 

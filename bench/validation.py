@@ -21,10 +21,11 @@ with ``--out`` instead of scoring. Prints, for the split:
    each pose component over the consistent scenes (the bar: within [0.5, 2]);
 4. with ``--intervals``: per noise model, how often one draw's 90 % interval holds the median SGC
    of 20 draws (consistent scenes and warp at 0.5, 1 px, 1000 tracks; the bar: >= 85 %);
-5. with ``--against ROWS`` (rows of the same grid from another tree, config, seed or ``--noise-draw``): clip by clip,
-   how far these rows are from those: statuses, the change of each clip's SGC, and the largest
-   change of a detection share, of a consistent cell's median and of a floors range bound (how a
-   constant of the pose search is chosen on FIT: bench/history/issue-61.md, "Eight leading fits").
+5. with ``--against ROWS`` (rows of the same grid from another tree, config, seed or noise draw):
+   clip by clip, how far these rows are from those: statuses, the change of each clip's SGC, and
+   the largest change of a detection share, of a consistent cell's median and of a floors range
+   bound (how a constant of the pose search is chosen on FIT: bench/history/issue-61.md, "Eight
+   leading fits").
 """
 
 from __future__ import annotations
@@ -54,7 +55,8 @@ def score_rows(args, config: SGCConfig) -> list[dict]:
     for scene, tracks in itertools.product(scenes, args.tracks):
         started = time.perf_counter()
         exact = protocol.exact_variants(scene, tracks)  # the same for every noise model and level
-        scene_cells = [c for c in protocol.cells(args.split, args.models, args.levels, (tracks,), args.noise_draw) if c.scene == scene]
+        scene_cells = [c for c in protocol.cells(args.split, args.models, args.levels, (tracks,), args.noise_draw)
+                       if c.scene == scene]
         batch = [(cell, clip, kind, severity) for cell in scene_cells
                  for clip, kind, severity in protocol.cell_clips(cell, exact=exact)]
         result = score_batch([clip for _, clip, _, _ in batch], config=config, progress=False)
