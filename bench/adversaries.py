@@ -51,7 +51,8 @@ CURVE_NOISE = (0.5, 2.0)
 def noisy(clip, scene, px: float, draw: int = 0):
     """The clip with iid-both noise of ``px``; every clip of a scene at one level shares the draw
     (``draw`` > 0: an independent one, as ``protocol.Cell.draw``)."""
-    return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), draw * 10_000_000 + scene.seed * 10 + int(px * 4))
+    seed = draw * protocol.NOISE_DRAW_STRIDE + scene.seed * 10 + int(px * 4)
+    return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), seed)
 
 
 def score_rows(args) -> list[dict]:

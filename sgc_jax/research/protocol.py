@@ -42,6 +42,9 @@ FIT_SEEDS = range(0, 100)
 TEST_SEEDS = range(5800, 5900)
 NOISE_LEVELS_PX = (0.25, 0.5, 1.0, 2.0)
 TRACK_COUNTS = (200, 1000, 4096)
+# A second draw of a noise adds this to its seed: above every split's and bench's own seeds, so
+# no two draws share one.
+NOISE_DRAW_STRIDE = 10_000_000
 SEVERITIES = (0.1, 0.25, 0.5)
 INCONSISTENCIES = (*PERTURBATIONS, "mover")
 
@@ -132,9 +135,8 @@ class Cell:
 
     @property
     def noise_seed(self) -> int:
-        # Every split's seeds are below 10,000, so draws never share a seed.
-        return self.draw * 10_000_000 + self.scene.seed * 1000 + NOISE_LEVELS_PX.index(self.noise_px) * 100 + sorted(
-            NOISE_MODELS).index(self.noise_model) * 10 + TRACK_COUNTS.index(self.n_tracks)
+        return (self.draw * NOISE_DRAW_STRIDE + self.scene.seed * 1000 + NOISE_LEVELS_PX.index(self.noise_px) * 100
+                + sorted(NOISE_MODELS).index(self.noise_model) * 10 + TRACK_COUNTS.index(self.n_tracks))
 
 
 def cells(split: str, noise_models=tuple(NOISE_MODELS), levels=NOISE_LEVELS_PX, tracks=TRACK_COUNTS,
