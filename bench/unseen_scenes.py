@@ -5,7 +5,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
     python bench/unseen_scenes.py [--scenes 24] [--first 0] [--tracks 1000] [--fovs 60]
                                   [--depth-scale-rms 0.02] [--camera-rot-deg 0.1 0.3]
                                   [--camera-step-rel 0.1] [--models correlated depth outliers]
-                                  [--perturb 0.25] [--pool fit|held-out] [--out rows.csv]
+                                  [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -45,7 +45,14 @@ import numpy as np
 from sgc_jax import score_batch
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
-from sgc_jax.research.protocol import RANDOM_POOLS, detection_table, random_scene, read_rows, rows_scored_or_read
+from sgc_jax.research.protocol import (
+    NOISE_DRAW_STRIDE,
+    RANDOM_POOLS,
+    detection_table,
+    random_scene,
+    read_rows,
+    rows_scored_or_read,
+)
 
 # model, px, depth scale, camera rotation [deg], camera centre [steps]; a cell's noise seed is scene
 # seed * 10 + its index among these and the --depth-scale-rms and camera cells (the depth-scale cell: 4)
@@ -75,6 +82,8 @@ def main() -> None:
                         help="also score the three perturbations at this severity, paired with each cell's noise")
     parser.add_argument("--pool", choices=sorted(RANDOM_POOLS), default="unseen",
                         help="unseen: report-only seeds 7200-7299; fit: FIT's seeds 30-99")
+    parser.add_argument("--noise-draw", type=int, default=0,
+                        help="K > 0: every cell's noise an independent draw (seed + K * protocol.NOISE_DRAW_STRIDE)")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -122,7 +131,7 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
                   for model, px, scale, rot, step in cells]
-        jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin)))
+        jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin, args.noise_draw)))
                 for j, noise in enumerate(models) for kind, severity, exact in variants]
         for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind,
@@ -178,10 +187,12 @@ def print_against(rows: list[dict], other: list[dict], path: str, cells, severit
     print(summary)
 
 
-def noise_seed(scene_seed: int, cell: int, builtin: int) -> int:
+def noise_seed(scene_seed: int, cell: int, builtin: int, draw: int = 0) -> int:
     """The noise draw of a scene's cell: the built-in cells' as before (scene seed * 10 + index), each
-    ``--models`` cell its own (scene seed * 100 + 10 + its index among them)."""
-    return scene_seed * 10 + cell if cell < builtin else scene_seed * 100 + 10 + cell - builtin
+    ``--models`` cell its own (scene seed * 100 + 10 + its index among them); ``draw`` > 0 an
+    independent one (+ draw * ``protocol.NOISE_DRAW_STRIDE``, as ``protocol.Cell.draw``)."""
+    own = scene_seed * 10 + cell if cell < builtin else scene_seed * 100 + 10 + cell - builtin
+    return draw * NOISE_DRAW_STRIDE + own
 
 
 def cell_label(model: str, px: float, scale: float, rot: float = 0.0, step: float = 0.0) -> str:
