@@ -16,9 +16,9 @@ Each point scores the consistent scene and each perturbation at 0.25 (same noise
 beside the clean clips' median evidence value (``pose_tracks``, ``parallax_px``, ``static_frac``),
 the *response* (the perturbed clip's SGC minus its consistent twin's; median over scenes, levels
 and the three perturbations, then over scenes and levels for each perturbation), the share where it
-is above 0 and above 0.05, and the clean clips' median SGC. A level is the clean clips' median evidence value at the sweep's first point whose
-response reaches half the response at its fullest point (1,000 tracks, the scene's own motion,
-the whole frame static).
+is above 0 and above 0.05, and the clean clips' median SGC. A level is the clean clips' median
+evidence value at the sweep's first point whose response reaches half the response at its fullest
+point (1,000 tracks, the scene's own motion, the whole frame static).
 """
 
 from __future__ import annotations
