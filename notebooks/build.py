@@ -143,8 +143,8 @@ QUICKSTART = [
 
         A pair's regions are the depth layers of its first frame's static background (static mask
         and valid depth; each track's region is read where it starts, docs/semantics.md §3.2): up
-        to `k_seg = 10` layers by 1-D k-means, one per 70 of the pair's tracks on the background,
-        and every layer with enough tracks gets its own PnP pose. Black: no region (the masked
+        to `k_seg = 10` layers by 1-D k-means, one per 140 of the pair's tracks on the background
+        (two from 140 on), and every layer with enough tracks gets its own PnP pose. Black: no region (the masked
         moving spheres, or clusters under 200 pixels). The legend gives each layer's depth range,
         its track count and its pose status.
     """),

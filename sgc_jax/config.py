@@ -14,9 +14,9 @@ PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
 TRACK_PIXELS = ("floor", "nearest")
-# Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers at 200 tracks,
-# k_seg from about 700 (bench/history/issue-41.md, "The excess score, the default").
-TRACKS_PER_LAYER = 70
+# Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers from 140 tracks,
+# 7 at 1,000, k_seg from 1,400 (bench/history/issue-58.md, "Larger depth layers on two noise draws").
+TRACKS_PER_LAYER = 140
 
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
@@ -94,10 +94,10 @@ class SGCConfig:
 
     k_seg: int = _field(10, "region slots per frame: depth clusters, grid cells or components")
     min_region_pixels: int = _field(200, "clusters, cells or components with fewer pixels are dropped")
-    tracks_per_layer: int = _field(TRACKS_PER_LAYER, "depth layers follow the tracks: a pair's background gets at "
-                                                     "most one layer per this many of its tracks on it (and at "
-                                                     "most k_seg); 0: always k_seg; depth partition only, not "
-                                                     "under compat='authors' (docs/semantics.md §3.2)")
+    tracks_per_layer: int = _field(TRACKS_PER_LAYER, "depth layers follow the tracks: a pair's background gets one "
+                                                     "layer per this many of its tracks on it, two from this many "
+                                                     "on (at most k_seg); 0: always k_seg; depth partition only, "
+                                                     "not under compat='authors' (docs/semantics.md §3.2)")
     min_points: int = _field(4, "tracks a region needs for a local pose (>= 4)")
     inlier_px: float = _field(8.0, "RANSAC inlier threshold on the reprojection error, pixels")
     ransac_hypotheses: int = _field(100, "most minimal samples drawn per region")

@@ -147,7 +147,7 @@ def test_plot_sensitivity_labels_every_panel(ladder):
 # ----------------------------------------------------------------------------- mask corruptions
 
 
-def test_mask_study_reports_relative_change_and_under_segmentation_hurts_the_depth_check():
+def test_mask_study_reports_relative_change_and_under_segmentation_is_seen():
     bases = [synth_clip(seed=s, clip_id=f"moving{s}", n_frames=3, height=96, width=128, n_tracks=512, n_layers=2,
                         static_spheres=4, moving_objects=2) for s in (20, 21)]
     study = sensitivity_study(bases, "erode,dilate,false_positive,false_negative", (0, 1), engine="reference",
@@ -155,12 +155,12 @@ def test_mask_study_reports_relative_change_and_under_segmentation_hurts_the_dep
     summary = {(s["kind"], s["severity"]): s for s in study.summary()}
     assert all(summary[kind, 0.0]["rel_change"] == 0 for kind in study.kinds)
     # eroding the dynamic mask lets the moving spheres' tracks into the static regions and their
-    # pixels into the depth comparison: the depth error and the score rise, while each region's
-    # pose, the optimum of its truncated cost (docs/semantics.md §3.2), leaves the few leaked
-    # tracks out
+    # pixels into the depth comparison: the depth error and the score rise, and where the leaked
+    # tracks fill a depth layer of their own (seed 21: 0 -> 10.2 deg^2; seed 20's stay few) that
+    # layer's pose disagrees with the others, as an unmasked mover's does (docs/semantics.md §3.3)
     assert summary["erode", 1.0]["depth_error"] > 2 * summary["erode", 0.0]["depth_error"]
     assert summary["erode", 1.0]["sgc"] > summary["erode", 0.0]["sgc"]
-    assert summary["erode", 1.0]["local_rot_var"] < RIGID_ROT_VAR_BAR
+    assert summary["erode", 0.0]["local_rot_var"] < RIGID_ROT_VAR_BAR < summary["erode", 1.0]["local_rot_var"]
 
 
 # ----------------------------------------------------------------------------- batching and errors

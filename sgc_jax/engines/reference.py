@@ -155,12 +155,13 @@ def pair_region_mask(clip: Clip, frame: int, config: SGCConfig) -> np.ndarray:
 
 def layer_count(region_mask: np.ndarray, uv: np.ndarray, config: SGCConfig) -> int:
     """Depth layers of a frame whose background (H, W) holds the points uv (n, 2) at their pixels
-    (``track_pixel``): one per ``tracks_per_layer`` of them, 1..k_seg; k_seg unless
+    (``track_pixel``): one per ``tracks_per_layer`` of them and two from that many on, 1..k_seg; k_seg unless
     ``layers_follow_tracks`` (docs/semantics.md §3.2)."""
     if not config.layers_follow_tracks:
         return config.k_seg
     on_mask = int((point_regions(region_mask.astype(np.int32), uv, config.track_pixel_offset) > 0).sum())
-    return int(np.clip(on_mask // config.tracks_per_layer, 1, config.k_seg))
+    per_layer = config.tracks_per_layer
+    return int(np.clip(max(on_mask // per_layer, 2 * (on_mask >= per_layer)), 1, config.k_seg))
 
 
 def partition_regions(clip: Clip, frame: int, config: SGCConfig, layers: int | None = None) -> np.ndarray:

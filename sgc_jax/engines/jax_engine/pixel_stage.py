@@ -18,13 +18,14 @@ from .stages import PixelInputs, Stage, as_float, as_int, each
 
 def layer_count(tracks_on_mask, stage: PixelStage):
     """Depth layers (F,) int32 of frames whose backgrounds hold ``tracks_on_mask`` (F,) of their
-    pairs' tracks: one per ``tracks_per_layer`` of them, 1..k_seg; k_seg when it is 0 or under
-    compat="authors"."""
+    pairs' tracks: one per ``tracks_per_layer`` of them and two from that many on, 1..k_seg; k_seg
+    when it is 0 or under compat="authors"."""
     if stage.compat == "authors":
         return jnp.full(tracks_on_mask.shape, stage.k_seg, jnp.int32)
-    per_layer = stage.tracks_per_layer
-    return jnp.where(per_layer > 0, jnp.clip(tracks_on_mask // jnp.maximum(per_layer, 1), 1, stage.k_seg),
-                     stage.k_seg).astype(jnp.int32)
+    per_layer = jnp.maximum(stage.tracks_per_layer, 1)
+    # two layers as soon as one is full: a pair's two poses are what its local components need (§3.5)
+    count = jnp.maximum(tracks_on_mask // per_layer, 2 * (tracks_on_mask >= per_layer))
+    return jnp.where(stage.tracks_per_layer > 0, jnp.clip(count, 1, stage.k_seg), stage.k_seg).astype(jnp.int32)
 
 
 def region_mask(depth, static, compat: str):
