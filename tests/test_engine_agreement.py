@@ -141,10 +141,8 @@ def test_on_rigid_scenes_the_spec_local_worst_poses_are_no_further_from_the_trut
         scored, opencv_rotations):
     """The authors' PnP (OpenCV's adaptive RANSAC, inlier counting) on the same regions, against
     both spec engines: the spec engines' worst poses are no further from the true motion, to within
-    one region of the corpus. On the default's regions (frame i-1, a layer per 140 tracks) the
-    poses differ by > 0.1 deg in 22 of 260 regions, 12 worse and 10 better than OpenCV's, and the
-    tails meet (95th percentile 1.2057 deg against OpenCV's 1.2049, 90th 0.94 against 0.99;
-    bench/history/issue-58.md, "Larger depth layers shipped")."""
+    one region of the corpus; on the default's regions the two tails meet (bench/history/issue-58.md,
+    "Larger depth layers shipped")."""
     clips, ref, jx = scored
     errors = {"jax": [], "reference": [], "opencv": []}
     for clip, r, j in zip(clips, ref.clips, jx.clips):
