@@ -58,6 +58,12 @@ def _timing(text: str) -> tuple[str, str]:
     return "timing", textwrap.dedent(text).strip("\n")
 
 
+def _cpu_rounded(text: str) -> tuple[str, str]:
+    """A code cell whose output follows the CPU's float rounding through a long descent (an AVX2 and an
+    AVX-512 box end 0.4 apart): tagged ``cpu-rounding``, so tests run it but do not compare it."""
+    return "cpu-rounding", textwrap.dedent(text).strip("\n")
+
+
 ENGINE_NOTE = _md("""
     **Compilation.** The default `engine="jax"` pads clips to a shape bucket (frames, pixels,
     tracks) and compiles its programs once per bucket: the first call of a new shape takes about a
@@ -619,7 +625,7 @@ GRADIENTS = [
         choices follow the depth. The error to the true depth is the mean |d − d_true| / d_true over
         valid pixels after matching the clip's median scale (SGC is blind to one scale per clip).
     """),
-    _code("""\
+    _cpu_rounded("""\
         valid = clean.depth > 0
 
         def repaired(theta):  # the batch's depth, the corrupted clip's corrected
@@ -716,8 +722,8 @@ def build(name: str):
     for i, (kind, source) in enumerate(NOTEBOOKS[name]):
         make = nbformat.v4.new_markdown_cell if kind == "markdown" else nbformat.v4.new_code_cell
         cell = make(source, id=f"{name[:2]}-{i:02d}")
-        if kind == "timing":
-            cell.metadata["tags"] = ["timing"]
+        if kind in ("timing", "cpu-rounding"):
+            cell.metadata["tags"] = [kind]
         nb.cells.append(cell)
     return nb
 
