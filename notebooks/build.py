@@ -59,8 +59,8 @@ def _timing(text: str) -> tuple[str, str]:
 
 
 def _cpu_rounded(text: str) -> tuple[str, str]:
-    """A code cell whose output follows the CPU's float rounding through a long descent (an AVX2 and an
-    AVX-512 box end 0.4 apart): tagged ``cpu-rounding``, so tests run it but do not compare it."""
+    """A code cell whose output follows the CPU's float rounding through a long descent: tagged
+    ``cpu-rounding``, so tests run it but do not compare it."""
     return "cpu-rounding", textwrap.dedent(text).strip("\n")
 
 

@@ -148,8 +148,8 @@ def test_notebook_runs_clean_top_to_bottom(name, jax_cache, tmp_path, monkeypatc
             assert not [o for o in cell.outputs if o["output_type"] == "error"]
     stored = nbformat.read(NOTEBOOKS_DIR / f"{name}.ipynb", as_version=4)
     for i, (old, new) in enumerate(zip(stored.cells, nb.cells)):
+        # a time differs run to run; a long descent ends where the CPU's rounding takes it
         if new.cell_type == "code" and not {"timing", "cpu-rounding"} & set(new.metadata.get("tags", [])):
-                # a time differs run to run; a long descent ends where the CPU's rounding takes it
             assert_same_up_to_float_noise(_text(old), _text(new), f"{name}.ipynb cell {i} (rebuild it: "
                                           f"python notebooks/build.py {name})")
     figures = _figure_cells(nb)
