@@ -77,7 +77,8 @@ def score_rows(args) -> list[dict]:
             rows.append(dict(scene=scene.name, group=group, kind=kind, severity=severity, tracks=n, noise_px=px,
                              status=SCORER_STATUSES[int(rewards["status"][i])], reason=c.reason, sgc=c.sgc,
                              sgc_lo=c.sgc_lo, sgc_hi=c.sgc_hi, sgc_unclipped=float(rewards["sgc_unclipped"][i]),
-                             evidence=c.evidence, pose_tracks=c.pose_tracks, reward=float(rewards["reward"][i]),
+                             depth_error=c.components["depth_error"], evidence=c.evidence,
+                             pose_tracks=c.pose_tracks, reward=float(rewards["reward"][i]),
                              camera_motion=float(rewards["camera_motion"][i])))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     return rows

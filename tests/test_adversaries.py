@@ -21,19 +21,21 @@ NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
 # earn less only as far as the score sees their inconsistency (bench/history/issue-59.md, "Evidence").
 BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
                "repeated_frames", "half_broken")
+# A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
+BY_DEPTH_ERROR = ("pure_rotation",)
 HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward
 
 
 @pytest.fixture(scope="module")
 def scored():
-    clips = [SCENE.clip(TRACKS)] + [adversary(name, SCENE, TRACKS) for name in BY_EVIDENCE]
+    clips = [SCENE.clip(TRACKS)] + [adversary(name, SCENE, TRACKS) for name in BY_EVIDENCE + BY_DEPTH_ERROR]
     clips = [add_noise(c, NOISE, seed=i) for i, c in enumerate(clips)]
     clips += clips[-1:] * (-len(clips) % DEMO_BATCH_SHAPE[0])
     scorer = Scorer(DEMO_BATCH_SHAPE)
     parts = [scorer(batch_of(clips[i:i + DEMO_BATCH_SHAPE[0]], DEMO_BATCH_SHAPE[1:]))
              for i in range(0, len(clips), DEMO_BATCH_SHAPE[0])]
     out = {name: np.concatenate([np.asarray(p[name]) for p in parts]) for name in parts[0]}
-    return {name: {k: v[i] for k, v in out.items()} for i, name in enumerate(("honest", *BY_EVIDENCE))}
+    return {name: {k: v[i] for k, v in out.items()} for i, name in enumerate(("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR))}
 
 
 def test_an_honest_moving_clip_is_fully_measured(scored):
@@ -41,7 +43,7 @@ def test_an_honest_moving_clip_is_fully_measured(scored):
     assert honest["evidence"] == 1.0 and SCORER_STATUSES[honest["status"]] == "ok" and honest["reward"] > 0.4
 
 
-@pytest.mark.parametrize("name", BY_EVIDENCE)
+@pytest.mark.parametrize("name", BY_EVIDENCE + BY_DEPTH_ERROR)
 def test_an_adversary_earns_at_most_half_an_honest_clips_reward(scored, name):
     assert scored[name]["reward"] <= HONEST_SHARE * scored["honest"]["reward"]
 
