@@ -17,6 +17,7 @@ from scenes import DEMO_BATCH_SHAPE, DEMO_SCENE, SMALL_SCENE
 from tolerances import LM_SETTLE_RTOL
 
 from sgc_jax import COMPONENTS, ClipFormatError, EvidenceLevels, RewardOptions, Scorer, SGCConfig, score_batch
+from sgc_jax.calibration import DEFAULT_CALIBRATION, Calibration
 from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import without_absurd_depth
@@ -25,6 +26,7 @@ from sgc_jax.io.tables import EVIDENCE_COLUMNS, FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
+from sgc_jax.scoring.reward import reward
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.stats import exact_median
 
@@ -264,6 +266,23 @@ def test_the_reward_ranks_clips_the_calibration_scores_zero(scorer, corpus):
     order = np.argsort(out["sgc_unclipped"])
     assert np.all(np.diff(out["reward"][order]) < 0)  # higher reward, lower unclipped score
 
+
+
+def test_the_depth_error_counts_again_in_the_reward_only_above_its_zero():
+    """§9.4: reward = σ(−(sgc_unclipped + a · M''_depth) / τ) · evidence, M''_depth >= 0."""
+    calibration = Calibration.load(DEFAULT_CALIBRATION["spec"])
+    zero = calibration.mu["depth_error"] + calibration.z_min["depth_error"] * calibration.sigma["depth_error"]
+    span = (calibration.z_max["depth_error"] - calibration.z_min["depth_error"]) * calibration.sigma["depth_error"]
+    depth = np.array([zero - 0.2, zero + 0.5 * span])  # below the zero; M''_depth 0.5
+    summary = {k: np.zeros(2) for k in (*COMPONENTS, *FLOOR_COLUMNS)} | dict(
+        depth_error=depth, ecd_trans=np.full(2, 3.0), ecd_rot=np.full(2, 1.0), evidence=np.ones(2),
+        status=np.full(2, SCORER_STATUS_CODE["ok"], np.int32))
+    weighted = reward(summary, calibration, RewardOptions(), xp=np)
+    plain = reward(summary, calibration, RewardOptions(depth_weight=0.0), xp=np)
+    assert weighted["reward"][0] == plain["reward"][0]  # below the zero: no bonus
+    s = plain["sgc_unclipped"][1]
+    np.testing.assert_allclose(weighted["reward"][1], 1 / (1 + np.exp((s + 0.2 * 0.5) / 0.25)), rtol=1e-6)
+    assert weighted["reward"][1] < plain["reward"][1]
 
 def test_a_wrong_shape_or_dtype_raises_clip_format_error_at_the_call(scorer, corpus):
     batch = batch_of(corpus[:4])
