@@ -267,7 +267,6 @@ def test_the_reward_ranks_clips_the_calibration_scores_zero(scorer, corpus):
     assert np.all(np.diff(out["reward"][order]) < 0)  # higher reward, lower unclipped score
 
 
-
 def test_the_depth_error_counts_again_in_the_reward_only_above_its_zero():
     """§9.4: reward = σ(−(sgc_unclipped + a · M''_depth) / τ) · evidence, M''_depth >= 0."""
     calibration = Calibration.load(DEFAULT_CALIBRATION["spec"])
@@ -284,6 +283,7 @@ def test_the_depth_error_counts_again_in_the_reward_only_above_its_zero():
     expected = 1 / (1 + np.exp((s + 0.2 * 0.5) / 0.25))
     np.testing.assert_allclose(weighted["reward"][1], expected, rtol=4 * np.finfo(np.float32).eps)  # a float32 output
     assert weighted["reward"][1] < plain["reward"][1]
+
 
 def test_a_wrong_shape_or_dtype_raises_clip_format_error_at_the_call(scorer, corpus):
     batch = batch_of(corpus[:4])
