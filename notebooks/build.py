@@ -538,8 +538,9 @@ BEST_OF_N = [
         clips follow in the order of their scores. Two decoys tie with the clean clip at `sgc` = 0:
         the still camera, whose local poses all agree because nothing moves, and the track-less
         clip, scored on its depth error alone. Neither earns anything: the reward is the logistic
-        of the score times the clip's `evidence`, the share of its pairs' geometry that was
-        measured, and a pair counts in proportion to its camera's motion against the full-motion
+        of the score (with the depth error counted again above its zero, since without parallax
+        it alone sees a depth inconsistency) times the clip's `evidence`, the share of its pairs'
+        geometry that was measured, and a pair counts in proportion to its camera's motion against the full-motion
         level (1 % of D or 0.5° per pair): the still camera's evidence is 0 and its status
         `static_camera`; the track-less and all-masked clips are measured on nothing
         (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
