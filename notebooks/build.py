@@ -540,11 +540,11 @@ BEST_OF_N = [
         clip, scored on its depth error alone. Neither earns anything: the reward is the logistic
         of the score (with the depth error counted again above its zero, since without parallax
         it alone sees a depth inconsistency) times the clip's `evidence`, the share of its pairs'
-        geometry that was measured, and a pair counts in proportion to its camera's motion against the full-motion
-        level (1 % of D or 0.5° per pair): the still camera's evidence is 0 and its status
-        `static_camera`; the track-less and all-masked clips are measured on nothing
-        (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's
-        floor at 0 of each normalised component, so clips whose depth error is below the clean
+        geometry that was measured, and a pair counts in proportion to its camera's motion
+        against the full-motion level (1 % of D or 0.5° per pair): the still camera's evidence
+        is 0 and its status `static_camera`; the track-less and all-masked clips are measured on
+        nothing (`no_tracks`, `no_static`). `sgc_unclipped` drops the calibration's floor at 0
+        of each normalised component, so clips whose depth error is below the clean
         clips' 90th percentile still rank among themselves; a pose component within its noise band
         counts 0 in both (below the noise there is nothing to rank).
     """),

@@ -23,19 +23,20 @@ BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_ban
                "repeated_frames", "half_broken")
 # A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
 BY_DEPTH_ERROR = ("pure_rotation",)
+CLIPS = ("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR)
 HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward
 
 
 @pytest.fixture(scope="module")
 def scored():
-    clips = [SCENE.clip(TRACKS)] + [adversary(name, SCENE, TRACKS) for name in BY_EVIDENCE + BY_DEPTH_ERROR]
+    clips = [SCENE.clip(TRACKS)] + [adversary(name, SCENE, TRACKS) for name in CLIPS[1:]]
     clips = [add_noise(c, NOISE, seed=i) for i, c in enumerate(clips)]
     clips += clips[-1:] * (-len(clips) % DEMO_BATCH_SHAPE[0])
     scorer = Scorer(DEMO_BATCH_SHAPE)
     parts = [scorer(batch_of(clips[i:i + DEMO_BATCH_SHAPE[0]], DEMO_BATCH_SHAPE[1:]))
              for i in range(0, len(clips), DEMO_BATCH_SHAPE[0])]
     out = {name: np.concatenate([np.asarray(p[name]) for p in parts]) for name in parts[0]}
-    return {name: {k: v[i] for k, v in out.items()} for i, name in enumerate(("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR))}
+    return {name: {k: v[i] for k, v in out.items()} for i, name in enumerate(CLIPS)}
 
 
 def test_an_honest_moving_clip_is_fully_measured(scored):
