@@ -5,6 +5,7 @@ default config and calibration.
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
                              [--config FILE] [--regions N] [--line-ratio 0.05]
                              [--camera-rot-deg 0.3] [--camera-step-rel 0.1]
+                             [--noise-models iid-curr iid-both correlated depth outliers --noise-levels 0.5 1 2]
 
 Prints
 
@@ -27,6 +28,13 @@ and ``--camera-step-rel b`` score every clip (and its ladders) with errors on it
 estimator's: each turned about its centre by a rotation of RMS a degrees per axis and its centre
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
 the clip's place); the tracks' distance to the ground-truth motion is still the exact cameras'.
+
+``--noise-models M ... --noise-levels PX ...`` also scores every clip under the validation
+protocol's estimator errors on top of its own tracker's (sgc_jax.research.noise.NOISE_MODELS,
+docs/semantics.md §7.4; each model at each level, one draw seeded by the clip's place), with the
+perturbations at severity 0.25 under the same draw (perturbed first, then the errors, as the
+protocol's cells), and prints per model and level: the clean clips' SGC against their clips as
+read, and how many clips each perturbation scores above its twin in SGC and below it in reward.
 """
 
 from __future__ import annotations
@@ -40,13 +48,14 @@ import numpy as np
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.adapters import leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
-from sgc_jax.research.noise import NoiseModel, add_noise
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.pose_jitter import pose_jitter
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 LADDER_SEVERITIES = (0.25, 0.5, 1.0)
+NOISY_SEVERITY = 0.25  # the protocol's detection bar's severity (issue 58)
 
 
 def print_clean(clips, result, exact) -> None:
@@ -105,6 +114,34 @@ def print_ladders(clips, clean, engine: str, config: SGCConfig) -> None:
     print(f"\n{rising} of {n} ladders rise strictly in SGC; {falling} of {n} fall strictly in reward")
 
 
+def print_noise(clips, clean_sgc, models, levels, engine: str, config: SGCConfig) -> None:
+    """The clips under each protocol noise model and level (module docstring); ``clean_sgc``: the
+    clips' SGC as read."""
+    kinds = ("", *PERTURBATIONS)  # "": the clip itself, the perturbations' twin
+    cells = [(model, px) for model in models for px in levels]
+    variants = []
+    for model, px in cells:
+        errors = NOISE_MODELS[model].replace(px=px)
+        for k, clip in enumerate(clips):
+            for kind in kinds:
+                base = perturb_clip(clip, kind, NOISY_SEVERITY, seed=0) if kind else clip
+                variants.append(add_noise(base, errors, seed=k))
+    result = score_batch(variants, engine=engine, config=config, progress=False)
+    sgc = np.array([c.sgc for c in result.clips]).reshape(len(cells), len(clips), len(kinds))
+    reward = np.asarray(result.rewards()["reward"]).reshape(sgc.shape)
+    print(f"\nThe clips under the protocol's estimator errors on top of their own tracker's; perturbations at "
+          f"{NOISY_SEVERITY:g} under the same draw (of {len(clips)} clips)")
+    print("| noise model | px | SGC minus as read: median (range) | largest SGC | reward, median | "
+          + " | ".join(f"{k} above / reward below" for k in PERTURBATIONS) + " |")
+    print("|---|---|---|---|---|" + "---|" * len(PERTURBATIONS))
+    for (model, px), cell_sgc, cell_reward in zip(cells, sgc, reward):
+        rise = cell_sgc[:, 0] - clean_sgc
+        detected = [f"{int(np.sum(cell_sgc[:, j] > cell_sgc[:, 0]))} / {int(np.sum(cell_reward[:, j] < cell_reward[:, 0]))}"
+                    for j in range(1, len(kinds))]
+        print(f"| {model} | {px:g} | {np.median(rise):+.3f} ({rise.min():+.3f} to {rise.max():+.3f}) | "
+              f"{cell_sgc[:, 0].max():.3f} | {np.median(cell_reward[:, 0]):.3f} | " + " | ".join(detected) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default=str(DEFAULT_DIR))
@@ -120,6 +157,10 @@ def main() -> None:
                         help="turn each camera by a rotation of this RMS per axis [deg] before scoring")
     parser.add_argument("--camera-step-rel", type=float, default=0.0,
                         help="move each camera centre by this RMS per axis [median camera steps] before scoring")
+    parser.add_argument("--noise-models", nargs="*", default=[], choices=sorted(NOISE_MODELS),
+                        help="also score the clips under these protocol noise models (docs/semantics.md §7.4)")
+    parser.add_argument("--noise-levels", nargs="*", type=float, default=[0.5, 1.0, 2.0],
+                        help="the track error levels of --noise-models [px RMS per coordinate]")
     args = parser.parse_args()
     config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
     paths = sorted(Path(args.dir).glob("*.npz"))
@@ -138,6 +179,9 @@ def main() -> None:
         result.to_pandas().to_csv(args.out, index=False)
     if args.regions:
         print_regions(clips, result, config, args.regions)
+    if args.noise_models:
+        print_noise(clips, np.array([c.sgc for c in result.clips]), args.noise_models, args.noise_levels,
+                    args.engine, config)
     if not args.no_ladders:
         print_ladders(clips, list(zip([c.sgc for c in result.clips], result.rewards()["reward"])), args.engine,
                       config)

@@ -158,7 +158,8 @@ def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) 
         nearest = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), kernel) for d, v in zip(out, valid)])
         farthest = np.stack([cv2.dilate(np.where(v, d, 0.0).astype(np.float32), kernel) for d, v in zip(out, valid)])
         blend = rng.uniform(0.0, 1.0, size=out.shape)
-        out = np.where(near_edge, nearest + blend * (farthest.astype(np.float64) - nearest), out)
+        with np.errstate(invalid="ignore"):  # inf - inf where no valid depth is near: not an edge, not read
+            out = np.where(near_edge, nearest + blend * (farthest.astype(np.float64) - nearest), out)
     if model.depth_scale_rel > 0:  # drawn last: the other errors' draws stay as they were
         out = np.where(valid, out * np.exp(model.depth_scale_rel * rng.standard_normal(T))[:, None, None], out)
     return out.astype(np.float32)
