@@ -29,6 +29,7 @@ from sgc_jax import score_batch
 from sgc_jax.adapters import (
     EstimatorFormatError,
     MaskFormatWarning,
+    every_nth_frame,
     import_clip,
     read_delta,
     read_frames,
@@ -292,6 +293,21 @@ def test_delta_dense_arrays_become_consecutive_pairs(tmp_path):
         (tmp_path / name).write_bytes(content)
         with pytest.raises(EstimatorFormatError, match=name):  # a broken file is named, never a traceback
             read_delta(tmp_path / name)
+
+
+def test_delta_dense_tracks_pair_frames_a_step_apart_and_per_pair_files_cannot(tmp_path, scene_clip):
+    rng = np.random.default_rng(1)
+    T, N = 5, 40
+    coords = rng.uniform(0, 60, (T, N, 2)).astype(np.float32)
+    vis = rng.uniform(0, 1, (T, N)).astype(np.float32)
+    conf = rng.uniform(0, 1, (T, N)).astype(np.float32)
+    stepped = every_nth_frame(read_delta({"coords": coords, "vis": vis, "conf": conf}), 2)  # frames 0, 2, 4
+    np.testing.assert_array_equal(stepped.track_prev, coords[[0, 2]])
+    np.testing.assert_array_equal(stepped.track_curr, coords[[2, 4]])
+    np.testing.assert_array_equal(stepped.track_vis, (vis[[0, 2]] > 0.8) & (vis[[2, 4]] > 0.8))
+    np.testing.assert_array_equal(stepped.track_conf, conf[[2, 4]])
+    with pytest.raises(ValueError, match="needs long-range tracks"):
+        every_nth_frame(read_delta(write_delta_pairs(tmp_path / "delta", scene_clip)), 2)
 
 
 # ----------------------------------------------------------------------------- SegAnyMo

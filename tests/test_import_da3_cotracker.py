@@ -153,3 +153,42 @@ def test_a_da3_and_cotracker3_clip_imported_by_the_cli_scores_its_world_consiste
     assert max(original.sgc, honest.sgc) < CLEAN_SGC_MAX
     assert honest.components["depth_error"] == pytest.approx(original.components["depth_error"], rel=SCORE_RTOL)
     assert broken.sgc > 0.1
+
+
+# ----------------------------------------------------------------------------- frame step
+
+
+def test_a_frame_step_pairs_long_range_tracks_that_many_frames_apart_and_keeps_those_frames(tmp_path, scene_clip):
+    T, (H, W) = scene_clip.n_frames, scene_clip.image_size
+    tracks, visibility = long_range_tracks_of(scene_clip, 200)
+    sources = dict(da3=write_da3(tmp_path / "results.npz", scene_clip),
+                   tracks=write_cotracker(tmp_path / "cotracker.npz", tracks, visibility),
+                   masks=write_seganymo(tmp_path / "seganymo", scene_clip, (H, W)),
+                   frames=write_frames(tmp_path / "frames", scene_clip))
+    every, stepped = import_clip(**sources), import_clip(**sources, frame_step=2)
+    kept = np.arange(0, T, 2)
+    assert stepped.n_frames == len(kept)
+    for name in ("depth", "K", "R_wc", "t_wc", "static_mask", "frames"):
+        np.testing.assert_array_equal(getattr(stepped, name), getattr(every, name)[kept], err_msg=name)
+    np.testing.assert_array_equal(stepped.track_prev, tracks[kept[:-1]])
+    np.testing.assert_array_equal(stepped.track_curr, tracks[kept[1:]])
+    np.testing.assert_array_equal(stepped.track_vis, visibility[kept[:-1]] & visibility[kept[1:]])
+    assert stepped.meta["import"]["frame_step"] == {"step": 2, "frames_kept": len(kept), "of": T}
+
+
+def test_a_frame_step_needs_long_range_tracks_the_default_semantics_and_two_frames_left(tmp_path, scene_clip, capsys):
+    T = scene_clip.n_frames
+    da3 = write_da3(tmp_path / "results.npz", scene_clip)
+    cotracker = write_cotracker(tmp_path / "cotracker.npz", *long_range_tracks(T=T))
+    with pytest.raises(ValueError, match="needs long-range tracks"):
+        import_clip(da3=da3, tracks=write_delta_pairs(tmp_path / "delta", scene_clip), frame_step=2)
+    with pytest.raises(ValueError, match=f"keeps 1 of the {T} frames"):
+        import_clip(da3=da3, tracks=cotracker, frame_step=T)
+    with pytest.raises(ValueError, match="whole number >= 1"):
+        import_clip(da3=da3, tracks=cotracker, frame_step=0)
+    out = tmp_path / "clip.npz"
+    assert main(["import", "--da3", str(da3), "--tracks", str(cotracker), "--frame-step", "3", "--out", str(out)]) == 0
+    assert f"frame step 3: {len(range(0, T, 3))} of {T} frames kept" in capsys.readouterr().err
+    assert main(["import", "--da3", str(da3), "--tracks", str(tmp_path / "delta"), "--frame-step", "2",
+                 "--out", str(tmp_path / "pairs.npz")]) == 2
+    assert "needs long-range tracks" in capsys.readouterr().err

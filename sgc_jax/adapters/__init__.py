@@ -11,6 +11,7 @@
 - :func:`read_delta`: DELTA per-pair ``{a}_{a}.npy`` / ``{a}_{b}.npy`` files or dense
   ``coords`` / ``vis`` / ``conf`` arrays.
 - :func:`read_cotracker`: CoTracker3 ``pred_tracks`` / ``pred_visibility`` (.npz, .pt or .npy).
+- :func:`every_nth_frame`: pairs of frames a step apart from long-range tracks (``frame_step``).
 - :func:`read_seganymo`: SegAnyMo palette PNG masks (indices, 0 = static).
 - :func:`read_frames`: a frames folder or a video file.
 - :func:`leave_out_line_tracks`: an opt-in step before scoring, the tracks that start on a line
@@ -20,7 +21,15 @@
 from .assemble import ImportOptions, import_clip, read_tracks
 from .common import EstimatorFormatError
 from .cotracker import COTRACKER_VIS_THRESHOLD, read_cotracker
-from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta, read_delta_dense, read_delta_pairs
+from .delta import (
+    DELTA_VIS_THRESHOLD,
+    LongRangeTracks,
+    Tracks,
+    every_nth_frame,
+    read_delta,
+    read_delta_dense,
+    read_delta_pairs,
+)
 from .depth_alignment import DepthAlignmentWarning, DisparityFit, align_depth_to_vggt, fit_inverse_depth_affine
 from .depth_anything_3 import DA3Output, read_da3
 from .frames import Frames, read_frames
@@ -31,8 +40,8 @@ from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
     "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth",
-    "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames", "LINE_RATIO", "MaskFormatWarning", "Masks",
-    "Tracks", "VGGTDepth", "VGGTGrid", "align_depth_to_vggt", "fit_inverse_depth_affine", "import_clip",
+    "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames", "LINE_RATIO", "LongRangeTracks", "MaskFormatWarning", "Masks",
+    "Tracks", "VGGTDepth", "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "import_clip",
     "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3", "read_delta", "read_delta_dense",
     "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo", "read_tracks", "read_vggt",
     "read_video_depth", "vggt_grid",

@@ -14,12 +14,14 @@ import dataclasses
 import os
 from typing import Any
 
+import numpy as np
+
 from ..config import SGCConfig
 from ..io.clip import Clip
 from ..io.loading import clip_from_arrays
 from .common import parse_size, resize_frames, resize_points
 from .cotracker import holds_cotracker, read_cotracker
-from .delta import DELTA_VIS_THRESHOLD, Tracks, read_delta
+from .delta import DELTA_VIS_THRESHOLD, Tracks, every_nth_frame, read_delta
 from .depth_alignment import align_depth_to_vggt
 from .depth_anything_3 import read_da3, read_da3_hw
 from .frames import read_frames
@@ -49,6 +51,7 @@ class ImportOptions:
     reference_compat: bool = False  # the SGC authors' pipeline (K at 518 px, depth = VDA / 1000, no threshold)
     align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
     line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
+    frame_step: int = 1  # keep frames 0, k, 2k, ...: pairs k frames apart (§1.5; needs long-range tracks)
 
     @property
     def fits_disparity(self) -> bool:
@@ -87,6 +90,14 @@ def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -
                          "a Depth Anything 3 clip is scored with the default semantics")
 
 
+def _check_frame_step(o: ImportOptions) -> None:
+    if isinstance(o.frame_step, bool) or not isinstance(o.frame_step, (int, np.integer)) or o.frame_step < 1:
+        raise ValueError(f"frame_step must be a whole number >= 1 (1: every frame), got {o.frame_step!r}")
+    if o.frame_step > 1 and o.reference_compat:
+        raise ValueError("reference-compat reproduces the authors' pipeline, which pairs consecutive frames: "
+                         "drop the frame step (--frame-step) or --reference-compat")
+
+
 def _depth_and_cameras(cameras: Any, depth: Any, da3: Any, grid: tuple[int, int], o: ImportOptions):
     """(Cameras, Depth) on the clip grid: both from one DA3 file, or VGGT's and VDA's."""
     H, W = grid
@@ -117,6 +128,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
     _check_depth_sources(cameras, depth, da3, o)
+    _check_frame_step(o)
     if o.line_ratio is not None and frames is None:
         raise ValueError("leaving out the tracks on lines (--leave-out-line-tracks) reads the frames: give them (--frames)")
     loaded_frames = read_frames(frames) if frames is not None else None
@@ -141,17 +153,23 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
         depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
                                          enabled=o.align_depth)
 
+    kept = np.arange(0, T, o.frame_step)  # every frame unless frame_step > 1
+    if len(kept) < 2:
+        raise ValueError(f"a frame step of {o.frame_step} keeps {len(kept)} of the {T} frames; a clip needs 2")
+    if o.frame_step > 1:
+        track_data = every_nth_frame(track_data, o.frame_step)
     track_prev, track_curr = track_data.track_prev, track_data.track_curr
     if o.track_size is not None:
         track_prev = resize_points(track_prev, o.track_size, (H, W))
         track_curr = resize_points(track_curr, o.track_size, (H, W))
-    arrays: dict[str, Any] = dict(depth=depth_data.depth, K=cams.K, R_wc=cams.R_wc, t_wc=cams.t_wc,
+    K = cams.K[kept] if cams.K.ndim == 3 else cams.K
+    arrays: dict[str, Any] = dict(depth=depth_data.depth[kept], K=K, R_wc=cams.R_wc[kept], t_wc=cams.t_wc[kept],
                                   track_prev=track_prev, track_curr=track_curr,
                                   track_vis=track_data.track_vis, track_conf=track_data.track_conf)
     if mask_data.static_mask is not None:
-        arrays["static_mask"] = mask_data.static_mask
+        arrays["static_mask"] = mask_data.static_mask[kept]
     if loaded_frames is not None:
-        arrays["frames"] = resize_frames(loaded_frames.frames, (H, W))
+        arrays["frames"] = resize_frames(loaded_frames.frames[kept], (H, W))
 
     record = {"reference_compat": bool(o.reference_compat), "grid": [H, W],
               "sources": {"cameras": _label(da3 if da3 is not None else cameras),
@@ -161,6 +179,8 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
               **cams.notes, **depth_data.notes, **track_data.notes, **mask_data.notes}
     if o.track_size is not None:
         record["track_size"] = list(o.track_size)
+    if o.frame_step > 1:
+        record["frame_step"] = {"step": o.frame_step, "frames_kept": len(kept), "of": T}
     clip_meta = {**(meta or {}), "import": record}
     if group:
         clip_meta["group"] = group

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..io.npz import shape_text
 from .common import EstimatorFormatError, load_arrays, load_npy, squeeze_batch
-from .delta import Tracks
+from .delta import LongRangeTracks, Tracks
 
 COTRACKER_VIS_THRESHOLD = 0.6  # CoTracker3's predictors: visibility * confidence > 0.6
 TRACK_KEYS = ("pred_tracks", "tracks")
@@ -128,5 +128,6 @@ def read_cotracker(source: Any, *, vis_threshold: float | None = None) -> Tracks
     tracks = np.where(finite[..., None], tracks, 0.0).astype(np.float32)
     notes = {"tracks_layout": "cotracker3 pred_tracks/pred_visibility (long-range, consecutive frames)",
              "track_visibility": rule + ", in both frames of a pair"}
-    return Tracks(tracks[:-1].copy(), tracks[1:].copy(), visible[:-1] & visible[1:], np.ones((T - 1, N), np.float32),
-                  None, notes)
+    conf = np.ones((T, N), np.float32)
+    return Tracks(tracks[:-1].copy(), tracks[1:].copy(), visible[:-1] & visible[1:], conf[1:], None, notes,
+                  LongRangeTracks(tracks, visible, conf))

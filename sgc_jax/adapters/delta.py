@@ -30,9 +30,20 @@ from .common import EstimatorFormatError, load_arrays, load_npy, natural_key, sq
 DELTA_VIS_THRESHOLD = 0.8  # DensePredictor2D: dense_vis_e = dense_vis_e > 0.8
 
 
+@dataclasses.dataclass(frozen=True)
+class LongRangeTracks:
+    """The same N points located in every frame (a long-range tracker's output), pixels."""
+
+    coords: np.ndarray  # (T, N, 2) float32
+    visible: np.ndarray  # (T, N) bool
+    conf: np.ndarray  # (T, N) float32
+
+
 @dataclasses.dataclass
 class Tracks:
-    """Per-pair tracks in the clip layout; ``frame_names`` when the files name the frames."""
+    """Per-pair tracks in the clip layout; ``frame_names`` when the files name the frames;
+    ``long_range`` when every pair's tracks come from one set of points tracked through the clip
+    (then pairs of frames further apart can be formed: :func:`every_nth_frame`)."""
 
     track_prev: np.ndarray  # (T-1, P, 2) float32
     track_curr: np.ndarray  # (T-1, P, 2) float32
@@ -40,10 +51,25 @@ class Tracks:
     track_conf: np.ndarray  # (T-1, P) float32
     frame_names: list[str] | None
     notes: dict[str, Any]
+    long_range: LongRangeTracks | None = None
 
     @property
     def n_frames(self) -> int:
         return self.track_prev.shape[0] + 1
+
+
+def every_nth_frame(tracks: Tracks, step: int) -> Tracks:
+    """The pairs of frames (0, step), (step, 2 step), ... of long-range tracks: a point is visible
+    in a pair when it is visible at both of its frames; its confidence is the later frame's."""
+    if tracks.long_range is None:
+        raise ValueError(f"a frame step of {step} pairs frames {step} apart, which needs long-range tracks "
+                         "(DELTA's dense output, CoTracker3); these tracks were queried afresh for each pair of "
+                         f"consecutive frames ({tracks.notes.get('tracks_layout', 'per-pair layout')})")
+    kept = np.arange(0, tracks.n_frames, step)
+    lr = tracks.long_range
+    names = None if tracks.frame_names is None else [tracks.frame_names[k] for k in kept]
+    return Tracks(lr.coords[kept[:-1]].copy(), lr.coords[kept[1:]].copy(), lr.visible[kept[:-1]] & lr.visible[kept[1:]],
+                  lr.conf[kept[1:]].copy(), names, {**tracks.notes, "frame_step": step}, lr)
 
 
 def _visibility(vis: np.ndarray, threshold: float, reference_compat: bool) -> np.ndarray:
@@ -161,15 +187,14 @@ def read_delta_dense(source: Any, *, vis_threshold: float = DELTA_VIS_THRESHOLD,
     for name, array in (("vis", vis), ("conf", conf)):
         if array.shape != (T, N):
             raise EstimatorFormatError(label, name, f"shape ({T}, {N}) like coords", f"shape {shape_text(array.shape)}")
-    if reference_compat:
-        track_vis = _visibility(vis[1:], vis_threshold, True)
-    else:
-        visible = _visibility(vis, vis_threshold, False)
-        track_vis = visible[:-1] & visible[1:]
+    visible = _visibility(vis, vis_threshold, False)
+    track_vis = _visibility(vis[1:], vis_threshold, True) if reference_compat else visible[:-1] & visible[1:]
     notes = {"tracks_layout": "delta dense coords/vis/conf (queried at frame 0)",
              "track_visibility": "raw DELTA vis of frame i, vis > 0 (reference-compat)" if reference_compat
              else f"DELTA vis > {vis_threshold:g} in both frames"}
-    return Tracks(coords[:-1].copy(), coords[1:].copy(), track_vis, np.nan_to_num(conf[1:], nan=0.0), None, notes)
+    conf = np.nan_to_num(conf, nan=0.0)
+    long_range = None if reference_compat else LongRangeTracks(coords, visible, conf)
+    return Tracks(coords[:-1].copy(), coords[1:].copy(), track_vis, conf[1:].copy(), None, notes, long_range)
 
 
 def read_delta(source: Any, *, frame_names: Sequence[str] | None = None,
