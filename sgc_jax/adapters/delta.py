@@ -63,13 +63,13 @@ def every_nth_frame(tracks: Tracks, step: int) -> Tracks:
     in a pair when it is visible at both of its frames; its confidence is the later frame's."""
     if tracks.long_range is None:
         raise ValueError(f"a frame step of {step} pairs frames {step} apart, which needs long-range tracks "
-                         "(DELTA's dense output, CoTracker3); these tracks were queried afresh for each pair of "
-                         f"consecutive frames ({tracks.notes.get('tracks_layout', 'per-pair layout')})")
+                         "(DELTA's dense output or CoTracker3, read without reference-compat); these are "
+                         f"{tracks.notes.get('tracks_layout', 'tracks of consecutive frames only')}")
     kept = np.arange(0, tracks.n_frames, step)
     lr = tracks.long_range
     names = None if tracks.frame_names is None else [tracks.frame_names[k] for k in kept]
     return Tracks(lr.coords[kept[:-1]].copy(), lr.coords[kept[1:]].copy(), lr.visible[kept[:-1]] & lr.visible[kept[1:]],
-                  lr.conf[kept[1:]].copy(), names, {**tracks.notes, "frame_step": step}, lr)
+                  lr.conf[kept[1:]].copy(), names, tracks.notes, lr)
 
 
 def _visibility(vis: np.ndarray, threshold: float, reference_compat: bool) -> np.ndarray:
