@@ -192,3 +192,24 @@ def test_a_frame_step_needs_long_range_tracks_the_default_semantics_and_two_fram
     assert main(["import", "--da3", str(da3), "--tracks", str(tmp_path / "delta"), "--frame-step", "2",
                  "--out", str(tmp_path / "pairs.npz")]) == 2
     assert "needs long-range tracks" in capsys.readouterr().err
+
+
+def test_a_long_clip_imported_at_a_frame_step_scores_its_world_consistent_and_a_squeeze_not(tmp_path):
+    """As the CLI test above, a rigid scene of 7 frames through DA3's file and long-range tracks,
+    imported by `sgc-jax import --frame-step 2` (frames 0, 2, 4, 6: the suite's 4-frame bucket)."""
+    clip = synth_clip(seed=3, clip_id="rigid", **{**SCENE, "n_frames": 7})
+    tracks, visibility = long_range_tracks_of(clip, SCENE["n_tracks"])
+    squeeze = 1.0 - 0.3 * np.arange(clip.n_frames)[:, None] / (clip.n_frames - 1)
+    squeezed = np.stack([tracks[..., 0], tracks[..., 1] * squeeze], -1)
+    H, W = clip.image_size
+    common = ["--da3", str(write_da3(tmp_path / "results.npz", clip)), "--frame-step", "2",
+              "--frames", str(write_frames(tmp_path / "frames", clip)),
+              "--masks", str(write_seganymo(tmp_path / "seganymo", clip, (H, W)))]
+    for name, arrays in (("honest", tracks), ("squeezed", squeezed)):
+        track_file = write_cotracker(tmp_path / f"{name}_tracks.npz", arrays, visibility)
+        assert main(["import", *common, "--tracks", str(track_file), "--out", str(tmp_path / f"{name}.npz")]) == 0
+    honest, broken = score_batch([tmp_path / "honest.npz", tmp_path / "squeezed.npz"]).clips
+    assert honest.n_pairs == broken.n_pairs == 3
+    assert honest.status == broken.status == "ok"
+    assert honest.sgc < CLEAN_SGC_MAX
+    assert broken.sgc > 0.1
