@@ -46,6 +46,12 @@ def test_a_consistent_clip_has_no_problem(clip):
         clip_from_arrays(arrays_of(clip))
 
 
+def test_a_clip_longer_than_the_validated_lengths_gets_an_info_line_naming_a_frame_step():
+    long_clip = synth_clip(seed=4, clip_id="long", **{**SMALL, "n_frames": 49})
+    [line] = [p for p in check_clip(long_clip) if p.code == "long_clip"]
+    assert line.severity == "info" and "49 frames" in line.found and "--frame-step 4" in line.fix
+
+
 def vggt_K(clip):
     return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
 

@@ -45,6 +45,11 @@ PARALLAX_OUTLIER = 4.0  # parallax above this multiple of the pair's median: a w
 # the real clips (bench/history/issue-58.md "Poses given camera to world").
 POSE_CONVENTION_RATIO = 0.4
 POSE_MISFIT_MIN_PX = 1.0
+# Clips longer than this many frames get an info line: the splits the score was validated on hold 6-12
+# frames, the standard clip 16, and a slow inconsistency shows each consecutive pair less the more
+# frames it is spread over (docs/semantics.md §1.5, "Long clips"; bench/clip_length.py).
+LONG_CLIP_FRAMES = 16
+FRAMES_AFTER_STEP = 12  # about what a frame step should leave of a long clip (§1.5)
 # Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
 SCORER_REPORTED = ("too_few_tracks", "no_valid_depth")
@@ -419,6 +424,17 @@ def check_mask(clip: Clip) -> list[Problem]:
     return problems
 
 
+def check_length(clip: Clip) -> list[Problem]:
+    """An info line for a clip longer than the score was validated on (:data:`LONG_CLIP_FRAMES`)."""
+    if clip.n_frames <= LONG_CLIP_FRAMES:
+        return []
+    step = max(2, round((clip.n_frames - 1) / (FRAMES_AFTER_STEP - 1)))
+    return [Problem("info", "long_clip", "track_prev/track_curr", "",
+                    f"{clip.n_frames} frames: an inconsistency that grows slowly over the clip shows each "
+                    "consecutive pair only its increment (docs/semantics.md §1.5, \"Long clips\")",
+                    f"with long-range tracks, `sgc-jax import ... --frame-step {step}` pairs frames {step} apart")]
+
+
 def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> list[Problem]:
     """Every content check of one clip, errors first; ``arrays``: the stored arrays, for dtype checks."""
     config = config or SGCConfig()
@@ -429,7 +445,8 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
     problems = (check_intrinsics(clip) + poses + convention + tracks
-                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_mask(clip))
+                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_mask(clip)
+                + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
