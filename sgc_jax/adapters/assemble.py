@@ -121,7 +121,8 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     the SGC authors' pipeline so the paper calibration applies; ``align_depth``, with
     ``depth_kind="disparity"`` and a ``depth`` map in the VGGT file, fits the disparity's scale and
     shift to it so depth and cameras share units; ``line_ratio`` (with ``frames``) leaves out the tracks
-    that start on a line (docs/semantics.md §1.7). Every choice is recorded in ``meta["import"]``;
+    that start on a line (docs/semantics.md §1.7); ``frame_step`` K keeps frames 0, K, 2K, ... and
+    pairs them K apart (long-range tracks only, §1.5). Every choice is recorded in ``meta["import"]``;
     the clip is validated like a loaded one (problems raise or warn).
     """
     o = dataclasses.replace(options or ImportOptions(), **option_fields)
