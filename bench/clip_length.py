@@ -17,8 +17,9 @@ Each is scored consistent and with the paper's three perturbations at severity 0
 linearly to the last frame: a longer clip gives each pair a smaller share), under independent
 Gaussian errors on both ends of every track at 0.5 and 2 px (``research.noise``, iid-both), the
 perturbed clips given their consistent clip's noise draw. Prints per form and level: the consistent
-clips above 0.10 and the largest, each perturbation's share of scenes above its consistent twin,
-and the consistent clips' median evidence and reward.
+clips above 0.10 and the largest, each perturbation's share of scenes above its consistent twin
+and its reward against the twin's (docs/semantics.md §9.4: what a reward on consecutive pairs pays
+a slow drift), and the consistent clips' median evidence and reward.
 """
 
 from __future__ import annotations
@@ -89,8 +90,8 @@ def main() -> None:
 
     print(f"\n{args.scenes} unseen scenes, {args.tracks} tracks a pair, iid-both; long: {args.frames} frames at "
           f"{args.speed:g}x the scene's motion a frame; stepped: {stepped_frames} frames, every {args.step}th")
-    print("| form | px | consistent above 0.10 (largest) | " + " | ".join(f"{k} at {SEVERITY:g} above its twin"
-                                                             for k in PERTURBATIONS)
+    print("| form | px | consistent above 0.10 (largest) | "
+          + " | ".join(f"{k} at {SEVERITY:g} above its twin (reward, x the twin's: median)" for k in PERTURBATIONS)
           + " | consistent: evidence, reward (medians) |")
     print("|---|---|---|" + "---|" * (len(PERTURBATIONS) + 1))
     for form in forms:
@@ -100,8 +101,10 @@ def main() -> None:
             consistent = np.array([r["sgc"] for r in twin.values()])
             shares = []
             for kind in PERTURBATIONS:
-                above = [r["sgc"] > twin[r["scene"]]["sgc"] for r in cell if r["kind"] == kind]
-                shares.append(f"{sum(above)} of {len(above)}")
+                perturbed = [r for r in cell if r["kind"] == kind]
+                above = sum(r["sgc"] > twin[r["scene"]]["sgc"] for r in perturbed)
+                paid = np.median([r["reward"] / max(twin[r["scene"]]["reward"], 1e-9) for r in perturbed])
+                shares.append(f"{above} of {len(perturbed)} ({paid:.2f}x)")
             evidence = np.median([r["evidence"] for r in twin.values()])
             reward = np.median([r["reward"] for r in twin.values()])
             print(f"| {form} | {px:g} | {int((consistent > 0.10).sum())} of {len(consistent)} ({consistent.max():.3f}) | "

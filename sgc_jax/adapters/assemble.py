@@ -98,6 +98,14 @@ def _check_frame_step(o: ImportOptions) -> None:
                          "drop the frame step (--frame-step) or --reference-compat")
 
 
+def _kept_frames(n_frames: int, step: int) -> np.ndarray:
+    """Frames 0, step, 2 step, ... of ``n_frames`` (every frame at step 1); at least two."""
+    kept = np.arange(0, n_frames, step)
+    if len(kept) < 2:
+        raise ValueError(f"a frame step of {step} keeps {len(kept)} of the {n_frames} frames; a clip needs 2")
+    return kept
+
+
 def _depth_and_cameras(cameras: Any, depth: Any, da3: Any, grid: tuple[int, int], o: ImportOptions):
     """(Cameras, Depth) on the clip grid: both from one DA3 file, or VGGT's and VDA's."""
     H, W = grid
@@ -154,9 +162,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
         depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
                                          enabled=o.align_depth)
 
-    kept = np.arange(0, T, o.frame_step)  # every frame unless frame_step > 1
-    if len(kept) < 2:
-        raise ValueError(f"a frame step of {o.frame_step} keeps {len(kept)} of the {T} frames; a clip needs 2")
+    kept = _kept_frames(T, o.frame_step)
     if o.frame_step > 1:
         track_data = every_nth_frame(track_data, o.frame_step)
     track_prev, track_curr = track_data.track_prev, track_data.track_curr
