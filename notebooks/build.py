@@ -43,6 +43,7 @@ SCENE = dict(n_layers=2, static_spheres=4, n_frames=8, height=96, width=128, n_t
 # Clips are read 4 at a time ahead of the scorer; they share one padded shape, so the JAX engine
 # compiles once (once per machine: compiled programs are kept on disk).
 CHUNK = 4"""
+SETUP_WITHOUT_NUMPY = SETUP.replace("import numpy as np\n", "")  # for the notebooks that use no NumPy
 
 
 def _md(text: str) -> tuple[str, str]:
@@ -81,7 +82,7 @@ QUICKSTART = [
         tracks, moving-object masks) computed beforehand; here they come from `sgc_jax.research.synth`,
         synthetic scenes whose geometry is exact. Lower SGC is better.
     """),
-    _code(SETUP),
+    _code(SETUP_WITHOUT_NUMPY),
     _md("""
         ## Four clips
 
@@ -195,7 +196,7 @@ SENSITIVITY = [
         `sensitivity_study` perturbs every base clip at every severity, scores everything in
         batched calls and summarises the SGC and each component per kind and severity.
     """),
-    _code(SETUP),
+    _code(SETUP_WITHOUT_NUMPY),
     ENGINE_NOTE,
     _code("""\
         bases = [synth_clip(seed=seed, clip_id=f"scene{seed}", **SCENE) for seed in range(4)]
@@ -384,8 +385,8 @@ DIAGNOSTICS = [
         squeeze of the tracks and a spatial remap of the depth maps (`depth_warp`).
     """),
     _code("""\
-        from sgc_jax.research import diagnostics
         from sgc_jax.codes import REGION_STATUS_NAMES
+        from sgc_jax.research import diagnostics
 
         rigid = synth_clip(seed=5, clip_id="rigid", **SCENE)
         drift = synth_clip(seed=5, clip_id="layer-drift", layer_drift=0.2, **SCENE)
@@ -501,8 +502,8 @@ BEST_OF_N = [
 
         import jax
 
-        from sgc_jax.codes import SCORER_STATUSES
         from sgc_jax import batch_of
+        from sgc_jax.codes import SCORER_STATUSES
 
         clean = synth_clip(seed=0, clip_id="clean", **SCENE)
         candidates = [
