@@ -6,6 +6,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--depth-scale-rms 0.02] [--camera-rot-deg 0.1 0.3]
                                   [--camera-step-rel 0.1] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
+                                  [--back-wall-depth 1000 [--sky-invalid]]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -22,7 +23,9 @@ with each camera turned about its centre by a rotation of RMS a degrees per axis
 by b median camera steps per axis, independently per frame (``NoiseModel.camera_rot_deg``,
 ``camera_step_rel``: a pose estimator's errors, which the score takes as exact); with ``--models``
 also those protocol noise models (correlated track errors, depth noise, outliers; research.noise)
-at 0.5 and 2 px.
+at 0.5 and 2 px. ``--back-wall-depth Z`` moves every scene's back wall from 12 to Z depth units, a
+sky-like backdrop behind layers at 2-12 (``SceneSpec.back_wall_depth``); ``--sky-invalid`` then sets
+the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A sky").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -37,6 +40,7 @@ sums and the largest fall of one cell's perturbation (the terms issue 58's rules
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -84,6 +88,9 @@ def main() -> None:
                         help="unseen: report-only seeds 7200-7299; fit: FIT's seeds 30-99")
     parser.add_argument("--noise-draw", type=int, default=0,
                         help="K > 0: every cell's noise an independent draw (seed + K * protocol.NOISE_DRAW_STRIDE)")
+    parser.add_argument("--back-wall-depth", type=float, default=0.0,
+                        help="every scene's back wall this far [depth units; the layers lie at 2-12]: a sky")
+    parser.add_argument("--sky-invalid", action="store_true", help="with --back-wall-depth: its depth set to 0")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -99,14 +106,15 @@ def main() -> None:
     pool = next(name for name, seeds in RANDOM_POOLS.items() if rows[0]["seed"] in seeds)
     print(f"{len({r['scene'] for r in rows})} scenes of the {pool} pool, {sorted({r['tracks'] for r in rows})} tracks, "
           f"fields of view {sorted({r['fov_deg'] for r in rows})}\n")
-    print("| noise | clips above 0.10 | largest | median | statuses |")
-    print("|---|---|---|---|---|")
+    print("| noise | clips above 0.10 | largest | median | reward, median | D, median | statuses |")
+    print("|---|---|---|---|---|---|---|")
     for noise in cells:
         cell = consistent(rows, noise)
         sgc = np.array([r["sgc"] for r in cell])
+        reward, unit = (np.nanmedian([r.get(c, np.nan) for r in cell]) for c in ("reward", "depth_unit"))
         statuses = {s: sum(r["status"] == s for r in cell) for s in sorted({r["status"] for r in cell})}
         print(f"| {cell_label(*noise)} | {int(np.sum(sgc > CALM))} of {len(cell)} | {np.nanmax(sgc):.3f} | "
-              f"{np.nanmedian(sgc):.3f} | {statuses} |")
+              f"{np.nanmedian(sgc):.3f} | {reward:.3f} | {unit:.3g} | {statuses} |")
     severity = args.perturb if args.perturb > 0 else max(r["severity"] for r in rows)
     if severity > 0:
         print_detection(rows, cells, severity)
@@ -124,24 +132,36 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
     rows = []
     for k in range(args.first, args.first + args.scenes):
         scene = random_scene(k, args.fovs, args.pool)
+        if args.back_wall_depth > 0:
+            scene = dataclasses.replace(scene, spec={**scene.spec, "back_wall_depth": args.back_wall_depth})
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
+        if args.sky_invalid:
+            clean = sky_invalid(clean)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
                   for model, px, scale, rot, step in cells]
         jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin, args.noise_draw)))
                 for j, noise in enumerate(models) for kind, severity, exact in variants]
-        for (j, kind, severity, _), scored in zip(jobs, score_batch([clip for *_, clip in jobs]).clips):
+        result = score_batch([clip for *_, clip in jobs])
+        for (j, kind, severity, _), scored, reward in zip(jobs, result.clips, result.rewards()["reward"]):
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind,
                              severity=severity, status=scored.status, reason=scored.reason, sgc=scored.sgc,
                              sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
+                             sky_invalid=int(args.sky_invalid), depth_unit=scored.depth_unit, reward=float(reward),
                              **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
               + f" [{time.perf_counter() - started:.0f} s]", file=sys.stderr, flush=True)
     return rows
+
+
+def sky_invalid(clip):
+    """The clip with its back wall's depth (beyond twice the layers' farthest) set to 0, as a sky mask."""
+    beyond = clip.depth > 2.0 * clip.meta["depth_range"][1]
+    return dataclasses.replace(clip, depth=np.where(beyond, 0.0, clip.depth).astype(clip.depth.dtype))
 
 
 def cell_of(row: dict) -> tuple:

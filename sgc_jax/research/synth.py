@@ -1,8 +1,9 @@
 """Synthetic scenes with known geometry (docs/semantics.md §7.3): exact depth, poses, masks and tracks.
 
-A scene is a far back wall (an unbounded plane), ``n_layers`` bounded rectangles at depths spread
-over ``depth_range`` and optional moving spheres, seen by a smoothly moving pinhole camera. Every
-array is ray-cast or projected exactly, so a rigid clip is consistent to float32 precision.
+A scene is a far back wall (an unbounded plane; ``back_wall_depth`` moves it out as a sky),
+``n_layers`` bounded rectangles at depths spread over ``depth_range`` and optional moving spheres,
+seen by a smoothly moving pinhole camera. Every array is ray-cast or projected exactly, so a rigid
+clip is consistent to float32 precision.
 
 Conventions are those of :mod:`sgc_jax.io.clip`: world->camera poses (x_cam = R_wc X + t_wc, OpenCV
 axes: x right, y down, z forward), depth = z along the optical axis in world units, pixel centres at
@@ -50,6 +51,7 @@ class SceneSpec:
     trans_per_frame: float = 0.15  # typical camera translation between frames
     camera_motion: str = "orbit"  # "orbit": mostly sideways, turning towards the scene; "forward": a dolly in
     depth_range: tuple[float, float] = (2.0, 12.0)  # nearest layer / back wall
+    back_wall_depth: float = 0.0  # > depth_range[1]: the back wall that far instead, a sky-like backdrop
     layer_drift: float = 0.0  # one unmasked static layer translates this much per frame
     fov_deg: float = 60.0  # horizontal field of view; fx = fy, principal point at the centre
     with_frames: bool = True  # render uint8 RGB frames
@@ -73,6 +75,7 @@ class SceneSpec:
             "rot_deg_per_frame, trans_per_frame >= 0": min(self.rot_deg_per_frame, self.trans_per_frame) >= 0,
             "camera_motion in ('orbit', 'forward')": self.camera_motion in ("orbit", "forward"),
             "0 < depth_range[0] < depth_range[1]": 0 < near < far,
+            "back_wall_depth == 0 or >= depth_range[1]": self.back_wall_depth == 0 or self.back_wall_depth >= far,
             "layer_drift >= 0, and > 0 only with n_layers >= 1": (
                 self.layer_drift >= 0 and (self.layer_drift == 0 or self.n_layers >= 1)),
             "0 < fov_deg < 120": 0 < self.fov_deg < 120,
@@ -190,7 +193,8 @@ def _static_planes(spec: SceneSpec, K: np.ndarray, rng: np.random.Generator
     near, far = spec.depth_range
     H, W, n = spec.height, spec.width, spec.n_layers
     K_inv, fx = np.linalg.inv(K), K[0, 0]
-    centres, axes, halves = [np.array([0.0, 0.0, far])], [np.eye(3)[:2]], [np.array([np.inf, np.inf])]
+    wall = spec.back_wall_depth or far
+    centres, axes, halves = [np.array([0.0, 0.0, wall])], [np.eye(3)[:2]], [np.array([np.inf, np.inf])]
     gap = (far - near) / (n + 0.5) if n else far - near
     cols, rows = _layer_grid(n, H, W)
     cell_w, cell_h = W / cols, H / rows
@@ -288,7 +292,7 @@ def _build_scene(spec: SceneSpec, K: np.ndarray, seed: int) -> _Scene:
         strong = _OBJECT_COLOURS[m % len(_OBJECT_COLOURS)]
         colours[L + m] = [strong, 0.55 * strong]
     fx = K[0, 0]
-    period = np.concatenate([[16.0 * spec.depth_range[1] / fx], 12.0 * plane_centre[1:, 2] / fx,
+    period = np.concatenate([[16.0 * plane_centre[0, 2] / fx], 12.0 * plane_centre[1:, 2] / fx,
                              0.6 * sphere_radius])
     moving = np.zeros(L + M, bool)
     moving[L:L + n_moving] = True
