@@ -619,7 +619,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
                 align_depth=not args.no_align_depth, line_ratio=args.leave_out_line_tracks,
-                frame_step=args.frame_step, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+                frame_step=args.frame_step, max_depth=args.max_depth, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             raise UsageError(str(exc)) from None
     for warning in caught:
@@ -632,6 +632,9 @@ def cmd_import(args: argparse.Namespace) -> int:
         step = record["frame_step"]
         print(f"sgc-jax import: frame step {step['step']}: {step['frames_kept']} of {step['of']} frames kept, "
               "each pair that far apart", file=sys.stderr)
+    if "max_depth" in record:
+        print(f"sgc-jax import: depth beyond {record['max_depth']['limit']:g} invalid: "
+              f"{record['max_depth']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
     if "line_tracks" in record:
         print(f"sgc-jax import: tracks on lines left out: {record['line_tracks']['left_out']:.0%} of the visible ones",
               file=sys.stderr)
@@ -751,6 +754,9 @@ def _register_import(sub) -> None:
                             help="keep frames 0, K, 2K, ... so each pair is K frames apart (default 1: every frame); "
                                  "for long clips whose frames move little, tracked at full rate by a long-range "
                                  "tracker (DELTA dense, CoTracker3) (docs/semantics.md §1.5)")
+    conversion.add_argument("--max-depth", type=float, metavar="Z",
+                            help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
+                                 "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")

@@ -16,7 +16,7 @@ from estimator_fixtures import (
 from scenes import SCENE
 from test_adapters import K_ATOL_PX, SCORE_RTOL
 
-from sgc_jax import score_batch
+from sgc_jax import load_clip, score_batch
 from sgc_jax.adapters import EstimatorFormatError, import_clip, read_cotracker, read_da3, read_tracks
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.cli import main
@@ -153,6 +153,24 @@ def test_a_da3_and_cotracker3_clip_imported_by_the_cli_scores_its_world_consiste
     assert max(original.sgc, honest.sgc) < CLEAN_SGC_MAX
     assert honest.components["depth_error"] == pytest.approx(original.components["depth_error"], rel=SCORE_RTOL)
     assert broken.sgc > 0.1
+
+
+def test_depth_beyond_max_depth_is_imported_invalid_with_its_share_recorded(tmp_path, scene_clip, capsys):
+    (H, W), da3 = scene_clip.image_size, write_da3(tmp_path / "results.npz", scene_clip)
+    tracks = write_cotracker(tmp_path / "cotracker.npz", *long_range_tracks_of(scene_clip, 200))
+    every, cut = (import_clip(da3=da3, tracks=tracks, size=(H, W), max_depth=limit) for limit in (None, 8.0))
+    beyond = every.depth > 8.0
+    assert beyond.any() and ((every.depth > 0) & ~beyond).any()
+    np.testing.assert_array_equal(cut.depth, np.where(beyond, 0.0, every.depth))
+    share = round(int(beyond.sum()) / int((every.depth > 0).sum()), 4)
+    assert cut.meta["import"]["max_depth"] == {"limit": 8.0, "invalid_frac": share}
+    with pytest.raises(ValueError, match="max_depth must be a depth > 0"):
+        import_clip(da3=da3, tracks=tracks, size=(H, W), max_depth=0.0)
+    out = tmp_path / "clip.npz"
+    assert main(["import", "--da3", str(da3), "--tracks", str(tracks), "--size", f"{H}x{W}", "--max-depth", "8",
+                 "--out", str(out)]) == 0
+    assert f"depth beyond 8 invalid: {share:.0%} of the valid depth" in capsys.readouterr().err
+    np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
 
 
 # ----------------------------------------------------------------------------- frame step

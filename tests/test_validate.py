@@ -52,6 +52,14 @@ def test_a_clip_longer_than_the_validated_lengths_gets_an_info_line_naming_a_fra
     assert line.severity == "info" and "49 frames" in line.found and "--frame-step 4" in line.fix
 
 
+def test_a_sky_read_as_depth_gets_a_warning_naming_a_depth_limit_and_none_once_it_is_invalid():
+    sky = synth_clip(seed=4, clip_id="sky", back_wall_depth=1000.0, **SMALL)
+    [line] = [p for p in check_clip(sky) if p.code == "far_backdrop"]
+    assert line.severity == "warning" and "--max-depth" in line.fix
+    masked = dataclasses.replace(sky, depth=np.where(sky.depth > 100.0, 0.0, sky.depth).astype(np.float32))
+    assert not [p for p in check_clip(masked) if p.code == "far_backdrop"]
+
+
 def vggt_K(clip):
     return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
 

@@ -28,7 +28,7 @@ from .frames import read_frames
 from .line_tracks import STRUCTURE_WINDOW_PX, leave_out_line_tracks
 from .seganymo import read_mask_hw, read_seganymo
 from .vggt import read_vggt
-from .video_depth_anything import read_depth_hw, read_video_depth
+from .video_depth_anything import Depth, read_depth_hw, read_video_depth
 
 
 def _label(source: Any) -> str:
@@ -52,6 +52,7 @@ class ImportOptions:
     align_depth: bool = True  # fit the disparity's scale and shift to VGGT's depth
     line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
     frame_step: int = 1  # keep frames 0, k, 2k, ...: pairs k frames apart (§1.5; needs long-range tracks)
+    max_depth: float | None = None  # depth beyond this (the clip's units) is invalid: a sky (§3.1); None: all kept
 
     @property
     def fits_disparity(self) -> bool:
@@ -90,7 +91,10 @@ def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -
                          "a Depth Anything 3 clip is scored with the default semantics")
 
 
-def _check_frame_step(o: ImportOptions) -> None:
+def _check_steps(o: ImportOptions) -> None:
+    """Raise on a frame step or a depth limit that cannot be applied."""
+    if o.max_depth is not None and not (np.isfinite(o.max_depth) and o.max_depth > 0):
+        raise ValueError(f"max_depth must be a depth > 0 in the clip's units, got {o.max_depth!r}")
     if isinstance(o.frame_step, bool) or not isinstance(o.frame_step, (int, np.integer)) or o.frame_step < 1:
         raise ValueError(f"frame_step must be a whole number >= 1 (1: every frame), got {o.frame_step!r}")
     if o.frame_step > 1 and o.reference_compat:
@@ -137,7 +141,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
     _check_depth_sources(cameras, depth, da3, o)
-    _check_frame_step(o)
+    _check_steps(o)
     if o.line_ratio is not None and frames is None:
         raise ValueError("leaving out the tracks on lines (--leave-out-line-tracks) reads the frames: give them (--frames)")
     loaded_frames = read_frames(frames) if frames is not None else None
@@ -161,6 +165,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     if da3 is None:
         depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
                                          enabled=o.align_depth)
+    depth_data = _within_max_depth(depth_data, o.max_depth)
 
     kept = _kept_frames(T, o.frame_step)
     if o.frame_step > 1:
@@ -197,6 +202,17 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     keep_all = SGCConfig(max_tracks=max(track_prev.shape[1], 1))
     clip = clip_from_arrays(arrays, clip_id=clip_id, config=keep_all)
     return clip if o.line_ratio is None else _without_line_tracks(clip, o.line_ratio)
+
+
+def _within_max_depth(depth: Depth, max_depth: float | None) -> Depth:
+    """``depth`` with values beyond ``max_depth`` set to 0 (invalid), the share recorded in its notes."""
+    if max_depth is None:
+        return depth
+    valid = depth.depth > 0
+    beyond = valid & (depth.depth > max_depth)
+    share = int(beyond.sum()) / max(int(valid.sum()), 1)
+    notes = {**depth.notes, "max_depth": {"limit": float(max_depth), "invalid_frac": round(share, 4)}}
+    return dataclasses.replace(depth, depth=np.where(beyond, 0, depth.depth).astype(depth.depth.dtype), notes=notes)
 
 
 def _without_line_tracks(clip: Clip, max_ratio: float) -> Clip:

@@ -49,6 +49,15 @@ POSE_MISFIT_MIN_PX = 1.0
 # frames, the standard clip 16, and a slow inconsistency shows each consecutive pair less the more
 # frames it is spread over (docs/semantics.md §1.5, "Long clips"; bench/clip_length.py).
 LONG_CLIP_FRAMES = 16
+# A far backdrop read as depth (a sky at VGGT's or a metric model's far depth): at least this share of the
+# valid depth lies beyond this multiple of its 10th percentile. It sets the depth unit D (§3.1) once it is
+# half the frame, and a pose's error at its edge reads as a depth error without bound (docs/semantics.md
+# §3.1, "A sky"). Of the splits' scenes, the demo's and the unseen pool's first 60, one holds depth beyond
+# 20x (8 %: unseen-48, a dolly 0.6 units from a surface, its wall at 12); the real clips at most 1.6 %
+# (tartan_000020's window); a backdrop 25-40x away lifts consistent clips (bench/history/issue-58.md
+# "A sky read as depth").
+FAR_DEPTH_RATIO = 20.0
+FAR_DEPTH_SHARE_WARN = 0.10
 FRAMES_AFTER_STEP = 12  # about what a frame step should leave of a long clip (§1.5)
 # Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
@@ -392,6 +401,7 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
         problems.append(Problem("info", "depth_range", "depth", "",
                                 f"median {mid:.4g}, 2-98% range [{lo:.4g}, {hi:.4g}], "
                                 f"{100 * valid_count.sum() / sample.size:.0f}% of pixels valid"))
+        problems += check_far_backdrop(values)
     rho = depth_parallax_rho(clip, config, transposed) if read_tracks else float("nan")
     if np.isfinite(rho) and rho > DISPARITY_RHO_WARN:
         compat = _is_reference_compat(clip)
@@ -402,6 +412,22 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     return problems
+
+
+def check_far_backdrop(values: np.ndarray) -> list[Problem]:
+    """A warning where a share of the valid depth ``values`` lies far beyond the rest: a sky."""
+    near = np.percentile(values, 10)
+    far_share = np.count_nonzero(values > FAR_DEPTH_RATIO * near) / values.size
+    if far_share < FAR_DEPTH_SHARE_WARN:
+        return []
+    limit = FAR_DEPTH_RATIO * near
+    return [Problem("warning", "far_backdrop", "depth",
+                    f"static surfaces in view (under {100 * FAR_DEPTH_SHARE_WARN:.0f}% of the valid depth "
+                    f"beyond {FAR_DEPTH_RATIO:.0f}x its 10th percentile)",
+                    f"{100 * far_share:.0f}% of the valid depth lies beyond {limit:.4g} ({FAR_DEPTH_RATIO:.0f}x the "
+                    f"10th percentile, {near:.4g}): a sky read as depth sets the depth unit and the depth error "
+                    "at its edges (docs/semantics.md §3.1, \"A sky\")",
+                    f"if it is sky, mark it invalid: depth 0 there (`sgc-jax import ... --max-depth {limit:.3g}`)")]
 
 
 def check_mask(clip: Clip) -> list[Problem]:
