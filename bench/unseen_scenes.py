@@ -6,7 +6,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--depth-scale-rms 0.02] [--camera-rot-deg 0.1 0.3]
                                   [--camera-step-rel 0.1] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
-                                  [--back-wall-depth 1000 [--sky-invalid]]
+                                  [--back-wall-depth 1000 [--sky-invalid]] [--spec '{"n_layers": 0}']
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -25,7 +25,9 @@ by b median camera steps per axis, independently per frame (``NoiseModel.camera_
 also those protocol noise models (correlated track errors, depth noise, outliers; research.noise)
 at 0.5 and 2 px. ``--back-wall-depth Z`` moves every scene's back wall from 12 to Z depth units, a
 sky-like backdrop behind layers at 2-12 (``SceneSpec.back_wall_depth``); ``--sky-invalid`` then sets
-the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A sky").
+the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A sky"). ``--spec JSON``
+sets ``SceneSpec`` fields on every scene, e.g. ``'{"n_layers": 0, "static_spheres": 0}'``: a world of
+one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -41,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 
@@ -91,6 +94,8 @@ def main() -> None:
     parser.add_argument("--back-wall-depth", type=float, default=0.0,
                         help="every scene's back wall this far [depth units; the layers lie at 2-12]: a sky")
     parser.add_argument("--sky-invalid", action="store_true", help="with --back-wall-depth: its depth set to 0")
+    parser.add_argument("--spec", type=json.loads, default={},
+                        help="SceneSpec fields set on every scene (JSON), e.g. '{\"n_layers\": 0, \"static_spheres\": 0}'")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -132,8 +137,9 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
     rows = []
     for k in range(args.first, args.first + args.scenes):
         scene = random_scene(k, args.fovs, args.pool)
-        if args.back_wall_depth > 0:
-            scene = dataclasses.replace(scene, spec={**scene.spec, "back_wall_depth": args.back_wall_depth})
+        if args.back_wall_depth > 0 or args.spec:
+            extra = {"back_wall_depth": args.back_wall_depth} if args.back_wall_depth > 0 else {}
+            scene = dataclasses.replace(scene, spec={**scene.spec, **extra, **args.spec})
         seed, spec = scene.seed, scene.spec
         started = time.perf_counter()
         clean = scene.clip(args.tracks)
