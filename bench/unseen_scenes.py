@@ -7,6 +7,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--camera-step-rel 0.1] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
                                   [--back-wall-depth 1000 [--sky-invalid]] [--spec '{"n_layers": 0}']
+                                  [--focal-scale 0.9]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -27,7 +28,9 @@ at 0.5 and 2 px. ``--back-wall-depth Z`` moves every scene's back wall from 12 t
 sky-like backdrop behind layers at 2-12 (``SceneSpec.back_wall_depth``); ``--sky-invalid`` then sets
 the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A sky"). ``--spec JSON``
 sets ``SceneSpec`` fields on every scene, e.g. ``'{"n_layers": 0, "static_spheres": 0}'``: a world of
-one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane").
+one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane"). ``--focal-scale f``
+gives every clip a K whose focal lengths are f times the true ones, as a camera estimator's error
+(the same K in every frame; docs/semantics.md §3.10, "A pose estimator's errors in the cameras").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -96,6 +99,7 @@ def main() -> None:
     parser.add_argument("--sky-invalid", action="store_true", help="with --back-wall-depth: its depth set to 0")
     parser.add_argument("--spec", type=json.loads, default={},
                         help="SceneSpec fields set on every scene (JSON), e.g. '{\"n_layers\": 0, \"static_spheres\": 0}'")
+    parser.add_argument("--focal-scale", type=float, default=1.0, help="every clip's focal lengths this many times the true ones")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -145,6 +149,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
         clean = scene.clip(args.tracks)
         if args.sky_invalid:
             clean = sky_invalid(clean)
+        if args.focal_scale != 1.0:
+            clean = with_focal_scale(clean, args.focal_scale)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
@@ -156,7 +162,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind,
                              severity=severity, status=scored.status, reason=scored.reason, sgc=scored.sgc,
                              sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
-                             sky_invalid=int(args.sky_invalid), depth_unit=scored.depth_unit, reward=float(reward),
+                             sky_invalid=int(args.sky_invalid), focal_scale=args.focal_scale, depth_unit=scored.depth_unit,
+                             reward=float(reward),
                              **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
                                                     if not r["kind"])
@@ -168,6 +175,14 @@ def sky_invalid(clip):
     """The clip with its back wall's depth (beyond twice the layers' farthest) set to 0, as a sky mask."""
     beyond = clip.depth > 2.0 * clip.meta["depth_range"][1]
     return dataclasses.replace(clip, depth=np.where(beyond, 0.0, clip.depth).astype(clip.depth.dtype))
+
+
+def with_focal_scale(clip, factor: float):
+    """The clip with fx, fy of every frame's K multiplied by ``factor`` (principal point kept)."""
+    K = clip.K.astype(np.float64).copy()
+    K[..., 0, 0] *= factor
+    K[..., 1, 1] *= factor
+    return dataclasses.replace(clip, K=K.astype(clip.K.dtype))
 
 
 def cell_of(row: dict) -> tuple:
