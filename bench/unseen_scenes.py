@@ -7,7 +7,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--camera-step-rel 0.1] [--models correlated depth outliers]
                                   [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
                                   [--back-wall-depth 1000 [--sky-invalid]] [--spec '{"n_layers": 0}']
-                                  [--focal-scale 0.9]
+                                  [--focal-scale 0.9] [--focal-jitter 0.01 [--one-k]]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -30,7 +30,10 @@ the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A
 sets ``SceneSpec`` fields on every scene, e.g. ``'{"n_layers": 0, "static_spheres": 0}'``: a world of
 one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane"). ``--focal-scale f``
 gives every clip a K whose focal lengths are f times the true ones, as a camera estimator's error
-(the same K in every frame; docs/semantics.md §3.10, "A pose estimator's errors in the cameras").
+(the same K in every frame; docs/semantics.md §3.10, "A pose estimator's errors in the cameras");
+``--focal-jitter r`` multiplies each frame's by its own factor exp(r N(0, 1)), as per-frame estimates
+(VGGT's, DA3's) scatter (§1.5, "One K for a clip"); ``--one-k`` then gives every frame their median,
+as ``sgc-jax import`` does.
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -100,6 +103,9 @@ def main() -> None:
     parser.add_argument("--spec", type=json.loads, default={},
                         help="SceneSpec fields set on every scene (JSON), e.g. '{\"n_layers\": 0, \"static_spheres\": 0}'")
     parser.add_argument("--focal-scale", type=float, default=1.0, help="every clip's focal lengths this many times the true ones")
+    parser.add_argument("--focal-jitter", type=float, default=0.0,
+                        help="each frame's focal lengths times its own factor exp(r N(0, 1)), this r")
+    parser.add_argument("--one-k", action="store_true", help="with --focal-jitter: every frame's K their median")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -149,8 +155,9 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
         clean = scene.clip(args.tracks)
         if args.sky_invalid:
             clean = sky_invalid(clean)
-        if args.focal_scale != 1.0:
-            clean = with_focal_scale(clean, args.focal_scale)
+        if args.focal_scale != 1.0 or args.focal_jitter > 0:
+            factors = args.focal_scale * np.exp(args.focal_jitter * np.random.default_rng(seed).standard_normal(clean.n_frames))
+            clean = with_focal_scale(clean, np.full_like(factors, np.median(factors)) if args.one_k else factors)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
@@ -162,7 +169,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
             rows.append(dict(scene=k, seed=seed, **spec, tracks=args.tracks, **dict(zip(ROW_CELL, cells[j])), kind=kind,
                              severity=severity, status=scored.status, reason=scored.reason, sgc=scored.sgc,
                              sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
-                             sky_invalid=int(args.sky_invalid), focal_scale=args.focal_scale, depth_unit=scored.depth_unit,
+                             sky_invalid=int(args.sky_invalid), focal_scale=args.focal_scale,
+                             focal_jitter=args.focal_jitter, one_k=int(args.one_k), depth_unit=scored.depth_unit,
                              reward=float(reward),
                              **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
@@ -177,11 +185,11 @@ def sky_invalid(clip):
     return dataclasses.replace(clip, depth=np.where(beyond, 0.0, clip.depth).astype(clip.depth.dtype))
 
 
-def with_focal_scale(clip, factor: float):
-    """The clip with fx, fy of every frame's K multiplied by ``factor`` (principal point kept)."""
-    K = clip.K.astype(np.float64).copy()
-    K[..., 0, 0] *= factor
-    K[..., 1, 1] *= factor
+def with_focal_scale(clip, factors: np.ndarray):
+    """The clip with fx, fy of frame t's K multiplied by ``factors[t]`` (principal point kept)."""
+    K = np.broadcast_to(clip.K, (clip.n_frames, 3, 3)).astype(np.float64)  # copied
+    K[:, 0, 0] *= factors
+    K[:, 1, 1] *= factors
     return dataclasses.replace(clip, K=K.astype(clip.K.dtype))
 
 

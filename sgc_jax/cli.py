@@ -619,7 +619,8 @@ def cmd_import(args: argparse.Namespace) -> int:
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
                 align_depth=not args.no_align_depth, line_ratio=args.leave_out_line_tracks,
-                frame_step=args.frame_step, max_depth=args.max_depth, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+                frame_step=args.frame_step, max_depth=args.max_depth,
+                per_frame_intrinsics=args.per_frame_intrinsics, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             raise UsageError(str(exc)) from None
     for warning in caught:
@@ -754,6 +755,10 @@ def _register_import(sub) -> None:
                             help="keep frames 0, K, 2K, ... so each pair is K frames apart (default 1: every frame); "
                                  "for long clips whose frames move little, tracked at full rate by a long-range "
                                  "tracker (DELTA dense, CoTracker3) (docs/semantics.md §1.5)")
+    conversion.add_argument("--per-frame-intrinsics", action="store_true",
+                            help="keep the cameras' K of every frame (a video that zooms). By default the clip gets "
+                                 "one K, the median of the frames': an estimator's focal lengths scatter from frame to "
+                                 "frame, which the depth check reads as inconsistency (docs/semantics.md §1.5)")
     conversion.add_argument("--max-depth", type=float, metavar="Z",
                             help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
                                  "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")

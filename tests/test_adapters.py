@@ -25,9 +25,10 @@ from estimator_fixtures import (
 )
 from scenes import SCENE
 
-from sgc_jax import score_batch
+from sgc_jax import ClipWarning, score_batch
 from sgc_jax.adapters import (
     EstimatorFormatError,
+    IntrinsicsWarning,
     MaskFormatWarning,
     every_nth_frame,
     import_clip,
@@ -250,6 +251,23 @@ def test_tracks_from_another_resolution_are_rescaled_with_track_size(tmp_path, s
     np.testing.assert_allclose(clip.track_prev, scene_clip.track_prev, atol=1e-4)
     np.testing.assert_allclose(clip.track_curr, scene_clip.track_curr, atol=1e-4)
     assert clip.meta["import"]["track_size"] == [2 * H, 2 * W]
+
+
+def test_an_estimators_per_frame_focal_lengths_become_one_k_unless_kept_and_a_zoom_warns(tmp_path, scene_clip):
+    T = scene_clip.n_frames
+    K = np.repeat(scene_clip.K[:1].astype(np.float64), T, axis=0)
+    K[:, :2, :2] *= np.array([1.0, 1.012, 0.99, 1.006])[:T, None, None]  # 0.8 % RMS over 4 frames
+    paths = write_all(tmp_path, dataclasses.replace(scene_clip, K=K.astype(np.float32)))
+    shared = import_clip(**paths, depth_kind="disparity")
+    with pytest.warns(ClipWarning, match="focal lengths in every frame"):  # kept: the loader's check says so
+        kept = import_clip(**paths, depth_kind="disparity", per_frame_intrinsics=True)
+    np.testing.assert_allclose(shared.K, np.repeat(np.median(kept.K, axis=0, keepdims=True), T, axis=0), rtol=1e-6)
+    assert np.ptp(kept.K[:, 0, 0]) > 0 and "one K for the clip" in shared.meta["import"]["intrinsics"]
+    zoom = K.copy()
+    zoom[:, :2, :2] *= np.linspace(1.0, 1.2, T)[:, None, None]
+    paths = write_all(tmp_path / "zoom", dataclasses.replace(scene_clip, K=zoom.astype(np.float32)))
+    with pytest.warns(IntrinsicsWarning, match="--per-frame-intrinsics"):
+        import_clip(**paths, depth_kind="disparity")
 
 
 @pytest.mark.parametrize("damage, words", [

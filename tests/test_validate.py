@@ -60,6 +60,16 @@ def test_a_sky_read_as_depth_gets_a_warning_naming_a_depth_limit_and_none_once_i
     assert not [p for p in check_clip(masked) if p.code == "far_backdrop"]
 
 
+def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none(clip):
+    scatter = np.array([1.0, 1.012, 0.99, 1.006])[:clip.n_frames, None, None]  # 0.8 % RMS over 4 frames
+    jittered = clip.K.astype(np.float64).copy()
+    jittered[:, :2, :2] *= scatter
+    [line] = [p for p in check_clip(dataclasses.replace(clip, K=jittered)) if p.code == "focal_spread"]
+    assert line.severity == "warning" and "--per-frame-intrinsics" in line.fix
+    one_K = np.repeat(np.median(jittered, axis=0, keepdims=True), clip.n_frames, axis=0)
+    assert not [p for p in check_clip(dataclasses.replace(clip, K=one_K)) if p.code == "focal_spread"]
+
+
 def vggt_K(clip):
     return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
 

@@ -18,7 +18,7 @@
   (which a tracker can slide along) made unusable, from the clip's frames (§1.7).
 """
 
-from .assemble import ImportOptions, import_clip, read_tracks
+from .assemble import ImportOptions, IntrinsicsWarning, import_clip, read_tracks
 from .common import EstimatorFormatError
 from .cotracker import COTRACKER_VIS_THRESHOLD, read_cotracker
 from .delta import (
@@ -40,7 +40,7 @@ from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
     "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth",
-    "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames", "LINE_RATIO", "LongRangeTracks",
+    "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames", "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks",
     "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth", "VGGTGrid", "align_depth_to_vggt", "every_nth_frame",
     "fit_inverse_depth_affine", "import_clip", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
     "read_delta", "read_delta_dense", "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,15 @@ from .line_tracks import STRUCTURE_WINDOW_PX, leave_out_line_tracks
 from .seganymo import read_mask_hw, read_seganymo
 from .vggt import read_vggt
 from .video_depth_anything import Depth, read_depth_hw, read_video_depth
+
+# Per-frame focal lengths spread more than this (RMS of their log) may be a zoom rather than an estimator's
+# scatter, whose harm bench/unseen_scenes.py --focal-jitter measures from 0.5-1 % on (§1.5): the import
+# then warns that one K is used.
+ZOOM_SPREAD = 0.03
+
+
+class IntrinsicsWarning(UserWarning):
+    """The per-frame K an estimator gave spread like a zoom's, and one K was used for the clip."""
 
 
 def _label(source: Any) -> str:
@@ -53,6 +63,7 @@ class ImportOptions:
     line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
     frame_step: int = 1  # keep frames 0, k, 2k, ...: pairs k frames apart (§1.5; needs long-range tracks)
     max_depth: float | None = None  # depth beyond this (the clip's units) is invalid: a sky (§3.1); None: all kept
+    per_frame_intrinsics: bool = False  # keep the estimator's K per frame (a zoom); default one K, their median (§1.5)
 
     @property
     def fits_disparity(self) -> bool:
@@ -174,7 +185,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     if o.track_size is not None:
         track_prev = resize_points(track_prev, o.track_size, (H, W))
         track_curr = resize_points(track_curr, o.track_size, (H, W))
-    K = cams.K[kept] if cams.K.ndim == 3 else cams.K
+    K, cams.notes["intrinsics"] = _clip_intrinsics(cams.K[kept] if cams.K.ndim == 3 else cams.K, cams.notes["intrinsics"], o)
     arrays: dict[str, Any] = dict(depth=depth_data.depth[kept], K=K, R_wc=cams.R_wc[kept], t_wc=cams.t_wc[kept],
                                   track_prev=track_prev, track_curr=track_curr,
                                   track_vis=track_data.track_vis, track_conf=track_data.track_conf)
@@ -202,6 +213,24 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     keep_all = SGCConfig(max_tracks=max(track_prev.shape[1], 1))
     clip = clip_from_arrays(arrays, clip_id=clip_id, config=keep_all)
     return clip if o.line_ratio is None else _without_line_tracks(clip, o.line_ratio)
+
+
+def _clip_intrinsics(K: np.ndarray, note: str, o: ImportOptions) -> tuple[np.ndarray, str]:
+    """(K for the clip, its note): one K in every frame, the median of each entry over the frames, unless the
+    per-frame estimates are kept (``per_frame_intrinsics``, ``reference_compat``). An estimator's focal
+    lengths scatter from frame to frame, and the depth check reads a focal change between two frames as
+    depth disagreement; one K off by a constant factor costs little (§1.5, "One K for a clip")."""
+    if K.ndim == 2 or o.per_frame_intrinsics or o.reference_compat:
+        return K, note
+    focal = np.concatenate([K[:, 0, 0], K[:, 1, 1]]).astype(np.float64)
+    spread = float(np.std(np.log(focal)))
+    shared = np.repeat(np.median(K.astype(np.float64), axis=0, keepdims=True), len(K), axis=0).astype(K.dtype)
+    note = f"{note}; one K for the clip, the median of {len(K)} frames' (focal lengths spread {100 * spread:.2f} % RMS)"
+    if spread > ZOOM_SPREAD:
+        warnings.warn(IntrinsicsWarning(
+            f"the per-frame focal lengths spread {100 * spread:.1f} % RMS: if the video zooms, keep them "
+            "(--per-frame-intrinsics); one K, their median, is used"), stacklevel=3)
+    return shared, note
 
 
 def _within_max_depth(depth: Depth, max_depth: float | None) -> Depth:

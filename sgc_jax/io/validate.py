@@ -58,6 +58,10 @@ LONG_CLIP_FRAMES = 16
 # "A sky read as depth").
 FAR_DEPTH_RATIO = 20.0
 FAR_DEPTH_SHARE_WARN = 0.10
+# Focal lengths that spread more than this over the frames (RMS of their log): a camera estimator's per-frame
+# scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12
+# consistent clips above 0.10 and 1 % 5-7 (bench/history/issue-58.md "A sky read as depth").
+FOCAL_SPREAD_WARN = 0.005
 FRAMES_AFTER_STEP = 12  # about what a frame step should leave of a long clip (§1.5)
 # Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
@@ -157,6 +161,24 @@ def check_intrinsics(clip: Clip) -> list[Problem]:
                 f"cx={cx[t]:.1f}, cy={cy[t]:.1f} in frames {_frames_list(far, T)}",
                 _k_hint(cx[t], cy[t], H, W) + note))
     return problems
+
+
+def check_focal_spread(clip: Clip) -> list[Problem]:
+    """A warning where the per-frame focal lengths scatter beyond FOCAL_SPREAD_WARN (a zoom, or an
+    estimator's per-frame K)."""
+    focal = np.concatenate([clip.K[:, 0, 0], clip.K[:, 1, 1]]).astype(np.float64)
+    if np.any(focal <= 0):
+        return []  # check_intrinsics' error
+    spread = float(np.std(np.log(focal)))
+    if spread <= FOCAL_SPREAD_WARN:
+        return []
+    return [Problem(
+        "info" if _is_reference_compat(clip) else "warning", "focal_spread", "K",
+        f"one camera's focal lengths in every frame (within {100 * FOCAL_SPREAD_WARN:g} % RMS), unless the video zooms",
+        f"fx, fy spread {100 * spread:.2f} % RMS over the frames: the depth check reads a focal change between "
+        "two frames as depth disagreement (docs/semantics.md §1.5, \"One K for a clip\")",
+        "if the video does not zoom, give every frame one K, the median of the frames' (`sgc-jax import` does, "
+        "unless --per-frame-intrinsics)")]
 
 
 def check_poses(clip: Clip) -> list[Problem]:
@@ -470,7 +492,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     tracks_fit = not any(p.code == "tracks_outside" and p.severity != "info" for p in tracks)
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
-    problems = (check_intrinsics(clip) + poses + convention + tracks
+    problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks
                 + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_mask(clip)
                 + check_length(clip))
     if arrays is not None:
