@@ -49,6 +49,7 @@ POSE_MISFIT_MIN_PX = 1.0
 # frames, the standard clip 16, and a slow inconsistency shows each consecutive pair less the more
 # frames it is spread over (docs/semantics.md §1.5, "Long clips"; bench/clip_length.py).
 LONG_CLIP_FRAMES = 16
+FRAMES_AFTER_STEP = 12  # about what a frame step should leave of a long clip (§1.5)
 # A far backdrop read as depth (a sky at VGGT's or a metric model's far depth): at least this share of the
 # valid depth lies beyond this multiple of its 10th percentile. It sets the depth unit D (§3.1) once it is
 # half the frame, and a pose's error at its edge reads as a depth error without bound (docs/semantics.md
@@ -62,7 +63,6 @@ FAR_DEPTH_SHARE_WARN = 0.10
 # scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12
 # consistent clips above 0.10 and 1 % 5-7 (bench/history/issue-58.md "A sky read as depth").
 FOCAL_SPREAD_WARN = 0.005
-FRAMES_AFTER_STEP = 12  # about what a frame step should leave of a long clip (§1.5)
 # Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
 SCORER_REPORTED = ("too_few_tracks", "no_valid_depth")
