@@ -20,6 +20,7 @@ import numpy as np
 from ..config import SGCConfig
 from ..io.clip import Clip
 from ..io.loading import clip_from_arrays
+from ..io.validate import focal_spread
 from .common import parse_size, resize_frames, resize_points
 from .cotracker import holds_cotracker, read_cotracker
 from .delta import DELTA_VIS_THRESHOLD, Tracks, every_nth_frame, read_delta
@@ -102,7 +103,7 @@ def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -
                          "a Depth Anything 3 clip is scored with the default semantics")
 
 
-def _check_steps(o: ImportOptions) -> None:
+def _check_options(o: ImportOptions) -> None:
     """Raise on a frame step or a depth limit that cannot be applied."""
     if o.max_depth is not None and not (np.isfinite(o.max_depth) and o.max_depth > 0):
         raise ValueError(f"max_depth must be a depth > 0 in the clip's units, got {o.max_depth!r}")
@@ -152,7 +153,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
     _check_depth_sources(cameras, depth, da3, o)
-    _check_steps(o)
+    _check_options(o)
     if o.line_ratio is not None and frames is None:
         raise ValueError("leaving out the tracks on lines (--leave-out-line-tracks) reads the frames: give them (--frames)")
     loaded_frames = read_frames(frames) if frames is not None else None
@@ -222,8 +223,7 @@ def _clip_intrinsics(K: np.ndarray, note: str, o: ImportOptions) -> tuple[np.nda
     depth disagreement; one K off by a constant factor costs little (§1.5, "One K for a clip")."""
     if K.ndim == 2 or o.per_frame_intrinsics or o.reference_compat:
         return K, note
-    focal = np.concatenate([K[:, 0, 0], K[:, 1, 1]]).astype(np.float64)
-    spread = float(np.std(np.log(focal)))
+    spread = focal_spread(K)
     shared = np.repeat(np.median(K.astype(np.float64), axis=0, keepdims=True), len(K), axis=0).astype(K.dtype)
     note = f"{note}; one K for the clip, the median of {len(K)} frames' (focal lengths spread {100 * spread:.2f} % RMS)"
     if spread > ZOOM_SPREAD:

@@ -163,14 +163,18 @@ def check_intrinsics(clip: Clip) -> list[Problem]:
     return problems
 
 
+def focal_spread(K: np.ndarray) -> float:
+    """The RMS over frames of the log focal lengths fx, fy of K (T, 3, 3) about their mean: 0.01 is a
+    1 % scatter; NaN where a focal length is not positive."""
+    focal = np.concatenate([K[:, 0, 0], K[:, 1, 1]]).astype(np.float64)
+    return float(np.std(np.log(focal))) if np.all(focal > 0) else float("nan")
+
+
 def check_focal_spread(clip: Clip) -> list[Problem]:
     """A warning where the per-frame focal lengths scatter beyond FOCAL_SPREAD_WARN (a zoom, or an
     estimator's per-frame K)."""
-    focal = np.concatenate([clip.K[:, 0, 0], clip.K[:, 1, 1]]).astype(np.float64)
-    if np.any(focal <= 0):
-        return []  # check_intrinsics' error
-    spread = float(np.std(np.log(focal)))
-    if spread <= FOCAL_SPREAD_WARN:
+    spread = focal_spread(clip.K)
+    if not spread > FOCAL_SPREAD_WARN:  # NaN: check_intrinsics' error
         return []
     return [Problem(
         "info" if _is_reference_compat(clip) else "warning", "focal_spread", "K",
