@@ -22,6 +22,7 @@ from .adapters.vggt import MODES as VGGT_MODES
 from .calibration import COMPONENTS
 from .codes import CLIP_STATUSES
 from .config import SGCConfig, cli_flag, renamed_fields
+from .io.depth_edges import DEPTH_EDGE_RATIO
 from .io.extras import MissingExtraError
 from .scoring.engine_steps import ENGINES
 from .scoring.options import READ_IN
@@ -619,7 +620,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 vggt_mode=args.vggt_mode, vggt_source_size=args.vggt_source_size, track_size=args.track_size,
                 vis_threshold=args.vis_threshold, reference_compat=args.reference_compat,
                 align_depth=not args.no_align_depth, line_ratio=args.leave_out_line_tracks,
-                frame_step=args.frame_step, max_depth=args.max_depth,
+                frame_step=args.frame_step, max_depth=args.max_depth, depth_edge_ratio=args.depth_edge_ratio,
                 per_frame_intrinsics=args.per_frame_intrinsics, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             raise UsageError(str(exc)) from None
@@ -636,6 +637,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     if "max_depth" in record:
         print(f"sgc-jax import: depth beyond {record['max_depth']['limit']:g} invalid: "
               f"{record['max_depth']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
+    if "depth_edges" in record:
+        print(f"sgc-jax import: depth at edges spanning more than {record['depth_edges']['ratio']:g}x invalid: "
+              f"{record['depth_edges']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
     if "line_tracks" in record:
         print(f"sgc-jax import: tracks on lines left out: {record['line_tracks']['left_out']:.0%} of the visible ones",
               file=sys.stderr)
@@ -762,6 +766,11 @@ def _register_import(sub) -> None:
     conversion.add_argument("--max-depth", type=float, metavar="Z",
                             help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
                                  "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")
+    conversion.add_argument("--depth-edge-ratio", type=float, metavar="R", nargs="?", const=DEPTH_EDGE_RATIO,
+                            help=f"depth invalid where its 3x3 neighbourhood spans more than R (largest / smallest; "
+                                 f"R {DEPTH_EDGE_RATIO:g} when given alone): a depth network's edges, ramps of points on "
+                                 "no surface, which `sgc-jax validate` warns of (smooth_depth_edges) and the depth check "
+                                 "reads as error; costs depth_warp's detection (docs/semantics.md §3.6)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")

@@ -17,7 +17,14 @@ from scenes import SCENE
 from test_adapters import K_ATOL_PX, SCORE_RTOL
 
 from sgc_jax import load_clip, score_batch
-from sgc_jax.adapters import EstimatorFormatError, import_clip, read_cotracker, read_da3, read_tracks
+from sgc_jax.adapters import (
+    EstimatorFormatError,
+    import_clip,
+    leave_out_depth_edges,
+    read_cotracker,
+    read_da3,
+    read_tracks,
+)
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.cli import main
 from sgc_jax.research.synth import CLEAN_SGC_MAX, synth_clip
@@ -170,6 +177,24 @@ def test_depth_beyond_max_depth_is_imported_invalid_with_its_share_recorded(tmp_
     assert main(["import", "--da3", str(da3), "--tracks", str(tracks), "--size", f"{H}x{W}", "--max-depth", "8",
                  "--out", str(out)]) == 0
     assert f"depth beyond 8 invalid: {share:.0%} of the valid depth" in capsys.readouterr().err
+    np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
+
+
+def test_depth_at_edges_is_imported_invalid_with_its_share_recorded(tmp_path, scene_clip, capsys):
+    (H, W), da3 = scene_clip.image_size, write_da3(tmp_path / "results.npz", scene_clip)
+    tracks = write_cotracker(tmp_path / "cotracker.npz", *long_range_tracks_of(scene_clip, 200))
+    every, cut = (import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=ratio) for ratio in (None, 1.2))
+    expected = leave_out_depth_edges(every, 1.2)
+    np.testing.assert_array_equal(cut.depth, expected.depth)
+    assert cut.meta["import"]["depth_edges"] == expected.meta["depth_edges"]
+    assert 0 < expected.meta["depth_edges"]["invalid_frac"] < 0.5
+    with pytest.raises(ValueError, match="depth_edge_ratio must be > 1"):
+        import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.0)
+    out = tmp_path / "clip.npz"
+    assert main(["import", "--da3", str(da3), "--tracks", str(tracks), "--size", f"{H}x{W}", "--depth-edge-ratio",
+                 "--out", str(out)]) == 0
+    assert f"depth at edges spanning more than 1.2x invalid: {expected.meta['depth_edges']['invalid_frac']:.0%}" \
+        in capsys.readouterr().err
     np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
 
 

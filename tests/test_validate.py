@@ -4,15 +4,18 @@ import dataclasses
 import json
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from estimator_fixtures import vggt_intrinsics
 from scenes import IMPORT_SCENE
 
 from sgc_jax import ClipFormatError, clip_from_arrays, load_clip, save_batch, save_clip, score_batch
+from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_edges
 from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.depth_edges import depth_edges, ramp_share
 from sgc_jax.io.loading import validate_paths
-from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
+from sgc_jax.io.validate import RAMP_SHARE_WARN, ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.synth import synth_clip
 
 SMALL = dict(IMPORT_SCENE, with_frames=False)
@@ -58,6 +61,27 @@ def test_a_sky_read_as_depth_gets_a_warning_naming_a_depth_limit_and_none_once_i
     assert line.severity == "warning" and "--max-depth" in line.fix
     masked = dataclasses.replace(sky, depth=np.where(sky.depth > 100.0, 0.0, sky.depth).astype(np.float32))
     assert not [p for p in check_clip(masked) if p.code == "far_backdrop"]
+
+
+def enlarged_depth(clip, factor=2):
+    """Each frame's depth as a network at 1/factor of the frame's size leaves it, enlarged bilinearly."""
+    H, W = clip.image_size
+    small = [cv2.resize(d, (W // factor, H // factor), interpolation=cv2.INTER_AREA) for d in clip.depth]
+    depth = np.stack([cv2.resize(d, (W, H), interpolation=cv2.INTER_LINEAR) for d in small]).astype(np.float32)
+    return dataclasses.replace(clip, depth=depth)
+
+
+def test_depth_edges_as_ramps_get_a_warning_naming_the_edge_ratio_and_none_once_left_out(clip):
+    smooth = enlarged_depth(clip)
+    [line] = [p for p in check_clip(smooth) if p.code == "smooth_depth_edges"]
+    assert line.severity == "warning" and f"--depth-edge-ratio {DEPTH_EDGE_RATIO:g}" in line.fix
+    left_out = leave_out_depth_edges(smooth)
+    assert 0 < left_out.meta["depth_edges"]["invalid_frac"] < 0.5
+    assert not (left_out.depth[depth_edges(smooth.depth)] > 0).any()
+    assert not [p for p in check_clip(left_out) if p.code == "smooth_depth_edges"]
+    assert ramp_share(clip.depth)[1] < RAMP_SHARE_WARN / 10 < ramp_share(smooth.depth)[1] / 10
+    with pytest.raises(ValueError, match="must be > 1"):
+        leave_out_depth_edges(clip, 1.0)
 
 
 def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none(clip):

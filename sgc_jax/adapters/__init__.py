@@ -16,6 +16,8 @@
 - :func:`read_frames`: a frames folder or a video file.
 - :func:`leave_out_line_tracks`: an opt-in step before scoring, the tracks that start on a line
   (which a tracker can slide along) made unusable, from the clip's frames (§1.7).
+- :func:`leave_out_depth_edges`: an opt-in step before scoring, the depth at edges made invalid,
+  where a depth network's enlarged output puts ramps of points on no surface (§3.6).
 """
 
 from .assemble import ImportOptions, IntrinsicsWarning, import_clip, read_tracks
@@ -32,6 +34,7 @@ from .delta import (
 )
 from .depth_alignment import DepthAlignmentWarning, DisparityFit, align_depth_to_vggt, fit_inverse_depth_affine
 from .depth_anything_3 import DA3Output, read_da3
+from .depth_edges import DEPTH_EDGE_RATIO, leave_out_depth_edges
 from .frames import Frames, read_frames
 from .line_tracks import LINE_RATIO, leave_out_line_tracks, line_structure
 from .seganymo import MaskFormatWarning, Masks, read_mask_labels, read_seganymo
@@ -39,10 +42,11 @@ from .vggt import Cameras, VGGTDepth, VGGTGrid, read_vggt, vggt_grid
 from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
-    "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_KINDS", "Depth",
-    "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames", "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks",
-    "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth", "VGGTGrid", "align_depth_to_vggt", "every_nth_frame",
-    "fit_inverse_depth_affine", "import_clip", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
+    "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_EDGE_RATIO",
+    "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames",
+    "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth",
+    "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "import_clip",
+    "leave_out_depth_edges", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
     "read_delta", "read_delta_dense", "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo",
     "read_tracks", "read_vggt", "read_video_depth", "vggt_grid",
 ]

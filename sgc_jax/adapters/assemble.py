@@ -19,6 +19,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..io.clip import Clip
+from ..io.depth_edges import depth_edges
 from ..io.loading import clip_from_arrays
 from ..io.validate import focal_spread
 from .common import parse_size, resize_frames, resize_points
@@ -64,6 +65,7 @@ class ImportOptions:
     line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
     frame_step: int = 1  # keep frames 0, k, 2k, ...: pairs k frames apart (§1.5; needs long-range tracks)
     max_depth: float | None = None  # depth beyond this (the clip's units) is invalid: a sky (§3.1); None: all kept
+    depth_edge_ratio: float | None = None  # depth whose 3x3 neighbourhood spans more is invalid (§3.6); None: kept
     per_frame_intrinsics: bool = False  # keep the estimator's K per frame (a zoom); default one K, their median (§1.5)
 
     @property
@@ -107,6 +109,9 @@ def _check_options(o: ImportOptions) -> None:
     """Raise on a frame step or a depth limit that cannot be applied."""
     if o.max_depth is not None and not (np.isfinite(o.max_depth) and o.max_depth > 0):
         raise ValueError(f"max_depth must be a depth > 0 in the clip's units, got {o.max_depth!r}")
+    if o.depth_edge_ratio is not None and not (np.isfinite(o.depth_edge_ratio) and o.depth_edge_ratio > 1):
+        raise ValueError(f"depth_edge_ratio must be > 1 (largest / smallest depth of a 3 x 3 neighbourhood), "
+                         f"got {o.depth_edge_ratio!r}")
     if isinstance(o.frame_step, bool) or not isinstance(o.frame_step, (int, np.integer)) or o.frame_step < 1:
         raise ValueError(f"frame_step must be a whole number >= 1 (1: every frame), got {o.frame_step!r}")
     if o.frame_step > 1 and o.reference_compat:
@@ -177,7 +182,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     if da3 is None:
         depth_data = align_depth_to_vggt(depth_data, cams.depth, static_mask=mask_data.static_mask,
                                          enabled=o.align_depth)
-    depth_data = _within_max_depth(depth_data, o.max_depth)
+    depth_data = _depth_left_out(depth_data, o)
 
     kept = _kept_frames(T, o.frame_step)
     if o.frame_step > 1:
@@ -233,15 +238,24 @@ def _clip_intrinsics(K: np.ndarray, note: str, o: ImportOptions) -> tuple[np.nda
     return shared, note
 
 
-def _within_max_depth(depth: Depth, max_depth: float | None) -> Depth:
-    """``depth`` with values beyond ``max_depth`` set to 0 (invalid), the share recorded in its notes."""
-    if max_depth is None:
-        return depth
+def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
+    """``depth`` with values beyond ``max_depth`` (a sky, §3.1) and at edges spanning more than
+    ``depth_edge_ratio`` (an enlarged network's ramps, §3.6) set to 0, invalid; each share of the valid
+    depth recorded in its notes."""
     valid = depth.depth > 0
-    beyond = valid & (depth.depth > max_depth)
-    share = int(beyond.sum()) / max(int(valid.sum()), 1)
-    notes = {**depth.notes, "max_depth": {"limit": float(max_depth), "invalid_frac": round(share, 4)}}
-    return dataclasses.replace(depth, depth=np.where(beyond, 0, depth.depth).astype(depth.depth.dtype), notes=notes)
+    share = lambda left_out: round(int(left_out.sum()) / max(int(valid.sum()), 1), 4)  # noqa: E731
+    left_out, notes = np.zeros_like(valid), dict(depth.notes)
+    if o.max_depth is not None:
+        beyond = valid & (depth.depth > o.max_depth)
+        notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": share(beyond)}
+        left_out |= beyond
+    if o.depth_edge_ratio is not None:
+        edges = depth_edges(depth.depth, o.depth_edge_ratio)
+        notes["depth_edges"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(edges)}
+        left_out |= edges
+    if len(notes) == len(depth.notes):
+        return depth
+    return dataclasses.replace(depth, depth=np.where(left_out, 0, depth.depth).astype(depth.depth.dtype), notes=notes)
 
 
 def _without_line_tracks(clip: Clip, max_ratio: float) -> Clip:
