@@ -3,7 +3,7 @@ with ground-truth depth and cameras and real tracks; its README says how they we
 default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
-                             [--config FILE] [--regions N] [--line-ratio 0.05]
+                             [--config FILE] [--regions N] [--line-ratio 0.05] [--depth-edge-ratio 1.2]
                              [--camera-rot-deg 0.3] [--camera-step-rel 0.1]
                              [--noise-models iid-curr iid-both correlated depth outliers --noise-levels 0.5 1 2]
 
@@ -23,7 +23,9 @@ Prints
    the world, or the tracker's failure; sgc_jax.research.ground_truth.region_motion_errors).
 
 ``--line-ratio R`` scores every clip (and its ladders) with the tracks that start on a line left
-out first (sgc_jax.adapters.leave_out_line_tracks, docs/semantics.md §1.7). ``--camera-rot-deg a``
+out first (sgc_jax.adapters.leave_out_line_tracks, docs/semantics.md §1.7); ``--depth-edge-ratio R``
+with the depth at edges spanning more than R left out, the ladders' after their perturbation
+(sgc_jax.adapters.leave_out_depth_edges, §3.6 "Smooth depth edges"). ``--camera-rot-deg a``
 and ``--camera-step-rel b`` score every clip (and its ladders) with errors on its cameras, as a pose
 estimator's: each turned about its centre by a rotation of RMS a degrees per axis and its centre
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
@@ -46,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
-from sgc_jax.adapters import leave_out_line_tracks
+from sgc_jax.adapters import leave_out_depth_edges, leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
@@ -92,12 +94,13 @@ def print_regions(clips, result, config: SGCConfig, count: int) -> None:
                   f"{r['median_px']:.2f} | {r['share_off']:.2f} |")
 
 
-def print_ladders(clips, clean, engine: str, config: SGCConfig) -> None:
+def print_ladders(clips, clean, engine: str, config: SGCConfig, prepare=lambda clip: clip) -> None:
     print("\nPerturbation ladders: SGC (reward) at severity 0 (clean), " + ", ".join(f"{s:g}" for s in LADDER_SEVERITIES))
     print("| clip | perturbation | " + " | ".join(f"{s:g}" for s in (0.0, *LADDER_SEVERITIES))
           + " | SGC rises strictly | reward falls strictly |")
     print("|---|---|" + "---|" * (len(LADDER_SEVERITIES) + 3))
-    variants = [perturb_clip(clip, kind, s, seed=0) for clip in clips for kind in PERTURBATIONS for s in LADDER_SEVERITIES]
+    variants = [prepare(perturb_clip(clip, kind, s, seed=0))
+                for clip in clips for kind in PERTURBATIONS for s in LADDER_SEVERITIES]
     result = score_batch(variants, engine=engine, config=config, progress=False)
     scored = iter(zip(result.clips, result.rewards()["reward"]))  # in the order made
     rising = falling = 0
@@ -151,6 +154,9 @@ def main() -> None:
     parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
     parser.add_argument("--line-ratio", type=float, default=None,
                         help="leave out the tracks that start on a line (structure ratio below this) first")
+    parser.add_argument("--depth-edge-ratio", type=float, default=None,
+                        help="score every clip (its ladders after their perturbation) with the depth at edges spanning "
+                             "more than this ratio left out (sgc_jax.adapters.leave_out_depth_edges)")
     parser.add_argument("--regions", type=int, default=0, help="also print each clean clip's N local poses "
                                                                "farthest from the camera's rotation")
     parser.add_argument("--camera-rot-deg", type=float, default=0.0,
@@ -170,10 +176,11 @@ def main() -> None:
     if args.line_ratio is not None:
         clips = [leave_out_line_tracks(clip, args.line_ratio) for clip in clips]
     exact = clips
+    prepare = (lambda clip: leave_out_depth_edges(clip, args.depth_edge_ratio)) if args.depth_edge_ratio else (lambda clip: clip)
     if args.camera_rot_deg > 0 or args.camera_step_rel > 0:
         cameras = NoiseModel(camera_rot_deg=args.camera_rot_deg, camera_step_rel=args.camera_step_rel)
         clips = [add_noise(clip, cameras, seed=k) for k, clip in enumerate(clips)]
-    result = score_batch(clips, engine=args.engine, config=config, progress=False)
+    result = score_batch([prepare(clip) for clip in clips], engine=args.engine, config=config, progress=False)
     print_clean(clips, result, exact)
     if args.out:
         result.to_pandas().to_csv(args.out, index=False)
@@ -184,7 +191,7 @@ def main() -> None:
                     args.engine, config)
     if not args.no_ladders:
         print_ladders(clips, list(zip([c.sgc for c in result.clips], result.rewards()["reward"])), args.engine,
-                      config)
+                      config, prepare)
 
 
 if __name__ == "__main__":

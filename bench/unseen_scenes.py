@@ -8,6 +8,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--perturb 0.25] [--pool fit|held-out] [--noise-draw K] [--out rows.csv]
                                   [--back-wall-depth 1000 [--sky-invalid]] [--spec '{"n_layers": 0}']
                                   [--focal-scale 0.9] [--focal-jitter 0.01 [--one-k]]
+                                  [--depth-resample 2] [--depth-bits 8] [--depth-edge-ratio 1.2]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -33,7 +34,13 @@ gives every clip a K whose focal lengths are f times the true ones, as a camera 
 (the same K in every frame; docs/semantics.md §3.10, "A pose estimator's errors in the cameras");
 ``--focal-jitter r`` multiplies each frame's by its own factor exp(r N(0, 1)), as per-frame estimates
 (VGGT's, DA3's) scatter (§1.5, "One K for a clip"); ``--one-k`` then gives every frame their median,
-as ``sgc-jax import`` does.
+as ``sgc-jax import`` does. ``--depth-resample F`` gives every clip (the perturbed ones after their
+perturbation) the depth a network predicting at 1/F of the frame's size leaves once resized back:
+each frame averaged over F x F blocks, then bilinearly enlarged, so depth edges become ramps of
+mixed depths; ``--depth-bits N`` stores each clip's inverse depth in N bits over its range, as
+depth saved as 8- or 16-bit disparity images is; ``--depth-edge-ratio R`` then makes the depth
+invalid where its 3 x 3 neighbourhood spans more than R, as ``sgc-jax import --depth-edge-ratio``
+does (docs/semantics.md §3.6, "Smooth depth edges").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -53,9 +60,11 @@ import json
 import sys
 import time
 
+import cv2
 import numpy as np
 
 from sgc_jax import score_batch
+from sgc_jax.io.depth_edges import depth_edges
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
@@ -106,6 +115,12 @@ def main() -> None:
     parser.add_argument("--focal-jitter", type=float, default=0.0,
                         help="each frame's focal lengths times its own factor exp(r N(0, 1)), this r")
     parser.add_argument("--one-k", action="store_true", help="with --focal-jitter: every frame's K their median")
+    parser.add_argument("--depth-resample", type=int, default=1,
+                        help="F > 1: each frame's depth averaged over F x F blocks and enlarged bilinearly")
+    parser.add_argument("--depth-bits", type=int, default=0,
+                        help="N > 0: each clip's inverse depth quantised to N bits over its range")
+    parser.add_argument("--depth-edge-ratio", type=float, default=0.0,
+                        help="R > 1: depth invalid where its 3 x 3 neighbourhood spans more than R (max / min)")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -160,6 +175,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
             clean = with_focal_scale(clean, np.full_like(factors, np.median(factors)) if args.one_k else factors)
         variants = [("", 0.0, clean)] + [(kind, args.perturb, perturb_clip(clean, kind, args.perturb, seed=seed))
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
+        variants = [(kind, severity, estimator_depth(clip, args.depth_resample, args.depth_bits, args.depth_edge_ratio))
+                    for kind, severity, clip in variants]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
                   for model, px, scale, rot, step in cells]
         jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin, args.noise_draw)))
@@ -170,7 +187,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
                              severity=severity, status=scored.status, reason=scored.reason, sgc=scored.sgc,
                              sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
                              sky_invalid=int(args.sky_invalid), focal_scale=args.focal_scale,
-                             focal_jitter=args.focal_jitter, one_k=int(args.one_k), depth_unit=scored.depth_unit,
+                             focal_jitter=args.focal_jitter, one_k=int(args.one_k), depth_resample=args.depth_resample,
+                             depth_bits=args.depth_bits, depth_unit=scored.depth_unit,
                              reward=float(reward),
                              **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
@@ -183,6 +201,30 @@ def sky_invalid(clip):
     """The clip with its back wall's depth (beyond twice the layers' farthest) set to 0, as a sky mask."""
     beyond = clip.depth > 2.0 * clip.meta["depth_range"][1]
     return dataclasses.replace(clip, depth=np.where(beyond, 0.0, clip.depth).astype(clip.depth.dtype))
+
+
+def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
+    """The clip's depth as a network at 1/``resample`` of the frame's size and an image of ``bits``
+    bits of inverse depth over the clip's range would leave it (either off at 1 and 0), then with its
+    edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_edges``)."""
+    if resample <= 1 and bits <= 0 and edge_ratio <= 1:
+        return clip
+    depth = clip.depth.astype(np.float32)
+    if resample > 1:
+        H, W = depth.shape[1:]
+        small = (max(W // resample, 1), max(H // resample, 1))
+        depth = np.stack([cv2.resize(cv2.resize(frame, small, interpolation=cv2.INTER_AREA), (W, H),
+                                     interpolation=cv2.INTER_LINEAR) for frame in depth])
+    if bits > 0:
+        valid = depth > 0
+        inverse = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)
+        low, high = inverse[valid].min(), inverse[valid].max()
+        levels = 2 ** bits - 1
+        stored = np.round((inverse - low) / (high - low) * levels) / levels * (high - low) + low
+        depth = np.where(valid, 1.0 / stored, 0.0).astype(np.float32)
+    if edge_ratio > 1:
+        depth = np.where(depth_edges(depth, edge_ratio), 0.0, depth).astype(np.float32)
+    return dataclasses.replace(clip, depth=depth.astype(clip.depth.dtype))
 
 
 def with_focal_scale(clip, factors: np.ndarray):
