@@ -39,8 +39,8 @@ perturbation) the depth a network predicting at 1/F of the frame's size leaves o
 each frame averaged over F x F blocks, then bilinearly enlarged, so depth edges become ramps of
 mixed depths; ``--depth-bits N`` stores each clip's inverse depth in N bits over its range, as
 depth saved as 8- or 16-bit disparity images is; ``--depth-edge-ratio R`` then makes the depth
-invalid where its 3 x 3 neighbourhood spans more than R, as ``sgc-jax import --depth-edge-ratio``
-does (docs/semantics.md §3.6, "Smooth depth edges").
+invalid on the ramps at edges (a 3 x 3 neighbourhood spanning more than R, the pixel over 5 % from
+both its least and greatest depth), as ``sgc-jax import --depth-edge-ratio`` does (docs/semantics.md §3.6, "Smooth depth edges").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -64,7 +64,7 @@ import cv2
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.io.depth_edges import depth_edges
+from sgc_jax.io.depth_edges import edges_and_ramps
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
@@ -120,7 +120,7 @@ def main() -> None:
     parser.add_argument("--depth-bits", type=int, default=0,
                         help="N > 0: each clip's inverse depth quantised to N bits over its range")
     parser.add_argument("--depth-edge-ratio", type=float, default=0.0,
-                        help="R > 1: depth invalid where its 3 x 3 neighbourhood spans more than R (max / min)")
+                        help="R > 1: depth invalid on the ramps at edges whose 3 x 3 neighbourhood spans more than R")
     parser.add_argument("--out", help="write one row per clip (CSV)")
     parser.add_argument("--rows", help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--against", help="rows (CSV) of the same scenes scored otherwise (another tree or config): "
@@ -205,8 +205,8 @@ def sky_invalid(clip):
 
 def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
     """The clip's depth as a network at 1/``resample`` of the frame's size and an image of ``bits``
-    bits of inverse depth over the clip's range would leave it (either off at 1 and 0), then with its
-    edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_edges``)."""
+    bits of inverse depth over the clip's range would leave it (either off at 1 and 0), then with the
+    ramps at its edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_edges``)."""
     if resample <= 1 and bits <= 0 and edge_ratio <= 1:
         return clip
     depth = clip.depth.astype(np.float32)
@@ -223,7 +223,7 @@ def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
         stored = np.round((inverse - low) / (high - low) * levels) / levels * (high - low) + low
         depth = np.where(valid, 1.0 / stored, 0.0).astype(np.float32)
     if edge_ratio > 1:
-        depth = np.where(depth_edges(depth, edge_ratio), 0.0, depth).astype(np.float32)
+        depth = np.where(edges_and_ramps(depth, edge_ratio)[1], 0.0, depth).astype(np.float32)
     return dataclasses.replace(clip, depth=depth.astype(clip.depth.dtype))
 
 

@@ -638,7 +638,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         print(f"sgc-jax import: depth beyond {record['max_depth']['limit']:g} invalid: "
               f"{record['max_depth']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
     if "depth_edges" in record:
-        print(f"sgc-jax import: depth at edges spanning more than {record['depth_edges']['ratio']:g}x invalid: "
+        print(f"sgc-jax import: depth on ramps at edges spanning more than {record['depth_edges']['ratio']:g}x invalid: "
               f"{record['depth_edges']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
     if "line_tracks" in record:
         print(f"sgc-jax import: tracks on lines left out: {record['line_tracks']['left_out']:.0%} of the visible ones",
@@ -767,10 +767,10 @@ def _register_import(sub) -> None:
                             help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
                                  "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")
     conversion.add_argument("--depth-edge-ratio", type=float, metavar="R", nargs="?", const=DEPTH_EDGE_RATIO,
-                            help=f"depth invalid where its 3x3 neighbourhood spans more than R (largest / smallest; "
-                                 f"R {DEPTH_EDGE_RATIO:g} when given alone): a depth network's edges, ramps of points on "
-                                 "no surface, which `sgc-jax validate` warns of (smooth_depth_edges) and the depth check "
-                                 "reads as error; costs depth_warp's detection (docs/semantics.md §3.6)")
+                            help=f"depth invalid on the ramps at edges whose 3x3 neighbourhood spans more than R (largest "
+                                 f"/ smallest; R {DEPTH_EDGE_RATIO:g} when given alone): a depth network's enlarged output, "
+                                 "whose edges are ramps of points on no surface, which `sgc-jax validate` warns of "
+                                 "(smooth_depth_edges) and the depth check reads as error (docs/semantics.md §3.6)")
     conversion.add_argument("--reference-compat", action="store_true",
                             help="the SGC authors' choices (docs/semantics.md §1.5): K at VGGT's 518-px scale, depth = VDA / 1000, "
                                  "visibility not thresholded; the paper calibration assumes them")

@@ -2,6 +2,8 @@
 the clip grid by its format's own rule, a file that cannot be read is named with its array, and a
 clip imported from them scores like the clip they were written from."""
 
+import warnings
+
 import numpy as np
 import pytest
 from estimator_fixtures import (
@@ -15,6 +17,7 @@ from estimator_fixtures import (
 )
 from scenes import SCENE
 from test_adapters import K_ATOL_PX, SCORE_RTOL
+from test_validate import enlarged_depth
 
 from sgc_jax import load_clip, score_batch
 from sgc_jax.adapters import (
@@ -27,6 +30,7 @@ from sgc_jax.adapters import (
 )
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.cli import main
+from sgc_jax.io.validate import ClipWarning
 from sgc_jax.research.synth import CLEAN_SGC_MAX, synth_clip
 
 
@@ -180,20 +184,26 @@ def test_depth_beyond_max_depth_is_imported_invalid_with_its_share_recorded(tmp_
     np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
 
 
-def test_depth_at_edges_is_imported_invalid_with_its_share_recorded(tmp_path, scene_clip, capsys):
-    (H, W), da3 = scene_clip.image_size, write_da3(tmp_path / "results.npz", scene_clip)
+def test_depth_on_ramps_at_edges_is_imported_invalid_with_its_share_recorded(tmp_path, scene_clip, capsys):
+    H, W = scene_clip.image_size
+    da3 = write_da3(tmp_path / "results.npz", enlarged_depth(scene_clip))  # a network's depth, edges as ramps
     tracks = write_cotracker(tmp_path / "cotracker.npz", *long_range_tracks_of(scene_clip, 200))
-    every, cut = (import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=ratio) for ratio in (None, 1.2))
+    with pytest.warns(ClipWarning, match="Smooth depth edges"):
+        every = import_clip(da3=da3, tracks=tracks, size=(H, W))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cut = import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.2)
+    assert not [w for w in caught if "Smooth depth edges" in str(w.message)]
     expected = leave_out_depth_edges(every, 1.2)
+    assert 0 < expected.meta["depth_edges"]["invalid_frac"] < 0.5
     np.testing.assert_array_equal(cut.depth, expected.depth)
     assert cut.meta["import"]["depth_edges"] == expected.meta["depth_edges"]
-    assert 0 < expected.meta["depth_edges"]["invalid_frac"] < 0.5
     with pytest.raises(ValueError, match="depth_edge_ratio must be > 1"):
         import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.0)
     out = tmp_path / "clip.npz"
     assert main(["import", "--da3", str(da3), "--tracks", str(tracks), "--size", f"{H}x{W}", "--depth-edge-ratio",
                  "--out", str(out)]) == 0
-    assert f"depth at edges spanning more than 1.2x invalid: {expected.meta['depth_edges']['invalid_frac']:.0%}" \
+    assert f"depth on ramps at edges spanning more than 1.2x invalid: {expected.meta['depth_edges']['invalid_frac']:.0%}" \
         in capsys.readouterr().err
     np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
 

@@ -13,7 +13,7 @@ from scenes import IMPORT_SCENE
 from sgc_jax import ClipFormatError, clip_from_arrays, load_clip, save_batch, save_clip, score_batch
 from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_edges
 from sgc_jax.io.clip import clip_to_arrays
-from sgc_jax.io.depth_edges import depth_edges, ramp_share
+from sgc_jax.io.depth_edges import edges_and_ramps, ramp_share
 from sgc_jax.io.loading import validate_paths
 from sgc_jax.io.validate import RAMP_SHARE_WARN, ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.synth import synth_clip
@@ -71,13 +71,13 @@ def enlarged_depth(clip, factor=2):
     return dataclasses.replace(clip, depth=depth)
 
 
-def test_depth_edges_as_ramps_get_a_warning_naming_the_edge_ratio_and_none_once_left_out(clip):
+def test_depth_edges_as_ramps_get_a_warning_naming_the_edge_ratio_and_none_once_the_ramps_are_left_out(clip):
     smooth = enlarged_depth(clip)
     [line] = [p for p in check_clip(smooth) if p.code == "smooth_depth_edges"]
     assert line.severity == "warning" and f"--depth-edge-ratio {DEPTH_EDGE_RATIO:g}" in line.fix
     left_out = leave_out_depth_edges(smooth)
     assert 0 < left_out.meta["depth_edges"]["invalid_frac"] < 0.5
-    assert not (left_out.depth[depth_edges(smooth.depth)] > 0).any()
+    assert not (left_out.depth[edges_and_ramps(smooth.depth)[1]] > 0).any()
     assert not [p for p in check_clip(left_out) if p.code == "smooth_depth_edges"]
     assert ramp_share(clip.depth)[1] < RAMP_SHARE_WARN / 10 < ramp_share(smooth.depth)[1] / 10
     with pytest.raises(ValueError, match="must be > 1"):

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..io.clip import Clip
-from ..io.depth_edges import depth_edges
+from ..io.depth_edges import edges_and_ramps
 from ..io.loading import clip_from_arrays
 from ..io.validate import focal_spread
 from .common import parse_size, resize_frames, resize_points
@@ -65,7 +65,7 @@ class ImportOptions:
     line_ratio: float | None = None  # leave out the tracks that start on a line (§1.7; needs frames); None: keep all
     frame_step: int = 1  # keep frames 0, k, 2k, ...: pairs k frames apart (§1.5; needs long-range tracks)
     max_depth: float | None = None  # depth beyond this (the clip's units) is invalid: a sky (§3.1); None: all kept
-    depth_edge_ratio: float | None = None  # depth whose 3x3 neighbourhood spans more is invalid (§3.6); None: kept
+    depth_edge_ratio: float | None = None  # ramps at edges whose 3x3 neighbourhood spans more: invalid (§3.6)
     per_frame_intrinsics: bool = False  # keep the estimator's K per frame (a zoom); default one K, their median (§1.5)
 
     @property
@@ -239,9 +239,9 @@ def _clip_intrinsics(K: np.ndarray, note: str, o: ImportOptions) -> tuple[np.nda
 
 
 def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
-    """``depth`` with values beyond ``max_depth`` (a sky, §3.1) and at edges spanning more than
-    ``depth_edge_ratio`` (an enlarged network's ramps, §3.6) set to 0, invalid; each share of the valid
-    depth recorded in its notes."""
+    """``depth`` with values beyond ``max_depth`` (a sky, §3.1) and on ramps at edges spanning more than
+    ``depth_edge_ratio`` (an enlarged network's, §3.6) set to 0, invalid; each share of the valid depth
+    recorded in its notes."""
     valid = depth.depth > 0
     share = lambda left_out: round(int(left_out.sum()) / max(int(valid.sum()), 1), 4)  # noqa: E731
     left_out, notes = np.zeros_like(valid), dict(depth.notes)
@@ -250,9 +250,9 @@ def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
         notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": share(beyond)}
         left_out |= beyond
     if o.depth_edge_ratio is not None:
-        edges = depth_edges(depth.depth, o.depth_edge_ratio)
-        notes["depth_edges"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(edges)}
-        left_out |= edges
+        _, ramps = edges_and_ramps(depth.depth, o.depth_edge_ratio)
+        notes["depth_edges"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(ramps)}
+        left_out |= ramps
     if len(notes) == len(depth.notes):
         return depth
     return dataclasses.replace(depth, depth=np.where(left_out, 0, depth.depth).astype(depth.depth.dtype), notes=notes)

@@ -4,9 +4,9 @@ A monocular depth network predicts at a fraction of the frame's size and its out
 so a depth edge becomes a ramp of pixels between the two surfaces' depths, points that lie on no
 surface. The depth check warps them and compares them with the next frame's ramp, which parallax
 has moved: a consistent world's depth error reads ~2 % (depth from half the frame's size) where
-it read 0.3 %. :func:`depth_edges` finds
-them (``sgc_jax.adapters.leave_out_depth_edges`` makes them invalid before scoring, an opt-in step);
-:func:`ramp_share` tells such depth from a sensor's or a renderer's, whose edges are steps.
+it read 0.3 %. :func:`edges_and_ramps` finds them (``sgc_jax.adapters.leave_out_depth_edges`` makes
+the ramps invalid before scoring, an opt-in step); :func:`ramp_share` tells such depth from a
+sensor's or a renderer's, whose edges are steps.
 
 Depth arrays are (T, H, W); a value is valid where finite and > 0. Neighbourhoods are 3 x 3 pixels.
 """
@@ -18,8 +18,9 @@ import numpy as np
 
 # A pixel whose 3 x 3 neighbourhood's valid depths span more than this (largest / smallest) is at a
 # depth edge. Chosen on FIT's random pool by rule E1 (bench/history/issue-58.md, "Smooth depth
-# edges"): the largest of 1.02-1.2 whose consistent clips, with depth from half the frame's size,
-# kept at most 1 of 48 above 0.10 (all four kept none).
+# edges"): the largest of 1.02-1.2 whose consistent clips, with depth from half the frame's size
+# and every edge pixel left out, kept at most 1 of 48 above 0.10 (all four kept none); leaving out
+# only the ramps (rule E2) keeps that and depth_warp's detection on depth whose edges are steps.
 DEPTH_EDGE_RATIO = 1.2
 # An edge pixel lies on a ramp where its depth is more than this share above its neighbourhood's
 # smallest and below its largest: mixed, not one surface's or the other's.
@@ -43,21 +44,22 @@ def depth_span(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def depth_edges(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> np.ndarray:
-    """(T, H, W) bool: valid pixels whose neighbourhood's valid depths span more than ``ratio``."""
+def edges_and_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[np.ndarray, np.ndarray]:
+    """(edges, ramps), (T, H, W) bool each: valid pixels whose neighbourhood's valid depths span more
+    than ``ratio``, and those of them whose depth lies over ``RAMP_MARGIN`` above the neighbourhood's
+    least and below its greatest: on a ramp between two surfaces, on neither."""
+    valid = valid_depth(depth)
     low, high = depth_span(depth)
     with np.errstate(over="ignore"):  # float32 depth near its largest value (an absurd depth) is no edge's
-        return valid_depth(depth) & (high > ratio * low)
+        edges = valid & (high > ratio * low)
+        ramps = edges & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
+    return edges, ramps
 
 
 def ramp_share(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[float, float]:
     """(edge share of the valid pixels, ramp share of the edge pixels): how much of the depth lies at
     edges, and how much of that lies between its neighbours' depths, as enlarged depth does (0.77-0.96
     on synthetic scenes enlarged 2-4x) and a sensor's or a renderer's does not (0.00-0.30)."""
-    valid = valid_depth(depth)
-    low, high = depth_span(depth)
-    with np.errstate(over="ignore"):
-        edge = valid & (high > ratio * low)
-        on_ramp = edge & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
-    edges = int(edge.sum())
-    return edges / max(int(valid.sum()), 1), int(on_ramp.sum()) / max(edges, 1)
+    edges, ramps = edges_and_ramps(depth, ratio)
+    count = int(edges.sum())
+    return count / max(int(valid_depth(depth).sum()), 1), int(ramps.sum()) / max(count, 1)
