@@ -25,7 +25,7 @@ Prints
 ``--line-ratio R`` scores every clip (and its ladders) with the tracks that start on a line left
 out first (sgc_jax.adapters.leave_out_line_tracks, docs/semantics.md §1.7); ``--depth-edge-ratio R``
 with the depth at edges spanning more than R left out, the ladders' after their perturbation
-(sgc_jax.adapters.leave_out_depth_edges, §3.6 "Smooth depth edges"). ``--camera-rot-deg a``
+(sgc_jax.adapters.leave_out_depth_ramps, §3.6 "Smooth depth edges"). ``--camera-rot-deg a``
 and ``--camera-step-rel b`` score every clip (and its ladders) with errors on its cameras, as a pose
 estimator's: each turned about its centre by a rotation of RMS a degrees per axis and its centre
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
-from sgc_jax.adapters import leave_out_depth_edges, leave_out_line_tracks
+from sgc_jax.adapters import leave_out_depth_ramps, leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
@@ -156,7 +156,7 @@ def main() -> None:
                         help="leave out the tracks that start on a line (structure ratio below this) first")
     parser.add_argument("--depth-edge-ratio", type=float, default=None,
                         help="score every clip (its ladders after their perturbation) with the depth at edges spanning "
-                             "more than this ratio left out (sgc_jax.adapters.leave_out_depth_edges)")
+                             "more than this ratio left out (sgc_jax.adapters.leave_out_depth_ramps)")
     parser.add_argument("--regions", type=int, default=0, help="also print each clean clip's N local poses "
                                                                "farthest from the camera's rotation")
     parser.add_argument("--camera-rot-deg", type=float, default=0.0,
@@ -176,7 +176,7 @@ def main() -> None:
     if args.line_ratio is not None:
         clips = [leave_out_line_tracks(clip, args.line_ratio) for clip in clips]
     exact = clips
-    prepare = (lambda clip: leave_out_depth_edges(clip, args.depth_edge_ratio)) if args.depth_edge_ratio else (lambda clip: clip)
+    prepare = (lambda clip: leave_out_depth_ramps(clip, args.depth_edge_ratio)) if args.depth_edge_ratio else (lambda clip: clip)
     if args.camera_rot_deg > 0 or args.camera_step_rel > 0:
         cameras = NoiseModel(camera_rot_deg=args.camera_rot_deg, camera_step_rel=args.camera_step_rel)
         clips = [add_noise(clip, cameras, seed=k) for k, clip in enumerate(clips)]

@@ -206,7 +206,7 @@ def sky_invalid(clip):
 def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
     """The clip's depth as a network at 1/``resample`` of the frame's size and an image of ``bits``
     bits of inverse depth over the clip's range would leave it (either off at 1 and 0), then with the
-    ramps at its edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_edges``)."""
+    ramps at its edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_ramps``)."""
     if resample <= 1 and bits <= 0 and edge_ratio <= 1:
         return clip
     depth = clip.depth.astype(np.float32)

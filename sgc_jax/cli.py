@@ -637,9 +637,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     if "max_depth" in record:
         print(f"sgc-jax import: depth beyond {record['max_depth']['limit']:g} invalid: "
               f"{record['max_depth']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
-    if "depth_edges" in record:
-        print(f"sgc-jax import: depth on ramps at edges spanning more than {record['depth_edges']['ratio']:g}x invalid: "
-              f"{record['depth_edges']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
+    if "depth_ramps" in record:
+        print(f"sgc-jax import: depth on ramps at edges spanning more than {record['depth_ramps']['ratio']:g}x invalid: "
+              f"{record['depth_ramps']['invalid_frac']:.0%} of the valid depth", file=sys.stderr)
     if "line_tracks" in record:
         print(f"sgc-jax import: tracks on lines left out: {record['line_tracks']['left_out']:.0%} of the visible ones",
               file=sys.stderr)

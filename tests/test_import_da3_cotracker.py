@@ -23,7 +23,7 @@ from sgc_jax import load_clip, score_batch
 from sgc_jax.adapters import (
     EstimatorFormatError,
     import_clip,
-    leave_out_depth_edges,
+    leave_out_depth_ramps,
     read_cotracker,
     read_da3,
     read_tracks,
@@ -194,16 +194,16 @@ def test_depth_on_ramps_at_edges_is_imported_invalid_with_its_share_recorded(tmp
         warnings.simplefilter("always")
         cut = import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.2)
     assert not [w for w in caught if "Smooth depth edges" in str(w.message)]
-    expected = leave_out_depth_edges(every, 1.2)
-    assert 0 < expected.meta["depth_edges"]["invalid_frac"] < 0.5
+    expected = leave_out_depth_ramps(every, 1.2)
+    assert 0 < expected.meta["depth_ramps"]["invalid_frac"] < 0.5
     np.testing.assert_array_equal(cut.depth, expected.depth)
-    assert cut.meta["import"]["depth_edges"] == expected.meta["depth_edges"]
+    assert cut.meta["import"]["depth_ramps"] == expected.meta["depth_ramps"]
     with pytest.raises(ValueError, match="depth_edge_ratio must be > 1"):
         import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.0)
     out = tmp_path / "clip.npz"
     assert main(["import", "--da3", str(da3), "--tracks", str(tracks), "--size", f"{H}x{W}", "--depth-edge-ratio",
                  "--out", str(out)]) == 0
-    assert f"depth on ramps at edges spanning more than 1.2x invalid: {expected.meta['depth_edges']['invalid_frac']:.0%}" \
+    assert f"depth on ramps at edges spanning more than 1.2x invalid: {expected.meta['depth_ramps']['invalid_frac']:.0%}" \
         in capsys.readouterr().err
     np.testing.assert_array_equal(load_clip(out).depth, cut.depth)
 

@@ -5,13 +5,23 @@ import json
 import warnings
 
 import cv2
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from estimator_fixtures import vggt_intrinsics
 from scenes import IMPORT_SCENE
 
-from sgc_jax import ClipFormatError, clip_from_arrays, load_clip, save_batch, save_clip, score_batch
-from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_edges
+from sgc_jax import (
+    ClipFormatError,
+    clip_from_arrays,
+    depth_without_ramps,
+    load_clip,
+    save_batch,
+    save_clip,
+    score_batch,
+)
+from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import edges_and_ramps, ramp_share
 from sgc_jax.io.loading import validate_paths
@@ -75,13 +85,23 @@ def test_depth_edges_as_ramps_get_a_warning_naming_the_edge_ratio_and_none_once_
     smooth = enlarged_depth(clip)
     [line] = [p for p in check_clip(smooth) if p.code == "smooth_depth_edges"]
     assert line.severity == "warning" and f"--depth-edge-ratio {DEPTH_EDGE_RATIO:g}" in line.fix
-    left_out = leave_out_depth_edges(smooth)
-    assert 0 < left_out.meta["depth_edges"]["invalid_frac"] < 0.5
+    left_out = leave_out_depth_ramps(smooth)
+    assert 0 < left_out.meta["depth_ramps"]["invalid_frac"] < 0.5
     assert not (left_out.depth[edges_and_ramps(smooth.depth)[1]] > 0).any()
     assert not [p for p in check_clip(left_out) if p.code == "smooth_depth_edges"]
     assert ramp_share(clip.depth)[1] < RAMP_SHARE_WARN / 10 < ramp_share(smooth.depth)[1] / 10
     with pytest.raises(ValueError, match="must be > 1"):
-        leave_out_depth_edges(clip, 1.0)
+        leave_out_depth_ramps(clip, 1.0)
+
+
+def test_the_devices_ramp_step_leaves_the_same_depth_as_the_hosts_inside_a_jit(clip):
+    smooth = enlarged_depth(clip)
+    holes = smooth.depth.copy()
+    holes[:, :5, :7] = 0  # invalid depth is no neighbour
+    on_host = leave_out_depth_ramps(dataclasses.replace(smooth, depth=holes)).depth
+    on_device = np.asarray(jax.jit(depth_without_ramps)(jnp.asarray(holes), DEPTH_EDGE_RATIO))
+    assert (on_host == 0).sum() > (holes == 0).sum()
+    np.testing.assert_array_equal(on_device, on_host)
 
 
 def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none(clip):

@@ -16,7 +16,7 @@
 - :func:`read_frames`: a frames folder or a video file.
 - :func:`leave_out_line_tracks`: an opt-in step before scoring, the tracks that start on a line
   (which a tracker can slide along) made unusable, from the clip's frames (§1.7).
-- :func:`leave_out_depth_edges`: an opt-in step before scoring, the depth at edges made invalid,
+- :func:`leave_out_depth_ramps`: an opt-in step before scoring, the depth at edges made invalid,
   where a depth network's enlarged output puts ramps of points on no surface (§3.6).
 """
 
@@ -34,7 +34,7 @@ from .delta import (
 )
 from .depth_alignment import DepthAlignmentWarning, DisparityFit, align_depth_to_vggt, fit_inverse_depth_affine
 from .depth_anything_3 import DA3Output, read_da3
-from .depth_edges import DEPTH_EDGE_RATIO, leave_out_depth_edges
+from .depth_ramps import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from .frames import Frames, read_frames
 from .line_tracks import LINE_RATIO, leave_out_line_tracks, line_structure
 from .seganymo import MaskFormatWarning, Masks, read_mask_labels, read_seganymo
@@ -46,7 +46,7 @@ __all__ = [
     "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames",
     "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth",
     "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "import_clip",
-    "leave_out_depth_edges", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
+    "leave_out_depth_ramps", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
     "read_delta", "read_delta_dense", "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo",
     "read_tracks", "read_vggt", "read_video_depth", "vggt_grid",
 ]

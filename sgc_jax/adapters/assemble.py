@@ -251,7 +251,7 @@ def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
         left_out |= beyond
     if o.depth_edge_ratio is not None:
         _, ramps = edges_and_ramps(depth.depth, o.depth_edge_ratio)
-        notes["depth_edges"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(ramps)}
+        notes["depth_ramps"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(ramps)}
         left_out |= ramps
     if len(notes) == len(depth.notes):
         return depth

@@ -4,7 +4,7 @@ A monocular depth network predicts at a fraction of the frame's size and its out
 so a depth edge becomes a ramp of pixels between the two surfaces' depths, points that lie on no
 surface. The depth check warps them and compares them with the next frame's ramp, which parallax
 has moved: a consistent world's depth error reads ~2 % (depth from half the frame's size) where
-it read 0.3 %. :func:`edges_and_ramps` finds them (``sgc_jax.adapters.leave_out_depth_edges`` makes
+it read 0.3 %. :func:`edges_and_ramps` finds them (``sgc_jax.adapters.leave_out_depth_ramps`` makes
 the ramps invalid before scoring, an opt-in step); :func:`ramp_share` tells such depth from a
 sensor's or a renderer's, whose edges are steps.
 

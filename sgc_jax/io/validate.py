@@ -479,7 +479,7 @@ def check_depth_ramps(clip: Clip) -> list[Problem]:
                     "their neighbours' depths: a depth network's enlarged output, whose edge points lie on no surface "
                     "and read as depth error (docs/semantics.md §3.6, \"Smooth depth edges\")",
                     f"leave the edges out before scoring: `sgc-jax import ... --depth-edge-ratio {DEPTH_EDGE_RATIO:g}` "
-                    "or sgc_jax.adapters.leave_out_depth_edges(clip)")]
+                    "or sgc_jax.adapters.leave_out_depth_ramps(clip)")]
 
 
 def check_mask(clip: Clip) -> list[Problem]:

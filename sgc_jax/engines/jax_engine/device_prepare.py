@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from ...config import SGCConfig
 from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
+from ...io.depth_edges import DEPTH_EDGE_RATIO, RAMP_MARGIN
 from ...io.loading import evenly_spaced_ranks
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
 from ...kernels.medians import order_statistics
@@ -35,6 +36,18 @@ class ClipArrays(NamedTuple):
     n_tracks: jax.Array  # (B,) int32
     heights: jax.Array  # (B,) int32
     widths: jax.Array  # (B,) int32
+
+
+def depth_without_ramps(depth: jax.Array, ratio: float = DEPTH_EDGE_RATIO) -> jax.Array:
+    """``depth`` (..., H, W) with 0 on the ramps at its edges, as ``adapters.leave_out_depth_ramps``
+    does on the host (the same numbers; docs/semantics.md §3.6, "Smooth depth edges"): for a training
+    loop whose depth network's output goes to the Scorer. Traceable; ``ratio`` may be traced."""
+    valid = depth > 0
+    window, strides = (1,) * (depth.ndim - 2) + (3, 3), (1,) * depth.ndim
+    low = jax.lax.reduce_window(jnp.where(valid, depth, jnp.inf), jnp.inf, jax.lax.min, window, strides, "SAME")
+    high = jax.lax.reduce_window(jnp.where(valid, depth, 0.0), 0.0, jax.lax.max, window, strides, "SAME")
+    ramps = valid & (high > ratio * low) & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
+    return jnp.where(ramps, jnp.zeros_like(depth), depth)
 
 
 def masked_median(values, mask):
