@@ -242,16 +242,15 @@ def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
     """``depth`` with values beyond ``max_depth`` (a sky, §3.1) and on ramps at edges spanning more than
     ``depth_edge_ratio`` (an enlarged network's, §3.6) set to 0, invalid; each share of the valid depth
     recorded in its notes."""
-    valid = depth.depth > 0
-    share = lambda left_out: round(int(left_out.sum()) / max(int(valid.sum()), 1), 4)  # noqa: E731
-    left_out, notes = np.zeros_like(valid), dict(depth.notes)
+    valid_count = max(int(np.count_nonzero(depth.depth > 0)), 1)
+    left_out, notes = np.zeros(depth.depth.shape, bool), dict(depth.notes)
     if o.max_depth is not None:
-        beyond = valid & (depth.depth > o.max_depth)
-        notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": share(beyond)}
+        beyond = depth.depth > o.max_depth
+        notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": round(int(beyond.sum()) / valid_count, 4)}
         left_out |= beyond
     if o.depth_edge_ratio is not None:
         _, ramps = edges_and_ramps(depth.depth, o.depth_edge_ratio)
-        notes["depth_ramps"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": share(ramps)}
+        notes["depth_ramps"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": round(int(ramps.sum()) / valid_count, 4)}
         left_out |= ramps
     if len(notes) == len(depth.notes):
         return depth

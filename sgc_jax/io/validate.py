@@ -478,7 +478,7 @@ def check_depth_ramps(clip: Clip) -> list[Problem]:
                     f"{100 * on_ramp:.0f}% of the edge pixels ({100 * edge_share:.1f}% of the valid depth) lie between "
                     "their neighbours' depths: a depth network's enlarged output, whose edge points lie on no surface "
                     "and read as depth error (docs/semantics.md §3.6, \"Smooth depth edges\")",
-                    f"leave the edges out before scoring: `sgc-jax import ... --depth-edge-ratio {DEPTH_EDGE_RATIO:g}` "
+                    f"leave the ramps out before scoring: `sgc-jax import ... --depth-edge-ratio {DEPTH_EDGE_RATIO:g}` "
                     "or sgc_jax.adapters.leave_out_depth_ramps(clip)")]
 
 
@@ -523,8 +523,8 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks
-                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_depth_ramps(clip) + check_mask(clip)
-                + check_length(clip))
+                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_depth_ramps(clip)
+                + check_mask(clip) + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))

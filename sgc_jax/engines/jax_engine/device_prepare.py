@@ -42,7 +42,7 @@ def depth_without_ramps(depth: jax.Array, ratio: float = DEPTH_EDGE_RATIO) -> ja
     """``depth`` (..., H, W) with 0 on the ramps at its edges, as ``adapters.leave_out_depth_ramps``
     does on the host (the same numbers; docs/semantics.md §3.6, "Smooth depth edges"): for a training
     loop whose depth network's output goes to the Scorer. Traceable; ``ratio`` may be traced."""
-    valid = depth > 0
+    valid = jnp.isfinite(depth) & (depth > 0)
     window, strides = (1,) * (depth.ndim - 2) + (3, 3), (1,) * depth.ndim
     low = jax.lax.reduce_window(jnp.where(valid, depth, jnp.inf), jnp.inf, jax.lax.min, window, strides, "SAME")
     high = jax.lax.reduce_window(jnp.where(valid, depth, 0.0), 0.0, jax.lax.max, window, strides, "SAME")
