@@ -36,7 +36,7 @@ gives every clip a K whose focal lengths are f times the true ones, as a camera 
 (VGGT's, DA3's) scatter (§1.5, "One K for a clip"); ``--one-k`` then gives every frame their median,
 as ``sgc-jax import`` does. ``--depth-resample F`` gives every clip (the perturbed ones after their
 perturbation) the depth a network predicting at 1/F of the frame's size leaves once resized back:
-each frame averaged over F x F blocks, then bilinearly enlarged, so depth edges become ramps of
+each frame shrunk F times by area averaging (over F x F blocks at a whole F), then bilinearly enlarged, so depth edges become ramps of
 mixed depths; ``--depth-bits N`` stores each clip's inverse depth in N bits over its range, as
 depth saved as 8- or 16-bit disparity images is; ``--depth-edge-ratio R`` then makes the depth
 invalid on the ramps at edges (a 3 x 3 neighbourhood spanning more than R, the pixel over 5 % from
@@ -115,8 +115,8 @@ def main() -> None:
     parser.add_argument("--focal-jitter", type=float, default=0.0,
                         help="each frame's focal lengths times its own factor exp(r N(0, 1)), this r")
     parser.add_argument("--one-k", action="store_true", help="with --focal-jitter: every frame's K their median")
-    parser.add_argument("--depth-resample", type=int, default=1,
-                        help="F > 1: each frame's depth averaged over F x F blocks and enlarged bilinearly")
+    parser.add_argument("--depth-resample", type=float, default=1.0,
+                        help="F > 1: each frame's depth shrunk F times (area average) and enlarged bilinearly")
     parser.add_argument("--depth-bits", type=int, default=0,
                         help="N > 0: each clip's inverse depth quantised to N bits over its range")
     parser.add_argument("--depth-edge-ratio", type=float, default=0.0,
@@ -203,7 +203,7 @@ def sky_invalid(clip):
     return dataclasses.replace(clip, depth=np.where(beyond, 0.0, clip.depth).astype(clip.depth.dtype))
 
 
-def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
+def estimator_depth(clip, resample: float, bits: int, edge_ratio: float = 0.0):
     """The clip's depth as a network at 1/``resample`` of the frame's size and an image of ``bits``
     bits of inverse depth over the clip's range would leave it (either off at 1 and 0), then with the
     ramps at its edges spanning more than ``edge_ratio`` invalid (off at 0; ``adapters.leave_out_depth_ramps``)."""
@@ -212,7 +212,7 @@ def estimator_depth(clip, resample: int, bits: int, edge_ratio: float = 0.0):
     depth = clip.depth.astype(np.float32)
     if resample > 1:
         H, W = depth.shape[1:]
-        small = (max(W // resample, 1), max(H // resample, 1))
+        small = (max(round(W / resample), 1), max(round(H / resample), 1))
         depth = np.stack([cv2.resize(cv2.resize(frame, small, interpolation=cv2.INTER_AREA), (W, H),
                                      interpolation=cv2.INTER_LINEAR) for frame in depth])
     if bits > 0:
