@@ -24,8 +24,8 @@ Prints
 
 ``--line-ratio R`` scores every clip (and its ladders) with the tracks that start on a line left
 out first (sgc_jax.adapters.leave_out_line_tracks, docs/semantics.md §1.7); ``--depth-edge-ratio R``
-with the depth at edges spanning more than R left out, the ladders' after their perturbation
-(sgc_jax.adapters.leave_out_depth_ramps, §3.6 "Smooth depth edges"). ``--camera-rot-deg a``
+with the depth on the ramps at edges spanning more than R left out, the ladders' after their
+perturbation (sgc_jax.adapters.leave_out_depth_ramps, §3.6 "Smooth depth edges"). ``--camera-rot-deg a``
 and ``--camera-step-rel b`` score every clip (and its ladders) with errors on its cameras, as a pose
 estimator's: each turned about its centre by a rotation of RMS a degrees per axis and its centre
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
@@ -155,8 +155,8 @@ def main() -> None:
     parser.add_argument("--line-ratio", type=float, default=None,
                         help="leave out the tracks that start on a line (structure ratio below this) first")
     parser.add_argument("--depth-edge-ratio", type=float, default=None,
-                        help="score every clip (its ladders after their perturbation) with the depth at edges spanning "
-                             "more than this ratio left out (sgc_jax.adapters.leave_out_depth_ramps)")
+                        help="score every clip (its ladders after their perturbation) with the depth on the ramps at "
+                             "edges spanning more than this ratio left out (sgc_jax.adapters.leave_out_depth_ramps)")
     parser.add_argument("--regions", type=int, default=0, help="also print each clean clip's N local poses "
                                                                "farthest from the camera's rotation")
     parser.add_argument("--camera-rot-deg", type=float, default=0.0,
@@ -176,7 +176,9 @@ def main() -> None:
     if args.line_ratio is not None:
         clips = [leave_out_line_tracks(clip, args.line_ratio) for clip in clips]
     exact = clips
-    prepare = (lambda clip: leave_out_depth_ramps(clip, args.depth_edge_ratio)) if args.depth_edge_ratio else (lambda clip: clip)
+    def prepare(clip):
+        return leave_out_depth_ramps(clip, args.depth_edge_ratio) if args.depth_edge_ratio else clip
+
     if args.camera_rot_deg > 0 or args.camera_step_rel > 0:
         cameras = NoiseModel(camera_rot_deg=args.camera_rot_deg, camera_step_rel=args.camera_step_rel)
         clips = [add_noise(clip, cameras, seed=k) for k, clip in enumerate(clips)]

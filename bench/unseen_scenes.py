@@ -36,11 +36,12 @@ gives every clip a K whose focal lengths are f times the true ones, as a camera 
 (VGGT's, DA3's) scatter (§1.5, "One K for a clip"); ``--one-k`` then gives every frame their median,
 as ``sgc-jax import`` does. ``--depth-resample F`` gives every clip (the perturbed ones after their
 perturbation) the depth a network predicting at 1/F of the frame's size leaves once resized back:
-each frame shrunk F times by area averaging (over F x F blocks at a whole F), then bilinearly enlarged, so depth edges become ramps of
-mixed depths; ``--depth-bits N`` stores each clip's inverse depth in N bits over its range, as
-depth saved as 8- or 16-bit disparity images is; ``--depth-edge-ratio R`` then makes the depth
-invalid on the ramps at edges (a 3 x 3 neighbourhood spanning more than R, the pixel over 5 % from
-both its least and greatest depth), as ``sgc-jax import --depth-edge-ratio`` does (docs/semantics.md §3.6, "Smooth depth edges").
+each frame shrunk F times by area averaging (over F x F blocks at a whole F), then bilinearly
+enlarged, so depth edges become ramps of mixed depths; ``--depth-bits N`` stores each clip's inverse
+depth in N bits over its range, as depth saved as 8- or 16-bit disparity images is;
+``--depth-edge-ratio R`` then makes the depth invalid on the ramps at edges (a 3 x 3 neighbourhood
+spanning more than R, the pixel over 5 % from both its least and greatest depth), as ``sgc-jax
+import --depth-edge-ratio`` does (docs/semantics.md §3.6, "Smooth depth edges").
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
