@@ -65,7 +65,7 @@ import cv2
 import numpy as np
 
 from sgc_jax import score_batch
-from sgc_jax.io.depth_edges import edges_and_ramps
+from sgc_jax.io.depth_edges import without_ramps
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
@@ -224,7 +224,7 @@ def estimator_depth(clip, resample: float, bits: int, edge_ratio: float = 0.0):
         stored = np.round((inverse - low) / (high - low) * levels) / levels * (high - low) + low
         depth = np.where(valid, 1.0 / stored, 0.0).astype(np.float32)
     if edge_ratio > 1:
-        depth = np.where(edges_and_ramps(depth, edge_ratio)[1], 0.0, depth).astype(np.float32)
+        depth = without_ramps(depth, edge_ratio)[0]
     return dataclasses.replace(clip, depth=depth.astype(clip.depth.dtype))
 
 

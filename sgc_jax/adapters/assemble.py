@@ -19,7 +19,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..io.clip import Clip
-from ..io.depth_edges import edges_and_ramps
+from ..io.depth_edges import check_edge_ratio, without_ramps
 from ..io.loading import clip_from_arrays
 from ..io.validate import focal_spread
 from .common import parse_size, resize_frames, resize_points
@@ -109,9 +109,8 @@ def _check_options(o: ImportOptions) -> None:
     """Raise on a frame step or a depth limit that cannot be applied."""
     if o.max_depth is not None and not (np.isfinite(o.max_depth) and o.max_depth > 0):
         raise ValueError(f"max_depth must be a depth > 0 in the clip's units, got {o.max_depth!r}")
-    if o.depth_edge_ratio is not None and not (np.isfinite(o.depth_edge_ratio) and o.depth_edge_ratio > 1):
-        raise ValueError(f"depth_edge_ratio must be > 1 (largest / smallest depth of a 3 x 3 neighbourhood), "
-                         f"got {o.depth_edge_ratio!r}")
+    if o.depth_edge_ratio is not None:
+        check_edge_ratio(o.depth_edge_ratio)
     if isinstance(o.frame_step, bool) or not isinstance(o.frame_step, (int, np.integer)) or o.frame_step < 1:
         raise ValueError(f"frame_step must be a whole number >= 1 (1: every frame), got {o.frame_step!r}")
     if o.frame_step > 1 and o.reference_compat:
@@ -239,22 +238,19 @@ def _clip_intrinsics(K: np.ndarray, note: str, o: ImportOptions) -> tuple[np.nda
 
 
 def _depth_left_out(depth: Depth, o: ImportOptions) -> Depth:
-    """``depth`` with values beyond ``max_depth`` (a sky, §3.1) and on ramps at edges spanning more than
-    ``depth_edge_ratio`` (an enlarged network's, §3.6) set to 0, invalid; each share of the valid depth
-    recorded in its notes."""
-    valid_count = max(int(np.count_nonzero(depth.depth > 0)), 1)
-    left_out, notes = np.zeros(depth.depth.shape, bool), dict(depth.notes)
+    """``depth`` with values beyond ``max_depth`` (a sky, §3.1), then those on ramps at edges spanning
+    more than ``depth_edge_ratio`` (an enlarged network's, §3.6), set to 0, invalid; each share of the
+    valid depth recorded in its notes."""
+    values, notes = depth.depth, dict(depth.notes)
     if o.max_depth is not None:
-        beyond = depth.depth > o.max_depth
-        notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": round(int(beyond.sum()) / valid_count, 4)}
-        left_out |= beyond
+        beyond = values > o.max_depth
+        share = int(beyond.sum()) / max(int(np.count_nonzero(values > 0)), 1)
+        notes["max_depth"] = {"limit": float(o.max_depth), "invalid_frac": round(share, 4)}
+        values = np.where(beyond, 0, values).astype(values.dtype)
     if o.depth_edge_ratio is not None:
-        _, ramps = edges_and_ramps(depth.depth, o.depth_edge_ratio)
-        notes["depth_ramps"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": round(int(ramps.sum()) / valid_count, 4)}
-        left_out |= ramps
-    if len(notes) == len(depth.notes):
-        return depth
-    return dataclasses.replace(depth, depth=np.where(left_out, 0, depth.depth).astype(depth.depth.dtype), notes=notes)
+        values, share = without_ramps(values, o.depth_edge_ratio)
+        notes["depth_ramps"] = {"ratio": float(o.depth_edge_ratio), "invalid_frac": round(share, 4)}
+    return depth if values is depth.depth else dataclasses.replace(depth, depth=values, notes=notes)
 
 
 def _without_line_tracks(clip: Clip, max_ratio: float) -> Clip:

@@ -1,12 +1,13 @@
 """Depth edges as a depth estimator leaves them (docs/semantics.md §3.6, "Smooth depth edges").
 
-A monocular depth network predicts at a fraction of the frame's size and its output is enlarged,
-so a depth edge becomes a ramp of pixels between the two surfaces' depths, points that lie on no
-surface. The depth check warps them and compares them with the next frame's ramp, which parallax
-has moved: a consistent world's depth error reads ~2 % (depth from half the frame's size) where
-it read 0.3 %. :func:`edges_and_ramps` finds them (``sgc_jax.adapters.leave_out_depth_ramps`` makes
-the ramps invalid before scoring, an opt-in step); :func:`ramp_share` tells such depth from a
-sensor's or a renderer's, whose edges are steps.
+A monocular depth network predicts at a fraction of the frame's size and its output is enlarged, so
+a depth edge becomes a ramp of pixels between the two surfaces' depths, points that lie on no
+surface. The depth check warps them and compares them with the next frame's ramp, which parallax has
+moved: a consistent world's depth error reads ~2 % (depth from half the frame's size) where it read
+0.3 %. :func:`edges_and_ramps` finds them and :func:`without_ramps` makes the ramps invalid (an
+opt-in step before scoring: ``sgc_jax.adapters.leave_out_depth_ramps``, ``sgc-jax import
+--depth-edge-ratio``); :func:`ramp_share` tells such depth from a sensor's or a renderer's, whose
+edges are steps.
 
 Depth arrays are (T, H, W); a value is valid where finite and > 0. Neighbourhoods are 3 x 3 pixels.
 """
@@ -34,32 +35,46 @@ def valid_depth(depth: np.ndarray) -> np.ndarray:
         return np.isfinite(depth) & (depth > 0)
 
 
-def depth_span(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def check_edge_ratio(ratio: float) -> None:
+    """Raise unless ``ratio`` can mark an edge: a finite largest / smallest depth above 1."""
+    if not (np.isfinite(ratio) and ratio > 1):
+        raise ValueError(f"depth_edge_ratio must be > 1 (largest / smallest depth of a 3 x 3 neighbourhood), "
+                         f"got {ratio!r}")
+
+
+def depth_span(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lowest, highest) valid depth over each pixel's 3 x 3 neighbourhood, (T, H, W) float32 each;
-    inf and 0 where the neighbourhood holds no valid depth."""
-    valid = valid_depth(depth)
+    inf and 0 where the neighbourhood holds no valid depth (``valid``: :func:`valid_depth`)."""
     depth = np.where(valid, depth, 0).astype(np.float32)
     low = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), _NEIGHBOURHOOD) for d, v in zip(depth, valid)])
     high = np.stack([cv2.dilate(d, _NEIGHBOURHOOD) for d in depth])
     return low, high
 
 
-def edges_and_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[np.ndarray, np.ndarray]:
-    """(edges, ramps), (T, H, W) bool each: valid pixels whose neighbourhood's valid depths span more
-    than ``ratio``, and those of them whose depth lies over ``RAMP_MARGIN`` above the neighbourhood's
-    least and below its greatest: on a ramp between two surfaces, on neither."""
+def edges_and_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[np.ndarray, np.ndarray, int]:
+    """(edges, ramps, valid count): (T, H, W) bool masks of the valid pixels whose neighbourhood's valid
+    depths span more than ``ratio``, and of those whose depth lies over ``RAMP_MARGIN`` above the
+    neighbourhood's least and below its greatest (on a ramp between two surfaces, on neither); and the
+    number of valid pixels."""
     valid = valid_depth(depth)
-    low, high = depth_span(depth)
+    low, high = depth_span(depth, valid)
     with np.errstate(over="ignore"):  # float32 depth near its largest value (an absurd depth) is no edge's
         edges = valid & (high > ratio * low)
         ramps = edges & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
-    return edges, ramps
+    return edges, ramps, int(valid.sum())
+
+
+def without_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[np.ndarray, float]:
+    """(``depth`` with 0, invalid, on its ramps; the share of the valid depth so left out)."""
+    check_edge_ratio(ratio)
+    _, ramps, valid = edges_and_ramps(depth, ratio)
+    return np.where(ramps, 0, depth).astype(depth.dtype), int(ramps.sum()) / max(valid, 1)
 
 
 def ramp_share(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[float, float]:
     """(edge share of the valid pixels, ramp share of the edge pixels): how much of the depth lies at
-    edges, and how much of that lies between its neighbours' depths, as enlarged depth does (0.77-0.96
-    on synthetic scenes enlarged 2-4x) and a sensor's or a renderer's does not (0.00-0.30)."""
-    edges, ramps = edges_and_ramps(depth, ratio)
+    edges, and how much of that lies between its neighbours' depths, as enlarged depth does (0.65-0.96
+    on synthetic scenes enlarged 1.4-4x) and a sensor's or a renderer's does not (0.00-0.30)."""
+    edges, ramps, valid = edges_and_ramps(depth, ratio)
     count = int(edges.sum())
-    return count / max(int(valid_depth(depth).sum()), 1), int(ramps.sum()) / max(count, 1)
+    return count / max(valid, 1), int(ramps.sum()) / max(count, 1)
