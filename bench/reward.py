@@ -5,6 +5,7 @@ the same run; then, optionally, a corpus scored from disk through ``score_batch`
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
                            [--vectorized] [--no-baseline] [--profile DIR]
                            [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
+                           [--linearise package|unfenced|chunk-dot|augmented]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs
@@ -17,7 +18,9 @@ scorer waited for input and summarised clips. --vectorized runs the Scorer's acc
 step of each B's call apart (waited for one by one) and writes a Perfetto trace of one call into
 DIR/B<B> (and the optimized HLO of the first B's pose program); on a GPU it prints, per step, the kernels
 launched, the time the device was busy and the most launched kernels (a while loop's body is
-launched once per iteration, so their counts are the loops' iteration counts).
+launched once per iteration, so their counts are the loops' iteration counts). --linearise FORM
+puts one of bench/normal_equations.py's forms of the least-squares step in the package's place
+before anything is compiled.
 """
 
 from __future__ import annotations
@@ -31,17 +34,19 @@ import statistics
 import sys
 import tempfile
 import time
-import types
 from pathlib import Path
 
 import jax
 
 from sgc_jax import Scorer, enable_compilation_cache, score_batch
+from sgc_jax.engines.jax_engine.programs import Pipeline
+from sgc_jax.kernels import joint_pnp
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.scoring.streaming import StreamStats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from normal_equations import FORMS  # noqa: E402
 from stream import SCENE, write_corpus  # noqa: E402
 
 DISTINCT = 8  # distinct scenes; a batch of B repeats them (a clip's numbers do not depend on its neighbours)
@@ -73,20 +78,23 @@ def scorer_rate(clips: list, B: int, shape: tuple, repeats: int, vectorized: boo
 
 def timed_steps(scorer: Scorer, batch: dict) -> dict[str, float]:
     """Seconds of each step of one program call (the first lane's clips on a CPU), each waited
-    for, in the order the Scorer runs them."""
+    for, in the order the Scorer runs them; the stage pipeline's stages (pixel, pose, finish) apart."""
     clips = jax.device_put(scorer._rows(scorer.clip_arrays(batch), 0, scorer.call_size), scorer._sharding())
     seconds = {}
 
+    def timed(name, call):
+        def timed_call(*args):  # the trace's window of the step (kernel_summary)
+            begin = time.perf_counter()
+            value = jax.block_until_ready(call(*args))
+            seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - begin  # clip by clip on a CPU
+            return value
+        return timed_call
+
     def waited(name, program):
-        def timed(call):
-            def timed_call(*args):  # the trace's window of the step (kernel_summary)
-                begin = time.perf_counter()
-                value = jax.block_until_ready(call(*args))
-                seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - begin  # clip by clip on a CPU
-                return value
-            return timed_call
-        # the stage pipeline: the Scorer calls its ``outputs``, once per clip where it runs them one by one
-        return types.SimpleNamespace(outputs=timed(program.outputs)) if hasattr(program, "outputs") else timed(program)
+        if isinstance(program, Pipeline):  # each stage's program waited for in turn
+            return program._replace(programs=tuple(timed(stage.name, call)
+                                                   for stage, call in zip(program.stages, program.programs)))
+        return timed(name, program)
 
     scorer._run({name: waited(name, program) for name, program in scorer._compiled.items()}, clips)
     return seconds
@@ -181,12 +189,15 @@ def main() -> None:
     parser.add_argument("--profile", type=Path, default=None, metavar="DIR")
     parser.add_argument("--disk-clips", type=int, default=0)
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
+    parser.add_argument("--linearise", choices=sorted(FORMS), default="package")
     args = parser.parse_args()
+    joint_pnp.linearise = FORMS[args.linearise]
     enable_compilation_cache()
     shape = tuple(args.shape)
     device = jax.devices()[0]
     print(f"device: {device.device_kind} ({jax.default_backend()}), {jax.device_count()} device(s); "
-          f"clips of {shape[0]} frames, {shape[1]}x{shape[2]} px, {shape[3]} tracks per pair")
+          f"clips of {shape[0]} frames, {shape[1]}x{shape[2]} px, {shape[3]} tracks per pair; "
+          f"the least-squares step's form: {args.linearise}")
     clips = clips_of(shape, max(args.batch_sizes))
     baseline = float("nan")
     if args.baseline:
