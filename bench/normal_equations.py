@@ -14,6 +14,9 @@ difference from the package's form relative to its size, and the same for one wh
 - ``chunk-dot``: per-chunk J_c J_c^T as a batched dot over chunks, then chunk-to-region
 - ``augmented``: A = (J; r), 7 rows per image axis, one batched dot per axis gives J^T J, J^T r
   and r^T r at once
+- ``stacked``: J^T J's 21 distinct products, J^T r's 6 and the cost stacked (28, n_chunks,
+  SLOT_CHUNK), summed within chunks by one reduction, one chunk-to-region product; ``-unfenced``
+  without the fence, ``-last`` with the 28 values on the last axis
 """
 
 from __future__ import annotations
@@ -74,7 +77,29 @@ def augmented(problem, R, t):
     return joint_pnp.Linearisation(G[:, 6, 6], G[:, :6, :6], G[:, :6, 6])
 
 
-FORMS = {"package": PACKAGE_LINEARISE, "unfenced": unfenced, "chunk-dot": chunk_dot, "augmented": augmented}
+UPPER = [(i, j) for i in range(6) for j in range(i, 6)]  # J^T J's 21 distinct entries
+SYMMETRIC = jnp.array([[UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
+
+
+def stacked_sums(problem, R, t, fence: bool, products_last: bool):
+    """J^T J's 21 distinct products, J^T r's 6 and r^T r stacked into one array (28 values a slot),
+    summed within chunks by one reduction, then one chunk-to-region product."""
+    onehot = problem.slots.chunk_onehot
+    (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence)
+    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
+              + [du * du + dv * dv])
+    if products_last:
+        sums = jnp.sum(jnp.stack(values, -1), axis=1).T  # (n_chunks, SLOT_CHUNK, 28) -> (28, n_chunks)
+    else:
+        sums = jnp.sum(jnp.stack(values), axis=-1)  # (28, n_chunks, SLOT_CHUNK) -> (28, n_chunks)
+    per_region = jnp.einsum("kc,mc->km", onehot, sums, precision=HIGHEST)  # (k, 28)
+    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, SYMMETRIC], per_region[:, 21:27])
+
+
+FORMS = {"package": PACKAGE_LINEARISE, "unfenced": unfenced, "chunk-dot": chunk_dot, "augmented": augmented,
+         "stacked": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=False),
+         "stacked-unfenced": lambda p, R, t: stacked_sums(p, R, t, fence=False, products_last=False),
+         "stacked-last": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=True)}
 
 
 def pairs_of(key, P: int, N: int, k: int):
@@ -115,6 +140,7 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=4096)
     parser.add_argument("--regions", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--forms", nargs="+", choices=sorted(FORMS), default=list(FORMS))
     args = parser.parse_args()
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}); {args.pairs} pairs of "
           f"{args.points} points in {args.regions} regions", flush=True)
@@ -126,7 +152,8 @@ def main() -> None:
     reference = solved_reference = None
     print("| form | linearise ms | rel. diff. | LM solve ms | rel. diff. of the poses |")
     print("|---|---|---|---|---|", flush=True)
-    for name, form in FORMS.items():
+    for name in ["package"] + [f for f in args.forms if f != "package"]:
+        form = FORMS[name]
         linearise = jax.jit(jax.vmap(form))
         ms = timed(linearise, (problems, R, t), args.repeats)
         out = linearise(problems, R, t)
