@@ -3,10 +3,10 @@
 # repository root on the device machine:
 #   bench/gpu_figures.sh reward      issues 40, 61: the Scorer's clips/s per B with a step profile and
 #                                    kernel traces, then 1,000 standard clips from disk (~8 min)
-#   bench/gpu_figures.sh pose        issue 61: the least-squares step's forms timed alone, the Scorer at
-#                                    B = 64 with each stage timed and a kernel trace, 1,000 standard clips
-#                                    from disk, then B = 64 again with the fastest form if it is >= 10 %
-#                                    faster alone (~9.5 min)
+#   bench/gpu_figures.sh pose        issue 61: the Scorer at B = 64 with each stage timed and a kernel
+#                                    trace, 1,000 standard clips from disk, the least-squares step's forms
+#                                    and the histograms' copies timed alone (~9 min); a form that wins
+#                                    alone: bench/reward.py --linearise FORM
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -28,19 +28,12 @@ reward)
         | tee "$OUT/disk.log"
     ;;
 pose)
-    timeout 100 python3 bench/normal_equations.py 2>&1 | tee "$OUT/normal_equations.log"
     timeout 170 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 --profile "$OUT/profile" 2>&1 \
         | tee "$OUT/reward.log"
     timeout 200 python3 bench/reward.py --batch-sizes 16 --no-baseline --repeats 3 --disk-clips 1000 --dir /tmp/corpus 2>&1 \
         | tee "$OUT/disk.log"
-    # rows "| form | linearise ms | rel. diff. | LM solve ms | ..."; the package's is the first
-    best=$(awk -F'|' '$5 ~ /[0-9]/ {gsub(/ /, "", $2); ms = $5 + 0; if (!base) base = ms;
-                       if (ms < 0.9 * base && (!best || ms < low)) {best = $2; low = ms}} END {print best}' \
-           "$OUT/normal_equations.log")
-    if [ -n "$best" ]; then
-        timeout 120 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 --linearise "$best" 2>&1 \
-            | tee "$OUT/reward-$best.log"
-    fi
+    timeout 120 python3 bench/normal_equations.py 2>&1 | tee "$OUT/normal_equations.log"
+    timeout 60 python3 bench/histogram_copies.py 2>&1 | tee "$OUT/histogram_copies.log"
     ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"

@@ -1,13 +1,16 @@
-"""The depth partition's histograms in the accelerator form, timed for several numbers of copies
-of the bins (``kmeans.HISTOGRAM_COPIES``), on any device.
+"""The depth partition's histograms in the accelerator form, their three segment sums (counts,
+offsets, squared offsets) timed with the entries added into several copies of the bins (entry i
+into copy i mod C, the copies summed after), on any device. One copy is the package's form.
 
     python bench/histogram_copies.py [--clips 64] [--copies 1 8 32 128] [--repeats 20]
 
 The frames are the depth of --clips standard clips (bench/stream.py's scene, 16 frames, 288x512;
-8 distinct scenes repeated), each frame's histogram of 1,024 bins built at once (vmapped, as
-``depth_partition_of(..., frames_at_once=True)`` does). Printed per number of copies: ms per call
-(median of --repeats) and the largest difference of the prefix sums from one copy's, relative to
-their size (the counts must be equal).
+8 distinct scenes repeated), each frame's sums over 1,024 bins built at once (vmapped, as
+``depth_partition_of(..., frames_at_once=True)`` does). On an H200 the three scatters took 33 of
+the pixel stage's 44 ms at B = 64 (bench/history/issue-61.md "The least-squares step on an H200"):
+neighbouring pixels share a bin, and their atomic adds to one address wait on each other. Printed
+per number of copies: ms per call (median of --repeats), whether the counts equal one copy's, and
+the largest difference of the float sums from one copy's, relative to their size.
 """
 
 from __future__ import annotations
@@ -31,9 +34,18 @@ from stream import SCENE  # noqa: E402
 BINS = 1024
 
 
-def frame_histogram(depth):
+def frame_sums(depth, copies: int):
+    """(counts, offsets, squared offsets) per bin (BINS,) of one frame's depth, as ``kmeans.histogram``
+    sums them before its prefix sums."""
     u, valid, _, _ = kmeans.normalise(depth.reshape(-1), jnp.ones(depth.size, bool))
-    return kmeans.histogram(u * BINS, kmeans.bin_of(u, BINS), valid, BINS)
+    bins_of = kmeans.bin_of(u, BINS)
+    d = jnp.where(valid, u * BINS - (bins_of.astype(jnp.float32) + 0.5), 0.0)
+    segment = (jnp.arange(bins_of.shape[0], dtype=jnp.int32) % copies) * BINS + bins_of
+
+    def summed(x):
+        return jnp.sum(jax.ops.segment_sum(x, segment, num_segments=copies * BINS).reshape(copies, BINS), 0)
+
+    return summed(valid.astype(jnp.int32)), summed(d), summed(d * d)
 
 
 def main() -> None:
@@ -50,17 +62,14 @@ def main() -> None:
     print("|---|---|---|---|", flush=True)
     reference = None
     for copies in args.copies:
-        kmeans.HISTOGRAM_COPIES = copies  # read when traced
-        build = jax.jit(jax.vmap(frame_histogram))
+        build = jax.jit(jax.vmap(lambda depth: frame_sums(depth, copies)))
         out = jax.block_until_ready(build(depth))
         times = []
         for _ in range(args.repeats):
             begin = time.perf_counter()
             jax.block_until_ready(build(depth))
             times.append(time.perf_counter() - begin)
-        hist, n_bin = out
-        sums = np.concatenate([np.asarray(x, np.float64).reshape(len(depth), -1)
-                               for x in (*hist.sum, *hist.sum_sq)], 1)
+        n_bin, sums = out[0], np.concatenate([np.asarray(x, np.float64) for x in out[1:]], 1)
         if reference is None:
             reference = (np.asarray(n_bin), sums)
         equal = bool(np.array_equal(np.asarray(n_bin), reference[0]))

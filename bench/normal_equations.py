@@ -8,15 +8,19 @@ Scorer's accelerator form does. Printed per form: ms per call (median of --repea
 difference from the package's form relative to its size, and the same for one whole
 ``solve_pnp_regions`` (Levenberg-Marquardt, at most 10 steps) with the form in its place.
 
-- ``package``: the package's form (J fenced into memory, all products from one broadcast summed
-  within each 32-slot chunk, then the chunk-to-region product; cost and J^T r by ``block_sums``)
-- ``unfenced``: the same without the fence, so XLA may fuse J into its consumers
+- ``package``: ``joint_pnp.linearise``, platform-dependent: on a CPU ``cpu-form``, elsewhere
+  ``accelerator-form``
+- ``cpu-form``: J fenced into memory, all products from one broadcast summed within each 32-slot
+  chunk, then the chunk-to-region product; cost and J^T r by ``block_sums``
+- ``accelerator-form``: J^T J's 21 distinct products, J^T r's 6 and the cost stacked (28,
+  n_chunks, SLOT_CHUNK) and summed within chunks by one reduction that makes J where it reads it,
+  one chunk-to-region product (measured as ``stacked-unfenced`` before it became the package's)
+- ``unfenced``: ``cpu-form`` without the fence, so XLA may fuse J into its consumers
 - ``chunk-dot``: per-chunk J_c J_c^T as a batched dot over chunks, then chunk-to-region
 - ``augmented``: A = (J; r), 7 rows per image axis, one batched dot per axis gives J^T J, J^T r
   and r^T r at once
-- ``stacked``: J^T J's 21 distinct products, J^T r's 6 and the cost stacked (28, n_chunks,
-  SLOT_CHUNK), summed within chunks by one reduction, one chunk-to-region product; ``-unfenced``
-  without the fence, ``-last`` with the 28 values on the last axis
+- ``stacked``, ``stacked-last``: ``accelerator-form`` with J fenced into memory, and with the 28
+  values on the last axis
 """
 
 from __future__ import annotations
@@ -31,8 +35,7 @@ import numpy as np
 
 from sgc_jax.kernels import joint_pnp
 from sgc_jax.kernels.fence import materialise
-from sgc_jax.kernels.pnp import pointwise_residuals, pose_jacobian_rows
-from sgc_jax.kernels.regions import block_normals, block_sums, per_chunk
+from sgc_jax.kernels.regions import block_normals, block_sums
 from sgc_jax.kernels.so3 import so3_exp
 
 HIGHEST = jax.lax.Precision.HIGHEST
@@ -41,12 +44,8 @@ PACKAGE_LINEARISE = joint_pnp.linearise
 
 def jacobians(problem, R, t, fence: bool):
     """(du, dv) and scaled (J_u, J_v), each (6, n_chunks, SLOT_CHUNK), as ``linearise`` makes them."""
-    slots = problem.slots
-    chunk_scale = problem.scale[slots.chunk_region].T[..., None]
-    (du, dv), (RX, grad_u, grad_v) = pointwise_residuals(per_chunk(slots, R), per_chunk(slots, t), problem.K,
-                                                         problem.cols)
-    J = (pose_jacobian_rows(RX, grad_u) / chunk_scale, pose_jacobian_rows(RX, grad_v) / chunk_scale)
-    return (du, dv), materialise(J) if fence else J
+    residuals, J = joint_pnp._jacobians(problem, R, t)
+    return residuals, materialise(J) if fence else J
 
 
 def unfenced(problem, R, t):
@@ -77,28 +76,25 @@ def augmented(problem, R, t):
     return joint_pnp.Linearisation(G[:, 6, 6], G[:, :6, :6], G[:, :6, 6])
 
 
-UPPER = [(i, j) for i in range(6) for j in range(i, 6)]  # J^T J's 21 distinct entries
-SYMMETRIC = jnp.array([[UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
-
-
 def stacked_sums(problem, R, t, fence: bool, products_last: bool):
     """J^T J's 21 distinct products, J^T r's 6 and r^T r stacked into one array (28 values a slot),
     summed within chunks by one reduction, then one chunk-to-region product."""
     onehot = problem.slots.chunk_onehot
     (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence)
-    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
+    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in joint_pnp._UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
               + [du * du + dv * dv])
     if products_last:
         sums = jnp.sum(jnp.stack(values, -1), axis=1).T  # (n_chunks, SLOT_CHUNK, 28) -> (28, n_chunks)
     else:
         sums = jnp.sum(jnp.stack(values), axis=-1)  # (28, n_chunks, SLOT_CHUNK) -> (28, n_chunks)
     per_region = jnp.einsum("kc,mc->km", onehot, sums, precision=HIGHEST)  # (k, 28)
-    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, SYMMETRIC], per_region[:, 21:27])
+    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, joint_pnp._SYMMETRIC], per_region[:, 21:27])
 
 
-FORMS = {"package": PACKAGE_LINEARISE, "unfenced": unfenced, "chunk-dot": chunk_dot, "augmented": augmented,
+FORMS = {"package": PACKAGE_LINEARISE, "cpu-form": joint_pnp._linearise_fenced,
+         "accelerator-form": joint_pnp._linearise_stacked, "unfenced": unfenced, "chunk-dot": chunk_dot,
+         "augmented": augmented,
          "stacked": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=False),
-         "stacked-unfenced": lambda p, R, t: stacked_sums(p, R, t, fence=False, products_last=False),
          "stacked-last": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=True)}
 
 

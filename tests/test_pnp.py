@@ -15,6 +15,7 @@ from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
 from sgc_jax.engines.jax_engine.pose_stage import PoseStage
+from sgc_jax.kernels import joint_pnp
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
 from sgc_jax.kernels.local_optimum import borrow_region_poses, refine_poses, repeated_starts
 from sgc_jax.kernels.pnp import gauss_newton_updates, initial_pose, reprojection_residuals, solve_pnp
@@ -134,22 +135,54 @@ def test_minimal_sample_fit_recovers_exact_pose():
 
 def test_joint_region_solve_equals_separate_solves():
     """solve_pnp_regions: each point fits its own region's pose, as k separate solve_pnp calls do."""
-    rng = np.random.default_rng(11)
-    sizes = [50, 4, 120]  # a minimal region among larger ones
-    poses = [random_pose(rng, 10.0) for _ in sizes]
-    data = [correspondences(rng, n, R, t, noise_px=0.5) for n, (R, t) in zip(sizes, poses)]
-    X = np.concatenate([d[0] for d in data] + [np.full((6, 3), np.nan)])  # + 6 points of no region
-    uv = np.concatenate([d[1] for d in data] + [np.zeros((6, 2))])
-    region = np.concatenate([np.full(n, r + 1) for r, n in enumerate(sizes)] + [np.zeros(6, int)])
-    X, uv, Kj = f32(X, uv, K)
-    starts = jnp.asarray([initial_pose(X, uv, jnp.asarray(region == r + 1, jnp.float32), Kj) for r in range(3)])
-    weight = jnp.ones(len(region), jnp.float32)
-    joint, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, jnp.asarray(region), Kj, starts)
+    X, uv, weight, region, Kj, starts = three_region_problem()  # a minimal region among larger ones
+    joint, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, region, Kj, starts)
     assert bool(jnp.all(ok))
     for r in range(3):
         member = jnp.asarray(region == r + 1, jnp.float32)
         single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
         np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
+
+
+def three_region_problem():
+    """Three regions of 50, 4 and 120 points at 0.5 px and 6 points of no region: X, uv, weight,
+    region, K and each region's start."""
+    rng = np.random.default_rng(11)
+    sizes = [50, 4, 120]
+    poses = [random_pose(rng, 10.0) for _ in sizes]
+    data = [correspondences(rng, n, R, t, noise_px=0.5) for n, (R, t) in zip(sizes, poses)]
+    X = np.concatenate([d[0] for d in data] + [np.full((6, 3), np.nan)])
+    uv = np.concatenate([d[1] for d in data] + [np.zeros((6, 2))])
+    region = jnp.asarray(np.concatenate([np.full(n, r + 1) for r, n in enumerate(sizes)] + [np.zeros(6, int)]))
+    X, uv, Kj = f32(X, uv, K)
+    starts = jnp.asarray([initial_pose(X, uv, jnp.asarray(region == r + 1, jnp.float32), Kj) for r in range(3)])
+    return X, uv, jnp.ones(len(region), jnp.float32), region, Kj, starts
+
+
+# float32 sums of the same ~100 products per region in another order: within ~n eps (~1e-5) of
+# the largest entry of each sum
+FORMS_RTOL = 1e-5
+
+
+def test_the_least_squares_steps_accelerator_form_sums_what_the_cpu_form_sums():
+    X, uv, weight, region, Kj, starts = three_region_problem()
+    problem = joint_pnp.problem_of(X, uv, weight, region, Kj, 3)
+    R, t = jax.vmap(so3_exp)(starts[:, :3]), starts[:, 3:]
+    cpu = jax.jit(joint_pnp._linearise_fenced)(problem, R, t)
+    accelerator = jax.jit(joint_pnp._linearise_stacked)(problem, R, t)
+    for name, a, b in zip(joint_pnp.Linearisation._fields, accelerator, cpu):
+        a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        assert np.max(np.abs(a - b)) <= FORMS_RTOL * np.max(np.abs(b)), name
+
+
+def test_the_least_squares_solve_reaches_the_same_poses_in_the_accelerator_form(monkeypatch):
+    X, uv, weight, region, Kj, starts = three_region_problem()
+    solve = functools.partial(solve_pnp_regions, steps=10)
+    cpu, _ = jax.jit(solve)(X, uv, weight, region, Kj, starts)
+    monkeypatch.setattr(joint_pnp, "linearise", joint_pnp._linearise_stacked)  # read when traced
+    accelerator, ok = jax.jit(solve)(X, uv, weight, region, Kj, starts)
+    assert bool(jnp.all(ok))
+    np.testing.assert_allclose(np.asarray(accelerator), np.asarray(cpu), atol=1e-4)  # as the joint solve's test
 
 
 def test_label_ranks_are_a_stable_counting_sort():

@@ -20,10 +20,6 @@ from jax import lax
 from .double_float import df_add, df_div, df_mul, df_sub, two_prod
 from .fence import materialise
 
-# Copies of the bins that consecutive entries add into in ``histogram``'s accelerator form
-# (chosen on an H200: bench/histogram_copies.py)
-HISTOGRAM_COPIES = 32
-
 
 class Histogram(NamedTuple):
     """Prefix sums over bins 0..c-1, c = 0..bins: counts (bins + 1,) int32 and the sums of
@@ -73,19 +69,11 @@ def histogram(y, bins_of, valid, bins, cpu_form: bool = False) -> tuple[Histogra
     d = jnp.where(valid, y - (bins_of.astype(jnp.float32) + 0.5), 0.0)
     # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
     # counted in int32: a float32 count stops at 2^24 entries in one bin (an 8K frame's flat wall)
+    n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
     if cpu_form:
-        n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
         sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
         return _wide_prefix_sums(n_bin, jnp.real(sums), jnp.imag(sums), bins), n_bin
-    # neighbouring pixels share a bin: on a GPU their atomic adds to one address wait on each
-    # other, so consecutive entries add into HISTOGRAM_COPIES copies of the bins, summed after
-    copy_of = jnp.arange(bins_of.shape[0], dtype=jnp.int32) % HISTOGRAM_COPIES
-    segment = copy_of * bins + bins_of
-
-    def summed(x):
-        return jnp.sum(jax.ops.segment_sum(x, segment, num_segments=HISTOGRAM_COPIES * bins).reshape(-1, bins), 0)
-
-    n_bin, d_c, e_c = summed(valid.astype(jnp.int32)), summed(d), summed(d * d)
+    d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
     n_c = n_bin.astype(jnp.float32)
     centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
     zero = jnp.zeros(bins, jnp.float32)
