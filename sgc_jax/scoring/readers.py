@@ -90,6 +90,22 @@ def read_entry(entry: ClipEntry, prepare: Callable[[Clip], Any], digests: FileDi
     return Read(entry, sha256, Identity(clip.clip_id, clip.group, clip.mask_source), prepare(clip))
 
 
+# The pipe a reader process replies through, enlarged where Linux allows (its default 64 KB): the
+# receiving thread takes back Python's GIL after each read of a pipe's fill, each time behind the
+# threads that hold it, so a 12 MB prepared clip through 64 KB took 0.8 s beside one busy thread,
+# 0.09 s through 1 MB (bench/history/issue-61.md "Clips from reader processes")
+PIPE_BYTES = 1 << 20
+
+
+def _enlarge_pipe(channel: BinaryIO) -> None:
+    try:
+        import fcntl  # not on Windows
+
+        fcntl.fcntl(channel.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except (ImportError, AttributeError, OSError):  # not Linux, or above the host's pipe-max-size: as it is
+        pass
+
+
 def _send(channel: BinaryIO, value: Any) -> None:
     data = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)  # whole, so a failure sends nothing
     channel.write(data)
@@ -122,6 +138,7 @@ class ReaderProcesses:
             worker = subprocess.Popen([sys.executable, "-c", "from sgc_jax.scoring.readers import serve; serve()"],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
+            _enlarge_pipe(worker.stdout)
             with self._lock:
                 self._workers.append(worker)
             self._local.worker = worker
