@@ -44,7 +44,7 @@ PACKAGE_LINEARISE = joint_pnp.linearise
 
 def jacobians(problem, R, t, fence: bool):
     """(du, dv) and scaled (J_u, J_v), each (6, n_chunks, SLOT_CHUNK), as ``linearise`` makes them."""
-    residuals, J = joint_pnp._jacobians(problem, R, t)
+    residuals, J = joint_pnp.scaled_jacobians(problem, R, t)
     return residuals, materialise(J) if fence else J
 
 
@@ -81,18 +81,18 @@ def stacked_sums(problem, R, t, fence: bool, products_last: bool):
     summed within chunks by one reduction, then one chunk-to-region product."""
     onehot = problem.slots.chunk_onehot
     (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence)
-    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in joint_pnp._UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
+    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in joint_pnp.NORMAL_UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
               + [du * du + dv * dv])
     if products_last:
         sums = jnp.sum(jnp.stack(values, -1), axis=1).T  # (n_chunks, SLOT_CHUNK, 28) -> (28, n_chunks)
     else:
         sums = jnp.sum(jnp.stack(values), axis=-1)  # (28, n_chunks, SLOT_CHUNK) -> (28, n_chunks)
     per_region = jnp.einsum("kc,mc->km", onehot, sums, precision=HIGHEST)  # (k, 28)
-    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, joint_pnp._SYMMETRIC], per_region[:, 21:27])
+    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, joint_pnp.NORMAL_INDEX], per_region[:, 21:27])
 
 
-FORMS = {"package": PACKAGE_LINEARISE, "cpu-form": joint_pnp._linearise_fenced,
-         "accelerator-form": joint_pnp._linearise_stacked, "unfenced": unfenced, "chunk-dot": chunk_dot,
+FORMS = {"package": PACKAGE_LINEARISE, "cpu-form": joint_pnp.linearise_cpu_form,
+         "accelerator-form": joint_pnp.linearise_accelerator_form, "unfenced": unfenced, "chunk-dot": chunk_dot,
          "augmented": augmented,
          "stacked": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=False),
          "stacked-last": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=True)}

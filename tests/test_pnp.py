@@ -168,8 +168,8 @@ def test_the_least_squares_steps_accelerator_form_sums_what_the_cpu_form_sums():
     X, uv, weight, region, Kj, starts = three_region_problem()
     problem = joint_pnp.problem_of(X, uv, weight, region, Kj, 3)
     R, t = jax.vmap(so3_exp)(starts[:, :3]), starts[:, 3:]
-    cpu = jax.jit(joint_pnp._linearise_fenced)(problem, R, t)
-    accelerator = jax.jit(joint_pnp._linearise_stacked)(problem, R, t)
+    cpu = jax.jit(joint_pnp.linearise_cpu_form)(problem, R, t)
+    accelerator = jax.jit(joint_pnp.linearise_accelerator_form)(problem, R, t)
     for name, a, b in zip(joint_pnp.Linearisation._fields, accelerator, cpu):
         a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
         assert np.max(np.abs(a - b)) <= FORMS_RTOL * np.max(np.abs(b)), name
@@ -179,7 +179,7 @@ def test_the_least_squares_solve_reaches_the_same_poses_in_the_accelerator_form(
     X, uv, weight, region, Kj, starts = three_region_problem()
     solve = functools.partial(solve_pnp_regions, steps=10)
     cpu, _ = jax.jit(solve)(X, uv, weight, region, Kj, starts)
-    monkeypatch.setattr(joint_pnp, "linearise", joint_pnp._linearise_stacked)  # read when traced
+    monkeypatch.setattr(joint_pnp, "linearise", joint_pnp.linearise_accelerator_form)  # read when traced
     accelerator, ok = jax.jit(solve)(X, uv, weight, region, Kj, starts)
     assert bool(jnp.all(ok))
     np.testing.assert_allclose(np.asarray(accelerator), np.asarray(cpu), atol=1e-4)  # as the joint solve's test

@@ -82,14 +82,13 @@ def problem_of(X, uv, weight, region, K, k: int, slots: RegionSlots | None = Non
 
 
 def linearise(problem: Problem, R, t) -> Linearisation:
-    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3): on a CPU the
-    Jacobians fenced into memory and all products from one broadcast; elsewhere (a GPU) every sum
-    a slot adds from one reduction that makes its Jacobian where it reads it (bench/history/issue-61.md
-    "The least-squares step on an H200")."""
-    return jax.lax.platform_dependent(problem, R, t, cpu=_linearise_fenced, default=_linearise_stacked)
+    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3):
+    ``linearise_cpu_form`` on a CPU, ``linearise_accelerator_form`` elsewhere, the same sums in
+    another order (bench/history/issue-61.md "The least-squares step on an H200")."""
+    return jax.lax.platform_dependent(problem, R, t, cpu=linearise_cpu_form, default=linearise_accelerator_form)
 
 
-def _jacobians(problem: Problem, R, t):
+def scaled_jacobians(problem: Problem, R, t):
     """Residuals (du, dv) and pixel-scaled Jacobian rows (J_u, J_v), (6, n_chunks, SLOT_CHUNK) each."""
     slots = problem.slots
     chunk_scale = problem.scale[slots.chunk_region].T[..., None]  # (6, n_chunks, 1)
@@ -98,28 +97,31 @@ def _jacobians(problem: Problem, R, t):
     return (du, dv), (pose_jacobian_rows(RX, grad_u) / chunk_scale, pose_jacobian_rows(RX, grad_v) / chunk_scale)
 
 
-def _linearise_fenced(problem: Problem, R, t) -> Linearisation:
+def linearise_cpu_form(problem: Problem, R, t) -> Linearisation:
+    """``linearise`` on a CPU: the Jacobians fenced into memory (XLA:CPU would make them again for
+    each product), all 36 products from one broadcast summed within chunks."""
     onehot = problem.slots.chunk_onehot
-    (du, dv), J = _jacobians(problem, R, t)
+    (du, dv), J = scaled_jacobians(problem, R, t)
     J_u, J_v = materialise(J)
     cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
     return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
 
 
 # J^T J's 21 distinct entries (i <= j), and where each of the 36 lies among them
-_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
-_SYMMETRIC = np.array([[_UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
+NORMAL_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
+NORMAL_INDEX = np.array([[NORMAL_UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
 
 
-def _linearise_stacked(problem: Problem, R, t) -> Linearisation:
-    # a GPU sums the 28 values of a slot (21 of J^T J, 6 of J^T r, the cost) in one reduction kernel
-    # reading each point once; materialised Jacobians cost a write and 42 strided reads per chunk
+def linearise_accelerator_form(problem: Problem, R, t) -> Linearisation:
+    """``linearise`` elsewhere: the 28 values a slot adds (21 of J^T J, 6 of J^T r, the cost) summed
+    within chunks by one reduction kernel that makes each Jacobian where it reads it; fenced
+    Jacobians cost a GPU a write and a read per product."""
     onehot = problem.slots.chunk_onehot
-    (du, dv), (J_u, J_v) = _jacobians(problem, R, t)
-    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in _UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
+    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
+    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in NORMAL_UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
               + [du * du + dv * dv])
     sums = block_sums(onehot, jnp.stack(values))  # (k, 28)
-    return Linearisation(sums[:, 27], sums[:, _SYMMETRIC], sums[:, 21:27])
+    return Linearisation(sums[:, 27], sums[:, NORMAL_INDEX], sums[:, 21:27])
 
 
 def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
