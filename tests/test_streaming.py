@@ -319,6 +319,22 @@ def test_reading_in_processes_is_the_default_on_hosts_of_many_cores(monkeypatch)
         reading_plan(None, "fibres")
 
 
+def test_a_reader_process_replies_through_a_pipe_enlarged_as_far_as_linux_allows(clip_files):
+    import fcntl
+
+    from sgc_jax import SGCConfig
+    from sgc_jax.io.loading import entries_from_file
+    from sgc_jax.scoring.readers import PIPE_BYTES, ReaderProcesses
+
+    allowed = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+    with ReaderProcesses(1, "reference", SGCConfig()) as processes:
+        read = processes.submit(entries_from_file(clip_files / "rigid.npz", SGCConfig())[0]).result()
+        assert read.error is None and read.prepared is not None
+        [worker] = processes._workers
+        size = fcntl.fcntl(worker.stdout.fileno(), fcntl.F_GETPIPE_SZ)
+    assert size >= min(PIPE_BYTES, allowed) > 64 << 10  # the prepared clips of a GPU host's readers
+
+
 def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_accelerator(monkeypatch):
     from types import SimpleNamespace
 
