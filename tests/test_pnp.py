@@ -133,17 +133,6 @@ def test_minimal_sample_fit_recovers_exact_pose():
     assert (np.linalg.norm(np.asarray(pose6[:, 3:]) - t_true, axis=1) / np.linalg.norm(t_true, axis=1)).max() < EXACT_T_REL
 
 
-def test_joint_region_solve_equals_separate_solves():
-    """solve_pnp_regions: each point fits its own region's pose, as k separate solve_pnp calls do."""
-    X, uv, weight, region, Kj, starts = three_region_problem()  # a minimal region among larger ones
-    joint, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, region, Kj, starts)
-    assert bool(jnp.all(ok))
-    for r in range(3):
-        member = jnp.asarray(region == r + 1, jnp.float32)
-        single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
-        np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
-
-
 def three_region_problem():
     """Three regions of 50, 4 and 120 points at 0.5 px and 6 points of no region: X, uv, weight,
     region, K and each region's start."""
@@ -157,6 +146,17 @@ def three_region_problem():
     X, uv, Kj = f32(X, uv, K)
     starts = jnp.asarray([initial_pose(X, uv, jnp.asarray(region == r + 1, jnp.float32), Kj) for r in range(3)])
     return X, uv, jnp.ones(len(region), jnp.float32), region, Kj, starts
+
+
+def test_joint_region_solve_equals_separate_solves():
+    """solve_pnp_regions: each point fits its own region's pose, as k separate solve_pnp calls do."""
+    X, uv, weight, region, Kj, starts = three_region_problem()  # a minimal region among larger ones
+    joint, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, region, Kj, starts)
+    assert bool(jnp.all(ok))
+    for r in range(3):
+        member = jnp.asarray(region == r + 1, jnp.float32)
+        single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
+        np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
 
 
 # float32 sums of the same ~100 products per region in another order: within ~n eps (~1e-5) of
