@@ -7,6 +7,9 @@
 #                                    trace, 1,000 standard clips from disk, the least-squares step's forms
 #                                    and the histograms' copies timed alone (~9 min); a form that wins
 #                                    alone: bench/reward.py --linearise FORM
+#   bench/gpu_figures.sh histograms  issue 61: the histograms' copies timed alone, then the Scorer at
+#                                    B = 64 with one copy and with $HISTOGRAM_COPIES (default 32), each
+#                                    stage timed (~8 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -35,6 +38,14 @@ pose)
     timeout 120 python3 bench/normal_equations.py 2>&1 | tee "$OUT/normal_equations.log"
     timeout 60 python3 bench/histogram_copies.py 2>&1 | tee "$OUT/histogram_copies.log"
     ;;
+histograms)
+    COPIES=${HISTOGRAM_COPIES:-32}
+    timeout 60 python3 bench/histogram_copies.py 2>&1 | tee "$OUT/histogram_copies.log"
+    for c in 1 "$COPIES"; do
+        timeout 190 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 --histogram-copies "$c" \
+            --profile "$OUT/profile-copies$c" 2>&1 | tee "$OUT/reward-copies$c.log"
+    done
+    ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
     timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
@@ -45,7 +56,7 @@ torch)
     timeout 400 python3 bench/torch_bridge.py --batch-size 64 --repeat 10 --device cuda:0 2>&1 | tee "$OUT/torch.log"
     ;;
 *)
-    echo "usage: bench/gpu_figures.sh [reward|pose|gradients|torch]" >&2
+    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|gradients|torch]" >&2
     exit 2
     ;;
 esac

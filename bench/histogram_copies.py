@@ -10,7 +10,8 @@ The frames are the depth of --clips standard clips (bench/stream.py's scene, 16 
 the pixel stage's 44 ms at B = 64 (bench/history/issue-61.md "The least-squares step on an H200"):
 neighbouring pixels share a bin, and their atomic adds to one address wait on each other. Printed
 per number of copies: ms per call (median of --repeats), whether the counts equal one copy's, and
-the largest difference of the float sums from one copy's, relative to their size.
+the largest difference of the float sums from one copy's, relative to their size. The sums are
+``kmeans.segment_sums``'s; ``bench/reward.py --histogram-copies C`` times the Scorer with them.
 """
 
 from __future__ import annotations
@@ -40,12 +41,7 @@ def frame_sums(depth, copies: int):
     u, valid, _, _ = kmeans.normalise(depth.reshape(-1), jnp.ones(depth.size, bool))
     bins_of = kmeans.bin_of(u, BINS)
     d = jnp.where(valid, u * BINS - (bins_of.astype(jnp.float32) + 0.5), 0.0)
-    segment = (jnp.arange(bins_of.shape[0], dtype=jnp.int32) % copies) * BINS + bins_of
-
-    def summed(x):
-        return jnp.sum(jax.ops.segment_sum(x, segment, num_segments=copies * BINS).reshape(copies, BINS), 0)
-
-    return summed(valid.astype(jnp.int32)), summed(d), summed(d * d)
+    return tuple(kmeans.segment_sums(x, bins_of, BINS, copies) for x in (valid.astype(jnp.int32), d, d * d))
 
 
 def main() -> None:

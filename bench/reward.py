@@ -5,7 +5,7 @@ the same run; then, optionally, a corpus scored from disk through ``score_batch`
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
                            [--vectorized] [--no-baseline] [--profile DIR]
                            [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
-                           [--linearise package|unfenced|chunk-dot|augmented]
+                           [--linearise package|unfenced|chunk-dot|augmented] [--histogram-copies C]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs
@@ -20,7 +20,11 @@ DIR/B<B> (and the optimized HLO of the first B's pose program); on a GPU it prin
 launched, the time the device was busy and the most launched kernels (a while loop's body is
 launched once per iteration, so their counts are the loops' iteration counts). --linearise FORM
 puts one of bench/normal_equations.py's forms of the least-squares step in the package's place
-before anything is compiled.
+before anything is compiled; --histogram-copies C makes the accelerator form's depth histograms
+add into C copies of their bins (``partitions.ACCELERATOR_HISTOGRAM_COPIES``; bench/histogram_copies.py
+times them alone). A variant keeps its compiled programs in a cache directory of its own: the
+package's cache keys its traced programs by the source files, which a variant set here leaves as
+they are.
 """
 
 from __future__ import annotations
@@ -39,8 +43,9 @@ from pathlib import Path
 import jax
 
 from sgc_jax import Scorer, enable_compilation_cache, score_batch
+from sgc_jax.engines.jax_engine.compile_cache import default_cache_dir
 from sgc_jax.engines.jax_engine.programs import Pipeline
-from sgc_jax.kernels import joint_pnp
+from sgc_jax.kernels import joint_pnp, partitions
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.scoring.streaming import StreamStats
@@ -190,14 +195,19 @@ def main() -> None:
     parser.add_argument("--disk-clips", type=int, default=0)
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
     parser.add_argument("--linearise", choices=sorted(FORMS), default="package")
+    parser.add_argument("--histogram-copies", type=int, default=1)
     args = parser.parse_args()
     joint_pnp.linearise = FORMS[args.linearise]
-    enable_compilation_cache()
+    partitions.ACCELERATOR_HISTOGRAM_COPIES = args.histogram_copies
+    variant = (args.linearise, args.histogram_copies) != ("package", 1)
+    cache = default_cache_dir()
+    enable_compilation_cache(cache / f"variant-{args.linearise}-copies{args.histogram_copies}"
+                             if variant and cache is not None else cache)
     shape = tuple(args.shape)
     device = jax.devices()[0]
     print(f"device: {device.device_kind} ({jax.default_backend()}), {jax.device_count()} device(s); "
           f"clips of {shape[0]} frames, {shape[1]}x{shape[2]} px, {shape[3]} tracks per pair; "
-          f"the least-squares step's form: {args.linearise}")
+          f"the least-squares step's form: {args.linearise}; the histograms' copies: {args.histogram_copies}")
     clips = clips_of(shape, max(args.batch_sizes))
     baseline = float("nan")
     if args.baseline:

@@ -22,6 +22,9 @@ EXACT_RTOL = 1e-6
 SKLEARN_MEDIAN_EXCESS = 0.01
 # Layered maps use 128 x 160 = 20480 pixels, k = 10, the default 1024 bins.
 MAP_SHAPE = (128, 160)
+# Float32 segment sums of the same entries in another order (``segment_sums`` into copies): ~50
+# entries in [-0.5, 0.5] a segment, partial sums below 25, so at most 50 x 2^-24 x 25 = 7.5e-5 apart.
+SUM_ORDER_ATOL = 1e-4
 
 
 def wcss(values: np.ndarray, labels: np.ndarray) -> float:
@@ -236,3 +239,25 @@ def test_a_bin_holding_more_than_two_to_the_24_entries_is_counted_exactly():
     y = jnp.full(n, 0.25, jnp.float32)
     sums, n_bin = kmeans.histogram(y, jnp.zeros(n, jnp.int32), jnp.ones(n, bool), 4)
     assert int(n_bin[0]) == n and int(sums.count[-1]) == n
+
+
+@pytest.mark.parametrize("copies", [1, 7, 32])
+def test_segment_sums_into_copies_are_the_segment_sums(copies):
+    rng = np.random.default_rng(3)
+    values = rng.uniform(-0.5, 0.5, 2000).astype(np.float32)
+    segment = np.sort(rng.integers(0, 40, 2000)).astype(np.int32)  # neighbours share a segment, as a histogram's pixels
+    counts = kmeans.segment_sums(jnp.ones(2000, jnp.int32), jnp.asarray(segment), 41, copies)
+    np.testing.assert_array_equal(np.asarray(counts), np.bincount(segment, minlength=41))
+    sums = kmeans.segment_sums(jnp.asarray(values), jnp.asarray(segment), 41, copies)
+    np.testing.assert_allclose(np.asarray(sums), np.bincount(segment, weights=values, minlength=41), rtol=0,
+                               atol=SUM_ORDER_ATOL)
+
+
+def test_histograms_added_into_copies_of_their_bins_partition_as_one_copy(monkeypatch):
+    depth = np.stack([layered_depth(np.random.default_rng(seed)) for seed in range(3)]).astype(np.float32)
+    regions = dict(k=10, bins=1024, min_region_pixels=50, frames_at_once=True)
+    one = partitions.depth_partition(jnp.asarray(depth), jnp.asarray(depth > 0), **regions)
+    monkeypatch.setattr(partitions, "ACCELERATOR_HISTOGRAM_COPIES", 32)
+    spread = partitions.depth_partition(jnp.asarray(depth), jnp.asarray(depth > 0), **regions)
+    for got, want in zip(spread, one):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

@@ -58,22 +58,25 @@ def bin_of(u, bins):
     return jnp.clip(jnp.floor(u * bins), 0, bins - 1).astype(jnp.int32)
 
 
-def histogram(y, bins_of, valid, bins, cpu_form: bool = False) -> tuple[Histogram, jax.Array]:
+def histogram(y, bins_of, valid, bins, cpu_form: bool = False, copies: int = 1) -> tuple[Histogram, jax.Array]:
     """Prefix sums of positions y (N,) [bin units, 0..bins] -> (Histogram, entries per bin (bins,)).
 
     Each bin's sums are an exact part at the bin centre plus float32 sums of the offsets from it
     (|d| <= 0.5), so Q - S^2 / n keeps the spread of a tight cluster far from the origin.
     ``cpu_form``: the offsets and their squares summed as one complex segment sum (the same sums,
     complex addition is per part, in half the time of two), and the prefix sums in float64, which
-    a CPU does natively, instead of double-float pairs (several times the arithmetic)."""
+    a CPU does natively, instead of double-float pairs (several times the arithmetic).
+    ``copies`` > 1 (the other form only): entry i added into copy i mod ``copies`` of the bins and
+    the copies summed after (``segment_sums``); 1 is the plain segment sum."""
     d = jnp.where(valid, y - (bins_of.astype(jnp.float32) + 0.5), 0.0)
     # 1-D segment sums: faster on CPU than one over stacked (N, 3) rows
     # counted in int32: a float32 count stops at 2^24 entries in one bin (an 8K frame's flat wall)
-    n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
     if cpu_form:
+        n_bin = jax.ops.segment_sum(valid.astype(jnp.int32), bins_of, num_segments=bins)
         sums = jax.ops.segment_sum(jax.lax.complex(d, d * d), bins_of, num_segments=bins)
         return _wide_prefix_sums(n_bin, jnp.real(sums), jnp.imag(sums), bins), n_bin
-    d_c, e_c = (jax.ops.segment_sum(x, bins_of, num_segments=bins) for x in (d, d * d))
+    n_bin = segment_sums(valid.astype(jnp.int32), bins_of, bins, copies)
+    d_c, e_c = (segment_sums(x, bins_of, bins, copies) for x in (d, d * d))
     n_c = n_bin.astype(jnp.float32)
     centre = jnp.arange(bins, dtype=jnp.float32) + (0.5 - 0.5 * bins)
     zero = jnp.zeros(bins, jnp.float32)
@@ -85,6 +88,19 @@ def histogram(y, bins_of, valid, bins, cpu_form: bool = False) -> tuple[Histogra
         return jnp.concatenate([jnp.zeros(1, jnp.float32), hi]), jnp.concatenate([jnp.zeros(1, jnp.float32), lo])
 
     return Histogram(jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n_bin)]), prefix(s_c), prefix(q_c)), n_bin
+
+
+def segment_sums(values, segment, num_segments: int, copies: int = 1):
+    """``jax.ops.segment_sum`` of values (N,) by segment (N,), entry i added into copy i mod
+    ``copies`` of the segments and the copies summed after: on a GPU, neighbouring entries of one
+    segment (a depth histogram's pixels) wait on each other's atomic adds to one address
+    (bench/history/issue-61.md "The least-squares step on an H200"). Integer sums are the same for
+    any ``copies``, float sums up to their order."""
+    if copies == 1:
+        return jax.ops.segment_sum(values, segment, num_segments=num_segments)
+    copy = jnp.arange(values.shape[0], dtype=segment.dtype) % copies
+    spread = jax.ops.segment_sum(values, copy * num_segments + segment, num_segments=copies * num_segments)
+    return jnp.sum(spread.reshape(copies, num_segments), axis=0)
 
 
 def _wide_prefix_sums(n_bin, d_c, e_c, bins) -> Histogram:

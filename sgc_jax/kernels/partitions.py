@@ -13,6 +13,10 @@ from jax import lax
 
 from .kmeans import bin_of, cluster_of_bins, histogram, kmeans_1d, normalise, unit_values
 
+# Copies of the bins the histograms of ``frames_at_once`` add into (``kmeans.segment_sums``); 1:
+# plain segment sums. ``bench/reward.py --histogram-copies C`` times the Scorer with C.
+ACCELERATOR_HISTOGRAM_COPIES = 1
+
 NO_LABEL = jnp.iinfo(jnp.int32).max  # connected components: outside every cluster
 
 
@@ -61,7 +65,8 @@ def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_regi
     def frame_histogram(i):
         depth, region_mask = read_frame(i)
         u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
-        sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, cpu_form=not frames_at_once)
+        sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, cpu_form=not frames_at_once,
+                                copies=ACCELERATOR_HISTOGRAM_COPIES if frames_at_once else 1)
         return sums, n_bin, has_span, lo, span
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
