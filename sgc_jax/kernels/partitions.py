@@ -66,7 +66,7 @@ def depth_partition_of(read_frame, n_frames: int, *, k: int, bins: int, min_regi
         depth, region_mask = read_frame(i)
         u, valid, has_span, (lo, span) = normalise(depth.reshape(-1), region_mask.reshape(-1))
         sums, n_bin = histogram(u * bins, bin_of(u, bins), valid, bins, cpu_form=not frames_at_once,
-                                copies=ACCELERATOR_HISTOGRAM_COPIES if frames_at_once else 1)
+                                copies=ACCELERATOR_HISTOGRAM_COPIES)  # the CPU form has no copies
         return sums, n_bin, has_span, lo, span
 
     over_frames = jax.vmap(frame_histogram) if frames_at_once else lambda frames: lax.map(frame_histogram, frames)
