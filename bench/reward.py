@@ -195,11 +195,11 @@ def main() -> None:
     parser.add_argument("--disk-clips", type=int, default=0)
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
     parser.add_argument("--linearise", choices=sorted(FORMS), default="package")
-    parser.add_argument("--histogram-copies", type=int, default=1)
+    parser.add_argument("--histogram-copies", type=int, default=partitions.ACCELERATOR_HISTOGRAM_COPIES)
     args = parser.parse_args()
+    variant = (args.linearise, args.histogram_copies) != ("package", partitions.ACCELERATOR_HISTOGRAM_COPIES)
     joint_pnp.linearise = FORMS[args.linearise]
     partitions.ACCELERATOR_HISTOGRAM_COPIES = args.histogram_copies
-    variant = (args.linearise, args.histogram_copies) != ("package", 1)
     cache = default_cache_dir()
     enable_compilation_cache(cache / f"variant-{args.linearise}-copies{args.histogram_copies}"
                              if variant and cache is not None else cache)

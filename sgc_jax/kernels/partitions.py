@@ -13,9 +13,10 @@ from jax import lax
 
 from .kmeans import bin_of, cluster_of_bins, histogram, kmeans_1d, normalise, unit_values
 
-# Copies of the bins the histograms of ``frames_at_once`` add into (``kmeans.segment_sums``); 1:
-# plain segment sums. ``bench/reward.py --histogram-copies C`` times the Scorer with C.
-ACCELERATOR_HISTOGRAM_COPIES = 1
+# Copies of the bins the histograms of ``frames_at_once`` add into (``kmeans.segment_sums``): on a
+# GPU neighbouring pixels share a bin, and one copy serialises their atomic adds (an H200's pixel
+# stage at B = 64: 48 ms with 1, 23.5 with 32 or 128; bench/history/issue-61.md).
+ACCELERATOR_HISTOGRAM_COPIES = 32
 
 NO_LABEL = jnp.iinfo(jnp.int32).max  # connected components: outside every cluster
 
