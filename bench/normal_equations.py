@@ -10,17 +10,22 @@ difference from the package's form relative to its size, and the same for one wh
 
 - ``package``: ``joint_pnp.linearise``, platform-dependent: on a CPU ``cpu-form``, elsewhere
   ``accelerator-form``
-- ``cpu-form``: J fenced into memory, all products from one broadcast summed within each 32-slot
-  chunk, then the chunk-to-region product; cost and J^T r by ``block_sums``
+- ``cpu-form``: the 28 values a slot adds (see ``accelerator-form``) summed within chunks by one
+  reduction of 28 operands (``jax.lax.reduce``), whose loop makes each slot's J once for all 28
+  (measured as ``variadic`` before it became the package's CPU form)
+- ``fenced``: the CPU's form before that: J fenced into memory, all products from one broadcast
+  summed within each 32-slot chunk, then the chunk-to-region product; cost and J^T r by ``block_sums``
 - ``accelerator-form``: J^T J's 21 distinct products, J^T r's 6 and the cost stacked (28,
   n_chunks, SLOT_CHUNK) and summed within chunks by one reduction that makes J where it reads it,
   one chunk-to-region product (measured as ``stacked-unfenced`` before it became the package's)
-- ``unfenced``: ``cpu-form`` without the fence, so XLA may fuse J into its consumers
+- ``unfenced``: ``fenced`` without the fence, so XLA may fuse J into its consumers
 - ``chunk-dot``: per-chunk J_c J_c^T as a batched dot over chunks, then chunk-to-region
 - ``augmented``: A = (J; r), 7 rows per image axis, one batched dot per axis gives J^T J, J^T r
   and r^T r at once
 - ``stacked``, ``stacked-last``: ``accelerator-form`` with J fenced into memory, and with the 28
   values on the last axis
+- ``siblings``: the 28 values summed within chunks by 28 reductions side by side (XLA may fuse
+  them into one kernel, as ``cpu-form``'s one reduction is by construction)
 """
 
 from __future__ import annotations
@@ -48,9 +53,9 @@ def jacobians(problem, R, t, fence: bool):
     return residuals, materialise(J) if fence else J
 
 
-def unfenced(problem, R, t):
+def block_products(problem, R, t, fence: bool):
     onehot = problem.slots.chunk_onehot
-    (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence=False)
+    (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence)
     cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
     return joint_pnp.Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
 
@@ -79,23 +84,30 @@ def augmented(problem, R, t):
 def stacked_sums(problem, R, t, fence: bool, products_last: bool):
     """J^T J's 21 distinct products, J^T r's 6 and r^T r stacked into one array (28 values a slot),
     summed within chunks by one reduction, then one chunk-to-region product."""
-    onehot = problem.slots.chunk_onehot
     (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence)
-    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in joint_pnp.NORMAL_UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
-              + [du * du + dv * dv])
+    values = joint_pnp.slot_values(du, dv, J_u, J_v)
     if products_last:
         sums = jnp.sum(jnp.stack(values, -1), axis=1).T  # (n_chunks, SLOT_CHUNK, 28) -> (28, n_chunks)
     else:
         sums = jnp.sum(jnp.stack(values), axis=-1)  # (28, n_chunks, SLOT_CHUNK) -> (28, n_chunks)
-    per_region = jnp.einsum("kc,mc->km", onehot, sums, precision=HIGHEST)  # (k, 28)
-    return joint_pnp.Linearisation(per_region[:, 27], per_region[:, joint_pnp.NORMAL_INDEX], per_region[:, 21:27])
+    return joint_pnp.per_region(problem, sums)
+
+
+def siblings(problem, R, t):
+    """28 reductions side by side, one per value, for XLA to fuse as siblings that share J's making."""
+    (du, dv), (J_u, J_v) = jacobians(problem, R, t, fence=False)
+    values = joint_pnp.slot_values(du, dv, J_u, J_v)
+    return joint_pnp.per_region(problem, jnp.stack([jnp.sum(v, axis=-1) for v in values]))
 
 
 FORMS = {"package": PACKAGE_LINEARISE, "cpu-form": joint_pnp.linearise_cpu_form,
-         "accelerator-form": joint_pnp.linearise_accelerator_form, "unfenced": unfenced, "chunk-dot": chunk_dot,
+         "accelerator-form": joint_pnp.linearise_accelerator_form,
+         "fenced": lambda p, R, t: block_products(p, R, t, fence=True),
+         "unfenced": lambda p, R, t: block_products(p, R, t, fence=False), "chunk-dot": chunk_dot,
          "augmented": augmented,
          "stacked": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=False),
-         "stacked-last": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=True)}
+         "stacked-last": lambda p, R, t: stacked_sums(p, R, t, fence=True, products_last=True),
+         "siblings": siblings}
 
 
 def pairs_of(key, P: int, N: int, k: int):

@@ -5,7 +5,7 @@ the same run; then, optionally, a corpus scored from disk through ``score_batch`
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
                            [--vectorized] [--no-baseline] [--profile DIR]
                            [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
-                           [--linearise package|unfenced|chunk-dot|augmented] [--histogram-copies C]
+                           [--linearise FORM] [--histogram-copies C]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs

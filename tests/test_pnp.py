@@ -148,6 +148,13 @@ def three_region_problem():
     return X, uv, jnp.ones(len(region), jnp.float32), region, Kj, starts
 
 
+# Two float32 fits of one region agree to where Levenberg-Marquardt settles: 1e-4 on the regions of
+# 50 and 120 points; the 4-point region's optimum is flat, and with its pixels moved by 1e-4 px any
+# form of the sums settles up to 7.7e-4 from the separate solve (bench/history/issue-61.md "The
+# least-squares step's sums in one reduction of 28 operands")
+SAME_FIT_ATOL = (1e-4, 1e-3, 1e-4)
+
+
 def test_joint_region_solve_equals_separate_solves():
     """solve_pnp_regions: each point fits its own region's pose, as k separate solve_pnp calls do."""
     X, uv, weight, region, Kj, starts = three_region_problem()  # a minimal region among larger ones
@@ -156,7 +163,7 @@ def test_joint_region_solve_equals_separate_solves():
     for r in range(3):
         member = jnp.asarray(region == r + 1, jnp.float32)
         single = solve_pnp(X, uv, member, Kj, steps=10, pose0=starts[r])[0]
-        np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=1e-4)
+        np.testing.assert_allclose(np.asarray(joint[r]), np.asarray(single), atol=SAME_FIT_ATOL[r])
 
 
 # float32 sums of the same ~100 products per region in another order: within ~n eps (~1e-5) of
@@ -177,12 +184,13 @@ def test_the_least_squares_steps_accelerator_form_sums_what_the_cpu_form_sums():
 
 def test_the_least_squares_solve_reaches_the_same_poses_in_the_accelerator_form(monkeypatch):
     X, uv, weight, region, Kj, starts = three_region_problem()
-    solve = functools.partial(solve_pnp_regions, steps=10)
-    cpu, _ = jax.jit(solve)(X, uv, weight, region, Kj, starts)
+    cpu, _ = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, region, Kj, starts)
     monkeypatch.setattr(joint_pnp, "linearise", joint_pnp.linearise_accelerator_form)  # read when traced
-    accelerator, ok = jax.jit(solve)(X, uv, weight, region, Kj, starts)
+    # another function, so that jit traces it anew instead of reusing the CPU form's trace
+    accelerator, ok = jax.jit(functools.partial(solve_pnp_regions, steps=10))(X, uv, weight, region, Kj, starts)
     assert bool(jnp.all(ok))
-    np.testing.assert_allclose(np.asarray(accelerator), np.asarray(cpu), atol=1e-4)  # as the joint solve's test
+    for r in range(3):
+        np.testing.assert_allclose(np.asarray(accelerator[r]), np.asarray(cpu[r]), atol=SAME_FIT_ATOL[r])
 
 
 def test_label_ranks_are_a_stable_counting_sort():

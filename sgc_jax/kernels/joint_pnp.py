@@ -9,10 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .fence import materialise
 from .linalg import small_matmul, solve_spd
 from .pnp import point_columns, pointwise_residuals, pose_jacobian_rows
-from .regions import RegionSlots, block_normals, block_sums, per_chunk, region_slots, to_slots
+from .regions import RegionSlots, block_sums, per_chunk, region_slots, to_slots
 from .so3 import so3_exp, so3_log
 
 # A region stops once a step would lower its squared error by less than LM_RTOL of it (float32
@@ -98,13 +97,13 @@ def scaled_jacobians(problem: Problem, R, t):
 
 
 def linearise_cpu_form(problem: Problem, R, t) -> Linearisation:
-    """``linearise`` on a CPU: the Jacobians fenced into memory (XLA:CPU would make them again for
-    each product), all 36 products from one broadcast summed within chunks."""
-    onehot = problem.slots.chunk_onehot
-    (du, dv), J = scaled_jacobians(problem, R, t)
-    J_u, J_v = materialise(J)
-    cost = block_sums(onehot, (du * du + dv * dv)[None])[:, 0]
-    return Linearisation(cost, block_normals(onehot, J_u, J_v), block_sums(onehot, J_u * du + J_v * dv))
+    """``linearise`` on a CPU: the 28 values a slot adds summed within chunks by one reduction of
+    28 operands, whose loop makes each slot's Jacobian once for all of them."""
+    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
+    values = slot_values(du, dv, J_u, J_v)
+    zeros = tuple(jnp.zeros((), v.dtype) for v in values)
+    sums = jax.lax.reduce(tuple(values), zeros, lambda a, b: tuple(x + y for x, y in zip(a, b)), (values[0].ndim - 1,))
+    return per_region(problem, jnp.stack(sums))
 
 
 # J^T J's 21 distinct entries (i <= j), and where each of the 36 lies among them
@@ -112,16 +111,24 @@ NORMAL_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 NORMAL_INDEX = np.array([[NORMAL_UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
 
 
-def linearise_accelerator_form(problem: Problem, R, t) -> Linearisation:
-    """``linearise`` elsewhere: the 28 values a slot adds (21 of J^T J, 6 of J^T r, the cost) summed
-    within chunks by one reduction kernel that makes each Jacobian where it reads it; fenced
-    Jacobians cost a GPU a write and a read per product."""
-    onehot = problem.slots.chunk_onehot
-    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
-    values = ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in NORMAL_UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
-              + [du * du + dv * dv])
-    sums = block_sums(onehot, jnp.stack(values))  # (k, 28)
+def slot_values(du, dv, J_u, J_v) -> list:
+    """The 28 values a slot adds: J^T J's 21 distinct products (NORMAL_UPPER), J^T r's 6, the cost."""
+    return ([J_u[i] * J_u[j] + J_v[i] * J_v[j] for i, j in NORMAL_UPPER] + [J_u[i] * du + J_v[i] * dv for i in range(6)]
+            + [du * du + dv * dv])
+
+
+def per_region(problem: Problem, chunk_sums) -> Linearisation:
+    """The 28 values' sums within chunks (28, n_chunks) -> the regions' Linearisation."""
+    sums = block_sums(problem.slots.chunk_onehot, chunk_sums)  # (k, 28)
     return Linearisation(sums[:, 27], sums[:, NORMAL_INDEX], sums[:, 21:27])
+
+
+def linearise_accelerator_form(problem: Problem, R, t) -> Linearisation:
+    """``linearise`` elsewhere: the 28 values a slot adds stacked and summed within chunks by one
+    reduction kernel that makes each Jacobian where it reads it; fenced Jacobians cost a GPU a
+    write and a read per product."""
+    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
+    return per_region(problem, jnp.sum(jnp.stack(slot_values(du, dv, J_u, J_v)), axis=-1))
 
 
 def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
