@@ -10,6 +10,9 @@
 #   bench/gpu_figures.sh histograms  issue 61: the histograms' copies timed alone, then the Scorer at
 #                                    B = 64 with one copy and with $HISTOGRAM_COPIES (default 32), each
 #                                    stage timed (~8 min)
+#   bench/gpu_figures.sh forms       issue 61: the least-squares step's forms alone, then the Scorer at
+#                                    B = 64 with the CPU's one reduction of 28 operands and with 28
+#                                    reductions side by side, each stage timed (~8 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -46,6 +49,14 @@ histograms)
             --profile "$OUT/profile-copies$c" 2>&1 | tee "$OUT/reward-copies$c.log"
     done
     ;;
+forms)
+    timeout 120 python3 bench/normal_equations.py --forms package cpu-form siblings stacked 2>&1 \
+        | tee "$OUT/normal_equations.log"
+    for form in cpu-form siblings; do
+        timeout 180 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 --linearise "$form" \
+            --profile "$OUT/profile-$form" 2>&1 | tee "$OUT/reward-$form.log"
+    done
+    ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
     timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
@@ -56,7 +67,7 @@ torch)
     timeout 400 python3 bench/torch_bridge.py --batch-size 64 --repeat 10 --device cuda:0 2>&1 | tee "$OUT/torch.log"
     ;;
 *)
-    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|gradients|torch]" >&2
+    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|forms|gradients|torch]" >&2
     exit 2
     ;;
 esac
