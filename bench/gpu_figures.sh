@@ -11,8 +11,8 @@
 #                                    B = 64 with one copy and with $HISTOGRAM_COPIES (default 32), each
 #                                    stage timed (~8 min)
 #   bench/gpu_figures.sh forms       issue 61: the least-squares step's forms alone, then the Scorer at
-#                                    B = 64 with the CPU's one reduction of 28 operands and with 28
-#                                    reductions side by side, each stage timed (~8 min)
+#                                    B = 64 with the accelerator's stacked form of before 2026-12-04
+#                                    and with 28 reductions side by side, each stage timed (~8 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -50,9 +50,9 @@ histograms)
     done
     ;;
 forms)
-    timeout 120 python3 bench/normal_equations.py --forms package cpu-form siblings stacked 2>&1 \
+    timeout 120 python3 bench/normal_equations.py --forms package stacked-unfenced siblings 2>&1 \
         | tee "$OUT/normal_equations.log"
-    for form in cpu-form siblings; do
+    for form in stacked-unfenced siblings; do
         timeout 180 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 --linearise "$form" \
             --profile "$OUT/profile-$form" 2>&1 | tee "$OUT/reward-$form.log"
     done

@@ -8,24 +8,23 @@ Scorer's accelerator form does. Printed per form: ms per call (median of --repea
 difference from the package's form relative to its size, and the same for one whole
 ``solve_pnp_regions`` (Levenberg-Marquardt, at most 10 steps) with the form in its place.
 
-- ``package``: ``joint_pnp.linearise``, platform-dependent: on a CPU ``cpu-form``, elsewhere
-  ``accelerator-form``
-- ``cpu-form``: the 28 values a slot adds (see ``accelerator-form``) summed within chunks by one
-  reduction of 28 operands (``jax.lax.reduce``), whose loop makes each slot's J once for all 28
-  (measured as ``variadic`` before it became the package's CPU form)
+- ``package``: ``joint_pnp.linearise`` on every platform since 2026-12-04: the 28 values a slot adds
+  (J^T J's 21 distinct products, J^T r's 6, the cost) summed within chunks by one reduction of 28
+  operands (``jax.lax.reduce``), whose loop makes each slot's J once for all 28; then one
+  chunk-to-region product (measured as ``variadic``, then ``cpu-form``, before it became the package's)
+- ``stacked-unfenced``: the accelerator's form before that: the 28 values stacked (28, n_chunks,
+  SLOT_CHUNK) and summed within chunks by one reduction that makes J where it reads it, again for
+  each of the 28 rows
 - ``fenced``: the CPU's form before that: J fenced into memory, all products from one broadcast
   summed within each 32-slot chunk, then the chunk-to-region product; cost and J^T r by ``block_sums``
-- ``accelerator-form``: J^T J's 21 distinct products, J^T r's 6 and the cost stacked (28,
-  n_chunks, SLOT_CHUNK) and summed within chunks by one reduction that makes J where it reads it,
-  one chunk-to-region product (measured as ``stacked-unfenced`` before it became the package's)
 - ``unfenced``: ``fenced`` without the fence, so XLA may fuse J into its consumers
 - ``chunk-dot``: per-chunk J_c J_c^T as a batched dot over chunks, then chunk-to-region
 - ``augmented``: A = (J; r), 7 rows per image axis, one batched dot per axis gives J^T J, J^T r
   and r^T r at once
-- ``stacked``, ``stacked-last``: ``accelerator-form`` with J fenced into memory, and with the 28
+- ``stacked``, ``stacked-last``: ``stacked-unfenced`` with J fenced into memory, and with the 28
   values on the last axis
 - ``siblings``: the 28 values summed within chunks by 28 reductions side by side (XLA may fuse
-  them into one kernel, as ``cpu-form``'s one reduction is by construction)
+  them into one kernel, as ``package``'s one reduction is by construction)
 """
 
 from __future__ import annotations
@@ -100,8 +99,8 @@ def siblings(problem, R, t):
     return joint_pnp.per_region(problem, jnp.stack([jnp.sum(v, axis=-1) for v in values]))
 
 
-FORMS = {"package": PACKAGE_LINEARISE, "cpu-form": joint_pnp.linearise_cpu_form,
-         "accelerator-form": joint_pnp.linearise_accelerator_form,
+FORMS = {"package": PACKAGE_LINEARISE,
+         "stacked-unfenced": lambda p, R, t: stacked_sums(p, R, t, fence=False, products_last=False),
          "fenced": lambda p, R, t: block_products(p, R, t, fence=True),
          "unfenced": lambda p, R, t: block_products(p, R, t, fence=False), "chunk-dot": chunk_dot,
          "augmented": augmented,

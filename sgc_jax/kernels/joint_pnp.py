@@ -80,13 +80,6 @@ def problem_of(X, uv, weight, region, K, k: int, slots: RegionSlots | None = Non
     return Problem(cols, slots, scale, K)
 
 
-def linearise(problem: Problem, R, t) -> Linearisation:
-    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3):
-    ``linearise_cpu_form`` on a CPU, ``linearise_accelerator_form`` elsewhere, the same sums in
-    another order (bench/history/issue-61.md "The least-squares step on an H200")."""
-    return jax.lax.platform_dependent(problem, R, t, cpu=linearise_cpu_form, default=linearise_accelerator_form)
-
-
 def scaled_jacobians(problem: Problem, R, t):
     """Residuals (du, dv) and pixel-scaled Jacobian rows (J_u, J_v), (6, n_chunks, SLOT_CHUNK) each."""
     slots = problem.slots
@@ -96,9 +89,11 @@ def scaled_jacobians(problem: Problem, R, t):
     return (du, dv), (pose_jacobian_rows(RX, grad_u) / chunk_scale, pose_jacobian_rows(RX, grad_v) / chunk_scale)
 
 
-def linearise_cpu_form(problem: Problem, R, t) -> Linearisation:
-    """``linearise`` on a CPU: the 28 values a slot adds summed within chunks by one reduction of
-    28 operands, whose loop makes each slot's Jacobian once for all of them."""
+def linearise(problem: Problem, R, t) -> Linearisation:
+    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3): the 28 values
+    a slot adds summed within chunks by one reduction of 28 operands, whose loop makes each slot's
+    Jacobian once for all of them (bench/history/issue-61.md "The least-squares step's sums in one
+    reduction of 28 operands")."""
     (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
     values = slot_values(du, dv, J_u, J_v)
     zeros = tuple(jnp.zeros((), v.dtype) for v in values)
@@ -121,14 +116,6 @@ def per_region(problem: Problem, chunk_sums) -> Linearisation:
     """The 28 values' sums within chunks (28, n_chunks) -> the regions' Linearisation."""
     sums = block_sums(problem.slots.chunk_onehot, chunk_sums)  # (k, 28)
     return Linearisation(sums[:, 27], sums[:, NORMAL_INDEX], sums[:, 21:27])
-
-
-def linearise_accelerator_form(problem: Problem, R, t) -> Linearisation:
-    """``linearise`` elsewhere: the 28 values a slot adds stacked and summed within chunks by one
-    reduction kernel that makes each Jacobian where it reads it; fenced Jacobians cost a GPU a
-    write and a read per product."""
-    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
-    return per_region(problem, jnp.sum(jnp.stack(slot_values(du, dv, J_u, J_v)), axis=-1))
 
 
 def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
