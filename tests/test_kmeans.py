@@ -256,6 +256,7 @@ def test_segment_sums_into_copies_are_the_segment_sums(copies):
 def test_histograms_added_into_copies_of_their_bins_partition_as_one_copy(monkeypatch):
     depth = np.stack([layered_depth(np.random.default_rng(seed)) for seed in range(3)]).astype(np.float32)
     regions = dict(k=10, bins=1024, min_region_pixels=50, frames_at_once=True)
+    monkeypatch.setattr(partitions, "ACCELERATOR_HISTOGRAM_COPIES", 1)  # read when traced (no jit cache here)
     one = partitions.depth_partition(jnp.asarray(depth), jnp.asarray(depth > 0), **regions)
     monkeypatch.setattr(partitions, "ACCELERATOR_HISTOGRAM_COPIES", 32)
     spread = partitions.depth_partition(jnp.asarray(depth), jnp.asarray(depth > 0), **regions)
