@@ -89,18 +89,6 @@ def scaled_jacobians(problem: Problem, R, t):
     return (du, dv), (pose_jacobian_rows(RX, grad_u) / chunk_scale, pose_jacobian_rows(RX, grad_v) / chunk_scale)
 
 
-def linearise(problem: Problem, R, t) -> Linearisation:
-    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3): the 28 values
-    a slot adds summed within chunks by one reduction of 28 operands, whose loop makes each slot's
-    Jacobian once for all of them (bench/history/issue-61.md "The least-squares step's sums in one
-    reduction of 28 operands")."""
-    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
-    values = slot_values(du, dv, J_u, J_v)
-    zeros = tuple(jnp.zeros((), v.dtype) for v in values)
-    sums = jax.lax.reduce(tuple(values), zeros, lambda a, b: tuple(x + y for x, y in zip(a, b)), (values[0].ndim - 1,))
-    return per_region(problem, jnp.stack(sums))
-
-
 # J^T J's 21 distinct entries (i <= j), and where each of the 36 lies among them
 NORMAL_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 NORMAL_INDEX = np.array([[NORMAL_UPPER.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
@@ -116,6 +104,18 @@ def per_region(problem: Problem, chunk_sums) -> Linearisation:
     """The 28 values' sums within chunks (28, n_chunks) -> the regions' Linearisation."""
     sums = block_sums(problem.slots.chunk_onehot, chunk_sums)  # (k, 28)
     return Linearisation(sums[:, 27], sums[:, NORMAL_INDEX], sums[:, 21:27])
+
+
+def linearise(problem: Problem, R, t) -> Linearisation:
+    """Every region's squared error, J^T J and J^T r at poses R (k, 3, 3), t (k, 3): the 28 values
+    a slot adds summed within chunks by one reduction of 28 operands, whose loop makes each slot's
+    Jacobian once for all of them (bench/history/issue-61.md "The least-squares step's sums in one
+    reduction of 28 operands")."""
+    (du, dv), (J_u, J_v) = scaled_jacobians(problem, R, t)
+    values = slot_values(du, dv, J_u, J_v)
+    zeros = tuple(jnp.zeros((), v.dtype) for v in values)
+    sums = jax.lax.reduce(tuple(values), zeros, lambda a, b: tuple(x + y for x, y in zip(a, b)), (values[0].ndim - 1,))
+    return per_region(problem, jnp.stack(sums))
 
 
 def polish_poses(X, uv, weight, region, K, poses, slots: RegionSlots | None = None):
