@@ -10,7 +10,6 @@ from typing import Any, Mapping
 import numpy as np
 from scipy.special import ndtri, stdtrit
 
-from ..stats import nanmean
 from .formula import sgc_score
 from .model import COMPONENTS, Calibration
 
@@ -44,6 +43,22 @@ def _widenings(n_pairs: int) -> np.ndarray:
     return np.array([small_sample_widening(m) if m >= MIN_PAIRS else np.nan for m in range(n_pairs + 1)])
 
 
+def _times_drawn(drawn: Any, in_resample: Any, n_pairs: int, xp) -> Any:
+    """(..., draws, n_pairs) float: how often each pair is drawn in each resample, from the pairs
+    drawn (..., draws, n_pairs) at the resample positions ``in_resample`` (..., 1, n_pairs)."""
+    if xp is np:
+        rows = np.arange(int(np.prod(drawn.shape[:-1]))).reshape(drawn.shape[:-1])[..., None]
+        cells = (rows * n_pairs + drawn)[np.broadcast_to(in_resample, drawn.shape)]
+        return np.bincount(cells, minlength=rows.size * n_pairs).reshape(drawn.shape).astype(np.float64)
+    picked = drawn[..., :, None] == xp.arange(n_pairs)  # (..., draws, position, pair): one-hot, no scatter
+    return xp.sum(picked & in_resample[..., None], axis=-2).astype(xp.float32)
+
+
+def _matmul(a: Any, b: Any, xp) -> Any:
+    # full float32 on accelerators (their default may round matmul inputs to 10-bit mantissas)
+    return np.matmul(a, b) if xp is np else xp.matmul(a, b, precision="highest")
+
+
 def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: Calibration,
                    valid: Any = True, xp=np, pair_floors: Mapping[str, Any] | None = None) -> tuple[Any, Any]:
     """(sgc_lo, sgc_hi) (...,) from each component's per-pair values (..., n_pairs) and the clip's
@@ -64,10 +79,15 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     resampled_columns = dict(zip(COMPONENTS, values))
     if with_floors:
         resampled_columns.update({name: xp.asarray(v) for name, v in pair_floors.items()})
-    means = {}
-    for k, per_pair in resampled_columns.items():
-        resampled = xp.take_along_axis(per_pair[..., None, :], drawn, axis=-1)
-        means[k] = nanmean(resampled, in_resample, xp)  # (..., draws)
+    # each resample's mean of a column from how often it drew each pair: one product for every
+    # column, where gathering each column's resamples cost ~3 ms a clip on the host
+    times_drawn = _times_drawn(drawn, in_resample, n_pairs, xp)  # (..., draws, n_pairs)
+    columns = xp.stack(list(resampled_columns.values()), axis=-1)  # (..., n_pairs, columns)
+    present = ~xp.isnan(columns)
+    totals = _matmul(times_drawn, xp.where(present, columns, 0.0), xp)  # (..., draws, columns)
+    counts = _matmul(times_drawn, present.astype(times_drawn.dtype), xp)
+    resampled_means = xp.where(counts > 0, totals / xp.maximum(counts, 1), np.nan)
+    means = {k: resampled_means[..., j] for j, k in enumerate(resampled_columns)}  # (..., draws) each
     floors = {name: means[name] for name in pair_floors} if with_floors else None
     scores = sgc_score({k: means[k] for k in COMPONENTS}, calibration, xp=xp, floors=floors)
     tail = 50.0 * (1.0 - INTERVAL_LEVEL)

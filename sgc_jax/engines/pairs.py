@@ -67,7 +67,7 @@ class PairArrays:
         codes.PAIR_REASON_CODE: what the summaries read (``scoring.summary``)."""
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)
                   if f.name not in ("scale", "depth_unit", "reason")}
-        arrays = {name: a.astype(np.float64) if a.dtype.kind == "f" else a for name, a in arrays.items()}
+        arrays = {name: a.astype(np.float64, copy=False) if a.dtype.kind == "f" else a for name, a in arrays.items()}
         arrays["reason"] = np.array([PAIR_REASON_CODE[str(r)] for r in self.reason], np.int32)
         return arrays
 

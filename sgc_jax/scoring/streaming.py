@@ -25,7 +25,7 @@ from .engine_steps import engine_steps
 from .journal import FileDigests
 from .options import RunOptions
 from .readers import THREAD_READERS, Read, ReaderProcesses, read_entry, reading_plan
-from .result import ClipResult, clip_from_row, failed_clip, summarize_clip
+from .result import ClipResult, clip_from_row, failed_clip, pair_summaries, summarize_clip
 
 Done = Mapping[tuple[str, str], Mapping[str, str]]  # rows of an earlier run's output by (clip_id, input_sha256)
 
@@ -109,15 +109,16 @@ class _Stream:
             self.queue.append((entry, self._submit(entry)))
 
     def _summarized(self, reads: list[Read], pairs: list[PairArrays]) -> tuple[list[ClipResult], float]:
-        """A group's rows, summarised in its lane's thread (beside the other lanes' programs, so the
-        scoring thread goes on feeding the devices) -> (rows, seconds spent)."""
+        """A group's rows, summarised at once in its lane's thread (beside the other lanes' programs,
+        so the scoring thread goes on feeding the devices) -> (rows, seconds spent)."""
         s = self.scoring
         begin = time.perf_counter()
+        summaries = pair_summaries(pairs, s.calibration, s.config.compat)
         results = [dataclasses.replace(
             summarize_clip(read.identity.clip_id, clip_pairs, s.calibration, group=read.identity.group,
                            engine=s.engine, mask_source=read.identity.mask_source, origin=read.entry.origin,
-                           compat=s.config.compat),
-            input_sha256=read.sha256, run_id=s.run_id) for read, clip_pairs in zip(reads, pairs)]
+                           compat=s.config.compat, summary=summary),
+            input_sha256=read.sha256, run_id=s.run_id) for read, clip_pairs, summary in zip(reads, pairs, summaries)]
         return results, time.perf_counter() - begin
 
     def _launch(self) -> Iterator[Streamed]:
