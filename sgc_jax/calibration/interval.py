@@ -43,13 +43,33 @@ def _widenings(n_pairs: int) -> np.ndarray:
     return np.array([small_sample_widening(m) if m >= MIN_PAIRS else np.nan for m in range(n_pairs + 1)])
 
 
-def _times_drawn(drawn: Any, in_resample: Any, n_pairs: int, xp) -> Any:
-    """(..., draws, n_pairs) float: how often each pair is drawn in each resample, from the pairs
-    drawn (..., draws, n_pairs) at the resample positions ``in_resample`` (..., 1, n_pairs)."""
-    if xp is np:
-        rows = np.arange(int(np.prod(drawn.shape[:-1]))).reshape(drawn.shape[:-1])[..., None]
-        cells = (rows * n_pairs + drawn)[np.broadcast_to(in_resample, drawn.shape)]
-        return np.bincount(cells, minlength=rows.size * n_pairs).reshape(drawn.shape).astype(np.float64)
+def _drawn_positions(n_float: Any, n_pairs: int, xp) -> Any:
+    """(..., draws, n_pairs) int32: the counted position each resample position draws, floor(u n)
+    for a clip of n counted pairs (``n_float`` float32, (..., 1, 1)); only positions i < n count."""
+    drawn = xp.minimum(xp.floor(xp.asarray(resample_uniforms(n_pairs)) * n_float), n_float - 1)
+    return xp.maximum(drawn, 0).astype(xp.int32)
+
+
+@functools.lru_cache(maxsize=256)
+def _position_counts(n_pairs: int, n: int) -> np.ndarray:
+    """(draws, n_pairs) float64: how often each of the first n counted positions is drawn in each
+    resample of a clip of n counted pairs (0 from position n on)."""
+    drawn = _drawn_positions(np.float32(n), n_pairs, np)[:, :n]
+    cells = np.arange(INTERVAL_DRAWS)[:, None] * n_pairs + drawn
+    return np.bincount(cells.ravel(), minlength=INTERVAL_DRAWS * n_pairs).reshape(INTERVAL_DRAWS, n_pairs).astype(
+        np.float64)
+
+
+def _times_drawn(order: Any, n: Any, n_pairs: int, xp) -> Any:
+    """(..., draws, n_pairs) float: how often each pair is drawn in each resample, from the pairs in
+    order of position (``order`` (..., n_pairs), the n (...,) counted ones first)."""
+    if xp is np:  # the draws depend on n alone: each clip's counts by position, cached, put in pair order
+        by_position = np.stack([_position_counts(n_pairs, int(m)) for m in np.ravel(n)])
+        by_position = by_position.reshape(*np.shape(n), INTERVAL_DRAWS, n_pairs)
+        return np.take_along_axis(by_position, np.argsort(order, axis=-1)[..., None, :], axis=-1)
+    drawn = _drawn_positions(xp.asarray(n, xp.float32)[..., None, None], n_pairs, xp)
+    drawn = xp.take_along_axis(order[..., None, :], drawn, axis=-1)  # (..., draws, position): the pair drawn
+    in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, position): the first n positions
     picked = drawn[..., :, None] == xp.arange(n_pairs)  # (..., draws, position, pair): one-hot, no scatter
     return xp.sum(picked & in_resample[..., None], axis=-2).astype(xp.float32)
 
@@ -71,17 +91,13 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     n = xp.sum(usable, axis=-1)  # (...,)
     # the counted pairs first, in order: resample position i draws the floor(u n)-th of them
     order = xp.argsort(xp.where(usable, 0, n_pairs) + xp.arange(n_pairs), axis=-1)
-    n_float = xp.asarray(n, xp.float32)[..., None, None]
-    drawn = xp.minimum(xp.floor(xp.asarray(resample_uniforms(n_pairs)) * n_float), n_float - 1)
-    drawn = xp.take_along_axis(order[..., None, :], xp.maximum(drawn, 0).astype(xp.int32), axis=-1)
-    in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, n_pairs): the first n positions
     with_floors = calibration.excess and pair_floors is not None
     resampled_columns = dict(zip(COMPONENTS, values))
     if with_floors:
         resampled_columns.update({name: xp.asarray(v) for name, v in pair_floors.items()})
     # each resample's mean of a column from how often it drew each pair: one product for every
     # column, where gathering each column's resamples cost ~3 ms a clip on the host
-    times_drawn = _times_drawn(drawn, in_resample, n_pairs, xp)  # (..., draws, n_pairs)
+    times_drawn = _times_drawn(order, n, n_pairs, xp)  # (..., draws, n_pairs)
     columns = xp.stack(list(resampled_columns.values()), axis=-1)  # (..., n_pairs, columns)
     present = ~xp.isnan(columns)
     totals = _matmul(times_drawn, xp.where(present, columns, 0.0), xp)  # (..., draws, columns)
