@@ -115,9 +115,8 @@ class ClipResult:
 def pair_summaries(clips: Sequence[PairArrays], calibration: Calibration, compat: str,
                    evidence_levels: EvidenceLevels | None = None) -> list[dict[str, Any]]:
     """``summary.summarize_pairs`` of each clip's pairs (float64), one call for all clips of the
-    same pair count and region slots: the host's work per clip is then a few microseconds instead
-    of milliseconds, and the numbers are those of one call per clip (every reduction runs along a
-    clip's own pairs)."""
+    same pair count and region slots, so NumPy's cost per call is paid once per group; the numbers
+    are those of one call per clip (every reduction runs along a clip's own pairs)."""
     levels = evidence_levels or EvidenceLevels()
     by_shape: dict[tuple, list[int]] = {}
     for i, pairs in enumerate(clips):
