@@ -95,7 +95,9 @@ def sgc_score(components: Mapping[str, Any], calibration: Calibration, xp=np, fl
     weights = xp.asarray([calibration.weight[k] for k in COMPONENTS], _float(xp))
     present = ~xp.isnan(stacked)
     total_weight = (weights * present).sum(-1)
-    weighted = xp.where(present, stacked, 0.0) @ weights
+    # a sum along the components, not a matrix product: BLAS rounds a product of many rows
+    # differently from one row, and a clip's score must not depend on the clips beside it
+    weighted = (xp.where(present, stacked, 0.0) * weights).sum(-1)
     return xp.where(total_weight > 0, weighted / xp.where(total_weight > 0, total_weight, 1.0), np.nan)
 
 
