@@ -69,9 +69,12 @@ def _times_drawn(order: Any, n: Any, n_pairs: int, xp) -> Any:
         return np.take_along_axis(by_position, np.argsort(order, axis=-1)[..., None, :], axis=-1)
     drawn = _drawn_positions(xp.asarray(n, xp.float32)[..., None, None], n_pairs, xp)
     drawn = xp.take_along_axis(order[..., None, :], drawn, axis=-1)  # (..., draws, position): the pair drawn
-    in_resample = xp.arange(n_pairs) < n[..., None, None]  # (..., 1, position): the first n positions
-    picked = drawn[..., :, None] == xp.arange(n_pairs)  # (..., draws, position, pair): one-hot, no scatter
-    return xp.sum(picked & in_resample[..., None], axis=-2).astype(xp.float32)
+    in_resample = xp.broadcast_to(xp.arange(n_pairs) < n[..., None, None], drawn.shape)  # the first n positions
+    # one add per draw: a one-hot over the pairs would compare each draw with every pair (long clips)
+    rows = xp.arange(drawn.size // n_pairs).reshape(drawn.shape[:-1])[..., None]
+    counts = xp.zeros(drawn.size, xp.float32).at[(rows * n_pairs + drawn).reshape(-1)].add(
+        in_resample.reshape(-1).astype(xp.float32))
+    return counts.reshape(drawn.shape)
 
 
 def _matmul(a: Any, b: Any, xp) -> Any:
