@@ -120,7 +120,7 @@ def pair_summaries(clips: Sequence[PairArrays], calibration: Calibration, compat
     levels = evidence_levels or EvidenceLevels()
     by_shape: dict[tuple, list[int]] = {}
     for i, pairs in enumerate(clips):
-        by_shape.setdefault((pairs.n_pairs, pairs.region_status.shape), []).append(i)
+        by_shape.setdefault(pairs.region_status.shape, []).append(i)  # (pairs, region slots)
     summaries: list[dict[str, Any]] = [{} for _ in clips]
     for members in by_shape.values():
         columns = [clips[i].columns() for i in members]
