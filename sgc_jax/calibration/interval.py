@@ -60,21 +60,26 @@ def _position_counts(n_pairs: int, n: int) -> np.ndarray:
         np.float64)
 
 
-def _times_drawn(order: Any, n: Any, n_pairs: int, xp) -> Any:
-    """(..., draws, n_pairs) float: how often each pair is drawn in each resample, from the pairs in
-    order of position (``order`` (..., n_pairs), the n (...,) counted ones first)."""
-    if xp is np:  # the draws depend on n alone: each clip's counts by position, cached, put in pair order
-        by_position = np.stack([_position_counts(n_pairs, int(m)) for m in np.ravel(n)])
-        by_position = by_position.reshape(*np.shape(n), INTERVAL_DRAWS, n_pairs)
-        return np.take_along_axis(by_position, np.argsort(order, axis=-1)[..., None, :], axis=-1)
-    drawn = _drawn_positions(xp.asarray(n, xp.float32)[..., None, None], n_pairs, xp)
-    drawn = xp.take_along_axis(order[..., None, :], drawn, axis=-1)  # (..., draws, position): the pair drawn
+def _resampled_sums(order: Any, n: Any, columns: Any, xp) -> Any:
+    """(..., draws, columns): each resample's sum of each column over the pairs it drew, from the
+    columns (..., n_pairs, columns) and the pairs in order of position (``order`` (..., n_pairs),
+    the n (...,) counted ones first)."""
+    n_pairs = order.shape[-1]
+    by_position = xp.take_along_axis(columns, order[..., None], axis=-2)  # (..., position, columns)
+    if xp is np:  # the draws depend on n alone: the cached counts of each n times its clips' columns
+        flat = by_position.reshape(-1, n_pairs, columns.shape[-1])
+        sums = np.empty((len(flat), INTERVAL_DRAWS, columns.shape[-1]))
+        for m in np.unique(n):
+            clips = np.flatnonzero(np.ravel(n) == m)
+            sums[clips] = np.matmul(_position_counts(n_pairs, int(m)), flat[clips])
+        return sums.reshape(*np.shape(n), INTERVAL_DRAWS, columns.shape[-1])
+    drawn = _drawn_positions(xp.asarray(n, xp.float32)[..., None, None], n_pairs, xp)  # (..., draws, position)
     in_resample = xp.broadcast_to(xp.arange(n_pairs) < n[..., None, None], drawn.shape)  # the first n positions
-    # one add per draw: a one-hot over the pairs would compare each draw with every pair (long clips)
+    # one add per draw: a one-hot over the positions would compare each draw with every one (long clips)
     rows = xp.arange(drawn.size // n_pairs).reshape(drawn.shape[:-1])[..., None]
     counts = xp.zeros(drawn.size, xp.float32).at[(rows * n_pairs + drawn).reshape(-1)].add(
         in_resample.reshape(-1).astype(xp.float32))
-    return counts.reshape(drawn.shape)
+    return _matmul(counts.reshape(drawn.shape), by_position, xp)
 
 
 def _matmul(a: Any, b: Any, xp) -> Any:
@@ -98,13 +103,14 @@ def score_interval(pair_components: Mapping[str, Any], score: Any, calibration: 
     resampled_columns = dict(zip(COMPONENTS, values))
     if with_floors:
         resampled_columns.update({name: xp.asarray(v) for name, v in pair_floors.items()})
-    # each resample's mean of a column from how often it drew each pair: one product for every
-    # column instead of a gather of each column's resamples (the host's summary's largest cost)
-    times_drawn = _times_drawn(order, n, n_pairs, xp)  # (..., draws, n_pairs)
+    # each resample's mean of a column from how often it drew each position: one product for every
+    # column and its count of values, instead of a gather of each column's resamples
     columns = xp.stack(list(resampled_columns.values()), axis=-1)  # (..., n_pairs, columns)
     present = ~xp.isnan(columns)
-    totals = _matmul(times_drawn, xp.where(present, columns, 0.0), xp)  # (..., draws, columns)
-    counts = _matmul(times_drawn, present.astype(times_drawn.dtype), xp)
+    n_columns = columns.shape[-1]
+    sums = _resampled_sums(order, n, xp.concatenate([xp.where(present, columns, 0.0), present.astype(columns.dtype)],
+                                                    axis=-1), xp)
+    totals, counts = sums[..., :n_columns], sums[..., n_columns:]  # (..., draws, columns) each
     resampled_means = xp.where(counts > 0, totals / xp.maximum(counts, 1), np.nan)
     means = {k: resampled_means[..., j] for j, k in enumerate(resampled_columns)}  # (..., draws) each
     floors = {name: means[name] for name in pair_floors} if with_floors else None
