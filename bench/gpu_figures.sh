@@ -13,6 +13,9 @@
 #   bench/gpu_figures.sh forms       issue 61: the least-squares step's forms alone, then the Scorer at
 #                                    B = 64 with the accelerator's stacked form of before 2026-12-04
 #                                    and with 28 reductions side by side, each stage timed (~8 min)
+#   bench/gpu_figures.sh widths      issue 61, item 2: the least-squares step and an LM solve alone at
+#                                    960 down to 60 pairs: whether a step's time follows the lanes it
+#                                    holds (what leaving finished pairs out could save) (~3 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -57,6 +60,12 @@ forms)
             --profile "$OUT/profile-$form" 2>&1 | tee "$OUT/reward-$form.log"
     done
     ;;
+widths)
+    for pairs in 960 480 240 120 60; do
+        timeout 60 python3 bench/normal_equations.py --pairs "$pairs" --forms package 2>&1 \
+            | tee "$OUT/normal_equations-$pairs.log"
+    done
+    ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
     timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
@@ -67,7 +76,7 @@ torch)
     timeout 400 python3 bench/torch_bridge.py --batch-size 64 --repeat 10 --device cuda:0 2>&1 | tee "$OUT/torch.log"
     ;;
 *)
-    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|forms|gradients|torch]" >&2
+    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|forms|widths|gradients|torch]" >&2
     exit 2
     ;;
 esac
