@@ -16,7 +16,8 @@ so the compilation cache is off: such programs cannot be exported):
 A vmapped while loop runs until its slowest lane is done; a lane that is done is carried along.
 Printed per loop: each invocation's largest and mean count, and the lane-iterations executed with
 every lane at once, in groups of --group consecutive lanes (the CPU's form: PAIRS_AT_ONCE pairs,
-their regions), and what the lanes need alone. What leaving finished lanes out could save is the
+their regions; derived from the same counts, an upper bound: a CPU group whose pairs have all
+finished their refits skips what the batch runs here), and what the lanes need alone. What leaving finished lanes out could save is the
 difference, if a step's time follows the lanes it holds (`bench/gpu_figures.sh widths` measures
 that on a GPU). The counts do not depend on the machine.
 """
