@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .lanes import while_loop_by_lane
 from .linalg import small_matmul, solve_spd
 from .pnp import point_columns, pointwise_residuals, pose_jacobian_rows
 from .regions import RegionSlots, block_sums, per_chunk, region_slots, to_slots
@@ -23,6 +24,10 @@ LM_MAX_DAMPING = 1e8
 # A final Gauss-Newton step is taken where it moves a pose by less than this [px-scaled units]:
 # a settled fit is ~1e-3 away, a start of the search tens.
 POLISH_PX = 0.05
+# A least-squares step reads every point of a pair: from this many pairs at once on, a batch whose
+# pairs are nearly all done leaves them behind (``while_loop_by_lane``); the CPU's groups of
+# PAIRS_AT_ONCE run to their slowest pair.
+PAIR_LANES = 16
 
 
 class Linearisation(NamedTuple):
@@ -145,10 +150,8 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     Needs >= 3 weighted points per region."""
     k = pose0.shape[0]
     dtype = X.dtype
-    problem = problem_of(X, uv, weight, region, K, k, slots)
-    scale = problem.scale
 
-    def propose(at: Linearisation, damping) -> Proposal:
+    def propose(at: Linearisation, damping, scale) -> Proposal:
         diag = jnp.diagonal(at.normal, axis1=1, axis2=2)
         damped = at.normal + (damping[:, None] * diag + 1e-12)[:, :, None] * jnp.eye(6, dtype=dtype)
         delta = -jax.vmap(solve_spd)(damped, at.grad) / scale
@@ -157,7 +160,7 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         negligible = (predicted <= LM_RTOL * at.cost + LM_ATOL_PX**2) | (jnp.max(jnp.abs(scaled), -1) < LM_ATOL_PX)
         return Proposal(delta, predicted, negligible)
 
-    def step(state: LMState) -> LMState:
+    def step(state: LMState, problem: Problem) -> LMState:
         at, damping, growth, done, proposal = state.at, state.damping, state.growth, state.done, state.proposal
         first = ~state.started  # the proposal is the start itself (delta 0): take its linearisation
         delta = proposal.delta
@@ -179,9 +182,10 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
         pick = lambda new, old: jnp.where(accept.reshape((k,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
         at = jax.tree.map(pick, new, at)
         return LMState(pick(R_new, state.R), pick(t_new, state.t), at, damping, growth, done,
-                       state.step + state.started.astype(jnp.int32), propose(at, damping), jnp.bool_(True))
+                       state.step + state.started.astype(jnp.int32), propose(at, damping, problem.scale),
+                       jnp.bool_(True))
 
-    def more(state: LMState):
+    def more(state: LMState, problem: Problem):
         # a region whose next step is negligible would only be marked settled by it: the loop ends
         # once every region is done or there, without the error at that step (the same poses)
         return (state.step < steps) & jnp.any(~state.done & ~state.proposal.negligible)
@@ -191,7 +195,8 @@ def solve_pnp_regions(X, uv, weight, region, K, pose0, *, steps, slots: RegionSl
     unknown = Linearisation(jnp.full(k, jnp.inf, dtype), jnp.zeros((k, 6, 6), dtype), zeros)
     state = LMState(so3_exp(pose0[:, :3]), pose0[:, 3:], unknown, jnp.full(k, 1e-3, dtype), jnp.full(k, 2.0, dtype),
                     ~jnp.all(jnp.isfinite(pose0), axis=-1), jnp.int32(0), unmoved, jnp.bool_(False))
-    final = jax.lax.while_loop(more, step, state)
+    # under vmap a pair whose regions are all done leaves the batch's steps (``while_loop_by_lane``)
+    final = while_loop_by_lane(more, step, state, problem_of(X, uv, weight, region, K, k, slots), min_lanes=PAIR_LANES)
     done = final.done | (final.proposal.negligible & (final.step < steps))
     pose6 = jnp.concatenate([so3_log(final.R), final.t], axis=-1)
     return pose6, done & jnp.all(jnp.isfinite(pose6), axis=-1)

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 
 from ..codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from .joint_pnp import polish_poses
+from .lanes import while_loop_by_lane
 from .local_optimum import borrow_region_poses, refine_poses
 from .pnp import gauss_newton_updates, initial_pose, projected_columns, solve_pnp, translation_for_rotation
 from .ransac_options import RansacOptions
@@ -83,15 +84,15 @@ def scoring_subset(key, order, start, n_members, score_points):
     return order[jnp.clip(start + pos, 0, N - 1)], i < n_members
 
 
-def sample_candidates(X, uv, K, sample_idx, *, sample_updates):
-    """Candidate poses (H, 6) from H samples of s points (sample_idx (H, s)): each sample's fit
-    (``initial_pose``, then ``sample_updates`` Gauss-Newton updates)."""
-    weight = jnp.ones(sample_idx.shape[1], X.dtype)
+def sample_candidates(sample_X, sample_uv, K, *, sample_updates):
+    """Candidate poses (H, 6) from H samples of s points (sample_X (H, s, 3), sample_uv (H, s, 2)):
+    each sample's fit (``initial_pose``, then ``sample_updates`` Gauss-Newton updates)."""
+    weight = jnp.ones(sample_X.shape[1], sample_X.dtype)
 
     def one_sample(Xs, uvs):
         return gauss_newton_updates(Xs, uvs, weight, K, initial_pose(Xs, uvs, weight, K), updates=sample_updates)
 
-    return jax.vmap(one_sample)(X[sample_idx], uv[sample_idx])
+    return jax.vmap(one_sample)(sample_X, sample_uv)
 
 
 def samples_needed(inlier_frac, sample_size, confidence):
@@ -112,11 +113,56 @@ class Draws(NamedTuple):
     best_close: jax.Array  # () int32 most scored members within ADAPTIVE_PX of one candidate
 
 
+class DrawInputs(NamedTuple):
+    """What a region's draws read: its minimal samples' points, the members they are scored on."""
+
+    sample_X: jax.Array  # (n_chunks chunk, sample_size, 3)
+    sample_uv: jax.Array  # (n_chunks chunk, sample_size, 2)
+    drawn: jax.Array  # (n_chunks, chunk) bool: within ``hypotheses``
+    scored_X: jax.Array  # (score_points, 3)
+    scored_uv: jax.Array  # (score_points, 2)
+    scored_valid: jax.Array  # (score_points,) bool
+    K: jax.Array  # (3, 3)
+    n_members: jax.Array  # () int32
+    n_valid: jax.Array  # () int32 scored members
+    inlier_px: jax.Array  # () RansacOptions' values, passed in: the loop closes over no traced value
+    confidence: jax.Array  # ()
+
+
+def draw_chunk(state: Draws, x: DrawInputs, options: RansacOptions) -> Draws:
+    """The next ``options.chunk`` minimal samples' candidates scored and merged into the leading ones."""
+    o, dtype = options, x.scored_X.dtype
+    at = state.chunk * o.chunk
+    poses = sample_candidates(jax.lax.dynamic_slice_in_dim(x.sample_X, at, o.chunk),
+                              jax.lax.dynamic_slice_in_dim(x.sample_uv, at, o.chunk), x.K,
+                              sample_updates=o.sample_updates)
+    ok = jnp.all(jnp.isfinite(poses), axis=-1) & x.drawn[state.chunk]
+    poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
+    inliers, trunc_sq = truncated_errors_sq(so3_exp(poses[:, :3]), poses[:, 3:], x.scored_X, x.scored_uv, x.K,
+                                            x.scored_valid, x.inlier_px)
+    all_rank = jnp.concatenate([state.top_rank, jnp.where(ok, -jnp.sum(trunc_sq, axis=-1), -jnp.inf)])
+    _, keep = jax.lax.top_k(all_rank, state.top_rank.shape[0])
+    close_sq = jnp.minimum(jnp.asarray(ADAPTIVE_PX, dtype), x.inlier_px) ** 2
+    close = jnp.sum(inliers & (trunc_sq < close_sq), axis=-1, dtype=jnp.int32)
+    return Draws(state.chunk + 1, jnp.concatenate([state.top_pose, poses])[keep], all_rank[keep],
+                 jnp.maximum(state.best_close, jnp.max(jnp.where(ok, close, 0))))
+
+
+def draws_needed(state: Draws, x: DrawInputs, options: RansacOptions):
+    """() bool: the region draws another chunk (RANSAC's adaptive stop, ``region_start``)."""
+    o, dtype = options, x.scored_X.dtype
+    close_frac = state.best_close / jnp.maximum(x.n_valid, 1).astype(dtype)
+    needed = ADAPTIVE_DRAWS * samples_needed(close_frac, o.sample_size, x.confidence)
+    return ((state.chunk < x.drawn.shape[0]) & (x.n_members >= o.sample_size)
+            & ((state.chunk * o.chunk).astype(dtype) < needed))
+
+
 def region_start(X, uv, K, order, start, n_members, key, options: RansacOptions):
     """The best pose6 (6,) of one region from its minimal samples (``options.chunk`` at a time,
     until ``hypotheses`` or ADAPTIVE_DRAWS x ``samples_needed`` of them) and one least-squares fit
     of each of the ``lo_candidates`` best on at most ``fit_points`` scored members: the lowest
-    truncated cost at inlier_px on the scored members of candidates and fits."""
+    truncated cost at inlier_px on the scored members of candidates and fits. Under vmap a region
+    whose draws have stopped leaves the batch (``while_loop_by_lane``)."""
     o, N, dtype = options, X.shape[0], X.dtype
     key_sample, key_subset = jax.random.split(key)
     n_scored = min(o.score_points, N)
@@ -128,28 +174,11 @@ def region_start(X, uv, K, order, start, n_members, key, options: RansacOptions)
     drawn = (jnp.arange(n_chunks * o.chunk) < o.hypotheses).reshape(n_chunks, o.chunk)
     n_keep = min(o.lo_candidates, o.hypotheses)
     n_valid = jnp.minimum(n_members, n_scored)
-    close_sq = jnp.minimum(jnp.asarray(ADAPTIVE_PX, dtype), o.inlier_px) ** 2
-
-    def draw(state: Draws) -> Draws:
-        idx = jax.lax.dynamic_slice_in_dim(sample_idx, state.chunk * o.chunk, o.chunk)
-        poses = sample_candidates(X, uv, K, idx, sample_updates=o.sample_updates)
-        ok = jnp.all(jnp.isfinite(poses), axis=-1) & drawn[state.chunk]
-        poses = jnp.where(ok[:, None], poses, jnp.zeros(6, dtype))
-        inliers, trunc_sq = truncated_errors_sq(so3_exp(poses[:, :3]), poses[:, 3:], X_s, uv_s, K, scored_valid,
-                                                o.inlier_px)
-        all_rank = jnp.concatenate([state.top_rank, jnp.where(ok, -jnp.sum(trunc_sq, axis=-1), -jnp.inf)])
-        _, keep = jax.lax.top_k(all_rank, n_keep)
-        close = jnp.sum(inliers & (trunc_sq < close_sq), axis=-1, dtype=jnp.int32)
-        return Draws(state.chunk + 1, jnp.concatenate([state.top_pose, poses])[keep], all_rank[keep],
-                     jnp.maximum(state.best_close, jnp.max(jnp.where(ok, close, 0))))
-
-    def more(state: Draws):
-        close_frac = state.best_close / jnp.maximum(n_valid, 1).astype(dtype)
-        needed = ADAPTIVE_DRAWS * samples_needed(close_frac, o.sample_size, jnp.asarray(o.confidence, dtype))
-        return (state.chunk < n_chunks) & (n_members >= o.sample_size) & ((state.chunk * o.chunk).astype(dtype) < needed)
-
+    inputs = DrawInputs(X[sample_idx], uv[sample_idx], drawn, X_s, uv_s, scored_valid, K, n_members, n_valid,
+                        jnp.asarray(o.inlier_px, dtype), jnp.asarray(o.confidence, dtype))
     init = Draws(jnp.int32(0), jnp.zeros((n_keep, 6), dtype), jnp.full(n_keep, -jnp.inf, dtype), jnp.int32(0))
-    top_pose = jax.lax.while_loop(more, draw, init).top_pose
+    top_pose = while_loop_by_lane(lambda s, x: draws_needed(s, x, o), lambda s, x: draw_chunk(s, x, o), init,
+                                  inputs).top_pose
 
     # one fit of each leading candidate on its inliers among fit_points evenly spread scored
     # members: enough to tell its basin, at a quarter of the cost
