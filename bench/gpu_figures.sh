@@ -16,6 +16,9 @@
 #   bench/gpu_figures.sh widths      issue 61, item 2: the least-squares step and an LM solve alone at
 #                                    960 down to 60 pairs: whether a step's time follows the lanes it
 #                                    holds (what leaving finished pairs out could save) (~3 min)
+#   bench/gpu_figures.sh lanes       issue 61, item 2: the Scorer at B = 64, each stage timed, with the
+#                                    draws' and least-squares solves' finished lanes left behind (the
+#                                    package) and with every lane run to its loop's end (~7 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
@@ -66,6 +69,12 @@ widths)
             | tee "$OUT/normal_equations-$pairs.log"
     done
     ;;
+lanes)
+    for variant in "" --all-lanes; do
+        timeout 200 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 $variant \
+            --profile "$OUT/profile${variant:---left-behind}" 2>&1 | tee "$OUT/reward${variant:---left-behind}.log"
+    done
+    ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
     timeout 140 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 2>&1 | tee "$OUT/reward-b64.log"
@@ -76,7 +85,7 @@ torch)
     timeout 400 python3 bench/torch_bridge.py --batch-size 64 --repeat 10 --device cuda:0 2>&1 | tee "$OUT/torch.log"
     ;;
 *)
-    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|forms|widths|gradients|torch]" >&2
+    echo "usage: bench/gpu_figures.sh [reward|pose|histograms|forms|widths|lanes|gradients|torch]" >&2
     exit 2
     ;;
 esac

@@ -19,7 +19,9 @@ every lane at once, in groups of --group consecutive lanes (the CPU's form: PAIR
 their regions; derived from the same counts, an upper bound: a CPU group whose pairs have all
 finished their refits skips what the batch runs here), and what the lanes need alone. What leaving finished lanes out could save is the
 difference, if a step's time follows the lanes it holds (`bench/gpu_figures.sh widths` measures
-that on a GPU). The counts do not depend on the machine.
+that on a GPU). RANSAC's draws and the least-squares solves leave their finished lanes behind
+(`kernels/lanes.py`): for them the lane-iterations the program executed are counted too, each of
+its loops' iterations times the lanes it holds. The counts do not depend on the machine.
 """
 
 from __future__ import annotations
@@ -36,18 +38,42 @@ HERE = Path(__file__).resolve().parent
 LOOPS = {"region_start": "region", "local_optima": "pair", "solve_pnp_regions": "pair"}
 
 
-def counting_while_loop(while_loop, counts: dict[str, list[int]]):
+def counting_while_loop(while_loop, counts: dict[str, list[int]], executed: dict[str, list[int]]):
     """``jax.lax.while_loop`` that, in LOOPS' functions, also counts its iterations per lane and
     appends each lane's count to counts[function] after the loop (one host call per lane, in
-    order, under vmap)."""
+    order, under vmap); called from ``kernels.lanes._run_lanes`` (lanes explicit), it appends its
+    iterations times the lanes it holds to executed[its loop] (named by ``counting_lane_loop``)."""
     import jax
 
     def loop(cond_fun, body_fun, init_val):
         caller = sys._getframe(1).f_code.co_name
-        if caller not in LOOPS:
+        if caller not in LOOPS and caller != "_run_lanes":
             return while_loop(cond_fun, body_fun, init_val)
         final, n = while_loop(lambda c: cond_fun(c[0]), lambda c: (body_fun(c[0]), c[1] + 1), (init_val, 0))
-        jax.debug.callback(lambda m: counts[caller].append(int(m)), n)
+        if caller == "_run_lanes":
+            width = jax.tree.leaves(init_val)[0].shape[0]
+            name = sys._getframe(1).f_locals["cond_fun"].lane_loop
+            jax.debug.callback(lambda m: executed[name].append(int(m) * width), n)
+        else:
+            jax.debug.callback(lambda m: counts[caller].append(int(m)), n)
+        return final
+
+    return loop
+
+
+def counting_lane_loop(lane_loop, name: str, counts: list[int]):
+    """``kernels.lanes.while_loop_by_lane`` called in function ``name`` that also counts each
+    lane's iterations (appended to ``counts`` after the loop, one host call per lane)."""
+    import jax
+
+    def loop(cond_fun, body_fun, init_val, consts, **options):
+        def cond(c, x):
+            return cond_fun(c[0], x)
+
+        cond.lane_loop = name
+        final, n = lane_loop(cond, lambda c, x: (body_fun(c[0], x), c[1] + 1), (init_val, jax.numpy.int32(0)),
+                             consts, **options)
+        jax.debug.callback(lambda m: counts.append(int(m)), n)
         return final
 
     return loop
@@ -74,13 +100,18 @@ def main() -> None:
     import jax
     from stream import SCENE, host_cpu
 
+    import sgc_jax.kernels.joint_pnp as joint_pnp_module
+    import sgc_jax.kernels.ransac as ransac_module
     import sgc_jax.scoring.scorer as scorer_module
     from sgc_jax import Scorer, SGCConfig
     from sgc_jax.research.synth import synth_clip
     from sgc_jax.scoring.scorer import batch_of
 
     counts: dict[str, list[int]] = collections.defaultdict(list)
-    jax.lax.while_loop = counting_while_loop(jax.lax.while_loop, counts)
+    executed: dict[str, list[int]] = collections.defaultdict(list)
+    jax.lax.while_loop = counting_while_loop(jax.lax.while_loop, counts, executed)
+    for module, name in ((ransac_module, "region_start"), (joint_pnp_module, "solve_pnp_regions")):
+        module.while_loop_by_lane = counting_lane_loop(module.while_loop_by_lane, name, counts[name])
     scorer_module.default_lanes = lambda devices: 1  # one program call holds every clip, as on an accelerator
     clips = [synth_clip(seed=i, **SCENE) for i in range(args.clips)]
     shape = (SCENE["n_frames"], SCENE["height"], SCENE["width"], SCENE["n_tracks"])
@@ -92,15 +123,16 @@ def main() -> None:
     print(f"{host_cpu()}; {args.clips} standard clips in one vectorized call: {pairs} pairs, "
           f"{lanes['region']} regions")
     print("| loop | lanes | invocations: largest count (mean) | lane-iterations: alone | "
-          f"in groups of {args.group} | all at once |")
-    print("|---|---|---|---|---|---|")
+          f"in groups of {args.group} | all at once | executed |")
+    print("|---|---|---|---|---|---|---|")
     for name, lane in LOOPS.items():
         n_lanes = lanes[lane]
         group = args.group * (n_lanes // pairs)  # the CPU groups pairs, with all their regions
         alone, grouped, at_once, largest, mean = lane_iterations(counts[name], n_lanes, group)
         invocations = ", ".join(f"{m} ({a})" for m, a in zip(largest, mean))
+        ran = sum(executed[name]) if name in executed else at_once  # the others: every lane to the end
         print(f"| `{name}` | {n_lanes} {lane}s | {invocations} | {alone} | {grouped} ({grouped / alone:.2f}x) | "
-              f"{at_once} ({at_once / alone:.2f}x) |")
+              f"{at_once} ({at_once / alone:.2f}x) | {ran} ({ran / alone:.2f}x) |")
 
 
 if __name__ == "__main__":

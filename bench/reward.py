@@ -5,7 +5,7 @@ the same run; then, optionally, a corpus scored from disk through ``score_batch`
     python bench/reward.py [--batch-sizes 1 8 32 64] [--shape 16 288 512 4096] [--repeats 3]
                            [--vectorized] [--no-baseline] [--profile DIR]
                            [--disk-clips 1000] [--dir /tmp/sgc-stream-corpus]
-                           [--linearise FORM] [--histogram-copies C]
+                           [--linearise FORM] [--histogram-copies C] [--all-lanes]
 
 Standard clips by default (T=16, 288x512, 4096 tracks per pair, ~10 regions: bench/stream.py's
 scene); --shape scores smaller ones. Each B compiles its programs once (timed apart), then runs
@@ -22,7 +22,9 @@ launched once per iteration, so their counts are the loops' iteration counts). -
 puts one of bench/normal_equations.py's forms of the least-squares step in the package's place
 before anything is compiled; --histogram-copies C makes the accelerator form's depth histograms
 add into C copies of their bins (``partitions.ACCELERATOR_HISTOGRAM_COPIES``; bench/histogram_copies.py
-times them alone). A variant keeps its compiled programs in a cache directory of its own: the
+times them alone); --all-lanes runs every lane of the vectorized form's draws and least-squares
+solves to the end of its loop, as before their finished lanes were left behind (``kernels/lanes.py``).
+A variant keeps its compiled programs in a cache directory of its own: the
 package's cache keys its traced programs by the source files, which a variant set here leaves as
 they are.
 """
@@ -45,7 +47,7 @@ import jax
 from sgc_jax import Scorer, enable_compilation_cache, score_batch
 from sgc_jax.engines.jax_engine.compile_cache import default_cache_dir
 from sgc_jax.engines.jax_engine.programs import Pipeline
-from sgc_jax.kernels import joint_pnp, partitions
+from sgc_jax.kernels import joint_pnp, lanes, partitions
 from sgc_jax.research.synth import synth_clip
 from sgc_jax.scoring.scorer import batch_of
 from sgc_jax.scoring.streaming import StreamStats
@@ -196,18 +198,23 @@ def main() -> None:
     parser.add_argument("--dir", default="/tmp/sgc-stream-corpus")
     parser.add_argument("--linearise", choices=sorted(FORMS), default="package")
     parser.add_argument("--histogram-copies", type=int, default=partitions.ACCELERATOR_HISTOGRAM_COPIES)
+    parser.add_argument("--all-lanes", action="store_true", help="every lane to its loop's end (no lanes left behind)")
     args = parser.parse_args()
-    variant = (args.linearise, args.histogram_copies) != ("package", partitions.ACCELERATOR_HISTOGRAM_COPIES)
+    variant = (args.linearise, args.histogram_copies, args.all_lanes) != (
+        "package", partitions.ACCELERATOR_HISTOGRAM_COPIES, False)
     joint_pnp.linearise = FORMS[args.linearise]
     partitions.ACCELERATOR_HISTOGRAM_COPIES = args.histogram_copies
+    if args.all_lanes:
+        lanes.MIN_LANES = joint_pnp.PAIR_LANES = sys.maxsize
     cache = default_cache_dir()
     enable_compilation_cache(cache / f"variant-{args.linearise}-copies{args.histogram_copies}"
-                             if variant and cache is not None else cache)
+                             f"{'-all-lanes' if args.all_lanes else ''}" if variant and cache is not None else cache)
     shape = tuple(args.shape)
     device = jax.devices()[0]
     print(f"device: {device.device_kind} ({jax.default_backend()}), {jax.device_count()} device(s); "
           f"clips of {shape[0]} frames, {shape[1]}x{shape[2]} px, {shape[3]} tracks per pair; "
-          f"the least-squares step's form: {args.linearise}; the histograms' copies: {args.histogram_copies}")
+          f"the least-squares step's form: {args.linearise}; the histograms' copies: {args.histogram_copies}"
+          f"{'; every lane to its loop end' if args.all_lanes else ''}")
     clips = clips_of(shape, max(args.batch_sizes))
     baseline = float("nan")
     if args.baseline:
