@@ -4,6 +4,7 @@ Compiled functions are built once at module level and shared across tests (few c
 """
 
 import functools
+import sys
 
 import cv2
 import jax
@@ -15,7 +16,7 @@ from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference_pose
 from sgc_jax.engines.jax_engine.pose_stage import PoseStage
-from sgc_jax.kernels import joint_pnp
+from sgc_jax.kernels import joint_pnp, lanes
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
 from sgc_jax.kernels.local_optimum import borrow_region_poses, refine_poses, repeated_starts
 from sgc_jax.kernels.pnp import gauss_newton_updates, initial_pose, reprojection_residuals, solve_pnp
@@ -454,3 +455,25 @@ def test_reference_least_squares_reaches_the_optimum_in_a_few_steps_when_the_cam
     fit = reference_pose.least_squares_pose(X, uv, K, reference_pose.Pose(off @ R_true, t_true), steps=5)
     np.testing.assert_allclose(fit.t, optimum.t, rtol=0, atol=1e-8)  # float64: the optimum to its rounding
     np.testing.assert_allclose(fit.R, optimum.R, rtol=0, atol=1e-9)
+
+
+def test_the_search_of_many_pairs_leaving_finished_lanes_behind_gives_each_its_result_alone(monkeypatch):
+    """RANSAC's draws and the least-squares solves of 8 scenes x 3 regions (docs/semantics.md §9.3):
+    a narrow phase at these few lanes (thresholds lowered) against every lane run to its end."""
+    scenes = [scene_with_regions(seed, sizes=[64, 40 + 8 * seed, 24], noise_px=1.0) for seed in range(8)]
+    X, uv = f32(np.stack([s[0] for s in scenes]), np.stack([s[1] for s in scenes]))
+    member = jnp.asarray(np.stack([s[2] for s in scenes]))
+    keys = jax.vmap(lambda i: jax.random.split(jax.random.key(i), 3))(jnp.arange(8))
+    Kj = jnp.asarray(K, jnp.float32)
+
+    def search(min_lanes, pair_lanes):
+        monkeypatch.setattr(lanes, "MIN_LANES", min_lanes)
+        monkeypatch.setattr(joint_pnp, "PAIR_LANES", pair_lanes)
+        pairs = jax.vmap(lambda X, uv, m, k: jax.vmap(lambda mm, kk: ransac_pnp(X, uv, mm, Kj, kk, OPTIONS))(m, k))
+        loops = str(jax.make_jaxpr(pairs)(X, uv, member, keys)).count("while[")
+        return jax.jit(pairs)(X, uv, member, keys), loops  # a new function: traced under the thresholds set here
+
+    (left_behind, narrow_loops), (every_lane, loops) = search(4, 2), search(sys.maxsize, sys.maxsize)
+    assert narrow_loops > loops  # the narrow phases are in the program
+    for name in ("R", "t", "status", "n_inliers", "inliers"):
+        np.testing.assert_array_equal(getattr(left_behind, name), getattr(every_lane, name), err_msg=name)
