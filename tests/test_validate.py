@@ -73,6 +73,16 @@ def test_a_sky_read_as_depth_gets_a_warning_naming_a_depth_limit_and_none_once_i
     assert not [p for p in check_clip(masked) if p.code == "far_backdrop"]
 
 
+def test_negative_depth_gets_a_warning_naming_the_sign_convention_and_a_few_stray_values_none(clip):
+    flipped = clip.depth.copy()
+    flipped[:, : flipped.shape[1] // 2] *= -1.0  # half of every frame given as -z
+    [line] = [p for p in problems_of(arrays_of(clip, depth=flipped)) if p.code == "negative_depth"]
+    assert line.severity == "warning" and "50%" in line.found and "negate" in line.fix
+    strays = clip.depth.copy()
+    strays[:, 0, :4] = -1.0  # below NEGATIVE_DEPTH_WARN of the pixels: an estimator's invalid marker
+    assert not [p for p in problems_of(arrays_of(clip, depth=strays)) if p.code == "negative_depth"]
+
+
 def enlarged_depth(clip, factor=2):
     """Each frame's depth as a network at 1/factor of the frame's size leaves it, enlarged bilinearly."""
     H, W = clip.image_size

@@ -34,6 +34,7 @@ TRACKS_OUTSIDE_ERROR = 0.25  # fraction of visible track positions outside: anot
 TRACKS_OUTSIDE_WARN = 0.05
 TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: computed on a smaller grid
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
+NEGATIVE_DEPTH_WARN = 0.01  # negative depth on this share of the pixels with a depth: a sign convention
 DISPARITY_RHO_WARN = 0.3  # Spearman(depth, parallax) above this: larger "depth" moves faster = disparity
 MIN_PARALLAX_PX = 0.5  # pairs whose median parallax is below this say nothing about depth vs disparity
 MIN_POINTS_FOR_STATS = 30
@@ -431,6 +432,7 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
         problems.append(Problem("warning", "no_valid_depth", "depth", "some depth > 0 in every frame",
                                 f"no valid depth in frames {_frames_list(empty, clip.n_frames)}",
                                 "pairs touching these frames will score NaN"))
+    problems += check_negative_depth(sample)
     values = sample[(sample > 0) & (sample < np.inf)]
     if values.size:
         lo, mid, hi = np.percentile(values, [2, 50, 98])
@@ -448,6 +450,21 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     return problems
+
+
+def check_negative_depth(sample: np.ndarray) -> list[Problem]:
+    """Negative depth on more than NEGATIVE_DEPTH_WARN of the pixels that have one (``sample`` (T, h, w)):
+    read as invalid, as every value <= 0 is (§1.1), but no estimator outputs it by accident."""
+    negative = sample < 0
+    given = np.count_nonzero(np.isfinite(sample) & (sample != 0))
+    if given == 0 or np.count_nonzero(negative) <= NEGATIVE_DEPTH_WARN * given:
+        return []
+    frames = np.flatnonzero(negative.reshape(len(sample), -1).any(axis=1))
+    return [Problem("warning", "negative_depth", "depth", "depth > 0 (values <= 0 are invalid)",
+                    f"negative values on {100 * np.count_nonzero(negative) / given:.0f}% of the pixels with a depth, "
+                    f"in frames {_frames_list(frames, len(sample))}",
+                    "they are read as invalid; a camera looking along -z (OpenGL, Blender) gives negative z: "
+                    "negate the depth")]
 
 
 def check_far_backdrop(values: np.ndarray) -> list[Problem]:
