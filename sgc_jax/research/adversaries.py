@@ -14,7 +14,9 @@ afterwards, as for any clip of the protocol.
 - ``masked_out``: the static mask cut to 4 % of the rows, warped;
 - ``unmasked_mover``: one moving object left out of the mask;
 - ``repeated_frames``: every frame shown twice (0 0 1 1 2 2 ...);
-- ``half_broken``: the first half of the pairs consistent, the rest warped at 1.
+- ``half_broken``: the first half of the pairs consistent, the rest warped at 1;
+- ``still_video``: every frame the first, the cameras moving as the scene's (a camera-controlled
+  generator that ignores the camera it was given, scored with that camera).
 """
 
 from __future__ import annotations
@@ -124,10 +126,17 @@ def half_broken(scene: ProtocolScene, n_tracks: int) -> Clip:
                                track_curr=pick(clean.track_curr, broken.track_curr))
 
 
+def still_video(scene: ProtocolScene, n_tracks: int) -> Clip:
+    clip = scene.clip(n_tracks)
+    still = with_frames(clip, [0] * clip.n_frames)
+    return dataclasses.replace(still, K=clip.K, R_wc=clip.R_wc, t_wc=clip.t_wc)
+
+
 ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "few_tracks": few_tracks, "low_confidence": low_confidence, "pure_rotation": pure_rotation,
     "near_still": near_still, "bursty": bursty, "thin_band": thin_band, "masked_out": masked_out,
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
+    "still_video": still_video,
 }
 
 
