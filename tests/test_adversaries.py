@@ -20,11 +20,11 @@ NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
 # The adversaries the evidence answers whatever the score sees; pure rotation and an unmasked mover
 # earn less only as far as the score sees their inconsistency (bench/history/issue-59.md, "Evidence").
 BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
-               "repeated_frames", "half_broken")
+               "repeated_frames", "half_broken", "still_video")
 # A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
 BY_DEPTH_ERROR = ("pure_rotation",)
 # A video that holds still, with the cameras an estimator reads from it (at rest): the motion gate
-# answers it; scored with moving cameras it was asked to follow, it is not (§9.4).
+# answers it, as the tracks' motion answers it under the moving cameras it was asked to follow (§3.11).
 STILL_VIDEO = "still_video_estimated_cameras"
 CLIPS = ("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR, STILL_VIDEO)
 HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward

@@ -2,12 +2,23 @@
 pair counts in proportion to what it measured; a clip measured on little says so in its status,
 reason and ``sgc_hi``."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scenes import TINY
 
 from sgc_jax import EvidenceLevels, score_batch
-from sgc_jax.engines.evidence import FULL_SEVERITY_SGC, LOW_EVIDENCE, camera_motion, pair_evidence, upper_with_unseen
+from sgc_jax.engines.evidence import (
+    CAMERAS_OUTRUN_TRACKS,
+    FULL_SEVERITY_SGC,
+    LOW_EVIDENCE,
+    camera_motion,
+    cameras_outrun_tracks,
+    pair_evidence,
+    upper_with_unseen,
+)
+from sgc_jax.research.adversaries import with_frames
 from sgc_jax.research.synth import synth_clip
 
 LEVELS = EvidenceLevels()
@@ -22,6 +33,39 @@ def test_a_pair_counts_in_proportion_to_what_it_measured():
     assert evidence(static_frac=LEVELS.full_static_frac / 2) == pytest.approx(0.5)
     assert float(pair_evidence(False, **full, levels=LEVELS)) == 0.0  # a component missing: nothing measured
     assert camera_motion(np.nan, np.nan, LEVELS) == 0.0
+
+
+def test_a_pair_whose_cameras_outrun_its_tracks_counts_nothing():
+    full = dict(tracks=LEVELS.full_tracks, trans=LEVELS.full_motion_trans, rot_deg=0.0, static_frac=1.0)
+    outrun = lambda tracks_trans: cameras_outrun_tracks(  # noqa: E731
+        full["trans"], full["rot_deg"], tracks_trans, 0.0, LEVELS)
+    assert outrun(LEVELS.full_motion_trans / (CAMERAS_OUTRUN_TRACKS * 1.01))
+    assert not outrun(LEVELS.full_motion_trans / (CAMERAS_OUTRUN_TRACKS * 0.99))
+    assert not outrun(np.nan)  # the tracks' motion unknown: no test
+    assert float(pair_evidence(True, **full, levels=LEVELS, outrun=True)) == 0.0
+
+
+# The tracks' pose in float32 (JAX) and float64 (reference): the same Gauss-Newton updates from the
+# same starts, so their rotations agree to rounding; 1e-3 deg is a thousandth of the motions compared.
+TRACKS_MOTION_DEG = 1e-3
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_video_that_holds_still_under_moving_cameras_counts_no_evidence(engine):
+    moving = synth_clip(seed=3, **TINY, noise_px=0.5)
+    still = with_frames(moving, [0] * moving.n_frames)
+    still = dataclasses.replace(still, clip_id="still", K=moving.K, R_wc=moving.R_wc, t_wc=moving.t_wc)
+    honest, held = score_batch([moving, still], engine=engine, progress=False).clips
+    assert honest.evidence > 0.5 and "cameras_outrun_tracks" not in honest.reason
+    assert held.evidence == 0.0 and held.status == "low_evidence" and "cameras_outrun_tracks" in held.reason
+    np.testing.assert_allclose(honest.pairs.tracks_rot_deg, honest.pairs.R_g_angle_deg, rtol=0.2)
+
+
+def test_the_engines_agree_on_the_motion_the_tracks_show():
+    clip = synth_clip(seed=3, **TINY, noise_px=0.5)
+    by_jax, by_reference = (score_batch([clip], engine=e, progress=False).clips[0].pairs for e in ("jax", "reference"))
+    np.testing.assert_allclose(by_jax.tracks_rot_deg, by_reference.tracks_rot_deg, atol=TRACKS_MOTION_DEG)
+    np.testing.assert_allclose(by_jax.tracks_trans, by_reference.tracks_trans, rtol=1e-3)
 
 
 def test_the_upper_bound_holds_what_an_unmeasured_share_could_hide():

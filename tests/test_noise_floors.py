@@ -60,6 +60,7 @@ def one_pair(rot_std_deg, trans_std) -> PairArrays:
     return PairArrays(local_rot_var=scalar, local_trans_var=scalar, global_rot_var=scalar, global_trans_var=scalar,
                       depth_error=scalar, reproj_error=scalar, n_tracks=np.array([100]), n_regions=np.array([k]),
                       n_poses=np.array([k]), n_ill_conditioned=np.zeros(1, int), t_g_norm=scalar, R_g_angle_deg=scalar,
+                      tracks_rot_deg=scalar, tracks_trans=scalar,
                       static_frac=np.ones(1), parallax_px=np.full(1, 10.0), reason=np.array(["ok"], dtype=object), R_local=np.tile(np.eye(3), (1, k, 1, 1)),
                       t_local=np.zeros((1, k, 3)), region_status=np.full((1, k), REGION_OK),
                       region_points=np.full((1, k), 50), region_reproj=np.zeros((1, k)),

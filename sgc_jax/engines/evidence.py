@@ -34,6 +34,11 @@ class EvidenceLevels:
 # A clip whose evidence (the mean over its pairs) is below this has status low_evidence: less than
 # half of its pairs' worth of geometry was measured as the score needs.
 LOW_EVIDENCE = 0.5
+# A pair whose cameras move more than this many times what its tracks show (``tracks_motion``) counts
+# no evidence: the cameras claim a motion the video does not show (a video that holds still under
+# the cameras it was asked to follow). Chosen on FIT's battery (bench/history/issue-59.md, "A video
+# that holds still under moving cameras"): every other clip's pairs at most 4.4, still videos' 15 up.
+CAMERAS_OUTRUN_TRACKS = 5.0
 # The score the calibrations give a fully perturbed clip (their fit rule puts full severity at 1,
 # docs/semantics.md §5.4): what an unmeasured part of a clip could hide, for ``sgc_hi``.
 FULL_SEVERITY_SGC = 1.0
@@ -62,16 +67,27 @@ def camera_motion(trans: Any, rot_deg: Any, levels: EvidenceLevels, xp=np) -> An
     return xp.where(xp.isnan(motion), 0.0, motion)
 
 
+def cameras_outrun_tracks(trans: Any, rot_deg: Any, tracks_trans: Any, tracks_rot_deg: Any, levels: EvidenceLevels,
+                          xp=np) -> Any:
+    """(...,) bool: the camera's motion (``trans``, ``rot_deg``) exceeds CAMERAS_OUTRUN_TRACKS times
+    the tracks' (``tracks_trans``, ``tracks_rot_deg``: the pose that fits them best; NaN: not known,
+    never outrun), both against the full-motion levels."""
+    tracks = camera_motion(tracks_trans, tracks_rot_deg, levels, xp)
+    known = ~xp.isnan(tracks_rot_deg) & ~xp.isnan(tracks_trans)
+    return known & (camera_motion(trans, rot_deg, levels, xp) > CAMERAS_OUTRUN_TRACKS * tracks)
+
+
 def pair_evidence(measured: Any, tracks: Any, trans: Any, rot_deg: Any, static_frac: Any, levels: EvidenceLevels,
-                  xp=np) -> Any:
-    """(...,) in [0, 1]: 0 for a pair that lacks a component (``measured`` False), else the product
-    of its tracks, camera motion and static share, each against its full level and capped at 1."""
+                  outrun: Any = False, xp=np) -> Any:
+    """(...,) in [0, 1]: 0 for a pair that lacks a component (``measured`` False) or whose cameras
+    outrun its tracks (``outrun``, ``cameras_outrun_tracks``), else the product of its tracks,
+    camera motion and static share, each against its full level and capped at 1."""
     def share(value, full):
         return xp.clip(xp.asarray(value) / full, 0.0, 1.0)
 
     value = (share(tracks, levels.full_tracks) * xp.clip(camera_motion(trans, rot_deg, levels, xp), 0.0, 1.0)
              * share(static_frac, levels.full_static_frac))
-    return xp.where(measured, value, 0.0)
+    return xp.where(measured & ~xp.asarray(outrun), value, 0.0)
 
 
 def clip_evidence(per_pair: Any, pair_valid: Any, xp=np) -> Any:
@@ -89,11 +105,13 @@ def upper_with_unseen(sgc: Any, sgc_hi: Any, evidence: Any, xp=np) -> Any:
 
 
 def shortfall(tracks: np.ndarray, trans: np.ndarray, rot_deg: np.ndarray, static_frac: np.ndarray,
-              measured: np.ndarray, levels: EvidenceLevels) -> str:
+              measured: np.ndarray, levels: EvidenceLevels, outrun: np.ndarray | bool = False) -> str:
     """Text for a clip's reason: how many of its measured pairs fall short of each full level,
-    e.g. ``"below full: tracks x3, motion x2"`` ("" when none does)."""
+    e.g. ``"below full: tracks x3, motion x2"``, and whose cameras outrun their tracks ("" when none)."""
     short = {"tracks": tracks < levels.full_tracks, "motion": camera_motion(trans, rot_deg, levels) < 1.0,
              "static": static_frac < levels.full_static_frac}
     counts = {name: int(np.sum(below & measured)) for name, below in short.items()}
     listed = ", ".join(f"{name} x{n}" for name, n in counts.items() if n)
-    return f"below full: {listed}" if listed else ""
+    outruns = int(np.sum(np.asarray(outrun) & measured))
+    parts = ([f"below full: {listed}"] if listed else []) + ([f"cameras_outrun_tracks x{outruns}"] if outruns else [])
+    return "; ".join(parts)

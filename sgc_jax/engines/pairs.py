@@ -32,6 +32,8 @@ class PairArrays:
     n_ill_conditioned: np.ndarray  # poses the region-quality rule left out (ill_conditioned, ambiguous)
     t_g_norm: np.ndarray  # ||t_g||, ECD input
     R_g_angle_deg: np.ndarray  # rotation angle of R_g, ECD input
+    tracks_rot_deg: np.ndarray  # rotation [deg] of the pose that fits the tracks best (§3.11); NaN: none
+    tracks_trans: np.ndarray  # its translation, in t_g_norm's unit
     static_frac: np.ndarray  # share of the frame that is static with valid depth (S_i, §3.2), evidence (§3.11)
     parallax_px: np.ndarray  # image motion of a point at depth D from the camera's translation [px] (§3.11)
     reason: np.ndarray  # (n_pairs,) str, one of codes.PAIR_REASONS
@@ -80,7 +82,8 @@ def empty_pair_arrays(n_pairs: int, k: int) -> PairArrays:
         local_rot_var=nan(n_pairs), local_trans_var=nan(n_pairs), global_rot_var=nan(n_pairs),
         global_trans_var=nan(n_pairs), depth_error=nan(n_pairs), reproj_error=nan(n_pairs),
         n_tracks=zeros(n_pairs), n_regions=zeros(n_pairs), n_poses=zeros(n_pairs), n_ill_conditioned=zeros(n_pairs),
-        t_g_norm=nan(n_pairs), R_g_angle_deg=nan(n_pairs), static_frac=nan(n_pairs), parallax_px=nan(n_pairs),
+        t_g_norm=nan(n_pairs), R_g_angle_deg=nan(n_pairs), tracks_rot_deg=nan(n_pairs), tracks_trans=nan(n_pairs),
+        static_frac=nan(n_pairs), parallax_px=nan(n_pairs),
         reason=np.full(n_pairs, "ok", dtype=object),
         R_local=nan(n_pairs, k, 3, 3), t_local=nan(n_pairs, k, 3),
         region_status=np.full((n_pairs, k), REGION_EMPTY, np.int32),

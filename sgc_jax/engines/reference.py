@@ -677,6 +677,33 @@ def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.
     return (R, t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
 
 
+def tracks_motion(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
+                  cut_px: float) -> tuple[float, float]:
+    """The motion the tracks show (docs/semantics.md §3.11): of the pose refitted from the camera's and
+    the pose refitted from rest (each REFIT_UPDATES Gauss-Newton updates on the points within
+    ``cut_px`` of its start, at least 6), the one of lower median cut error -> (rotation [deg],
+    translation [units of D]); NaN where neither start has 6 points within. On every
+    ceil(n / REFIT_POINTS)-th point, as ``camera_refit``."""
+    stride = max(-(-len(X) // REFIT_POINTS), 1)
+    X, uv = X[::stride], uv[::stride]
+    best = (np.inf, np.nan, np.nan)
+    for R, t in (camera, (np.eye(3), np.zeros(3))):
+        within = reference_pose_search.pose_errors_sq(reference_pose_search.Pose(R, t), X, uv, K) < cut_px**2
+        if within.sum() < 6:
+            continue
+        for _ in range(REFIT_UPDATES):
+            r, J = residual_jacobian(X[within], uv[within], K, R, t)
+            delta = -np.linalg.lstsq(J, r, rcond=None)[0]
+            R, t = cv2.Rodrigues(delta[:3])[0] @ R, t + delta[3:]
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            continue
+        pose = reference_pose_search.Pose(R, t)
+        error = np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
+        if error < best[0]:
+            best = (error, rotation_angle_deg(np.eye(3), R), float(np.linalg.norm(t)))
+    return best[1], best[2]
+
+
 class PairDepthError(NamedTuple):
     """A pair's depth check (``pair_depth_check``): frame i-1's depth warped into frame i (H, W) (0
     where nothing is compared), each compared pixel's error (H, W) (NaN elsewhere; percent of depth
@@ -991,6 +1018,11 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
                                      (R_g[p], scale * t_g[p]), config.inlier_px)
                 if refit is not None:
                     out.depth_error[p] = np.fmin(out.depth_error[p], pair_depth_error(clip, pair, *refit, config)[1])
+            if config.compat != "authors" and config.global_pose:
+                member = points[p].region > 0
+                rot_deg, trans = tracks_motion(points[p].X[member], points[p].uv[member], clip.K[pair],
+                                               (R_g[p], scale * t_g[p]), config.inlier_px)
+                out.tracks_rot_deg[p], out.tracks_trans[p] = rot_deg, trans * f
             out.t_g_norm[p] = np.linalg.norm(scale * t_g[p] if config.scale_free else t_g[p]) * f
             out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
         out.n_poses[p] = len(R_list)

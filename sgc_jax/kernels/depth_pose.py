@@ -19,12 +19,14 @@ from .truncated_cost import truncated_errors_sq
 
 
 class CameraRefit(NamedTuple):
-    """One pair's camera refitted to its region points."""
+    """One pair's camera refitted to its region points, and the motion its tracks show."""
 
     R: jnp.ndarray  # (3, 3) the refit's rotation; the camera's where it does not warp
     t: jnp.ndarray  # (3,) in units of D
     warps: jnp.ndarray  # () bool: the refit also warps the depth check
     fitted_on: jnp.ndarray  # (P,) bool: the points the refit is the least-squares fit of
+    tracks_rot_deg: jnp.ndarray  # () rotation [deg] of the tracks' pose (``tracks_motion``); NaN: none
+    tracks_trans: jnp.ndarray  # () its translation's length [units of D]
 
 
 def median_cut_error_px(R, t, X, uv, K, used, cut_px):
@@ -63,4 +65,28 @@ def refit_camera(X, uv, used, K, R_g, t_g, has_pose, cut_px) -> CameraRefit:
              & (median_cut_error_px(R_g, t_g, X, uv, K, picked, cut_px)
                 > CAMERA_REFIT_RATIO * median_cut_error_px(R_fit, t_fit, X, uv, K, picked, cut_px)))
     fitted_on = jnp.zeros_like(used).at[index].max(within & warps)
-    return CameraRefit(jnp.where(warps, R_fit, R_g), jnp.where(warps, t_fit, t_g), warps, fitted_on)
+    rot_deg, trans = (jnp.where(finite, x, jnp.nan) for x in tracks_motion(X, uv, picked, K, pose, within, cut_px))
+    return CameraRefit(jnp.where(warps, R_fit, R_g), jnp.where(warps, t_fit, t_g), warps, fitted_on, rot_deg, trans)
+
+
+def tracks_motion(X, uv, picked, K, from_camera, camera_within, cut_px):
+    """The motion the tracks show (docs/semantics.md §3.11): of the pose refitted from the camera's
+    (``from_camera`` (6,), on its points ``camera_within``) and the pose refitted from rest (the same
+    updates on the points within ``cut_px`` of their frame-i−1 position), the one of lower median cut
+    error, each where at least 6 points were within -> (rotation [deg], translation [units of D]);
+    NaN where neither was. The rest start finds a video that holds still under moving cameras, whose
+    points the camera's pose leaves beyond the cut."""
+    rest = jnp.zeros(6, X.dtype)
+    rest_within = truncated_errors_sq(jnp.eye(3, dtype=X.dtype), rest[3:], X, uv, K, picked, cut_px)[0]
+    from_rest = gauss_newton_updates(X, uv, rest_within.astype(X.dtype), K, rest, updates=REFIT_UPDATES)
+
+    def fitted(pose, within):
+        ok = (jnp.sum(within) >= 6) & jnp.all(jnp.isfinite(pose))
+        pose = jnp.where(ok, pose, rest)
+        return pose, jnp.where(ok, median_cut_error_px(so3_exp(pose[:3]), pose[3:], X, uv, K, picked, cut_px), jnp.inf)
+
+    (camera_pose, camera_error), (rest_pose, rest_error) = fitted(from_camera, camera_within), fitted(from_rest, rest_within)
+    pose = jnp.where(rest_error < camera_error, rest_pose, camera_pose)
+    found = jnp.isfinite(jnp.minimum(camera_error, rest_error))
+    return (jnp.where(found, jnp.degrees(jnp.linalg.norm(pose[:3])), jnp.nan),
+            jnp.where(found, jnp.linalg.norm(pose[3:]), jnp.nan))

@@ -16,6 +16,7 @@ from ..codes import PAIR_REASON_CODE, SCORER_STATUS_CODE
 from ..engines.evidence import (
     LOW_EVIDENCE,
     EvidenceLevels,
+    cameras_outrun_tracks,
     clip_evidence,
     pair_evidence,
     parallax_px,
@@ -67,8 +68,10 @@ def evidence_per_pair(pairs: Mapping[str, Any], levels: EvidenceLevels, xp=np) -
     local poses) from ``summarize_pairs``' per-pair arrays."""
     tracks = xp.asarray(pose_tracks(pairs["region_status"], pairs["region_points"], xp=xp), _float(xp))
     measured = pairs["reason"] == PAIR_REASON_CODE["ok"]
+    outrun = cameras_outrun_tracks(pairs["t_g_norm"], pairs["R_g_angle_deg"], pairs["tracks_trans"],
+                                   pairs["tracks_rot_deg"], levels, xp=xp)
     return pair_evidence(measured, tracks, pairs["t_g_norm"], pairs["R_g_angle_deg"], pairs["static_frac"], levels,
-                         xp=xp), tracks
+                         outrun, xp=xp), tracks
 
 
 def clip_status(reason: Any, pair_valid: Any, sgc: Any, evidence: Any, xp=np) -> Any:

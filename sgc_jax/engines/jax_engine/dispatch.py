@@ -19,7 +19,7 @@ from .buckets import Bucket, PaddedClips, bucket_for, pad_clip
 from .programs import pipeline
 
 COMPONENT_OUTPUTS = ("local_rot_var", "local_trans_var", "global_rot_var", "global_trans_var", "depth_error",
-                     "reproj_error", "t_g_norm", "R_g_angle_deg")
+                     "reproj_error", "t_g_norm", "R_g_angle_deg", "tracks_rot_deg", "tracks_trans")
 
 
 class PreparedClip(NamedTuple):

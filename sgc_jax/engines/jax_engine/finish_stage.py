@@ -221,5 +221,7 @@ def finish_stage(pose: dict, depth, static, K, image_hw, pair_valid, stage: Fini
     # ECD's input: the camera's translation in the reported unit (s t_g in % of D under spec, raw t_g under authors)
     t_g_ecd = t_g_scaled if stage.scale_free else t_g
     comps["t_g_norm"] = jnp.linalg.norm(t_g_ecd, axis=-1) * translation_factor(stage)
+    # the motion the tracks show (§3.11), in the camera's units: [deg] and % of D
+    comps["tracks_rot_deg"], comps["tracks_trans"] = pose["tracks_rot_deg"], pose["tracks_trans"] * translation_factor(stage)
     # which pose each depth error was warped with, for sgc_smooth's held choices
     return dict(comps, **regions, scale=scale, depth_by_refit=depth_by_refit, R_depth=R_depth, t_depth=t_depth)

@@ -155,6 +155,13 @@ def camera_refits(x: PoseInputs, poses: LocalPoses, usable, R_g, t_g, stage: Pos
                           R_g, t_g)
 
 
+def no_refit(R_g, t_g, usable) -> CameraRefit:
+    """Per pair: the camera's pose unchanged, nothing refitted, no tracks' motion (NaN)."""
+    n_pairs = R_g.shape[0]
+    nan = jnp.full(n_pairs, jnp.nan, R_g.dtype)
+    return CameraRefit(R_g, t_g, jnp.zeros(n_pairs, bool), jnp.zeros_like(usable), nan, nan)
+
+
 def clip_poses(x: PoseInputs, key, stage: PoseStage):
     """One padded clip (no B axis) -> (LocalPoses (T-1, ...), R_g (T-1, 3, 3), t_g (T-1, 3), s, and
     per pair the camera's refit to its tracks, CameraRefit (T-1, ...)).
@@ -178,9 +185,9 @@ def clip_poses(x: PoseInputs, key, stage: PoseStage):
     poses = pair_groups(lambda pair: local_poses_pair(pair, x.image_hw, stage), pairs, n_pairs, stage.vectorized)
     if not stage.global_pose:
         R_g, t_g = jax.vmap(mean_pose)(poses.R_local, poses.t_local, poses.region_status == REGION_OK)
-        return poses, R_g, t_g, jnp.float32(1.0), CameraRefit(R_g, t_g, jnp.zeros(n_pairs, bool), jnp.zeros_like(usable))
+        return poses, R_g, t_g, jnp.float32(1.0), no_refit(R_g, t_g, usable)
     if stage.compat == "authors":  # the camera alone warps there
-        return poses, R_g, t_g, scale, CameraRefit(R_g, global_t, jnp.zeros(n_pairs, bool), jnp.zeros_like(usable))
+        return poses, R_g, t_g, scale, no_refit(R_g, global_t, usable)
     return poses, R_g, t_g, scale, camera_refits(x, poses, usable, R_g, global_t, stage)
 
 
@@ -237,4 +244,5 @@ def pose_stage(x: PoseInputs, key, stage: PoseStage) -> dict:
     poses, R_g, t_g, scale, refit = each(lambda clip: clip_poses(PoseInputs(*clip), key, stage), tuple(x),
                                          stage.vectorized)
     return dict(poses._asdict(), R_g=R_g, t_g=t_g, scale=scale, R_refit=refit.R, t_refit=refit.t,
-                refit_gate=refit.warps, refit_fitted_on=refit.fitted_on)
+                refit_gate=refit.warps, refit_fitted_on=refit.fitted_on, tracks_rot_deg=refit.tracks_rot_deg,
+                tracks_trans=refit.tracks_trans)
