@@ -10,7 +10,6 @@ from scenes import TINY
 
 from sgc_jax import EvidenceLevels, score_batch
 from sgc_jax.engines.evidence import (
-    CAMERAS_OUTRUN_TRACKS,
     FULL_SEVERITY_SGC,
     LOW_EVIDENCE,
     camera_motion,
@@ -39,8 +38,8 @@ def test_a_pair_whose_cameras_outrun_its_tracks_counts_nothing():
     full = dict(tracks=LEVELS.full_tracks, trans=LEVELS.full_motion_trans, rot_deg=0.0, static_frac=1.0)
     outrun = lambda tracks_trans: cameras_outrun_tracks(  # noqa: E731
         full["trans"], full["rot_deg"], tracks_trans, 0.0, LEVELS)
-    assert outrun(LEVELS.full_motion_trans / (CAMERAS_OUTRUN_TRACKS * 1.01))
-    assert not outrun(LEVELS.full_motion_trans / (CAMERAS_OUTRUN_TRACKS * 0.99))
+    assert outrun(LEVELS.full_motion_trans / (LEVELS.cameras_outrun_tracks * 1.01))
+    assert not outrun(LEVELS.full_motion_trans / (LEVELS.cameras_outrun_tracks * 0.99))
     assert not outrun(np.nan)  # the tracks' motion unknown: no test
     assert float(pair_evidence(True, **full, levels=LEVELS, outrun=True)) == 0.0
 

@@ -23,6 +23,10 @@ class EvidenceLevels:
     full_motion_trans: float = 1.0  # camera translation of the pair [% of D] ...
     full_motion_rot_deg: float = 0.5  # ... or its rotation [deg]
     full_static_frac: float = 0.2  # share of the frame that is static with valid depth
+    # a pair whose cameras move more than this many times what its tracks show counts nothing: the
+    # cameras claim a motion the video does not show (a video held still under the cameras it was
+    # asked to follow); chosen on FIT's battery: every other clip's pairs at most 4.4, still videos 15 up
+    cameras_outrun_tracks: float = 5.0
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -34,11 +38,6 @@ class EvidenceLevels:
 # A clip whose evidence (the mean over its pairs) is below this has status low_evidence: less than
 # half of its pairs' worth of geometry was measured as the score needs.
 LOW_EVIDENCE = 0.5
-# A pair whose cameras move more than this many times what its tracks show (``tracks_motion``) counts
-# no evidence: the cameras claim a motion the video does not show (a video that holds still under
-# the cameras it was asked to follow). Chosen on FIT's battery (bench/history/issue-59.md, "A video
-# that holds still under moving cameras"): every other clip's pairs at most 4.4, still videos' 15 up.
-CAMERAS_OUTRUN_TRACKS = 5.0
 # The score the calibrations give a fully perturbed clip (their fit rule puts full severity at 1,
 # docs/semantics.md §5.4): what an unmeasured part of a clip could hide, for ``sgc_hi``.
 FULL_SEVERITY_SGC = 1.0
@@ -69,12 +68,12 @@ def camera_motion(trans: Any, rot_deg: Any, levels: EvidenceLevels, xp=np) -> An
 
 def cameras_outrun_tracks(trans: Any, rot_deg: Any, tracks_trans: Any, tracks_rot_deg: Any, levels: EvidenceLevels,
                           xp=np) -> Any:
-    """(...,) bool: the camera's motion (``trans``, ``rot_deg``) exceeds CAMERAS_OUTRUN_TRACKS times
-    the tracks' (``tracks_trans``, ``tracks_rot_deg``: the pose that fits them best; NaN: not known,
-    never outrun), both against the full-motion levels."""
+    """(...,) bool: the camera's motion (``trans``, ``rot_deg``) exceeds ``levels.cameras_outrun_tracks``
+    times the tracks' (``tracks_trans``, ``tracks_rot_deg``: the pose that fits them best; NaN: not
+    known, never outrun), both against the full-motion levels."""
     tracks = camera_motion(tracks_trans, tracks_rot_deg, levels, xp)
     known = ~xp.isnan(tracks_rot_deg) & ~xp.isnan(tracks_trans)
-    return known & (camera_motion(trans, rot_deg, levels, xp) > CAMERAS_OUTRUN_TRACKS * tracks)
+    return known & (camera_motion(trans, rot_deg, levels, xp) > levels.cameras_outrun_tracks * tracks)
 
 
 def pair_evidence(measured: Any, tracks: Any, trans: Any, rot_deg: Any, static_frac: Any, levels: EvidenceLevels,
