@@ -653,54 +653,63 @@ def warp_source(clip: Clip, pair: int, config: SGCConfig) -> np.ndarray:
     return np.where(clip.static_mask[pair - 1], depth, 0.0)
 
 
-def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
-                 cut_px: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """The camera's pose (R, t) refitted to the points X (n, 3) of the pair's regions, seen at uv
-    (n, 2): REFIT_UPDATES undamped Gauss-Newton updates from it on the points within ``cut_px`` of
-    it, returned where the camera's median of min(error, ``cut_px``) px exceeds CAMERA_REFIT_RATIO
-    times the refit's; None elsewhere (docs/semantics.md §3.6 step 6). All on every
-    ceil(n / REFIT_POINTS)-th point."""
-    stride = max(-(-len(X) // REFIT_POINTS), 1)  # every n-th point, at most REFIT_POINTS of them
-    X, uv = X[::stride], uv[::stride]
-    start = reference_pose_search.Pose(*camera)
+def _strided(X: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every ceil(n / REFIT_POINTS)-th of the n points: at most REFIT_POINTS of them."""
+    stride = max(-(-len(X) // REFIT_POINTS), 1)
+    return X[::stride], uv[::stride]
+
+
+def _refit_from(start: reference_pose_search.Pose, X: np.ndarray, uv: np.ndarray, K: np.ndarray,
+                cut_px: float) -> reference_pose_search.Pose | None:
+    """REFIT_UPDATES undamped Gauss-Newton updates from ``start`` on the points within ``cut_px`` of
+    it (None with fewer than 6); the pose may be non-finite."""
     within = reference_pose_search.pose_errors_sq(start, X, uv, K) < cut_px**2
     if within.sum() < 6:
         return None
-    R, t = camera
+    R, t = start.R, start.t
     for _ in range(REFIT_UPDATES):
         r, J = reference_pose_search.residual_jacobian(X[within], uv[within], K, R, t)
         delta = -np.linalg.lstsq(J, r, rcond=None)[0]  # a degenerate spread of points must not raise
         R, t = cv2.Rodrigues(delta[:3])[0] @ R, t + delta[3:]  # the perturbation exp([w]) R X + t + dt
-    refit = reference_pose_search.Pose(R, t)
-    medians = [np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
-               for pose in (start, refit)]
-    return (R, t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
+    return reference_pose_search.Pose(R, t)
+
+
+def _median_cut_error(pose: reference_pose_search.Pose, X: np.ndarray, uv: np.ndarray, K: np.ndarray,
+                      cut_px: float) -> float:
+    """Median over the points of min(reprojection error, ``cut_px``) [px]."""
+    return np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
+
+
+def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
+                 cut_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The camera's pose (R, t) refitted to the points X (n, 3) of the pair's regions, seen at uv
+    (n, 2) (``_refit_from`` it), returned where the camera's median of min(error, ``cut_px``) px
+    exceeds CAMERA_REFIT_RATIO times the refit's; None elsewhere (docs/semantics.md §3.6 step 6).
+    All on every ceil(n / REFIT_POINTS)-th point."""
+    X, uv = _strided(X, uv)
+    start = reference_pose_search.Pose(*camera)
+    refit = _refit_from(start, X, uv, K, cut_px)
+    if refit is None:
+        return None
+    medians = [_median_cut_error(pose, X, uv, K, cut_px) for pose in (start, refit)]
+    return (refit.R, refit.t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
 
 
 def tracks_motion(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
                   cut_px: float) -> tuple[float, float]:
-    """The motion the tracks show (docs/semantics.md §3.11): of the pose refitted from the camera's and
-    the pose refitted from rest (each REFIT_UPDATES Gauss-Newton updates on the points within
-    ``cut_px`` of its start, at least 6), the one of lower median cut error -> (rotation [deg],
-    translation [units of D]); NaN where neither start has 6 points within. On every
-    ceil(n / REFIT_POINTS)-th point, as ``camera_refit``."""
-    stride = max(-(-len(X) // REFIT_POINTS), 1)
-    X, uv = X[::stride], uv[::stride]
+    """The motion the tracks show (docs/semantics.md §3.11): of the poses ``_refit_from`` the camera's
+    and from rest, the finite one of lower median cut error -> (rotation [deg], translation [units
+    of D]); NaN where neither was fitted. On every ceil(n / REFIT_POINTS)-th point, as
+    ``camera_refit``."""
+    X, uv = _strided(X, uv)
     best = (np.inf, np.nan, np.nan)
-    for R, t in (camera, (np.eye(3), np.zeros(3))):
-        within = reference_pose_search.pose_errors_sq(reference_pose_search.Pose(R, t), X, uv, K) < cut_px**2
-        if within.sum() < 6:
+    for start in (reference_pose_search.Pose(*camera), reference_pose_search.Pose(np.eye(3), np.zeros(3))):
+        refit = _refit_from(start, X, uv, K, cut_px)
+        if refit is None or not (np.all(np.isfinite(refit.R)) and np.all(np.isfinite(refit.t))):
             continue
-        for _ in range(REFIT_UPDATES):
-            r, J = residual_jacobian(X[within], uv[within], K, R, t)
-            delta = -np.linalg.lstsq(J, r, rcond=None)[0]
-            R, t = cv2.Rodrigues(delta[:3])[0] @ R, t + delta[3:]
-        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-            continue
-        pose = reference_pose_search.Pose(R, t)
-        error = np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
+        error = _median_cut_error(refit, X, uv, K, cut_px)
         if error < best[0]:
-            best = (error, rotation_angle_deg(np.eye(3), R), float(np.linalg.norm(t)))
+            best = (error, rotation_angle_deg(np.eye(3), refit.R), float(np.linalg.norm(refit.t)))
     return best[1], best[2]
 
 

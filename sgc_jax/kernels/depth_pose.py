@@ -45,48 +45,50 @@ def strided_points(used, count: int):
     return index, jnp.arange(count) < jnp.sum(picked)
 
 
+def refit_from(R, t, X, uv, K, picked, cut_px):
+    """REFIT_UPDATES Gauss-Newton updates from the pose (R, t) on the ``picked`` points within ``cut_px``
+    of it -> (the pose (6,) as [so3_log(R), t], those points (P,) bool, whether they were at least 6
+    and the pose is finite)."""
+    within = truncated_errors_sq(R, t, X, uv, K, picked, cut_px)[0]
+    pose = gauss_newton_updates(X, uv, within.astype(X.dtype), K, jnp.concatenate([so3_log(R), t]),
+                                updates=REFIT_UPDATES)
+    return pose, within, (jnp.sum(within) >= 6) & jnp.all(jnp.isfinite(pose))
+
+
 def refit_camera(X, uv, used, K, R_g, t_g, has_pose, cut_px) -> CameraRefit:
     """One pair: points X (P, 3) of camera i-1 (units of D), seen at uv (P, 2) in frame i, ``used``
     (P,) (usable, with depth, in a region), the camera's pose (R_g, t_g in units of D) and whether
-    the pair has an accepted local pose -> the camera's refit (REFIT_UPDATES Gauss-Newton updates
-    from its pose on the points within ``cut_px`` of it), and whether the refit also warps: the
-    camera's median cut error exceeds CAMERA_REFIT_RATIO times the refit's. Both on at most
-    REFIT_POINTS of the points (``strided_points``): the refit's leverage is the image's spread,
-    which every n-th point keeps, and its cost the points'."""
+    the pair has an accepted local pose -> the camera's refit (``refit_from`` its pose), and whether
+    the refit also warps: the camera's median cut error exceeds CAMERA_REFIT_RATIO times the
+    refit's; and the tracks' motion (``tracks_motion``). All on at most REFIT_POINTS of the points
+    (``strided_points``): the refit's leverage is the image's spread, which every n-th point keeps,
+    and its cost the points'."""
     index, picked = strided_points(used, min(REFIT_POINTS, used.shape[0]))
     X, uv = X[index], uv[index]
     finite = jnp.all(jnp.isfinite(R_g)) & jnp.all(jnp.isfinite(t_g))
     R_g, t_g = jnp.where(finite, R_g, jnp.eye(3, dtype=R_g.dtype)), jnp.where(finite, t_g, 0.0)
-    within = truncated_errors_sq(R_g, t_g, X, uv, K, picked, cut_px)[0]
-    pose = gauss_newton_updates(X, uv, within.astype(X.dtype), K, jnp.concatenate([so3_log(R_g), t_g]),
-                                updates=REFIT_UPDATES)
+    pose, within, fitted = refit_from(R_g, t_g, X, uv, K, picked, cut_px)
     R_fit, t_fit = so3_exp(pose[:3]), pose[3:]
-    warps = (finite & has_pose & (jnp.sum(within) >= 6) & jnp.all(jnp.isfinite(pose))
-             & (median_cut_error_px(R_g, t_g, X, uv, K, picked, cut_px)
-                > CAMERA_REFIT_RATIO * median_cut_error_px(R_fit, t_fit, X, uv, K, picked, cut_px)))
+    refit_error = median_cut_error_px(R_fit, t_fit, X, uv, K, picked, cut_px)
+    warps = (finite & has_pose & fitted
+             & (median_cut_error_px(R_g, t_g, X, uv, K, picked, cut_px) > CAMERA_REFIT_RATIO * refit_error))
     fitted_on = jnp.zeros_like(used).at[index].max(within & warps)
-    rot_deg, trans = (jnp.where(finite, x, jnp.nan) for x in tracks_motion(X, uv, picked, K, pose, within, cut_px))
+    motion = tracks_motion(X, uv, picked, K, pose, jnp.where(fitted, refit_error, jnp.inf), cut_px)
+    rot_deg, trans = (jnp.where(finite, x, jnp.nan) for x in motion)
     return CameraRefit(jnp.where(warps, R_fit, R_g), jnp.where(warps, t_fit, t_g), warps, fitted_on, rot_deg, trans)
 
 
-def tracks_motion(X, uv, picked, K, from_camera, camera_within, cut_px):
-    """The motion the tracks show (docs/semantics.md §3.11): of the pose refitted from the camera's
-    (``from_camera`` (6,), on its points ``camera_within``) and the pose refitted from rest (the same
-    updates on the points within ``cut_px`` of their frame-i−1 position), the one of lower median cut
-    error, each where at least 6 points were within -> (rotation [deg], translation [units of D]);
-    NaN where neither was. The rest start finds a video that holds still under moving cameras, whose
-    points the camera's pose leaves beyond the cut."""
-    rest = jnp.zeros(6, X.dtype)
-    rest_within = truncated_errors_sq(jnp.eye(3, dtype=X.dtype), rest[3:], X, uv, K, picked, cut_px)[0]
-    from_rest = gauss_newton_updates(X, uv, rest_within.astype(X.dtype), K, rest, updates=REFIT_UPDATES)
-
-    def fitted(pose, within):
-        ok = (jnp.sum(within) >= 6) & jnp.all(jnp.isfinite(pose))
-        pose = jnp.where(ok, pose, rest)
-        return pose, jnp.where(ok, median_cut_error_px(so3_exp(pose[:3]), pose[3:], X, uv, K, picked, cut_px), jnp.inf)
-
-    (camera_pose, camera_error), (rest_pose, rest_error) = fitted(from_camera, camera_within), fitted(from_rest, rest_within)
-    pose = jnp.where(rest_error < camera_error, rest_pose, camera_pose)
-    found = jnp.isfinite(jnp.minimum(camera_error, rest_error))
+def tracks_motion(X, uv, picked, K, camera_refit, camera_refit_error, cut_px):
+    """The motion the tracks show (docs/semantics.md §3.11): of the camera's refit (``camera_refit``
+    (6,), its median cut error ``camera_refit_error``, inf where it was not fitted) and the pose
+    ``refit_from`` rest, the one of lower median cut error -> (rotation [deg], translation [units of
+    D]); NaN where neither was fitted. The rest start finds a video that holds still under moving
+    cameras, whose points the camera's pose leaves beyond the cut."""
+    dtype = X.dtype
+    rest_refit, _, rest_fitted = refit_from(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), X, uv, K, picked, cut_px)
+    rest_error = jnp.where(rest_fitted, median_cut_error_px(so3_exp(rest_refit[:3]), rest_refit[3:], X, uv, K, picked,
+                                                            cut_px), jnp.inf)
+    pose = jnp.where(rest_error < camera_refit_error, rest_refit, camera_refit)
+    found = jnp.isfinite(jnp.minimum(camera_refit_error, rest_error))
     return (jnp.where(found, jnp.degrees(jnp.linalg.norm(pose[:3])), jnp.nan),
             jnp.where(found, jnp.linalg.norm(pose[3:]), jnp.nan))
