@@ -79,7 +79,7 @@ def score_rows(args) -> list[dict]:
                              sgc_lo=c.sgc_lo, sgc_hi=c.sgc_hi, sgc_unclipped=float(rewards["sgc_unclipped"][i]),
                              depth_error=c.components["depth_error"], evidence=c.evidence,
                              pose_tracks=c.pose_tracks, reward=float(rewards["reward"][i]),
-                             camera_motion=float(rewards["camera_motion"][i])))
+                             camera_motion=float(rewards["camera_motion"][i]), scale=c.scale))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     return rows
 

@@ -63,7 +63,7 @@ def score_rows(args, config: SGCConfig) -> list[dict]:
         for (cell, _, kind, severity), clip in zip(batch, result.clips):
             rows.append(dict(scene=scene.name, model=cell.noise_model, noise_px=cell.noise_px, tracks=tracks,
                              kind=kind, severity=severity, status=clip.status, sgc=clip.sgc, sgc_lo=clip.sgc_lo,
-                             sgc_hi=clip.sgc_hi, **clip.components, **clip.floors))
+                             sgc_hi=clip.sgc_hi, scale=clip.scale, **clip.components, **clip.floors))
         print(f"{scene.name}, {tracks} tracks: {len(batch)} clips in {time.perf_counter() - started:.0f} s",
               file=sys.stderr, flush=True)
     return rows
