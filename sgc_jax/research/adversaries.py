@@ -16,7 +16,10 @@ afterwards, as for any clip of the protocol.
 - ``repeated_frames``: every frame shown twice (0 0 1 1 2 2 ...);
 - ``half_broken``: the first half of the pairs consistent, the rest warped at 1;
 - ``still_video``: every frame the first, the cameras moving as the scene's (a camera-controlled
-  generator that ignores the camera it was given, scored with that camera).
+  generator that ignores the camera it was given, scored with that camera);
+- ``backward_cameras``: the scene's video, scored with cameras whose centres run the other way
+  along its path (C'_t = 2 C_0 − C_t, rotations the scene's): a camera-controlled generator that
+  moves against the camera it was given, each pair's translation the opposite of its tracks'.
 """
 
 from __future__ import annotations
@@ -132,11 +135,18 @@ def still_video(scene: ProtocolScene, n_tracks: int) -> Clip:
     return dataclasses.replace(still, K=clip.K, R_wc=clip.R_wc, t_wc=clip.t_wc)
 
 
+def backward_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
+    clip = scene.clip(n_tracks)
+    centres = -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)  # C = -R^T t
+    mirrored = 2.0 * centres[:1] - centres
+    return dataclasses.replace(clip, t_wc=-np.einsum("tij,tj->ti", clip.R_wc, mirrored))
+
+
 ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "few_tracks": few_tracks, "low_confidence": low_confidence, "pure_rotation": pure_rotation,
     "near_still": near_still, "bursty": bursty, "thin_band": thin_band, "masked_out": masked_out,
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
-    "still_video": still_video,
+    "still_video": still_video, "backward_cameras": backward_cameras,
 }
 
 
