@@ -23,10 +23,13 @@ BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_ban
                "repeated_frames", "half_broken", "still_video")
 # A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
 BY_DEPTH_ERROR = ("pure_rotation",)
+# Cameras that run backward along their path, which the global components see once s is held at 0
+# or above (docs/semantics.md §3.4).
+BY_GLOBAL_POSE = ("backward_cameras",)
 # A video that holds still, with the cameras an estimator reads from it (at rest): the motion gate
 # answers it, as the tracks' motion answers it under the moving cameras it was asked to follow (§3.11).
 STILL_VIDEO = "still_video_estimated_cameras"
-CLIPS = ("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR, STILL_VIDEO)
+CLIPS = ("honest", *BY_EVIDENCE, *BY_DEPTH_ERROR, *BY_GLOBAL_POSE, STILL_VIDEO)
 HONEST_SHARE = 0.5  # the issue's bar: at most half an honest clip's reward
 
 
@@ -49,12 +52,12 @@ def test_an_honest_moving_clip_is_fully_measured(scored):
     assert honest["evidence"] == 1.0 and SCORER_STATUSES[honest["status"]] == "ok" and honest["reward"] > 0.4
 
 
-@pytest.mark.parametrize("name", BY_EVIDENCE + BY_DEPTH_ERROR + (STILL_VIDEO,))
+@pytest.mark.parametrize("name", BY_EVIDENCE + BY_DEPTH_ERROR + BY_GLOBAL_POSE + (STILL_VIDEO,))
 def test_an_adversary_earns_at_most_half_an_honest_clips_reward(scored, name):
     assert scored[name]["reward"] <= HONEST_SHARE * scored["honest"]["reward"]
 
 
-@pytest.mark.parametrize("name", BY_EVIDENCE + (STILL_VIDEO,))
+@pytest.mark.parametrize("name", BY_EVIDENCE + BY_GLOBAL_POSE + (STILL_VIDEO,))
 def test_an_adversary_says_why_in_its_status(scored, name):
     status = SCORER_STATUSES[scored[name]["status"]]
     assert status in ("low_evidence", "static_camera", "partial") or scored[name]["sgc"] > 0.25, (name, status)

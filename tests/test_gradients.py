@@ -63,12 +63,15 @@ def test_the_batch_warps_depth_with_the_camera_and_with_its_refit(scorer, batch)
     assert by_refit[0].any() and not by_refit[1].any()
 
 
-def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
+def smooth_and_forward_components(scorer, batch):
     out = scorer(batch)
-    arrays = scorer.clip_arrays(batch)
-    frozen = scorer.choices(batch)
     per_clip = jax.vmap(lambda c, f: smooth_components(c, f, scorer.bucket, scorer.config)[0])
-    components = jax.jit(per_clip)(arrays, frozen)
+    components = jax.jit(per_clip)(scorer.clip_arrays(batch), scorer.choices(batch))
+    return components, out
+
+
+def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
+    components, out = smooth_and_forward_components(scorer, batch)
     for k in COMPONENTS:
         np.testing.assert_allclose(np.asarray(components[k]), np.asarray(out[k]), rtol=FORWARD_RTOL, err_msg=k)
     forward = {k: np.asarray(out[k], np.float64) for k in COMPONENTS}
@@ -76,6 +79,15 @@ def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
     floors = {name: np.asarray(out[name], np.float64) for name in FLOOR_COLUMNS}
     np.testing.assert_allclose(np.asarray(out["sgc_smooth"]),
                                sgc_smooth_score(forward, present, scorer.calibration, floors=floors), rtol=FORWARD_RTOL)
+
+
+def test_cameras_that_run_backward_keep_the_forward_scale_of_zero(scorer):
+    clean = gradient_clip(3)
+    batch = batch_of([dataclasses.replace(clean, t_wc=-clean.t_wc), clean])  # every translation negated
+    assert np.asarray(scorer.choices(batch).scale)[0] == 0.0  # s held at 0 (§3.4)
+    components, out = smooth_and_forward_components(scorer, batch)
+    for k in COMPONENTS:
+        np.testing.assert_allclose(np.asarray(components[k]), np.asarray(out[k]), rtol=FORWARD_RTOL, err_msg=k)
 
 
 def test_smooth_score_equals_sgc_where_no_bound_is_active():

@@ -919,7 +919,7 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. From the start of lowest truncated cost
     (sum of min(slope |s - root|, cut_px)) among the slope-weighted and the plain median of every
     pair's roots together and of each pair's own, s is the weighted median of the lines within
-    cut_px of it; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` /
+    cut_px of it, or 0 where that is negative; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` /
     ``t_g`` per pair."""
     roots, slopes = [], []
     for p, (X, uv) in enumerate(members):
@@ -943,7 +943,7 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     costs = [np.minimum(every_slope * np.abs(start - every_root), cut_px).sum() for start in starts]
     start = starts[int(np.argmin(costs))]
     near = every_slope * np.abs(start - every_root) < cut_px
-    return weighted_median(every_root[near], every_slope[near], start)
+    return max(weighted_median(every_root[near], every_slope[near], start), 0.0)
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray, fallback: float) -> float:

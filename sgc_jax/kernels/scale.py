@@ -54,9 +54,10 @@ def robust_scale(ratios, weights, cut_px, fallback):
     """s from every pair's equations (T-1, P, 2) (``scale_equations``): the start of lowest
     truncated cost among the weighted and the plain median (each equation counted once) of every
     pair's equations together and of each pair's own (the first of equal ones), then the weighted
-    median of the equations whose residual there is below ``cut_px``; ``fallback`` when no
-    equation has a weight. The plain medians are starts where a few near tracks hold most of the
-    weight in every pair."""
+    median of the equations whose residual there is below ``cut_px``, or 0 where that is negative
+    (a camera translation that runs against the tracks is no rescaling of it); ``fallback`` when
+    no equation has a weight. The plain medians are starts where a few near tracks hold most of
+    the weight in every pair."""
     by_pair, pair_weights = ratios.reshape(ratios.shape[0], -1), weights.reshape(weights.shape[0], -1)
     weight_sets = jnp.stack([pair_weights, (pair_weights > 0).astype(weights.dtype)])  # (2, T-1, 2P): weighted, plain
     overall = weighted_medians(by_pair.reshape(-1), weight_sets.reshape(2, -1), fallback)  # (2,)
@@ -65,4 +66,4 @@ def robust_scale(ratios, weights, cut_px, fallback):
     costs = jax.vmap(truncated_cost, in_axes=(0, None, None, None))(starts, ratios, weights, cut_px)
     start = starts[jnp.argmin(costs)]
     near = weights * jnp.abs(start - ratios) < cut_px
-    return weighted_median(ratios, jnp.where(near, weights, 0.0), start)
+    return jnp.maximum(weighted_median(ratios, jnp.where(near, weights, 0.0), start), 0.0)

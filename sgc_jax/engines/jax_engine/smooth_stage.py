@@ -99,7 +99,7 @@ def held_translation_scale(clip: PaddedClips, X, used, fixed: PaddedClips, froze
                            config: SGCConfig):
     """s from the clip's points X, used (T-1, P, ...; ``pair_points``): the equation the forward
     weighted median chose (of the forward's equations, the one whose ratio lies nearest the forward
-    s), recomputed; 1 / D where the scale is not fitted or had none."""
+    s), recomputed; 0 where the forward s was held at 0; 1 / D where the scale is not fitted or had none."""
     fallback = 1.0 / clip.depth_unit
     if not config.fits_translation_scale:
         return fallback
@@ -108,7 +108,8 @@ def held_translation_scale(clip: PaddedClips, X, used, fixed: PaddedClips, froze
                                                 frozen.t_g)
     chosen = jnp.argmin(jnp.where(weights > 0, jnp.abs(ratios - frozen.scale), jnp.inf).reshape(-1))
     ratios, _ = jax.vmap(scale_equations)(X, used, clip.K[1:], clip.track_curr, R_g, t_g)
-    return jnp.where(jnp.any(weights > 0), ratios.reshape(-1)[chosen], fallback)
+    held = jnp.where(frozen.scale > 0, ratios.reshape(-1)[chosen], 0.0)
+    return jnp.where(jnp.any(weights > 0), held, fallback)
 
 
 def local_poses(clip: PaddedClips, X, frozen: Frozen):
