@@ -919,8 +919,8 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. From the start of lowest truncated cost
     (sum of min(slope |s - root|, cut_px)) among the slope-weighted and the plain median of every
     pair's roots together and of each pair's own, s is the weighted median of the lines within
-    cut_px of it, or 0 where that is negative; ``fallback`` when no line has a slope. ``members[p]``, ``K`` (T, 3, 3), ``R_g`` /
-    ``t_g`` per pair."""
+    cut_px of it, or 0 where that is negative; ``fallback`` when no line has a slope.
+    ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
     roots, slopes = [], []
     for p, (X, uv) in enumerate(members):
         pair_roots, pair_slopes = [np.zeros(0)], [np.zeros(0)]

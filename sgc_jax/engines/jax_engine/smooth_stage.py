@@ -99,7 +99,8 @@ def held_translation_scale(clip: PaddedClips, X, used, fixed: PaddedClips, froze
                            config: SGCConfig):
     """s from the clip's points X, used (T-1, P, ...; ``pair_points``): the equation the forward
     weighted median chose (of the forward's equations, the one whose ratio lies nearest the forward
-    s), recomputed; 0 where the forward s was held at 0; 1 / D where the scale is not fitted or had none."""
+    s), recomputed; 0 where the forward s was held at 0; 1 / D where the scale is not fitted or had
+    none."""
     fallback = 1.0 / clip.depth_unit
     if not config.fits_translation_scale:
         return fallback
