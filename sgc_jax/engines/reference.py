@@ -680,37 +680,33 @@ def _median_cut_error(pose: reference_pose_search.Pose, X: np.ndarray, uv: np.nd
     return np.median(np.minimum(np.sqrt(reference_pose_search.pose_errors_sq(pose, X, uv, K)), cut_px))
 
 
-def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
-                 cut_px: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """The camera's pose (R, t) refitted to the points X (n, 3) of the pair's regions, seen at uv
-    (n, 2) (``_refit_from`` it), returned where the camera's median of min(error, ``cut_px``) px
-    exceeds CAMERA_REFIT_RATIO times the refit's; None elsewhere (docs/semantics.md §3.6 step 6).
-    All on every ceil(n / REFIT_POINTS)-th point."""
-    X, uv = _strided(X, uv)
-    start = reference_pose_search.Pose(*camera)
-    refit = _refit_from(start, X, uv, K, cut_px)
-    if refit is None:
-        return None
-    medians = [_median_cut_error(pose, X, uv, K, cut_px) for pose in (start, refit)]
-    return (refit.R, refit.t) if np.all(np.isfinite(refit.t)) and medians[0] > CAMERA_REFIT_RATIO * medians[1] else None
+def camera_refit(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: reference_pose_search.Pose,
+                 cut_px: float) -> tuple[reference_pose_search.Pose | None, float, bool]:
+    """The camera's pose refitted to the (strided, ``_strided``) points X (n, 3) of the pair's regions,
+    seen at uv (n, 2) (``_refit_from`` it) -> (the refit, None where it was not fitted or is not
+    finite; its median of min(error, ``cut_px``) px, inf where None; whether it warps: the camera's
+    median exceeds CAMERA_REFIT_RATIO times the refit's, docs/semantics.md §3.6 step 6)."""
+    refit = _refit_from(camera, X, uv, K, cut_px)
+    if refit is None or not (np.all(np.isfinite(refit.R)) and np.all(np.isfinite(refit.t))):
+        return None, np.inf, False
+    error = _median_cut_error(refit, X, uv, K, cut_px)
+    return refit, error, bool(_median_cut_error(camera, X, uv, K, cut_px) > CAMERA_REFIT_RATIO * error)
 
 
-def tracks_motion(X: np.ndarray, uv: np.ndarray, K: np.ndarray, camera: tuple[np.ndarray, np.ndarray],
-                  cut_px: float) -> tuple[float, float]:
-    """The motion the tracks show (docs/semantics.md §3.11): of the poses ``_refit_from`` the camera's
-    and from rest, the finite one of lower median cut error -> (rotation [deg], translation [units
-    of D]); NaN where neither was fitted. On every ceil(n / REFIT_POINTS)-th point, as
-    ``camera_refit``."""
-    X, uv = _strided(X, uv)
-    best = (np.inf, np.nan, np.nan)
-    for start in (reference_pose_search.Pose(*camera), reference_pose_search.Pose(np.eye(3), np.zeros(3))):
-        refit = _refit_from(start, X, uv, K, cut_px)
-        if refit is None or not (np.all(np.isfinite(refit.R)) and np.all(np.isfinite(refit.t))):
-            continue
-        error = _median_cut_error(refit, X, uv, K, cut_px)
+def tracks_motion(X: np.ndarray, uv: np.ndarray, K: np.ndarray, refit: reference_pose_search.Pose | None,
+                  refit_error: float, cut_px: float) -> tuple[float, float]:
+    """The motion the tracks show (docs/semantics.md §3.11): of the camera's refit (``camera_refit``:
+    ``refit``, its median cut error ``refit_error``) and the pose ``_refit_from`` rest, the one of
+    lower median cut error (the camera's refit on a tie) -> (rotation [deg], translation [units of
+    D]); NaN where neither was fitted. On the points ``camera_refit`` took."""
+    best = (refit_error, refit)
+    rest = _refit_from(reference_pose_search.Pose(np.eye(3), np.zeros(3)), X, uv, K, cut_px)
+    if rest is not None and np.all(np.isfinite(rest.R)) and np.all(np.isfinite(rest.t)):
+        error = _median_cut_error(rest, X, uv, K, cut_px)
         if error < best[0]:
-            best = (error, rotation_angle_deg(np.eye(3), refit.R), float(np.linalg.norm(refit.t)))
-    return best[1], best[2]
+            best = (error, rest)
+    pose = best[1]
+    return (np.nan, np.nan) if pose is None else (rotation_angle_deg(np.eye(3), pose.R), float(np.linalg.norm(pose.t)))
 
 
 class PairDepthError(NamedTuple):
@@ -1020,17 +1016,16 @@ def score_pairs(clip: Clip, config: SGCConfig | None = None) -> PairArrays:
         out.global_rot_var[p], out.global_trans_var[p] = global_rot, global_trans * f**2
         if np.isfinite(R_g[p]).all():
             out.depth_error[p] = pair_depth_error(clip, pair, R_g[p], scale * t_g[p], config)[1]
-            if config.compat != "authors" and config.global_pose and R_list:
-                # where the camera fits the tracks worse than its refit to them, the refit warps too (§3.6 step 6)
-                member = points[p].region > 0
-                refit = camera_refit(points[p].X[member], points[p].uv[member], clip.K[pair],
-                                     (R_g[p], scale * t_g[p]), config.inlier_px)
-                if refit is not None:
-                    out.depth_error[p] = np.fmin(out.depth_error[p], pair_depth_error(clip, pair, *refit, config)[1])
             if config.compat != "authors" and config.global_pose:
                 member = points[p].region > 0
-                rot_deg, trans = tracks_motion(points[p].X[member], points[p].uv[member], clip.K[pair],
-                                               (R_g[p], scale * t_g[p]), config.inlier_px)
+                X, uv = _strided(points[p].X[member], points[p].uv[member])
+                camera = reference_pose_search.Pose(R_g[p], scale * t_g[p])
+                refit, refit_error, warps = camera_refit(X, uv, clip.K[pair], camera, config.inlier_px)
+                if R_list and warps:
+                    # the camera fits the tracks worse than its refit to them: the refit warps too (§3.6 step 6)
+                    out.depth_error[p] = np.fmin(out.depth_error[p],
+                                                 pair_depth_error(clip, pair, refit.R, refit.t, config)[1])
+                rot_deg, trans = tracks_motion(X, uv, clip.K[pair], refit, refit_error, config.inlier_px)
                 out.tracks_rot_deg[p], out.tracks_trans[p] = rot_deg, trans * f
             out.t_g_norm[p] = np.linalg.norm(scale * t_g[p] if config.scale_free else t_g[p]) * f
             out.R_g_angle_deg[p] = rotation_angle_deg(np.eye(3), R_g[p])
