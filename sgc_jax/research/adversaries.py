@@ -19,7 +19,10 @@ afterwards, as for any clip of the protocol.
   generator that ignores the camera it was given, scored with that camera);
 - ``backward_cameras``: the scene's video, scored with cameras whose centres run the other way
   along its path (C'_t = 2 C_0 − C_t, rotations the scene's): a camera-controlled generator that
-  moves against the camera it was given, each pair's translation the opposite of its tracks'.
+  moves against the camera it was given, each pair's translation the opposite of its tracks';
+- ``rotation_only_cameras``: the scene's video, scored with cameras that turn as the scene's but
+  hold the first camera's centre (t_wc = −R_wc C_0): a camera-controlled generator asked for a
+  turn on the spot that moves as well.
 """
 
 from __future__ import annotations
@@ -142,11 +145,18 @@ def backward_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
     return dataclasses.replace(clip, t_wc=-np.einsum("tij,tj->ti", clip.R_wc, mirrored))
 
 
+def rotation_only_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
+    clip = scene.clip(n_tracks)
+    first_centre = -clip.R_wc[0].T @ clip.t_wc[0]
+    return dataclasses.replace(clip, t_wc=-np.einsum("tij,j->ti", clip.R_wc, first_centre))
+
+
 ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "few_tracks": few_tracks, "low_confidence": low_confidence, "pure_rotation": pure_rotation,
     "near_still": near_still, "bursty": bursty, "thin_band": thin_band, "masked_out": masked_out,
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
     "still_video": still_video, "backward_cameras": backward_cameras,
+    "rotation_only_cameras": rotation_only_cameras,
 }
 
 
