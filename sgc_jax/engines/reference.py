@@ -39,7 +39,7 @@ from . import reference_pose as reference_pose_search
 from .evidence import parallax_px
 from .pairs import PairArrays, empty_pair_arrays
 from .reference_pose import residual_jacobian
-from .units import PERCENT, in_depth_units, translation_factor
+from .units import PERCENT, in_depth_units, resolved_translation, translation_factor
 
 # ----------------------------------------------------------------------------- rotations
 
@@ -79,8 +79,10 @@ def global_relative_pose(clip: Clip, pair: int, config: SGCConfig) -> tuple[np.n
     """(R_g, t_g) from camera pair-1 to camera pair (docs/semantics.md §3.4)."""
     product = clip.R_wc[pair] @ clip.R_wc[pair - 1].T
     R_g = nearest_rotation(product)
-    R_for_t = product if config.compat == "authors" else R_g
-    return R_g, clip.t_wc[pair] - R_for_t @ clip.t_wc[pair - 1]
+    if config.compat == "authors":
+        return R_g, clip.t_wc[pair] - product @ clip.t_wc[pair - 1]
+    t_g = clip.t_wc[pair] - R_g @ clip.t_wc[pair - 1]
+    return R_g, resolved_translation(t_g, clip.t_wc[pair - 1], clip.t_wc[pair])
 
 
 # ----------------------------------------------------------------------------- depth regions

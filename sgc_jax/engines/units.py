@@ -11,10 +11,11 @@ the raw units (D = 1, factors 1).
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
-from ..config import SGCConfig
+from ..config import CAMERA_TRANSLATION_RESOLUTION, SGCConfig
 from ..io.clip import Clip, without_absurd_depth
 from ..stats import exact_median
 
@@ -47,6 +48,16 @@ def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
     depth = np.divide(clip.depth, np.float64(unit), out=np.empty_like(clip.depth, dtype=np.float32),
                       dtype=np.float64, casting="unsafe")
     return dataclasses.replace(clip, depth=depth), unit
+
+
+def resolved_translation(t_g: Any, t_prev: Any, t_curr: Any, xp=np) -> Any:
+    """A pair's camera translation t_g (..., 3) from the cameras' t_wc (..., 3) of frames i-1 and i,
+    0 where |t_g| is within float32's resolution of them, ``CAMERA_TRANSLATION_RESOLUTION`` (|t_prev|
+    + |t_curr|) (docs/semantics.md §3.4): cameras that hold their centre translate by rounding only.
+    Written once for NumPy and ``jax.numpy``."""
+    size = xp.linalg.norm(t_prev, axis=-1) + xp.linalg.norm(t_curr, axis=-1)
+    held = xp.linalg.norm(t_g, axis=-1) <= CAMERA_TRANSLATION_RESOLUTION * size
+    return xp.where(held[..., None], xp.zeros_like(t_g), t_g)
 
 
 def translation_factor(config: SGCConfig) -> float:

@@ -20,6 +20,7 @@ from ...kernels.ransac_options import QualityRule, RansacOptions
 from ...kernels.scale import robust_scale, scale_equations
 from ...kernels.so3 import nearest_rotation
 from ...kernels.uncertainty import region_quality
+from ..units import resolved_translation
 from .buckets import Bucket, PaddedClips
 from .stages import CPU_COMPILER_OPTIONS, PoseInputs, Stage, as_float, as_int, each
 
@@ -103,11 +104,13 @@ def local_poses_pair(pair: PairInputs, image_hw, stage: PoseStage) -> LocalPoses
 
 
 def global_relative_pose(R_prev, t_prev, R_curr, t_curr, compat: str):
-    """(R_g, t_g) from camera i-1 to camera i; authors: t from the raw product."""
+    """(R_g, t_g) from camera i-1 to camera i; authors: t from the raw product; spec: t_g within
+    float32's resolution of the cameras is 0 (``resolved_translation``)."""
     product = R_curr @ R_prev.T
     R_g = nearest_rotation(product)
-    R_for_t = product if compat == "authors" else R_g
-    return R_g, t_curr - R_for_t @ t_prev
+    if compat == "authors":
+        return R_g, t_curr - product @ t_prev
+    return R_g, resolved_translation(t_curr - R_g @ t_prev, t_prev, t_curr, xp=jnp)
 
 
 def pair_groups(pose_pair, args, n_pairs: int, vectorized: bool):

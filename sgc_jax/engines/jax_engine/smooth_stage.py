@@ -32,7 +32,7 @@ from ...kernels.warp import (
     warp_sources,
 )
 from ...stats import nanmean
-from ..units import PERCENT
+from ..units import PERCENT, resolved_translation
 from .buckets import Bucket, PaddedClips
 from .device_prepare import ClipArrays, pixel_median, prepare_differentiable
 from .pixel_stage import depth_at_tracks
@@ -82,7 +82,8 @@ def camera_poses(R_wc, t_wc):
     """(R_g, t_g) of each pair (T-1, ...) from the cameras (T, ...), as ``global_relative_pose``
     under spec, the nearest rotation by ``polar_rotation``."""
     R_g = polar_rotation(R_wc[1:] @ jnp.swapaxes(R_wc[:-1], -1, -2))
-    return R_g, t_wc[1:] - jnp.einsum("pij,pj->pi", R_g, t_wc[:-1])
+    return R_g, resolved_translation(t_wc[1:] - jnp.einsum("pij,pj->pi", R_g, t_wc[:-1]), t_wc[:-1], t_wc[1:],
+                                     xp=jnp)
 
 
 def pair_points(clip: PaddedClips, track_labels, config: SGCConfig):
