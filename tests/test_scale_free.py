@@ -13,6 +13,7 @@ from tolerances import NUMERICAL_FLOOR, RIGID_ROT_VAR_BAR
 
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS
+from sgc_jax.research.adversaries import held_cameras
 from sgc_jax.research.synth import synth_clip
 
 ENGINES = ("jax", "reference")
@@ -100,6 +101,18 @@ def test_cameras_that_run_against_the_tracks_are_no_rescaling_of_them(tracked_cl
     honest, scored = score_batch([tracked_clip, backward], engine=engine, progress=False).clips
     assert honest.scale > 0 and scored.scale == 0.0
     assert scored.sgc > honest.sgc + BACKWARD_SGC_RISE
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_cameras_that_hold_their_centre_translate_by_rounding_only(tracked_clip, engine):
+    turning = held_cameras(dataclasses.replace(tracked_clip, clip_id="turning on the spot"), tracked_clip.R_wc)
+    still = held_cameras(dataclasses.replace(tracked_clip, clip_id="still"),
+                         np.repeat(tracked_clip.R_wc[:1], tracked_clip.n_frames, axis=0))
+    in_float32 = [dataclasses.replace(clip, R_wc=clip.R_wc.astype(np.float32), t_wc=clip.t_wc.astype(np.float32))
+                  for clip in (turning, still)]  # centres away from the world's origin, as a SLAM world's
+    for scored in score_batch(in_float32, engine=engine, progress=False).clips:
+        assert scored.scale == 1.0, scored.clip_id  # no equation has a slope: the units taken as shared
+        assert scored.ecd_trans == 0.0, scored.clip_id
 
 
 # A median of ~10^4 track equations with 0.5 px noise: the fitted scale's spread across scenes and

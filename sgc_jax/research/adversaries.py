@@ -21,8 +21,14 @@ afterwards, as for any clip of the protocol.
   along its path (C'_t = 2 C_0 − C_t, rotations the scene's): a camera-controlled generator that
   moves against the camera it was given, each pair's translation the opposite of its tracks';
 - ``rotation_only_cameras``: the scene's video, scored with cameras that turn as the scene's but
-  hold the first camera's centre (t_wc = −R_wc C_0): a camera-controlled generator asked for a
-  turn on the spot that moves as well.
+  hold the first camera's centre: a camera-controlled generator asked for a turn on the spot that
+  moves as well;
+- ``static_cameras``: the scene's video, scored with every camera the first (a camera-controlled
+  generator asked to hold still that moves).
+
+The last two give their cameras in a world whose origin lies ``WORLD_OFFSET`` median depths from
+the first camera (as a SLAM or COLMAP world does; the protocol's scenes put the first camera at
+the origin, where a held centre's t_wc is exactly 0).
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from .protocol import ProtocolScene
 
 WARP = 0.5  # the severity an adversary's inconsistency carries
 LOW_CONFIDENCE = 0.1  # below SGCConfig().min_track_conf
+WORLD_OFFSET = np.array([6.0, -2.0, 3.0])  # where held cameras' centre lies, in median depths
 
 
 def with_frames(clip: Clip, order: list[int]) -> Clip:
@@ -145,10 +152,21 @@ def backward_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
     return dataclasses.replace(clip, t_wc=-np.einsum("tij,tj->ti", clip.R_wc, mirrored))
 
 
+def held_cameras(clip: Clip, R_wc: np.ndarray) -> Clip:
+    """``clip`` with cameras of rotations R_wc (T, 3, 3) whose centres all lie at WORLD_OFFSET median
+    depths from the world's origin, t_wc in the clip's float type."""
+    centre = WORLD_OFFSET * float(np.nanmedian(clip.depth))
+    return dataclasses.replace(clip, R_wc=R_wc, t_wc=(-np.einsum("tij,j->ti", R_wc, centre)).astype(clip.t_wc.dtype))
+
+
 def rotation_only_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
     clip = scene.clip(n_tracks)
-    first_centre = -clip.R_wc[0].T @ clip.t_wc[0]
-    return dataclasses.replace(clip, t_wc=-np.einsum("tij,j->ti", clip.R_wc, first_centre))
+    return held_cameras(clip, clip.R_wc)
+
+
+def static_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
+    clip = scene.clip(n_tracks)
+    return held_cameras(clip, np.repeat(clip.R_wc[:1], clip.n_frames, axis=0))
 
 
 ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
@@ -156,7 +174,7 @@ ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "near_still": near_still, "bursty": bursty, "thin_band": thin_band, "masked_out": masked_out,
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
     "still_video": still_video, "backward_cameras": backward_cameras,
-    "rotation_only_cameras": rotation_only_cameras,
+    "rotation_only_cameras": rotation_only_cameras, "static_cameras": static_cameras,
 }
 
 
