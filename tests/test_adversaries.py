@@ -20,12 +20,12 @@ NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
 # The adversaries the evidence answers whatever the score sees; pure rotation and an unmasked mover
 # earn less only as far as the score sees their inconsistency (bench/history/issue-59.md, "Evidence").
 BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
-               "repeated_frames", "half_broken", "still_video")
+               "repeated_frames", "half_broken", "still_video", "static_cameras")
 # A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
 BY_DEPTH_ERROR = ("pure_rotation",)
 # Cameras that run backward along their path, which the global components see once s is held at 0
-# or above (docs/semantics.md §3.4).
-BY_GLOBAL_POSE = ("backward_cameras",)
+# or above, and cameras that hold their centre, once its rounding is no translation (docs/semantics.md §3.4).
+BY_GLOBAL_POSE = ("backward_cameras", "rotation_only_cameras")
 # A video that holds still, with the cameras an estimator reads from it (at rest): the motion gate
 # answers it, as the tracks' motion answers it under the moving cameras it was asked to follow (§3.11).
 STILL_VIDEO = "still_video_estimated_cameras"
