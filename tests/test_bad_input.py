@@ -142,6 +142,24 @@ def test_arrays_given_in_memory_are_checked_the_same_way():
     assert load_error(text).array == "depth" and "dtype <U" in str(load_error(text))
 
 
+def _reflected(R):
+    R = R.copy()
+    R[1] = R[1] @ np.diag([1.0, 1.0, -1.0])
+    return R
+
+
+@pytest.mark.parametrize("array, changed", [
+    ("t_wc", lambda c: dataclasses.replace(c, t_wc=np.where(np.arange(c.n_frames)[:, None] == 1, np.nan, c.t_wc))),
+    ("R_wc", lambda c: dataclasses.replace(c, R_wc=_reflected(c.R_wc))),
+    ("K", lambda c: dataclasses.replace(c, K=c.K * np.array([0.0, 1.0, 1.0])[:, None])),
+])
+def test_clips_given_in_memory_have_their_cameras_checked(array, changed):
+    broken = dataclasses.replace(changed(VICTIM), clip_id="broken")
+    result = score_batch([broken, CONTROLS[0]], engine="reference", progress=False)
+    assert result.clips[0].status == "error" and f"array {array!r}" in result.clips[0].reason
+    assert result.clips[1].status != "error"
+
+
 # ----------------------------------------------------------------------------- broken files
 
 

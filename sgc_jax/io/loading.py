@@ -24,7 +24,7 @@ from ..config import SGCConfig
 from .clip import Clip, ClipFormatError
 from .npz import NpzError, npz_headers, read_npz, shape_text
 from .remote import is_url, list_files
-from .validate import Problem, check_clip, enforce
+from .validate import ClipValidationError, Problem, check_clip, check_poses, enforce
 
 # ----------------------------------------------------------------------------- validation
 
@@ -622,9 +622,23 @@ def guard_duplicate_ids(entries: list[ClipEntry]) -> None:
             entry.id_owners = owners
 
 
+def checked_cameras_in_memory(clip: Clip) -> Clip:
+    """A :class:`Clip` given in memory (built or changed in code, not loaded) with the checks whose
+    failure would score it silently wrong (docs/semantics.md §1.4, §1.6): ``K``, ``R_wc`` and
+    ``t_wc`` finite, each K invertible, each R_wc a rotation. Raises :class:`ClipFormatError`
+    (``ClipValidationError`` for a non-rotation); the clip itself is returned unchanged."""
+    for name in ("K", "R_wc", "t_wc"):
+        _check_finite(clip.clip_id, name, np.asarray(getattr(clip, name)))
+    _check_invertible(clip.clip_id, np.asarray(clip.K, np.float64))
+    for problem in check_poses(clip):
+        if problem.severity == "error":
+            raise ClipValidationError(clip.clip_id, problem.array, problem.expected, problem.found, problem.fix)
+    return clip
+
+
 def _discover(source: Any, config: SGCConfig) -> list[ClipEntry]:
     if isinstance(source, Clip):
-        return [ClipEntry(source.clip_id, "<memory>", lambda: source, config)]
+        return [ClipEntry(source.clip_id, "<memory>", lambda: checked_cameras_in_memory(source), config)]
     if isinstance(source, Mapping):
         return _entries_from_mapping(source, config)
     if isinstance(source, (list, tuple)):
