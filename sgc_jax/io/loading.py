@@ -24,7 +24,7 @@ from ..config import SGCConfig
 from .clip import Clip, ClipFormatError
 from .npz import NpzError, npz_headers, read_npz, shape_text
 from .remote import is_url, list_files
-from .validate import ClipValidationError, Problem, check_clip, check_poses, enforce
+from .validate import Problem, check_clip, check_poses, enforce, raise_first_error
 
 # ----------------------------------------------------------------------------- validation
 
@@ -630,9 +630,7 @@ def checked_cameras_in_memory(clip: Clip) -> Clip:
     for name in ("K", "R_wc", "t_wc"):
         _check_finite(clip.clip_id, name, np.asarray(getattr(clip, name)))
     _check_invertible(clip.clip_id, np.asarray(clip.K, np.float64))
-    for problem in check_poses(clip):
-        if problem.severity == "error":
-            raise ClipValidationError(clip.clip_id, problem.array, problem.expected, problem.found, problem.fix)
+    raise_first_error(clip.clip_id, check_poses(clip))
     return clip
 
 

@@ -547,12 +547,17 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
 
 
+def raise_first_error(clip_id: str, problems: list[Problem]) -> None:
+    """Raise :class:`ClipValidationError` for the first problem of severity "error", if any."""
+    for problem in problems:
+        if problem.severity == "error":
+            raise ClipValidationError(clip_id, problem.array, problem.expected, problem.found, problem.fix)
+
+
 def enforce(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> None:
     """Raise :class:`ClipValidationError` on the first error; warn (:class:`ClipWarning`) on warnings."""
     problems = check_clip(clip, config, arrays)
-    for problem in problems:
-        if problem.severity == "error":
-            raise ClipValidationError(clip.clip_id, problem.array, problem.expected, problem.found, problem.fix)
+    raise_first_error(clip.clip_id, problems)
     for problem in problems:
         if problem.severity == "warning" and problem.code not in SCORER_REPORTED:
             warnings.warn(ClipWarning(f"clip {clip.clip_id!r}: {problem.line()}"), stacklevel=3)
