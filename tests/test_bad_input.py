@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from scenes import MICRO
 
-from sgc_jax import ClipFormatError, load_clips, save_batch, save_clip, score_batch
+from sgc_jax import ClipFormatError, batch_of, load_clips, save_batch, save_clip, score_batch
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.loading import discover_clips, validate_paths
 from sgc_jax.io.npz import NpzError, read_npz
@@ -158,6 +158,30 @@ def test_clips_given_in_memory_have_their_cameras_checked(array, changed):
     result = score_batch([broken, CONTROLS[0]], engine="reference", progress=False)
     assert result.clips[0].status == "error" and f"array {array!r}" in result.clips[0].reason
     assert result.clips[1].status != "error"
+
+
+@pytest.mark.parametrize("array, changed", [
+    ("track_vis", lambda c: dataclasses.replace(c, track_vis=c.track_vis[:, :-1])),
+    ("track_curr", lambda c: dataclasses.replace(c, track_curr=c.track_curr[..., :1])),
+    ("static_mask", lambda c: dataclasses.replace(c, static_mask=c.static_mask[:, 1:])),
+    ("track_prev", lambda c: dataclasses.replace(c, track_prev=None)),
+])
+def test_clips_given_in_memory_have_their_arrays_checked(array, changed):
+    broken = dataclasses.replace(changed(VICTIM), clip_id="broken")
+    result = score_batch([broken, CONTROLS[0]], engine="reference", progress=False)
+    assert result.clips[0].status == "error" and f"array {array!r}" in result.clips[0].reason
+    assert result.clips[1].status != "error"
+    with pytest.raises(ClipFormatError, match=array):
+        batch_of([broken])
+
+
+def test_a_clip_given_in_memory_without_confidences_scores_as_one_with_confidence_one():
+    without = dataclasses.replace(VICTIM, track_conf=None, clip_id="without")
+    ones = dataclasses.replace(VICTIM, track_conf=np.ones_like(VICTIM.track_conf), clip_id="ones")
+    result = score_batch([without, ones], engine="reference", progress=False)
+    assert result.clips[0].status == result.clips[1].status != "error"
+    assert result.clips[0].sgc == result.clips[1].sgc
+    np.testing.assert_array_equal(batch_of([without])["track_conf"], batch_of([ones])["track_conf"])
 
 
 # ----------------------------------------------------------------------------- broken files

@@ -247,6 +247,14 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     deterministically (:func:`subsample_tracks`).
     """
     config = config or SGCConfig()
+    clip = _structurally_checked(arrays, clip_id)
+    if validate:
+        enforce(clip, config, arrays)
+    return subsample_tracks(clip, config)
+
+
+def _structurally_checked(arrays: Mapping[str, Any], clip_id: str | None) -> Clip:
+    """The :class:`Clip` of a mapping of clip arrays after the structural checks of §1.4, every track kept."""
     meta = _parse_meta(arrays.get("meta"))
     clip_id = str(clip_id or meta.get("clip_id") or _text(arrays.get("clip_id")) or "clip")
     meta.setdefault("clip_id", clip_id)
@@ -259,14 +267,11 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     if frames is not None:
         _check_shape(clip_id, "frames", frames, (T, H, W, 3))
     with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32's range becomes inf: invalid
-        clip = Clip(clip_id=clip_id, depth=depth, K=K, R_wc=R_wc, t_wc=t_wc, static_mask=static_mask,
+        return Clip(clip_id=clip_id, depth=depth, K=K, R_wc=R_wc, t_wc=t_wc, static_mask=static_mask,
                     track_prev=np.asarray(track_prev, np.float32), track_curr=np.asarray(track_curr, np.float32),
                     track_vis=(track_vis > 0) if track_vis.dtype != bool else track_vis.copy(),
                     track_conf=np.nan_to_num(np.asarray(track_conf, np.float32), nan=0.0),
                     mask_source=mask_source, frames=frames, meta=meta)
-    if validate:
-        enforce(clip, config, arrays)
-    return subsample_tracks(clip, config)
 
 
 def evenly_spaced_ranks(n: Any, limit: int, xp=np) -> Any:
@@ -622,21 +627,31 @@ def guard_duplicate_ids(entries: list[ClipEntry]) -> None:
             entry.id_owners = owners
 
 
-def checked_cameras_in_memory(clip: Clip) -> Clip:
-    """A :class:`Clip` given in memory (built or changed in code, not loaded) with the checks whose
-    failure would score it silently wrong (docs/semantics.md §1.4, §1.6): ``K``, ``R_wc`` and
-    ``t_wc`` finite, each K invertible, each R_wc a rotation. Raises :class:`ClipFormatError`
-    (``ClipValidationError`` for a non-rotation); the clip itself is returned unchanged."""
-    for name in ("K", "R_wc", "t_wc"):
-        _check_finite(clip.clip_id, name, np.asarray(getattr(clip, name)))
-    _check_invertible(clip.clip_id, np.asarray(clip.K, np.float64))
-    raise_first_error(clip.clip_id, check_poses(clip))
-    return clip
+# A Clip's array fields, read back through the file schema's checks when the clip is given in memory.
+CLIP_ARRAY_FIELDS = ("depth", "K", "R_wc", "t_wc", "static_mask", "track_prev", "track_curr", "track_vis",
+                     "track_conf", "frames")
+
+
+def checked_in_memory(clip: Clip) -> Clip:
+    """A :class:`Clip` given in memory (built or changed in code, not loaded) read through the
+    structural checks of a file's arrays (docs/semantics.md §1.4: types, shapes, sizes that agree,
+    finite and invertible cameras; a field left ``None`` counts as absent, as a missing array does)
+    and each R_wc checked to be a rotation (§1.6). Returns the clip with the schema's dtypes, every
+    track, its meta and mask source kept; raises :class:`ClipFormatError` (``ClipValidationError``
+    for a non-rotation)."""
+    if not isinstance(clip, Clip):
+        raise TypeError(f"expected a sgc_jax.Clip, got {type(clip).__name__}")
+    arrays = {name: getattr(clip, name) for name in CLIP_ARRAY_FIELDS if getattr(clip, name) is not None}
+    checked = _structurally_checked(arrays, clip.clip_id)
+    raise_first_error(clip.clip_id, check_poses(checked))
+    mask_source = clip.mask_source if clip.static_mask is not None else "none"
+    return dataclasses.replace(checked, mask_source=mask_source,
+                               meta=clip.meta if isinstance(clip.meta, dict) else checked.meta)
 
 
 def _discover(source: Any, config: SGCConfig) -> list[ClipEntry]:
     if isinstance(source, Clip):
-        return [ClipEntry(source.clip_id, "<memory>", lambda: checked_cameras_in_memory(source), config)]
+        return [ClipEntry(source.clip_id, "<memory>", lambda: checked_in_memory(source), config)]
     if isinstance(source, Mapping):
         return _entries_from_mapping(source, config)
     if isinstance(source, (list, tuple)):
