@@ -1,0 +1,87 @@
+"""One tracker at several densities (issues 58, 59): the clips of ``../shared/realdata/`` retracked
+by pyramidal LK from a grid of query points in frame i-1, at each stride, and scored.
+
+    python bench/track_density.py [--dir ../shared/realdata] [--strides 16 11 8 6 4] [--config FILE]
+                                  [--out ROWS.csv]
+
+The tracker is the one the clips' own tracks came from (21 px windows, 3 levels, a forward-backward
+check under 0.5 px; the shared README), queried per pair on a grid of ``stride`` px: a denser grid
+gives more tracks of the same tracker, whose errors neighbours share (overlapping windows). A
+consistent world should score the same whatever the density. Prints SGC, reward, the tracks the
+poses rest on and the depth layers' accepted poses per pair, per clip and stride ("given": the
+clip's own tracks), and each clip's spread of SGC over the strides.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from sgc_jax import SGCConfig, load_clip, score_batch
+
+DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+LK = {"winSize": (21, 21), "maxLevel": 3}
+FORWARD_BACKWARD_PX = 0.5
+
+
+def grid_tracks(clip, stride: int):
+    """``clip`` with its tracks replaced by LK tracks from a grid of ``stride`` px in each frame i-1."""
+    gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in clip.frames]
+    H, W = clip.image_size
+    ys, xs = np.mgrid[stride // 2:H:stride, stride // 2:W:stride]
+    start = np.stack([xs.ravel(), ys.ravel()], -1).astype(np.float32).reshape(-1, 1, 2)
+    curr = np.empty((clip.n_pairs, len(start), 2), np.float32)
+    vis = np.empty((clip.n_pairs, len(start)), bool)
+    for i in range(clip.n_pairs):
+        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[i], gray[i + 1], start, None, **LK)
+        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[i + 1], gray[i], ahead, None, **LK)
+        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < FORWARD_BACKWARD_PX
+        curr[i], vis[i] = ahead[:, 0], (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
+    prev = np.broadcast_to(start[:, 0], curr.shape).copy()
+    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}/s{stride:02d}", track_prev=prev, track_curr=curr,
+                               track_vis=vis, track_conf=np.ones(vis.shape, np.float32))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dir", default=str(DEFAULT_DIR))
+    parser.add_argument("--strides", type=int, nargs="+", default=[16, 11, 8, 6, 4])
+    parser.add_argument("--config", default=None, help="a config file (JSON) for the score (default: SGCConfig())")
+    parser.add_argument("--out", default=None, help="CSV of every clip's row")
+    args = parser.parse_args()
+    config = SGCConfig.from_dict(json.loads(Path(args.config).read_text())) if args.config else SGCConfig()
+    paths = sorted(Path(args.dir).glob("*.npz"))
+    if not paths:
+        raise SystemExit(f"no .npz clips in {args.dir}")
+    clips = []
+    for path in paths:
+        clip = load_clip(str(path))
+        clips += [dataclasses.replace(clip, clip_id=f"{clip.clip_id}/given")]
+        clips += [grid_tracks(clip, stride) for stride in args.strides]
+    result = score_batch(clips, config=config, progress=False)
+    rows = result.to_pandas()
+    rows["reward"] = result.rewards()["reward"]
+    rows[["clip", "tracks"]] = rows["clip_id"].str.rsplit("/", n=1, expand=True)
+    pairs = pd.DataFrame(result.pair_records())
+    rows["poses_per_pair"] = rows["clip_id"].map(pairs.groupby("clip_id")["n_poses"].mean())
+    order = ["given", *[f"s{s:02d}" for s in args.strides]]
+    pd.set_option("display.width", 200)
+    for column, digits in [("sgc", 3), ("reward", 3), ("pose_tracks", 0), ("poses_per_pair", 1)]:
+        table = rows.pivot(index="tracks", columns="clip", values=column).loc[order]
+        print(f"\n{column}\n{table.round(digits).to_string()}")
+    grid = rows[rows["tracks"] != "given"]
+    spread = grid.groupby("clip")["sgc"].agg(["min", "max"])
+    print(f"\nSGC over the strides {args.strides}: smallest, largest, largest - smallest\n"
+          f"{spread.assign(spread=spread['max'] - spread['min']).round(3).to_string()}")
+    if args.out:
+        rows.to_csv(args.out, index=False)
+
+
+if __name__ == "__main__":
+    main()
