@@ -124,6 +124,17 @@ def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none
     assert not [p for p in check_clip(dataclasses.replace(clip, K=one_K)) if p.code == "focal_spread"]
 
 
+def test_tracks_given_twice_get_a_warning_and_a_few_repeats_none(clip):
+    def repeated(count):
+        extra = lambda a: np.concatenate([a, a[:, :count]], axis=1)  # noqa: E731
+        return dataclasses.replace(clip, track_prev=extra(clip.track_prev), track_curr=extra(clip.track_curr),
+                                   track_vis=extra(clip.track_vis), track_conf=extra(clip.track_conf))
+
+    [line] = [p for p in check_clip(repeated(clip.n_tracks)) if p.code == "duplicate_tracks"]
+    assert line.severity == "warning" and "50% of pair" in line.found and "drop the repeats" in line.fix
+    assert not [p for p in check_clip(repeated(clip.n_tracks // 50)) if p.code == "duplicate_tracks"]
+
+
 def vggt_K(clip):
     return vggt_intrinsics(clip.K, *clip.image_size, "crop")[0]
 

@@ -33,6 +33,11 @@ TRACK_MARGIN_PX = 1.0  # tracker positions this far outside the image still coun
 TRACKS_OUTSIDE_ERROR = 0.25  # fraction of visible track positions outside: another pixel grid
 TRACKS_OUTSIDE_WARN = 0.05
 TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: computed on a smaller grid
+# A pair whose usable tracks repeat another usable track's positions at both ends this often: a track set
+# merged with itself. Each repeat counts as a measurement of its own (more depth layers, tighter floors):
+# tartan_000080 with every track twice scores 0.603 against 0.210 (bench/history/issue-58.md "One tracker
+# at several densities"). No split's scene nor real clip repeats a track.
+DUPLICATE_TRACKS_WARN = 0.05
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
 NEGATIVE_DEPTH_WARN = 0.01  # negative depth on this share of the pixels with a depth: a sign convention
 DISPARITY_RHO_WARN = 0.3  # Spearman(depth, parallax) above this: larger "depth" moves faster = disparity
@@ -262,7 +267,16 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                                         f"all within x <= {x_max:.1f}, y <= {y_max:.1f}",
                                         f"tracks computed on a smaller grid? rescale them to {H}x{W} "
                                         "(`sgc-jax import --track-size HxW`)"))
-    usable = np.count_nonzero(clip.usable_tracks(config.min_track_conf), axis=1)
+    usable_tracks = clip.usable_tracks(config.min_track_conf)
+    repeated = repeated_track_share(clip, usable_tracks)
+    if repeated.max(initial=0.0) > DUPLICATE_TRACKS_WARN:
+        worst = int(np.argmax(repeated))
+        problems.append(Problem("warning", "duplicate_tracks", "track_prev/track_curr",
+                                "each track once", f"{100 * repeated[worst]:.0f}% of pair {worst + 1}'s usable tracks "
+                                "repeat another's positions at both ends",
+                                "drop the repeats before scoring: a repeated track counts as another measurement "
+                                "(more depth layers, tighter floors; docs/semantics.md §3.2)"))
+    usable = np.count_nonzero(usable_tracks, axis=1)
     few = np.flatnonzero(usable < 4)
     if few.size:
         problems.append(Problem("warning", "too_few_tracks", "track_vis/track_conf",
@@ -274,6 +288,21 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                             f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
                             f"median {int(np.median(usable))}"))
     return problems
+
+
+def repeated_track_share(clip: Clip, usable: np.ndarray) -> np.ndarray:
+    """(T-1,) share of each pair's ``usable`` tracks whose frame i-1 and frame i positions both equal
+    an earlier usable track's (compared through a 64-bit hash of their float32 bits: a warning's
+    count, not an exact one)."""
+    bits = np.concatenate([clip.track_prev, clip.track_curr], axis=-1).astype(np.float32).view(np.uint32)
+    bits = bits.astype(np.uint64)
+    with np.errstate(over="ignore"):  # the hash wraps around by design
+        key = (((bits[..., 0] << 32) | bits[..., 1]) * np.uint64(0x9E3779B97F4A7C15)) ^ ((bits[..., 2] << 32) | bits[..., 3])
+    P = key.shape[-1]
+    key = np.where(usable, key, np.uint64(1) << np.uint64(63) | np.arange(P, dtype=np.uint64))  # unusable: distinct
+    ordered = np.sort(key, axis=-1)
+    repeats = np.count_nonzero(ordered[:, 1:] == ordered[:, :-1], axis=-1)
+    return repeats / np.maximum(np.count_nonzero(usable, axis=-1), 1)
 
 
 def check_dtypes(arrays: Any) -> list[Problem]:
