@@ -67,9 +67,17 @@ def test_clips_scored_at_once_in_lanes_give_the_numbers_of_one_at_a_time(clip_fi
 
 
 def test_iter_scores_hands_on_each_clip_in_input_order(clip_files, uninterrupted):
-    streamed = list(iter_scores(clip_files, chunk_size=1, readers=3))
+    stats = StreamStats()
+    streamed = list(iter_scores(clip_files, chunk_size=1, readers=3, progress=False, stats=stats))
     assert [c.clip_id for c in streamed] == uninterrupted[0].clip_ids
     assert [c.sgc for c in streamed] == list(uninterrupted[0].sgc)
+    assert stats.scored == len(streamed)
+
+
+def test_an_unknown_keyword_names_the_config_fields_and_the_run_options(clip_files):
+    for call in (score_batch, lambda source, **kw: next(iter_scores(source, **kw))):
+        with pytest.raises(TypeError, match=r"unknown option\(s\) \['chunksize'\].*chunk_size"):
+            call(clip_files, chunksize=1, progress=False)
 
 
 def test_the_output_records_its_inputs_and_run(uninterrupted, clip_files):

@@ -42,6 +42,11 @@ def prepare_run(source: Any, config, calibration, engine: str, options: dict) ->
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     run_options, overrides = RunOptions.split(options)
+    known = {f.name for f in dataclasses.fields(SGCConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise TypeError(f"unknown option(s) {unknown}: neither SGCConfig fields ({sorted(known)}) nor run options "
+                        f"({sorted(f.name for f in dataclasses.fields(RunOptions))})")
     config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     if engine == "jax":
@@ -95,13 +100,16 @@ def score_batch(source: Any, *, config: SGCConfig | dict | None = None, calibrat
 
 
 def iter_scores(source: Any, *, config: SGCConfig | dict | None = None, calibration: Calibration | str | None = None,
-                engine: str = "jax", **options: Any) -> Iterator[ClipResult]:
-    """Each clip's ClipResult as soon as it is scored, in input order (arguments as ``score_batch``):
-    for corpora too large to hold. ``ecd`` needs the whole corpus: compute it afterwards with
-    ``sgc_jax.camera_dynamics``."""
+                engine: str = "jax", progress: bool | None = None, stats: StreamStats | None = None,
+                **options: Any) -> Iterator[ClipResult]:
+    """Each clip's ClipResult as soon as it is scored, in input order (arguments as ``score_batch``'s
+    but ``out``, ``pairs_out`` and ``resume``: it writes no table): for corpora too large to hold.
+    ``ecd`` needs the whole corpus: compute it afterwards with ``sgc_jax.camera_dynamics``."""
     entries, scoring, run_options, _ = prepare_run(source, config, calibration, engine, options)
-    for item in _stream(entries, scoring, run_options, None, None):
-        yield item.result
+    with Progress(len(entries), engine, progress) as bar:
+        for item in _stream(entries, scoring, run_options, None, stats):
+            bar.advance()
+            yield item.result
 
 
 def score_clip(source: Any, *, config: SGCConfig | dict | None = None, calibration: Calibration | str | None = None,
