@@ -17,35 +17,31 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pandas as pd
 
 from sgc_jax import SGCConfig, load_clip, score_batch
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from track_errors import retracked  # noqa: E402
+
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
-LK = {"winSize": (21, 21), "maxLevel": 3}
-FORWARD_BACKWARD_PX = 0.5
+LK_WINDOW_PX = 21  # as the shared clips' own tracks
 
 
 def grid_tracks(clip, stride: int):
-    """``clip`` with its tracks replaced by LK tracks from a grid of ``stride`` px in each frame i-1."""
-    gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in clip.frames]
+    """``clip`` with its tracks replaced by LK tracks (``track_errors.retracked``) from a grid of
+    ``stride`` px in each frame i-1."""
     H, W = clip.image_size
     ys, xs = np.mgrid[stride // 2:H:stride, stride // 2:W:stride]
-    start = np.stack([xs.ravel(), ys.ravel()], -1).astype(np.float32).reshape(-1, 1, 2)
-    curr = np.empty((clip.n_pairs, len(start), 2), np.float32)
-    vis = np.empty((clip.n_pairs, len(start)), bool)
-    for i in range(clip.n_pairs):
-        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[i], gray[i + 1], start, None, **LK)
-        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[i + 1], gray[i], ahead, None, **LK)
-        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < FORWARD_BACKWARD_PX
-        curr[i], vis[i] = ahead[:, 0], (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
-    prev = np.broadcast_to(start[:, 0], curr.shape).copy()
-    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}/s{stride:02d}", track_prev=prev, track_curr=curr,
-                               track_vis=vis, track_conf=np.ones(vis.shape, np.float32))
+    start = np.stack([xs.ravel(), ys.ravel()], -1).astype(np.float32)
+    prev = np.broadcast_to(start, (clip.n_pairs, *start.shape)).copy()
+    on_grid = dataclasses.replace(clip, track_prev=prev, track_curr=prev.copy(),
+                                  track_vis=np.ones(prev.shape[:2], bool), track_conf=np.ones(prev.shape[:2], np.float32))
+    return dataclasses.replace(retracked(on_grid, LK_WINDOW_PX), clip_id=f"{clip.clip_id}/s{stride:02d}")
 
 
 def main() -> None:
