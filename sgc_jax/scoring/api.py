@@ -42,11 +42,6 @@ def prepare_run(source: Any, config, calibration, engine: str, options: dict) ->
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     run_options, overrides = RunOptions.split(options)
-    known = {f.name for f in dataclasses.fields(SGCConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise TypeError(f"unknown option(s) {unknown}: neither SGCConfig fields ({sorted(known)}) nor run options "
-                        f"({sorted(f.name for f in dataclasses.fields(RunOptions))})")
     config = resolve_config(config, overrides)
     calibration = resolve_calibration(calibration, config)
     if engine == "jax":

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from ..config import SGCConfig
+
 READ_IN = ("auto", "threads", "processes")
 
 
@@ -28,7 +30,13 @@ class RunOptions:
 
     @classmethod
     def split(cls, options: dict) -> tuple["RunOptions", dict]:
-        """(the RunOptions among keyword ``options``, the rest)."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in options.items() if k in known}), {k: v for k, v in options.items()
-                                                                         if k not in known}
+        """(the RunOptions among keyword ``options``, the SGCConfig fields among the rest); any
+        other name raises TypeError naming both lists."""
+        mine = {f.name for f in dataclasses.fields(cls)}
+        fields = {f.name for f in dataclasses.fields(SGCConfig)}
+        unknown = sorted(set(options) - mine - fields)
+        if unknown:
+            raise TypeError(f"unknown option(s) {unknown}: neither SGCConfig fields ({sorted(fields)}) nor run "
+                            f"options ({sorted(mine)})")
+        return cls(**{k: v for k, v in options.items() if k in mine}), {k: v for k, v in options.items()
+                                                                        if k not in mine}
