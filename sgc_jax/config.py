@@ -215,6 +215,12 @@ class SGCConfig:
         return self.tracks_per_layer > 0 and self.partition == "depth" and self.compat != "authors"
 
     @property
+    def counts_repeated_tracks(self) -> bool:
+        """A track at the same positions at both ends as an earlier one counts again (``compat="authors"``
+        only; docs/semantics.md §1.2)."""
+        return self.compat == "authors"
+
+    @property
     def applies_quality_rule(self) -> bool:
         """The region-quality rule is on: ``quality_rule`` and not ``compat="authors"``."""
         return bool(self.quality_rule) and self.compat != "authors"

@@ -20,7 +20,7 @@ from sgc_jax import COMPONENTS, ClipFormatError, EvidenceLevels, RewardOptions, 
 from sgc_jax.calibration import DEFAULT_CALIBRATION, Calibration
 from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
-from sgc_jax.io.clip import without_absurd_depth
+from sgc_jax.io.clip import repeated_tracks, without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
 from sgc_jax.io.tables import EVIDENCE_COLUMNS, FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
@@ -330,6 +330,41 @@ def test_device_median_and_absurd_depth_match_the_hosts():
     valid = jax.jit(device_prepare.valid_without_absurd_depth)(jnp.asarray(depth), jnp.asarray(positive))
     host = without_absurd_depth(depth)
     np.testing.assert_array_equal(np.asarray(valid), np.isfinite(host) & (host > 0))
+
+
+def test_device_repeated_tracks_match_the_hosts():
+    rng = np.random.default_rng(2)
+    prev = rng.uniform(0, 50, (3, 40, 2)).astype(np.float32)
+    curr = (prev + rng.normal(0, 1, prev.shape)).astype(np.float32)
+    usable = np.ones((3, 40), bool)
+    expected = np.zeros((3, 40), bool)
+    for later in (5, 9, 30):  # pair 1: three copies of track 2, each later one a repeat
+        prev[0, later], curr[0, later] = prev[0, 2], curr[0, 2]
+        expected[0, later] = True
+    prev[1, 3], prev[1, 7] = (0.0, 4.0), (-0.0, 4.0)  # pair 2: -0.0 == 0.0
+    curr[1, 7] = curr[1, 3]
+    expected[1, 7] = True
+    prev[2, 4], curr[2, 4] = prev[2, 1], np.nextafter(curr[2, 1], np.float32(np.inf))  # pair 3: one float32 step
+    prev[2, 6], curr[2, 6] = prev[2, 0], curr[2, 0]  # an unusable copy is no earlier track, nor a repeat
+    usable[2, 0] = False
+    host = repeated_tracks(prev, curr, usable)
+    np.testing.assert_array_equal(host, expected)
+    device = jax.jit(jax.vmap(device_prepare.repeated_tracks))(jnp.asarray(prev), jnp.asarray(curr), jnp.asarray(usable))
+    np.testing.assert_array_equal(np.asarray(device), host)
+
+
+def test_a_track_given_again_counts_once_in_both_paths(scorer, corpus):
+    clip = corpus[1]
+    first = clip.n_tracks // 2
+    again = lambda a: np.concatenate([a[:, :first], a[:, :clip.n_tracks - first]], axis=1)  # noqa: E731
+    twice = dataclasses.replace(clip, clip_id="twice", track_prev=again(clip.track_prev), track_curr=again(clip.track_curr),
+                                track_vis=again(clip.track_vis), track_conf=again(clip.track_conf))
+    once = dataclasses.replace(twice, clip_id="once", track_vis=twice.track_vis & (np.arange(clip.n_tracks) < first))
+    rows = score_batch([twice, once], progress=False).clips
+    assert rows[0].sgc == rows[1].sgc and rows[0].components == rows[1].components
+    out = outputs(scorer, [twice, once] * (SHAPE[0] // 2))
+    for name, values in out.items():
+        np.testing.assert_array_equal(values[0], values[1], err_msg=name)
 
 
 def test_device_track_selection_matches_the_hosts(corpus):

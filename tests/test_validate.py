@@ -131,7 +131,7 @@ def test_tracks_given_twice_get_a_warning_and_a_few_repeats_none(clip):
                                    track_vis=extra(clip.track_vis), track_conf=extra(clip.track_conf))
 
     [line] = [p for p in check_clip(repeated(clip.n_tracks)) if p.code == "duplicate_tracks"]
-    assert line.severity == "warning" and "50% of pair" in line.found and "drop the repeats" in line.fix
+    assert line.severity == "warning" and "50% of pair" in line.found and "leaves the repeats out" in line.fix
     assert not [p for p in check_clip(repeated(clip.n_tracks // 50)) if p.code == "duplicate_tracks"]
 
 

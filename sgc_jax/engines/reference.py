@@ -237,7 +237,7 @@ class UsablePoints(NamedTuple):
 
 
 def usable_points(clip: Clip, pair: int, config: SGCConfig) -> UsablePoints:
-    usable = clip.usable_tracks(config.min_track_conf)[pair - 1]
+    usable = clip.usable_tracks(config.min_track_conf, repeats=config.counts_repeated_tracks)[pair - 1]
     prev, curr = clip.track_prev[pair - 1][usable].astype(np.float64), clip.track_curr[pair - 1][usable].astype(np.float64)
     X, has_depth = back_project_tracks(clip, pair, prev, config.track_pixel_offset)
     return UsablePoints(X[has_depth], curr[has_depth], prev[has_depth], int(usable.sum()))

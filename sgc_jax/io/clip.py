@@ -85,11 +85,13 @@ class Clip:
     def group(self) -> str:
         return str(self.meta.get("group", ""))
 
-    def usable_tracks(self, min_track_conf: float) -> np.ndarray:
-        """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2)."""
+    def usable_tracks(self, min_track_conf: float, *, repeats: bool = True) -> np.ndarray:
+        """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2);
+        ``repeats=False``: and not a repeat of an earlier such track (``repeated_tracks``)."""
         H, W = self.image_size
-        return (self.track_vis & (self.track_conf >= min_track_conf)
-                & within_reach(self.track_prev, H, W) & within_reach(self.track_curr, H, W))
+        usable = (self.track_vis & (self.track_conf >= min_track_conf)
+                  & within_reach(self.track_prev, H, W) & within_reach(self.track_curr, H, W))
+        return usable if repeats else usable & ~repeated_tracks(self.track_prev, self.track_curr, usable)
 
 
 def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:
@@ -98,6 +100,28 @@ def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:
     x, y = track[..., 0], track[..., 1]
     return ((x >= -TRACK_REACH * W) & (x <= (1 + TRACK_REACH) * W)
             & (y >= -TRACK_REACH * H) & (y <= (1 + TRACK_REACH) * H))  # NaN compares false
+
+
+def repeated_tracks(track_prev: np.ndarray, track_curr: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(T-1, P) bool: the ``usable`` tracks whose frame i-1 and frame i positions (T-1, P, 2) both
+    equal (==) those of a usable track of lower index in the same pair: one measurement given again
+    (docs/semantics.md §1.2). A 32-bit hash of the positions finds the pairs that may hold one (a
+    standard clip's in ~1.5 ms); only those are compared exactly."""
+    multiplier = np.uint64(0x9E3779B97F4A7C15)
+    prev, curr = (np.asarray(a, np.float32) + np.float32(0.0) for a in (track_prev, track_curr))  # -0.0 -> 0.0
+    with np.errstate(over="ignore"):  # the hash wraps around by design
+        mixed = (prev.view(np.uint64)[..., 0] * multiplier ^ curr.view(np.uint64)[..., 0]) * multiplier
+    key = np.where(usable, (mixed >> np.uint64(32)).astype(np.uint32) | np.uint32(1), np.uint32(0))  # unusable: 0
+    ordered = np.sort(key, axis=-1)
+    repeated = np.zeros(usable.shape, bool)
+    for pair in np.flatnonzero(np.any((ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] > 0), axis=-1)):
+        index = np.flatnonzero(usable[pair])
+        row = np.concatenate([prev[pair, index], curr[pair, index]], axis=-1)
+        by_position = np.lexsort((index, *row.T[::-1]))  # by x, y at i-1, x, y at i; then by index
+        row = row[by_position]
+        same = np.all(row[1:] == row[:-1], axis=-1)
+        repeated[pair, index[by_position[1:][same]]] = True
+    return repeated
 
 
 def without_absurd_depth(depth: np.ndarray) -> np.ndarray:

@@ -294,7 +294,7 @@ def subsample_tracks(clip: Clip, config: SGCConfig) -> Clip:
     P, limit = clip.n_tracks, config.max_tracks
     if P <= limit:
         return clip
-    usable = clip.usable_tracks(config.min_track_conf)
+    usable = clip.usable_tracks(config.min_track_conf, repeats=config.counts_repeated_tracks)
     index = np.empty((clip.n_pairs, limit), np.int64)
     for pair, usable_row in enumerate(usable):
         kept = np.flatnonzero(usable_row)

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..stats import spearman
-from .clip import Clip, ClipFormatError
+from .clip import Clip, ClipFormatError, repeated_tracks
 from .depth_edges import DEPTH_EDGE_RATIO, ramp_share
 
 SEVERITIES = ("error", "warning", "info")
@@ -34,9 +34,8 @@ TRACKS_OUTSIDE_ERROR = 0.25  # fraction of visible track positions outside: anot
 TRACKS_OUTSIDE_WARN = 0.05
 TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: computed on a smaller grid
 # A pair whose usable tracks repeat another usable track's positions at both ends this often: a track set
-# merged with itself. Each repeat counts as a measurement of its own (more depth layers, tighter floors):
-# tartan_000080 with every track twice scores 0.603 against 0.210 (bench/history/issue-58.md "One tracker
-# at several densities"). No split's scene nor real clip repeats a track.
+# merged with itself, which the user may not have meant to give. The score leaves repeats out (§1.2). No
+# split's scene nor real clip repeats a track.
 DUPLICATE_TRACKS_WARN = 0.05
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
 NEGATIVE_DEPTH_WARN = 0.01  # negative depth on this share of the pixels with a depth: a sign convention
@@ -274,8 +273,8 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
         problems.append(Problem("warning", "duplicate_tracks", "track_prev/track_curr",
                                 "each track once", f"{100 * repeated[worst]:.0f}% of pair {worst + 1}'s usable tracks "
                                 "repeat another's positions at both ends",
-                                "drop the repeats before scoring: a repeated track counts as another measurement "
-                                "(more depth layers, tighter floors; docs/semantics.md §3.2)"))
+                                "the score leaves the repeats out (docs/semantics.md §1.2; compat='authors' counts "
+                                "them); a tracker queried twice at one point usually makes them"))
     usable = np.count_nonzero(usable_tracks, axis=1)
     few = np.flatnonzero(usable < 4)
     if few.size:
@@ -291,17 +290,9 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
 
 
 def repeated_track_share(clip: Clip, usable: np.ndarray) -> np.ndarray:
-    """(T-1,) share of each pair's ``usable`` tracks whose frame i-1 and frame i positions both equal
-    an earlier usable track's (compared through a 64-bit hash of their float32 bits: a warning's
-    count, not an exact one)."""
-    bits = np.concatenate([clip.track_prev, clip.track_curr], axis=-1).astype(np.float32).view(np.uint32)
-    bits = bits.astype(np.uint64)
-    with np.errstate(over="ignore"):  # the hash wraps around by design
-        key = (((bits[..., 0] << 32) | bits[..., 1]) * np.uint64(0x9E3779B97F4A7C15)) ^ ((bits[..., 2] << 32) | bits[..., 3])
-    P = key.shape[-1]
-    key = np.where(usable, key, np.uint64(1) << np.uint64(63) | np.arange(P, dtype=np.uint64))  # unusable: distinct
-    ordered = np.sort(key, axis=-1)
-    repeats = np.count_nonzero(ordered[:, 1:] == ordered[:, :-1], axis=-1)
+    """(T-1,) share of each pair's ``usable`` tracks that repeat an earlier one's positions at both
+    ends (``io.clip.repeated_tracks``)."""
+    repeats = np.count_nonzero(repeated_tracks(clip.track_prev, clip.track_curr, usable), axis=-1)
     return repeats / np.maximum(np.count_nonzero(usable, axis=-1), 1)
 
 

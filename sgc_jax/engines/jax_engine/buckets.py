@@ -113,7 +113,7 @@ def pad_clip(clip: Clip, bucket: Bucket, config: SGCConfig, depth_unit: float = 
     track_prev = host_zeros((bucket.T - 1, bucket.P, 2), np.float32)
     track_curr = host_zeros((bucket.T - 1, bucket.P, 2), np.float32)
     usable = host_zeros((bucket.T - 1, bucket.P), bool)
-    usable[: T - 1, :P] = clip.usable_tracks(config.min_track_conf)
+    usable[: T - 1, :P] = clip.usable_tracks(config.min_track_conf, repeats=config.counts_repeated_tracks)
     track_prev[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_prev, 0.0)
     track_curr[: T - 1, :P] = np.where(usable[: T - 1, :P, None], clip.track_curr, 0.0)
     pair_valid = np.arange(bucket.T - 1) < T - 1

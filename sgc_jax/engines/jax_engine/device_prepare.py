@@ -131,6 +131,19 @@ def valid_without_absurd_depth(depth, positive, check=True):
     return jax.lax.cond(check, without_absurd, lambda: positive)
 
 
+def repeated_tracks(track_prev, track_curr, usable):
+    """(P,) bool: the ``usable`` (P,) tracks of one pair whose positions (P, 2) at frame i-1 and i both
+    equal (==) a usable track's of lower index (``io.clip.repeated_tracks``): one sort of the usable
+    tracks by their four coordinates, then by index."""
+    P = usable.shape[0]
+    coords = [jnp.where(c == 0, 0.0, c) for c in (track_prev[:, 0], track_prev[:, 1], track_curr[:, 0], track_curr[:, 1])]
+    unusable, *coords, index = jax.lax.sort(((~usable).astype(jnp.int32), *coords, jnp.arange(P)), num_keys=6)
+    same = (unusable[1:] == 0) & (unusable[:-1] == 0)
+    for c in coords:
+        same &= c[1:] == c[:-1]
+    return jnp.zeros(P, bool).at[index[1:]].set(same)
+
+
 def select_tracks(usable, limit: int):
     """(P,) usable -> (limit,) indices of the kept tracks (``loading.subsample_tracks``): usable
     ones first in their order, evenly spaced when more than ``limit``; then unusable ones."""
@@ -171,6 +184,8 @@ def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absur
               & within_reach(clip.track_prev, clip.heights, clip.widths)
               & within_reach(clip.track_curr, clip.heights, clip.widths)
               & pair[:, None] & (jnp.arange(P) < clip.n_tracks))
+    if not config.counts_repeated_tracks:
+        usable = usable & ~jax.vmap(repeated_tracks)(clip.track_prev, clip.track_curr, usable)
     track_prev, track_curr = clip.track_prev, clip.track_curr
     if P > config.max_tracks:
         index = jax.vmap(lambda row: select_tracks(row, config.max_tracks))(usable)
