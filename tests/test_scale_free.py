@@ -89,6 +89,24 @@ def test_camera_translations_in_other_units_than_depth_change_nothing(tracked_cl
         assert scored.scale == pytest.approx(result.clips[0].scale / factor, rel=SCALE_REL_TOL)
 
 
+def test_turning_and_moving_the_world_frame_changes_nothing(tracked_clip):
+    # x_cam = R_wc X + t_wc = (R_wc R0^T) (R0 X + o) + (t_wc - R_wc R0^T o): the same relative poses,
+    # read through float64 compositions the engine rounds to float32 (STORED_SGC_ATOL's argument)
+    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
+    variants = []
+    for angle, offset in ((np.deg2rad(170.0), 5.0), (0.0, 50.0)):
+        w = angle * axis
+        W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        R0 = np.eye(3) + np.sinc(angle / np.pi) * W + (0.5 * np.sinc(angle / (2 * np.pi)) ** 2) * W @ W
+        R_wc = tracked_clip.R_wc @ R0.T
+        t_wc = tracked_clip.t_wc - R_wc @ (offset * np.array([1.0, -2.0, 0.7]))
+        variants.append(dataclasses.replace(tracked_clip, clip_id=f"world{len(variants)}", R_wc=R_wc, t_wc=t_wc))
+    result = score_batch([tracked_clip, *variants])
+    for scored in result.clips[1:]:
+        assert scored.status == result.clips[0].status == "ok"
+        assert_components_equal(scored, result.clips[0], scored.clip_id, STORED_SGC_ATOL)
+
+
 # Cameras whose every translation runs against the tracks' (t_wc negated): s is held at 0, and the
 # tracks' whole translation reads as the global disagreement. Measured +0.167 SGC on this scene in
 # both engines (0.012 -> 0.179); the bar is 60 % of that.
