@@ -351,6 +351,9 @@ def test_device_repeated_tracks_match_the_hosts():
     np.testing.assert_array_equal(host, expected)
     device = jax.jit(jax.vmap(device_prepare.repeated_tracks))(jnp.asarray(prev), jnp.asarray(curr), jnp.asarray(usable))
     np.testing.assert_array_equal(np.asarray(device), host)
+    # the cheap check that lets a batch skip the sort by coordinates: never False where one repeats
+    may_hold = jax.jit(jax.vmap(device_prepare.may_hold_repeats))
+    assert list(may_hold(prev[:, None], curr[:, None], usable[:, None])) == [True, True, False]
 
 
 def test_a_track_given_again_counts_once_in_both_paths(scorer, corpus):

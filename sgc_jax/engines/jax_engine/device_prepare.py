@@ -131,17 +131,64 @@ def valid_without_absurd_depth(depth, positive, check=True):
     return jax.lax.cond(check, without_absurd, lambda: positive)
 
 
+def first_usable_tracks(clip: ClipArrays, config: SGCConfig):
+    """(T-1, P) bool: visible, confident, within reach, of a true pair and track (§1.2), repeats
+    not yet left out."""
+    T, P = clip.track_prev.shape[0] + 1, clip.track_prev.shape[1]
+    pair = jnp.arange(T - 1) < clip.n_frames - 1
+    return (clip.track_vis & (jnp.nan_to_num(clip.track_conf, nan=0.0) >= config.min_track_conf)
+            & within_reach(clip.track_prev, clip.heights, clip.widths)
+            & within_reach(clip.track_curr, clip.heights, clip.widths)
+            & pair[:, None] & (jnp.arange(P) < clip.n_tracks))
+
+
+def _coordinates(track_prev, track_curr) -> list:
+    """The four coordinates (..., P) of each track's two positions, -0.0 made 0.0 (== holds them equal)."""
+    return [jnp.where(c == 0, 0.0, c) for c in (track_prev[..., 0], track_prev[..., 1], track_curr[..., 0],
+                                                  track_curr[..., 1])]
+
+
+def _mixed(h):
+    """A 32-bit integer finaliser (each input bit moves about half of the output's)."""
+    h = (h ^ (h >> 16)) * jnp.uint32(0x7FEB352D)
+    h = (h ^ (h >> 15)) * jnp.uint32(0x846CA68B)
+    return h ^ (h >> 16)
+
+
+def may_hold_repeats(track_prev, track_curr, usable):
+    """() bool, False only where no pair holds a repeat: two usable tracks whose positions agree
+    share both of two 32-bit hashes of them, so each hash sorted (one operand, the cheap sort)
+    shows them side by side. Unrelated tracks share both in ~1e-3 of standard clips."""
+    bits = [jax.lax.bitcast_convert_type(c, jnp.uint32) for c in _coordinates(track_prev, track_curr)]
+    adjacent_equal = []
+    for seed, step in ((0x9E3779B9, 0x85EBCA77), (0xC2B2AE3D, 0x27D4EB2F)):
+        h = jnp.full(usable.shape, seed, jnp.uint32)
+        for word in bits:
+            h = _mixed(h ^ (word * jnp.uint32(step)))
+        ordered = jnp.sort(jnp.where(usable, h | 1, 0), axis=-1)  # unusable: 0, never a match
+        adjacent_equal.append(jnp.any((ordered[..., 1:] == ordered[..., :-1]) & (ordered[..., 1:] > 0)))
+    return adjacent_equal[0] & adjacent_equal[1]
+
+
 def repeated_tracks(track_prev, track_curr, usable):
     """(P,) bool: the ``usable`` (P,) tracks of one pair whose positions (P, 2) at frame i-1 and i both
     equal (==) a usable track's of lower index (``io.clip.repeated_tracks``): one sort of the usable
     tracks by their four coordinates, then by index."""
     P = usable.shape[0]
-    coords = [jnp.where(c == 0, 0.0, c) for c in (track_prev[:, 0], track_prev[:, 1], track_curr[:, 0], track_curr[:, 1])]
+    coords = _coordinates(track_prev, track_curr)
     unusable, *coords, index = jax.lax.sort(((~usable).astype(jnp.int32), *coords, jnp.arange(P)), num_keys=6)
     same = (unusable[1:] == 0) & (unusable[:-1] == 0)
     for c in coords:
         same &= c[1:] == c[:-1]
     return jnp.zeros(P, bool).at[index[1:]].set(same)
+
+
+def without_repeats(clip: ClipArrays, usable, check_repeats):
+    """``usable`` (T-1, P) less the repeats (``repeated_tracks``), looked for where ``check_repeats``
+    (() bool; a conditional, so a batch without any skips the sort by coordinates)."""
+    repeated = jax.lax.cond(check_repeats, lambda: jax.vmap(repeated_tracks)(clip.track_prev, clip.track_curr, usable),
+                            lambda: jnp.zeros(usable.shape, bool))
+    return usable & ~repeated
 
 
 def select_tracks(usable, limit: int):
@@ -153,9 +200,11 @@ def select_tracks(usable, limit: int):
     return jnp.where(n > limit, spaced, order[:limit])
 
 
-def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None) -> PaddedClips:
+def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None,
+                check_repeats=None) -> PaddedClips:
     """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them.
-    ``check_absurd``: whether to look for absurd depth (default: ``may_hold_absurd_depth``)."""
+    ``check_absurd``, ``check_repeats``: whether to look for absurd depth and for repeated tracks
+    (default: ``may_hold_absurd_depth``, ``may_hold_repeats``)."""
     T = clip.depth.shape[0]
     P = clip.track_prev.shape[1]
     frame, inside = true_extent(clip)
@@ -179,13 +228,11 @@ def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absur
     R_wc = jnp.where(frame[:, None, None], clip.R_wc, jnp.eye(3, dtype=clip.R_wc.dtype))
     t_wc = jnp.where(frame[:, None], clip.t_wc, 0.0)
 
-    pair = jnp.arange(T - 1) < clip.n_frames - 1
-    usable = (clip.track_vis & (jnp.nan_to_num(clip.track_conf, nan=0.0) >= config.min_track_conf)
-              & within_reach(clip.track_prev, clip.heights, clip.widths)
-              & within_reach(clip.track_curr, clip.heights, clip.widths)
-              & pair[:, None] & (jnp.arange(P) < clip.n_tracks))
+    usable = first_usable_tracks(clip, config)
     if not config.counts_repeated_tracks:
-        usable = usable & ~jax.vmap(repeated_tracks)(clip.track_prev, clip.track_curr, usable)
+        if check_repeats is None:
+            check_repeats = may_hold_repeats(clip.track_prev, clip.track_curr, usable)
+        usable = without_repeats(clip, usable, check_repeats)
     track_prev, track_curr = clip.track_prev, clip.track_curr
     if P > config.max_tracks:
         index = jax.vmap(lambda row: select_tracks(row, config.max_tracks))(usable)
@@ -233,6 +280,11 @@ def prepare_differentiable(clip: ClipArrays, bucket: Bucket, config: SGCConfig) 
 def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> PaddedClips:
     """B clips -> the padded batch (leading axis B) the stages take. Absurd depth is looked for
     in every clip when any clip may hold some: one decision for the batch stays a conditional
-    under the vmap, where each clip's own would compute both branches (the median's passes)."""
+    under the vmap, where each clip's own would compute both branches (the median's passes); so
+    are repeated tracks (the sort by coordinates)."""
     check = jnp.any(jax.vmap(lambda clip: may_hold_absurd_depth(clip.depth, positive_depth(clip)))(clips))
-    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check))(clips)
+    repeats = None
+    if not config.counts_repeated_tracks:
+        repeats = jnp.any(jax.vmap(lambda clip: may_hold_repeats(clip.track_prev, clip.track_curr,
+                                                                  first_usable_tracks(clip, config)))(clips))
+    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check, repeats))(clips)
