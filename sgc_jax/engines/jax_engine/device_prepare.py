@@ -159,7 +159,8 @@ def may_hold_repeats(track_prev, track_curr, usable):
     """() bool, False only where no pair holds a repeat: two usable tracks whose positions agree
     share both of two 32-bit hashes of them, so each hash sorted (one operand, the cheap sort)
     shows them side by side. Unrelated tracks share both in ~1e-3 of standard clips."""
-    bits = [jax.lax.bitcast_convert_type(c, jnp.uint32) for c in _coordinates(track_prev, track_curr)]
+    # hashed in float32 whatever the dtype (float64 under gradient checks): equal values stay equal
+    bits = [jax.lax.bitcast_convert_type(c.astype(jnp.float32), jnp.uint32) for c in _coordinates(track_prev, track_curr)]
     adjacent_equal = []
     for seed, step in ((0x9E3779B9, 0x85EBCA77), (0xC2B2AE3D, 0x27D4EB2F)):
         h = jnp.full(usable.shape, seed, jnp.uint32)
