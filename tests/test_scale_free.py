@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scenes import SCENE
+from scipy.spatial.transform import Rotation
 from tolerances import NUMERICAL_FLOOR, RIGID_ROT_VAR_BAR
 
 from sgc_jax import score_batch
@@ -95,10 +96,7 @@ def test_turning_and_moving_the_world_frame_changes_nothing(tracked_clip):
     axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
     variants = []
     for angle, offset in ((np.deg2rad(170.0), 5.0), (0.0, 50.0)):
-        w = angle * axis
-        W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-        R0 = np.eye(3) + np.sinc(angle / np.pi) * W + (0.5 * np.sinc(angle / (2 * np.pi)) ** 2) * W @ W
-        R_wc = tracked_clip.R_wc @ R0.T
+        R_wc = tracked_clip.R_wc @ Rotation.from_rotvec(angle * axis).as_matrix().T
         t_wc = tracked_clip.t_wc - R_wc @ (offset * np.array([1.0, -2.0, 0.7]))
         variants.append(dataclasses.replace(tracked_clip, clip_id=f"world{len(variants)}", R_wc=R_wc, t_wc=t_wc))
     result = score_batch([tracked_clip, *variants])
