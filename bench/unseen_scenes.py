@@ -61,12 +61,11 @@ import json
 import sys
 import time
 
-import cv2
 import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.io.depth_edges import without_ramps
-from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.noise import NOISE_MODELS, add_noise, enlarged_depth
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
     NOISE_DRAW_STRIDE,
@@ -212,10 +211,7 @@ def estimator_depth(clip, resample: float, bits: int, edge_ratio: float = 0.0):
         return clip
     depth = clip.depth.astype(np.float32)
     if resample > 1:
-        H, W = depth.shape[1:]
-        small = (max(round(W / resample), 1), max(round(H / resample), 1))
-        depth = np.stack([cv2.resize(cv2.resize(frame, small, interpolation=cv2.INTER_AREA), (W, H),
-                                     interpolation=cv2.INTER_LINEAR) for frame in depth])
+        depth = enlarged_depth(depth, resample)
     if bits > 0:
         valid = depth > 0
         inverse = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)

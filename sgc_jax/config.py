@@ -14,6 +14,7 @@ PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
 TRACK_PIXELS = ("floor", "nearest")
+SMOOTH_DEPTH_EDGES = ("leave_out", "keep")
 # Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers from 140 tracks,
 # 7 at 1,000, k_seg from 1,400 (bench/history/issue-58.md, "Larger depth layers on two noise draws").
 TRACKS_PER_LAYER = 140
@@ -79,7 +80,7 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 # changing either reuses the program.
 STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "region_frame", "compat",
                  "global_pose", "align_scale", "borrow_region_poses")
-HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos")
+HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos", "smooth_depth_edges")
 VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
                 "seed", "track_pixel", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px",
                 "quality_noise_px", "min_region_extent", "ambiguous_rot_deg", "ambiguous_inlier_frac")
@@ -125,6 +126,11 @@ class SGCConfig:
                                        "floor y), the paper's code) or nearest (the pixel whose centre, at integer "
                                        "coordinates, is nearest); compat='authors' always reads floor "
                                        "(docs/semantics.md §1.1)", choices=TRACK_PIXELS)
+    smooth_depth_edges: str = _field("leave_out", "depth whose edges are ramps of mixed depths, as a depth network's "
+                                                 "enlarged output: leave_out its ramps before scoring (they lie on no "
+                                                 "surface), or keep them; compat='authors' always keeps them "
+                                                 "(docs/semantics.md §3.6, \"Smooth depth edges\")",
+                                     choices=SMOOTH_DEPTH_EDGES)
     use_mos: bool = _field(True, "use the static masks; --no-mos ignores them (the paper's no-MOS ablation, "
                                  "docs/semantics.md §6.2)", flag="--mos")
     # None: on under compat="spec" (docs/semantics.md §3.4), off under compat="authors".
@@ -164,6 +170,8 @@ class SGCConfig:
             raise ValueError(f"region_frame must be one of {REGION_FRAMES}, got {self.region_frame!r}")
         if self.track_pixel not in TRACK_PIXELS:
             raise ValueError(f"track_pixel must be one of {TRACK_PIXELS}, got {self.track_pixel!r}")
+        if self.smooth_depth_edges not in SMOOTH_DEPTH_EDGES:
+            raise ValueError(f"smooth_depth_edges must be one of {SMOOTH_DEPTH_EDGES}, got {self.smooth_depth_edges!r}")
         if self.compat not in COMPATS:
             raise ValueError(f"compat must be one of {COMPATS}, got {self.compat!r}")
         for name in ("k_seg", "min_points", "ransac_hypotheses", "max_tracks", "kmeans_bins", "lm_steps"):
@@ -219,6 +227,12 @@ class SGCConfig:
         """A track at the same positions at both ends as an earlier one counts again (``compat="authors"``
         only; docs/semantics.md §1.2)."""
         return self.compat == "authors"
+
+    @property
+    def leaves_out_depth_ramps(self) -> bool:
+        """A clip whose depth edges are ramps has them left out before scoring (``smooth_depth_edges``
+        "leave_out" and not ``compat="authors"``; docs/semantics.md §3.6)."""
+        return self.smooth_depth_edges == "leave_out" and self.compat != "authors"
 
     @property
     def applies_quality_rule(self) -> bool:

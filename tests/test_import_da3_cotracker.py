@@ -17,7 +17,7 @@ from estimator_fixtures import (
 )
 from scenes import SCENE
 from test_adapters import K_ATOL_PX, SCORE_RTOL
-from test_validate import enlarged_depth
+from test_validate import network_depth
 
 from sgc_jax import load_clip, score_batch
 from sgc_jax.adapters import (
@@ -30,7 +30,7 @@ from sgc_jax.adapters import (
 )
 from sgc_jax.calibration import COMPONENTS
 from sgc_jax.cli import main
-from sgc_jax.io.validate import ClipWarning
+from sgc_jax.io.validate import check_clip
 from sgc_jax.research.synth import CLEAN_SGC_MAX, synth_clip
 
 
@@ -186,10 +186,11 @@ def test_depth_beyond_max_depth_is_imported_invalid_with_its_share_recorded(tmp_
 
 def test_depth_on_ramps_at_edges_is_imported_invalid_with_its_share_recorded(tmp_path, scene_clip, capsys):
     H, W = scene_clip.image_size
-    da3 = write_da3(tmp_path / "results.npz", enlarged_depth(scene_clip))  # a network's depth, edges as ramps
+    da3 = write_da3(tmp_path / "results.npz", network_depth(scene_clip))  # a network's depth, edges as ramps
     tracks = write_cotracker(tmp_path / "cotracker.npz", *long_range_tracks_of(scene_clip, 200))
-    with pytest.warns(ClipWarning, match="Smooth depth edges"):
-        every = import_clip(da3=da3, tracks=tracks, size=(H, W))
+    every = import_clip(da3=da3, tracks=tracks, size=(H, W))
+    [line] = [p for p in check_clip(every) if p.code == "smooth_depth_edges"]
+    assert line.severity == "info" and "left out before scoring" in line.message  # scoring's default does it
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cut = import_clip(da3=da3, tracks=tracks, size=(H, W), depth_edge_ratio=1.2)

@@ -17,6 +17,7 @@ from scenes import DEMO_BATCH_SHAPE, DEMO_SCENE, SMALL_SCENE
 from tolerances import LM_SETTLE_RTOL
 
 from sgc_jax import COMPONENTS, ClipFormatError, EvidenceLevels, RewardOptions, Scorer, SGCConfig, score_batch
+from sgc_jax.adapters import leave_out_depth_ramps
 from sgc_jax.calibration import DEFAULT_CALIBRATION, Calibration
 from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
@@ -24,6 +25,7 @@ from sgc_jax.io.clip import repeated_tracks, without_absurd_depth
 from sgc_jax.io.loading import subsample_tracks
 from sgc_jax.io.tables import EVIDENCE_COLUMNS, FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
+from sgc_jax.research.noise import enlarged_depth
 from sgc_jax.research.synth import demo_corpus, synth_clip
 from sgc_jax.scoring.result import camera_dynamics
 from sgc_jax.scoring.reward import reward
@@ -368,6 +370,20 @@ def test_a_track_given_again_counts_once_in_both_paths(scorer, corpus):
     out = outputs(scorer, [twice, once] * (SHAPE[0] // 2))
     for name, values in out.items():
         np.testing.assert_array_equal(values[0], values[1], err_msg=name)
+
+
+def test_depth_edges_as_ramps_are_left_out_alike_in_both_paths(scorer, corpus):
+    clip = corpus[1]
+    smooth = dataclasses.replace(clip, clip_id="smooth", depth=enlarged_depth(clip.depth, 2))
+    left_out = dataclasses.replace(leave_out_depth_ramps(smooth), clip_id="left_out")
+    rows = score_batch([smooth, left_out], progress=False).clips
+    assert rows[0].sgc == rows[1].sgc and rows[0].components == rows[1].components
+    [kept] = score_batch([smooth], config=SGCConfig(smooth_depth_edges="keep"), progress=False).clips
+    assert kept.components["depth_error"] > 2 * rows[0].components["depth_error"]
+    out = outputs(scorer, [smooth, left_out] * (SHAPE[0] // 2))
+    for name, values in out.items():
+        np.testing.assert_array_equal(values[0], values[1], err_msg=name)
+    np.testing.assert_allclose(out["sgc"][0], rows[0].sgc, rtol=CLIP_RTOL, atol=CLIP_ATOL)
 
 
 def test_device_track_selection_matches_the_hosts(corpus):

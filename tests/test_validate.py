@@ -4,7 +4,6 @@ import dataclasses
 import json
 import warnings
 
-import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +13,7 @@ from scenes import IMPORT_SCENE
 
 from sgc_jax import (
     ClipFormatError,
+    SGCConfig,
     clip_from_arrays,
     depth_without_ramps,
     load_clip,
@@ -22,10 +22,12 @@ from sgc_jax import (
     score_batch,
 )
 from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
+from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import clip_to_arrays
-from sgc_jax.io.depth_edges import edges_and_ramps, ramp_share
+from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
 from sgc_jax.io.loading import validate_paths
-from sgc_jax.io.validate import RAMP_SHARE_WARN, ClipValidationError, ClipWarning, check_clip
+from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
+from sgc_jax.research.noise import enlarged_depth
 from sgc_jax.research.synth import synth_clip
 
 SMALL = dict(IMPORT_SCENE, with_frames=False)
@@ -83,35 +85,50 @@ def test_negative_depth_gets_a_warning_naming_the_sign_convention_and_a_few_stra
     assert not [p for p in problems_of(arrays_of(clip, depth=strays)) if p.code == "negative_depth"]
 
 
-def enlarged_depth(clip, factor=2):
-    """Each frame's depth as a network at 1/factor of the frame's size leaves it, enlarged bilinearly."""
-    H, W = clip.image_size
-    small = [cv2.resize(d, (W // factor, H // factor), interpolation=cv2.INTER_AREA) for d in clip.depth]
-    depth = np.stack([cv2.resize(d, (W, H), interpolation=cv2.INTER_LINEAR) for d in small]).astype(np.float32)
-    return dataclasses.replace(clip, depth=depth)
+def network_depth(clip, factor=2):
+    """The clip with its depth as a network at 1/factor of the frame's size leaves it."""
+    return dataclasses.replace(clip, depth=enlarged_depth(clip.depth, factor))
 
 
-def test_depth_edges_as_ramps_get_a_warning_naming_the_edge_ratio_and_none_once_the_ramps_are_left_out(clip):
-    smooth = enlarged_depth(clip)
+def test_depth_edges_as_ramps_are_said_to_be_left_out_warned_of_where_kept_and_quiet_once_left_out(clip):
+    smooth = network_depth(clip)
     [line] = [p for p in check_clip(smooth) if p.code == "smooth_depth_edges"]
-    assert line.severity == "warning" and f"--depth-edge-ratio {DEPTH_EDGE_RATIO:g}" in line.fix
+    assert line.severity == "info" and "left out before scoring" in line.message
+    for config in (SGCConfig(smooth_depth_edges="keep"), SGCConfig(compat="authors")):
+        [line] = [p for p in check_clip(smooth, config) if p.code == "smooth_depth_edges"]
+        assert line.severity == "warning" and f"--depth-edge-ratio {DEPTH_EDGE_RATIO:g}" in line.fix
     left_out = leave_out_depth_ramps(smooth)
     assert 0 < left_out.meta["depth_ramps"]["invalid_frac"] < 0.5
     assert not (left_out.depth[edges_and_ramps(smooth.depth)[1]] > 0).any()
     assert not [p for p in check_clip(left_out) if p.code == "smooth_depth_edges"]
-    assert ramp_share(clip.depth)[1] < RAMP_SHARE_WARN / 10 < ramp_share(smooth.depth)[1] / 10
+    assert ramp_share(clip.depth)[1] < RAMP_SHARE / 10 < ramp_share(smooth.depth)[1] / 10
+    assert has_smooth_edges(smooth.depth) and not has_smooth_edges(clip.depth)
     with pytest.raises(ValueError, match="must be > 1"):
         leave_out_depth_ramps(clip, 1.0)
 
 
 def test_the_devices_ramp_step_leaves_the_same_depth_as_the_hosts_inside_a_jit(clip):
-    smooth = enlarged_depth(clip)
+    smooth = network_depth(clip)
     holes = smooth.depth.copy()
     holes[:, :5, :7] = 0  # invalid depth is no neighbour
     on_host = leave_out_depth_ramps(dataclasses.replace(smooth, depth=holes)).depth
     on_device = np.asarray(jax.jit(depth_without_ramps)(jnp.asarray(holes), DEPTH_EDGE_RATIO))
     assert (on_host == 0).sum() > (holes == 0).sum()
     np.testing.assert_array_equal(on_device, on_host)
+
+
+@pytest.mark.parametrize("n_frames", [2, 3, 4])
+def test_the_device_decides_which_clips_have_smooth_edges_and_leaves_out_their_ramps_as_the_host(clip, n_frames):
+    T, (H, W) = n_frames, clip.image_size
+    for depth in (clip.depth[:T], network_depth(clip).depth[:T]):
+        padded = np.full((T + 2, H + 8, W + 8), 3.0, np.float32)  # the padding's depth is no neighbour
+        padded[:T, :H, :W] = depth
+        arrays = device_prepare.ClipArrays(*[None] * 9, n_frames=jnp.int32(T), n_tracks=None, heights=jnp.int32(H),
+                                           widths=jnp.int32(W))._replace(depth=jnp.asarray(padded))
+        on_device = jax.jit(lambda a: (device_prepare.has_smooth_edges(a), device_prepare.ramps_left_out(a, True)))
+        smooth, left_out = on_device(arrays)
+        assert bool(smooth) == has_smooth_edges(depth)
+        np.testing.assert_array_equal(np.asarray(left_out)[:T, :H, :W], ramps_left_out(depth))
 
 
 def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none(clip):

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..config import CAMERA_TRANSLATION_RESOLUTION, SGCConfig
 from ..io.clip import Clip, without_absurd_depth
+from ..io.depth_edges import ramps_left_out
 from ..stats import exact_median
 
 PERCENT = 100.0
@@ -35,10 +36,12 @@ def depth_unit(clip: Clip, config: SGCConfig) -> float:
 
 
 def in_depth_units(clip: Clip, config: SGCConfig) -> tuple[Clip, float]:
-    """(the clip both engines score, D): absurd depth made invalid (NaN, docs/semantics.md §1.2),
-    then depth / D. Float64 division, then float32, so that scaling a clip's depth by s gives the
-    same normalised depth up to one rounding."""
-    depth = without_absurd_depth(clip.depth)
+    """(the clip both engines score, D): a network's ramps at depth edges left out where the edges are
+    ramps (``config.leaves_out_depth_ramps``, docs/semantics.md §3.6), absurd depth made invalid (NaN,
+    §1.2), then depth / D. Float64 division, then float32, so that scaling a clip's depth by s gives
+    the same normalised depth up to one rounding."""
+    depth = ramps_left_out(clip.depth) if config.leaves_out_depth_ramps else clip.depth
+    depth = without_absurd_depth(depth)
     if depth is not clip.depth:
         clip = dataclasses.replace(clip, depth=depth)
     unit = depth_unit(clip, config)

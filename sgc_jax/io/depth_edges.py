@@ -4,10 +4,12 @@ A monocular depth network predicts at a fraction of the frame's size and its out
 a depth edge becomes a ramp of pixels between the two surfaces' depths, points that lie on no
 surface. The depth check warps them and compares them with the next frame's ramp, which parallax has
 moved: a consistent world's depth error reads ~2 % (depth from half the frame's size) where it read
-0.3 %. :func:`edges_and_ramps` finds them and :func:`without_ramps` makes the ramps invalid (an
-opt-in step before scoring: ``sgc_jax.adapters.leave_out_depth_ramps``, ``sgc-jax import
---depth-edge-ratio``); :func:`ramp_share` tells such depth from a sensor's or a renderer's, whose
-edges are steps.
+0.3 %. :func:`edges_and_ramps` finds them and :func:`without_ramps` makes the ramps invalid;
+:func:`ramp_share` tells such depth from a sensor's or a renderer's, whose edges are steps, and
+:func:`has_smooth_edges` decides it for a clip: under ``compat="spec"`` both engines leave such a
+clip's ramps out before scoring (``SGCConfig.smooth_depth_edges``, :func:`ramps_left_out`); any
+clip's, at any ratio, by ``sgc_jax.adapters.leave_out_depth_ramps`` or ``sgc-jax import
+--depth-edge-ratio``.
 
 Depth arrays are (T, H, W); a value is valid where finite and > 0. Neighbourhoods are 3 x 3 pixels.
 """
@@ -26,6 +28,16 @@ DEPTH_EDGE_RATIO = 1.2
 # An edge pixel lies on a ramp where its depth is more than this share above its neighbourhood's
 # smallest and below its largest: mixed, not one surface's or the other's.
 RAMP_MARGIN = 0.05
+# Depth whose edges are ramps (a network's output enlarged): at least this share of the edge pixels lies between
+# its neighbours' depths, read on RAMP_FRAMES frames spread over the clip, where edges hold RAMP_EDGE_SHARE_MIN to
+# RAMP_EDGE_SHARE_MAX of the valid depth (beyond, the depth is noise, not surfaces: 0.06-0.20 enlarged). FIT's pool
+# (seeds 30-41, clean and perturbed at 0.25) reads 0.004-0.026 as rendered or stored in 8 or 16 bits, 0.37-0.40
+# under the protocol's `depth` model, 0.64-0.70 enlarged 1.4x and 0.71-0.96 at 2-4x; the six real clips'
+# sensor and rendered depth 0.00-0.29 (bench/history/issue-58.md "Smooth depth edges", "Ramps left out by default").
+RAMP_SHARE = 0.5
+RAMP_EDGE_SHARE_MIN = 0.005
+RAMP_EDGE_SHARE_MAX = 0.5
+RAMP_FRAMES = 4
 _NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
 
 
@@ -69,6 +81,36 @@ def without_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[n
     check_edge_ratio(ratio)
     _, ramps, valid = edges_and_ramps(depth, ratio)
     return np.where(ramps, 0, depth).astype(depth.dtype), int(ramps.sum()) / max(valid, 1)
+
+
+def ramp_frames(n_frames, xp=np):
+    """(RAMP_FRAMES,) int: the frames a clip's ramps are read on, round(j (n - 1) / 3), j = 0..3 (a
+    frame may repeat; the set is every frame of a clip of up to 4). Written once for NumPy and
+    ``jax.numpy`` (``n_frames`` traced)."""
+    steps = xp.arange(RAMP_FRAMES, dtype=xp.float32) / xp.float32(RAMP_FRAMES - 1)
+    return xp.round(steps * xp.asarray(n_frames - 1, xp.float32)).astype(xp.int32)
+
+
+def edges_are_ramps(n_valid, n_edges, n_ramps, xp=np):
+    """Whether counts of valid, edge and ramp pixels (:func:`edges_and_ramps`) are a depth network's
+    enlarged output: edges hold RAMP_EDGE_SHARE_MIN to _MAX of the valid depth and at least
+    RAMP_SHARE of them are ramps. In float32 on both NumPy and ``jax.numpy``, so the host and the
+    device decide alike."""
+    valid, edges, ramps = (xp.asarray(n, xp.float32) for n in (n_valid, n_edges, n_ramps))
+    return ((edges >= xp.float32(RAMP_EDGE_SHARE_MIN) * valid) & (edges <= xp.float32(RAMP_EDGE_SHARE_MAX) * valid)
+            & (ramps >= xp.float32(RAMP_SHARE) * edges) & (edges > 0))
+
+
+def has_smooth_edges(depth: np.ndarray) -> bool:
+    """Whether a clip's depth (T, H, W) has edges that are ramps, read on :func:`ramp_frames`."""
+    edges, ramps, valid = edges_and_ramps(depth[np.unique(ramp_frames(depth.shape[0]))])
+    return bool(edges_are_ramps(valid, int(edges.sum()), int(ramps.sum())))
+
+
+def ramps_left_out(depth: np.ndarray) -> np.ndarray:
+    """``depth`` with its ramps invalid (0) where its edges are ramps (:func:`has_smooth_edges`);
+    the same array otherwise."""
+    return without_ramps(depth)[0] if has_smooth_edges(depth) else depth
 
 
 def ramp_share(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[float, float]:

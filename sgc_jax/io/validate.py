@@ -20,7 +20,7 @@ import numpy as np
 from ..config import SGCConfig
 from ..stats import spearman
 from .clip import Clip, ClipFormatError, repeated_tracks
-from .depth_edges import DEPTH_EDGE_RATIO, ramp_share
+from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_and_ramps, edges_are_ramps, ramp_frames
 
 SEVERITIES = ("error", "warning", "info")
 
@@ -69,15 +69,6 @@ FAR_DEPTH_SHARE_WARN = 0.10
 # scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12
 # consistent clips above 0.10 and 1 % 5-7 (bench/history/issue-58.md "A sky read as depth").
 FOCAL_SPREAD_WARN = 0.005
-# Depth whose edges are ramps (a network's output enlarged): at least this share of the edge pixels lies between
-# its neighbours' depths, read on up to RAMP_FRAMES frames. The unseen pool's scenes read 0.01-0.02 as rendered,
-# 0.65-0.70 enlarged 1.4x and 0.77-0.96 at 2-4x, the protocol's `depth` model (1 px blended) 0.36-0.39, the six real clips'
-# sensor and rendered depth 0.00-0.30; such depth lifted every consistent unseen clip above 0.10
-# (bench/history/issue-58.md "Smooth depth edges").
-RAMP_SHARE_WARN = 0.5
-RAMP_EDGE_SHARE_MIN = 0.005  # ... where at least this share of the valid depth lies at edges
-RAMP_EDGE_SHARE_MAX = 0.5  # ... and at most this: beyond, the depth is noise, not surfaces (0.09-0.16 enlarged)
-RAMP_FRAMES = 4
 # Content problems that the scorer already reports per pair with a reason code (docs/semantics.md §1.4): shown by
 # ``sgc-jax validate``, not repeated as loader warnings.
 SCORER_REPORTED = ("too_few_tracks", "no_valid_depth")
@@ -503,20 +494,25 @@ def check_far_backdrop(values: np.ndarray) -> list[Problem]:
                     f"if it is sky, mark it invalid: depth 0 there (`sgc-jax import ... --max-depth {limit:.3g}`)")]
 
 
-def check_depth_ramps(clip: Clip) -> list[Problem]:
-    """A warning where the depth's edges are ramps of mixed depths, as a network's enlarged output."""
-    frames = np.unique(np.linspace(0, clip.n_frames - 1, min(RAMP_FRAMES, clip.n_frames)).round().astype(int))
-    edge_share, on_ramp = ramp_share(clip.depth[frames])
-    if not RAMP_EDGE_SHARE_MIN <= edge_share <= RAMP_EDGE_SHARE_MAX or on_ramp < RAMP_SHARE_WARN:
+def check_depth_ramps(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """Where the depth's edges are ramps of mixed depths, as a network's enlarged output: a line saying
+    they are left out before scoring (``config.smooth_depth_edges``), or a warning where they are kept."""
+    edges, ramps, valid = edges_and_ramps(clip.depth[np.unique(ramp_frames(clip.n_frames))])
+    n_edges, n_ramps = int(edges.sum()), int(ramps.sum())
+    if not edges_are_ramps(valid, n_edges, n_ramps):
         return []
+    found = (f"{100 * n_ramps / n_edges:.0f}% of the edge pixels ({100 * n_edges / valid:.1f}% of the valid depth) lie "
+             "between their neighbours' depths: a depth network's enlarged output, whose edge points lie on no surface "
+             "and read as depth error (docs/semantics.md §3.6, \"Smooth depth edges\")")
+    if config.leaves_out_depth_ramps:
+        return [Problem("info", "smooth_depth_edges", "depth", "", found + "; their ramps are left out before scoring "
+                        "(smooth_depth_edges='leave_out', the default)")]
     return [Problem("warning", "smooth_depth_edges", "depth",
-                    f"depth edges as steps (under {100 * RAMP_SHARE_WARN:.0f}% of the edge pixels between their "
-                    "neighbours' depths)",
-                    f"{100 * on_ramp:.0f}% of the edge pixels ({100 * edge_share:.1f}% of the valid depth) lie between "
-                    "their neighbours' depths: a depth network's enlarged output, whose edge points lie on no surface "
-                    "and read as depth error (docs/semantics.md §3.6, \"Smooth depth edges\")",
-                    f"leave the ramps out before scoring: `sgc-jax import ... --depth-edge-ratio {DEPTH_EDGE_RATIO:g}` "
-                    "or sgc_jax.adapters.leave_out_depth_ramps(clip)")]
+                    f"depth edges as steps (under {100 * RAMP_SHARE:.0f}% of the edge pixels between their "
+                    "neighbours' depths)", found,
+                    "leave the ramps out before scoring: drop `--smooth-depth-edges keep` (not under --compat authors), "
+                    f"or `sgc-jax import ... --depth-edge-ratio {DEPTH_EDGE_RATIO:g}` or "
+                    "sgc_jax.adapters.leave_out_depth_ramps(clip)")]
 
 
 def check_mask(clip: Clip) -> list[Problem]:
@@ -560,7 +556,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks
-                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_depth_ramps(clip)
+                + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_depth_ramps(clip, config)
                 + check_mask(clip) + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)

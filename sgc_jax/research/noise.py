@@ -18,6 +18,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
   ``DEPTH_CORRELATION_PX``), and at depth edges (a jump of more than ``DEPTH_EDGE_JUMP`` between
   neighbouring pixels) pixels within ``depth_edge_px`` of the edge blended at random between the
   two sides, as monocular estimators smear edges ("flying pixels").
+- Depth as a network leaves it (:func:`enlarged_depth`, not part of a ``NoiseModel``): predicted at
+  a fraction of the frame's size and enlarged bilinearly, so depth edges become ramps of mixed depths
+  (docs/semantics.md §3.6, "Smooth depth edges").
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
 - Camera errors, as a pose estimator's (VGGT's) per frame, independent between frames: each
@@ -140,6 +143,16 @@ def depth_edges(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
         edge[tuple(lo)] |= jump
         edge[tuple(hi)] |= jump
     return edge
+
+
+def enlarged_depth(depth: np.ndarray, factor: float) -> np.ndarray:
+    """(T, H, W) float32: each frame of ``depth`` shrunk ``factor`` times by area averaging (over
+    factor x factor blocks at a whole factor), then enlarged bilinearly back to H x W, as a depth
+    network predicting at 1/factor of the frame's size leaves it (VDA at 518 px on the short side)."""
+    H, W = depth.shape[1:]
+    small = (max(round(W / factor), 1), max(round(H / factor), 1))
+    return np.stack([cv2.resize(cv2.resize(frame, small, interpolation=cv2.INTER_AREA), (W, H),
+                                interpolation=cv2.INTER_LINEAR) for frame in depth.astype(np.float32)])
 
 
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:

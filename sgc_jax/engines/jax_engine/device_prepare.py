@@ -1,7 +1,8 @@
-"""The host's clip preparation written for the device (docs/semantics.md §9.2): absurd depth made
-invalid, depth in units of D, usable tracks, the ``max_tracks`` selection and padding to the
-bucket, with the numbers of ``units.in_depth_units``, ``loading.subsample_tracks`` and
-``buckets.pad_clip``. Traceable: no host round-trip, so a user's ``jax.jit`` can hold it."""
+"""The host's clip preparation written for the device (docs/semantics.md §9.2): a network's ramps at
+depth edges left out, absurd depth made invalid, depth in units of D, usable tracks, the
+``max_tracks`` selection and padding to the bucket, with the numbers of ``units.in_depth_units``,
+``loading.subsample_tracks`` and ``buckets.pad_clip``. Traceable: no host round-trip, so a user's
+``jax.jit`` can hold it."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import jax.numpy as jnp
 
 from ...config import SGCConfig
 from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
-from ...io.depth_edges import DEPTH_EDGE_RATIO, RAMP_MARGIN
+from ...io.depth_edges import DEPTH_EDGE_RATIO, RAMP_MARGIN, edges_are_ramps, ramp_frames
 from ...io.loading import evenly_spaced_ranks
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
 from ...kernels.medians import order_statistics
@@ -38,16 +39,48 @@ class ClipArrays(NamedTuple):
     widths: jax.Array  # (B,) int32
 
 
-def depth_without_ramps(depth: jax.Array, ratio: float = DEPTH_EDGE_RATIO) -> jax.Array:
+def _ramps(depth, valid, ratio):
+    """(..., H, W) bool: the ``valid`` pixels on a ramp at a depth edge (``io.depth_edges.edges_and_ramps``),
+    and (..., H, W) bool: those at an edge."""
+    window, strides = (1,) * (depth.ndim - 2) + (3, 3), (1,) * depth.ndim
+    inf, zero = jnp.array(jnp.inf, depth.dtype), jnp.array(0, depth.dtype)  # the depth's dtype, x64 or not
+    low = jax.lax.reduce_window(jnp.where(valid, depth, inf), inf, jax.lax.min, window, strides, "SAME")
+    high = jax.lax.reduce_window(jnp.where(valid, depth, zero), zero, jax.lax.max, window, strides, "SAME")
+    edges = valid & (high > ratio * low)
+    return edges & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high), edges
+
+
+def depth_without_ramps(depth: jax.Array, ratio: float = DEPTH_EDGE_RATIO, inside=True) -> jax.Array:
     """``depth`` (..., H, W) with 0 on the ramps at its edges, as ``adapters.leave_out_depth_ramps``
     does on the host (the same numbers; docs/semantics.md §3.6, "Smooth depth edges"): for a training
-    loop whose depth network's output goes to the Scorer. Traceable; ``ratio`` may be traced."""
-    valid = jnp.isfinite(depth) & (depth > 0)
-    window, strides = (1,) * (depth.ndim - 2) + (3, 3), (1,) * depth.ndim
-    low = jax.lax.reduce_window(jnp.where(valid, depth, jnp.inf), jnp.inf, jax.lax.min, window, strides, "SAME")
-    high = jax.lax.reduce_window(jnp.where(valid, depth, 0.0), 0.0, jax.lax.max, window, strides, "SAME")
-    ramps = valid & (high > ratio * low) & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
+    loop whose depth network's output goes to the Scorer. Traceable; ``ratio`` may be traced.
+    ``inside``: where the pixels are the clip's (the rest is no neighbour)."""
+    ramps, _ = _ramps(depth, inside & jnp.isfinite(depth) & (depth > 0), ratio)
     return jnp.where(ramps, jnp.zeros_like(depth), depth)
+
+
+def has_smooth_edges(clip: ClipArrays):
+    """() bool: the clip's depth edges are ramps (``io.depth_edges.has_smooth_edges``: read on the
+    same frames, decided alike)."""
+    frames = ramp_frames(clip.n_frames, xp=jnp)  # ascending; a repeat is read once
+    once = jnp.concatenate([jnp.ones(1, bool), frames[1:] != frames[:-1]])
+    _, inside = true_extent(clip)
+    depth = clip.depth[frames]
+    valid = inside[frames] & once[:, None, None] & jnp.isfinite(depth) & (depth > 0)
+    ramps, edges = _ramps(depth, valid, DEPTH_EDGE_RATIO)
+    count = lambda mask: jnp.sum(mask, dtype=jnp.int32)  # noqa: E731
+    return edges_are_ramps(count(valid), count(edges), count(ramps), xp=jnp)
+
+
+def ramps_left_out(clip: ClipArrays, check) -> jax.Array:
+    """The clip's depth (T, H, W), its ramps 0 where its edges are ramps (``has_smooth_edges``);
+    looked for where ``check`` (() bool; a conditional, so a batch without such depth skips it)."""
+    def left_out():
+        _, inside = true_extent(clip)
+        return jnp.where(has_smooth_edges(clip), depth_without_ramps(clip.depth, DEPTH_EDGE_RATIO, inside),
+                         clip.depth)
+
+    return jax.lax.cond(check, left_out, lambda: clip.depth)
 
 
 def masked_median(values, mask):
@@ -202,10 +235,13 @@ def select_tracks(usable, limit: int):
 
 
 def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None,
-                check_repeats=None) -> PaddedClips:
+                check_repeats=None, check_ramps=None) -> PaddedClips:
     """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them.
-    ``check_absurd``, ``check_repeats``: whether to look for absurd depth and for repeated tracks
-    (default: ``may_hold_absurd_depth``, ``may_hold_repeats``)."""
+    ``check_absurd``, ``check_repeats``, ``check_ramps``: whether to look for absurd depth, for
+    repeated tracks and for smooth depth edges (default: ``may_hold_absurd_depth``,
+    ``may_hold_repeats``, ``has_smooth_edges``)."""
+    if config.leaves_out_depth_ramps:
+        clip = clip._replace(depth=ramps_left_out(clip, has_smooth_edges(clip) if check_ramps is None else check_ramps))
     T = clip.depth.shape[0]
     P = clip.track_prev.shape[1]
     frame, inside = true_extent(clip)
@@ -282,10 +318,11 @@ def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> P
     """B clips -> the padded batch (leading axis B) the stages take. Absurd depth is looked for
     in every clip when any clip may hold some: one decision for the batch stays a conditional
     under the vmap, where each clip's own would compute both branches (the median's passes); so
-    are repeated tracks (the sort by coordinates)."""
+    are repeated tracks (the sort by coordinates) and smooth depth edges (the ramps left out)."""
+    ramps = jnp.any(jax.vmap(has_smooth_edges)(clips)) if config.leaves_out_depth_ramps else None
     check = jnp.any(jax.vmap(lambda clip: may_hold_absurd_depth(clip.depth, positive_depth(clip)))(clips))
     repeats = None
     if not config.counts_repeated_tracks:
         repeats = jnp.any(jax.vmap(lambda clip: may_hold_repeats(clip.track_prev, clip.track_curr,
                                                                   first_usable_tracks(clip, config)))(clips))
-    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check, repeats))(clips)
+    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check, repeats, ramps))(clips)
