@@ -120,12 +120,17 @@ def test_the_devices_ramp_step_leaves_the_same_depth_as_the_hosts_inside_a_jit(c
 @pytest.mark.parametrize("n_frames", [2, 3, 4])
 def test_the_device_decides_which_clips_have_smooth_edges_and_leaves_out_their_ramps_as_the_host(clip, n_frames):
     T, (H, W) = n_frames, clip.image_size
+
+    @jax.jit
+    def on_device(arrays):
+        smooth = device_prepare.has_smooth_edges(arrays)
+        return smooth, device_prepare.ramps_left_out(arrays, smooth, True)
+
     for depth in (clip.depth[:T], network_depth(clip).depth[:T]):
         padded = np.full((T + 2, H + 8, W + 8), 3.0, np.float32)  # the padding's depth is no neighbour
         padded[:T, :H, :W] = depth
         arrays = device_prepare.ClipArrays(*[None] * 9, n_frames=jnp.int32(T), n_tracks=None, heights=jnp.int32(H),
                                            widths=jnp.int32(W))._replace(depth=jnp.asarray(padded))
-        on_device = jax.jit(lambda a: (device_prepare.has_smooth_edges(a), device_prepare.ramps_left_out(a, True)))
         smooth, left_out = on_device(arrays)
         assert bool(smooth) == has_smooth_edges(depth)
         np.testing.assert_array_equal(np.asarray(left_out)[:T, :H, :W], ramps_left_out(depth))

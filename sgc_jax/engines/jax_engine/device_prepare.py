@@ -72,13 +72,13 @@ def has_smooth_edges(clip: ClipArrays):
     return edges_are_ramps(count(valid), count(edges), count(ramps), xp=jnp)
 
 
-def ramps_left_out(clip: ClipArrays, check) -> jax.Array:
-    """The clip's depth (T, H, W), its ramps 0 where its edges are ramps (``has_smooth_edges``);
-    looked for where ``check`` (() bool; a conditional, so a batch without such depth skips it)."""
+def ramps_left_out(clip: ClipArrays, smooth, check) -> jax.Array:
+    """The clip's depth (T, H, W), its ramps 0 where ``smooth`` (() bool: ``has_smooth_edges``);
+    computed where ``check`` (() bool, any clip of the batch smooth; a conditional, so a batch
+    without such depth skips it)."""
     def left_out():
         _, inside = true_extent(clip)
-        return jnp.where(has_smooth_edges(clip), depth_without_ramps(clip.depth, DEPTH_EDGE_RATIO, inside),
-                         clip.depth)
+        return jnp.where(smooth, depth_without_ramps(clip.depth, DEPTH_EDGE_RATIO, inside), clip.depth)
 
     return jax.lax.cond(check, left_out, lambda: clip.depth)
 
@@ -235,13 +235,16 @@ def select_tracks(usable, limit: int):
 
 
 def prepare_one(clip: ClipArrays, bucket: Bucket, config: SGCConfig, check_absurd=None,
-                check_repeats=None, check_ramps=None) -> PaddedClips:
+                check_repeats=None, smooth_edges=None, check_ramps=None) -> PaddedClips:
     """One clip (no B axis) -> its padded arrays (no B axis), as ``dispatch.prepare_clip`` makes them.
     ``check_absurd``, ``check_repeats``, ``check_ramps``: whether to look for absurd depth, for
-    repeated tracks and for smooth depth edges (default: ``may_hold_absurd_depth``,
-    ``may_hold_repeats``, ``has_smooth_edges``)."""
+    repeated tracks and for ramps to leave out (default: ``may_hold_absurd_depth``,
+    ``may_hold_repeats``, ``smooth_edges``); ``smooth_edges``: ``has_smooth_edges`` of the clip
+    (computed when not given)."""
     if config.leaves_out_depth_ramps:
-        clip = clip._replace(depth=ramps_left_out(clip, has_smooth_edges(clip) if check_ramps is None else check_ramps))
+        smooth_edges = has_smooth_edges(clip) if smooth_edges is None else smooth_edges
+        clip = clip._replace(depth=ramps_left_out(clip, smooth_edges,
+                                                  smooth_edges if check_ramps is None else check_ramps))
     T = clip.depth.shape[0]
     P = clip.track_prev.shape[1]
     frame, inside = true_extent(clip)
@@ -319,10 +322,12 @@ def prepare_on_device(clips: ClipArrays, bucket: Bucket, config: SGCConfig) -> P
     in every clip when any clip may hold some: one decision for the batch stays a conditional
     under the vmap, where each clip's own would compute both branches (the median's passes); so
     are repeated tracks (the sort by coordinates) and smooth depth edges (the ramps left out)."""
-    ramps = jnp.any(jax.vmap(has_smooth_edges)(clips)) if config.leaves_out_depth_ramps else None
+    smooth = jax.vmap(has_smooth_edges)(clips) if config.leaves_out_depth_ramps else None
+    ramps = jnp.any(smooth) if config.leaves_out_depth_ramps else None
     check = jnp.any(jax.vmap(lambda clip: may_hold_absurd_depth(clip.depth, positive_depth(clip)))(clips))
     repeats = None
     if not config.counts_repeated_tracks:
         repeats = jnp.any(jax.vmap(lambda clip: may_hold_repeats(clip.track_prev, clip.track_curr,
                                                                   first_usable_tracks(clip, config)))(clips))
-    return jax.vmap(lambda clip: prepare_one(clip, bucket, config, check, repeats, ramps))(clips)
+    return jax.vmap(lambda clip, smooth_edges: prepare_one(clip, bucket, config, check, repeats, smooth_edges, ramps)
+                    )(clips, smooth)
