@@ -21,6 +21,9 @@
 #                                    package) and with every lane run to its loop's end (~7 min)
 #   bench/gpu_figures.sh gradients   issue 42: forward+backward against forward (B = 1 and 8),
 #                                    then the Scorer's clips/s at B = 64 on the same tree (~9 min)
+#   bench/gpu_figures.sh host        issue 61: the host's ceiling from disk, every program call replaced
+#                                    by a real group's outputs: what the 1,000-clip figure's host allows
+#                                    (after reward or pose, whose files in /tmp/corpus it reads) (~3 min)
 #   bench/gpu_figures.sh torch       issue 62: TorchScorer against Scorer at B = 64 on cuda:0 (CUDA
 #                                    torch beside JAX's CUDA plugin), tensors copied: none (~4 min)
 # Each step has its own time limit, so a slow compile loses that step's figure, not the others'.
@@ -74,6 +77,11 @@ lanes)
         timeout 200 python3 bench/reward.py --batch-sizes 64 --no-baseline --repeats 5 $variant \
             --profile "$OUT/profile${variant:---left-behind}" 2>&1 | tee "$OUT/reward${variant:---left-behind}.log"
     done
+    ;;
+host)
+    timeout 120 python3 bench/host_ceiling.py --clips 256 --dir /tmp/corpus 2>&1 | tee "$OUT/host_ceiling.log"
+    timeout 90 python3 bench/host_ceiling.py --clips 64 --dir /tmp/corpus --repeats 1 --profile 2>&1 \
+        | tee "$OUT/host_ceiling-profile.log"
     ;;
 gradients)
     timeout 260 python3 bench/gradients.py --batch-size 1 --repeats 5 2>&1 | tee "$OUT/gradients-b1.log"
