@@ -175,6 +175,26 @@ def test_clips_given_in_memory_have_their_arrays_checked(array, changed):
         batch_of([broken])
 
 
+@pytest.mark.parametrize("array, expected, changed", [
+    ("K", "positive focal lengths", lambda c: dataclasses.replace(c, K=c.K * np.array([-1.0, 1.0, 1.0])[:, None])),
+    ("K", "focal lengths within", lambda c: dataclasses.replace(c, K=c.K / np.array([c.image_size[1], c.image_size[0],
+                                                                                      1.0])[:, None])),
+    ("track_prev/track_curr", "positions inside", lambda c: dataclasses.replace(c, track_prev=2 * c.track_prev + 40,
+                                                                                 track_curr=2 * c.track_curr + 40)),
+])
+def test_clips_given_in_memory_fail_on_cameras_or_tracks_of_another_grid_as_their_files_do(tmp_path, array, expected,
+                                                                                           changed):
+    broken = dataclasses.replace(changed(VICTIM), clip_id="broken")
+    in_memory = score_batch([broken, CONTROLS[0]], engine="reference", progress=False)
+    from_file = score_batch([save_clip(tmp_path / "broken.npz", broken)], engine="reference", progress=False)
+    assert in_memory.clips[0].status == from_file.clips[0].status == "error"
+    assert in_memory.clips[0].reason == from_file.clips[0].reason
+    assert f"array {array!r}" in in_memory.clips[0].reason and expected in in_memory.clips[0].reason
+    assert in_memory.clips[1].status != "error"
+    with pytest.raises(ClipFormatError, match=expected):
+        batch_of([broken])
+
+
 def test_a_clip_given_in_memory_without_confidences_scores_as_one_with_confidence_one():
     without = dataclasses.replace(VICTIM, track_conf=None, clip_id="without")
     ones = dataclasses.replace(VICTIM, track_conf=np.ones_like(VICTIM.track_conf), clip_id="ones")

@@ -24,7 +24,15 @@ from ..config import SGCConfig
 from .clip import Clip, ClipFormatError
 from .npz import NpzError, npz_headers, read_npz, shape_text
 from .remote import is_url, list_files
-from .validate import Problem, check_clip, check_poses, enforce, raise_first_error
+from .validate import (
+    Problem,
+    check_clip,
+    check_intrinsics,
+    check_poses,
+    check_track_positions,
+    enforce,
+    raise_first_error,
+)
 
 # ----------------------------------------------------------------------------- validation
 
@@ -636,17 +644,21 @@ def checked_in_memory(clip: Clip) -> Clip:
     """A :class:`Clip` given in memory (built or changed in code, not loaded) read through the
     structural checks of a file's arrays (docs/semantics.md §1.4: types, shapes, sizes that agree,
     finite and invertible cameras; a field left ``None`` counts as absent, as a missing array does)
-    and each R_wc checked to be a rotation (§1.6). Returns the clip with the schema's dtypes, every
-    track, its meta and mask source kept; raises :class:`ClipFormatError` (``ClipValidationError``
-    for a non-rotation)."""
+    and the content errors of its cameras and track positions (§1.6: not a rotation, intrinsics not
+    of the grid, tracks of another grid). Returns the clip with the schema's dtypes, every track, its
+    meta and mask source kept; raises :class:`ClipFormatError` (``ClipValidationError`` for a
+    content error)."""
     if not isinstance(clip, Clip):
         raise TypeError(f"expected a sgc_jax.Clip, got {type(clip).__name__}")
     arrays = {name: getattr(clip, name) for name in CLIP_ARRAY_FIELDS if getattr(clip, name) is not None}
     checked = _structurally_checked(arrays, clip.clip_id)
-    raise_first_error(clip.clip_id, check_poses(checked))
     mask_source = clip.mask_source if clip.static_mask is not None else "none"
-    return dataclasses.replace(checked, mask_source=mask_source,
-                               meta=clip.meta if isinstance(clip.meta, dict) else checked.meta)
+    checked = dataclasses.replace(checked, mask_source=mask_source,
+                                  meta=clip.meta if isinstance(clip.meta, dict) else checked.meta)
+    # the content errors that say the cameras or tracks are not of this pixel grid (K in normalised
+    # units, tracks of a larger frame): cheap, so a clip built in code fails as its file does
+    raise_first_error(clip.clip_id, check_poses(checked) + check_intrinsics(checked) + check_track_positions(checked))
+    return checked
 
 
 def _discover(source: Any, config: SGCConfig) -> list[ClipEntry]:

@@ -220,6 +220,33 @@ def _outside(x: np.ndarray, y: np.ndarray, H: int, W: int) -> np.ndarray:
 
 def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Visible track positions against the grid, their extent, and usable tracks per pair."""
+    problems = check_track_positions(clip)
+    usable_tracks = clip.usable_tracks(config.min_track_conf)
+    repeated = repeated_track_share(clip, usable_tracks)
+    if repeated.max(initial=0.0) > DUPLICATE_TRACKS_WARN:
+        worst = int(np.argmax(repeated))
+        problems.append(Problem("warning", "duplicate_tracks", "track_prev/track_curr",
+                                "each track once", f"{100 * repeated[worst]:.0f}% of pair {worst + 1}'s usable tracks "
+                                "repeat another's positions at both ends",
+                                "the score leaves the repeats out (docs/semantics.md §1.2; compat='authors' counts "
+                                "them); a tracker queried twice at one point usually makes them"))
+    usable = np.count_nonzero(usable_tracks, axis=1)
+    few = np.flatnonzero(usable < 4)
+    if few.size:
+        problems.append(Problem("warning", "too_few_tracks", "track_vis/track_conf",
+                                "at least 4 usable tracks (visible, confidence >= "
+                                f"{config.min_track_conf:g}) per pair",
+                                f"fewer in pairs {_frames_list(few + 1, clip.n_pairs)}",
+                                "those pairs will score NaN (reason too_few_tracks)"))
+    problems.append(Problem("info", "track_coverage", "track_vis/track_conf", "",
+                            f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
+                            f"median {int(np.median(usable))}"))
+    return problems
+
+
+def check_track_positions(clip: Clip) -> list[Problem]:
+    """Visible track positions against the H x W grid (``tracks_outside``: an error where over
+    TRACKS_OUTSIDE_ERROR of them lie outside, tracks of another grid) and their extent."""
     H, W = clip.image_size
     problems = []
     # visible and finite, however far outside: tracks of a larger grid are what this check finds
@@ -257,26 +284,6 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                                         f"all within x <= {x_max:.1f}, y <= {y_max:.1f}",
                                         f"tracks computed on a smaller grid? rescale them to {H}x{W} "
                                         "(`sgc-jax import --track-size HxW`)"))
-    usable_tracks = clip.usable_tracks(config.min_track_conf)
-    repeated = repeated_track_share(clip, usable_tracks)
-    if repeated.max(initial=0.0) > DUPLICATE_TRACKS_WARN:
-        worst = int(np.argmax(repeated))
-        problems.append(Problem("warning", "duplicate_tracks", "track_prev/track_curr",
-                                "each track once", f"{100 * repeated[worst]:.0f}% of pair {worst + 1}'s usable tracks "
-                                "repeat another's positions at both ends",
-                                "the score leaves the repeats out (docs/semantics.md §1.2; compat='authors' counts "
-                                "them); a tracker queried twice at one point usually makes them"))
-    usable = np.count_nonzero(usable_tracks, axis=1)
-    few = np.flatnonzero(usable < 4)
-    if few.size:
-        problems.append(Problem("warning", "too_few_tracks", "track_vis/track_conf",
-                                "at least 4 usable tracks (visible, confidence >= "
-                                f"{config.min_track_conf:g}) per pair",
-                                f"fewer in pairs {_frames_list(few + 1, clip.n_pairs)}",
-                                "those pairs will score NaN (reason too_few_tracks)"))
-    problems.append(Problem("info", "track_coverage", "track_vis/track_conf", "",
-                            f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
-                            f"median {int(np.median(usable))}"))
     return problems
 
 
