@@ -101,10 +101,15 @@ def edges_are_ramps(n_valid, n_edges, n_ramps, xp=np):
             & (ramps >= xp.float32(RAMP_SHARE) * edges) & (edges > 0))
 
 
-def has_smooth_edges(depth: np.ndarray) -> bool:
-    """Whether a clip's depth (T, H, W) has edges that are ramps, read on :func:`ramp_frames`."""
+def ramp_counts(depth: np.ndarray) -> tuple[int, int, int]:
+    """(valid, edge, ramp) pixel counts of a clip's depth (T, H, W), read on :func:`ramp_frames`."""
     edges, ramps, valid = edges_and_ramps(depth[np.unique(ramp_frames(depth.shape[0]))])
-    return bool(edges_are_ramps(valid, int(edges.sum()), int(ramps.sum())))
+    return valid, int(edges.sum()), int(ramps.sum())
+
+
+def has_smooth_edges(depth: np.ndarray) -> bool:
+    """Whether a clip's depth (T, H, W) has edges that are ramps (:func:`ramp_counts`)."""
+    return bool(edges_are_ramps(*ramp_counts(depth)))
 
 
 def ramps_left_out(depth: np.ndarray) -> np.ndarray:

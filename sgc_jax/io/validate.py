@@ -20,7 +20,7 @@ import numpy as np
 from ..config import SGCConfig
 from ..stats import spearman
 from .clip import Clip, ClipFormatError, repeated_tracks
-from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_and_ramps, edges_are_ramps, ramp_frames
+from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, ramp_counts
 
 SEVERITIES = ("error", "warning", "info")
 
@@ -504,8 +504,7 @@ def check_far_backdrop(values: np.ndarray) -> list[Problem]:
 def check_depth_ramps(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Where the depth's edges are ramps of mixed depths, as a network's enlarged output: a line saying
     they are left out before scoring (``config.smooth_depth_edges``), or a warning where they are kept."""
-    edges, ramps, valid = edges_and_ramps(clip.depth[np.unique(ramp_frames(clip.n_frames))])
-    n_edges, n_ramps = int(edges.sum()), int(ramps.sum())
+    valid, n_edges, n_ramps = ramp_counts(clip.depth)
     if not edges_are_ramps(valid, n_edges, n_ramps):
         return []
     found = (f"{100 * n_ramps / n_edges:.0f}% of the edge pixels ({100 * n_edges / valid:.1f}% of the valid depth) lie "
