@@ -4,6 +4,7 @@ import dataclasses
 import json
 import warnings
 
+import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -105,6 +106,32 @@ def test_depth_edges_as_ramps_are_said_to_be_left_out_warned_of_where_kept_and_q
     assert has_smooth_edges(smooth.depth) and not has_smooth_edges(clip.depth)
     with pytest.raises(ValueError, match="must be > 1"):
         leave_out_depth_ramps(clip, 1.0)
+
+
+def with_holes(clip):
+    """The clip with invalid blocks (0) in its depth, as a sensor's shadows and dropouts leave them."""
+    depth = clip.depth.copy()
+    H, W = clip.image_size
+    for y, x in ((H // 5, W // 6), (H // 2, W // 2), (3 * H // 4, W // 5)):
+        depth[:, y:y + H // 8, x:x + W // 8] = 0.0
+    return dataclasses.replace(clip, depth=depth)
+
+
+def resized_from_half(depth, interpolation):
+    """Depth shrunk to half its size by nearest neighbour and enlarged back by ``interpolation``, its 0s read as values."""
+    T, H, W = depth.shape
+    return np.stack([cv2.resize(cv2.resize(frame, (W // 2, H // 2), interpolation=cv2.INTER_NEAREST), (W, H),
+                                interpolation=interpolation) for frame in depth])
+
+
+def test_depth_resized_with_its_holes_read_as_zero_is_warned_of_and_nearest_neighbour_is_not(clip):
+    holed = with_holes(clip)
+    warned = lambda depth: [p for p in check_clip(dataclasses.replace(holed, depth=depth))  # noqa: E731
+                            if p.code == "depth_holes_blended"]
+    assert not warned(holed.depth) and not warned(resized_from_half(holed.depth, cv2.INTER_NEAREST))
+    [line] = warned(resized_from_half(holed.depth, cv2.INTER_LINEAR))
+    assert line.severity == "warning" and "INTER_NEAREST" in line.fix
+    assert not warned(resized_from_half(clip.depth, cv2.INTER_LINEAR))  # no holes: nothing blended with 0
 
 
 def test_the_devices_ramp_step_leaves_the_same_depth_as_the_hosts_inside_a_jit(clip):

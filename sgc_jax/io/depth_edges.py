@@ -38,6 +38,15 @@ RAMP_SHARE = 0.5
 RAMP_EDGE_SHARE_MIN = 0.005
 RAMP_EDGE_SHARE_MAX = 0.5
 RAMP_FRAMES = 4
+# Depth resized with its holes (0) read as values: interpolation blends the surfaces beside a hole with 0, so
+# the pixels around each hole hold depths between 0 and the surface's. A hole-border pixel (one with an
+# invalid 3 x 3 neighbour) sunk more than DEPTH_EDGE_RATIO below its neighbourhood's greatest depth is such a
+# blend where at least HOLE_SUNK_SHARE of the border is, and it holds HOLE_SUNK_MIN of the valid depth: the six
+# real clips' sensor and rendered depth read 0.04-0.19 of the border as given or enlarged by nearest
+# neighbour, 1.00 enlarged bilinearly with holes as 0 (real data, no split; bench/history/issue-58.md
+# "Depth resized with its holes as zeros").
+HOLE_SUNK_SHARE = 0.5
+HOLE_SUNK_MIN = 0.001
 _NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
 
 
@@ -105,6 +114,24 @@ def ramp_counts(depth: np.ndarray) -> tuple[int, int, int]:
     """(valid, edge, ramp) pixel counts of a clip's depth (T, H, W), read on :func:`ramp_frames`."""
     edges, ramps, valid = edges_and_ramps(depth[np.unique(ramp_frames(depth.shape[0]))])
     return valid, int(edges.sum()), int(ramps.sum())
+
+
+def hole_border_counts(depth: np.ndarray) -> tuple[int, int, int]:
+    """(valid, hole-border, sunk) pixel counts of a clip's depth (T, H, W), read on :func:`ramp_frames`:
+    the valid pixels, those with an invalid 3 x 3 neighbour, and those of them more than DEPTH_EDGE_RATIO
+    below their neighbourhood's greatest valid depth."""
+    depth = depth[np.unique(ramp_frames(depth.shape[0]))]
+    valid = valid_depth(depth)
+    border = np.stack([cv2.dilate((~v).astype(np.uint8), _NEIGHBOURHOOD) for v in valid]).astype(bool) & valid
+    high = np.stack([cv2.dilate(d, _NEIGHBOURHOOD) for d in np.where(valid, depth, 0).astype(np.float32)])
+    with np.errstate(over="ignore"):
+        sunk = border & (DEPTH_EDGE_RATIO * depth < high)
+    return int(valid.sum()), int(border.sum()), int(sunk.sum())
+
+
+def holes_blended(n_valid: int, n_border: int, n_sunk: int) -> bool:
+    """Whether counts of :func:`hole_border_counts` are depth resized with its holes as 0."""
+    return n_sunk >= HOLE_SUNK_SHARE * n_border and n_sunk >= HOLE_SUNK_MIN * n_valid and n_sunk > 0
 
 
 def has_smooth_edges(depth: np.ndarray) -> bool:

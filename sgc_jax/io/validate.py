@@ -20,7 +20,7 @@ import numpy as np
 from ..config import SGCConfig
 from ..stats import spearman
 from .clip import Clip, ClipFormatError, repeated_tracks
-from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, ramp_counts
+from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, hole_border_counts, holes_blended, ramp_counts
 
 SEVERITIES = ("error", "warning", "info")
 
@@ -521,6 +521,21 @@ def check_depth_ramps(clip: Clip, config: SGCConfig) -> list[Problem]:
                     "sgc_jax.adapters.leave_out_depth_ramps(clip)")]
 
 
+def check_depth_holes(clip: Clip) -> list[Problem]:
+    """A warning where the pixels around the depth's holes are blends of their surface and 0: depth
+    resized (interpolated) with its holes read as depth 0 (:func:`~sgc_jax.io.depth_edges.holes_blended`)."""
+    valid, n_border, n_sunk = hole_border_counts(clip.depth)
+    if not holes_blended(valid, n_border, n_sunk):
+        return []
+    return [Problem("warning", "depth_holes_blended", "depth",
+                    "holes (invalid depth) bordered by their surfaces' depths",
+                    f"{100 * n_sunk / n_border:.0f}% of the pixels beside a hole ({100 * n_sunk / valid:.1f}% of the "
+                    f"valid depth) lie over {DEPTH_EDGE_RATIO:g}x below their neighbours: depth resized with its holes "
+                    "read as 0, whose blends lie on no surface and read as depth error (docs/semantics.md §1.6)",
+                    "resize depth by nearest neighbour (cv2.INTER_NEAREST), or mark the holes NaN before "
+                    "interpolating and leave the NaN invalid")]
+
+
 def check_mask(clip: Clip) -> list[Problem]:
     """Static-mask coverage per frame (an inverted mask leaves almost nothing static)."""
     if clip.mask_source == "none":
@@ -563,7 +578,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     convention, transposed = check_pose_convention(clip, config) if test_poses else ([], False)
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks
                 + check_depth(clip, config, transposed, read_tracks=tracks_fit) + check_depth_ramps(clip, config)
-                + check_mask(clip) + check_length(clip))
+                + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
