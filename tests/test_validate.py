@@ -108,6 +108,16 @@ def test_depth_edges_as_ramps_are_said_to_be_left_out_warned_of_where_kept_and_q
         leave_out_depth_ramps(clip, 1.0)
 
 
+def test_confidences_outside_zero_to_one_are_warned_of_as_logits_or_percentages(clip):
+    warned = lambda conf: [p for p in check_clip(dataclasses.replace(clip, track_conf=conf))  # noqa: E731
+                           if p.code == "track_conf_range"]
+    inside = np.random.default_rng(0).uniform(0.0, 1.0, clip.track_conf.shape).astype(np.float32)
+    assert not warned(inside) and not warned(clip.track_conf)
+    for given in (100.0 * inside, np.log(inside / (1.0 - inside))):  # percentages; logits
+        [line] = warned(given.astype(np.float32))
+        assert line.severity == "warning" and "sigmoid" in line.fix
+
+
 def with_holes(clip):
     """The clip with invalid blocks (0) in its depth, as a sensor's shadows and dropouts leave them."""
     depth = clip.depth.copy()

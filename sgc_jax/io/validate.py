@@ -37,6 +37,7 @@ TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: c
 # merged with itself, which the user may not have meant to give. The score leaves repeats out (§1.2). No
 # split's scene nor real clip repeats a track.
 DUPLICATE_TRACKS_WARN = 0.05
+CONF_OUTSIDE_WARN = 0.01  # share of the visible tracks' confidences outside [0, 1]: logits or percentages
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
 NEGATIVE_DEPTH_WARN = 0.01  # negative depth on this share of the pixels with a depth: a sign convention
 DISPARITY_RHO_WARN = 0.3  # Spearman(depth, parallax) above this: larger "depth" moves faster = disparity
@@ -230,6 +231,7 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                                 "repeat another's positions at both ends",
                                 "the score leaves the repeats out (docs/semantics.md §1.2; compat='authors' counts "
                                 "them); a tracker queried twice at one point usually makes them"))
+    problems += check_track_conf(clip, config)
     usable = np.count_nonzero(usable_tracks, axis=1)
     few = np.flatnonzero(usable < 4)
     if few.size:
@@ -242,6 +244,20 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                             f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
                             f"median {int(np.median(usable))}"))
     return problems
+
+
+def check_track_conf(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """A warning where over CONF_OUTSIDE_WARN of the visible tracks' confidences lie outside [0, 1]:
+    logits or percentages, which the threshold ``min_track_conf`` does not read as meant."""
+    conf = clip.track_conf[clip.track_vis]
+    outside = np.count_nonzero((conf < 0) | (conf > 1))
+    if conf.size == 0 or outside <= CONF_OUTSIDE_WARN * conf.size:
+        return []
+    return [Problem("warning", "track_conf_range", "track_conf", "confidences in [0, 1]",
+                    f"{100 * outside / conf.size:.0f}% of the visible tracks' confidences outside it (range "
+                    f"[{conf.min():.3g}, {conf.max():.3g}]); a track is usable at confidence >= "
+                    f"{config.min_track_conf:g} (docs/semantics.md §1.2)",
+                    "logits: store their sigmoid, 1 / (1 + exp(-x)); percentages: divide by 100")]
 
 
 def check_track_positions(clip: Clip) -> list[Problem]:
