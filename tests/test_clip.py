@@ -109,6 +109,10 @@ def test_clip_file_round_trip(tmp_path):
         if name != "meta":
             np.testing.assert_array_equal(value, clip_to_arrays(loaded)[name])
     assert loaded.meta == clip.meta
+    with pytest.raises(TypeError, match=r"save_clip\(path, clip\): the path comes first; got Clip"):
+        save_clip(clip, tmp_path / "d.npz")
+    with pytest.raises(TypeError, match=r"save_batch\(path, clips\): the path comes first; got list"):
+        save_batch([clip], tmp_path / "e.npz")
 
 
 def test_a_clip_file_stores_float_depth_deflate_cannot_halve_and_deflates_the_rest(tmp_path):

@@ -156,9 +156,16 @@ def clip_to_arrays(clip: Clip) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _path_first(function: str, path: Any, second: str) -> Path:
+    """``path`` as a Path, or a TypeError that says the path comes first (``save_clip(clip, path)``)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"{function}(path, {second}): the path comes first; got {type(path).__name__} as the path")
+    return Path(path)
+
+
 def save_clip(path: str | os.PathLike, clip: Clip) -> Path:
     """Write one clip as an ``.npz`` (``npz.write_npz``: members deflated where that pays); returns the path."""
-    path = Path(path)
+    path = _path_first("save_clip", path, "clip")
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_npz(path, clip_to_arrays(clip))
 
@@ -171,6 +178,7 @@ def _pad_to(array: np.ndarray, shape: tuple[int, ...], fill: Any = 0) -> np.ndar
 
 def save_batch(path: str | os.PathLike, clips: list[Clip]) -> Path:
     """Stack clips into one batch file padded to common (T, H, W, P) (docs/semantics.md §1.3)."""
+    path = _path_first("save_batch", path, "clips")
     if not clips:
         raise ValueError("save_batch needs at least one clip")
     T = max(c.n_frames for c in clips)
@@ -204,6 +212,5 @@ def save_batch(path: str | os.PathLike, clips: list[Clip]) -> Path:
         mask_source=np.array([c.mask_source for c in clips]),
         meta=np.array([json.dumps({**c.meta, "clip_id": c.clip_id}) for c in clips]),
     )
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_npz(path, arrays)
