@@ -24,6 +24,7 @@ from .codes import CLIP_STATUSES
 from .config import SGCConfig, cli_flag, renamed_fields
 from .io.depth_edges import DEPTH_EDGE_RATIO
 from .io.extras import MissingExtraError
+from .io.validate import clip_warnings_as_lines
 from .scoring.engine_steps import ENGINES
 from .scoring.options import READ_IN
 from .version import __version__
@@ -915,7 +916,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             "; its list options take one comma-separated word (e.g. --severities 0.25,0.5 --kinds warp,squeeze)")
         parser.error(f"unrecognized arguments: {words}{hint}")
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = clip_warnings_as_lines(f"sgc-jax {args.command}")
+            return args.func(args)
     except (UsageError, MissingExtraError) as exc:
         print(f"sgc-jax {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -47,6 +47,16 @@ def test_score_reports_broken_clip_and_scores_the_others(tmp_path):
     assert len(pair_rows) == 4 and {"pair", "n_tracks", "n_regions", "n_poses"} <= set(pair_rows[0])
 
 
+def test_a_clips_warning_is_one_line_naming_the_command_and_the_clip(tmp_path):
+    clip = synth_clip(seed=0, clip_id="percent", **TINY)
+    save_clip(tmp_path / "percent.npz", dataclasses.replace(clip, track_conf=100.0 * clip.track_conf))
+    for prefix, read_in in (("sgc-jax score", "threads"), ("sgc-jax", "processes")):
+        proc = run("score", tmp_path / "percent.npz", "--engine", "reference", "--read-in", read_in, "-q")
+        [line] = [line for line in proc.stderr.splitlines() if "track_conf" in line]
+        assert line.startswith(f"{prefix}: clip 'percent': warning: track_conf:") and "sigmoid" in line, read_in
+        assert "ClipWarning" not in proc.stderr and "clip_from_arrays" not in proc.stderr, read_in
+
+
 def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):
     (tmp_path / "broken.npz").write_bytes(b"junk")
     proc = run("score", tmp_path / "broken.npz", "--engine", "reference", "-q")

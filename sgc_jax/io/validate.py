@@ -12,6 +12,7 @@ are only shown by ``sgc-jax validate``.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import warnings
 from typing import Any
 
@@ -81,6 +82,20 @@ class ClipValidationError(ClipFormatError):
 
 class ClipWarning(UserWarning):
     """A clip that loads but looks wrong in a way that changes its score."""
+
+
+def clip_warnings_as_lines(prefix: str, show_other=None):
+    """A ``warnings.showwarning`` that prints a :class:`ClipWarning` as one line on stderr,
+    "{prefix}: clip 'a': warning: ...", not Python's form with the file and source line that raised
+    it; other warnings go to ``show_other`` (default: the current ``warnings.showwarning``)."""
+    show_other = warnings.showwarning if show_other is None else show_other
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, ClipWarning):
+            print(f"{prefix}: {message}", file=sys.stderr if file is None else file)
+        else:
+            show_other(message, category, filename, lineno, file, line)
+    return show
 
 
 @dataclasses.dataclass(frozen=True)

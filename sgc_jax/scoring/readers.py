@@ -20,12 +20,14 @@ import signal
 import subprocess
 import sys
 import threading
+import warnings
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Container, NamedTuple
 
 from ..config import SGCConfig
 from ..io.clip import Clip, ClipFormatError
 from ..io.loading import ClipEntry
+from ..io.validate import clip_warnings_as_lines
 from .devices import host_cores
 from .engine_steps import prepare_step
 from .journal import FileDigests
@@ -184,6 +186,7 @@ def serve() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the caller, which then closes our input
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything the reading prints goes to stderr, not into the replies
+    warnings.showwarning = clip_warnings_as_lines("sgc-jax")
     engine, config = pickle.load(requests)
     prepare, digests = prepare_step(engine, config), FileDigests()
     while True:
