@@ -246,7 +246,9 @@ def _config_and_calibration(args: argparse.Namespace):
 
 def _summary_line(result) -> str:
     counts = {s: sum(1 for c in result.clips if c.status == s) for s in CLIP_STATUSES}
-    return f"{len(result)} clip(s): " + ", ".join(f"{n} {s}" for s, n in counts.items())
+    warned = sum(1 for c in result.clips if c.warnings)
+    return (f"{len(result)} clip(s): " + ", ".join(f"{n} {s}" for s, n in counts.items())
+            + (f"; {warned} with content warnings (column warnings, docs/semantics.md §1.6)" if warned else ""))
 
 
 def _connect_ray(address: str) -> None:

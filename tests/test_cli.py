@@ -55,6 +55,7 @@ def test_a_clips_warning_is_one_line_naming_the_command_and_the_clip(tmp_path):
         [line] = [line for line in proc.stderr.splitlines() if "track_conf" in line]
         assert line.startswith(f"{prefix}: clip 'percent': warning: track_conf:") and "sigmoid" in line, read_in
         assert "ClipWarning" not in proc.stderr and "clip_from_arrays" not in proc.stderr, read_in
+        assert "1 with content warnings" in proc.stderr.splitlines()[-1], read_in
 
 
 def test_score_exits_non_zero_when_a_clip_could_not_be_scored(tmp_path):

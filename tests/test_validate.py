@@ -260,8 +260,18 @@ def test_the_loader_refuses_errors_naming_clip_and_array(clip, name):
 def test_the_loader_warns_on_warnings(clip, name):
     change, _, code, array, words = CASES[name]
     with pytest.warns(ClipWarning, match=rf"clip 'good': warning: {array}: ") as record:
-        clip_from_arrays(arrays_of(clip, **change(clip)))
+        loaded = clip_from_arrays(arrays_of(clip, **change(clip)))
     assert any(words[-1] in str(w.message) for w in record)
+    assert code in loaded.warnings
+
+
+def test_the_tables_carry_the_loaders_warnings_and_a_clip_given_in_memory_none(clip, tmp_path):
+    percent = dataclasses.replace(clip, clip_id="percent", track_conf=100.0 * clip.track_conf)
+    path = save_clip(tmp_path / "percent.npz", percent)
+    with pytest.warns(ClipWarning, match="track_conf"):
+        rows = score_batch([path, dataclasses.replace(percent, clip_id="in-memory")], engine="reference",
+                           progress=False).to_pandas()
+    assert list(rows["warnings"]) == ["track_conf_range", ""]
 
 
 @pytest.mark.parametrize("change, code, array, words", [
@@ -286,7 +296,8 @@ def test_content_problems_the_scorer_reports_are_not_loader_warnings(clip):
     assert codes(problems_of(arrays_of(clip, track_vis=vis)), "warning") == ["too_few_tracks"]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        clip_from_arrays(arrays_of(clip, track_vis=vis))  # the pair is reported as too_few_tracks when scored
+        loaded = clip_from_arrays(arrays_of(clip, track_vis=vis))  # the pair is reported as too_few_tracks when scored
+    assert loaded.warnings == ()
 
 
 def test_reference_compat_choices_are_info_not_errors(clip):

@@ -57,6 +57,7 @@ class Clip:
     mask_source: str = "static_mask"  # "static_mask" | "dynamic_mask" | "none" (whole frame static)
     frames: np.ndarray | None = None  # (T, H, W, 3) uint8, plots only
     meta: dict = dataclasses.field(default_factory=dict)
+    warnings: tuple[str, ...] = ()  # the content checks' warning codes when loaded (docs/semantics.md §1.6)
 
     def __repr__(self) -> str:  # the arrays would flood a notebook cell
         H, W = self.image_size

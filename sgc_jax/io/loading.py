@@ -257,7 +257,7 @@ def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
     config = config or SGCConfig()
     clip = _structurally_checked(arrays, clip_id)
     if validate:
-        enforce(clip, config, arrays)
+        clip = dataclasses.replace(clip, warnings=enforce(clip, config, arrays))
     return subsample_tracks(clip, config)
 
 

@@ -20,7 +20,7 @@ from .parquet import is_parquet, read_parquet_text, write_parquet
 INTERVAL_COLUMNS = ("sgc_lo", "sgc_hi")
 # What the score rests on (docs/semantics.md §3.11): per pair, and per clip the means over its pairs
 EVIDENCE_COLUMNS = ("evidence", "pose_tracks", "parallax_px", "static_frac")
-CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
+CLIP_COLUMNS = ("clip_id", "group", "status", "reason", "warnings", "sgc", *INTERVAL_COLUMNS, *COMPONENTS, *FLOOR_COLUMNS, "sgc_floor",
                 "reproj_error", "ecd_trans", "ecd_rot", "ecd", "n_pairs", "n_pairs_scored", *EVIDENCE_COLUMNS,
                 "engine", "mask_source", "scale", "depth_unit", "n_ill_conditioned", "compat", "origin",
                 "input_sha256", "run_id")
@@ -54,7 +54,7 @@ def write_csv_rows(f, rows: Iterable[dict], columns: Sequence[str], *, header: b
 
 
 INT_COLUMNS = ("n_pairs", "n_pairs_scored", "pair", "n_tracks", "n_regions", "n_poses", "n_ill_conditioned")
-TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "engine", "mask_source", "base", "kind", "compat", "origin",
+TEXT_COLUMNS = ("clip_id", "group", "status", "reason", "warnings", "engine", "mask_source", "base", "kind", "compat", "origin",
                  "input_sha256", "run_id")
 
 

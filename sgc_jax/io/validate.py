@@ -622,10 +622,14 @@ def raise_first_error(clip_id: str, problems: list[Problem]) -> None:
             raise ClipValidationError(clip_id, problem.array, problem.expected, problem.found, problem.fix)
 
 
-def enforce(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> None:
-    """Raise :class:`ClipValidationError` on the first error; warn (:class:`ClipWarning`) on warnings."""
+def enforce(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> tuple[str, ...]:
+    """Raise :class:`ClipValidationError` on the first error; warn (:class:`ClipWarning`) on warnings
+    and return their codes (those the scorer reports per pair left out)."""
     problems = check_clip(clip, config, arrays)
     raise_first_error(clip.clip_id, problems)
+    codes = []
     for problem in problems:
         if problem.severity == "warning" and problem.code not in SCORER_REPORTED:
             warnings.warn(ClipWarning(f"clip {clip.clip_id!r}: {problem.line()}"), stacklevel=3)
+            codes.append(problem.code)
+    return tuple(dict.fromkeys(codes))

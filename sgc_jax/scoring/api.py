@@ -119,5 +119,6 @@ def score_clip(source: Any, *, config: SGCConfig | dict | None = None, calibrati
     clip = entries[0].load()
     steps = engine_steps(engine, scoring.config, devices=1)  # one clip: one device
     pairs = steps.collect(steps.dispatch([steps.prepare(clip)]))[0]
-    return summarize_clip(clip.clip_id, pairs, scoring.calibration, group=clip.group, engine=engine,
-                          mask_source=clip.mask_source, origin=entries[0].origin, compat=scoring.config.compat)
+    result = summarize_clip(clip.clip_id, pairs, scoring.calibration, group=clip.group, engine=engine,
+                            mask_source=clip.mask_source, origin=entries[0].origin, compat=scoring.config.compat)
+    return dataclasses.replace(result, warnings=";".join(clip.warnings))

@@ -61,6 +61,7 @@ class Identity(NamedTuple):
     clip_id: str
     group: str
     mask_source: str
+    warnings: str = ""  # the loader's warning codes, ";"-joined
 
 
 class Read(NamedTuple):
@@ -89,7 +90,8 @@ def read_entry(entry: ClipEntry, prepare: Callable[[Clip], Any], digests: FileDi
         clip = entry.read_clip(for_scoring=True)
     except ClipFormatError as exc:
         return Read(entry, sha256, error=exc)
-    return Read(entry, sha256, Identity(clip.clip_id, clip.group, clip.mask_source), prepare(clip))
+    return Read(entry, sha256, Identity(clip.clip_id, clip.group, clip.mask_source, ";".join(clip.warnings)),
+                prepare(clip))
 
 
 # The pipe a reader process replies through, enlarged where Linux allows (its default 64 KB): the

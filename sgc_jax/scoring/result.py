@@ -46,6 +46,7 @@ class ClipResult:
     group: str = ""
     status: str = "error"  # "ok" | "partial" | "error" | "low_evidence" (§3.7, §3.11)
     reason: str = ""
+    warnings: str = ""  # the loader's warning codes, ";"-joined (docs/semantics.md §1.6; "" for clips given in memory)
     sgc: float = float("nan")
     sgc_lo: float = float("nan")  # the score's 90 % interval, a bootstrap over pairs (§5.6)
     sgc_hi: float = float("nan")
@@ -83,7 +84,7 @@ class ClipResult:
     def record(self, ecd: float = float("nan")) -> dict[str, Any]:
         """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
         row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
-               "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi, **self.components, **self.floors,
+               "warnings": self.warnings, "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi, **self.components, **self.floors,
                "sgc_floor": self.sgc_floor, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "evidence": self.evidence, "pose_tracks": self.pose_tracks,
@@ -172,7 +173,7 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
     """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
     every column but ``ecd``; no per-pair arrays."""
-    cell = {name: typed_cell(column_kind(name), row[name]) for name in CLIP_COLUMNS if name != "ecd"}
+    cell = {name: typed_cell(column_kind(name), row.get(name, "")) for name in CLIP_COLUMNS if name != "ecd"}
     return ClipResult(components={k: cell.pop(k) for k in COMPONENTS},
                       floors={k: cell.pop(k) for k in FLOOR_COLUMNS}, **cell)
 
@@ -202,7 +203,7 @@ def _rescored_clip(clip: ClipResult, calibration: Calibration, evidence_levels: 
             summarize_clip(clip.clip_id, clip.pairs, calibration, group=clip.group, engine=clip.engine,
                            mask_source=clip.mask_source, origin=clip.origin, compat=clip.compat,
                            evidence_levels=evidence_levels, summary=summary),
-            input_sha256=clip.input_sha256)
+            input_sha256=clip.input_sha256, warnings=clip.warnings)
     if clip.status == "error":
         return clip
     nan = float("nan")

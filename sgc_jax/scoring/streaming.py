@@ -118,7 +118,8 @@ class _Stream:
             summarize_clip(read.identity.clip_id, clip_pairs, s.calibration, group=read.identity.group,
                            engine=s.engine, mask_source=read.identity.mask_source, origin=read.entry.origin,
                            compat=s.config.compat, summary=summary),
-            input_sha256=read.sha256, run_id=s.run_id) for read, clip_pairs, summary in zip(reads, pairs, summaries)]
+            input_sha256=read.sha256, run_id=s.run_id, warnings=read.identity.warnings)
+            for read, clip_pairs, summary in zip(reads, pairs, summaries)]
         return results, time.perf_counter() - begin
 
     def _launch(self) -> Iterator[Streamed]:
