@@ -184,7 +184,7 @@ def test_results_load_into_pandas_and_json(rigid_clip, tmp_path):
 
     result = score_batch([rigid_clip], engine="reference", progress=False)
     frame = result.to_pandas()
-    assert list(frame.columns[:5]) == ["clip_id", "group", "status", "reason", "sgc"]
+    assert list(frame.columns[:6]) == ["clip_id", "group", "status", "reason", "warnings", "sgc"]
     pairs = result.to_pandas(pairs=True)
     assert len(pairs) == rigid_clip.n_pairs and "n_poses" in pairs
     result.to_csv(tmp_path / "s.csv", pairs_path=tmp_path / "p.csv")
