@@ -124,6 +124,15 @@ def test_rescoring_a_resumed_clip_uses_its_stored_components(scored, tmp_path, m
     assert all(math.isnan(c.sgc_lo) and c.run_id == "" for c in rescored.clips)  # the interval needs the pairs
 
 
+def test_a_row_of_a_table_written_before_the_warnings_column_reads_as_without_warnings(scored, tmp_path):
+    [row] = [{k: str(v) for k, v in r.items()} for r in read_scores(scored.to_csv(tmp_path / "s.csv"))][:1]
+    del row["warnings"]
+    assert clip_from_row(row).warnings == "" and clip_from_row(row).sgc == pytest.approx(scored.sgc[0])
+    del row["sgc"]
+    with pytest.raises(KeyError, match="sgc"):  # only the columns added later may be absent
+        clip_from_row(row)
+
+
 def test_rescore_by_name_restores_the_shipped_scores(scored, monkeypatch):
     forbid_geometry(monkeypatch)
     there_and_back = scored.rescore(calibrate(scored)).rescore("sgc-spec-2026")

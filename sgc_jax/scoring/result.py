@@ -84,7 +84,8 @@ class ClipResult:
     def record(self, ecd: float = float("nan")) -> dict[str, Any]:
         """The :data:`CLIP_COLUMNS` row; ``ecd`` needs a corpus (see :func:`camera_dynamics`)."""
         row = {"clip_id": self.clip_id, "group": self.group, "status": self.status, "reason": self.reason,
-               "warnings": self.warnings, "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi, **self.components, **self.floors,
+               "warnings": self.warnings, "sgc": self.sgc, "sgc_lo": self.sgc_lo, "sgc_hi": self.sgc_hi,
+               **self.components, **self.floors,
                "sgc_floor": self.sgc_floor, "reproj_error": self.reproj_error,
                "ecd_trans": self.ecd_trans, "ecd_rot": self.ecd_rot, "ecd": ecd, "n_pairs": self.n_pairs,
                "n_pairs_scored": self.n_pairs_scored, "evidence": self.evidence, "pose_tracks": self.pose_tracks,
@@ -170,10 +171,15 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         pair_floors=s["pair_floors"], pair_evidence=s["pair_evidence"])
 
 
+# Per-clip columns added after tables were first written: empty where an earlier table lacks them
+ADDED_COLUMNS = ("warnings",)
+
+
 def clip_from_row(row: Mapping[str, str]) -> ClipResult:
     """The :class:`ClipResult` of a per-clip CSV row (as text, e.g. one kept by a resumed run):
     every column but ``ecd``; no per-pair arrays."""
-    cell = {name: typed_cell(column_kind(name), row.get(name, "")) for name in CLIP_COLUMNS if name != "ecd"}
+    cell = {name: typed_cell(column_kind(name), row.get(name, "") if name in ADDED_COLUMNS else row[name])
+            for name in CLIP_COLUMNS if name != "ecd"}
     return ClipResult(components={k: cell.pop(k) for k in COMPONENTS},
                       floors={k: cell.pop(k) for k in FLOOR_COLUMNS}, **cell)
 
