@@ -123,7 +123,7 @@ def hole_border_counts(depth: np.ndarray) -> tuple[int, int, int]:
     depth = depth[np.unique(ramp_frames(depth.shape[0]))]
     valid = valid_depth(depth)
     border = np.stack([cv2.dilate((~v).astype(np.uint8), _NEIGHBOURHOOD) for v in valid]).astype(bool) & valid
-    high = np.stack([cv2.dilate(d, _NEIGHBOURHOOD) for d in np.where(valid, depth, 0).astype(np.float32)])
+    _, high = depth_span(depth, valid)
     with np.errstate(over="ignore"):
         sunk = border & (DEPTH_EDGE_RATIO * depth < high)
     return int(valid.sum()), int(border.sum()), int(sunk.sum())
