@@ -20,7 +20,8 @@ Each clip of ``../shared/realdata/`` as read, then changed (in memory, default c
   first: ``depth_holes_blended``, docs/semantics.md §1.6);
 - ``lk-step2`` / ``lk-step3``: every 2nd / 3rd frame, retracked by the clips' own LK (21 px windows,
   3 levels, forward-backward check under 0.5 px) from their frame i-1 grid; ``exact-step2`` /
-  ``exact-step3``: the same pairs with the frame-i positions the ground-truth depth and cameras give.
+  ``exact-step3``: the same pairs, their usable tracks at the frame-i positions the ground-truth depth and
+  cameras give (``track_errors.variants``).
 
 Prints SGC per clip and change (status beside where not ``ok``) and, per change, the largest move from
 the clip as read. Real data, no split: nothing is chosen here.
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -40,12 +42,13 @@ from scipy import ndimage
 
 from sgc_jax import load_clip, score_batch
 from sgc_jax.io.clip import Clip
-from sgc_jax.research.ground_truth import exact_positions
 from sgc_jax.research.noise import enlarged_depth
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from track_errors import retracked, variants  # noqa: E402
+
 QUARTER_TURN = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # camera axes turned about z
-LK = {"winSize": (21, 21), "maxLevel": 3}
-LK_AGREEMENT_PX = 0.5
+LK_WINDOW_PX = 21  # the shared clips' own tracker (their README)
 
 
 def reversed_clip(c: Clip) -> Clip:
@@ -139,32 +142,21 @@ def resized_with_holes(c: Clip, interpolation: int) -> Clip:
 
 
 def stepped(c: Clip, step: int) -> Clip:
-    """Every ``step``-th frame, each pair retracked by LK from frame i-1's grid of the pair that starts there."""
+    """Every ``step``-th frame, each pair retracked by the clips' own LK (``track_errors.retracked``, 21 px
+    windows) from frame i-1's grid of the pair that starts there."""
     kept = np.arange(0, c.n_frames, step)
-    gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in c.frames]
-    prev, curr, vis = [], [], []
-    for a, b in zip(kept[:-1], kept[1:]):
-        start = c.track_prev[a].astype(np.float32).reshape(-1, 1, 2)
-        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[a], gray[b], start, None, **LK)
-        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[b], gray[a], ahead, None, **LK)
-        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < LK_AGREEMENT_PX
-        prev.append(start[:, 0])
-        curr.append(ahead[:, 0])
-        vis.append(c.track_vis[a] & (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree)
-    return dataclasses.replace(c, depth=c.depth[kept], K=c.K[kept], R_wc=c.R_wc[kept], t_wc=c.t_wc[kept],
-                               static_mask=c.static_mask[kept], frames=None, track_prev=np.stack(prev),
-                               track_curr=np.stack(curr), track_vis=np.stack(vis),
-                               track_conf=np.ones((len(kept) - 1, c.n_tracks), np.float32))
+    starts = kept[:-1]
+    every = dataclasses.replace(c, depth=c.depth[kept], K=c.K[kept], R_wc=c.R_wc[kept], t_wc=c.t_wc[kept],
+                                static_mask=c.static_mask[kept], frames=c.frames[kept],
+                                track_prev=c.track_prev[starts], track_curr=c.track_prev[starts],
+                                track_vis=c.track_vis[starts], track_conf=np.ones((len(starts), c.n_tracks), np.float32))
+    return dataclasses.replace(retracked(every, LK_WINDOW_PX), clip_id=c.clip_id, frames=None)
 
 
 def exact_tracks(c: Clip) -> Clip:
-    """The clip with each track's frame-i position where the ground-truth depth and cameras put it."""
-    curr, vis = c.track_curr.copy(), c.track_vis.copy()
-    for pair in range(1, c.n_frames):
-        position, exists = exact_positions(c, pair)
-        curr[pair - 1] = np.where(exists[:, None], position, curr[pair - 1])
-        vis[pair - 1] &= exists
-    return dataclasses.replace(c, track_curr=curr.astype(np.float32), track_vis=vis)
+    """The clip with its usable tracks' frame-i positions where the ground-truth depth and cameras put
+    them (``track_errors.variants``' exact variant)."""
+    return dataclasses.replace(variants(c, np.random.default_rng(0))["exact"], clip_id=c.clip_id)
 
 
 CHANGES: dict[str, Callable[[Clip], Clip]] = {
