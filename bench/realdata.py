@@ -4,7 +4,7 @@ default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
                              [--config FILE] [--regions N] [--line-ratio 0.05] [--depth-edge-ratio 1.2]
-                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1]
+                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1] [--long-range]
                              [--noise-models iid-curr iid-both correlated depth outliers --noise-levels 0.5 1 2]
 
 Prints
@@ -31,6 +31,12 @@ estimator's: each turned about its centre by a rotation of RMS a degrees per axi
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
 the clip's place); the tracks' distance to the ground-truth motion is still the exact cameras'.
 
+``--long-range`` scores every clip (and its ladders) with long-range tracks in place of its own: its
+first grid followed through the clip by the clips' own LK, each lost track queried again at that
+slot's grid point (bench/rigid_changes.py, ``lk-long-reseeded``), so errors lie at both ends of a
+pair and drift along the clip, as a tracker queried once gives them; the tracks' distance to the
+ground-truth motion is then each pair's, from its frame i-1 positions as tracked.
+
 ``--noise-models M ... --noise-levels PX ...`` also scores every clip under the validation
 protocol's estimator errors on top of its own tracker's (sgc_jax.research.noise.NOISE_MODELS,
 docs/semantics.md §7.4; each model at each level, one draw seeded by the clip's place), with the
@@ -43,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +60,9 @@ from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
 from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.pose_jitter import pose_jitter
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rigid_changes import long_range  # noqa: E402
 
 POSE_COMPONENTS = [c for c in COMPONENTS if c != "depth_error"]
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -163,6 +173,8 @@ def main() -> None:
                         help="turn each camera by a rotation of this RMS per axis [deg] before scoring")
     parser.add_argument("--camera-step-rel", type=float, default=0.0,
                         help="move each camera centre by this RMS per axis [median camera steps] before scoring")
+    parser.add_argument("--long-range", action="store_true",
+                        help="score every clip with long-range tracks from its frames in place of its own")
     parser.add_argument("--noise-models", nargs="*", default=[], choices=sorted(NOISE_MODELS),
                         help="also score the clips under these protocol noise models (docs/semantics.md §7.4)")
     parser.add_argument("--noise-levels", nargs="*", type=float, default=[0.5, 1.0, 2.0],
@@ -173,6 +185,8 @@ def main() -> None:
     if not paths:
         raise SystemExit(f"no .npz clips in {args.dir}")
     clips = [load_clip(str(p)) for p in paths]
+    if args.long_range:
+        clips = [long_range(clip, reseed=True) for clip in clips]
     if args.line_ratio is not None:
         clips = [leave_out_line_tracks(clip, args.line_ratio) for clip in clips]
     exact = clips

@@ -21,7 +21,13 @@ Each clip of ``../shared/realdata/`` as read, then changed (in memory, default c
 - ``lk-step2`` / ``lk-step3``: every 2nd / 3rd frame, retracked by the clips' own LK (21 px windows,
   3 levels, forward-backward check under 0.5 px) from their frame i-1 grid; ``exact-step2`` /
   ``exact-step3``: the same pairs, their usable tracks at the frame-i positions the ground-truth depth and
-  cameras give (``track_errors.variants``).
+  cameras give (``track_errors.variants``);
+- ``lk-long``: long-range tracks, as a tracker queried once at frame 0 gives them (DELTA's dense
+  output, CoTracker): the clip's first grid followed from frame to frame by the same LK from where
+  it put each point in the frame before, a track lost once (the forward-backward check) lost for
+  good; its errors lie at both ends of every pair after the first, and grow along the clip;
+  ``lk-long-reseeded``: the same, each lost track queried again at the clip's own grid point of
+  that slot in the frame it was lost in (a tracker queried in sliding windows keeps its density).
 
 Prints SGC per clip and change (status beside where not ``ok``) and, per change, the largest move from
 the clip as read. Real data, no split: nothing is chosen here.
@@ -45,7 +51,7 @@ from sgc_jax.io.clip import Clip
 from sgc_jax.research.noise import enlarged_depth
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from track_errors import retracked, variants  # noqa: E402
+from track_errors import lk_step, retracked, variants  # noqa: E402
 
 QUARTER_TURN = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # camera axes turned about z
 LK_WINDOW_PX = 21  # the shared clips' own tracker (their README)
@@ -153,6 +159,22 @@ def stepped(c: Clip, step: int) -> Clip:
     return dataclasses.replace(retracked(every, LK_WINDOW_PX), clip_id=c.clip_id, frames=None)
 
 
+def long_range(c: Clip, reseed: bool = False) -> Clip:
+    """Frame 0's grid followed through the clip by the clips' own LK (module docstring, ``lk-long``,
+    ``lk-long-reseeded``)."""
+    gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in c.frames]
+    prev, curr, vis = np.empty_like(c.track_prev), np.empty_like(c.track_curr), np.empty_like(c.track_vis)
+    at, alive = c.track_prev[0], c.track_vis[0].copy()  # the grid's points the clip's tracker followed
+    for i in range(c.n_pairs):
+        if reseed:
+            at, alive = np.where(alive[:, None], at, c.track_prev[i]), alive | c.track_vis[i]
+        ahead, found = lk_step(gray[i], gray[i + 1], at, LK_WINDOW_PX)
+        prev[i], curr[i], vis[i] = at, ahead, alive & found
+        at, alive = np.where(vis[i][:, None], ahead, at), vis[i]
+    return dataclasses.replace(c, track_prev=prev, track_curr=curr, track_vis=vis,
+                               track_conf=np.ones(c.track_vis.shape, np.float32))
+
+
 def exact_tracks(c: Clip) -> Clip:
     """The clip with its usable tracks' frame-i positions where the ground-truth depth and cameras put
     them (``track_errors.variants``' exact variant)."""
@@ -168,6 +190,7 @@ CHANGES: dict[str, Callable[[Clip], Clip]] = {
     "holes-nearest2x": lambda c: resized_with_holes(c, cv2.INTER_NEAREST),
     "lk-step2": lambda c: stepped(c, 2), "lk-step3": lambda c: stepped(c, 3),
     "exact-step2": lambda c: exact_tracks(stepped(c, 2)), "exact-step3": lambda c: exact_tracks(stepped(c, 3)),
+    "lk-long": long_range, "lk-long-reseeded": lambda c: long_range(c, reseed=True),
 }
 
 

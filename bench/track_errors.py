@@ -85,17 +85,24 @@ def variants(clip, rng: np.random.Generator) -> dict:
             for name in VARIANTS}
 
 
+def lk_step(gray_from, gray_to, start: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points start (P, 2) of one frame followed into the next by pyramidal LK (``window`` px square
+    windows, 3 levels) -> (positions (P, 2), found: both ways found and back within 0.5 px of start)."""
+    lk = {"winSize": (window, window), "maxLevel": 3}
+    start = start.astype(np.float32).reshape(-1, 1, 2)
+    ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray_from, gray_to, start, None, **lk)
+    back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray_to, gray_from, ahead, None, **lk)
+    agree = np.linalg.norm(back - start, axis=-1)[:, 0] < 0.5
+    return ahead[:, 0], (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
+
+
 def retracked(clip, window: int):
     """The clip with frame-i positions from pyramidal LK (``window`` px square windows) on its frames."""
     gray = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in clip.frames]
     curr, vis = clip.track_curr.copy(), clip.track_vis.copy()
-    lk = {"winSize": (window, window), "maxLevel": 3}
     for i in range(clip.n_pairs):
-        start = clip.track_prev[i].astype(np.float32).reshape(-1, 1, 2)
-        ahead, found, _ = cv2.calcOpticalFlowPyrLK(gray[i], gray[i + 1], start, None, **lk)
-        back, found_back, _ = cv2.calcOpticalFlowPyrLK(gray[i + 1], gray[i], ahead, None, **lk)
-        agree = np.linalg.norm(back - start, axis=-1)[:, 0] < 0.5
-        curr[i], vis[i] = ahead[:, 0], vis[i] & (found[:, 0] == 1) & (found_back[:, 0] == 1) & agree
+        curr[i], found = lk_step(gray[i], gray[i + 1], clip.track_prev[i], window)
+        vis[i] &= found
     return dataclasses.replace(clip, clip_id=f"{clip.clip_id}/lk{window}", track_curr=curr, track_vis=vis)
 
 
