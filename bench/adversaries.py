@@ -19,6 +19,9 @@ Noise: iid-both (independent Gaussian on both ends of every track). Prints, for 
    2 px), the median pose tracks, evidence, reward and status share per track count, beside the
    honest clips of table 1.
 
+``--out`` also keeps each clip's ``least_tracks_share``: its pair of fewest usable tracks over the
+median of its pairs (where the rule of docs/semantics.md §3.11, "A break in the tracks", reads it).
+
 The rewards are ``BatchResult.rewards`` (the Scorer's, computed from the tables; tests/test_scorer.py
 holds the two equal).
 """
@@ -55,6 +58,14 @@ def noisy(clip, scene, px: float, draw: int = 0):
     return add_noise(clip, NOISE_MODELS["iid-both"].replace(px=px), seed)
 
 
+def least_tracks_share(clip) -> float:
+    """A scored clip's fewest usable tracks in a pair over its pairs' median (NaN without pairs)."""
+    if clip.pairs is None:
+        return float("nan")
+    counts = np.asarray(clip.pairs.n_tracks, np.float64)
+    return float(counts.min() / np.median(counts)) if np.median(counts) > 0 else float("nan")
+
+
 def score_rows(args) -> list[dict]:
     rows = []
     for scene in protocol.SPLITS[args.split]:
@@ -79,7 +90,8 @@ def score_rows(args) -> list[dict]:
                              sgc_lo=c.sgc_lo, sgc_hi=c.sgc_hi, sgc_unclipped=float(rewards["sgc_unclipped"][i]),
                              depth_error=c.components["depth_error"], evidence=c.evidence,
                              pose_tracks=c.pose_tracks, reward=float(rewards["reward"][i]),
-                             camera_motion=float(rewards["camera_motion"][i]), scale=c.scale))
+                             camera_motion=float(rewards["camera_motion"][i]), scale=c.scale,
+                             least_tracks_share=least_tracks_share(c)))
         print(f"{scene.name}: {len(batch)} clips in {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     return rows
 

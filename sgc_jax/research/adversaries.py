@@ -24,7 +24,11 @@ afterwards, as for any clip of the protocol.
   hold the first camera's centre: a camera-controlled generator asked for a turn on the spot that
   moves as well;
 - ``static_cameras``: the scene's video, scored with every camera the first (a camera-controlled
-  generator asked to hold still that moves).
+  generator asked to hold still that moves);
+- ``scene_cut``: the scene's first half, then the second half of another world of its layout (a
+  hard cut), each half with its own world's depth and cameras, the second world's ``CUT_JUMP``
+  median depths away (shots reconstructed apart share no origin), every track lost across the cut
+  (as a tracker queried per pair loses them): two consistent shots that are not one world.
 
 The last two give their cameras in a world whose origin lies ``WORLD_OFFSET`` median depths from
 the first camera (as a SLAM or COLMAP world does; the protocol's scenes put the first camera at
@@ -45,6 +49,8 @@ from .protocol import ProtocolScene
 WARP = 0.5  # the severity an adversary's inconsistency carries
 LOW_CONFIDENCE = 0.1  # below SGCConfig().min_track_conf
 WORLD_OFFSET = np.array([6.0, -2.0, 3.0])  # where held cameras' centre lies, in median depths
+CUT_SEED_OFFSET = 1_000_000  # the other world of a cut: a seed no split or corpus holds
+CUT_JUMP = np.array([50.0, 0.0, 0.0])  # where the other world's origin lies from the first's, in median depths
 
 
 def with_frames(clip: Clip, order: list[int]) -> Clip:
@@ -169,12 +175,31 @@ def static_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
     return held_cameras(clip, np.repeat(clip.R_wc[:1], clip.n_frames, axis=0))
 
 
+def scene_cut(scene: ProtocolScene, n_tracks: int) -> Clip:
+    first = scene.clip(n_tracks)
+    second = dataclasses.replace(scene, seed=scene.seed + CUT_SEED_OFFSET).clip(n_tracks)
+    jump = CUT_JUMP * float(np.nanmedian(second.depth))
+    second = dataclasses.replace(second, t_wc=(second.t_wc - np.einsum("tij,j->ti", second.R_wc, jump)).astype(
+        second.t_wc.dtype))  # its world moved by ``jump``: centres C + jump
+    cut = first.n_frames // 2  # frames 0..cut-1 of the first world, then the second's
+    frames = lambda a, b: np.concatenate([a[:cut], b[cut:]])  # noqa: E731
+    pairs = lambda a, b: np.concatenate([a[:cut - 1], b[cut - 1:]])  # noqa: E731  (pair cut-1 crosses it)
+    vis = pairs(first.track_vis, second.track_vis)
+    vis[cut - 1] = False
+    return dataclasses.replace(
+        first, depth=frames(first.depth, second.depth), K=frames(first.K, second.K),
+        R_wc=frames(first.R_wc, second.R_wc), t_wc=frames(first.t_wc, second.t_wc),
+        static_mask=frames(first.static_mask, second.static_mask), track_prev=pairs(first.track_prev, second.track_prev),
+        track_curr=pairs(first.track_curr, second.track_curr), track_vis=vis,
+        track_conf=pairs(first.track_conf, second.track_conf))
+
+
 ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "few_tracks": few_tracks, "low_confidence": low_confidence, "pure_rotation": pure_rotation,
     "near_still": near_still, "bursty": bursty, "thin_band": thin_band, "masked_out": masked_out,
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
     "still_video": still_video, "backward_cameras": backward_cameras,
-    "rotation_only_cameras": rotation_only_cameras, "static_cameras": static_cameras,
+    "rotation_only_cameras": rotation_only_cameras, "static_cameras": static_cameras, "scene_cut": scene_cut,
 }
 
 
