@@ -15,6 +15,7 @@ from sgc_jax.engines.evidence import (
     camera_motion,
     cameras_outrun_tracks,
     pair_evidence,
+    tracks_lost,
     upper_with_unseen,
 )
 from sgc_jax.research.adversaries import with_frames
@@ -42,6 +43,34 @@ def test_a_pair_whose_cameras_outrun_its_tracks_counts_nothing():
     assert not outrun(LEVELS.full_motion_trans / (LEVELS.cameras_outrun_tracks * 0.99))
     assert not outrun(np.nan)  # the tracks' motion unknown: no test
     assert float(pair_evidence(True, **full, levels=LEVELS, outrun=True)) == 0.0
+
+
+def test_a_pair_below_a_share_of_the_clips_median_tracks_has_lost_them():
+    share = LEVELS.tracks_lost_share
+    counts = np.array([1000, 1000, 1000 * share - 1, 1000 * share, 1000])
+    assert tracks_lost(counts, np.ones(5, bool), LEVELS).tolist() == [False, False, True, False, False]
+    assert not tracks_lost(counts, np.array([True, True, False, True, True]), LEVELS).any()  # not a pair of the clip
+    assert not tracks_lost(np.zeros(4), np.ones(4, bool), LEVELS).any()  # no tracks anywhere: nothing was lost
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_clip_whose_tracks_are_lost_between_two_frames_counts_no_evidence(engine):
+    whole = synth_clip(seed=3, **TINY, noise_px=0.5)
+    vis = whole.track_vis.copy()
+    vis[whole.n_pairs // 2] = False  # a cut: the tracker loses every track between two frames
+    cut = dataclasses.replace(whole, clip_id="cut", track_vis=vis)
+    honest, broken = score_batch([whole, cut], engine=engine, progress=False).clips
+    assert honest.evidence > 0.5 and "tracks_lost" not in honest.reason
+    assert broken.evidence == 0.0 and broken.status == "low_evidence" and "tracks_lost x1" in broken.reason
+    assert broken.sgc_hi >= broken.sgc + (FULL_SEVERITY_SGC - broken.sgc) - 1e-6
+
+
+def test_under_the_authors_semantics_lost_tracks_leave_the_status_as_it_was():
+    vis = (clip := synth_clip(seed=3, **TINY, noise_px=0.5)).track_vis.copy()
+    vis[clip.n_pairs // 2] = False
+    cut = score_batch([dataclasses.replace(clip, track_vis=vis)], engine="reference", compat="authors",
+                      progress=False).clips[0]
+    assert "tracks_lost" not in cut.reason and cut.evidence > 0.0
 
 
 # The tracks' pose in float32 (JAX) and float64 (reference): the same Gauss-Newton updates from the

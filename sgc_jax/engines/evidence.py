@@ -27,6 +27,10 @@ class EvidenceLevels:
     # cameras claim a motion the video does not show (a video held still under the cameras it was
     # asked to follow); chosen on FIT's battery: every other clip's pairs at most 4.4, still videos 15 up
     cameras_outrun_tracks: float = 5.0
+    # a clip with a pair whose usable tracks fall below this share of its pairs' median counts no
+    # evidence: the tracker lost the world between two frames (a cut), and the two sides are not
+    # measured as one world; not fitted: a cut leaves 0-0.007, the real clips' least pair 0.65
+    tracks_lost_share: float = 0.25
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -89,6 +93,14 @@ def pair_evidence(measured: Any, tracks: Any, trans: Any, rot_deg: Any, static_f
     return xp.where(measured & ~xp.asarray(outrun), value, 0.0)
 
 
+def tracks_lost(n_tracks: Any, pair_valid: Any, levels: EvidenceLevels, xp=np) -> Any:
+    """(..., T-1) usable tracks per pair and the pairs each clip has -> (..., T-1) bool: a pair whose
+    usable tracks fall below ``levels.tracks_lost_share`` of the median over the clip's pairs."""
+    counts = xp.where(pair_valid, xp.asarray(n_tracks) * 1.0, np.nan)
+    median = xp.nanmedian(counts, axis=-1, keepdims=True)
+    return pair_valid & (counts < levels.tracks_lost_share * median)
+
+
 def clip_evidence(per_pair: Any, pair_valid: Any, xp=np) -> Any:
     """(..., T-1) pair evidence and the pairs each clip has -> (...,) the mean over its pairs (0 with none)."""
     count = xp.sum(pair_valid, axis=-1)
@@ -104,13 +116,17 @@ def upper_with_unseen(sgc: Any, sgc_hi: Any, evidence: Any, xp=np) -> Any:
 
 
 def shortfall(tracks: np.ndarray, trans: np.ndarray, rot_deg: np.ndarray, static_frac: np.ndarray,
-              measured: np.ndarray, levels: EvidenceLevels, outrun: np.ndarray | bool = False) -> str:
+              measured: np.ndarray, levels: EvidenceLevels, outrun: np.ndarray | bool = False,
+              lost: np.ndarray | bool = False) -> str:
     """Text for a clip's reason: how many of its measured pairs fall short of each full level,
-    e.g. ``"below full: tracks x3, motion x2"``, and whose cameras outrun their tracks ("" when none)."""
+    e.g. ``"below full: tracks x3, motion x2"``, whose cameras outrun their tracks, and how many
+    pairs lost the clip's tracks (``tracks_lost``; "" when none of these)."""
     short = {"tracks": tracks < levels.full_tracks, "motion": camera_motion(trans, rot_deg, levels) < 1.0,
              "static": static_frac < levels.full_static_frac}
     counts = {name: int(np.sum(below & measured)) for name, below in short.items()}
     listed = ", ".join(f"{name} x{n}" for name, n in counts.items() if n)
     outruns = int(np.sum(np.asarray(outrun) & measured))
-    parts = ([f"below full: {listed}"] if listed else []) + ([f"cameras_outrun_tracks x{outruns}"] if outruns else [])
+    lost_pairs = int(np.sum(lost))
+    parts = (([f"tracks_lost x{lost_pairs}"] if lost_pairs else []) + ([f"below full: {listed}"] if listed else [])
+             + ([f"cameras_outrun_tracks x{outruns}"] if outruns else []))
     return "; ".join(parts)

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
 from ..codes import CLIP_STATUSES, SCORER_STATUS_CODE
-from ..engines.evidence import LOW_EVIDENCE, EvidenceLevels, cameras_outrun_tracks, pose_tracks, shortfall
+from ..engines.evidence import LOW_EVIDENCE, EvidenceLevels, cameras_outrun_tracks, pose_tracks, shortfall, tracks_lost
 from ..engines.noise_floors import floor_score, pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
@@ -154,8 +154,10 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         tracks = pose_tracks(pairs.region_status, pairs.region_points)
         outrun = cameras_outrun_tracks(pairs.t_g_norm, pairs.R_g_angle_deg, pairs.tracks_trans, pairs.tracks_rot_deg,
                                        levels)
+        lost = (tracks_lost(pairs.n_tracks, np.ones(pairs.n_pairs, bool), levels) if compat != "authors"
+                else False)
         thin = shortfall(tracks, pairs.t_g_norm, pairs.R_g_angle_deg, pairs.static_frac, pairs.reason == "ok", levels,
-                         outrun)
+                         outrun, lost)
         reason = f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(part for part in (problems, thin) if part)
     else:
         reason = problems if status == "partial" else ""

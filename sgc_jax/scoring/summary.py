@@ -21,6 +21,7 @@ from ..engines.evidence import (
     pair_evidence,
     parallax_px,
     pose_tracks,
+    tracks_lost,
     upper_with_unseen,
 )
 from ..engines.noise_floors import floor_score, pair_floors
@@ -51,6 +52,8 @@ def summarize_pairs(pairs: Mapping[str, Any], pair_valid: Any, calibration: Cali
                                     pair_floors=per_pair_floors)
     per_pair_evidence, tracks = evidence_per_pair(pairs, levels, xp)
     evidence = xp.asarray(clip_evidence(per_pair_evidence, pair_valid, xp=xp), _float(xp))
+    if compat != "authors":  # a break in the tracks: the clip is not measured as one world (§3.11)
+        evidence = xp.where(xp.any(tracks_lost(pairs["n_tracks"], pair_valid, levels, xp), axis=-1), 0.0, evidence)
     scored = xp.sum(pair_valid & (pairs["reason"] == PAIR_REASON_CODE["ok"]), axis=-1)
     return dict(
         sgc=sgc, sgc_lo=sgc_lo, sgc_hi=upper_with_unseen(sgc, sgc_hi, evidence, xp=xp), **components, **floors,
