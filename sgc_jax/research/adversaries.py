@@ -28,7 +28,10 @@ afterwards, as for any clip of the protocol.
 - ``scene_cut``: the scene's first half, then the second half of another world of its layout (a
   hard cut), each half with its own world's depth and cameras, the second world's ``CUT_JUMP``
   median depths away (shots reconstructed apart share no origin), every track lost across the cut
-  (as a tracker queried per pair loses them): two consistent shots that are not one world.
+  (as a tracker queried per pair loses them): two consistent shots that are not one world;
+- ``scene_cut_tracked``: the same cut, every track across it kept visible, each frame i−1 point
+  paired with the other world's track of the same index at frame i (a tracker that reports each
+  patch where it matched best).
 
 The last two give their cameras in a world whose origin lies ``WORLD_OFFSET`` median depths from
 the first camera (as a SLAM or COLMAP world does; the protocol's scenes put the first camera at
@@ -175,7 +178,7 @@ def static_cameras(scene: ProtocolScene, n_tracks: int) -> Clip:
     return held_cameras(clip, np.repeat(clip.R_wc[:1], clip.n_frames, axis=0))
 
 
-def scene_cut(scene: ProtocolScene, n_tracks: int) -> Clip:
+def scene_cut(scene: ProtocolScene, n_tracks: int, tracked: bool = False) -> Clip:
     first = scene.clip(n_tracks)
     second = dataclasses.replace(scene, seed=scene.seed + CUT_SEED_OFFSET).clip(n_tracks)
     jump = CUT_JUMP * float(np.nanmedian(second.depth))
@@ -184,12 +187,13 @@ def scene_cut(scene: ProtocolScene, n_tracks: int) -> Clip:
     cut = first.n_frames // 2  # frames 0..cut-1 of the first world, then the second's
     frames = lambda a, b: np.concatenate([a[:cut], b[cut:]])  # noqa: E731
     pairs = lambda a, b: np.concatenate([a[:cut - 1], b[cut - 1:]])  # noqa: E731  (pair cut-1 crosses it)
-    vis = pairs(first.track_vis, second.track_vis)
-    vis[cut - 1] = False
+    prev, vis = pairs(first.track_prev, second.track_prev), pairs(first.track_vis, second.track_vis)
+    prev[cut - 1] = first.track_prev[cut - 1]  # the first world's points, followed into the second world's frame
+    vis[cut - 1] = first.track_vis[cut - 1] & second.track_vis[cut - 1] if tracked else False
     return dataclasses.replace(
         first, depth=frames(first.depth, second.depth), K=frames(first.K, second.K),
         R_wc=frames(first.R_wc, second.R_wc), t_wc=frames(first.t_wc, second.t_wc),
-        static_mask=frames(first.static_mask, second.static_mask), track_prev=pairs(first.track_prev, second.track_prev),
+        static_mask=frames(first.static_mask, second.static_mask), track_prev=prev,
         track_curr=pairs(first.track_curr, second.track_curr), track_vis=vis,
         track_conf=pairs(first.track_conf, second.track_conf))
 
@@ -200,6 +204,7 @@ ADVERSARIES: dict[str, Callable[[ProtocolScene, int], Clip]] = {
     "unmasked_mover": unmasked_mover, "repeated_frames": repeated_frames, "half_broken": half_broken,
     "still_video": still_video, "backward_cameras": backward_cameras,
     "rotation_only_cameras": rotation_only_cameras, "static_cameras": static_cameras, "scene_cut": scene_cut,
+    "scene_cut_tracked": lambda scene, n_tracks: scene_cut(scene, n_tracks, tracked=True),
 }
 
 
