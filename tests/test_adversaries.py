@@ -20,7 +20,8 @@ NOISE = NOISE_MODELS["iid-both"].replace(px=1.0)
 # The adversaries the evidence answers whatever the score sees; pure rotation and an unmasked mover
 # earn less only as far as the score sees their inconsistency (bench/history/issue-59.md, "Evidence").
 BY_EVIDENCE = ("few_tracks", "low_confidence", "near_still", "bursty", "thin_band", "masked_out",
-               "repeated_frames", "half_broken", "still_video", "static_cameras", "scene_cut")
+               "repeated_frames", "half_broken", "still_video", "static_cameras", "scene_cut",
+               "scene_cut_tracked")
 # A depth warp without parallax, which the depth error alone sees (the reward's depth weight, §9.4).
 BY_DEPTH_ERROR = ("pure_rotation",)
 # Cameras that run backward along their path, which the global components see once s is held at 0

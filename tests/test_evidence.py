@@ -9,11 +9,13 @@ import pytest
 from scenes import TINY
 
 from sgc_jax import EvidenceLevels, score_batch
+from sgc_jax.codes import PAIR_REASON_CODE
 from sgc_jax.engines.evidence import (
     FULL_SEVERITY_SGC,
     LOW_EVIDENCE,
     camera_motion,
     cameras_outrun_tracks,
+    fits_no_pose,
     pair_evidence,
     tracks_lost,
     upper_with_unseen,
@@ -53,6 +55,12 @@ def test_a_pair_below_a_share_of_the_clips_median_tracks_has_lost_them():
     assert not tracks_lost(np.zeros(4), np.ones(4, bool), LEVELS).any()  # no tracks anywhere: nothing was lost
 
 
+def test_a_pair_whose_tracks_fit_no_pose_breaks_the_clip_unless_they_were_lost():
+    reason = np.array([PAIR_REASON_CODE[r] for r in ("ok", "no_pose", "no_pose", "one_pose")])
+    lost = np.array([False, False, True, False])
+    assert fits_no_pose(reason, lost).tolist() == [False, True, False, False]
+
+
 @pytest.mark.parametrize("engine", ["jax", "reference"])
 def test_a_clip_whose_tracks_are_lost_between_two_frames_counts_no_evidence(engine):
     whole = synth_clip(seed=3, **TINY, noise_px=0.5)
@@ -63,6 +71,18 @@ def test_a_clip_whose_tracks_are_lost_between_two_frames_counts_no_evidence(engi
     assert honest.evidence > 0.5 and "tracks_lost" not in honest.reason
     assert broken.evidence == 0.0 and broken.status == "low_evidence" and "tracks_lost x1" in broken.reason
     assert broken.sgc_hi >= broken.sgc + (FULL_SEVERITY_SGC - broken.sgc) - 1e-6
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_clip_whose_tracks_fit_no_rigid_motion_between_two_frames_counts_no_evidence(engine):
+    whole = synth_clip(seed=3, **TINY, noise_px=0.5)
+    curr = whole.track_curr.copy()
+    pair = whole.n_pairs // 2
+    curr[pair] = curr[pair][np.random.default_rng(0).permutation(whole.n_tracks)]  # every track matched at random
+    broken = score_batch([dataclasses.replace(whole, clip_id="scrambled", track_curr=curr)], engine=engine,
+                         progress=False).clips[0]
+    assert broken.pairs.reason[pair] == "no_pose"
+    assert broken.evidence == 0.0 and broken.status == "low_evidence" and "no_rigid_motion x1" in broken.reason
 
 
 def test_under_the_authors_semantics_lost_tracks_leave_the_status_as_it_was():

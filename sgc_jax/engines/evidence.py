@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..codes import REGION_OK
+from ..codes import PAIR_REASON_CODE, REGION_OK
 from .units import PERCENT
 
 
@@ -29,7 +29,8 @@ class EvidenceLevels:
     cameras_outrun_tracks: float = 5.0
     # a clip with a pair whose usable tracks fall below this share of its pairs' median counts no
     # evidence: the tracker lost the world between two frames (a cut), and the two sides are not
-    # measured as one world; not fitted: a cut leaves 0-0.007, the real clips' least pair 0.65
+    # measured as one world (nor where the tracks are there but fit no pose, ``fits_no_pose``);
+    # not fitted: a cut leaves 0-0.007, the real clips' least pair 0.65
     tracks_lost_share: float = 0.25
 
     def __post_init__(self) -> None:
@@ -101,6 +102,12 @@ def tracks_lost(n_tracks: Any, pair_valid: Any, levels: EvidenceLevels, xp=np) -
     return pair_valid & (counts < levels.tracks_lost_share * median)
 
 
+def fits_no_pose(reason: Any, lost: Any) -> Any:
+    """(..., T-1) pair reasons (PAIR_REASON_CODE) and ``tracks_lost`` -> (..., T-1) bool: a pair whose
+    tracks are there but fit no rigid motion (reason ``no_pose``): the world breaks there too."""
+    return (reason == PAIR_REASON_CODE["no_pose"]) & ~lost
+
+
 def clip_evidence(per_pair: Any, pair_valid: Any, xp=np) -> Any:
     """(..., T-1) pair evidence and the pairs each clip has -> (...,) the mean over its pairs (0 with none)."""
     count = xp.sum(pair_valid, axis=-1)
@@ -117,16 +124,17 @@ def upper_with_unseen(sgc: Any, sgc_hi: Any, evidence: Any, xp=np) -> Any:
 
 def shortfall(tracks: np.ndarray, trans: np.ndarray, rot_deg: np.ndarray, static_frac: np.ndarray,
               measured: np.ndarray, levels: EvidenceLevels, outrun: np.ndarray | bool = False,
-              lost: np.ndarray | bool = False) -> str:
+              lost: np.ndarray | bool = False, no_rigid_motion: np.ndarray | bool = False) -> str:
     """Text for a clip's reason: how many of its measured pairs fall short of each full level,
     e.g. ``"below full: tracks x3, motion x2"``, whose cameras outrun their tracks, and how many
-    pairs lost the clip's tracks (``tracks_lost``; "" when none of these)."""
+    pairs lost the clip's tracks (``tracks_lost``) or hold tracks that fit no pose
+    (``fits_no_pose``; "" when none of these)."""
     short = {"tracks": tracks < levels.full_tracks, "motion": camera_motion(trans, rot_deg, levels) < 1.0,
              "static": static_frac < levels.full_static_frac}
     counts = {name: int(np.sum(below & measured)) for name, below in short.items()}
     listed = ", ".join(f"{name} x{n}" for name, n in counts.items() if n)
     outruns = int(np.sum(np.asarray(outrun) & measured))
-    lost_pairs = int(np.sum(lost))
-    parts = (([f"tracks_lost x{lost_pairs}"] if lost_pairs else []) + ([f"below full: {listed}"] if listed else [])
+    breaks = {"tracks_lost": int(np.sum(lost)), "no_rigid_motion": int(np.sum(no_rigid_motion))}
+    parts = ([f"{name} x{n}" for name, n in breaks.items() if n] + ([f"below full: {listed}"] if listed else [])
              + ([f"cameras_outrun_tracks x{outruns}"] if outruns else []))
     return "; ".join(parts)

@@ -18,6 +18,7 @@ from ..engines.evidence import (
     EvidenceLevels,
     cameras_outrun_tracks,
     clip_evidence,
+    fits_no_pose,
     pair_evidence,
     parallax_px,
     pose_tracks,
@@ -52,8 +53,10 @@ def summarize_pairs(pairs: Mapping[str, Any], pair_valid: Any, calibration: Cali
                                     pair_floors=per_pair_floors)
     per_pair_evidence, tracks = evidence_per_pair(pairs, levels, xp)
     evidence = xp.asarray(clip_evidence(per_pair_evidence, pair_valid, xp=xp), _float(xp))
-    if compat != "authors":  # a break in the tracks: the clip is not measured as one world (§3.11)
-        evidence = xp.where(xp.any(tracks_lost(pairs["n_tracks"], pair_valid, levels, xp), axis=-1), 0.0, evidence)
+    if compat != "authors":  # a break between two frames: the clip is not measured as one world (§3.11)
+        lost = tracks_lost(pairs["n_tracks"], pair_valid, levels, xp)
+        broken = lost | (fits_no_pose(pairs["reason"], lost) & pair_valid)
+        evidence = xp.where(xp.any(broken, axis=-1), 0.0, evidence)
     scored = xp.sum(pair_valid & (pairs["reason"] == PAIR_REASON_CODE["ok"]), axis=-1)
     return dict(
         sgc=sgc, sgc_lo=sgc_lo, sgc_hi=upper_with_unseen(sgc, sgc_hi, evidence, xp=xp), **components, **floors,
