@@ -16,16 +16,8 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..calibration import COMPONENTS, Calibration, rows_compat, sgc_score
-from ..codes import CLIP_STATUSES, PAIR_REASON_CODE, SCORER_STATUS_CODE
-from ..engines.evidence import (
-    LOW_EVIDENCE,
-    EvidenceLevels,
-    cameras_outrun_tracks,
-    fits_no_pose,
-    pose_tracks,
-    shortfall,
-    tracks_lost,
-)
+from ..codes import CLIP_STATUSES, SCORER_STATUS_CODE
+from ..engines.evidence import LOW_EVIDENCE, EvidenceLevels, cameras_outrun_tracks, pose_tracks, shortfall
 from ..engines.noise_floors import floor_score, pair_floors
 from ..engines.pairs import PairArrays
 from ..io.parquet import typed_cell
@@ -162,10 +154,9 @@ def summarize_clip(clip_id: str, pairs: PairArrays, calibration: Calibration, *,
         tracks = pose_tracks(pairs.region_status, pairs.region_points)
         outrun = cameras_outrun_tracks(pairs.t_g_norm, pairs.R_g_angle_deg, pairs.tracks_trans, pairs.tracks_rot_deg,
                                        levels)
-        lost = tracks_lost(pairs.n_tracks, np.ones(pairs.n_pairs, bool), levels) & (compat != "authors")
-        no_rigid_motion = fits_no_pose(np.array([PAIR_REASON_CODE[r] for r in pairs.reason]), lost) & (compat != "authors")
+        breaks = s["pair_breaks"]
         thin = shortfall(tracks, pairs.t_g_norm, pairs.R_g_angle_deg, pairs.static_frac, pairs.reason == "ok", levels,
-                         outrun, lost, no_rigid_motion)
+                         outrun, breaks["tracks_lost"], breaks["no_rigid_motion"])
         reason = f"evidence {evidence:.2f} < {LOW_EVIDENCE}: " + "; ".join(part for part in (problems, thin) if part)
     else:
         reason = problems if status == "partial" else ""

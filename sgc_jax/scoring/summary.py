@@ -43,7 +43,7 @@ def summarize_pairs(pairs: Mapping[str, Any], pair_valid: Any, calibration: Cali
     n_pairs) -> per-clip arrays (...,): sgc, sgc_lo, sgc_hi, the components, the floors, sgc_floor,
     evidence, pose_tracks, reproj_error, parallax_px, static_frac, ecd_trans, ecd_rot, status
     (SCORER_STATUS_CODE), n_pairs, n_pairs_scored, n_ill_conditioned; and per pair (..., n_pairs)
-    ``pair_floors`` (a dict) and ``pair_evidence``."""
+    ``pair_floors`` (a dict), ``pair_evidence`` and ``pair_breaks`` (a dict)."""
     mean = lambda values: nanmean(values, pair_valid, xp)  # noqa: E731
     components = {k: mean(pairs[k]) for k in COMPONENTS}
     per_pair_floors = pair_floors(pairs, compat, xp)
@@ -53,10 +53,8 @@ def summarize_pairs(pairs: Mapping[str, Any], pair_valid: Any, calibration: Cali
                                     pair_floors=per_pair_floors)
     per_pair_evidence, tracks = evidence_per_pair(pairs, levels, xp)
     evidence = xp.asarray(clip_evidence(per_pair_evidence, pair_valid, xp=xp), _float(xp))
-    if compat != "authors":  # a break between two frames: the clip is not measured as one world (§3.11)
-        lost = tracks_lost(pairs["n_tracks"], pair_valid, levels, xp)
-        broken = lost | (fits_no_pose(pairs["reason"], lost) & pair_valid)
-        evidence = xp.where(xp.any(broken, axis=-1), 0.0, evidence)
+    breaks = pair_breaks(pairs, pair_valid, compat, levels, xp)  # the clip is not measured as one world (§3.11)
+    evidence = xp.where(xp.any(breaks["tracks_lost"] | breaks["no_rigid_motion"], axis=-1), 0.0, evidence)
     scored = xp.sum(pair_valid & (pairs["reason"] == PAIR_REASON_CODE["ok"]), axis=-1)
     return dict(
         sgc=sgc, sgc_lo=sgc_lo, sgc_hi=upper_with_unseen(sgc, sgc_hi, evidence, xp=xp), **components, **floors,
@@ -66,7 +64,19 @@ def summarize_pairs(pairs: Mapping[str, Any], pair_valid: Any, calibration: Cali
         status=clip_status(pairs["reason"], pair_valid, sgc, evidence, xp),
         n_pairs=xp.sum(pair_valid, axis=-1), n_pairs_scored=scored,
         n_ill_conditioned=xp.sum(xp.where(pair_valid, pairs["n_ill_conditioned"], 0), axis=-1),
-        pair_floors=per_pair_floors, pair_evidence=per_pair_evidence)
+        pair_floors=per_pair_floors, pair_evidence=per_pair_evidence, pair_breaks=breaks)
+
+
+def pair_breaks(pairs: Mapping[str, Any], pair_valid: Any, compat: str, levels: EvidenceLevels,
+                xp=np) -> dict[str, Any]:
+    """Where the world breaks between a pair's two frames (docs/semantics.md §3.11), (..., n_pairs)
+    bool each: ``tracks_lost``, and among the other pairs ``no_rigid_motion`` (their tracks fit no
+    pose); none under compat="authors"."""
+    if compat == "authors":
+        none = xp.zeros(xp.shape(pair_valid), bool)
+        return {"tracks_lost": none, "no_rigid_motion": none}
+    lost = tracks_lost(pairs["n_tracks"], pair_valid, levels, xp)
+    return {"tracks_lost": lost, "no_rigid_motion": fits_no_pose(pairs["reason"], lost) & pair_valid}
 
 
 def evidence_per_pair(pairs: Mapping[str, Any], levels: EvidenceLevels, xp=np) -> tuple[Any, Any]:
@@ -113,5 +123,5 @@ def summarize_on_device(out: Mapping[str, Any], pair_valid, depth_unit, K, image
     pairs = dict(out, static_frac=out["region_pixels"] / image_pixels[:, None],
                  parallax_px=parallax_px(K[:, 1:], out["t_g_norm"], compat != "authors", xp=jnp))
     summary = summarize_pairs(pairs, pair_valid, calibration, compat, levels, xp=jnp)
-    del summary["pair_floors"], summary["pair_evidence"]
+    del summary["pair_floors"], summary["pair_evidence"], summary["pair_breaks"]
     return dict(summary, ecd=camera_dynamics(summary["ecd_trans"], summary["ecd_rot"], xp=jnp), depth_unit=depth_unit)
