@@ -15,7 +15,7 @@ from sgc_jax.engines.evidence import (
     LOW_EVIDENCE,
     camera_motion,
     cameras_outrun_tracks,
-    fits_no_pose,
+    fits_no_rigid_motion,
     pair_evidence,
     tracks_lost,
     upper_with_unseen,
@@ -55,10 +55,11 @@ def test_a_pair_below_a_share_of_the_clips_median_tracks_has_lost_them():
     assert not tracks_lost(np.zeros(4), np.ones(4, bool), LEVELS).any()  # no tracks anywhere: nothing was lost
 
 
-def test_a_pair_whose_tracks_fit_no_pose_breaks_the_clip_unless_they_were_lost():
-    reason = np.array([PAIR_REASON_CODE[r] for r in ("ok", "no_pose", "no_pose", "one_pose")])
-    lost = np.array([False, False, True, False])
-    assert fits_no_pose(reason, lost).tolist() == [False, True, False, False]
+def test_a_pair_whose_tracks_fit_no_readable_pose_breaks_the_clip_unless_they_were_lost():
+    reasons = ("ok", "no_pose", "no_pose", "one_pose", "ill_conditioned", "ill_conditioned")
+    reason = np.array([PAIR_REASON_CODE[r] for r in reasons])
+    lost = np.array([False, False, True, False, False, True])
+    assert fits_no_rigid_motion(reason, lost).tolist() == [False, True, False, False, True, False]
 
 
 @pytest.mark.parametrize("engine", ["jax", "reference"])

@@ -29,7 +29,8 @@ class EvidenceLevels:
     cameras_outrun_tracks: float = 5.0
     # a clip with a pair whose usable tracks fall below this share of its pairs' median counts no
     # evidence: the tracker lost the world between two frames (a cut), and the two sides are not
-    # measured as one world (nor where the tracks are there but fit no pose, ``fits_no_pose``);
+    # measured as one world (nor where the tracks are there but fit no readable pose,
+    # ``fits_no_rigid_motion``);
     # not fitted: a cut leaves 0-0.007, the real clips' least pair 0.65
     tracks_lost_share: float = 0.25
 
@@ -102,10 +103,12 @@ def tracks_lost(n_tracks: Any, pair_valid: Any, levels: EvidenceLevels, xp=np) -
     return pair_valid & (counts < levels.tracks_lost_share * median)
 
 
-def fits_no_pose(reason: Any, lost: Any) -> Any:
+def fits_no_rigid_motion(reason: Any, lost: Any) -> Any:
     """(..., T-1) pair reasons (PAIR_REASON_CODE) and ``tracks_lost`` -> (..., T-1) bool: a pair whose
-    tracks are there but fit no rigid motion (reason ``no_pose``): the world breaks there too."""
-    return (reason == PAIR_REASON_CODE["no_pose"]) & ~lost
+    tracks are there but fit no pose the score can read (reason ``no_pose``, or ``ill_conditioned``:
+    every fitted pose left out by the region-quality rule): the world breaks there too."""
+    unread = (reason == PAIR_REASON_CODE["no_pose"]) | (reason == PAIR_REASON_CODE["ill_conditioned"])
+    return unread & ~lost
 
 
 def clip_evidence(per_pair: Any, pair_valid: Any, xp=np) -> Any:
@@ -127,8 +130,8 @@ def shortfall(tracks: np.ndarray, trans: np.ndarray, rot_deg: np.ndarray, static
               lost: np.ndarray | bool = False, no_rigid_motion: np.ndarray | bool = False) -> str:
     """Text for a clip's reason: how many of its measured pairs fall short of each full level,
     e.g. ``"below full: tracks x3, motion x2"``, whose cameras outrun their tracks, and how many
-    pairs lost the clip's tracks (``tracks_lost``) or hold tracks that fit no pose
-    (``fits_no_pose``; "" when none of these)."""
+    pairs lost the clip's tracks (``tracks_lost``) or hold tracks that fit no readable pose
+    (``fits_no_rigid_motion``; "" when none of these)."""
     short = {"tracks": tracks < levels.full_tracks, "motion": camera_motion(trans, rot_deg, levels) < 1.0,
              "static": static_frac < levels.full_static_frac}
     counts = {name: int(np.sum(below & measured)) for name, below in short.items()}

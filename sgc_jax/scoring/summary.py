@@ -18,7 +18,7 @@ from ..engines.evidence import (
     EvidenceLevels,
     cameras_outrun_tracks,
     clip_evidence,
-    fits_no_pose,
+    fits_no_rigid_motion,
     pair_evidence,
     parallax_px,
     pose_tracks,
@@ -71,12 +71,12 @@ def pair_breaks(pairs: Mapping[str, Any], pair_valid: Any, compat: str, levels: 
                 xp=np) -> dict[str, Any]:
     """Where the world breaks between a pair's two frames (docs/semantics.md §3.11), (..., n_pairs)
     bool each: ``tracks_lost``, and among the other pairs ``no_rigid_motion`` (their tracks fit no
-    pose); none under compat="authors"."""
+    pose the score can read); none under compat="authors"."""
     if compat == "authors":
         none = xp.zeros(xp.shape(pair_valid), bool)
         return {"tracks_lost": none, "no_rigid_motion": none}
     lost = tracks_lost(pairs["n_tracks"], pair_valid, levels, xp)
-    return {"tracks_lost": lost, "no_rigid_motion": fits_no_pose(pairs["reason"], lost) & pair_valid}
+    return {"tracks_lost": lost, "no_rigid_motion": fits_no_rigid_motion(pairs["reason"], lost) & pair_valid}
 
 
 def evidence_per_pair(pairs: Mapping[str, Any], levels: EvidenceLevels, xp=np) -> tuple[Any, Any]:
