@@ -27,7 +27,12 @@ Each clip of ``../shared/realdata/`` as read, then changed (in memory, default c
   it put each point in the frame before, a track lost once (the forward-backward check) lost for
   good; its errors lie at both ends of every pair after the first, and grow along the clip;
   ``lk-long-reseeded``: the same, each lost track queried again at the clip's own grid point of
-  that slot in the frame it was lost in (a tracker queried in sliding windows keeps its density).
+  that slot in the frame it was lost in (a tracker queried in sliding windows keeps its density);
+- ``focal0.9`` / ``focal1.1``: every K's focal lengths scaled by 0.9 / 1.1, as an intrinsics
+  estimator's error (the world read through them is no longer quite rigid);
+- ``depth-offset1%`` / ``depth-offset3%``: each frame's depth plus its own offset, normal with an RMS
+  of 1 % / 3 % of the clip's median depth, as a relative-depth estimator's per-frame alignment can
+  leave (not rigid: a consistent world's depth maps do not flicker so; what the score sees of it).
 
 Prints SGC per clip and change (status beside where not ``ok``) and, per change, the largest move from
 the clip as read. Real data, no split: nothing is chosen here.
@@ -175,6 +180,23 @@ def long_range(c: Clip, reseed: bool = False) -> Clip:
                                track_conf=np.ones(c.track_vis.shape, np.float32))
 
 
+def focal_scaled(c: Clip, factor: float) -> Clip:
+    K = c.K.copy()
+    K[:, 0, 0] *= factor
+    K[:, 1, 1] *= factor
+    return dataclasses.replace(c, K=K, frames=None)
+
+
+def depth_offset(c: Clip, rms_rel: float) -> Clip:
+    """Each frame's valid depth plus one offset, N(0, rms_rel) x the clip's median depth (seeded by
+    the clip's id, so every change of a clip shares its draw)."""
+    valid = c.depth > 0
+    median = float(np.median(c.depth[valid]))
+    offsets = np.random.default_rng(list(c.clip_id.encode())).normal(0.0, rms_rel * median, c.n_frames)
+    return dataclasses.replace(c, depth=np.where(valid, c.depth + offsets[:, None, None], c.depth).astype(np.float32),
+                               frames=None)
+
+
 def exact_tracks(c: Clip) -> Clip:
     """The clip with its usable tracks' frame-i positions where the ground-truth depth and cameras put
     them (``track_errors.variants``' exact variant)."""
@@ -191,6 +213,8 @@ CHANGES: dict[str, Callable[[Clip], Clip]] = {
     "lk-step2": lambda c: stepped(c, 2), "lk-step3": lambda c: stepped(c, 3),
     "exact-step2": lambda c: exact_tracks(stepped(c, 2)), "exact-step3": lambda c: exact_tracks(stepped(c, 3)),
     "lk-long": long_range, "lk-long-reseeded": lambda c: long_range(c, reseed=True),
+    "focal0.9": lambda c: focal_scaled(c, 0.9), "focal1.1": lambda c: focal_scaled(c, 1.1),
+    "depth-offset1%": lambda c: depth_offset(c, 0.01), "depth-offset3%": lambda c: depth_offset(c, 0.03),
 }
 
 
