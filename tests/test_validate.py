@@ -204,6 +204,15 @@ def camera_to_world(clip):
     return {"R_wc": R, "t_wc": -np.einsum("tij,tj->ti", R, clip.t_wc)}
 
 
+def yx_inside(clip):
+    """The tracks stored as (y, x), those whose (y, x) reading would leave the frame made invisible:
+    row-first tracks on a frame where both readings fall inside it, as on a square frame."""
+    H, W = clip.image_size
+    inside = (clip.track_prev[..., 0] < H - 1) & (clip.track_curr[..., 0] < H - 1)
+    return {"track_prev": clip.track_prev[..., ::-1], "track_curr": clip.track_curr[..., ::-1],
+            "track_vis": clip.track_vis & inside}
+
+
 # (changes to the clip, severity, code, array, words the line must contain)
 CASES = {
     "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
@@ -220,6 +229,9 @@ CASES = {
     "tracks stored as (y, x)": (lambda c: {"track_prev": c.track_prev[..., ::-1], "track_curr": c.track_curr[..., ::-1]},
                                 "warning", "tracks_outside", "track_prev/track_curr",
                                 ["outside", "read as (y, x) the positions fit the image", "(x, y) = (column, row)"]),
+    "tracks stored as (y, x) on a frame they fit": (lambda c: yx_inside(c), "warning", "tracks_yx",
+                                                    "track_prev/track_curr",
+                                                    ["read as (y, x)", "(row, column)", "tracks[..., ::-1]"]),
     "tracks at half the resolution": (lambda c: {"track_prev": c.track_prev / 2, "track_curr": c.track_curr / 2},
                                       "warning", "tracks_small_extent", "track_prev/track_curr",
                                       ["smaller grid", "--track-size"]),
