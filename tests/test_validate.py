@@ -239,7 +239,10 @@ CASES = {
                                   "warning", "depth_like_disparity", "depth",
                                   ["larger values move more", "--depth-kind disparity"]),
     "camera->world poses": (lambda c: camera_to_world(c), "warning", "camera_to_world_poses", "R_wc/t_wc",
-                            ["read as camera->world", "R_wc = R^T, t_wc = -R^T t"]),
+                            ["read as camera->world", "R_wc = R^T, t_wc = -R^T t", "swap track_prev and track_curr"]),
+    "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
+                                       "camera_to_world_poses", "R_wc/t_wc",
+                                       ["read as camera->world", "swap track_prev and track_curr"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }
