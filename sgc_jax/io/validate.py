@@ -469,19 +469,20 @@ def track_readings(clip: Clip) -> dict[str, Clip]:
             "reversed": dataclasses.replace(clip, track_prev=clip.track_curr, track_curr=clip.track_prev)}
 
 
-def track_reading_residuals(clip: Clip, config: SGCConfig) -> dict[str, float]:
-    """Per reading of ``track_readings``: the tracks' misfit to the camera's motion (px,
-    ``pose_convention_residuals``, the better of the two pose readings, so a pose file of either
-    convention does not decide it); NaN where no pair has the tracks to tell."""
-    return {name: min(pose_convention_residuals(read, config)) for name, read in track_readings(clip).items()}
+def track_reading_residuals(clip: Clip, config: SGCConfig) -> dict[str, tuple[float, float]]:
+    """Per reading of ``track_readings``: ``pose_convention_residuals`` (stored, transposed), the
+    tracks' misfit to the camera's motion [px] under each pose reading."""
+    return {name: pose_convention_residuals(read, config) for name, read in track_readings(clip).items()}
 
 
-def check_track_axes(clip: Clip, config: SGCConfig) -> list[Problem]:
-    """A warning where the tracks fit the camera's motion far better read as (y, x) than as given
-    or with their ends swapped (TRACK_READING_RATIO of the better): positions stored row first, on a
-    frame where both readings fall inside the image. (Swapped ends get no line of their own: they
-    read like camera->world poses, and like cameras that do not translate.)"""
-    misfit = track_reading_residuals(clip, config)
+def check_track_axes(residuals: dict[str, tuple[float, float]]) -> list[Problem]:
+    """From ``track_reading_residuals``: a warning where the tracks fit the camera's motion far
+    better read as (y, x) than as given or with their ends swapped (TRACK_READING_RATIO of the
+    better, each reading under its better pose reading, so a pose file of either convention does
+    not decide it): positions stored row first, on a frame where both readings fall inside the
+    image. (Swapped ends get no line of their own: they read like camera->world poses, and like
+    cameras that do not translate.)"""
+    misfit = {name: min(pair) for name, pair in residuals.items()}
     given, yx = misfit["given"], misfit["yx"]
     if not (np.isfinite(given) and given > POSE_MISFIT_MIN_PX and yx < TRACK_READING_RATIO * min(given, misfit["reversed"])):
         return []
@@ -491,11 +492,12 @@ def check_track_axes(clip: Clip, config: SGCConfig) -> list[Problem]:
         "these look like (row, column) positions: swap the last axis (tracks[..., ::-1])")]
 
 
-def check_pose_convention(clip: Clip, config: SGCConfig) -> tuple[list[Problem], bool]:
-    """Whether the poses are world->camera, as the tracks and depth see them -> (problems, whether
-    they read as camera->world): a warning where reading them as camera->world leaves the tracks
-    POSE_CONVENTION_RATIO or less of the misfit the stored reading leaves."""
-    stored, transposed = pose_convention_residuals(clip, config)
+def check_pose_convention(residuals: tuple[float, float]) -> tuple[list[Problem], bool]:
+    """Whether the poses are world->camera, as the tracks and depth see them, from
+    ``pose_convention_residuals`` -> (problems, whether they read as camera->world): a warning where
+    reading them as camera->world leaves the tracks POSE_CONVENTION_RATIO or less of the misfit the
+    stored reading leaves."""
+    stored, transposed = residuals
     if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and transposed < POSE_CONVENTION_RATIO * stored):
         return [], False
     return [Problem(
@@ -644,9 +646,10 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     # for a reference-compat clip, whose K and depth are deliberately off (VGGT's grid, VDA / 1000)
     tracks_fit = not any(p.code == "tracks_outside" and p.severity != "info" for p in tracks)
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
-    axes = check_track_axes(clip, config) if test_poses else []
+    readings = track_reading_residuals(clip, config) if test_poses else None
+    axes = check_track_axes(readings) if test_poses else []
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
-    convention, transposed = check_pose_convention(clip, config) if test_poses and not axes else ([], False)
+    convention, transposed = check_pose_convention(readings["given"]) if test_poses and not axes else ([], False)
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes
                 + check_depth(clip, config, transposed, read_tracks=tracks_fit and not axes)
                 + check_depth_ramps(clip, config)
