@@ -30,7 +30,9 @@ from sgc_jax.adapters import (
     EstimatorFormatError,
     IntrinsicsWarning,
     MaskFormatWarning,
+    Masks,
     every_nth_frame,
+    grow_moving,
     import_clip,
     read_delta,
     read_frames,
@@ -348,6 +350,25 @@ def test_seganymo_masks_at_their_own_resolution_round_trip(tmp_path, scene_clip)
     masks = read_seganymo(directory, height=H, width=W, frame_names=frame_names(scene_clip))
     np.testing.assert_array_equal(masks.static_mask, scene_clip.static_mask)
     assert (~scene_clip.static_mask).any()  # the scene has moving objects
+
+
+def test_moving_masks_grow_by_a_disc_of_the_radius_asked_and_the_import_records_it(tmp_path, scene_clip):
+    static = np.ones((1, 21, 21), bool)
+    static[0, 10, 10] = False  # one moving pixel
+    grown = grow_moving(Masks(static, {"masks": "one pixel"}), 3)
+    rows, cols = np.nonzero(~grown.static_mask[0])
+    assert ((rows - 10) ** 2 + (cols - 10) ** 2).max() <= 3.5 ** 2  # OpenCV's disc of radius 3 on the pixel grid
+    assert not grown.static_mask[0, 10, 13] and not grown.static_mask[0, 7, 10] and grown.static_mask[0, 10, 14]
+    assert grow_moving(Masks(None, {"masks": "none"}), 3).static_mask is None
+    paths = write_all(tmp_path, scene_clip)
+    plain = import_clip(**paths, depth_kind="disparity")
+    wider = import_clip(**paths, depth_kind="disparity", mask_grow_px=2)
+    assert (~wider.static_mask).sum() > (~plain.static_mask).sum() and not (wider.static_mask & ~plain.static_mask).any()
+    assert "grown by 2 px" in wider.meta["import"]["masks"]
+    with pytest.raises(ValueError, match="mask_grow_px must be a whole number"):
+        import_clip(**paths, depth_kind="disparity", mask_grow_px=-1)
+    with pytest.raises(ValueError, match=r"needs masks \(--masks\)"):
+        import_clip(**{**paths, "masks": None}, depth_kind="disparity", mask_grow_px=2)
 
 
 def test_grayscale_masks_warn_and_colour_masks_are_refused(tmp_path):

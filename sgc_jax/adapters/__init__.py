@@ -37,7 +37,7 @@ from .depth_anything_3 import DA3Output, read_da3
 from .depth_ramps import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from .frames import Frames, read_frames
 from .line_tracks import LINE_RATIO, leave_out_line_tracks, line_structure
-from .seganymo import MaskFormatWarning, Masks, read_mask_labels, read_seganymo
+from .seganymo import MaskFormatWarning, Masks, grow_moving, read_mask_labels, read_seganymo
 from .vggt import Cameras, VGGTDepth, VGGTGrid, read_vggt, vggt_grid
 from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
@@ -45,7 +45,7 @@ __all__ = [
     "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_EDGE_RATIO",
     "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames",
     "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth",
-    "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "import_clip",
+    "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "grow_moving", "import_clip",
     "leave_out_depth_ramps", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
     "read_delta", "read_delta_dense", "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo",
     "read_tracks", "read_vggt", "read_video_depth", "vggt_grid",

@@ -29,7 +29,7 @@ from .depth_alignment import align_depth_to_vggt
 from .depth_anything_3 import read_da3, read_da3_hw
 from .frames import read_frames
 from .line_tracks import STRUCTURE_WINDOW_PX, leave_out_line_tracks
-from .seganymo import read_mask_hw, read_seganymo
+from .seganymo import grow_moving, read_mask_hw, read_seganymo
 from .vggt import read_vggt
 from .video_depth_anything import Depth, read_depth_hw, read_video_depth
 
@@ -67,6 +67,7 @@ class ImportOptions:
     max_depth: float | None = None  # depth beyond this (the clip's units) is invalid: a sky (§3.1); None: all kept
     depth_edge_ratio: float | None = None  # ramps at edges whose 3x3 neighbourhood spans more: invalid (§3.6)
     per_frame_intrinsics: bool = False  # keep the estimator's K per frame (a zoom); default one K, their median (§1.5)
+    mask_grow_px: int = 0  # grow each frame's moving-object mask by this many px (§1.5, "Motion masks"; needs masks)
 
     @property
     def fits_disparity(self) -> bool:
@@ -105,14 +106,18 @@ def _check_depth_sources(cameras: Any, depth: Any, da3: Any, o: ImportOptions) -
                          "a Depth Anything 3 clip is scored with the default semantics")
 
 
-def _check_options(o: ImportOptions) -> None:
-    """Raise on a frame step or a depth limit that cannot be applied."""
+def _check_options(o: ImportOptions, has_masks: bool) -> None:
+    """Raise on a frame step, a depth limit or a mask growth that cannot be applied."""
     if o.max_depth is not None and not (np.isfinite(o.max_depth) and o.max_depth > 0):
         raise ValueError(f"max_depth must be a depth > 0 in the clip's units, got {o.max_depth!r}")
     if o.depth_edge_ratio is not None:
         check_edge_ratio(o.depth_edge_ratio)
     if isinstance(o.frame_step, bool) or not isinstance(o.frame_step, (int, np.integer)) or o.frame_step < 1:
         raise ValueError(f"frame_step must be a whole number >= 1 (1: every frame), got {o.frame_step!r}")
+    if isinstance(o.mask_grow_px, bool) or not isinstance(o.mask_grow_px, (int, np.integer)) or o.mask_grow_px < 0:
+        raise ValueError(f"mask_grow_px must be a whole number of pixels >= 0, got {o.mask_grow_px!r}")
+    if o.mask_grow_px and not has_masks:
+        raise ValueError("growing the moving-object masks (--mask-grow) needs masks (--masks)")
     if o.frame_step > 1 and o.reference_compat:
         raise ValueError("reference-compat reproduces the authors' pipeline, which pairs consecutive frames: "
                          "drop the frame step (--frame-step) or --reference-compat")
@@ -157,7 +162,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     o = dataclasses.replace(o, size=parse_size(o.size), vggt_source_size=parse_size(o.vggt_source_size),
                             track_size=parse_size(o.track_size))
     _check_depth_sources(cameras, depth, da3, o)
-    _check_options(o)
+    _check_options(o, masks is not None)
     if o.line_ratio is not None and frames is None:
         raise ValueError("leaving out the tracks on lines (--leave-out-line-tracks) reads the frames: give them (--frames)")
     loaded_frames = read_frames(frames) if frames is not None else None
@@ -172,7 +177,7 @@ def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any
     names = names or track_data.frame_names
     cams, depth_data = _depth_and_cameras(cameras, depth, da3, (H, W), o)
     T = depth_data.depth.shape[0]
-    mask_data = read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T)
+    mask_data = grow_moving(read_seganymo(masks, height=H, width=W, frame_names=names, n_frames=T), int(o.mask_grow_px))
     depth_label = f"depth and cameras ({_label(da3)})" if da3 is not None else f"depth ({_label(depth)})"
     _same_frame_counts({f"cameras ({_label(cameras)})": None if da3 is not None else len(cams.K),
                         depth_label: T, f"tracks ({_label(tracks)})": track_data.n_frames,

@@ -19,6 +19,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 
 from .common import EstimatorFormatError, natural_key, resize_nearest
@@ -104,6 +105,18 @@ def read_seganymo(directory: Any, *, height: int, width: int, frame_names: Seque
         notes["masks"] += f"; no mask for {len(missing)} frame(s) ({', '.join(missing[:5])}"
         notes["masks"] += "...): nothing moves there" if len(missing) > 5 else "): nothing moves there"
     return Masks(static, notes)
+
+
+def grow_moving(masks: Masks, radius_px: int) -> Masks:
+    """The moving-object mask of every frame grown by ``radius_px`` (a disc; 0: as read), its static
+    mask shrunk so: a segmenter that falls short of a mover's outline leaves a band of it static,
+    which the score reads as inconsistency (docs/semantics.md §1.5, "Motion masks")."""
+    if masks.static_mask is None or radius_px == 0:
+        return masks
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    moving = np.stack([cv2.dilate((~frame).astype(np.uint8), disc) for frame in masks.static_mask]).astype(bool)
+    notes = {**masks.notes, "masks": masks.notes["masks"] + f"; moving objects grown by {radius_px} px"}
+    return Masks(~moving, notes)
 
 
 def read_mask_hw(directory: Any) -> tuple[int, int] | None:
