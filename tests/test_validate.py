@@ -280,6 +280,15 @@ def test_the_loader_warns_on_warnings(clip, name):
     assert code in loaded.warnings
 
 
+def test_tracks_read_as_y_x_are_not_judged_where_most_of_the_frame_is_masked_as_moving(clip):
+    changes = yx_inside(clip)
+    assert "tracks_yx" in [p.code for p in problems_of(arrays_of(clip, **changes))]
+    static = np.zeros_like(clip.static_mask)
+    static[:, : int(0.4 * clip.image_size[0])] = True  # an inverted mask's share: its tracks sit on movers
+    problems = problems_of(arrays_of(clip, **changes, static_mask=static))
+    assert "tracks_yx" not in [p.code for p in problems]
+
+
 def test_the_tables_carry_the_loaders_warnings_and_a_clip_given_in_memory_none(clip, tmp_path):
     percent = dataclasses.replace(clip, clip_id="percent", track_conf=100.0 * clip.track_conf)
     path = save_clip(tmp_path / "percent.npz", percent)
