@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import warnings
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -474,10 +474,12 @@ def track_readings(clip: Clip) -> dict[str, Clip]:
             "reversed": dataclasses.replace(clip, track_prev=clip.track_curr, track_curr=clip.track_prev)}
 
 
-def track_reading_residuals(clip: Clip, config: SGCConfig) -> dict[str, tuple[float, float]]:
-    """Per reading of ``track_readings``: ``pose_convention_residuals`` (stored, transposed), the
-    tracks' misfit to the camera's motion [px] under each pose reading."""
-    return {name: pose_convention_residuals(read, config) for name, read in track_readings(clip).items()}
+def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] = ("given", "yx", "reversed")
+                            ) -> dict[str, tuple[float, float]]:
+    """Per reading ``names`` of ``track_readings``: ``pose_convention_residuals`` (stored,
+    transposed), the tracks' misfit to the camera's motion [px] under each pose reading."""
+    return {name: pose_convention_residuals(read, config) for name, read in track_readings(clip).items()
+            if name in names}
 
 
 def check_track_axes(residuals: dict[str, tuple[float, float]]) -> list[Problem]:
@@ -612,12 +614,17 @@ def check_depth_holes(clip: Clip) -> list[Problem]:
                     "interpolating and leave the NaN invalid")]
 
 
+def static_coverage(clip: Clip) -> np.ndarray:
+    """(T,) the share of each frame the static mask covers."""
+    return np.count_nonzero(clip.static_mask.reshape(clip.n_frames, -1), axis=1) / clip.static_mask[0].size
+
+
 def check_mask(clip: Clip) -> list[Problem]:
     """Static-mask coverage per frame (an inverted mask leaves almost nothing static)."""
     if clip.mask_source == "none":
         return [Problem("info", "no_mask", "static_mask", "",
                         "no static_mask or dynamic_mask: the whole frame counts as static (nothing moves)")]
-    coverage = np.count_nonzero(clip.static_mask.reshape(clip.n_frames, -1), axis=1) / clip.static_mask[0].size
+    coverage = static_coverage(clip)
     low = np.flatnonzero(coverage < STATIC_COVERAGE_WARN)
     problems = []
     if low.size:
@@ -651,9 +658,10 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     # for a reference-compat clip, whose K and depth are deliberately off (VGGT's grid, VDA / 1000)
     tracks_fit = not any(p.code == "tracks_outside" and p.severity != "info" for p in tracks)
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
-    readings = track_reading_residuals(clip, config) if test_poses else None
-    static_share = np.median(np.mean(clip.static_mask.reshape(clip.n_frames, -1), axis=1))
-    axes = check_track_axes(readings) if test_poses and static_share >= TRACK_READING_MIN_STATIC else []
+    test_axes = test_poses and np.median(static_coverage(clip)) >= TRACK_READING_MIN_STATIC
+    read_as = ("given", "yx", "reversed") if test_axes else ("given",)  # the other readings only where tested
+    readings = track_reading_residuals(clip, config, read_as) if test_poses else None
+    axes = check_track_axes(readings) if test_axes else []
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
     convention, transposed = check_pose_convention(readings["given"]) if test_poses and not axes else ([], False)
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes
