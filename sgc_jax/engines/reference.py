@@ -733,11 +733,15 @@ def pair_depth_check(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     if spec:
         seen, z, iu, iv = previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
         source = np.where(valid_depth(source), source, 0.0)
-        # compared only where frame i's point lands on a pixel frame i-1 warped (§3.6 step 4)
-        warped = np.where(seen & (source[iv, iu] > 0), warped, 0.0)
+        at_landing = source[iv, iu]
+        # compared only where frame i's point lands on a pixel frame i-1 warped, and frame i-1 did
+        # not see it behind a nearer surface where the warp put a farther one (§3.6 step 4)
+        margin = 1.0 + HOLE_DEPTH_MARGIN
+        occluded = (margin * at_landing < z) & (warped > margin * clip.depth[pair])
+        warped = np.where(seen & (at_landing > 0) & ~occluded, warped, 0.0)
         # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
-        looked_back = z, np.where(needed, source[iv, iu], 0.0)
+        looked_back = z, np.where(needed, at_landing, 0.0)
     error, compared, scale = depth_error_map(warped, clip.depth[pair], static, relative=config.scale_free,
                                              looked_back=looked_back, pair_scale=spec and config.scale_free)
     unit = PERCENT if config.scale_free else 1.0

@@ -99,23 +99,6 @@ def has_magnified(depth_prev, valid_prev, K_prev, K_curr, R, t):
     return jnp.any(points.front & (points.magnification >= 2.0))
 
 
-def may_look_back(depth_prev, valid_prev, depth_curr, valid_curr, K_prev, K_curr, R, t):
-    """bool: frame i-1's farthest valid depth, moved into camera i, may lie more than LOOK_BACK_RATIO
-    times farther than frame i's nearest valid pixel: only then can the depth check look back
-    (``depth_error_looking_back``). A bound from two reductions of the inputs (a point's z in camera
-    i is at most its depth times the largest z of the image corners' rays, plus t_z), cheaper than
-    the per-pixel test it spares a pair."""
-    H, W = depth_prev.shape
-    u = jnp.array([0.0, W - 1.0, 0.0, W - 1.0], jnp.float32)
-    v = jnp.array([0.0, 0.0, H - 1.0, H - 1.0], jnp.float32)
-    x, y, _ = back_project_xyz(K_prev.astype(jnp.float32), u, v, 1.0)
-    R, t = R.astype(jnp.float32), t.astype(jnp.float32)
-    ray_z = jnp.max(jnp.maximum(R[2, 0] * x + R[2, 1] * y + R[2, 2], 0.0))
-    farthest = jnp.max(jnp.where(_valid_depth(depth_prev, valid_prev), depth_prev, 0.0)) * ray_z + t[2]
-    nearest = jnp.min(jnp.where(_valid_depth(depth_curr, valid_curr), depth_curr, jnp.inf))
-    return farthest > LOOK_BACK_RATIO * nearest
-
-
 def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False,
                magnified: bool = True):
     """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
@@ -214,26 +197,20 @@ def _sliding_min(grid, side: int):
     return grid
 
 
-def seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None):
-    """(H, W) bool: valid pixels of frame i whose point at depth_curr lies in front of camera i-1
-    (z > MIN_WARP_Z) and inside its image when rounded half up, (R, t) moving camera i-1's points
-    into camera i; ``image_hw`` (2,): the frames' true size when (H, W) is padded (the padding is no
-    part of frame i-1's image). What frame i-1 could not see, nothing warped from it can be compared
-    with: a nearer surface entering the view covers background frame i-1 saw."""
-    return previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw).seen
-
-
 class PreviousView(NamedTuple):
     """Frame i's pixels (H, W) as camera i-1 sees them (``previous_view``)."""
 
-    seen: jax.Array  # bool, ``seen_from_previous``
+    # bool: in front of camera i-1 (z > MIN_WARP_Z) and inside its true image when rounded half up:
+    # what frame i-1 could not see, nothing warped from it can be compared with
+    seen: jax.Array
     z: jax.Array  # the point's depth in camera i-1
     landing: jax.Array  # int32 flat pixel of frame i-1 it lands on (rounded half up), 0 where not seen
 
 
 def previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None) -> PreviousView:
     """Frame i's valid pixels at depth_curr moved into camera i-1 by the inverse of (R, t) and
-    projected with K_prev (``seen_from_previous``'s arithmetic)."""
+    projected with K_prev; ``image_hw`` (2,): the frames' true size when (H, W) is padded (the
+    padding is no part of frame i-1's image)."""
     R, t = R.astype(jnp.float32), t.astype(jnp.float32)
     _, z, _, _, iu, iv, _, seen = _moved_pixels(depth_curr, valid_curr, K_curr, K_prev, R.T, -(R.T @ t), image_hw)
     W = depth_curr.shape[1]
@@ -241,26 +218,27 @@ def previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw=None) -
     return PreviousView(seen, z, landing)
 
 
-def source_has_gaps(source_valid, image_hw=None):
-    """bool: some pixel of frame i-1's true image (``image_hw`` (2,) within a padded (H, W)) is not
-    warped (``source_valid`` (H, W) False: invalid depth, or masked under spec). Only then can a
-    pixel of frame i land on one (``depth_at_landing``), so only then is the lookup needed."""
-    H, W = source_valid.shape
-    if image_hw is None:
-        return ~jnp.all(source_valid)
-    inside = (jnp.arange(H)[:, None] < image_hw[0]) & (jnp.arange(W)[None, :] < image_hw[1])
-    return jnp.any(inside & ~source_valid)
-
-
 def depth_at_landing(depth_prev, valid_prev, view: PreviousView):
     """(H, W) frame i-1's depth at the pixel each of frame i's pixels lands on (``view``), 0 where
     it is not seen or lands on a pixel frame i-1 does not warp (invalid depth or not ``valid_prev``,
-    its static mask under spec). One gather serves both of its uses: where it is 0, frame i-1 never
+    its static mask under spec). One gather serves its three uses: where it is 0, frame i-1 never
     saw the surface frame i shows (a sensor's dropout, a masked object), and what the warp put on
-    the pixel is background seen past it (``depth_error_looking_back``, docs/semantics.md §3.6 step
-    4); where the warp put a surface LOOK_BACK_RATIO times farther, it is read (step 5)."""
+    the pixel is background seen past it (``spec_depth_error``, docs/semantics.md §3.6 step 4);
+    where it is nearer than the pixel's point, frame i-1 saw that point behind it
+    (``occluded_in_previous``); where the warp put a surface LOOK_BACK_RATIO times farther, it is
+    read (step 5)."""
     source = jnp.where(source_pixels(depth_prev, valid_prev), depth_prev.astype(jnp.float32), 0.0).reshape(-1)
     return jnp.where(view.seen, source[view.landing.reshape(-1)].reshape(view.seen.shape), 0.0)
+
+
+def occluded_in_previous(warped, depth_curr, view: PreviousView, at_landing):
+    """(H, W) bool: pixels of frame i whose point frame i-1 saw behind a nearer surface (its depth
+    ``at_landing`` below the point's z in camera i-1 by more than HOLE_DEPTH_MARGIN) and on which
+    the warp put a surface farther than frame i sees by more than the margin: background seen where
+    a nearer surface of frame i-1 moved away, a surface frame i-1 never saw (docs/semantics.md §3.6
+    step 4)."""
+    margin = 1.0 + HOLE_DEPTH_MARGIN
+    return (at_landing > 0) & (margin * at_landing < view.z) & (warped > margin * depth_curr)
 
 
 def looked_back_depth(warped, compared, depth_curr, at_landing):
@@ -269,34 +247,21 @@ def looked_back_depth(warped, compared, depth_curr, at_landing):
     return jnp.where(compared & (warped > LOOK_BACK_RATIO * depth_curr), at_landing, 0.0)
 
 
-def depth_error_looking_back(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t,
-                             image_hw=None, *, relative: bool = False):
+def spec_depth_error(warped, hit, depth_curr, valid_curr, static_curr, source, K_prev, K_curr, R, t, image_hw=None, *,
+                     relative: bool = False):
     """The spec depth check's error (docs/semantics.md §3.6 steps 4-5) of ``warp_depth``'s output:
     ``depth_error`` where frame i's point lands on a pixel frame i-1 warped (``depth_at_landing``;
-    ``source``: frame i-1's depth and the mask of what it warps, (H, W) each), frame i-1 looked up
-    where frame i sees a surface more than LOOK_BACK_RATIO times nearer than the warp put. Only a
-    pair that needs it reads frame i-1 (a gather of every pixel): one with such a pixel, or whose
-    frame i-1 has a pixel it does not warp (``source_has_gaps``); elsewhere every seen pixel lands
-    on one it warps. Each branch computes what it needs from the inputs, so nothing of the image's
-    size crosses it. Relative errors are read up to the pair's depth scale (step 7)."""
-    # warped > 0 only where hit: a pixel not compared may take a pair into the branch, none is read there
-    needed = jnp.any(warped > LOOK_BACK_RATIO * depth_curr) | source_has_gaps(source_pixels(*source), image_hw)
-
-    def looked_back():
-        view = previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
-        at_landing = depth_at_landing(*source, view)
-        seen = at_landing > 0  # seen, on a pixel frame i-1 warped
-        compared = hit & seen & _valid_depth(depth_curr, valid_curr) & static_curr
-        read = looked_back_depth(warped, compared, depth_curr, at_landing)
-        return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
-                           looked_back=(view.z, read), pair_scale=relative)
-
-    def forward_only():
-        seen = seen_from_previous(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
-        return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
-                           pair_scale=relative)
-
-    return jax.lax.cond(needed, looked_back, forward_only)
+    ``source``: frame i-1's depth and the mask of what it warps, (H, W) each) and frame i-1 did not
+    see it behind a nearer surface (``occluded_in_previous``), frame i-1 looked up where frame i
+    sees a surface more than LOOK_BACK_RATIO times nearer than the warp put. Relative errors are
+    read up to the pair's depth scale (step 7)."""
+    view = previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
+    at_landing = depth_at_landing(*source, view)
+    seen = (at_landing > 0) & ~occluded_in_previous(warped, depth_curr, view, at_landing)
+    compared = hit & seen & _valid_depth(depth_curr, valid_curr) & static_curr
+    read = looked_back_depth(warped, compared, depth_curr, at_landing)
+    return depth_error(warped, hit & seen, depth_curr, valid_curr, static_curr, relative=relative,
+                       looked_back=(view.z, read), pair_scale=relative)
 
 
 def pair_depth_scale(warped, depth_curr, both, median=masked_median):

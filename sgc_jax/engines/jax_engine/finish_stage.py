@@ -14,16 +14,7 @@ from ...codes import EXCLUDED_STATUSES, PAIR_REASON_CODE, REGION_OK
 from ...config import SGCConfig
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.so3 import rotation_angle_deg
-from ...kernels.warp import (
-    depth_error,
-    depth_error_looking_back,
-    has_magnified,
-    may_look_back,
-    seen_from_previous,
-    source_has_gaps,
-    source_pixels,
-    warp_depth,
-)
+from ...kernels.warp import depth_error, has_magnified, spec_depth_error, warp_depth
 from ..units import translation_factor
 from .buckets import Bucket, PaddedClips
 from .pixel_stage import frames_in_place, pairs_flat
@@ -45,23 +36,16 @@ def warp_source(depth, static, previous, authors: bool):
     return depth_prev, depth_prev > 0 if authors else (depth_prev > 0) & static_prev
 
 
-def warp_choices(depth, static, pairs, pair_valid, vectorized: bool):
-    """(magnified, reads_previous) () bool under spec, for a batch of pairs (``pair_depth_errors``'s
-    frames and pairs): whether any pair has a surface coming 2x nearer (the hole rule's larger
-    squares) and whether any pair must read frame i-1 at each pixel's landing: its depth may span
-    LOOK_BACK_RATIO between frames (the look back), or frame i-1 has pixels it does not warp
-    (``source_has_gaps``). A padded pair (``pair_valid`` False) is no part of either: the last frame
-    warped by a padded frame's camera could ask for both, and each costs every pair of the batch."""
+def has_magnified_surface(depth, static, pairs, pair_valid, vectorized: bool):
+    """() bool under spec, for a batch of pairs (``pair_depth_errors``'s frames and pairs): whether
+    any pair has a surface coming 2x nearer (the hole rule's larger squares). A padded pair
+    (``pair_valid`` False) is no part of it: the last frame warped by a padded frame's camera could
+    ask for them, and they cost every pair of the batch."""
     def needs(pair_valid):
         pair, valid = pair_valid
-        source = warp_source(depth, static, pair[0], authors=False)
-        depth_curr = pair_frames(depth, static, pair[0])[2]
-        reads = may_look_back(*source, depth_curr, depth_curr > 0, *pair[1:5]) | source_has_gaps(
-            source_pixels(*source), pair[5])
-        return valid & has_magnified(*source, *pair[1:5]), valid & reads
+        return valid & has_magnified(*warp_source(depth, static, pair[0], authors=False), *pair[1:5])
 
-    magnified, reads_previous = each(needs, (pairs, pair_valid), vectorized)
-    return jnp.any(magnified), jnp.any(reads_previous)
+    return jnp.any(each(needs, (pairs, pair_valid), vectorized))
 
 
 def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_hw, pair_valid, stage: FinishStage,
@@ -70,9 +54,9 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     (F,) int32 (frame i is the next), the pairs' (F, ...) cameras and true sizes, and which pairs
     are the clip's, not padding (F,) bool -> depth errors (F,); with ``active`` (F,) bool only those
     pairs' (the others NaN; a CPU program skips their work). Under spec the static valid pixels
-    of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see
-    (``seen_from_previous`` within the true size ``image_hw`` (F, 2)) on a pixel it warped,
-    looked up in frame i-1 where the warp put a surface 10x farther (``depth_error_looking_back``);
+    of frame i-1 warped (AbsRel in %) and compared where frame i-1 could see (within the true size
+    ``image_hw`` (F, 2), on a pixel it warped, not behind a nearer surface), looked up in frame i-1
+    where the warp put a surface 10x farther (``spec_depth_error``);
     under authors every valid one (depth units). One pair at a time on CPU, for the unbatched
     z-buffer scatter."""
     authors = stage.compat == "authors"
@@ -92,33 +76,27 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
 
         return each(one, pairs, stage.vectorized)
 
-    def errors_of(warped, look_back: bool):
+    def errors_of(warped):
         def one(pair_warp):
-            return only_active(lambda: error_of(*pair_warp, look_back), pair_warp[0], jnp.full((), jnp.nan, depth.dtype))
+            return only_active(lambda: error_of(*pair_warp), pair_warp[0], jnp.full((), jnp.nan, depth.dtype))
 
-        def error_of(pair, warped, look_back: bool):
+        def error_of(pair, warped):
             _, _, depth_curr, static_curr = pair_frames(depth, static, pair[0])
-            K_prev, K_curr, R_g, t_g, image_hw = pair[1:6]
             hit = warped > 0
             valid = depth_curr > 0
             if authors:
                 return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free)[0]
-            if look_back:
-                return depth_error_looking_back(warped, hit, depth_curr, valid, static_curr,
-                                                warp_source(depth, static, pair[0], authors), K_prev, K_curr, R_g,
-                                                t_g, image_hw, relative=stage.scale_free)[0]
-            hit = hit & seen_from_previous(depth_curr, valid, K_prev, K_curr, R_g, t_g, image_hw)
-            return depth_error(warped, hit, depth_curr, valid, static_curr, relative=stage.scale_free,
-                               pair_scale=stage.scale_free)[0]
+            return spec_depth_error(warped, hit, depth_curr, valid, static_curr,
+                                    warp_source(depth, static, pair[0], authors), *pair[1:6],
+                                    relative=stage.scale_free)[0]
 
         return each(one, (pairs, warped), stage.vectorized)
 
     if authors:
-        errors = errors_of(warps(False), look_back=False)
+        errors = errors_of(warps(False))
     else:
-        magnified, reads_previous = warp_choices(depth, static, pairs[:6], pair_valid & active, stage.vectorized)
-        warped = jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False))
-        errors = jax.lax.cond(reads_previous, lambda: errors_of(warped, True), lambda: errors_of(warped, False))
+        magnified = has_magnified_surface(depth, static, pairs[:6], pair_valid & active, stage.vectorized)
+        errors = errors_of(jax.lax.cond(magnified, lambda: warps(True), lambda: warps(False)))
     return jnp.where(active, errors, jnp.nan) * translation_factor(stage)
 
 

@@ -27,6 +27,7 @@ from ...kernels.warp import (
     depth_at_landing,
     has_magnified,
     looked_back_depth,
+    occluded_in_previous,
     pair_depth_scale,
     previous_view,
     warp_sources,
@@ -200,10 +201,12 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     view = jax.vmap(previous_view, in_axes=(0, 0, 0, 0, 0, 0, None))(
         fixed.depth[1:], fixed.depth[1:] > 0, fixed.K[:-1], fixed.K[1:], frozen.R_depth, frozen.t_depth, fixed.image_hw)
     at_landing = jax.vmap(depth_at_landing)(*frames[:2], view)
-    hit = hit & (at_landing > 0)  # seen, on a pixel frame i-1 warped
-    # where the forward pass looked frame i-1 up (``looked_back_depth``) is held too
+    # where the forward pass looked frame i-1 up (``looked_back_depth``) and what it left out as
+    # frame i-1's occlusions are held too
     warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_depth, frozen.t_depth,
                                          source).reshape(hit.shape)
+    occluded = jax.vmap(occluded_in_previous)(warped, fixed.depth[1:], view, at_landing)
+    hit = hit & (at_landing > 0) & ~occluded  # seen, on a pixel frame i-1 warped, not behind a nearer surface
     compared = hit & (fixed.depth[1:] > 0) & fixed.static[1:]
     read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], at_landing) > 0
     errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_depth,
