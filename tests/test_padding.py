@@ -138,11 +138,11 @@ def test_pairs_posed_in_groups_give_what_all_pairs_at_once_give():
             np.testing.assert_array_equal(np.asarray(grouped), np.asarray(jax.vmap(steps)((x, n))[0]))
 
 
-def test_a_padded_pair_never_switches_a_clips_warps_to_their_costlier_forms():
+def test_a_padded_pair_never_switches_a_clips_warps_to_their_costlier_form():
     """The last frame warped by the first padded frame's camera (identity, at the origin) may bring
-    a surface 2x nearer; the larger squares and the look back (docs/semantics.md §3.6) are then
-    chosen for a clip's real pairs only."""
-    from sgc_jax.engines.jax_engine.finish_stage import warp_choices
+    a surface 2x nearer; the larger squares (docs/semantics.md §3.6 step 3) are then chosen for a
+    clip's real pairs only."""
+    from sgc_jax.engines.jax_engine.finish_stage import has_magnified_surface
 
     H = W = 16
     depth = np.stack([np.full((H, W), 4.0), np.full((H, W), 4.0), np.zeros((H, W))]).astype(np.float32)
@@ -152,10 +152,10 @@ def test_a_padded_pair_never_switches_a_clips_warps_to_their_costlier_forms():
     t_g = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -2.5]], np.float32)  # the padded camera: the wall 4 -> 1.5
     pairs = (np.arange(2, dtype=np.int32), np.stack([K] * 2), np.stack([K] * 2), R_g, t_g,
              np.array([[H, W]] * 2, np.int32))
-    choose = jax.jit(warp_choices, static_argnums=4)
-    assert bool(choose(depth, static, pairs, np.array([True, True]), False)[0])  # it would ask for the squares
+    choose = jax.jit(has_magnified_surface, static_argnums=4)
+    assert bool(choose(depth, static, pairs, np.array([True, True]), False))  # it would ask for the squares
     for vectorized in (False, True):
-        assert [bool(c) for c in choose(depth, static, pairs, np.array([True, False]), vectorized)] == [False, False]
+        assert not bool(choose(depth, static, pairs, np.array([True, False]), vectorized))
 
 
 # frame counts video generators make (4n + 1: SVD, Wan, CogVideoX, HunyuanVideo, LTX-Video)
