@@ -22,7 +22,10 @@ TRACKS_PER_LAYER = 140
 # Constants of the semantics, shared by both engines (the kernels read them; they are no options).
 # The spec depth check (docs/semantics.md §3.6): a warped depth is seen through a hole in a
 # nearer surface when a point nearer by more than this fraction covers it (a depth edge, not the
-# slope of one surface).
+# slope of one surface), step 3; and frame i's point was hidden in frame i-1 when frame i-1's depth
+# where it lands is nearer by more than this fraction while the warp put a surface farther by more
+# than it, step 4 (``kernels.warp.occluded_in_previous``). Not fitted: a margin of the hole rule,
+# reused.
 HOLE_DEPTH_MARGIN = 0.05
 # A point magnified m times (its surface's splats lie about m px apart) covers the pixels within
 # max(m, 1) px of it (its reach, at most MAX_HOLE_REACH_PX): the gaps between its surface's splats
