@@ -29,7 +29,8 @@ at 0.5 and 2 px. ``--back-wall-depth Z`` moves every scene's back wall from 12 t
 sky-like backdrop behind layers at 2-12 (``SceneSpec.back_wall_depth``); ``--sky-invalid`` then sets
 the depth there to 0 (invalid), as a sky mask would (docs/semantics.md §3.1, "A sky"). ``--spec JSON``
 sets ``SceneSpec`` fields on every scene, e.g. ``'{"n_layers": 0, "static_spheres": 0}'``: a world of
-one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane"). ``--focal-scale f``
+one plane, the back wall alone (docs/semantics.md §3.10, "A world of one plane"); ``'{"ground_height":
+1.5}'``: a ground 1.5 units below the camera, a floor or a street, which neither split holds (§7.4). ``--focal-scale f``
 gives every clip a K whose focal lengths are f times the true ones, as a camera estimator's error
 (the same K in every frame; docs/semantics.md §3.10, "A pose estimator's errors in the cameras");
 ``--focal-jitter r`` multiplies each frame's by its own factor exp(r N(0, 1)), as per-frame estimates

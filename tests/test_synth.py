@@ -106,6 +106,21 @@ def test_rigid_consistency_holds_for_any_camera(seed, rot, trans, fov, layers):
     assert reprojection_error(clip)[clip.track_vis].max() < REPROJ_TOL_PX
 
 
+def test_a_ground_plane_lies_where_its_height_puts_it_and_keeps_the_tracks_rigid():
+    height = 1.5
+    clip = synth_clip(seed=3, ground_height=height, n_layers=0, with_frames=False, **SMALL)
+    H, W = clip.image_size
+    K = clip.K[0]
+    bottom_ray_y = (H - 1 - K[1, 2]) / K[1, 1]  # camera 0 is the world frame, y down
+    assert clip.depth[0, -1] == pytest.approx(np.full(W, height / bottom_ray_y), rel=1e-5)
+    assert reprojection_error(clip)[clip.track_vis].max() < REPROJ_TOL_PX
+
+
+def test_a_camera_that_comes_down_to_the_ground_is_refused():
+    with pytest.raises(ValueError, match="ground"):
+        synth_clip(seed=3, ground_height=0.05, with_frames=False, **SMALL)
+
+
 def test_visible_tracks_lie_inside_the_image():
     clip = synth_clip(seed=5, **SMALL)
     H, W = clip.image_size
@@ -236,7 +251,7 @@ def test_unknown_override_raises_type_error_naming_it():
 
 @pytest.mark.parametrize("bad", [
     dict(n_frames=1), dict(n_tracks=10**6), dict(depth_range=(5.0, 1.0)),
-    dict(outlier_frac=0.8, low_conf_frac=0.5), dict(n_layers=0, layer_drift=0.1)])
+    dict(outlier_frac=0.8, low_conf_frac=0.5), dict(n_layers=0, layer_drift=0.1), dict(ground_height=-1.0)])
 def test_invalid_spec_raises_value_error(bad):
     with pytest.raises(ValueError):
         synth_clip(**bad)

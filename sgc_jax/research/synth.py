@@ -53,6 +53,7 @@ class SceneSpec:
     depth_range: tuple[float, float] = (2.0, 12.0)  # nearest layer / back wall
     back_wall_depth: float = 0.0  # > depth_range[1]: the back wall that far instead, a sky-like backdrop
     layer_drift: float = 0.0  # one unmasked static layer translates this much per frame
+    ground_height: float = 0.0  # > 0: an unbounded ground plane this far below camera 0 (a floor, a street)
     fov_deg: float = 60.0  # horizontal field of view; fx = fy, principal point at the centre
     with_frames: bool = True  # render uint8 RGB frames
     with_mask: bool = True  # False: mask_source "none" and static_mask all True
@@ -79,6 +80,7 @@ class SceneSpec:
             "layer_drift >= 0, and > 0 only with n_layers >= 1": (
                 self.layer_drift >= 0 and (self.layer_drift == 0 or self.n_layers >= 1)),
             "0 < fov_deg < 120": 0 < self.fov_deg < 120,
+            "ground_height >= 0": self.ground_height >= 0,
         }
         failed = [rule for rule, ok in checks.items() if not ok]
         if failed:
@@ -183,8 +185,9 @@ def _layer_grid(n: int, height: int, width: int) -> tuple[int, int]:
 
 def _static_planes(spec: SceneSpec, K: np.ndarray, rng: np.random.Generator
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Back wall (index 0, unbounded, fronto-parallel at the far depth) and the layer rectangles:
-    centres (L, 3), unit axes (L, 2, 3), half extents (L, 2), world units.
+    """Back wall (index 0, unbounded, fronto-parallel at the far depth), the layer rectangles and,
+    with ``ground_height``, the ground (last, unbounded): centres (L, 3), unit axes (L, 2, 3), half
+    extents (L, 2), world units.
 
     Layer j sits at depth ``near + j * gap`` in its own cell of a grid over frame 0, so layers cover
     several percent of the image each; odd layers are slanted, the slant capped so that the depth
@@ -210,6 +213,10 @@ def _static_planes(spec: SceneSpec, K: np.ndarray, rng: np.random.Generator
         centres.append(z * (K_inv @ np.array([px, py, 1.0])))
         axes.append(np.eye(3)[:2] @ _rotation_from_rotvec(tilt).T)
         halves.append(half)
+    if spec.ground_height > 0:  # y points down: the plane y = ground_height, spanned by x and z
+        centres.append(np.array([0.0, spec.ground_height, 0.5 * (near + wall)]))
+        axes.append(np.eye(3)[[0, 2]])
+        halves.append(np.array([np.inf, np.inf]))
     return np.array(centres), np.array(axes), np.array(halves)
 
 
@@ -432,6 +439,7 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
     K = _intrinsics(spec)
     K_t = np.tile(K, (T, 1, 1))
     R_wc, t_wc = _camera_path(spec, _rng(seed, _CAMERA))
+    _check_above_ground(spec, R_wc, t_wc, seed)
     scene = _build_scene(spec, K, seed)
     rays = _pixel_rays(K, H, W)
 
@@ -455,6 +463,15 @@ def synth_clip(spec: SceneSpec | None = None, *, seed: int = 0, clip_id: str | N
         static_mask=static_mask, track_prev=track_prev, track_curr=track_curr,
         track_vis=track_vis, track_conf=track_conf,
         mask_source="static_mask" if spec.with_mask else "none", frames=frames, meta=meta)
+
+
+def _check_above_ground(spec: SceneSpec, R_wc: np.ndarray, t_wc: np.ndarray, seed: int) -> None:
+    """Raises where the camera path comes down to within half ``ground_height`` of the ground."""
+    if spec.ground_height > 0:
+        lowest = float(np.max(np.einsum("tji,tj->ti", R_wc, -t_wc)[:, 1]))  # the centres' y, pointing down
+        if lowest > 0.5 * spec.ground_height:
+            raise ValueError(f"seed {seed}: the camera comes down {lowest:.2f} towards a ground {spec.ground_height} "
+                             "below camera 0, within half its height; raise ground_height or slow the camera")
 
 
 def _static_mask(moving: np.ndarray, margin_px: int) -> np.ndarray:
