@@ -102,11 +102,11 @@ def pool_parser(description: str) -> argparse.ArgumentParser:
     return parser
 
 
-def print_real_rows(directory: str, statistics) -> None:
-    """One row per clip of ``directory`` as recorded: ``statistics(clip)``, a list of figures."""
+def print_real_rows(directory: str, statistics, label: str = "as recorded") -> None:
+    """One row per clip of ``directory``: ``statistics(clip)``, a list of figures, under ``label``."""
     for path in sorted(glob.glob(os.path.join(directory, "*.npz"))):
         clip = load_clip(path)
-        print(f"| {clip.clip_id} | as recorded | " + " | ".join(f"{v:.3f}" for v in statistics(clip)) + " |",
+        print(f"| {clip.clip_id} | {label} | " + " | ".join(f"{v:.3f}" for v in statistics(clip)) + " |",
               flush=True)
 
 

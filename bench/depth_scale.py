@@ -1,5 +1,6 @@
-"""The depth error with and without the pair's depth scale (issue 58; docs/semantics.md §3.6 step
-7): how much of it a depth estimator's per-frame scale makes, and what the inconsistencies keep.
+"""The depth error with and without the pair's depth scale, and up to an affine map per pair (issue
+58; docs/semantics.md §3.6 step 7): how much of it a depth estimator's per-frame scale and offset
+make, and what the inconsistencies keep.
 
     python bench/depth_scale.py [--pool fit] [--first 0] [--scenes 24] [--tracks 1000]
     python bench/depth_scale.py --real ../shared/realdata
@@ -11,14 +12,20 @@ and frame i's depth d at each compared pixel. Per clip, the mean over its pairs 
   2026-12-02);
 - ``scaled %``: the same after the pair's scale, |α ẑ − d| / d with α = the median of d / ẑ over all
   the compared pixels (the score takes it on a sub-grid, step 7);
-- ``scale %``: the RMS over the pairs of log α, in % (a per-frame depth scale's size).
+- ``scale %``: the RMS over the pairs of log α, in % (a per-frame depth scale's size);
+- ``affine %``: the same up to an affine map, |α ẑ + β − d| / d with (α, β) the least absolute
+  relative error over the compared pixels (``affine_depth_map``; not the score's, measured for a
+  per-frame offset).
 Variants of each scene of a random pool (``protocol.random_scene``; FIT's pool by default, on which
 a constant may be chosen): ``clean``; the protocol's depth noise (``+depth``: a 1 % smooth field,
 edges blended 1 px wide) and edges blended 3 px wide (``+edges3``); each frame's depth times its own
 factor, 1 % and 2 % RMS (``+scale``, ``research.noise.NoiseModel.depth_scale_rel``, nothing else);
-``depth_warp`` at 0.1, 0.25 and 0.5; the scene's mover unmasked (``mover``). ``--real DIR`` runs
-every clip of DIR as it is (its own cameras). Prints one row per clip, then per variant the median
-and the largest over the scenes.
+plus its own offset, 1 % and 3 % RMS of the median depth (``+offset``, ``NoiseModel.depth_offset_rel``);
+``depth_warp`` at 0.1, 0.25 and 0.5; the scene's mover unmasked (``mover``); depth_warp at 0.25 and
+the mover with offsets of 3 %; the nearest fifth of the depth 10 % farther from the middle frame on
+(``near 10 % farther``). ``--real DIR`` runs every clip of DIR as recorded (its own cameras)
+and with offsets of 1 % and 3 %. Prints one row per clip, then per variant the median and the
+largest over the scenes, and how many of its scenes read above the clean clip (scaled, affine).
 """
 
 from __future__ import annotations
@@ -32,15 +39,28 @@ from depth_blobs import pool_parser, print_real_rows, print_variant_summary
 from sgc_jax import SGCConfig
 from sgc_jax.engines import reference
 from sgc_jax.research import protocol
-from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
 from sgc_jax.research.perturb import perturb_clip
 
-HEADER = ("depth %", "scaled %", "scale %")
+HEADER = ("depth %", "scaled %", "scale %", "affine %")
+OFFSETS_REL = (0.01, 0.03)
+AFFINE_ITERATIONS = 30  # IRLS steps for the least absolute error; the fit settles in about ten
+
+
+def affine_depth_map(z: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """(α, β) minimising Σ |α z + β − d| / d over the compared pixels' warped depth z and frame i's
+    depth d (float64, (n,) each): iteratively reweighted least squares from α = median d / z, β = 0."""
+    features = np.stack([z / d, 1.0 / d], axis=1)
+    coef = np.array([np.median(d / z), 0.0])
+    for _ in range(AFFINE_ITERATIONS):
+        weight = 1.0 / np.maximum(np.abs(features @ coef - 1.0), 1e-6)
+        coef = np.linalg.solve((features * weight[:, None]).T @ features, (features * weight[:, None]).T @ np.ones(len(d)))
+    return float(coef[0]), float(coef[1])
 
 
 def depth_statistics(clip, config: SGCConfig) -> list[float]:
-    """[depth %, scaled %, scale %] of the clip, under its cameras' relative poses (scale 1)."""
-    plain, scaled, log_scales = [], [], []
+    """[depth %, scaled %, scale %, affine %] of the clip, under its cameras' relative poses (scale 1)."""
+    plain, scaled, log_scales, affine = [], [], [], []
     for i in range(1, clip.n_frames):
         R = clip.R_wc[i] @ clip.R_wc[i - 1].T
         t = clip.t_wc[i] - R @ clip.t_wc[i - 1]
@@ -55,7 +75,15 @@ def depth_statistics(clip, config: SGCConfig) -> list[float]:
         plain.append(np.mean(np.abs(z - d) / d))
         scaled.append(np.mean(np.abs(alpha * z - d) / d))
         log_scales.append(np.log(alpha))
-    return [100 * np.mean(plain), 100 * np.mean(scaled), 100 * np.sqrt(np.mean(np.square(log_scales)))]
+        a, b = affine_depth_map(z, d)
+        affine.append(np.mean(np.abs(a * z + b - d) / d))
+    return [100 * np.mean(plain), 100 * np.mean(scaled), 100 * np.sqrt(np.mean(np.square(log_scales))),
+            100 * np.mean(affine)]
+
+
+def with_offsets(clip, rms_rel: float, seed: int):
+    """The clip with each frame's depth plus its own offset, ``rms_rel`` x its median depth RMS."""
+    return add_noise(clip, NoiseModel(depth_offset_rel=rms_rel), seed)
 
 
 def variants(scene, n_tracks: int) -> dict:
@@ -69,9 +97,32 @@ def variants(scene, n_tracks: int) -> dict:
              "clean+edges3": add_noise(clean, depth_noise.replace(depth_edge_px=3), scene.seed),
              "clean+scale 1 %": add_noise(clean, scale_only.replace(depth_scale_rel=0.01), scene.seed),
              "clean+scale 2 %": add_noise(clean, scale_only.replace(depth_scale_rel=0.02), scene.seed)}
+    clips.update({f"clean+offset {100 * r:.0f} %": with_offsets(clean, r, scene.seed) for r in OFFSETS_REL})
     clips.update({f"depth_warp {s}": perturb_clip(clean, "depth_warp", s, seed=scene.seed) for s in (0.1, 0.25, 0.5)})
     clips["mover"] = dataclasses.replace(masked, static_mask=np.ones_like(masked.static_mask), mask_source="none")
+    clips["depth_warp 0.25+offset 3 %"] = with_offsets(clips["depth_warp 0.25"], OFFSETS_REL[-1], scene.seed)
+    clips["mover+offset 3 %"] = with_offsets(clips["mover"], OFFSETS_REL[-1], scene.seed)
+    clips["near 10 % farther"] = near_part_farther(clean)
     return clips
+
+
+def near_part_farther(clip, factor: float = 1.1):
+    """The clip with its nearest fifth (depth below the clip's 20th percentile) ``factor`` times
+    farther from the middle frame on: part of the world at another depth in half the frames, which a
+    map of the whole frame's depth could take for an estimator's shift where few depths make the scene."""
+    valid = np.isfinite(clip.depth) & (clip.depth > 0)
+    near = valid & (clip.depth < np.percentile(clip.depth[valid], 20))
+    near[: clip.n_frames // 2] = False
+    return dataclasses.replace(clip, depth=np.where(near, factor * clip.depth, clip.depth).astype(np.float32))
+
+
+def print_above_clean(table: dict) -> None:
+    """Per variant, the scenes whose depth error reads above the clean clip's, scaled and affine."""
+    clean = np.array(table["clean"])
+    print("\n| variant | above clean, scaled | above clean, affine |\n|---|---|---|")
+    for name, rows in table.items():
+        a = np.array(rows)
+        print(f"| {name} | {np.sum(a[:, 1] > clean[:, 1])} of {len(a)} | {np.sum(a[:, 3] > clean[:, 3])} of {len(a)} |")
 
 
 def main() -> None:
@@ -80,6 +131,9 @@ def main() -> None:
     print("| clip | variant | " + " | ".join(HEADER) + " |\n|---|---|" + "---|" * len(HEADER))
     if args.real:
         print_real_rows(args.real, lambda clip: depth_statistics(clip, config))
+        for r in OFFSETS_REL:
+            print_real_rows(args.real, lambda clip: depth_statistics(with_offsets(clip, r, 0), config),
+                            f"offset {100 * r:.0f} %")
         return
     table = defaultdict(list)
     for k in range(args.first, args.first + args.scenes):
@@ -89,6 +143,7 @@ def main() -> None:
             table[name].append(values)
             print(f"| {scene.name} | {name} | " + " | ".join(f"{v:.3f}" for v in values) + " |", flush=True)
     print_variant_summary(table, HEADER)
+    print_above_clean(table)
 
 
 if __name__ == "__main__":

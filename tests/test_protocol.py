@@ -136,6 +136,18 @@ def test_a_depth_scale_error_scales_each_frame_by_one_factor(exact_clip):
     np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
 
 
+def test_a_depth_offset_error_shifts_each_frame_by_one_offset(exact_clip):
+    noisy = add_noise(exact_clip, NoiseModel(depth_offset_rel=0.02), seed=4)
+    valid = exact_clip.depth > 0
+    shift = np.where(valid, noisy.depth.astype(np.float64) - exact_clip.depth, np.nan)
+    per_frame = np.nanmedian(shift, axis=(1, 2))
+    np.testing.assert_allclose(shift[valid], np.broadcast_to(per_frame[:, None, None], shift.shape)[valid],
+                               atol=1e-5 * exact_clip.depth.max())  # float32 depth
+    median = np.median(exact_clip.depth[valid])
+    assert np.ptp(per_frame) > 0.005 * median and np.all(np.abs(per_frame) < 0.1 * median)
+    np.testing.assert_array_equal(noisy.track_curr, exact_clip.track_curr)
+
+
 def camera_centres(clip) -> np.ndarray:
     return -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)
 

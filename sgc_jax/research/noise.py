@@ -23,6 +23,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
   (docs/semantics.md §3.6, "Smooth depth edges").
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
+- A per-frame depth offset: each frame's depth plus ``depth_offset_rel`` N(0, 1) times the clip's
+  median depth, one offset a frame, as a relative-depth model's output aligned frame by frame can
+  leave (a scale and a shift per frame).
 - Camera errors, as a pose estimator's (VGGT's) per frame, independent between frames: each
   camera turned about its centre by a rotation vector of RMS ``camera_rot_deg`` per axis, and its
   centre moved by ``camera_step_rel`` times the clip's median step between camera centres per axis.
@@ -59,6 +62,7 @@ class NoiseModel:
     depth_rel: float = 0.0  # relative RMS of the smooth multiplicative depth error
     depth_edge_px: int = 0  # pixels on each side of a depth edge blended across it
     depth_scale_rel: float = 0.0  # relative RMS of one depth scale factor per frame
+    depth_offset_rel: float = 0.0  # RMS of one depth offset per frame, relative to the clip's median depth
     camera_rot_deg: float = 0.0  # RMS per axis of each camera's rotation error [deg]
     camera_step_rel: float = 0.0  # RMS per axis of each camera centre's error [median camera steps]
 
@@ -72,6 +76,7 @@ class NoiseModel:
             "0 <= depth_rel < 0.5": 0 <= self.depth_rel < 0.5,
             "depth_edge_px >= 0": self.depth_edge_px >= 0,
             "0 <= depth_scale_rel < 0.5": 0 <= self.depth_scale_rel < 0.5,
+            "0 <= depth_offset_rel < 0.5": 0 <= self.depth_offset_rel < 0.5,
             "camera_rot_deg >= 0": self.camera_rot_deg >= 0,
             "camera_step_rel >= 0": self.camera_step_rel >= 0,
         }
@@ -156,8 +161,8 @@ def enlarged_depth(depth: np.ndarray, factor: float) -> np.ndarray:
 
 
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(T, H, W) float32 depth with the model's multiplicative field and smeared edges; invalid
-    pixels (<= 0 or non-finite) stay as they are."""
+    """(T, H, W) float32 depth with the model's multiplicative field, smeared edges, per-frame scale and
+    offset; invalid pixels (<= 0 or non-finite) stay as they are."""
     T, H, W = depth.shape
     out = depth.astype(np.float64)
     valid = np.isfinite(out) & (out > 0)
@@ -173,8 +178,11 @@ def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) 
         blend = rng.uniform(0.0, 1.0, size=out.shape)
         with np.errstate(invalid="ignore"):  # inf - inf where no valid depth is near: not an edge, not read
             out = np.where(near_edge, nearest + blend * (farthest.astype(np.float64) - nearest), out)
-    if model.depth_scale_rel > 0:  # drawn last: the other errors' draws stay as they were
+    if model.depth_scale_rel > 0:  # drawn after the others: their draws stay as they were
         out = np.where(valid, out * np.exp(model.depth_scale_rel * rng.standard_normal(T))[:, None, None], out)
+    if model.depth_offset_rel > 0:  # drawn last; a pixel the offset takes to 0 or below is invalid, as any such depth
+        offsets = model.depth_offset_rel * np.median(depth[valid]) * rng.standard_normal(T)
+        out = np.where(valid, out + offsets[:, None, None], out)
     return out.astype(np.float32)
 
 
@@ -214,7 +222,7 @@ def add_noise(clip: Clip, model: NoiseModel, seed: int = 0) -> Clip:
             curr[pair, bad] = rng_tracks.uniform([0.0, 0.0], [W - 1, H - 1], size=(n_out, 2))
             vis[pair, bad] = True
     depth = clip.depth
-    if model.depth_rel > 0 or model.depth_edge_px > 0 or model.depth_scale_rel > 0:
+    if model.depth_rel > 0 or model.depth_edge_px > 0 or model.depth_scale_rel > 0 or model.depth_offset_rel > 0:
         depth = noisy_depth(model, clip.depth, rng_depth)
     R_wc, t_wc = clip.R_wc, clip.t_wc
     if model.camera_rot_deg > 0 or model.camera_step_rel > 0:
