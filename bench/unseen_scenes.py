@@ -9,6 +9,7 @@ cell. A probe beside the protocol's six TEST scenes, for what they do not sample
                                   [--back-wall-depth 1000 [--sky-invalid]] [--spec '{"n_layers": 0}']
                                   [--focal-scale 0.9] [--focal-jitter 0.01 [--one-k]]
                                   [--depth-resample 2] [--depth-bits 8] [--depth-edge-ratio 1.2]
+                                  [--depth-offset-rms 0.03]
                                   [--rows rows.csv] [--against other.csv]
 
 Scene k, from ``--first`` on, is ``research.protocol.random_scene(k, fovs)`` (seeds 7200-7299,
@@ -42,7 +43,10 @@ enlarged, so depth edges become ramps of mixed depths; ``--depth-bits N`` stores
 depth in N bits over its range, as depth saved as 8- or 16-bit disparity images is;
 ``--depth-edge-ratio R`` then makes the depth invalid on the ramps at edges (a 3 x 3 neighbourhood
 spanning more than R, the pixel over 5 % from both its least and greatest depth), as ``sgc-jax
-import --depth-edge-ratio`` does (docs/semantics.md §3.6, "Smooth depth edges").
+import --depth-edge-ratio`` does (docs/semantics.md §3.6, "Smooth depth edges"). ``--depth-offset-rms r``
+adds to each frame's depth its own offset, r N(0, 1) times the clip's median depth, the same draw for a
+scene's consistent and perturbed clips in every cell (``NoiseModel.depth_offset_rel``: a relative-depth
+model aligned frame by frame; docs/semantics.md §3.10).
 With ``--perturb s`` each cell also scores the three perturbations at severity s, made on the exact
 clip and given the consistent clip's noise draw (paired, as bench/validation.py), and prints the
 share of cells where each scores above its consistent twin: detection on layouts no constant was
@@ -66,7 +70,7 @@ import numpy as np
 
 from sgc_jax import score_batch
 from sgc_jax.io.depth_edges import without_ramps
-from sgc_jax.research.noise import NOISE_MODELS, add_noise, enlarged_depth
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, enlarged_depth
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
     NOISE_DRAW_STRIDE,
@@ -120,6 +124,8 @@ def main() -> None:
                         help="F > 1: each frame's depth shrunk F times (area average) and enlarged bilinearly")
     parser.add_argument("--depth-bits", type=int, default=0,
                         help="N > 0: each clip's inverse depth quantised to N bits over its range")
+    parser.add_argument("--depth-offset-rms", type=float, default=0.0,
+                        help="r > 0: each frame's depth plus its own offset, r N(0, 1) x the clip's median depth")
     parser.add_argument("--depth-edge-ratio", type=float, default=0.0,
                         help="R > 1: depth invalid on the ramps at edges whose 3 x 3 neighbourhood spans more than R")
     parser.add_argument("--out", help="write one row per clip (CSV)")
@@ -178,6 +184,9 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
                                          for kind in (PERTURBATIONS if args.perturb > 0 else ())]
         variants = [(kind, severity, estimator_depth(clip, args.depth_resample, args.depth_bits, args.depth_edge_ratio))
                     for kind, severity, clip in variants]
+        if args.depth_offset_rms > 0:
+            offsets = NoiseModel(depth_offset_rel=args.depth_offset_rms)
+            variants = [(kind, severity, add_noise(clip, offsets, seed)) for kind, severity, clip in variants]
         models = [NOISE_MODELS[model].replace(px=px, depth_scale_rel=scale, camera_rot_deg=rot, camera_step_rel=step)
                   for model, px, scale, rot, step in cells]
         jobs = [(j, kind, severity, add_noise(exact, noise, seed=noise_seed(seed, j, builtin, args.noise_draw)))
@@ -189,7 +198,8 @@ def score_rows(args, cells, builtin: int) -> list[dict]:
                              sgc_lo=scored.sgc_lo, sgc_hi=scored.sgc_hi, evidence=scored.evidence, scale=scored.scale,
                              sky_invalid=int(args.sky_invalid), focal_scale=args.focal_scale,
                              focal_jitter=args.focal_jitter, one_k=int(args.one_k), depth_resample=args.depth_resample,
-                             depth_bits=args.depth_bits, depth_unit=scored.depth_unit,
+                             depth_bits=args.depth_bits, depth_offset_rms=args.depth_offset_rms,
+                             depth_unit=scored.depth_unit,
                              reward=float(reward),
                              **scored.components))
         print(f"{scene.name} {spec}: " + " ".join(f"{r['sgc']:.3f} ({r['status']})" for r in rows[-len(jobs):]
