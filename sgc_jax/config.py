@@ -37,12 +37,25 @@ MAX_HOLE_REACH_PX = 2.0 ** (HOLE_LEVELS + 1) - 1.0
 # beyond 900 %, which near the camera has no bound), the depth check also looks the pixel up in frame
 # i-1 and keeps the lesser error (docs/semantics.md §3.6 step 5; 3 % of FIT's pairs hold such a pixel).
 LOOK_BACK_RATIO = 10.0
-# The spec depth check reads each pair's error up to the pair's depth scale (docs/semantics.md §3.6
-# step 7): the median of frame i's depth over the warped one on every DEPTH_SCALE_STRIDE-th row and
-# column of the compared pixels (a standard pair's ~9,000 of ~150,000), 1 with fewer than
-# DEPTH_SCALE_MIN_PIXELS of them. A depth estimator's scale per frame is one number.
+# The spec depth check reads each pair's error up to the pair's depth map (docs/semantics.md §3.6
+# step 7), started from its depth scale: the median of frame i's depth over the warped one on every
+# DEPTH_SCALE_STRIDE-th row and column of the compared pixels (a standard pair's ~9,000 of
+# ~150,000); the identity with fewer than DEPTH_SCALE_MIN_PIXELS of them.
 DEPTH_SCALE_STRIDE = 4
 DEPTH_SCALE_MIN_PIXELS = 16
+# ... or up to an affine map, alpha z + beta, where it fits far better (a relative-depth model aligned
+# frame by frame leaves a shift beside its scale): the least absolute relative error on those pixels,
+# by iteratively reweighted least squares, DEPTH_MAP_STEPS steps from the median ratio and beta = 0
+# (it settles in about ten; a weight at most 1 / DEPTH_MAP_WEIGHT_FLOOR), beta shrunk by
+# DEPTH_MAP_DAMPING so that a pair whose compared depths barely vary keeps the scale alone: numerics,
+# not fitted. It replaces the scale where its median relative error on those pixels is below
+# DEPTH_MAP_GATE times the scale's, chosen on FIT's pool (bench/history/issue-58.md, "A per-frame depth
+# offset read up to an affine map"): a shift of the whole frame lowers nearly every pixel's error, a
+# part of the world moved in depth only its own.
+DEPTH_MAP_STEPS = 20
+DEPTH_MAP_WEIGHT_FLOOR = 1e-5
+DEPTH_MAP_DAMPING = 1e-4
+DEPTH_MAP_GATE = 0.5
 # Where the camera's pose reprojects a pair's region points (median error, cut at inlier_px) worse
 # than this many times its refit to those points does, the refit also warps the depth check and the
 # lesser error counts (docs/semantics.md §3.6 step 6). With exact cameras the ratio sits at 1.00 (median

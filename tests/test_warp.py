@@ -10,7 +10,7 @@ from sgc_jax.config import DEPTH_SCALE_MIN_PIXELS, DEPTH_SCALE_STRIDE, SGCConfig
 from sgc_jax.engines import reference
 from sgc_jax.engines.jax_engine.finish_stage import FinishStage, pair_depth_errors
 from sgc_jax.io.clip import Clip
-from sgc_jax.kernels import warp
+from sgc_jax.kernels import depth_map, warp
 from sgc_jax.kernels.medians import masked_median
 from sgc_jax.kernels.so3 import so3_exp
 from sgc_jax.research import diagnostics
@@ -152,19 +152,48 @@ def test_masked_median_is_the_middle_of_the_selected_values(n):
     np.testing.assert_array_equal(float(masked_median(values, mask)), expected)
 
 
-def test_the_pairs_depth_scale_is_the_median_ratio_on_its_sub_grid_in_both_engines():
+pair_depth_map = jax.jit(depth_map.pair_depth_map)
+# The engines run the same reweighted least squares, in float32 and float64: their maps agree to
+# float32 rounding of the sums. Against the exact map, β is shrunk by about DEPTH_MAP_DAMPING x z̄² /
+# Var(z) (1.0e-3 on these depths, 1-3 apart, weighted towards the near ones).
+ENGINES_RTOL = 1e-5
+EXACT_MAP_RTOL = 2e-3
+
+
+def test_the_pairs_depth_map_is_the_least_absolute_relative_error_where_it_fits_far_better():
     rng = np.random.default_rng(3)
     warped = rng.uniform(1.0, 3.0, (40, 48)).astype(np.float32)
-    depth = (1.03 * warped).astype(np.float32)
-    depth[rng.random(depth.shape) < 0.2] *= 2.0  # a fifth of the pixels disagree: the median keeps 1.03
+    depth = (1.03 * warped + 0.05).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.2] *= 2.0  # a fifth of the pixels disagree: the map keeps 1.03, 0.05
     both = rng.random(depth.shape) < 0.8
-    scales = [float(warp.pair_depth_scale(warped, depth, both)), reference.pair_depth_scale(warped, depth, both)]
-    np.testing.assert_allclose(scales, 1.03, rtol=1e-6)
+    jax_map, reference_map = np.asarray(pair_depth_map(warped, depth, both)), np.array(reference.pair_depth_map(warped, depth, both))
+    np.testing.assert_allclose(jax_map, reference_map, rtol=ENGINES_RTOL)
+    np.testing.assert_allclose(reference_map, [1.03, 0.05], rtol=EXACT_MAP_RTOL)
     few = np.zeros_like(both)
     rows, cols = np.nonzero(np.ones_like(few[::DEPTH_SCALE_STRIDE, ::DEPTH_SCALE_STRIDE]))
     few[rows[:DEPTH_SCALE_MIN_PIXELS - 1] * DEPTH_SCALE_STRIDE, cols[:DEPTH_SCALE_MIN_PIXELS - 1] * DEPTH_SCALE_STRIDE] = True
     assert few[::DEPTH_SCALE_STRIDE, ::DEPTH_SCALE_STRIDE].sum() == DEPTH_SCALE_MIN_PIXELS - 1
-    assert float(warp.pair_depth_scale(warped, depth, few)) == reference.pair_depth_scale(warped, depth, few) == 1.0
+    assert tuple(np.asarray(pair_depth_map(warped, depth, few))) == reference.pair_depth_map(warped, depth, few) == (1.0, 0.0)
+
+
+def test_a_shift_of_the_whole_frame_is_read_up_to_but_a_part_moved_in_depth_is_not():
+    warped = np.broadcast_to(np.linspace(2.0, 10.0, 48, dtype=np.float32), (40, 48))  # a floor running away
+    shifted = (warped + 0.3).astype(np.float32)
+    near_farther = np.where(warped < 3.6, 1.1 * warped, warped).astype(np.float32)  # the nearest fifth
+    both = np.ones((40, 48), bool)
+    for depth, expected in ((shifted, (1.0, 0.3)), (near_farther, (1.0, 0.0))):
+        jax_map, reference_map = np.asarray(pair_depth_map(warped, depth, both)), reference.pair_depth_map(warped, depth, both)
+        np.testing.assert_allclose(jax_map, reference_map, rtol=ENGINES_RTOL, atol=ENGINES_RTOL)
+        np.testing.assert_allclose(reference_map, expected, rtol=EXACT_MAP_RTOL, atol=EXACT_MAP_RTOL)
+
+
+def test_a_pair_whose_compared_depths_do_not_vary_keeps_the_scale_alone():
+    warped = np.full((40, 48), 2.0, np.float32)
+    depth = np.full((40, 48), 2.06, np.float32)
+    both = np.ones((40, 48), bool)
+    for scale, offset in (np.asarray(pair_depth_map(warped, depth, both)), reference.pair_depth_map(warped, depth, both)):
+        assert scale * 2.0 + offset == pytest.approx(2.06, rel=1e-6)
+        assert abs(offset) < 1e-2 * abs(scale * 2.0)  # a scale, not a shift, carries the fit
 
 
 def test_batch_of_pairs_equals_loop():

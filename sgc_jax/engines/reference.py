@@ -23,6 +23,10 @@ from ..codes import EXCLUDED_STATUSES, REGION_STATUS
 from ..config import (
     BLOCKS_PER_AXIS,
     CAMERA_REFIT_RATIO,
+    DEPTH_MAP_DAMPING,
+    DEPTH_MAP_GATE,
+    DEPTH_MAP_STEPS,
+    DEPTH_MAP_WEIGHT_FLOOR,
     DEPTH_SCALE_MIN_PIXELS,
     DEPTH_SCALE_STRIDE,
     HOLE_DEPTH_MARGIN,
@@ -576,44 +580,60 @@ def _hole_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: i
     return cover
 
 
-def pair_depth_scale(warped: np.ndarray, depth_curr: np.ndarray, both: np.ndarray) -> float:
-    """The pair's depth scale: the median of depth_curr / warped over the ``both`` (H, W) pixels of
-    every DEPTH_SCALE_STRIDE-th row and column, 1 with fewer than DEPTH_SCALE_MIN_PIXELS (§3.6 step 7)."""
+def pair_depth_map(warped: np.ndarray, depth_curr: np.ndarray, both: np.ndarray) -> tuple[float, float]:
+    """The pair's depth map (α, β) (§3.6 step 7) on the ``both`` (H, W) pixels of every
+    DEPTH_SCALE_STRIDE-th row and column, (1, 0) with fewer than DEPTH_SCALE_MIN_PIXELS: the affine map
+    of least Σ |α ẑ + β − d| / d where its median relative error there is below DEPTH_MAP_GATE times the
+    scale's, else the scale (the median of d / ẑ in float32, as the JAX engine's, and 0). The affine
+    map by iteratively reweighted least squares from the scale, DEPTH_MAP_STEPS + 1 steps, each the
+    weighted regression of d on z, centred, β shrunk by DEPTH_MAP_DAMPING (``kernels.depth_map``)."""
     s = DEPTH_SCALE_STRIDE
     sub = both[::s, ::s]
     if sub.sum() < DEPTH_SCALE_MIN_PIXELS:
-        return 1.0
-    return float(np.median((depth_curr[::s, ::s][sub] / warped[::s, ::s][sub]).astype(np.float32)))
+        return 1.0, 0.0
+    z, d = warped[::s, ::s][sub].astype(np.float64), depth_curr[::s, ::s][sub].astype(np.float64)
+    scale = np.array([np.median((depth_curr[::s, ::s][sub] / warped[::s, ::s][sub]).astype(np.float32)), 0.0])
+    kappa = DEPTH_MAP_DAMPING / (1.0 + DEPTH_MAP_DAMPING)
+    coef = scale
+    for _ in range(DEPTH_MAP_STEPS + 1):
+        u = 1.0 / np.maximum(np.abs((coef[0] * z + coef[1] - d) / d), DEPTH_MAP_WEIGHT_FLOOR) / (d * d)
+        z_mean, d_mean = np.sum(u * z) / np.sum(u), np.sum(u * d) / np.sum(u)
+        var, cov = np.sum(u * (z - z_mean) ** 2) / np.sum(u), np.sum(u * (z - z_mean) * (d - d_mean)) / np.sum(u)
+        alpha = (cov + kappa * z_mean * d_mean) / (var + kappa * z_mean * z_mean)
+        coef = np.array([alpha, (d_mean - alpha * z_mean) / (1.0 + DEPTH_MAP_DAMPING)])
+    median_error = [np.median(np.abs((c[0] * z + c[1] - d) / d)) for c in (coef, scale)]
+    chosen = coef if median_error[0] < DEPTH_MAP_GATE * median_error[1] else scale
+    return float(chosen[0]), float(chosen[1])
 
 
 def depth_error_map(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
                     looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False
-                    ) -> tuple[np.ndarray, np.ndarray, float]:
+                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """(error (n,) of the compared pixels in row-major order, compared (H, W) bool, the pair's
-    depth scale): |warped - depth_curr| where both are valid and the pixel is static, divided by
+    depth map α, β): |warped - depth_curr| where both are valid and the pixel is static, divided by
     depth_curr pixel by pixel when ``relative`` (AbsRel). ``looked_back``: (z, depth) (H, W), each
     pixel's point's depth in camera i-1 and frame i-1's depth where it lands (0 where unread):
     where read, the lesser of the error and |depth - z| (relative to z) (§3.6 step 5).
-    ``pair_scale``: frame i-1's depths (warped and looked back) times ``pair_depth_scale`` first
-    (step 7; else the scale is 1)."""
+    ``pair_scale``: frame i-1's depths (warped and looked back) read through ``pair_depth_map``
+    first, α depth + β (step 7; else (1, 0))."""
     both = (warped > 0) & valid_depth(depth_curr) & static_curr
-    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale and both.any() else 1.0
-    error = np.abs(scale * warped[both] - depth_curr[both])
+    scale, offset = pair_depth_map(warped, depth_curr, both) if pair_scale and both.any() else (1.0, 0.0)
+    error = np.abs(scale * warped[both] + offset - depth_curr[both])
     if relative:
         error = error / depth_curr[both]
     if looked_back is not None:
         z, depth = (a[both] for a in looked_back)
         read = depth > 0
-        back = np.abs(scale * depth - z)
+        back = np.abs(scale * depth + offset - z)
         back = back / np.where(read, z, 1.0) if relative else back
         error = np.where(read, np.minimum(error, back), error)
-    return error, both, scale
+    return error, both, scale, offset
 
 
 def depth_error(warped: np.ndarray, depth_curr: np.ndarray, static_curr: np.ndarray, relative: bool = False,
                 looked_back: tuple[np.ndarray, np.ndarray] | None = None, pair_scale: bool = False) -> float:
     """The mean of ``depth_error_map``'s errors (the same arguments); NaN if no pixel is compared."""
-    error, _, _ = depth_error_map(warped, depth_curr, static_curr, relative, looked_back, pair_scale)
+    error, *_ = depth_error_map(warped, depth_curr, static_curr, relative, looked_back, pair_scale)
     return float(np.mean(error)) if error.size else float("nan")
 
 
@@ -714,12 +734,14 @@ def tracks_motion(X: np.ndarray, uv: np.ndarray, K: np.ndarray, refit: reference
 class PairDepthError(NamedTuple):
     """A pair's depth check (``pair_depth_check``): frame i-1's depth warped into frame i (H, W) (0
     where nothing is compared), each compared pixel's error (H, W) (NaN elsewhere; percent of depth
-    under spec), their mean and the pair's depth scale (§3.6 step 7; 1 where not applied)."""
+    under spec), their mean and the pair's depth map α ẑ + β (§3.6 step 7; 1 and 0 where not applied;
+    β in the clip's depth units as scored, units of D under spec)."""
 
     warped: np.ndarray
     error: np.ndarray
     mean: float
     depth_scale: float
+    depth_offset: float = 0.0
 
 
 def pair_depth_check(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> PairDepthError:
@@ -742,13 +764,13 @@ def pair_depth_check(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
         # frame i-1 read where the warp put a surface LOOK_BACK_RATIO times farther than frame i sees (§3.6 step 5)
         needed = (warped > LOOK_BACK_RATIO * clip.depth[pair]) & valid_depth(clip.depth[pair]) & static
         looked_back = z, np.where(needed, at_landing, 0.0)
-    error, compared, scale = depth_error_map(warped, clip.depth[pair], static, relative=config.scale_free,
-                                             looked_back=looked_back, pair_scale=spec and config.scale_free)
+    error, compared, scale, offset = depth_error_map(warped, clip.depth[pair], static, relative=config.scale_free,
+                                                     looked_back=looked_back, pair_scale=spec and config.scale_free)
     unit = PERCENT if config.scale_free else 1.0
     error_map = np.full(compared.shape, np.nan)
     error_map[compared] = error * unit
     mean = float(np.mean(error)) * unit if error.size else float("nan")
-    return PairDepthError(warped, error_map, mean, scale)
+    return PairDepthError(warped, error_map, mean, scale, offset)
 
 
 def pair_depth_error(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config: SGCConfig) -> tuple[np.ndarray, float]:

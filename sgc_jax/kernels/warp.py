@@ -10,16 +10,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..config import (
-    DEPTH_SCALE_MIN_PIXELS,
-    DEPTH_SCALE_STRIDE,
-    HOLE_DEPTH_MARGIN,
-    HOLE_LEVELS,
-    LOOK_BACK_RATIO,
-    MAX_HOLE_REACH_PX,
-)
+from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX
 from .camera import back_project_xyz, project_xyz, transform_xyz
-from .medians import masked_median
+from .depth_map import pair_depth_map
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
 
@@ -254,7 +247,7 @@ def spec_depth_error(warped, hit, depth_curr, valid_curr, static_curr, source, K
     ``source``: frame i-1's depth and the mask of what it warps, (H, W) each) and frame i-1 did not
     see it behind a nearer surface (``occluded_in_previous``), frame i-1 looked up where frame i
     sees a surface more than LOOK_BACK_RATIO times nearer than the warp put. Relative errors are
-    read up to the pair's depth scale (step 7)."""
+    read up to the pair's depth map (step 7)."""
     view = previous_view(depth_curr, valid_curr, K_prev, K_curr, R, t, image_hw)
     at_landing = depth_at_landing(*source, view)
     seen = (at_landing > 0) & ~occluded_in_previous(warped, depth_curr, view, at_landing)
@@ -264,17 +257,6 @@ def spec_depth_error(warped, hit, depth_curr, valid_curr, static_curr, source, K
                        looked_back=(view.z, read), pair_scale=relative)
 
 
-def pair_depth_scale(warped, depth_curr, both, median=masked_median):
-    """The pair's depth scale (): the median of depth_curr / warped over the ``both`` (H, W) pixels
-    of every DEPTH_SCALE_STRIDE-th row and column, 1 with fewer than DEPTH_SCALE_MIN_PIXELS of them
-    (docs/semantics.md §3.6 step 7). ``median(values, mask)``: one whose gradient reaches the
-    middle values, for ``sgc_smooth``."""
-    s = DEPTH_SCALE_STRIDE
-    sub = both[::s, ::s].reshape(-1)
-    ratio = depth_curr[::s, ::s].reshape(-1) / jnp.where(sub, warped[::s, ::s].reshape(-1), 1.0)
-    return jnp.where(jnp.sum(sub) >= DEPTH_SCALE_MIN_PIXELS, median(ratio, sub), 1.0)
-
-
 def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: bool = False, looked_back=None,
                 pair_scale: bool = False):
     """Mean |warped - depth_curr| over hit & valid (depth > 0, finite) & static (H, W) -> (float32,
@@ -282,17 +264,17 @@ def depth_error(warped, hit, depth_curr, valid_curr, static_curr, *, relative: b
     ``looked_back``: (z, depth) (H, W), each pixel's point's depth in camera i-1 and frame i-1's depth
     where it lands (``looked_back_depth``, 0 where unread): where read, the lesser of the error and
     |depth - z| (relative to z) (docs/semantics.md §3.6 step 5). ``pair_scale``: frame i-1's depths
-    (warped and looked back) times ``pair_depth_scale`` first (step 7)."""
+    (warped and looked back) read through ``pair_depth_map`` first, α depth + β (step 7)."""
     both = hit & _valid_depth(depth_curr, valid_curr) & static_curr
     n = jnp.sum(both).astype(jnp.int32)
-    scale = pair_depth_scale(warped, depth_curr, both) if pair_scale else 1.0
-    error = jnp.abs(scale * warped - depth_curr)
+    scale, offset = pair_depth_map(warped, depth_curr, both) if pair_scale else (1.0, 0.0)
+    error = jnp.abs(scale * warped + offset - depth_curr)
     if relative:
         error = error / jnp.where(both, depth_curr, 1.0)
     if looked_back is not None:
         z, depth = looked_back
         read = depth > 0
-        back = jnp.abs(scale * depth - z)
+        back = jnp.abs(scale * depth + offset - z)
         if relative:
             back = back / jnp.where(read, z, 1.0)
         error = jnp.where(read, jnp.minimum(error, back), error)

@@ -220,8 +220,9 @@ class DepthWarpError:
     lands); ``error`` (H, W) |warped - depth[pair]| where compared (NaN elsewhere), in
     ``error_unit`` (% of depth under compat="spec", depth units under "authors"), under spec the
     lesser of that and what frame pair-1 shows where the warp put a far surface (§3.6 step 5);
-    ``mean`` its mean (the pair's ``depth_error`` with the global pose); ``depth_scale`` the pair's
-    depth scale α the error reads ``warped`` up to (§3.6 step 7; 1 under "authors")."""
+    ``mean`` its mean (the pair's ``depth_error`` with the global pose); ``depth_scale`` and
+    ``depth_offset`` the pair's depth map α, β the error reads ``warped`` through, α warped + β (§3.6
+    step 7; 1 and 0 under "authors")."""
 
     pair: int
     warped: np.ndarray
@@ -229,6 +230,7 @@ class DepthWarpError:
     mean: float
     error_unit: str = "% of depth"
     depth_scale: float = 1.0
+    depth_offset: float = 0.0
 
     @property
     def compared(self) -> np.ndarray:
@@ -248,4 +250,4 @@ def depth_warp_error(clip: Clip | Any, pair: int, config: SGCConfig | None = Non
     check = reference.pair_depth_check(clip, pair, R_g, t_g, config)
     return DepthWarpError(pair=pair, warped=check.warped * unit, error=check.error, mean=check.mean,
                           error_unit="% of depth" if config.scale_free else "depth units",
-                          depth_scale=check.depth_scale)
+                          depth_scale=check.depth_scale, depth_offset=check.depth_offset * unit)

@@ -19,6 +19,7 @@ from ...codes import REGION_OK
 from ...config import SGCConfig
 from ...io.tables import FLOOR_COLUMNS
 from ...kernels.camera import back_project, back_project_xyz
+from ...kernels.depth_map import pair_depth_map
 from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
@@ -28,7 +29,6 @@ from ...kernels.warp import (
     has_magnified,
     looked_back_depth,
     occluded_in_previous,
-    pair_depth_scale,
     previous_view,
     warp_sources,
 )
@@ -159,20 +159,20 @@ def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, 
     """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
     (H W,), ``hit`` (H, W) from ``warp_sources``), and the look back into frame i-1 where the
     forward pass read it (``read`` (H, W), at the held pixel ``landing`` (H, W) of frame i-1), up to
-    the pair's depth scale (``pair_depth_scale``, §3.6 step 7)."""
+    the pair's depth map (``pair_depth_map``, §3.6 step 7)."""
     H, W = depth_prev.shape
     both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
     warped = held_warped_depth(depth_prev, K_prev, R, t, source)
     target = jnp.where(both, depth_curr.reshape(-1), 1.0)
-    scale = pair_depth_scale(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W), median=pixel_median)
-    warped = scale * warped
+    scale, offset = pair_depth_map(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W), median=pixel_median)
+    warped = scale * warped + offset
     error = jnp.abs(warped - target) / target
     # frame i's point in camera i-1: the depth row of R^T (X - t)
     x, y, z = back_project_xyz(K_curr, jnp.tile(jnp.arange(W, dtype=depth_curr.dtype), H),
                                jnp.repeat(jnp.arange(H, dtype=depth_curr.dtype), W), target)
     read = both & read.reshape(-1)
     z_back = jnp.where(read, R[0, 2] * (x - t[0]) + R[1, 2] * (y - t[1]) + R[2, 2] * (z - t[2]), 1.0)
-    back = jnp.abs(scale * depth_prev.reshape(-1)[landing.reshape(-1)] - z_back) / z_back
+    back = jnp.abs(scale * depth_prev.reshape(-1)[landing.reshape(-1)] + offset - z_back) / z_back
     error = jnp.where(both, jnp.where(read, jnp.minimum(error, back), error), 0.0)
     n = jnp.sum(both)
     return PERCENT * jnp.sum(error) / jnp.maximum(n, 1)
