@@ -14,8 +14,8 @@ and frame i's depth d at each compared pixel. Per clip, the mean over its pairs 
   the compared pixels (the score takes it on a sub-grid, step 7);
 - ``scale %``: the RMS over the pairs of log α, in % (a per-frame depth scale's size);
 - ``affine %``: the same up to an affine map, |α ẑ + β − d| / d with (α, β) the least absolute
-  relative error over the compared pixels (``affine_depth_map``; not the score's, measured for a
-  per-frame offset).
+  relative error over the compared pixels (``engines.reference.affine_depth_map`` from α; the
+  score takes it only where it fits far better than the scale, on a sub-grid, step 7).
 Variants of each scene of a random pool (``protocol.random_scene``; FIT's pool by default, on which
 a constant may be chosen): ``clean``; the protocol's depth noise (``+depth``: a 1 % smooth field,
 edges blended 1 px wide) and edges blended 3 px wide (``+edges3``); each frame's depth times its own
@@ -44,18 +44,6 @@ from sgc_jax.research.perturb import perturb_clip
 
 HEADER = ("depth %", "scaled %", "scale %", "affine %")
 OFFSETS_REL = (0.01, 0.03)
-AFFINE_ITERATIONS = 30  # IRLS steps for the least absolute error; the fit settles in about ten
-
-
-def affine_depth_map(z: np.ndarray, d: np.ndarray) -> tuple[float, float]:
-    """(α, β) minimising Σ |α z + β − d| / d over the compared pixels' warped depth z and frame i's
-    depth d (float64, (n,) each): iteratively reweighted least squares from α = median d / z, β = 0."""
-    features = np.stack([z / d, 1.0 / d], axis=1)
-    coef = np.array([np.median(d / z), 0.0])
-    for _ in range(AFFINE_ITERATIONS):
-        weight = 1.0 / np.maximum(np.abs(features @ coef - 1.0), 1e-6)
-        coef = np.linalg.solve((features * weight[:, None]).T @ features, (features * weight[:, None]).T @ np.ones(len(d)))
-    return float(coef[0]), float(coef[1])
 
 
 def depth_statistics(clip, config: SGCConfig) -> list[float]:
@@ -75,7 +63,7 @@ def depth_statistics(clip, config: SGCConfig) -> list[float]:
         plain.append(np.mean(np.abs(z - d) / d))
         scaled.append(np.mean(np.abs(alpha * z - d) / d))
         log_scales.append(np.log(alpha))
-        a, b = affine_depth_map(z, d)
+        a, b = reference.affine_depth_map(z, d, np.array([alpha, 0.0]))
         affine.append(np.mean(np.abs(a * z + b - d) / d))
     return [100 * np.mean(plain), 100 * np.mean(scaled), 100 * np.sqrt(np.mean(np.square(log_scales))),
             100 * np.mean(affine)]

@@ -580,29 +580,38 @@ def _hole_cover(proj: np.ndarray, z: np.ndarray, magnification: np.ndarray, H: i
     return cover
 
 
+def affine_depth_map(z: np.ndarray, d: np.ndarray, start: np.ndarray, steps: int = DEPTH_MAP_STEPS + 1) -> np.ndarray:
+    """(α, β) float64 of least Σ |α z + β − d| / d over (n,) warped depths z and frame i's d: iteratively
+    reweighted least squares from ``start`` (2,), ``steps`` steps, each the weighted regression of d
+    on z, centred, weights 1 / max(|e|, DEPTH_MAP_WEIGHT_FLOOR), β shrunk by DEPTH_MAP_DAMPING
+    (``kernels.depth_map``)."""
+    kappa = DEPTH_MAP_DAMPING / (1.0 + DEPTH_MAP_DAMPING)
+    coef = np.asarray(start, np.float64)
+    for _ in range(steps):
+        u = 1.0 / np.maximum(np.abs((coef[0] * z + coef[1] - d) / d), DEPTH_MAP_WEIGHT_FLOOR) / (d * d)
+        total = np.sum(u)
+        z_mean, d_mean = np.sum(u * z) / total, np.sum(u * d) / total
+        var, cov = np.sum(u * (z - z_mean) ** 2) / total, np.sum(u * (z - z_mean) * (d - d_mean)) / total
+        alpha = (cov + kappa * z_mean * d_mean) / (var + kappa * z_mean * z_mean)
+        coef = np.array([alpha, (d_mean - alpha * z_mean) / (1.0 + DEPTH_MAP_DAMPING)])
+    return coef
+
+
 def pair_depth_map(warped: np.ndarray, depth_curr: np.ndarray, both: np.ndarray) -> tuple[float, float]:
     """The pair's depth map (α, β) (§3.6 step 7) on the ``both`` (H, W) pixels of every
     DEPTH_SCALE_STRIDE-th row and column, (1, 0) with fewer than DEPTH_SCALE_MIN_PIXELS: the affine map
-    of least Σ |α ẑ + β − d| / d where its median relative error there is below DEPTH_MAP_GATE times the
-    scale's, else the scale (the median of d / ẑ in float32, as the JAX engine's, and 0). The affine
-    map by iteratively reweighted least squares from the scale, DEPTH_MAP_STEPS + 1 steps, each the
-    weighted regression of d on z, centred, β shrunk by DEPTH_MAP_DAMPING (``kernels.depth_map``)."""
+    (``affine_depth_map``, from the scale) where its median relative error there is below
+    DEPTH_MAP_GATE times the scale's, else the scale (the median of d / ẑ in float32, as the JAX
+    engine's, and 0)."""
     s = DEPTH_SCALE_STRIDE
     sub = both[::s, ::s]
     if sub.sum() < DEPTH_SCALE_MIN_PIXELS:
         return 1.0, 0.0
     z, d = warped[::s, ::s][sub].astype(np.float64), depth_curr[::s, ::s][sub].astype(np.float64)
     scale = np.array([np.median((depth_curr[::s, ::s][sub] / warped[::s, ::s][sub]).astype(np.float32)), 0.0])
-    kappa = DEPTH_MAP_DAMPING / (1.0 + DEPTH_MAP_DAMPING)
-    coef = scale
-    for _ in range(DEPTH_MAP_STEPS + 1):
-        u = 1.0 / np.maximum(np.abs((coef[0] * z + coef[1] - d) / d), DEPTH_MAP_WEIGHT_FLOOR) / (d * d)
-        z_mean, d_mean = np.sum(u * z) / np.sum(u), np.sum(u * d) / np.sum(u)
-        var, cov = np.sum(u * (z - z_mean) ** 2) / np.sum(u), np.sum(u * (z - z_mean) * (d - d_mean)) / np.sum(u)
-        alpha = (cov + kappa * z_mean * d_mean) / (var + kappa * z_mean * z_mean)
-        coef = np.array([alpha, (d_mean - alpha * z_mean) / (1.0 + DEPTH_MAP_DAMPING)])
-    median_error = [np.median(np.abs((c[0] * z + c[1] - d) / d)) for c in (coef, scale)]
-    chosen = coef if median_error[0] < DEPTH_MAP_GATE * median_error[1] else scale
+    affine = affine_depth_map(z, d, scale)
+    median_error = [np.median(np.abs((c[0] * z + c[1] - d) / d)) for c in (affine, scale)]
+    chosen = affine if median_error[0] < DEPTH_MAP_GATE * median_error[1] else scale
     return float(chosen[0]), float(chosen[1])
 
 
