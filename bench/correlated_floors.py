@@ -34,7 +34,7 @@ import numpy as np
 
 import sgc_jax.engines.reference as reference
 from sgc_jax import COMPONENTS, score_batch
-from sgc_jax.engines.reference_pose import residual_jacobian
+from sgc_jax.engines.reference.pose_search import residual_jacobian
 from sgc_jax.research.protocol import FIT_SCENES, Cell, cell_clips
 
 POSE_COMPONENTS = COMPONENTS[:4]

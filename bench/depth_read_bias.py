@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sgc_jax.engines import reference
-from sgc_jax.engines.reference_pose import least_squares_pose, residual_jacobian
+from sgc_jax.engines.reference.pose_search import least_squares_pose, residual_jacobian
 from sgc_jax.research import protocol
 from sgc_jax.research.diagnostics import region_labels
 from sgc_jax.research.pose_jitter import rotation_log_deg

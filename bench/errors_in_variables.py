@@ -49,7 +49,8 @@ from unseen_scenes import CELLS, EXTRA_LEVELS_PX, noise_seed
 from sgc_jax import SGCConfig, score_batch
 from sgc_jax.calibration import Calibration
 from sgc_jax.codes import REGION_STATUS
-from sgc_jax.engines import reference, reference_pose
+from sgc_jax.engines import reference
+from sgc_jax.engines.reference import pose_search
 from sgc_jax.engines.units import PERCENT, depth_unit
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
@@ -67,7 +68,7 @@ def jacobian(X, K, R, t):
     """(pixels (n, 2), d pixels / d (left rotation vector [rad], translation) (n, 2, 6)): the
     reference engine's analytic Jacobian, per point."""
     n = len(X)
-    pixels, J = reference_pose.residual_jacobian(X, np.zeros((n, 2)), K, R, t)
+    pixels, J = pose_search.residual_jacobian(X, np.zeros((n, 2)), K, R, t)
     return pixels.reshape(2, n).T, J.reshape(2, n, 6).transpose(1, 0, 2)
 
 

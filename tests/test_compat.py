@@ -6,6 +6,7 @@ RANSAC serves both modes), checked together in one test on a scene that triggers
 
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scenes import SCENE, TINY
@@ -152,16 +153,16 @@ def global_trans_var_with_orthogonalised_t_g(clip, pairs):
 
 def test_reference_local_poses_are_opencv_ransac_with_the_authors_settings_under_authors_only(monkeypatch):
     calls = []
-    real = reference.cv2.solvePnPRansac
+    real = cv2.solvePnPRansac
 
     def spy(*args, **kwargs):
         calls.append(kwargs)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(reference.cv2, "solvePnPRansac", spy)
+    monkeypatch.setattr(cv2, "solvePnPRansac", spy)
     clip = synth_clip(seed=0, **dict(TINY, n_frames=2))
     reference.score_pairs(clip, AUTHORS)
-    assert calls and all(c["flags"] == reference.cv2.SOLVEPNP_ITERATIVE and c["iterationsCount"] == 100
+    assert calls and all(c["flags"] == cv2.SOLVEPNP_ITERATIVE and c["iterationsCount"] == 100
                          and c["reprojectionError"] == 8.0 and c["confidence"] == 0.99 for c in calls)
     calls.clear()
     reference.score_pairs(clip, SPEC)  # the spec search of docs/semantics.md §7.2

@@ -14,8 +14,8 @@ import pytest
 
 from sgc_jax.codes import REGION_OK, REGION_REJECTED, REGION_TOO_FEW_POINTS
 from sgc_jax.config import SGCConfig
-from sgc_jax.engines import reference_pose
 from sgc_jax.engines.jax_engine.pose_stage import PoseStage
+from sgc_jax.engines.reference import pose_search
 from sgc_jax.kernels import joint_pnp, lanes
 from sgc_jax.kernels.joint_pnp import solve_pnp_regions
 from sgc_jax.kernels.local_optimum import borrow_region_poses, refine_poses, repeated_starts
@@ -397,7 +397,7 @@ def test_each_region_is_offered_the_other_regions_pose_that_fits_its_points_best
                                          jnp.asarray(poses, jnp.float32), inlier_px=8.0))
     for r in range(4):
         member = region == r + 1
-        costs = {j: reference_pose.truncated_costs(reference_pose.pose_errors_sq(reference_pose.Pose(
+        costs = {j: pose_search.truncated_costs(pose_search.pose_errors_sq(pose_search.Pose(
             rodrigues(poses[j, :3]), poses[j, 3:]), X[member], uv[member], K), 8.0) for j in (0, 1, 2, 4) if j != r}
         np.testing.assert_array_equal(out[r], np.float32(poses[min(costs, key=costs.get)]), err_msg=str(r))
     assert out[1].tolist() == np.float32(poses[0]).tolist()  # the region 5 deg off is offered the right pose
@@ -450,9 +450,9 @@ def test_reference_least_squares_reaches_the_optimum_in_a_few_steps_when_the_cam
     R_true, t_true = cv2.Rodrigues(np.array([0.02, -0.03, 0.01]))[0], np.array([1.5, -1.0, 2.0])
     Y = X @ R_true.T + t_true
     uv = Y[:, :2] / Y[:, 2:] * K[0, 0] + K[:2, 2] + rng.normal(0.0, 0.5, (60, 2))
-    optimum = reference_pose.least_squares_pose(X, uv, K, reference_pose.Pose(R_true, t_true), steps=1000)
+    optimum = pose_search.least_squares_pose(X, uv, K, pose_search.Pose(R_true, t_true), steps=1000)
     off = cv2.Rodrigues(np.radians([3.0, 2.0, 0.0]))[0]
-    fit = reference_pose.least_squares_pose(X, uv, K, reference_pose.Pose(off @ R_true, t_true), steps=5)
+    fit = pose_search.least_squares_pose(X, uv, K, pose_search.Pose(off @ R_true, t_true), steps=5)
     np.testing.assert_allclose(fit.t, optimum.t, rtol=0, atol=1e-8)  # float64: the optimum to its rounding
     np.testing.assert_allclose(fit.R, optimum.R, rtol=0, atol=1e-9)
 

@@ -17,7 +17,8 @@ import numpy as np
 from ..calibration import COMPONENTS
 from ..codes import REGION_EMPTY
 from ..config import SGCConfig
-from ..engines import reference, reference_pose
+from ..engines import reference
+from ..engines.reference import pose_search
 from ..engines.units import in_depth_units
 from ..scoring.result import BatchResult
 from ..stats import spearman
@@ -91,13 +92,13 @@ def region_costs(clips: Sequence, a: BatchResult, b: BatchResult, config: SGCCon
             for slot in np.flatnonzero(posed):
                 member = points.region == slot + 1
                 X, uv = points.X[member], points.uv[member]
-                err = [reference_pose.pose_errors_sq(reference_pose.Pose(
+                err = [pose_search.pose_errors_sq(pose_search.Pose(
                     pairs.R_local[p, slot].astype(np.float64), pairs.t_local[p, slot].astype(np.float64)), X, uv, K)
                     for pairs in (ca.pairs, cb.pairs)]
-                coarse = [reference_pose.truncated_costs(e, config.inlier_px) for e in err]
-                cut = reference_pose.noise_cut(err[int(np.argmin(coarse))], config.inlier_px)
+                coarse = [pose_search.truncated_costs(e, config.inlier_px) for e in err]
+                cut = pose_search.noise_cut(err[int(np.argmin(coarse))], config.inlier_px)
                 out.append((reference.rotation_angle_deg(ca.pairs.R_local[p, slot], cb.pairs.R_local[p, slot]),
-                            *(reference_pose.truncated_costs(e, cut) for e in err)))
+                            *(pose_search.truncated_costs(e, cut) for e in err)))
     return np.array(out).reshape(-1, 3)
 
 

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ..config import MIN_CUT_PX, NOISE_CUT
+from ...config import MIN_CUT_PX, NOISE_CUT
 
 # Candidates from the triples that go on to local optimisation, and the rotation [deg] under
 # which two of them count as the same start. On a small region with outlier tracks the first
