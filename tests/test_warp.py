@@ -261,7 +261,7 @@ def random_points(rng, n, Hc, Wc, magnifications):
 def reference_cover(points, Hc, Wc):
     on = points.front
     return reference.depth_check._hole_cover(np.stack([points.u, points.v])[:, on].astype(np.float64),
-                                 points.z[on].astype(np.float64), points.magnification[on].astype(np.float64), Hc, Wc)
+                                             points.z[on].astype(np.float64), points.magnification[on].astype(np.float64), Hc, Wc)
 
 
 @pytest.mark.parametrize("largest_level", [0, warp.HOLE_LEVELS + 1])
