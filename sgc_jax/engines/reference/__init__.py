@@ -78,7 +78,7 @@ from .rotations import (
     so3_exp,
     so3_log,
 )
-from .scale import fit_translation_scale, weighted_median
+from .scale import fit_translation_scale, scale_equations, weighted_median
 from .tracks import (
     UsablePoints,
     back_project,
@@ -155,6 +155,7 @@ __all__ = [
     "strided_points",
     "tracks_motion",
     "fit_translation_scale",
+    "scale_equations",
     "weighted_median",
     "pair_reason",
     "score_pairs",

@@ -5,17 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 
-def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, R_g: np.ndarray,
-                          t_g: np.ndarray, cut_px: float, fallback: float = 1.0) -> float:
-    """Robust s with which (R_g, s t_g) best explains the static tracks (docs/semantics.md §3.4).
-
-    Each region point X (camera pair-1) observed at uv in frame pair, with n = K^-1 (u, v, 1)
-    and Y = R_g X, must satisfy n_k (Y_3 + s t_3) = Y_k + s t_k on both image axes k: a line in s
-    whose slope, in pixels, is |n_k t_3 - t_k| f_k / Y_3. From the start of lowest truncated cost
-    (sum of min(slope |s - root|, cut_px)) among the slope-weighted and the plain median of every
-    pair's roots together and of each pair's own, s is the weighted median of the lines within
-    cut_px of it, or 0 where that is negative; ``fallback`` when no line has a slope.
-    ``members[p]``, ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
+def scale_equations(members: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, R_g: np.ndarray,
+                    t_g: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per pair, the roots and slopes of its lines in s (docs/semantics.md §3.4): each region point X
+    (camera pair-1) observed at uv in frame pair, with n = K^-1 (u, v, 1) and Y = R_g X, must satisfy
+    n_k (Y_3 + s t_3) = Y_k + s t_k on both image axes k, a line in s with the root b / a and the slope
+    |a| f_k / Y_3 in pixels per unit of s (a = n_k t_3 - t_k, b = Y_k - n_k Y_3). ``members[p]`` (X, uv),
+    ``K`` (T, 3, 3), ``R_g`` / ``t_g`` per pair."""
     roots, slopes = [], []
     for p, (X, uv) in enumerate(members):
         pair_roots, pair_slopes = [np.zeros(0)], [np.zeros(0)]
@@ -30,6 +26,17 @@ def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.nd
                 pair_slopes.append(np.abs(a[ok]) * focal / Y[ok, 2])
         roots.append(np.concatenate(pair_roots))
         slopes.append(np.concatenate(pair_slopes))
+    return roots, slopes
+
+
+def fit_translation_scale(members: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, R_g: np.ndarray,
+                          t_g: np.ndarray, cut_px: float, fallback: float = 1.0) -> float:
+    """Robust s with which (R_g, s t_g) best explains the static tracks (docs/semantics.md §3.4): from
+    the start of lowest truncated cost (sum of min(slope |s - root|, cut_px)) among the slope-weighted
+    and the plain median of every pair's roots together and of each pair's own
+    (``scale_equations``), s is the weighted median of the lines within cut_px of it, or 0 where that
+    is negative; ``fallback`` when no line has a slope."""
+    roots, slopes = scale_equations(members, K, R_g, t_g)
     every_root, every_slope = np.concatenate(roots), np.concatenate(slopes)
     overall = weighted_median(every_root, every_slope, fallback)
     starts = [overall, weighted_median(every_root, np.ones_like(every_slope), overall)]
