@@ -51,9 +51,10 @@ def scale_support(clip, config: SGCConfig) -> dict[str, float]:
                   for pair in range(1, clip.n_frames)]
         return float(np.nanmean(errors))
 
-    grid = [depth_error(max(s + k * se, 0.0)) for k in STEPS_SE] if np.isfinite(se) else [depth_error(s)]
-    return {"s": s * unit, "se": se * unit, "z": (s * unit - 1) / (se * unit), "depth at s": depth_error(s),
-            "depth at true s": depth_error(1.0 / unit), "least within 2 SE": min(grid),
+    steps = STEPS_SE if np.isfinite(se) else (0,)
+    grid = dict(zip(steps, (depth_error(max(s + k * se, 0.0)) for k in steps)))
+    return {"s": s * unit, "se": se * unit, "z": (s * unit - 1) / (se * unit), "depth at s": grid[0],
+            "depth at true s": depth_error(1.0 / unit), "least within 2 SE": min(grid.values()),
             "equations": int(near.sum())}
 
 
