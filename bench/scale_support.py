@@ -2,6 +2,7 @@
 a lead; not part of the score; docs/semantics.md §3.4, "What the fit cannot do").
 
     python bench/scale_support.py [--tracks 5 20 80 1000] [--models iid-both correlated] [--px 0.5 2] [--draws 1]
+                                  [--kinds consistent depth_warp warp squeeze] [--severity 0.25]
 
 Each consistent scene of FIT (on which a constant may be chosen) with --tracks tracks a pair, under
 each noise model at each level and draw, read by the reference engine's steps: the pairs' points,
@@ -13,12 +14,15 @@ pixels per unit of s, σ = 1.4826 x the median of |w (s − root)|): a weighted 
 independent Gaussian errors of σ px. Per clip: s, SE (both relative to the true s), z = (s − 1) /
 SE, and the depth error (the mean over the pairs of §3.6's, under the camera's pose alone, without
 step 6's refit) at the fitted s, at the true s, and the least over s + k SE, k = -2..2 (one s for
-the clip): what a depth check that forgave the scale's own uncertainty would read.
+the clip): what a depth check that forgave the scale's own uncertainty would read. ``--kinds``
+adds the protocol's perturbations of each scene at ``--severity`` (same noise draw as its
+consistent clip): what of their lift the forgiving reading keeps.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 
 import numpy as np
@@ -28,6 +32,7 @@ from sgc_jax.engines import reference
 from sgc_jax.engines.units import in_depth_units
 from sgc_jax.research import protocol
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
+from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 
 STEPS_SE = (-2, -1, 0, 1, 2)
 
@@ -64,20 +69,24 @@ def main() -> None:
     parser.add_argument("--models", nargs="+", default=["iid-both", "correlated"], choices=sorted(NOISE_MODELS))
     parser.add_argument("--px", type=float, nargs="+", default=[0.5, 2.0])
     parser.add_argument("--draws", type=int, default=1, help="noise draws (seeds 1, 2, ...)")
+    parser.add_argument("--kinds", nargs="+", default=["consistent"], choices=["consistent", *PERTURBATIONS])
+    parser.add_argument("--severity", type=float, default=0.25, help="the perturbations' severity")
     args = parser.parse_args()
     config = SGCConfig()
-    print("| scene | tracks | model | px | draw | equations | s | SE | z | depth % at s | at true s | least within 2 SE |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| scene | tracks | kind | model | px | draw | equations | s | SE | z | depth % at s | at true s "
+          "| least within 2 SE |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scene in protocol.FIT_SCENES:
         for n_tracks in args.tracks:
-            exact = scene.clip(n_tracks)
-            for model in args.models:
-                for px in args.px:
-                    for draw in range(1, args.draws + 1):
-                        row = scale_support(add_noise(exact, NOISE_MODELS[model].replace(px=px), seed=draw), config)
-                        print(f"| {scene.name} | {n_tracks} | {model} | {px:g} | {draw} | {row['equations']} "
-                              f"| {row['s']:.3f} | {row['se']:.3f} | {row['z']:+.2f} | {row['depth at s']:.3f} "
-                              f"| {row['depth at true s']:.3f} | {row['least within 2 SE']:.3f} |", flush=True)
+            consistent = scene.clip(n_tracks)
+            for kind in args.kinds:
+                exact = (consistent if kind == "consistent"
+                         else perturb_clip(consistent, kind, args.severity, seed=scene.seed))
+                for model, px, draw in itertools.product(args.models, args.px, range(1, args.draws + 1)):
+                    row = scale_support(add_noise(exact, NOISE_MODELS[model].replace(px=px), seed=draw), config)
+                    print(f"| {scene.name} | {n_tracks} | {kind} | {model} | {px:g} | {draw} | {row['equations']} "
+                          f"| {row['s']:.3f} | {row['se']:.3f} | {row['z']:+.2f} | {row['depth at s']:.3f} "
+                          f"| {row['depth at true s']:.3f} | {row['least within 2 SE']:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
