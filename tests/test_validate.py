@@ -26,6 +26,7 @@ from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
+from sgc_jax.io.depth_range import depth_from_range, ray_lengths
 from sgc_jax.io.loading import validate_paths
 from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.noise import enlarged_depth
@@ -204,6 +205,13 @@ def camera_to_world(clip):
     return {"R_wc": R, "t_wc": -np.einsum("tij,tj->ti", R, clip.t_wc)}
 
 
+def as_range(clip):
+    """The clip's depth as a range map: each pixel's distance from the camera centre."""
+    rows, cols = np.mgrid[0:clip.image_size[0], 0:clip.image_size[1]].astype(np.float64)
+    return np.stack([d * ray_lengths(K.astype(np.float64), rows, cols) for d, K in zip(clip.depth, clip.K)]
+                    ).astype(np.float32)
+
+
 def yx_inside(clip):
     """The tracks stored as (y, x), those whose (y, x) reading would leave the frame made invisible:
     row-first tracks on a frame where both readings fall inside it, as on a square frame."""
@@ -238,6 +246,8 @@ CASES = {
     "disparity stored as depth": (lambda c: {"depth": np.where(c.depth > 0, 1.0 / c.depth, 0.0).astype(np.float32)},
                                   "warning", "depth_like_disparity", "depth",
                                   ["larger values move more", "--depth-kind disparity"]),
+    "range stored as depth": (lambda c: {"depth": as_range(c)}, "warning", "depth_like_range", "depth",
+                              ["read as each pixel's distance from the camera centre", "depth_from_range(depth, K)"]),
     "camera->world poses": (lambda c: camera_to_world(c), "warning", "camera_to_world_poses", "R_wc/t_wc",
                             ["read as camera->world", "R_wc = R^T, t_wc = -R^T t", "swap track_prev and track_curr"]),
     "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
@@ -278,6 +288,13 @@ def test_the_loader_warns_on_warnings(clip, name):
         loaded = clip_from_arrays(arrays_of(clip, **change(clip)))
     assert any(words[-1] in str(w.message) for w in record)
     assert code in loaded.warnings
+
+
+def test_depth_from_range_gives_back_the_z_depth_of_a_range_map(clip):
+    back = depth_from_range(as_range(clip), clip.K)
+    assert back.dtype == np.float32 and back.shape == clip.depth.shape
+    np.testing.assert_allclose(back, clip.depth, rtol=2e-7)  # float32 rounding of the range map, twice
+    np.testing.assert_allclose(depth_from_range(as_range(clip)[0], clip.K[0]), clip.depth[0], rtol=2e-7)
 
 
 def test_tracks_read_as_y_x_are_not_judged_where_most_of_the_frame_is_masked_as_moving(clip):

@@ -22,6 +22,7 @@ from ..config import SGCConfig
 from ..stats import spearman
 from .clip import Clip, ClipFormatError, repeated_tracks
 from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, hole_border_counts, holes_blended, ramp_counts
+from .depth_range import depth_reading_misfits
 
 SEVERITIES = ("error", "warning", "info")
 
@@ -65,6 +66,19 @@ TRACK_READING_RATIO = 0.7
 # fit no camera reading, and the (y, x) reading fitted them better by chance on 5 of 8. Masks with a
 # mover in the splits and the unseen pool cover 91-100 %, the real clips 100 %.
 TRACK_READING_MIN_STATIC = 0.5
+# Depth given as range (each pixel's distance from the camera centre; sgc_jax/io/depth_range.py): read
+# as range it warps onto the next frame with at most RANGE_READING_RATIO of the misfit it leaves read
+# as z, which is above RANGE_MISFIT_MIN (relative; below it the depth warps onto itself as well as
+# float32 and a renderer allow, and neither reading is worse), and within RANGE_FIT_MAX: a clean range
+# map, where range maps come from (renderers, Hypersim). Under an estimator's depth errors neither
+# reading warps well and none is told. Rules R1 and R2 on FIT's random pool (bench/history/issue-58.md,
+# "Depth given as range"): RANGE_MISFIT_MIN written first; the ratio min(0.5, 0.67 x the least of its
+# z depth under five noise models, 0.752); RANGE_FIT_MAX half the least range reading of its z depth
+# under depth errors (0.271 %), added after R1 alone told one held-out clip of 120, with a 2 %
+# per-frame depth scale error, range.
+RANGE_READING_RATIO = 0.5
+RANGE_MISFIT_MIN = 5e-4
+RANGE_FIT_MAX = 1.35e-3
 # Clips longer than this many frames get an info line: the splits the score was validated on hold 6-12
 # frames, the standard clip 16, and a slow inconsistency shows each consecutive pair less the more
 # frames it is spread over (docs/semantics.md §1.5, "Long clips"; bench/clip_length.py).
@@ -439,6 +453,13 @@ def pose_residual_px(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, 
     frame i-1 point back-projected at its depth, moved by (R, s t) and projected, with the
     translation's scale s >= 0 fitted to the tracks (depth and poses may have different units), to
     first order in s."""
+    return track_fit(clip, pair, prev, curr, z, transposed)[0]
+
+
+def track_fit(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.ndarray,
+              transposed: bool) -> tuple[float, float]:
+    """(``pose_residual_px``'s median misfit [px], the translation's scale s it fitted); NaN, NaN
+    where a point does not project."""
     R, t = relative_pose(clip, pair, transposed)
     rays = np.c_[prev, np.ones(len(prev))] @ np.linalg.inv(clip.K[pair - 1]).T
     Y = (rays * z[:, None]) @ R.T  # camera pair's coordinates before the translation
@@ -449,9 +470,9 @@ def pose_residual_px(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, 
         flow = ((K @ t)[:2][None, :] - projected * t[2]) / Y[:, 2:3]
     moved = curr - projected
     if not (np.isfinite(flow).all() and np.isfinite(moved).all()):
-        return float("nan")
+        return float("nan"), float("nan")
     scale = max(0.0, float(np.sum(moved * flow)) / max(float(np.sum(flow * flow)), 1e-12))
-    return float(np.median(np.linalg.norm(moved - scale * flow, axis=1)))
+    return float(np.median(np.linalg.norm(moved - scale * flow, axis=1))), scale
 
 
 def pose_convention_residuals(clip: Clip, config: SGCConfig) -> tuple[float, float]:
@@ -545,7 +566,33 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
             f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax)",
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
+    elif read_tracks and not _is_reference_compat(clip):  # disparity read as range would say nothing
+        problems += check_depth_range(depth_range_misfits(clip, config, transposed))
     return problems
+
+
+def depth_range_misfits(clip: Clip, config: SGCConfig, transposed: bool = False) -> tuple[float, float]:
+    """``depth_range.depth_reading_misfits`` (as z, as range) with the camera's poses read as
+    ``relative_pose`` reads them and each pair's translation scale fitted to its tracks."""
+    poses = [(pair, *relative_pose(clip, pair, transposed), track_fit(clip, pair, prev, curr, z, transposed)[1])
+             for pair, prev, curr, z in _track_samples(clip, config)]
+    return depth_reading_misfits(clip, poses)
+
+
+def check_depth_range(misfits: tuple[float, float]) -> list[Problem]:
+    """From ``depth_range_misfits``: a warning where the depth, read as each pixel's distance from
+    the camera centre, warps onto the next frame's far better than read as z (RANGE_READING_RATIO),
+    and well (RANGE_FIT_MAX): a clean range map, as a renderer or a dataset's ground truth gives it."""
+    as_z, as_range = misfits
+    if not (np.isfinite(as_z) and as_z > RANGE_MISFIT_MIN and as_range < min(RANGE_READING_RATIO * as_z,
+                                                                            RANGE_FIT_MAX)):
+        return []
+    return [Problem(
+        "warning", "depth_like_range", "depth", "z depth (each point's coordinate along the optical axis)",
+        f"the depth misses the camera's motion by {100 * as_z:.2g} % (median) read as z and by "
+        f"{100 * as_range:.2g} % read as each pixel's distance from the camera centre",
+        "this looks like range (ray length: Hypersim's depth, a renderer's distance pass): convert it, "
+        "depth = sgc_jax.io.depth_range.depth_from_range(depth, K)")]
 
 
 def check_negative_depth(sample: np.ndarray) -> list[Problem]:

@@ -1,0 +1,149 @@
+"""Depth given as each pixel's distance from the camera centre (range, as Hypersim's depth or a
+renderer's ray-length pass) instead of its z coordinate (docs/semantics.md §1.1, "Depth is z").
+
+Read as z, a range map places every point off the optical axis too far, by the length of its ray
+K⁻¹ (u, v, 1), 1 / cos of its angle off the axis: 15 % at the sides of a 60° frame, 41 % at 90°: a rigid world no longer
+warps onto itself and a consistent clip scores well above 0 (the real clips 0.014-0.21 -> 0.034-0.42).
+:func:`depth_from_range` converts; :func:`depth_reading_misfits` tells the two readings apart from
+the clip's cameras: each sampled pixel of frame i−1 moved by the camera's motion (its translation's
+scale fitted) lands where frame i's depth should read its new z, and a range map read either way
+misses by a pattern that follows the pixel's place in the frame.
+
+Depth arrays are (T, H, W) or (H, W); K (T, 3, 3) or (3, 3); pixel centres at integer coordinates
+(x = column, y = row), as everywhere in a clip (docs/semantics.md §1.1).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .clip import Clip
+
+PAIRS = 3  # frame pairs looked at, spread over the clip (a loader check: the cost stays flat)
+POINTS = 1024  # pixels of frame i-1 sampled per pair, on a regular grid
+BLOCKS = (4, 6)  # the frame cut into rows x columns; a misfit is read per block, so noise averages out
+MIN_BLOCK_POINTS = 12
+MIN_BLOCKS = 6
+# A pair's depth follows the camera where the better reading moved by it misfits at most 1 / this of
+# the depth left in place (written first, rule R1: a still video under moving cameras fits neither).
+FOLLOWS_CAMERA = 2.0
+# The translation's scale is searched around the tracks' fit: this many log-spaced factors over
+# [1 / SCALE_SPAN, SCALE_SPAN], then as many again over one step around the best.
+SCALE_SPAN, SCALE_STEPS = 1.5, 7
+
+
+def ray_lengths(K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """|K⁻¹ (u, v, 1)| at the pixel centres (u, v) = (cols, rows): a range over its z (>= 1)."""
+    x = (cols - K[0, 2]) / K[0, 0]
+    y = (rows - K[1, 2]) / K[1, 1]
+    return np.sqrt(1.0 + x * x + y * y)
+
+
+def depth_from_range(range_maps: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """z depth (same shape and dtype) from range maps, (T, H, W) with (T, 3, 3) K or (H, W) with (3, 3)."""
+    single = range_maps.ndim == 2
+    maps, Ks = (range_maps[None], np.asarray(K)[None]) if single else (range_maps, np.asarray(K))
+    if Ks.shape != (len(maps), 3, 3):
+        raise ValueError(f"K must be (3, 3) per frame of the range maps {range_maps.shape}; got {np.shape(K)}")
+    H, W = maps.shape[1:]
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = np.stack([m / ray_lengths(k.astype(np.float64), rows, cols) for m, k in zip(maps, Ks)])
+    z = z.astype(range_maps.dtype if np.issubdtype(range_maps.dtype, np.floating) else np.float32)
+    return z[0] if single else z
+
+
+def _group_medians(values: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(groups, their sizes, the median of ``values`` in each) for integer ``group`` >= 0: one sort
+    of ``group`` + a monotone map of each value into [0, 1), which keeps the values' order inside a
+    group (float64: 1e-13 apart at 1e3 groups, far finer than a depth misfit needs)."""
+    if values.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    keyed = np.sort(group + 0.5 + np.arctan(values) / np.pi)
+    owner = np.floor(keyed).astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+    counts = np.diff(np.r_[starts, len(keyed)])
+    middle = np.tan((keyed - owner - 0.5) * np.pi)
+    return owner[starts], counts, 0.5 * (middle[starts + (counts - 1) // 2] + middle[starts + counts // 2])
+
+
+def _block_misfits(error: np.ndarray, block: np.ndarray, trial: np.ndarray, n_trials: int) -> np.ndarray:
+    """(n_trials,) per trial: the median over its blocks (with MIN_BLOCK_POINTS or more points) of
+    |the block's median signed error|; NaN with fewer than MIN_BLOCKS such blocks."""
+    groups, counts, medians = _group_medians(error, trial * BLOCKS[0] * BLOCKS[1] + block)
+    full = counts >= MIN_BLOCK_POINTS
+    trials, n_blocks, misfit = _group_medians(np.abs(medians[full]), groups[full] // (BLOCKS[0] * BLOCKS[1]))
+    out = np.full(n_trials, np.nan)
+    out[trials[n_blocks >= MIN_BLOCKS]] = misfit[n_blocks >= MIN_BLOCKS]
+    return out
+
+
+def _pair_misfit(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, scale: float, as_range: bool) -> float:
+    """The least over scales around ``scale`` of ``_block_misfits`` of frame pair-1's sampled depth
+    moved by (R, s t) against frame pair's depth at the landing pixel, both read as z, or as range."""
+    H, W = clip.image_size
+    stride = max(1, int(np.sqrt(H * W / POINTS)))
+    rows, cols = (a.ravel() for a in np.mgrid[stride // 2:H:stride, stride // 2:W:stride])
+    depth = clip.depth[pair - 1][rows, cols].astype(np.float64)
+    keep = np.isfinite(depth) & (depth > 0) & clip.static_mask[pair - 1][rows, cols]
+    rows, cols, depth = rows[keep], cols[keep], depth[keep]
+    K_prev, K_curr = clip.K[pair - 1].astype(np.float64), clip.K[pair].astype(np.float64)
+    if as_range:
+        depth = depth / ray_lengths(K_prev, rows, cols)
+    rays = np.c_[cols, rows, np.ones(len(rows))] @ np.linalg.inv(K_prev).T
+    turned = (rays * depth[:, None]) @ R.T
+    block = (rows * BLOCKS[0] // H) * BLOCKS[1] + cols * BLOCKS[1] // W
+
+    def misfits(scales: np.ndarray) -> np.ndarray:
+        moved = turned[None] + scales[:, None, None] * t  # (scales, points, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            landing = moved @ K_curr.T
+            u, v = landing[..., 0] / landing[..., 2] + 0.5, landing[..., 1] / landing[..., 2] + 0.5
+        # the landing pixel is the one whose centre is nearest: floor(u + 0.5)
+        trial, point = np.nonzero((moved[..., 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H))
+        col, row = u[trial, point].astype(np.int64), v[trial, point].astype(np.int64)
+        read = clip.depth[pair][row, col].astype(np.float64)
+        if as_range:
+            read = read / ray_lengths(K_curr, row, col)
+        good = np.isfinite(read) & (read > 0) & clip.static_mask[pair][row, col]
+        z = moved[trial[good], point[good], 2]
+        return _block_misfits((read[good] - z) / z, block[point[good]], trial[good], len(scales))
+
+    return _least(misfits, scale)
+
+
+def _least(misfits: Callable[[np.ndarray], np.ndarray], scale: float) -> float:
+    """The least finite misfit over a coarse then a fine log grid of scales around ``scale`` (at 0
+    alone where the tracks fit no translation: a turn, which tells the readings apart alone)."""
+    if scale == 0:
+        return float(misfits(np.zeros(1))[0])
+    factors = np.geomspace(1 / SCALE_SPAN, SCALE_SPAN, SCALE_STEPS)
+    coarse = misfits(scale * factors)
+    if not np.isfinite(coarse).any():
+        return float("nan")
+    step = factors[1] / factors[0]
+    fine = misfits(scale * factors[int(np.nanargmin(coarse))] * np.geomspace(1 / step, step, SCALE_STEPS))
+    return float(np.nanmin(np.r_[coarse, fine]))
+
+
+def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.ndarray, float]]
+                          ) -> tuple[float, float]:
+    """(as z, as range): the median over at most PAIRS of ``poses`` (pair, the camera's relative R
+    and t from frame pair−1 to pair, the translation's scale fitted to the tracks) of each reading's
+    depth misfit (relative; the median over blocks of the block's median); NaN where no pair can
+    tell. A pair whose depth, left where it is, misfits less than FOLLOWS_CAMERA times the better
+    reading moved by the camera does not follow the camera (a still video under moving cameras)
+    and tells nothing."""
+    usable = [p for p in poses if np.isfinite(p[3]) and p[3] >= 0]
+    chosen = np.unique(np.linspace(0, len(usable) - 1, min(PAIRS, len(usable))).round().astype(np.int64))
+    rows = []
+    for i in chosen:
+        readings = [_pair_misfit(clip, *usable[i], as_range) for as_range in (False, True)]
+        left_in_place = _pair_misfit(clip, usable[i][0], np.eye(3), np.zeros(3), 0.0, False)
+        if np.isfinite(readings).all() and not left_in_place < FOLLOWS_CAMERA * min(readings):
+            rows.append(readings)
+    if not rows:
+        return float("nan"), float("nan")
+    as_z, as_range = np.median(np.array(rows), axis=0)
+    return float(as_z), float(as_range)
