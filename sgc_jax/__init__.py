@@ -20,6 +20,7 @@ from .engines.jax_engine.compile_cache import enable_compilation_cache
 from .engines.jax_engine.device_prepare import depth_without_ramps
 from .engines.pairs import PairArrays
 from .io.clip import Clip, ClipFormatError, save_batch, save_clip
+from .io.depth_range import depth_from_range
 from .io.loading import clip_from_arrays, load_clip, load_clips
 from .io.tables import CLIP_COLUMNS, PAIR_COLUMNS, read_scores
 from .io.validate import ClipValidationError, ClipWarning, check_clip
@@ -39,7 +40,8 @@ __all__ = [
     "BatchResult", "CLIP_COLUMNS", "COMPONENTS", "Calibration", "CalibrationMismatchError", "Clip", "ClipFormatError",
     "ClipResult", "ClipValidationError", "ClipWarning", "ENGINES", "EvidenceLevels", "KFoldStability", "MASK_CORRUPTIONS", "PAIR_COLUMNS",
     "PERTURBATIONS", "PairArrays", "RewardOptions", "RunOptions", "SGCConfig", "Scorer", "StreamStats", "StudyResult",
-    "batch_of", "calibrate", "camera_dynamics", "check_clip", "clip_from_arrays", "default_calibration", "depth_without_ramps",
+    "batch_of", "calibrate", "camera_dynamics", "check_clip", "clip_from_arrays", "default_calibration", "depth_from_range",
+    "depth_without_ramps",
     "enable_compilation_cache", "import_clip", "iter_scores", "kfold_stability", "load_clip", "load_clips",
     "perturb_clip", "read_scores", "rescore_records", "save_batch", "save_clip", "score_batch", "score_clip",
     "sensitivity_study", "sgc_score",

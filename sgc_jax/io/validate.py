@@ -592,7 +592,7 @@ def check_depth_range(misfits: tuple[float, float]) -> list[Problem]:
         f"the depth misses the camera's motion by {100 * as_z:.2g} % (median) read as z and by "
         f"{100 * as_range:.2g} % read as each pixel's distance from the camera centre",
         "this looks like range (ray length: Hypersim's depth, a renderer's distance pass): convert it, "
-        "depth = sgc_jax.io.depth_range.depth_from_range(depth, K)")]
+        "depth = sgc_jax.depth_from_range(depth, K)")]
 
 
 def check_negative_depth(sample: np.ndarray) -> list[Problem]:
