@@ -205,6 +205,17 @@ def camera_to_world(clip):
     return {"R_wc": R, "t_wc": -np.einsum("tij,tj->ti", R, clip.t_wc)}
 
 
+def opengl(clip, camera_to_world=False):
+    """The clip's poses as a file of an OpenGL camera (y up, looking along -z) holds them, world->camera
+    or camera->world (a transforms.json)."""
+    flip = np.diag([1.0, -1.0, -1.0])
+    R, t = np.einsum("ij,tjk->tik", flip, clip.R_wc), clip.t_wc @ flip
+    if camera_to_world:
+        R = np.swapaxes(R, 1, 2)
+        t = -np.einsum("tij,tj->ti", R, t)
+    return {"R_wc": R.astype(np.float32), "t_wc": t.astype(np.float32)}
+
+
 def as_range(clip):
     """The clip's depth as a range map: each pixel's distance from the camera centre."""
     rows, cols = np.mgrid[0:clip.image_size[0], 0:clip.image_size[1]].astype(np.float64)
@@ -250,6 +261,10 @@ CASES = {
                               ["read as each pixel's distance from the camera centre", "depth_from_range(depth, K)"]),
     "camera->world poses": (lambda c: camera_to_world(c), "warning", "camera_to_world_poses", "R_wc/t_wc",
                             ["read as camera->world", "R_wc = R^T, t_wc = -R^T t", "swap track_prev and track_curr"]),
+    "OpenGL world->camera poses": (lambda c: opengl(c), "warning", "opengl_poses", "R_wc/t_wc",
+                                   ["world->camera of an OpenGL camera", "R_wc = F R, t_wc = F t"]),
+    "OpenGL camera->world poses": (lambda c: opengl(c, camera_to_world=True), "warning", "opengl_poses", "R_wc/t_wc",
+                                   ["camera->world of an OpenGL camera", "R_wc = F R^T, t_wc = -F R^T t"]),
     "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
                                        "camera_to_world_poses", "R_wc/t_wc",
                                        ["read as camera->world", "swap track_prev and track_curr"]),

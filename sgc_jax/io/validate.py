@@ -54,6 +54,27 @@ PARALLAX_OUTLIER = 4.0  # parallax above this multiple of the pair's median: a w
 # the real clips (bench/history/issue-58.md "Poses given camera to world").
 POSE_CONVENTION_RATIO = 0.4
 POSE_MISFIT_MIN_PX = 1.0
+# How a pose file may hold the cameras: as §1.1 asks (world->camera, OpenCV's axes: x right, y down,
+# looking along +z), camera->world, and either with OpenGL's camera axes (y up, looking along -z:
+# Blender's, nerfstudio's and NeRF's transforms.json are camera->world so). The same ratio and floor
+# tell the OpenGL readings (rule G1, bench/history/issue-58.md "Poses with OpenGL's camera axes").
+POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world")
+OPENGL_AXES = np.diag([1.0, -1.0, -1.0])  # an OpenGL camera's coordinates -> OpenCV's, and back
+POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
+    "camera->world": (
+        "camera_to_world_poses", "camera->world",
+        "these look like camera->world poses: invert them (R_wc = R^T, t_wc = -R^T t); or, where the poses are "
+        "right, like tracks whose ends are swapped, which read alike: swap track_prev and track_curr"),
+    "opengl": (
+        "opengl_poses", "world->camera of an OpenGL camera (y up, looking along -z)",
+        "these look like an OpenGL camera's world->camera poses: flip its y and z axes (F = diag(1, -1, -1): "
+        "R_wc = F R, t_wc = F t)"),
+    "opengl camera->world": (
+        "opengl_poses", "camera->world of an OpenGL camera (y up, looking along -z; Blender's and nerfstudio's "
+        "transforms)",
+        "these look like an OpenGL camera's camera->world poses (a transforms.json): invert them and flip the "
+        "camera's y and z axes (F = diag(1, -1, -1): R_wc = F R^T, t_wc = -F R^T t)"),
+}
 # Tracks stored as (y, x): read so, with the poses read either way, they miss the camera's motion by at
 # most this fraction of what they miss as given or with their ends swapped (and by over
 # POSE_MISFIT_MIN_PX as given). Chosen on FIT's random pool (24 scenes, four noise models at 0.5 and
@@ -403,16 +424,22 @@ def _track_samples(clip: Clip, config: SGCConfig):
         yield pair, prev[keep].astype(np.float64), curr[keep].astype(np.float64), z[keep].astype(np.float64)
 
 
-def relative_pose(clip: Clip, pair: int, transposed: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) moving camera pair-1's points into camera pair, from the stored poses read as
-    world->camera (docs/semantics.md §1.1), or with ``transposed`` as camera->world (R_wc holding
-    R_cw, t_wc the camera centre): what a pose file of the other convention means."""
+def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) moving camera pair-1's points into camera pair, from the stored poses read as one of
+    POSE_READINGS: as given, world->camera with OpenCV's axes (docs/semantics.md §1.1); as
+    camera->world (R_wc holding R_cw, t_wc the camera centre); either of OpenGL's camera (y up,
+    looking along -z), whose axes differ from OpenCV's by OPENGL_AXES."""
+    if reading not in POSE_READINGS:
+        raise ValueError(f"unknown pose reading {reading!r}; one of {POSE_READINGS}")
     R, t = clip.R_wc[[pair - 1, pair]], clip.t_wc[[pair - 1, pair]]
-    if transposed:
+    if reading.endswith("camera->world"):
         R = np.swapaxes(R, 1, 2)
         t = -np.einsum("fij,fj->fi", R, t)
     R_rel = R[1] @ R[0].T
-    return R_rel, t[1] - R_rel @ t[0]
+    t_rel = t[1] - R_rel @ t[0]
+    if reading.startswith("opengl"):  # each camera's axes flipped: the relative pose conjugated
+        return OPENGL_AXES @ R_rel @ OPENGL_AXES, OPENGL_AXES @ t_rel
+    return R_rel, t_rel
 
 
 def rotation_parallax(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, R_rel: np.ndarray) -> np.ndarray:
@@ -425,7 +452,7 @@ def rotation_parallax(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray,
     return np.linalg.norm(curr - rotated, axis=1)
 
 
-def depth_parallax_rho(clip: Clip, config: SGCConfig, transposed: bool = False) -> float:
+def depth_parallax_rho(clip: Clip, config: SGCConfig, reading: str = "given") -> float:
     """Median over pairs of Spearman(depth at the track, rotation-compensated track motion), the
     rotation read as ``relative_pose`` reads it.
 
@@ -434,7 +461,7 @@ def depth_parallax_rho(clip: Clip, config: SGCConfig, transposed: bool = False) 
     """
     rhos = []
     for pair, prev, curr, z in _track_samples(clip, config):
-        parallax = rotation_parallax(clip, pair, prev, curr, relative_pose(clip, pair, transposed)[0])
+        parallax = rotation_parallax(clip, pair, prev, curr, relative_pose(clip, pair, reading)[0])
         if not np.isfinite(parallax).all():
             continue
         median = np.median(parallax)
@@ -448,19 +475,19 @@ def depth_parallax_rho(clip: Clip, config: SGCConfig, transposed: bool = False) 
 
 
 def pose_residual_px(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.ndarray,
-                     transposed: bool) -> float:
+                     reading: str) -> float:
     """Median px by which the tracks of one pair miss the camera's motion (``relative_pose``): each
     frame i-1 point back-projected at its depth, moved by (R, s t) and projected, with the
     translation's scale s >= 0 fitted to the tracks (depth and poses may have different units), to
     first order in s."""
-    return track_fit(clip, pair, prev, curr, z, transposed)[0]
+    return track_fit(clip, pair, prev, curr, z, reading)[0]
 
 
 def track_fit(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.ndarray,
-              transposed: bool) -> tuple[float, float]:
+              reading: str) -> tuple[float, float]:
     """(``pose_residual_px``'s median misfit [px], the translation's scale s it fitted); NaN, NaN
     where a point does not project."""
-    R, t = relative_pose(clip, pair, transposed)
+    R, t = relative_pose(clip, pair, reading)
     rays = np.c_[prev, np.ones(len(prev))] @ np.linalg.inv(clip.K[pair - 1]).T
     Y = (rays * z[:, None]) @ R.T  # camera pair's coordinates before the translation
     K = clip.K[pair]
@@ -475,16 +502,15 @@ def track_fit(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.n
     return float(np.median(np.linalg.norm(moved - scale * flow, axis=1))), scale
 
 
-def pose_convention_residuals(clip: Clip, config: SGCConfig) -> tuple[float, float]:
-    """(stored, transposed): the median over sampled pairs of ``pose_residual_px`` with the poses
-    read as world->camera, and as camera->world; NaN where no pair has the tracks to tell."""
-    residuals = [(pose_residual_px(clip, pair, prev, curr, z, False), pose_residual_px(clip, pair, prev, curr, z, True))
+def pose_convention_residuals(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2]
+                              ) -> dict[str, float]:
+    """Per pose reading (``relative_pose``): the median over sampled pairs of ``pose_residual_px``;
+    NaN where no pair has the tracks to tell."""
+    residuals = [[pose_residual_px(clip, pair, prev, curr, z, reading) for reading in readings]
                  for pair, prev, curr, z in _track_samples(clip, config)]
     residuals = [r for r in residuals if np.isfinite(r).all()]
-    if not residuals:
-        return float("nan"), float("nan")
-    stored, transposed = np.median(np.array(residuals), axis=0)
-    return float(stored), float(transposed)
+    medians = np.median(np.array(residuals), axis=0) if residuals else np.full(len(readings), np.nan)
+    return {reading: float(m) for reading, m in zip(readings, medians)}
 
 
 def track_readings(clip: Clip) -> dict[str, Clip]:
@@ -496,21 +522,22 @@ def track_readings(clip: Clip) -> dict[str, Clip]:
 
 
 def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] = ("given", "yx", "reversed")
-                            ) -> dict[str, tuple[float, float]]:
-    """Per reading ``names`` of ``track_readings``: ``pose_convention_residuals`` (stored,
-    transposed), the tracks' misfit to the camera's motion [px] under each pose reading."""
-    return {name: pose_convention_residuals(read, config) for name, read in track_readings(clip).items()
-            if name in names}
+                            ) -> dict[str, dict[str, float]]:
+    """Per reading ``names`` of ``track_readings``: ``pose_convention_residuals``, the tracks' misfit
+    to the camera's motion [px] under each pose reading (every one of POSE_READINGS for the tracks as
+    given, world->camera and camera->world for the others)."""
+    return {name: pose_convention_residuals(read, config, POSE_READINGS if name == "given" else POSE_READINGS[:2])
+            for name, read in track_readings(clip).items() if name in names}
 
 
-def check_track_axes(residuals: dict[str, tuple[float, float]]) -> list[Problem]:
+def check_track_axes(residuals: dict[str, dict[str, float]]) -> list[Problem]:
     """From ``track_reading_residuals``: a warning where the tracks fit the camera's motion far
     better read as (y, x) than as given or with their ends swapped (TRACK_READING_RATIO of the
     better, each reading under its better pose reading, so a pose file of either convention does
     not decide it): positions stored row first, on a frame where both readings fall inside the
     image. (Swapped ends get no line of their own: they read like camera->world poses, and like
     cameras that do not translate.)"""
-    misfit = {name: min(pair) for name, pair in residuals.items()}
+    misfit = {name: min(by_pose[reading] for reading in POSE_READINGS[:2]) for name, by_pose in residuals.items()}
     given, yx = misfit["given"], misfit["yx"]
     if not (np.isfinite(given) and given > POSE_MISFIT_MIN_PX and yx < TRACK_READING_RATIO * min(given, misfit["reversed"])):
         return []
@@ -520,23 +547,25 @@ def check_track_axes(residuals: dict[str, tuple[float, float]]) -> list[Problem]
         "these look like (row, column) positions: swap the last axis (tracks[..., ::-1])")]
 
 
-def check_pose_convention(residuals: tuple[float, float]) -> tuple[list[Problem], bool]:
-    """Whether the poses are world->camera, as the tracks and depth see them, from
-    ``pose_convention_residuals`` -> (problems, whether they read as camera->world): a warning where
-    reading them as camera->world leaves the tracks POSE_CONVENTION_RATIO or less of the misfit the
-    stored reading leaves."""
-    stored, transposed = residuals
-    if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and transposed < POSE_CONVENTION_RATIO * stored):
-        return [], False
+def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], str]:
+    """Whether the poses are world->camera with OpenCV's axes, as the tracks and depth see them, from
+    ``pose_convention_residuals`` over POSE_READINGS -> (problems, the reading the tests of the depth
+    use): a warning where another reading leaves the tracks POSE_CONVENTION_RATIO or less of the
+    misfit the stored reading leaves (the best such reading named)."""
+    stored = residuals["given"]
+    others = {reading: residuals[reading] for reading in POSE_READINGS[1:] if reading in residuals}
+    best = min(others, key=lambda reading: others[reading]) if others else "given"
+    if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and others[best] < POSE_CONVENTION_RATIO * stored):
+        return [], "given"
+    code, meaning, fix = POSE_FIXES[best]
     return [Problem(
-        "warning", "camera_to_world_poses", "R_wc/t_wc", "world->camera poses (x_cam = R_wc x_world + t_wc)",
-        f"the tracks miss the camera's motion by {stored:.2g} px (median) as given and by {transposed:.2g} px "
-        "with the poses read as camera->world",
-        "these look like camera->world poses: invert them (R_wc = R^T, t_wc = -R^T t); or, where the poses are "
-        "right, like tracks whose ends are swapped, which read alike: swap track_prev and track_curr")], True
+        "warning", code, "R_wc/t_wc", "world->camera poses with OpenCV's axes (x_cam = R_wc x_world + t_wc, y down, "
+        "looking along +z)",
+        f"the tracks miss the camera's motion by {stored:.2g} px (median) as given and by {others[best]:.2g} px "
+        f"with the poses read as {meaning}", fix)], best
 
 
-def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tracks: bool = True) -> list[Problem]:
+def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_tracks: bool = True) -> list[Problem]:
     """Valid depth per frame, its range, and (``read_tracks``) whether it behaves like depth or like
     disparity (the camera rotation read as ``relative_pose`` reads it: a rotation read the wrong way
     round leaves a motion that can look like disparity's)."""
@@ -557,7 +586,7 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
                                 f"median {mid:.4g}, 2-98% range [{lo:.4g}, {hi:.4g}], "
                                 f"{100 * valid_count.sum() / sample.size:.0f}% of pixels valid"))
         problems += check_far_backdrop(values)
-    rho = depth_parallax_rho(clip, config, transposed) if read_tracks else float("nan")
+    rho = depth_parallax_rho(clip, config, reading) if read_tracks else float("nan")
     if np.isfinite(rho) and rho > DISPARITY_RHO_WARN:
         compat = _is_reference_compat(clip)
         problems.append(Problem(
@@ -567,14 +596,14 @@ def check_depth(clip: Clip, config: SGCConfig, transposed: bool = False, read_tr
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     elif read_tracks and not _is_reference_compat(clip):  # disparity read as range would say nothing
-        problems += check_depth_range(depth_range_misfits(clip, config, transposed))
+        problems += check_depth_range(depth_range_misfits(clip, config, reading))
     return problems
 
 
-def depth_range_misfits(clip: Clip, config: SGCConfig, transposed: bool = False) -> tuple[float, float]:
+def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given") -> tuple[float, float]:
     """``depth_range.depth_reading_misfits`` (as z, as range) with the camera's poses read as
     ``relative_pose`` reads them and each pair's translation scale fitted to its tracks."""
-    poses = [(pair, *relative_pose(clip, pair, transposed), track_fit(clip, pair, prev, curr, z, transposed)[1])
+    poses = [(pair, *relative_pose(clip, pair, reading), track_fit(clip, pair, prev, curr, z, reading)[1])
              for pair, prev, curr, z in _track_samples(clip, config)]
     return depth_reading_misfits(clip, poses)
 
@@ -710,9 +739,9 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     readings = track_reading_residuals(clip, config, read_as) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
-    convention, transposed = check_pose_convention(readings["given"]) if test_poses and not axes else ([], False)
+    convention, reading = check_pose_convention(readings["given"]) if test_poses and not axes else ([], "given")
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes
-                + check_depth(clip, config, transposed, read_tracks=tracks_fit and not axes)
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes)
                 + check_depth_ramps(clip, config)
                 + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:
