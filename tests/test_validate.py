@@ -399,3 +399,13 @@ def test_a_clip_failing_validation_is_one_error_in_a_scored_batch(tmp_path, clip
     result = score_batch(tmp_path, engine="reference")
     assert [c.status for c in result.clips] == ["ok", "error"]
     assert "'R_wc'" in result.clips[1].reason and "rotation" in result.clips[1].reason
+
+
+def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not():
+    movers = synth_clip(seed=0, clip_id="movers", **dict(SMALL, moving_objects=6))
+    assert "static_mask_inverted" not in codes(check_clip(movers), "warning")
+    inverted = check_clip(dataclasses.replace(movers, static_mask=~movers.static_mask))
+    found = [p for p in inverted if p.code == "static_mask_inverted"]
+    assert len(found) == 1 and found[0].severity == "warning" and "dynamic_mask" in found[0].line()
+    assert not {"camera_to_world_poses", "opengl_poses", "depth_like_disparity", "depth_like_range"} & {
+        p.code for p in inverted}  # the tests that read the static tracks are not run on the movers' tracks

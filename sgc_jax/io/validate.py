@@ -100,6 +100,10 @@ TRACK_READING_MIN_STATIC = 0.5
 RANGE_READING_RATIO = 0.5
 RANGE_MISFIT_MIN = 5e-4
 RANGE_FIT_MAX = 1.35e-3
+# A motion mask given as the static one: the tracks off the static mask miss the camera's motion by at
+# most this fraction of what those on it miss (over POSE_MISFIT_MIN_PX), the poses as given. Rule M1
+# (bench/history/issue-58.md "A motion mask given as the static one").
+MASK_SIDE_RATIO = 0.4
 # Clips longer than this many frames get an info line: the splits the score was validated on hold 6-12
 # frames, the standard clip 16, and a slow inconsistency shows each consecutive pair less the more
 # frames it is spread over (docs/semantics.md §1.5, "Long clips"; bench/clip_length.py).
@@ -401,11 +405,11 @@ def check_dtypes(arrays: Any) -> list[Problem]:
 
 
 
-def _track_samples(clip: Clip, config: SGCConfig):
+def _track_samples(clip: Clip, config: SGCConfig, on_static: bool = True):
     """Per sampled pair (at most RHO_PAIRS, spread over the clip): (pair, frame i-1 and frame i
     positions (n, 2) float64, depth at the frame i-1 position (n,)) of at most RHO_POINTS usable
-    static tracks with valid depth, evenly spread; pairs with fewer than MIN_POINTS_FOR_STATS are
-    left out."""
+    static tracks (``on_static`` False: those off the static mask) with valid depth, evenly spread;
+    pairs with fewer than MIN_POINTS_FOR_STATS are left out."""
     H, W = clip.image_size
     usable = clip.usable_tracks(config.min_track_conf)
     pairs = np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
@@ -417,7 +421,7 @@ def _track_samples(clip: Clip, config: SGCConfig):
         col = np.clip(np.floor(prev[:, 0]).astype(np.int64), 0, W - 1)
         row = np.clip(np.floor(prev[:, 1]).astype(np.int64), 0, H - 1)
         z = clip.depth[pair - 1][row, col]
-        keep = np.flatnonzero(np.isfinite(z) & (z > 0) & clip.static_mask[pair - 1][row, col])
+        keep = np.flatnonzero(np.isfinite(z) & (z > 0) & (clip.static_mask[pair - 1][row, col] == on_static))
         if keep.size < MIN_POINTS_FOR_STATS:
             continue
         keep = keep[np.linspace(0, keep.size - 1, min(keep.size, RHO_POINTS)).astype(np.int64)]
@@ -695,6 +699,33 @@ def static_coverage(clip: Clip) -> np.ndarray:
     return np.count_nonzero(clip.static_mask.reshape(clip.n_frames, -1), axis=1) / clip.static_mask[0].size
 
 
+def mask_side_residuals(clip: Clip, config: SGCConfig) -> tuple[float, float]:
+    """(on the static mask, off it): the median over the sampled pairs where both sides hold tracks of
+    ``pose_residual_px`` of each side's tracks, the poses as given; NaN where no pair has both."""
+    static = {pair: pose_residual_px(clip, pair, prev, curr, z, "given")
+              for pair, prev, curr, z in _track_samples(clip, config)}
+    both = [(static[pair], pose_residual_px(clip, pair, prev, curr, z, "given"))
+            for pair, prev, curr, z in _track_samples(clip, config, on_static=False) if pair in static]
+    both = [b for b in both if np.isfinite(b).all()]
+    if not both:
+        return float("nan"), float("nan")
+    on, off = np.median(np.array(both), axis=0)
+    return float(on), float(off)
+
+
+def check_mask_inverted(residuals: tuple[float, float]) -> list[Problem]:
+    """From ``mask_side_residuals``: a warning where the tracks off the static mask fit the camera's
+    motion far better (MASK_SIDE_RATIO) than those on it, which miss it by over POSE_MISFIT_MIN_PX:
+    a motion mask given as the static one."""
+    on, off = residuals
+    if not (np.isfinite(on) and on > POSE_MISFIT_MIN_PX and off < MASK_SIDE_RATIO * on):
+        return []
+    return [Problem(
+        "warning", "static_mask_inverted", "static_mask", "static_mask true on the static background",
+        f"the tracks on the static mask miss the camera's motion by {on:.2g} px (median), those off it by {off:.2g} px",
+        "this looks like a motion mask: give it as dynamic_mask, or invert it (static_mask = ~mask)")]
+
+
 def check_mask(clip: Clip) -> list[Problem]:
     """Static-mask coverage per frame (an inverted mask leaves almost nothing static)."""
     if clip.mask_source == "none":
@@ -738,10 +769,13 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     read_as = ("given", "yx", "reversed") if test_axes else ("given",)  # the other readings only where tested
     readings = track_reading_residuals(clip, config, read_as) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
+    # a motion mask given as the static one leaves the other tests only the movers' tracks
+    inverted = check_mask_inverted(mask_side_residuals(clip, config)) if test_poses and not axes else []
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
-    convention, reading = check_pose_convention(readings["given"]) if test_poses and not axes else ([], "given")
-    problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes
-                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes)
+    test_convention = test_poses and not axes and not inverted
+    convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
+    problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes + inverted
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted)
                 + check_depth_ramps(clip, config)
                 + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:
