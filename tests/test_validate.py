@@ -406,6 +406,10 @@ def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not
     assert "static_mask_inverted" not in codes(check_clip(movers), "warning")
     inverted = check_clip(dataclasses.replace(movers, static_mask=~movers.static_mask))
     found = [p for p in inverted if p.code == "static_mask_inverted"]
-    assert len(found) == 1 and found[0].severity == "warning" and "dynamic_mask" in found[0].line()
+    assert len(found) == 1 and found[0].severity == "warning" and "give it as dynamic_mask" in found[0].line()
     assert not {"camera_to_world_poses", "opengl_poses", "depth_like_disparity", "depth_like_range"} & {
         p.code for p in inverted}  # the tests that read the static tracks are not run on the movers' tracks
+    arrays = arrays_of(movers)
+    arrays["dynamic_mask"] = arrays.pop("static_mask")  # the static mask given as the motion mask
+    found = [p for p in problems_of(arrays) if p.code == "static_mask_inverted"]
+    assert len(found) == 1 and found[0].array == "dynamic_mask" and "give it as static_mask" in found[0].line()

@@ -558,7 +558,7 @@ def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], s
     misfit the stored reading leaves (the best such reading named)."""
     stored = residuals["given"]
     others = {reading: residuals[reading] for reading in POSE_READINGS[1:] if reading in residuals}
-    best = min(others, key=lambda reading: others[reading]) if others else "given"
+    best = min(others, key=others.get)
     if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and others[best] < POSE_CONVENTION_RATIO * stored):
         return [], "given"
     code, meaning, fix = POSE_FIXES[best]
@@ -713,16 +713,20 @@ def mask_side_residuals(clip: Clip, config: SGCConfig) -> tuple[float, float]:
     return float(on), float(off)
 
 
-def check_mask_inverted(residuals: tuple[float, float]) -> list[Problem]:
+def check_mask_inverted(residuals: tuple[float, float], mask_source: str = "static_mask") -> list[Problem]:
     """From ``mask_side_residuals``: a warning where the tracks off the static mask fit the camera's
     motion far better (MASK_SIDE_RATIO) than those on it, which miss it by over POSE_MISFIT_MIN_PX:
-    a motion mask given as the static one."""
+    a motion mask given as the static one (or, from ``dynamic_mask``, a static mask given as that)."""
     on, off = residuals
     if not (np.isfinite(on) and on > POSE_MISFIT_MIN_PX and off < MASK_SIDE_RATIO * on):
         return []
+    dynamic = mask_source == "dynamic_mask"
     return [Problem(
-        "warning", "static_mask_inverted", "static_mask", "static_mask true on the static background",
-        f"the tracks on the static mask miss the camera's motion by {on:.2g} px (median), those off it by {off:.2g} px",
+        "warning", "static_mask_inverted", mask_source,
+        "dynamic_mask true on the moving objects" if dynamic else "static_mask true on the static background",
+        f"the tracks on the static part miss the camera's motion by {on:.2g} px (median), those on the moving "
+        f"part by {off:.2g} px",
+        "this looks like a static mask: give it as static_mask" if dynamic else
         "this looks like a motion mask: give it as dynamic_mask, or invert it (static_mask = ~mask)")]
 
 
@@ -770,7 +774,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     readings = track_reading_residuals(clip, config, read_as) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
     # a motion mask given as the static one leaves the other tests only the movers' tracks
-    inverted = check_mask_inverted(mask_side_residuals(clip, config)) if test_poses and not axes else []
+    inverted = check_mask_inverted(mask_side_residuals(clip, config), clip.mask_source) if test_poses and not axes else []
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
     test_convention = test_poses and not axes and not inverted
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
