@@ -310,6 +310,7 @@ def test_depth_from_range_gives_back_the_z_depth_of_a_range_map(clip):
     assert back.dtype == np.float32 and back.shape == clip.depth.shape
     np.testing.assert_allclose(back, clip.depth, rtol=2e-7)  # float32 rounding of the range map, twice
     np.testing.assert_allclose(depth_from_range(as_range(clip)[0], clip.K[0]), clip.depth[0], rtol=2e-7)
+    np.testing.assert_allclose(depth_from_range(as_range(clip), clip.K[0]), clip.depth, rtol=2e-7)  # one K, every frame
 
 
 def test_tracks_read_as_y_x_are_not_judged_where_most_of_the_frame_is_masked_as_moving(clip):
