@@ -414,3 +414,15 @@ def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not
     arrays["dynamic_mask"] = arrays.pop("static_mask")  # the static mask given as the motion mask
     found = [p for p in problems_of(arrays) if p.code == "static_mask_inverted"]
     assert len(found) == 1 and found[0].array == "dynamic_mask" and "give it as static_mask" in found[0].line()
+
+
+def test_a_homogeneous_extrinsic_is_read_as_its_top_rows_and_a_wrong_last_row_is_refused(clip):
+    arrays = arrays_of(clip)
+    extrinsic = np.zeros((clip.n_frames, 4, 4))
+    extrinsic[:, :3, :3], extrinsic[:, :3, 3], extrinsic[:, 3, 3] = arrays.pop("R_wc"), arrays.pop("t_wc"), 1.0
+    loaded, as_rotations = clip_from_arrays({**arrays, "extrinsic": extrinsic}), clip_from_arrays(arrays_of(clip))
+    np.testing.assert_array_equal(loaded.R_wc, as_rotations.R_wc)
+    np.testing.assert_array_equal(loaded.t_wc, as_rotations.t_wc)
+    extrinsic[2, 3, 0] = 0.5
+    with pytest.raises(ClipFormatError, match=r"array 'extrinsic'.*last row \(0, 0, 0, 1\).*frame 2"):
+        clip_from_arrays({**arrays, "extrinsic": extrinsic})

@@ -188,6 +188,19 @@ def _checked_depth(typed: Mapping[str, np.ndarray], clip_id: str) -> tuple[np.nd
         return depth.astype(np.float32), T, H, W
 
 
+def _three_rows(extrinsic: np.ndarray, clip_id: str, T: int) -> np.ndarray:
+    """A (T, 4, 4) homogeneous extrinsic's top three rows, [R_wc | t_wc]; other shapes as given."""
+    if extrinsic.shape != (T, 4, 4):
+        return extrinsic
+    bottom = extrinsic[:, 3]
+    if not np.allclose(bottom, [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        worst = int(np.argmax(np.abs(bottom - [0.0, 0.0, 0.0, 1.0]).max(axis=1)))
+        raise ClipFormatError(clip_id, "extrinsic", f"shape ({T}, 3, 4), or ({T}, 4, 4) with a last row (0, 0, 0, 1)",
+                              f"last row {np.round(bottom[worst], 4).tolist()} in frame {worst}",
+                              "give the world->camera matrices [R_wc | t_wc]")
+    return extrinsic[:, :3]
+
+
 def _checked_cameras(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any], clip_id: str,
                      T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K (T, 3, 3), R_wc (T, 3, 3), t_wc (T, 3)) float64, from K and R_wc / t_wc or extrinsic."""
@@ -203,11 +216,11 @@ def _checked_cameras(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any],
         _check_shape(clip_id, "R_wc", R_wc, (T, 3, 3))
         _check_shape(clip_id, "t_wc", t_wc, (T, 3))
     elif "extrinsic" in typed:
-        extrinsic = typed["extrinsic"].astype(np.float64)
+        extrinsic = _three_rows(typed["extrinsic"].astype(np.float64), clip_id, T)
         _check_shape(clip_id, "extrinsic", extrinsic, (T, 3, 4))
         R_wc, t_wc = extrinsic[:, :, :3].copy(), extrinsic[:, :, 3].copy()
     else:
-        raise ClipFormatError(clip_id, "R_wc", f"shape ({T}, 3, 3) with t_wc, or extrinsic ({T}, 3, 4)",
+        raise ClipFormatError(clip_id, "R_wc", f"shape ({T}, 3, 3) with t_wc, or extrinsic ({T}, 3, 4) or ({T}, 4, 4)",
                               "no such array", f"present: {sorted(arrays)}")
     _check_finite(clip_id, "R_wc", R_wc)
     _check_finite(clip_id, "t_wc", t_wc)
