@@ -506,12 +506,21 @@ def track_fit(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.n
     return float(np.median(np.linalg.norm(moved - scale * flow, axis=1))), scale
 
 
-def pose_convention_residuals(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2]
-                              ) -> dict[str, float]:
-    """Per pose reading (``relative_pose``): the median over sampled pairs of ``pose_residual_px``;
-    NaN where no pair has the tracks to tell."""
-    residuals = [[pose_residual_px(clip, pair, prev, curr, z, reading) for reading in readings]
-                 for pair, prev, curr, z in _track_samples(clip, config)]
+def pair_track_fits(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2]
+                    ) -> dict[int, dict[str, tuple[float, float]]]:
+    """Per sampled pair (``_track_samples``), per pose reading: ``track_fit``'s (misfit [px], scale),
+    fitted once for the pose, mask and range tests that read them."""
+    return {pair: {reading: track_fit(clip, pair, prev, curr, z, reading) for reading in readings}
+            for pair, prev, curr, z in _track_samples(clip, config)}
+
+
+def pose_convention_residuals(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2],
+                              fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> dict[str, float]:
+    """Per pose reading (``relative_pose``): the median over sampled pairs of ``pose_residual_px``
+    (from ``fits``, ``pair_track_fits`` of the same readings, where given); NaN where no pair has
+    the tracks to tell."""
+    fits = pair_track_fits(clip, config, readings) if fits is None else fits
+    residuals = [[by_reading[reading][0] for reading in readings] for by_reading in fits.values()]
     residuals = [r for r in residuals if np.isfinite(r).all()]
     medians = np.median(np.array(residuals), axis=0) if residuals else np.full(len(readings), np.nan)
     return {reading: float(m) for reading, m in zip(readings, medians)}
@@ -525,12 +534,14 @@ def track_readings(clip: Clip) -> dict[str, Clip]:
             "reversed": dataclasses.replace(clip, track_prev=clip.track_curr, track_curr=clip.track_prev)}
 
 
-def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] = ("given", "yx", "reversed")
+def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] = ("given", "yx", "reversed"),
+                            fits: dict[int, dict[str, tuple[float, float]]] | None = None
                             ) -> dict[str, dict[str, float]]:
     """Per reading ``names`` of ``track_readings``: ``pose_convention_residuals``, the tracks' misfit
     to the camera's motion [px] under each pose reading (every one of POSE_READINGS for the tracks as
-    given, world->camera and camera->world for the others)."""
-    return {name: pose_convention_residuals(read, config, POSE_READINGS if name == "given" else POSE_READINGS[:2])
+    given, from ``fits`` where given, world->camera and camera->world for the others)."""
+    return {name: pose_convention_residuals(read, config, POSE_READINGS if name == "given" else POSE_READINGS[:2],
+                                            fits if name == "given" else None)
             for name, read in track_readings(clip).items() if name in names}
 
 
@@ -569,7 +580,8 @@ def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], s
         f"with the poses read as {meaning}", fix)], best
 
 
-def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_tracks: bool = True) -> list[Problem]:
+def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_tracks: bool = True,
+                fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> list[Problem]:
     """Valid depth per frame, its range, and (``read_tracks``) whether it behaves like depth or like
     disparity (the camera rotation read as ``relative_pose`` reads it: a rotation read the wrong way
     round leaves a motion that can look like disparity's)."""
@@ -600,16 +612,18 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     elif read_tracks and not _is_reference_compat(clip):  # disparity read as range would say nothing
-        problems += check_depth_range(depth_range_misfits(clip, config, reading))
+        problems += check_depth_range(depth_range_misfits(clip, config, reading, fits))
     return problems
 
 
-def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given") -> tuple[float, float]:
+def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",
+                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> tuple[float, float]:
     """``depth_range.depth_reading_misfits`` (as z, as range) with the camera's poses read as
-    ``relative_pose`` reads them and each pair's translation scale fitted to its tracks."""
-    poses = [(pair, *relative_pose(clip, pair, reading), track_fit(clip, pair, prev, curr, z, reading)[1])
-             for pair, prev, curr, z in _track_samples(clip, config)]
-    return depth_reading_misfits(clip, poses)
+    ``relative_pose`` reads them and each pair's translation scale fitted to its tracks (``fits``,
+    ``pair_track_fits`` holding ``reading``, where given)."""
+    fits = pair_track_fits(clip, config, (reading,)) if fits is None else fits
+    return depth_reading_misfits(clip, [(pair, *relative_pose(clip, pair, reading), by_reading[reading][1])
+                                        for pair, by_reading in fits.items()])
 
 
 def check_depth_range(misfits: tuple[float, float]) -> list[Problem]:
@@ -699,11 +713,13 @@ def static_coverage(clip: Clip) -> np.ndarray:
     return np.count_nonzero(clip.static_mask.reshape(clip.n_frames, -1), axis=1) / clip.static_mask[0].size
 
 
-def mask_side_residuals(clip: Clip, config: SGCConfig) -> tuple[float, float]:
+def mask_side_residuals(clip: Clip, config: SGCConfig,
+                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> tuple[float, float]:
     """(on the static mask, off it): the median over the sampled pairs where both sides hold tracks of
-    ``pose_residual_px`` of each side's tracks, the poses as given; NaN where no pair has both."""
-    static = {pair: pose_residual_px(clip, pair, prev, curr, z, "given")
-              for pair, prev, curr, z in _track_samples(clip, config)}
+    ``pose_residual_px`` of each side's tracks, the poses as given (the static side's from ``fits``,
+    ``pair_track_fits``, where given); NaN where no pair has both."""
+    fits = pair_track_fits(clip, config, ("given",)) if fits is None else fits
+    static = {pair: by_reading["given"][0] for pair, by_reading in fits.items()}
     both = [(static[pair], pose_residual_px(clip, pair, prev, curr, z, "given"))
             for pair, prev, curr, z in _track_samples(clip, config, on_static=False) if pair in static]
     both = [b for b in both if np.isfinite(b).all()]
@@ -771,15 +787,19 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     test_axes = test_poses and np.median(static_coverage(clip)) >= TRACK_READING_MIN_STATIC
     read_as = ("given", "yx", "reversed") if test_axes else ("given",)  # the other readings only where tested
-    readings = track_reading_residuals(clip, config, read_as) if test_poses else None
+    # the tracks as given fitted once under every pose reading: the pose, mask and range tests read them
+    fits = (pair_track_fits(clip, config, POSE_READINGS if test_poses else ("given",))
+            if tracks_fit and not _is_reference_compat(clip) else None)
+    readings = track_reading_residuals(clip, config, read_as, fits) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
     # a motion mask given as the static one leaves the other tests only the movers' tracks
-    inverted = check_mask_inverted(mask_side_residuals(clip, config), clip.mask_source) if test_poses and not axes else []
+    inverted = (check_mask_inverted(mask_side_residuals(clip, config, fits), clip.mask_source)
+                if test_poses and not axes else [])
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
     test_convention = test_poses and not axes and not inverted
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
     problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes + inverted
-                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted)
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted, fits=fits)
                 + check_depth_ramps(clip, config)
                 + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:
