@@ -347,6 +347,18 @@ def test_stored_dtypes_that_suggest_a_mix_up_warn(clip, change, code, array, wor
         clip_from_arrays(arrays)
 
 
+def test_integer_depth_at_its_largest_value_is_no_reading_and_the_warning_says_so(clip):
+    millimetres = np.round(1000 * clip.depth).astype(np.uint16)
+    millimetres[:, :8, :8] = np.iinfo(np.uint16).max  # 7-Scenes' and Kinect's PNGs mark no reading so
+    arrays = arrays_of(clip, depth=millimetres)
+    with pytest.warns(ClipWarning, match="its 256 pixels at 65535") as record:
+        loaded = clip_from_arrays(arrays)
+    assert not any("sky" in str(w.message) for w in record)
+    assert np.all(loaded.depth[:, :8, :8] == 0) and np.array_equal(loaded.depth[:, 8:], millimetres[:, 8:])
+    picture = np.full(clip.depth.shape, 255, np.uint8)  # 8 bits: a picture, whose 255 is its nearest surface
+    assert np.all(clip_from_arrays(arrays_of(clip, depth=picture), validate=False).depth == 255)
+
+
 def test_content_problems_the_scorer_reports_are_not_loader_warnings(clip):
     vis = clip.track_vis.copy()
     vis[1] = False

@@ -125,6 +125,15 @@ def repeated_tracks(track_prev: np.ndarray, track_curr: np.ndarray, usable: np.n
     return repeated
 
 
+def no_reading(depth: np.ndarray) -> np.ndarray | bool:
+    """Where integer depth holds its dtype's largest value, the no-reading code of 16-bit depth
+    PNGs (7-Scenes, Kinect): invalid depth (docs/semantics.md §1.2). False for float and 8-bit depth
+    (an 8-bit map is a picture, whose 255 is its nearest surface)."""
+    if depth.dtype.kind != "u" or depth.dtype.itemsize < 2:
+        return False
+    return depth == np.iinfo(depth.dtype).max
+
+
 def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
     """``depth`` with NaN where a positive, finite value lies beyond DEPTH_RATIO_LIMIT of the median
     of those values (docs/semantics.md §1.2); the same array when nothing is absurd."""

@@ -21,7 +21,7 @@ from typing import Any, Callable, Container, Iterable, Iterator, Mapping
 import numpy as np
 
 from ..config import SGCConfig
-from .clip import Clip, ClipFormatError
+from .clip import Clip, ClipFormatError, no_reading
 from .npz import NpzError, npz_headers, read_npz, shape_text
 from .remote import is_url, list_files
 from .validate import (
@@ -185,7 +185,8 @@ def _checked_depth(typed: Mapping[str, np.ndarray], clip_id: str) -> tuple[np.nd
         raise ClipFormatError(clip_id, "depth", f"shape ({T}, {H}, {W}), the T of {', '.join(agree_T)} and the "
                               f"H x W of {', '.join(agree_HW)}", f"shape {shape_text(depth.shape)}")
     with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: invalid depth
-        return depth.astype(np.float32), T, H, W
+        return np.where(no_reading(depth), 0.0, depth).astype(np.float32), T, H, W
+
 
 
 def _three_rows(extrinsic: np.ndarray, clip_id: str, T: int) -> np.ndarray:

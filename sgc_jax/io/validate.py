@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from ..stats import spearman
-from .clip import Clip, ClipFormatError, repeated_tracks
+from .clip import Clip, ClipFormatError, no_reading, repeated_tracks
 from .depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, hole_border_counts, holes_blended, ramp_counts
 from .depth_range import depth_reading_misfits
 
@@ -381,9 +381,13 @@ def check_dtypes(arrays: Any) -> list[Problem]:
     problems = []
     depth = np.asarray(arrays["depth"]) if "depth" in arrays else None
     if depth is not None and not np.issubdtype(depth.dtype, np.floating):
+        holes = np.count_nonzero(no_reading(depth))
+        read = (f"; its {holes} pixels at {np.iinfo(depth.dtype).max}, the no-reading code of such PNGs (7-Scenes, "
+                "Kinect), are read as invalid") if holes else ""
         problems.append(Problem("warning", "depth_dtype", "depth", "float depth",
                                 f"dtype {depth.dtype}",
-                                "integer depth is often a 16-bit PNG in millimetres: convert to float (e.g. / 1000)"))
+                                "integer depth is often a 16-bit PNG in millimetres: convert to float (e.g. / 1000)"
+                                + read))
     frames = arrays.get("frames") if hasattr(arrays, "get") else None
     if frames is not None and np.asarray(frames).dtype != np.uint8:
         problems.append(Problem("warning", "frames_dtype", "frames", "uint8 RGB in 0..255",
