@@ -343,6 +343,26 @@ def test_a_reader_process_replies_through_a_pipe_enlarged_as_far_as_linux_allows
     assert size >= min(PIPE_BYTES, allowed) > 64 << 10  # the prepared clips of a GPU host's readers
 
 
+@pytest.mark.parametrize("shared_dir", ["memory", "missing"])
+def test_a_reply_hands_its_large_arrays_over_in_shared_memory_and_leaves_no_file(tmp_path, monkeypatch, shared_dir):
+    from sgc_jax.scoring import readers
+
+    folder = tmp_path / "shm"
+    if shared_dir == "memory":
+        folder.mkdir()
+    monkeypatch.setattr(readers, "SHARED_DIR", folder)  # missing: the reply goes whole through the pipe
+    depth = np.arange(4 * 96 * 128, dtype=np.float32).reshape(4, 96, 128)
+    reply = (True, {"depth": depth, "small": np.arange(3), "order": np.asfortranarray(depth[0])})
+    with open(tmp_path / "channel", "wb") as sending:  # a file for the pipe: one thread sends and receives
+        path = readers._send_reply(sending, reply)
+    assert (path is not None) == (shared_dir == "memory") and (path is None or Path(path).parent == folder)
+    with open(tmp_path / "channel", "rb") as receiving:
+        ok, value = readers._receive_reply(receiving)
+    assert ok and all(np.array_equal(value[k], v) for k, v in reply[1].items())
+    assert value["depth"].flags.writeable  # a copy on write: the reader's arrays as they were
+    assert not folder.exists() or list(folder.iterdir()) == []
+
+
 def test_default_lanes_divide_the_cpu_cores_and_keep_two_clips_in_flight_on_an_accelerator(monkeypatch):
     from types import SimpleNamespace
 

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import mmap
 import os
 import pickle
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import warnings
 from pathlib import Path
@@ -116,6 +118,61 @@ def _send(channel: BinaryIO, value: Any) -> None:
     channel.flush()
 
 
+# A reply's arrays of SHARED_MIN_BYTES or more travel through a file in SHARED_DIR (memory, on
+# Linux) that the caller maps and unlinks, not through the pipe: the pipe's copy into the scoring
+# process cost it 5-12 ms of its one GIL a standard clip (bench/history/issue-61.md "Clips handed
+# over in shared memory"). Where the directory is missing or full, the reply goes whole as before.
+SHARED_DIR = Path("/dev/shm")
+SHARED_MIN_BYTES = 1 << 16
+
+
+def _send_reply(channel: BinaryIO, value: Any) -> str | None:
+    """``value`` to the caller, its large arrays' bytes in a file of SHARED_DIR where one can be
+    written; that file's path (the caller unlinks it once mapped), else None."""
+    large: list[pickle.PickleBuffer] = []
+    data = pickle.dumps(value, protocol=5, buffer_callback=lambda b: b.raw().nbytes < SHARED_MIN_BYTES or large.append(b))
+    if not large:
+        _send(channel, ("whole", data))
+        return None
+    path = None
+    try:
+        fd, path = tempfile.mkstemp(prefix="sgc-jax-read-", dir=SHARED_DIR)
+        spans, offset = [], 0
+        with os.fdopen(fd, "wb") as shared:
+            for buffer in large:
+                raw = buffer.raw()
+                shared.write(raw)
+                spans.append((offset, raw.nbytes))
+                offset += raw.nbytes
+    except OSError:
+        if path is not None:
+            Path(path).unlink(missing_ok=True)
+        _send(channel, ("whole", pickle.dumps(value, protocol=5)))
+        return None
+    try:
+        _send(channel, ("shared", (path, spans, data)))
+    except BaseException:  # the caller is gone: nobody will unlink it
+        Path(path).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _receive_reply(channel: BinaryIO) -> Any:
+    """A value ``_send_reply`` sent: its large arrays are views of the mapped file (copy on write),
+    which is unlinked at once and freed with the last of them."""
+    kind, payload = pickle.load(channel)
+    if kind == "whole":
+        return pickle.loads(payload)
+    path, spans, data = payload
+    try:
+        with open(path, "rb") as shared:
+            mapped = mmap.mmap(shared.fileno(), 0, access=mmap.ACCESS_COPY)
+    finally:
+        os.unlink(path)
+    view = memoryview(mapped)
+    return pickle.loads(data, buffers=[view[offset:offset + size] for offset, size in spans])
+
+
 class ReaderProcesses:
     """``count`` reader processes of clip files for ``engine`` and ``config``, started as they are
     first needed and kept until ``close`` (so a Ray scorer reuses them from shard to shard).
@@ -139,7 +196,8 @@ class ReaderProcesses:
             # the child imports sgc_jax from where this process did, and keeps off any GPU
             here = str(Path(__file__).resolve().parents[2])
             path = os.pathsep.join([here, *filter(None, [os.environ.get("PYTHONPATH")])])
-            worker = subprocess.Popen([sys.executable, "-c", "from sgc_jax.scoring.readers import serve; serve()"],
+            # -P: the working directory is not put before that path, where another sgc_jax may lie
+            worker = subprocess.Popen([sys.executable, "-P", "-c", "from sgc_jax.scoring.readers import serve; serve()"],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       env=dict(os.environ, PYTHONPATH=path, JAX_PLATFORMS="cpu"))
             _enlarge_pipe(worker.stdout)
@@ -156,7 +214,7 @@ class ReaderProcesses:
                 _send(worker.stdin, self.setup)
                 self._local.fresh = False
             _send(worker.stdin, (entry, done_sha256))
-            ok, value = pickle.load(worker.stdout)
+            ok, value = _receive_reply(worker.stdout)
         except (EOFError, BrokenPipeError) as exc:
             raise RuntimeError(f"a reader process ended (exit code {worker.poll()}) while reading {entry.origin}; "
                                "its error, if any, is above on stderr") from exc
@@ -191,10 +249,13 @@ def serve() -> None:
     warnings.showwarning = clip_warnings_as_lines("sgc-jax")
     engine, config = pickle.load(requests)
     prepare, digests = prepare_step(engine, config), FileDigests()
+    shared = None  # the last reply's file: the caller unlinks it, unless it ended before reading it
     while True:
         try:
             entry, done_sha256 = pickle.load(requests)
         except EOFError:
+            if shared is not None:
+                Path(shared).unlink(missing_ok=True)
             return
         try:
             done = {(entry.clip_id, sha256) for sha256 in done_sha256}
@@ -202,6 +263,6 @@ def serve() -> None:
         except Exception as exc:  # noqa: BLE001  handed to the caller, who raises it
             reply = (False, exc)
         try:
-            _send(replies, reply)
+            shared = _send_reply(replies, reply)
         except (pickle.PicklingError, TypeError, AttributeError) as exc:
-            _send(replies, (False, RuntimeError(f"reading {entry.origin}: {reply[1]!r} ({exc})")))
+            shared = _send_reply(replies, (False, RuntimeError(f"reading {entry.origin}: {reply[1]!r} ({exc})")))
