@@ -103,6 +103,9 @@ IMAGES = ("depth", "static_mask")
 
 ARRAY_KINDS = {  # kind: (change, array blamed, words of the message)
     "missing_array": (changed(track_vis=None), "track_vis", "no such array"),
+    "tracks_of_the_whole_video": (lambda arrays: changed(track_prev=None, track_curr=None)(dict(
+        arrays, tracks=np.concatenate([arrays["track_prev"][:1], arrays["track_curr"]]))),
+        "track_prev", "track_prev = tracks[:-1], track_curr = tracks[1:]"),
     "object_array": (changed(depth=lambda a: a.astype(object)), "depth", "nothing is unpickled"),
     "string_array": (changed(track_vis=lambda a: a.astype(str)), "track_vis", "dtype <U"),
     "string_depth": (changed(depth=lambda a: a.astype(str)), "depth", "dtype <U"),

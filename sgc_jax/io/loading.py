@@ -259,6 +259,19 @@ def _checked_tracks(typed: Mapping[str, np.ndarray], clip_id: str, T: int) -> tu
     return track_prev, track_curr, track_vis, track_conf
 
 
+def _missing_pair_tracks(arrays: Mapping[str, Any], clip_id: str, T: int) -> None:
+    """Raise ClipFormatError for a clip without ``track_prev``, naming every array given and, where
+    one is shaped (T, N, 2) (tracks over the whole video, as CoTracker3's ``pred_tracks``), how to
+    give it as pairs."""
+    names = sorted(str(name) for name in arrays)
+    whole = [name for name in names if name not in _KINDS and np.shape(arrays[name])[:1] == (T,)
+             and np.ndim(arrays[name]) == 3 and np.shape(arrays[name])[2] == 2]
+    fix = (f"; {whole[0]!r} of shape (T, N, 2) looks like tracks over the whole video: give track_prev = "
+           f"{whole[0]}[:-1], track_curr = {whole[0]}[1:], track_vis = visible[:-1] & visible[1:] (docs/semantics.md "
+           "§1.2), or `sgc-jax import --tracks`") if whole else ""
+    raise ClipFormatError(clip_id, "track_prev", f"shape ({T - 1}, P, 2)", "no such array", f"present: {names}{fix}")
+
+
 def clip_from_arrays(arrays: Mapping[str, Any], *, clip_id: str | None = None,
                      config: SGCConfig | None = None, validate: bool = True) -> Clip:
     """Validate a mapping of clip arrays (docs/semantics.md §1) and return a :class:`Clip`.
@@ -284,6 +297,8 @@ def _structurally_checked(arrays: Mapping[str, Any], clip_id: str | None) -> Cli
     depth, T, H, W = _checked_depth(typed, clip_id)
     K, R_wc, t_wc = _checked_cameras(typed, arrays, clip_id, T)
     static_mask, mask_source = _checked_mask(typed, clip_id, (T, H, W))
+    if "track_prev" not in typed:
+        _missing_pair_tracks(arrays, clip_id, T)
     track_prev, track_curr, track_vis, track_conf = _checked_tracks(typed, clip_id, T)
     frames = typed.get("frames")
     if frames is not None:
