@@ -78,10 +78,20 @@ def _require(arrays: Mapping[str, Any], name: str, clip_id: str, expected: str) 
 
 def _check_shape(clip_id: str, name: str, array: np.ndarray, expected: tuple) -> None:
     """``expected`` holds ints or None (any size); raise naming both shapes on mismatch."""
-    ok = array.ndim == len(expected) and all(e is None or e == s for e, s in zip(expected, array.shape))
-    if not ok:
+    fits = lambda shape: len(shape) == len(expected) and all(e is None or e == s for e, s in zip(expected, shape))  # noqa: E731
+    if not fits(array.shape):
         want = shape_text("*" if e is None else e for e in expected)
-        raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {shape_text(array.shape)}")
+        raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {shape_text(array.shape)}",
+                              _squeeze_hint(name, array.shape, fits))
+
+
+def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, ...]], bool]) -> str:
+    """How to drop a singleton axis (a network's channel axis, (T, 1, H, W)) where that gives a
+    shape that ``fits``; else ""."""
+    for axis, size in enumerate(shape):
+        if size == 1 and fits(shape[:axis] + shape[axis + 1:]):
+            return f"a singleton axis: give {name}.squeeze({axis})"
+    return ""
 
 
 def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
@@ -170,7 +180,8 @@ def _checked_depth(typed: Mapping[str, np.ndarray], clip_id: str) -> tuple[np.nd
     """(depth float32 (T, H, W), T, H, W): the sizes most arrays agree on, depth's shape checked against them."""
     depth = _require(typed, "depth", clip_id, "shape (T, H, W)")
     if depth.ndim != 3:
-        raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {shape_text(depth.shape)}")
+        raise ClipFormatError(clip_id, "depth", "shape (T, H, W)", f"shape {shape_text(depth.shape)}",
+                              _squeeze_hint("depth", depth.shape, lambda shape: len(shape) == 3 and shape[0] >= 2))
     if depth.shape[0] < 2:
         raise ClipFormatError(clip_id, "depth", "T >= 2 frames", f"T = {depth.shape[0]}")
     if min(depth.shape[1:]) < 1:
