@@ -359,6 +359,24 @@ def test_integer_depth_at_its_largest_value_is_no_reading_and_the_warning_says_s
     assert np.all(clip_from_arrays(arrays_of(clip, depth=picture), validate=False).depth == 255)
 
 
+def test_visibility_given_as_probabilities_warns_and_leaves_the_motion_tests_out(clip):
+    hidden = np.arange(clip.n_tracks) % 4 == 0
+    as_given = lambda low, high: np.where(hidden, low, high) * np.ones_like(clip.track_vis, np.float32)  # noqa: E731
+    arrays = arrays_of(clip, track_vis=as_given(0.2, 0.9))
+    problems = check_clip(clip_from_arrays(arrays, validate=False), arrays=arrays)
+    [found] = [p for p in problems if p.code == "track_vis_probabilities"]
+    assert found.severity == "warning" and found.array == "track_vis"
+    assert all(words in found.line() for words in ("100% of its values strictly between 0 and 1",
+                                                   "25% above 0 but below 0.5", "track_vis > 0.5")), found.line()
+    assert [p.code for p in problems if p.severity in ("error", "warning")] == ["track_vis_probabilities"]
+    with pytest.warns(ClipWarning, match="track_vis: expected visibility as booleans"):
+        clip_from_arrays(arrays)
+    for low, high in ((0.0, 1.0), (-2.0, 3.0)):  # booleans as floats, logits: read as meant
+        arrays = arrays_of(clip, track_vis=as_given(low, high))
+        problems = check_clip(clip_from_arrays(arrays, validate=False), arrays=arrays)
+        assert "track_vis_probabilities" not in [p.code for p in problems]
+
+
 def test_content_problems_the_scorer_reports_are_not_loader_warnings(clip):
     vis = clip.track_vis.copy()
     vis[1] = False

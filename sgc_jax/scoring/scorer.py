@@ -240,8 +240,9 @@ class Scorer:
             if found == "bool" and "b" not in allowed or found != "bool" and found not in allowed:
                 raise ClipFormatError("<batch>", name, {"float": "a float dtype", "mask": "bool or numbers",
                                                         "count": "an integer dtype"}[kind], f"dtype {value.dtype}")
-            if kind == "mask":
-                arrays[name] = value if found == "bool" else jnp.asarray(value) != 0
+            if kind == "mask":  # as the loader reads them: a float track_vis is visible where > 0
+                arrays[name] = value if found == "bool" else (
+                    jnp.asarray(value) > 0 if name == "track_vis" else jnp.asarray(value) != 0)
             else:
                 arrays[name] = jnp.asarray(value, PROGRAM_DTYPES[kind])
         return ClipArrays(**arrays)
