@@ -195,9 +195,10 @@ def _checked_depth(typed: Mapping[str, np.ndarray], clip_id: str) -> tuple[np.nd
     if depth.shape != (T, H, W):
         raise ClipFormatError(clip_id, "depth", f"shape ({T}, {H}, {W}), the T of {', '.join(agree_T)} and the "
                               f"H x W of {', '.join(agree_HW)}", f"shape {shape_text(depth.shape)}")
+    if depth.dtype.kind == "u":  # a 16-bit PNG's no-reading code is invalid depth
+        depth = np.where(no_reading(depth), 0, depth)
     with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: invalid depth
-        return np.where(no_reading(depth), 0.0, depth).astype(np.float32), T, H, W
-
+        return depth.astype(np.float32), T, H, W
 
 
 def _three_rows(extrinsic: np.ndarray, clip_id: str, T: int) -> np.ndarray:
@@ -274,9 +275,14 @@ def _missing_pair_tracks(arrays: Mapping[str, Any], clip_id: str, T: int) -> Non
     """Raise ClipFormatError for a clip without ``track_prev``, naming every array given and, where
     one is shaped (T, N, 2) (tracks over the whole video, as CoTracker3's ``pred_tracks``), how to
     give it as pairs."""
+    def shape(name):
+        try:
+            return np.shape(arrays[name])
+        except (ValueError, TypeError, KeyError):  # a ragged list, say: no tracks
+            return ()
+
     names = sorted(str(name) for name in arrays)
-    whole = [name for name in names if name not in _KINDS and np.shape(arrays[name])[:1] == (T,)
-             and np.ndim(arrays[name]) == 3 and np.shape(arrays[name])[2] == 2]
+    whole = [name for name in names if name not in _KINDS and len(shape(name)) == 3 and shape(name)[::2] == (T, 2)]
     fix = (f"; {whole[0]!r} of shape (T, N, 2) looks like tracks over the whole video: give track_prev = "
            f"{whole[0]}[:-1], track_curr = {whole[0]}[1:], track_vis = visible[:-1] & visible[1:] (docs/semantics.md "
            "§1.2), or `sgc-jax import --tracks`") if whole else ""
