@@ -251,9 +251,13 @@ def _checked_mask(typed: Mapping[str, np.ndarray], clip_id: str, shape: tuple[in
     return np.ones(shape, bool), "none"
 
 
-def _checked_tracks(typed: Mapping[str, np.ndarray], clip_id: str, T: int) -> tuple[np.ndarray, ...]:
-    """(track_prev, track_curr (T-1, P, 2), track_vis, track_conf (T-1, P)), each as stored."""
-    track_prev = _require(typed, "track_prev", clip_id, f"shape ({T - 1}, P, 2)")
+def _checked_tracks(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any], clip_id: str,
+                    T: int) -> tuple[np.ndarray, ...]:
+    """(track_prev, track_curr (T-1, P, 2), track_vis, track_conf (T-1, P)), each as stored; ``arrays``
+    (every array given) name what was given instead of ``track_prev``."""
+    if "track_prev" not in typed:
+        _missing_pair_tracks(arrays, clip_id, T)
+    track_prev = typed["track_prev"]
     _check_shape(clip_id, "track_prev", track_prev, (T - 1, None, 2))
     P = track_prev.shape[1]
     if P < 1:
@@ -314,9 +318,7 @@ def _structurally_checked(arrays: Mapping[str, Any], clip_id: str | None) -> Cli
     depth, T, H, W = _checked_depth(typed, clip_id)
     K, R_wc, t_wc = _checked_cameras(typed, arrays, clip_id, T)
     static_mask, mask_source = _checked_mask(typed, clip_id, (T, H, W))
-    if "track_prev" not in typed:
-        _missing_pair_tracks(arrays, clip_id, T)
-    track_prev, track_curr, track_vis, track_conf = _checked_tracks(typed, clip_id, T)
+    track_prev, track_curr, track_vis, track_conf = _checked_tracks(typed, arrays, clip_id, T)
     frames = typed.get("frames")
     if frames is not None:
         _check_shape(clip_id, "frames", frames, (T, H, W, 3))
