@@ -254,6 +254,9 @@ CASES = {
     "tracks at half the resolution": (lambda c: {"track_prev": c.track_prev / 2, "track_curr": c.track_curr / 2},
                                       "warning", "tracks_small_extent", "track_prev/track_curr",
                                       ["smaller grid", "--track-size"]),
+    "tracks in normalised coordinates": (lambda c: {"track_prev": c.track_prev / 128, "track_curr": c.track_curr / 128},
+                                         "error", "tracks_normalised", "track_prev/track_curr",
+                                         ["in pixels of the 96x128 image", "normalised coordinates?", "x W - 0.5"]),
     "disparity stored as depth": (lambda c: {"depth": np.where(c.depth > 0, 1.0 / c.depth, 0.0).astype(np.float32)},
                                   "warning", "depth_like_disparity", "depth",
                                   ["larger values move more", "--depth-kind disparity"]),
@@ -322,13 +325,14 @@ def test_tracks_read_as_y_x_are_not_judged_where_most_of_the_frame_is_masked_as_
     assert "tracks_yx" not in [p.code for p in problems]
 
 
-def test_the_tables_carry_the_loaders_warnings_and_a_clip_given_in_memory_none(clip, tmp_path):
+def test_the_tables_carry_the_loaders_warnings_also_for_a_loaded_clip_given_in_memory(clip, tmp_path):
     percent = dataclasses.replace(clip, clip_id="percent", track_conf=100.0 * clip.track_conf)
     path = save_clip(tmp_path / "percent.npz", percent)
     with pytest.warns(ClipWarning, match="track_conf"):
-        rows = score_batch([path, dataclasses.replace(percent, clip_id="in-memory")], engine="reference",
+        loaded = clip_from_arrays(arrays_of(percent), clip_id="loaded")
+        rows = score_batch([path, loaded, dataclasses.replace(percent, clip_id="built")], engine="reference",
                            progress=False).to_pandas()
-    assert list(rows["warnings"]) == ["track_conf_range", ""]
+    assert list(rows["warnings"]) == ["track_conf_range", "track_conf_range", ""]  # built in code: not checked
 
 
 @pytest.mark.parametrize("change, code, array, words", [

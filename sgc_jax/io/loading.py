@@ -694,14 +694,15 @@ def checked_in_memory(clip: Clip) -> Clip:
     finite and invertible cameras; a field left ``None`` counts as absent, as a missing array does)
     and the content errors of its cameras and track positions (§1.6: not a rotation, intrinsics not
     of the grid, tracks of another grid). Returns the clip with the schema's dtypes, every track, its
-    meta and mask source kept; raises :class:`ClipFormatError` (``ClipValidationError`` for a
+    meta, mask source and warning codes kept; raises :class:`ClipFormatError` (``ClipValidationError`` for a
     content error)."""
     if not isinstance(clip, Clip):
         raise TypeError(f"expected a sgc_jax.Clip, got {type(clip).__name__}")
     arrays = {name: getattr(clip, name) for name in CLIP_ARRAY_FIELDS if getattr(clip, name) is not None}
     checked = _structurally_checked(arrays, clip.clip_id)
     mask_source = clip.mask_source if clip.static_mask is not None else "none"
-    checked = dataclasses.replace(checked, mask_source=mask_source,
+    # the codes its loader found (clip_from_arrays, load_clip) stay with it, for the tables
+    checked = dataclasses.replace(checked, mask_source=mask_source, warnings=tuple(clip.warnings or ()),
                                   meta=clip.meta if isinstance(clip.meta, dict) else checked.meta)
     # the content errors that say the cameras or tracks are not of this pixel grid (K in normalised
     # units, tracks of a larger frame): cheap, so a clip built in code fails as its file does

@@ -35,6 +35,10 @@ TRACK_MARGIN_PX = 1.0  # tracker positions this far outside the image still coun
 TRACKS_OUTSIDE_ERROR = 0.25  # fraction of visible track positions outside: another pixel grid
 TRACKS_OUTSIDE_WARN = 0.05
 TRACK_EXTENT_WARN = 0.6  # visible tracks all within this fraction of W and H: computed on a smaller grid
+# Visible tracks all within TRACKS_NORMALISED_PX of the origin on a frame at least TRACKS_NORMALISED_MIN_SIZE
+# a side: coordinates in [0, 1] or [-1, 1] (a little past 1 where tracks leave the frame), not pixels; no
+# tracker's pixel output fits a 2x2 corner of a 16x16 frame
+TRACKS_NORMALISED_PX, TRACKS_NORMALISED_MIN_SIZE = 2.0, 16
 # A pair whose usable tracks repeat another usable track's positions at both ends this often: a track set
 # merged with itself, which the user may not have meant to give. The score leaves repeats out (§1.2). No
 # split's scene nor real clip repeats a track.
@@ -385,7 +389,14 @@ def check_track_positions(clip: Clip) -> list[Problem]:
                                     f"visible positions inside the {H}x{W} image",
                                     f"{100 * frac:.0f}% outside (x up to {x_max:.1f}, y up to {y_max:.1f})", fix))
         elif n_points >= MIN_POINTS_FOR_STATS:
-            if x_max < TRACK_EXTENT_WARN * (W - 1) and y_max < TRACK_EXTENT_WARN * (H - 1):
+            if max(x_max, y_max) <= TRACKS_NORMALISED_PX and min(H, W) >= TRACKS_NORMALISED_MIN_SIZE:
+                problems.append(Problem("error", "tracks_normalised", "track_prev/track_curr",
+                                        f"visible positions in pixels of the {H}x{W} image",
+                                        f"all within x <= {x_max:.2f}, y <= {y_max:.2f}",
+                                        "normalised coordinates? store pixels with their centres at integers "
+                                        "(docs/semantics.md §1.1): x W - 0.5, y H - 0.5 from [0, 1] with the "
+                                        "image's edges at 0 and 1; from [-1, 1], map to [0, 1] first"))
+            elif x_max < TRACK_EXTENT_WARN * (W - 1) and y_max < TRACK_EXTENT_WARN * (H - 1):
                 problems.append(Problem("warning", "tracks_small_extent", "track_prev/track_curr",
                                         f"visible tracks spread over the {H}x{W} image",
                                         f"all within x <= {x_max:.1f}, y <= {y_max:.1f}",
@@ -806,6 +817,11 @@ def check_length(clip: Clip) -> list[Problem]:
                     f"with long-range tracks, `sgc-jax import ... --frame-step {step}` pairs frames {step} apart")]
 
 
+# Track problems after which the tests that read the tracks' motion say nothing: positions of another
+# grid or in other units, hidden tracks counted as visible
+TRACKS_NOT_OF_THE_IMAGE = ("tracks_outside", "tracks_normalised", "tracks_small_extent", "track_vis_probabilities")
+
+
 def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) -> list[Problem]:
     """Every content check of one clip, errors first; ``arrays``: the stored arrays, for dtype checks."""
     config = config or SGCConfig()
@@ -815,8 +831,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     # the pose and depth tests read the tracks' motion: not where the tracks do not fit the image or
     # hidden ones count as visible, nor for a reference-compat clip, whose K and depth are
     # deliberately off (VGGT's grid, VDA / 1000)
-    tracks_fit = not any(p.code in ("tracks_outside", "track_vis_probabilities") and p.severity != "info"
-                         for p in tracks)
+    tracks_fit = not any(p.code in TRACKS_NOT_OF_THE_IMAGE and p.severity != "info" for p in tracks)
     test_poses = tracks_fit and not poses and not _is_reference_compat(clip)
     test_axes = test_poses and np.median(static_coverage(clip)) >= TRACK_READING_MIN_STATIC
     read_as = ("given", "yx", "reversed") if test_axes else ("given",)  # the other readings only where tested

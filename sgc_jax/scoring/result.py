@@ -46,7 +46,7 @@ class ClipResult:
     group: str = ""
     status: str = "error"  # "ok" | "partial" | "error" | "low_evidence" (§3.7, §3.11)
     reason: str = ""
-    warnings: str = ""  # the loader's warning codes, ";"-joined (docs/semantics.md §1.6; "" for clips given in memory)
+    warnings: str = ""  # the loader's warning codes, ";"-joined (docs/semantics.md §1.6; "" for clips built in code)
     sgc: float = float("nan")
     sgc_lo: float = float("nan")  # the score's 90 % interval, a bootstrap over pairs (§5.6)
     sgc_hi: float = float("nan")
