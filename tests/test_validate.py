@@ -24,11 +24,12 @@ from sgc_jax import (
 )
 from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from sgc_jax.engines.jax_engine import device_prepare
+from sgc_jax.io import validate
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
 from sgc_jax.io.depth_range import depth_from_range, ray_lengths
 from sgc_jax.io.loading import validate_paths
-from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
+from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip, inverse_depth_fits_better
 from sgc_jax.research.noise import enlarged_depth
 from sgc_jax.research.synth import synth_clip
 
@@ -314,6 +315,18 @@ def test_depth_from_range_gives_back_the_z_depth_of_a_range_map(clip):
     np.testing.assert_allclose(back, clip.depth, rtol=2e-7)  # float32 rounding of the range map, twice
     np.testing.assert_allclose(depth_from_range(as_range(clip)[0], clip.K[0]), clip.depth[0], rtol=2e-7)
     np.testing.assert_allclose(depth_from_range(as_range(clip), clip.K[0]), clip.depth, rtol=2e-7)  # one K, every frame
+
+
+def test_depth_is_called_disparity_only_where_its_inverse_fits_the_camera_better(clip, monkeypatch):
+    disparity = {"depth": np.where(clip.depth > 0, 1.0 / clip.depth, 0.0).astype(np.float32)}
+    assert inverse_depth_fits_better(clip_from_arrays(arrays_of(clip, **disparity), validate=False), SGCConfig())
+    assert not inverse_depth_fits_better(clip, SGCConfig())
+    # a still camera's translation cannot tell depth from disparity: a rank correlation alone (here
+    # forced) does not call the depth disparity
+    still = arrays_of(clip, t_wc=np.zeros_like(clip.t_wc))
+    monkeypatch.setattr(validate, "depth_parallax_rho", lambda *args, **kwargs: 0.8)
+    assert "depth_like_disparity" in [p.code for p in problems_of(arrays_of(clip, **disparity))]
+    assert "depth_like_disparity" not in [p.code for p in problems_of(still)]
 
 
 def test_tracks_read_as_y_x_are_not_judged_where_most_of_the_frame_is_masked_as_moving(clip):

@@ -50,6 +50,11 @@ VIS_FRACTIONAL_WARN = 0.01
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
 NEGATIVE_DEPTH_WARN = 0.01  # negative depth on this share of the pixels with a depth: a sign convention
 DISPARITY_RHO_WARN = 0.3  # Spearman(depth, parallax) above this: larger "depth" moves faster = disparity
+# ... and the tracks fit the camera's motion better with the depth read as its inverse, below this share
+# of the misfit as given (rule D2 on FIT's random pool, bench/history/issue-58.md "Depth like disparity
+# on short clips"): where the translation cannot tell (ratio 1, its scale fitted at 0 both ways), the
+# image position alone can set rho (a short real clip's one pair)
+DISPARITY_FIT_RATIO = 1.0
 MIN_PARALLAX_PX = 0.5  # pairs whose median parallax is below this say nothing about depth vs disparity
 MIN_POINTS_FOR_STATS = 30
 RHO_PAIRS, RHO_POINTS = 6, 256  # pairs and points per pair the depth/disparity test looks at (cost cap)
@@ -643,17 +648,28 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
                                 f"{100 * valid_count.sum() / sample.size:.0f}% of pixels valid"))
         problems += check_far_backdrop(values)
     rho = depth_parallax_rho(clip, config, reading) if read_tracks else float("nan")
-    if np.isfinite(rho) and rho > DISPARITY_RHO_WARN:
+    moves_like_disparity = np.isfinite(rho) and rho > DISPARITY_RHO_WARN
+    if moves_like_disparity and inverse_depth_fits_better(clip, config, reading):
         compat = _is_reference_compat(clip)
         problems.append(Problem(
             "info" if compat else "warning", "depth_like_disparity", "depth",
             "depth (nearer points, smaller values, move more between frames)",
-            f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax)",
+            f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax), and the tracks "
+            "fit the camera's motion better with its inverse",
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
-    elif read_tracks and not _is_reference_compat(clip):  # disparity read as range would say nothing
+    elif read_tracks and not moves_like_disparity and not _is_reference_compat(clip):  # disparity read as range says nothing
         problems += check_depth_range(depth_range_misfits(clip, config, reading, fits))
     return problems
+
+
+def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "given") -> bool:
+    """Whether the tracks miss the camera's motion (``track_fit``, the median over sampled pairs) with
+    the depth read as its inverse by less than DISPARITY_FIT_RATIO of what they miss with it as given."""
+    misfits = [(track_fit(clip, pair, prev, curr, z, reading)[0], track_fit(clip, pair, prev, curr, 1.0 / z, reading)[0])
+               for pair, prev, curr, z in _track_samples(clip, config)]
+    misfits = np.array([m for m in misfits if np.isfinite(m).all()]).reshape(-1, 2)
+    return bool(misfits.size) and bool(np.median(misfits[:, 1]) < DISPARITY_FIT_RATIO * np.median(misfits[:, 0]))
 
 
 def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",

@@ -1,0 +1,120 @@
+"""The loader's disparity line (docs/semantics.md §1.6, `depth_like_disparity`): where it fires with
+its rank test alone (Spearman rho > 0.3) and with the camera's translation asked too (the depth's
+inverse fits the tracks better, `io.validate.inverse_depth_fits_better`; rule D2).
+
+    python bench/disparity_line.py --pool fit|held-out [--scenes 24]
+    python bench/disparity_line.py --real-windows [--realdata ../shared/realdata]
+
+``--pool``: each scene of a random pool (``protocol.random_scene``, 1,000 tracks) under ``iid-both``,
+``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px, as given and with disparity stored as
+depth; per reading and level, the clips the line fires on under either rule, then the misfit ratios
+(1/z : z) of the disparity clips the rank test finds. ``--real-windows``: the shared real clips cut
+to windows of 2, 3, 4 and 8 frames (every second start), as given: every window a line fires on.
+Nothing is chosen here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from sgc_jax import SGCConfig, clip_from_arrays
+from sgc_jax.io import validate
+from sgc_jax.research import protocol
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+
+HERE = Path(__file__).resolve().parent
+MODELS = ("iid-both", "correlated", "depth", "outliers")
+LEVELS_PX = (0.5, 2.0)
+WINDOW_FRAMES = (2, 3, 4, 8)
+
+
+def as_disparity(clip):
+    depth = clip.depth.copy()
+    valid = depth > 0
+    depth[valid] = 1.0 / depth[valid]
+    return dataclasses.replace(clip, depth=depth)
+
+
+def disparity_line(clip, config: SGCConfig, fit_ratio: float) -> bool:
+    """Whether the line fires with ``validate.DISPARITY_FIT_RATIO`` = ``fit_ratio`` (inf: rho alone)."""
+    shipped = validate.DISPARITY_FIT_RATIO
+    validate.DISPARITY_FIT_RATIO = fit_ratio
+    try:
+        return any(p.code == "depth_like_disparity" and p.severity == "warning"
+                   for p in validate.check_clip(clip, config))
+    finally:
+        validate.DISPARITY_FIT_RATIO = shipped
+
+
+def misfit_ratio(clip, config: SGCConfig) -> float:
+    misfits = np.array([(validate.track_fit(clip, pair, prev, curr, z, "given")[0],
+                         validate.track_fit(clip, pair, prev, curr, 1.0 / z, "given")[0])
+                        for pair, prev, curr, z in validate._track_samples(clip, config)])
+    return float(np.median(misfits[:, 1]) / np.median(misfits[:, 0]))
+
+
+def pool_counts(pool: str, scenes: int) -> None:
+    config, counts, ratios = SGCConfig(), collections.Counter(), []
+    for k in range(scenes):
+        scene = protocol.random_scene(k, pool=pool)
+        clean = scene.clip(1000)
+        for j, model in enumerate(MODELS):
+            for px in LEVELS_PX:
+                noisy = add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=scene.seed * 100 + j * 10 + int(2 * px))
+                for reading, clip in (("as given", noisy), ("disparity stored", as_disparity(noisy))):
+                    rho_alone = disparity_line(clip, config, np.inf)
+                    counts[reading, px, "rho alone"] += rho_alone
+                    counts[reading, px, "rule D2"] += disparity_line(clip, config, validate.DISPARITY_FIT_RATIO)
+                    counts[reading, px, "clips"] += 1
+                    if rho_alone and reading != "as given":
+                        ratios.append(misfit_ratio(clip, config))
+    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(MODELS)}")
+    print("| reading | px | clips | rho alone | rule D2 |\n|---|---|---|---|---|")
+    for reading in ("as given", "disparity stored"):
+        for px in LEVELS_PX:
+            print(f"| {reading} | {px} | {counts[reading, px, 'clips']} | {counts[reading, px, 'rho alone']} | "
+                  f"{counts[reading, px, 'rule D2']} |")
+    print("misfit ratios (1/z : z) where rho alone finds disparity stored, the largest:",
+          np.round(np.sort(ratios)[-12:], 3))
+
+
+def real_windows(realdata: Path) -> None:
+    config, found, windows = SGCConfig(), collections.Counter(), collections.Counter()
+    for path in sorted(realdata.glob("*.npz")):
+        with np.load(path) as stored:
+            arrays = {name: stored[name] for name in stored.files if name != "meta"}
+        for frames in WINDOW_FRAMES:
+            for start in range(0, arrays["depth"].shape[0] - frames + 1, 2):
+                window = {name: (value[start:start + frames - 1] if name.startswith("track_") else
+                                 value[start:start + frames]) for name, value in arrays.items()}
+                clip = clip_from_arrays(window, clip_id=f"{path.stem}[{start}:{start + frames}]", validate=False)
+                windows[frames] += 1
+                lines = [p for p in validate.check_clip(clip, config) if p.severity in ("warning", "error")]
+                for problem in lines:
+                    found[frames, problem.code] += 1
+                    print(f"{clip.clip_id}: {problem.line()}")
+    print("windows:", dict(windows), "lines:", dict(found))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
+    parser.add_argument("--scenes", type=int, default=24)
+    parser.add_argument("--real-windows", action="store_true")
+    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    args = parser.parse_args()
+    if args.pool:
+        pool_counts(args.pool, args.scenes)
+    if args.real_windows:
+        real_windows(args.realdata)
+    if not (args.pool or args.real_windows):
+        parser.error("give --pool or --real-windows")
+
+
+if __name__ == "__main__":
+    main()
