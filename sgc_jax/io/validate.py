@@ -665,10 +665,13 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
 
 def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "given") -> bool:
     """Whether the tracks miss the camera's motion (``track_fit``, the median over sampled pairs) with
-    the depth read as its inverse by less than DISPARITY_FIT_RATIO of what they miss with it as given."""
-    misfits = [(track_fit(clip, pair, prev, curr, z, reading)[0], track_fit(clip, pair, prev, curr, 1.0 / z, reading)[0])
-               for pair, prev, curr, z in _track_samples(clip, config)]
-    misfits = np.array([m for m in misfits if np.isfinite(m).all()]).reshape(-1, 2)
+    the depth read as its inverse by less than DISPARITY_FIT_RATIO of what they miss with it as given.
+    A pair whose translation's scale is fitted at 0 both ways (the same misfit, up to rounding) cannot
+    tell the two readings apart and is left out."""
+    fits = [(track_fit(clip, pair, prev, curr, z, reading), track_fit(clip, pair, prev, curr, 1.0 / z, reading))
+            for pair, prev, curr, z in _track_samples(clip, config)]
+    misfits = np.array([(depth[0], inverse[0]) for depth, inverse in fits
+                        if np.isfinite(depth + inverse).all() and max(depth[1], inverse[1]) > 0]).reshape(-1, 2)
     return bool(misfits.size) and bool(np.median(misfits[:, 1]) < DISPARITY_FIT_RATIO * np.median(misfits[:, 0]))
 
 
