@@ -95,9 +95,14 @@ def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, 
 
 
 def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
-    if not np.isfinite(array).all():
-        bad = int((~np.isfinite(array)).sum())
-        raise ClipFormatError(clip_id, name, "finite values", f"{bad} non-finite value(s)")
+    """A camera array (T, ...) without NaN or inf; the error names the frames that hold one."""
+    finite = np.isfinite(array).reshape(array.shape[0], -1).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        frames = ", ".join(str(int(t)) for t in bad[:5]) + (", ..." if bad.size > 5 else "")
+        raise ClipFormatError(clip_id, name, "finite values",
+                              f"{int((~np.isfinite(array)).sum())} non-finite value(s) in frames {frames} of {array.shape[0]}",
+                              "frames an estimator failed on? score the pieces of the clip on either side of them")
 
 
 def _check_invertible(clip_id: str, K: np.ndarray) -> None:
