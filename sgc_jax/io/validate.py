@@ -626,10 +626,11 @@ def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], s
 
 
 def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_tracks: bool = True,
-                fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> list[Problem]:
+                fits: dict[int, dict[str, tuple[float, float]]] | None = None, k_usable: bool = True) -> list[Problem]:
     """Valid depth per frame, its range, and (``read_tracks``) whether it behaves like depth or like
     disparity (the camera rotation read as ``relative_pose`` reads it: a rotation read the wrong way
-    round leaves a motion that can look like disparity's)."""
+    round leaves a motion that can look like disparity's). Where K is refused (``k_usable`` False),
+    no reading fits the camera's motion: the rank test alone speaks, as its line then comes after K's."""
     problems = []
     T = clip.n_frames
     sample = clip.depth[:, ::4, ::4]  # depth statistics on a strided sample keep loading fast
@@ -649,7 +650,7 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
         problems += check_far_backdrop(values)
     rho = depth_parallax_rho(clip, config, reading) if read_tracks else float("nan")
     moves_like_disparity = np.isfinite(rho) and rho > DISPARITY_RHO_WARN
-    if moves_like_disparity and inverse_depth_fits_better(clip, config, reading):
+    if moves_like_disparity and (not k_usable or inverse_depth_fits_better(clip, config, reading)):
         compat = _is_reference_compat(clip)
         problems.append(Problem(
             "info" if compat else "warning", "depth_like_disparity", "depth",
@@ -865,8 +866,11 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
     test_convention = test_poses and not axes and not inverted
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
-    problems = (check_intrinsics(clip) + check_focal_spread(clip) + poses + convention + tracks + axes + inverted
-                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted, fits=fits)
+    intrinsics = check_intrinsics(clip)
+    k_usable = not any(p.severity == "error" for p in intrinsics)
+    problems = (intrinsics + check_focal_spread(clip) + poses + convention + tracks + axes + inverted
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted, fits=fits,
+                              k_usable=k_usable)
                 + check_depth_ramps(clip, config)
                 + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:
