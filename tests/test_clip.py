@@ -2,14 +2,16 @@
 
 import dataclasses
 import json
+import warnings
 import zipfile
 
 import numpy as np
 import pytest
 
 from sgc_jax import ClipFormatError, SGCConfig, clip_from_arrays, load_clip, load_clips, save_batch, save_clip
-from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.clip import clip_to_arrays, repeated_tracks
 from sgc_jax.io.loading import discover_clips
+from sgc_jax.io.validate import ClipWarning
 from sgc_jax.research.synth import synth_clip
 
 
@@ -33,6 +35,20 @@ def test_valid_clip_loads_with_its_metadata():
     clip = clip_from_arrays(tiny_arrays())
     assert clip.clip_id == "tiny" and clip.group == "g1"
     assert clip.K.shape == (3, 3, 3) and clip.mask_source == "static_mask"
+
+
+def test_arrays_in_fortran_order_load_and_find_repeats_as_in_c_order():
+    arrays = tiny_arrays()
+    for name in ("track_prev", "track_curr"):
+        arrays[name][0, 5] = arrays[name][0, 2]  # one track given twice
+    fortran = {name: np.asfortranarray(a) if a.ndim > 1 else a for name, a in arrays.items()}  # a transposed source's
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ClipWarning)
+        clip, again = clip_from_arrays(arrays), clip_from_arrays(fortran)
+    np.testing.assert_array_equal(again.track_curr, clip.track_curr)
+    assert again.warnings == clip.warnings
+    found = repeated_tracks(fortran["track_prev"], fortran["track_curr"], fortran["track_vis"])
+    assert found.sum() == 1 and found[0, 5]
 
 
 @pytest.mark.parametrize("name, change, expected", [

@@ -109,7 +109,9 @@ def repeated_tracks(track_prev: np.ndarray, track_curr: np.ndarray, usable: np.n
     (docs/semantics.md §1.2). A 32-bit hash of the positions finds the pairs that may hold one (a
     standard clip's in ~1.7 ms on a CPU); only those are compared exactly."""
     multiplier = np.uint64(0x9E3779B97F4A7C15)
-    prev, curr = (np.asarray(a, np.float32) + np.float32(0.0) for a in (track_prev, track_curr))  # -0.0 -> 0.0
+    # C order, as the (x, y) pair's view as one uint64 needs (a transposed or Fortran-ordered array is
+    # not); + 0.0 makes -0.0 0.0
+    prev, curr = (np.ascontiguousarray(a, np.float32) + np.float32(0.0) for a in (track_prev, track_curr))
     with np.errstate(over="ignore"):  # the hash wraps around by design
         mixed = (prev.view(np.uint64)[..., 0] * multiplier ^ curr.view(np.uint64)[..., 0]) * multiplier
     key = np.where(usable, (mixed >> np.uint64(32)).astype(np.uint32) | np.uint32(1), np.uint32(0))  # unusable: 0
