@@ -94,12 +94,16 @@ def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, 
     return ""
 
 
+def _first_frames(frames: np.ndarray) -> str:
+    """The first five of ``frames`` (indices), then "..." where there are more."""
+    return ", ".join(str(int(t)) for t in frames[:5]) + (", ..." if frames.size > 5 else "")
+
+
 def _check_finite(clip_id: str, name: str, array: np.ndarray) -> None:
     """A camera array (T, ...) without NaN or inf; the error names the frames that hold one."""
     finite = np.isfinite(array).reshape(array.shape[0], -1).all(axis=1)
     if not finite.all():
-        bad = np.flatnonzero(~finite)
-        frames = ", ".join(str(int(t)) for t in bad[:5]) + (", ..." if bad.size > 5 else "")
+        frames = _first_frames(np.flatnonzero(~finite))
         raise ClipFormatError(clip_id, name, "finite values",
                               f"{int((~np.isfinite(array)).sum())} non-finite value(s) in frames {frames} of {array.shape[0]}",
                               "frames an estimator failed on? score the pieces of the clip on either side of them")
@@ -111,9 +115,8 @@ def _check_invertible(clip_id: str, K: np.ndarray) -> None:
         condition = np.linalg.cond(K)
     bad = np.flatnonzero(~(condition < K_CONDITION_MAX))
     if bad.size:
-        frames = ", ".join(str(int(t)) for t in bad[:5]) + (", ..." if bad.size > 5 else "")
         raise ClipFormatError(clip_id, "K", "an invertible pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
-                              f"a singular matrix (condition number {condition[bad[0]]:.3g}) in frames {frames}")
+                              f"a singular matrix (condition number {condition[bad[0]]:.3g}) in frames {_first_frames(bad)}")
 
 
 def _settle(votes: list[tuple[str, Any]], tie_break: Callable[[list[Any]], Any]) -> tuple[Any, list[str]]:

@@ -650,13 +650,13 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
         problems += check_far_backdrop(values)
     rho = depth_parallax_rho(clip, config, reading) if read_tracks else float("nan")
     moves_like_disparity = np.isfinite(rho) and rho > DISPARITY_RHO_WARN
-    if moves_like_disparity and (not k_usable or inverse_depth_fits_better(clip, config, reading)):
+    if moves_like_disparity and (not k_usable or inverse_depth_fits_better(clip, config, reading, fits)):
         compat = _is_reference_compat(clip)
         problems.append(Problem(
             "info" if compat else "warning", "depth_like_disparity", "depth",
             "depth (nearer points, smaller values, move more between frames)",
-            f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax), and the tracks "
-            "fit the camera's motion better with its inverse",
+            f"larger values move more (Spearman rho = {rho:+.2f} between depth and track parallax)"
+            + (", and the tracks fit the camera's motion better with its inverse" if k_usable else ""),
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     elif read_tracks and not moves_like_disparity and not _is_reference_compat(clip):  # disparity read as range says nothing
@@ -664,14 +664,17 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
     return problems
 
 
-def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "given") -> bool:
+def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "given",
+                              fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> bool:
     """Whether the tracks miss the camera's motion (``track_fit``, the median over sampled pairs) with
-    the depth read as its inverse by less than DISPARITY_FIT_RATIO of what they miss with it as given.
-    A pair whose translation's scale is fitted at 0 both ways (the same misfit, up to rounding) cannot
-    tell the two readings apart and is left out."""
-    fits = [(track_fit(clip, pair, prev, curr, z, reading), track_fit(clip, pair, prev, curr, 1.0 / z, reading))
-            for pair, prev, curr, z in _track_samples(clip, config)]
-    misfits = np.array([(depth[0], inverse[0]) for depth, inverse in fits
+    the depth read as its inverse by less than DISPARITY_FIT_RATIO of what they miss with it as given
+    (``fits``, ``pair_track_fits`` holding ``reading``, where given). A pair whose translation's scale
+    is fitted at 0 both ways (the same misfit, up to rounding) cannot tell the two readings apart and
+    is left out."""
+    fits = pair_track_fits(clip, config, (reading,)) if fits is None else fits
+    pairs = [(fits[pair][reading], track_fit(clip, pair, prev, curr, 1.0 / z, reading))
+             for pair, prev, curr, z in _track_samples(clip, config)]
+    misfits = np.array([(depth[0], inverse[0]) for depth, inverse in pairs
                         if np.isfinite(depth + inverse).all() and max(depth[1], inverse[1]) > 0]).reshape(-1, 2)
     return bool(misfits.size) and bool(np.median(misfits[:, 1]) < DISPARITY_FIT_RATIO * np.median(misfits[:, 0]))
 
