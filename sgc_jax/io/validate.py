@@ -69,14 +69,22 @@ POSE_MISFIT_MIN_PX = 1.0
 # How a pose file may hold the cameras: as §1.1 asks (world->camera, OpenCV's axes: x right, y down,
 # looking along +z), camera->world, and either with OpenGL's camera axes (y up, looking along -z:
 # Blender's, nerfstudio's and NeRF's transforms.json are camera->world so). The same ratio and floor
-# tell the OpenGL readings (rule G1, bench/history/issue-58.md "Poses with OpenGL's camera axes").
-POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world")
+# tell the OpenGL readings (rule G1, bench/history/issue-58.md "Poses with OpenGL's camera axes"), and
+# two conversions' slips: each camera's centre stored as its translation, and each rotation transposed
+# beside its translation (rule C1, "Poses whose translation is stored as the cameras' centres").
+POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world", "translation as centres",
+                 "rotation transposed")
+# ... named only where they fit below this fraction of the best of the four readings before them: where a
+# clip's translation moves its tracks too little to tell a transposed rotation from a camera->world
+# file (a real clip: 0.878 against 0.881 px), the commoner file is named (rule C2).
+SLIP_READINGS, SLIP_MARGIN = POSE_READINGS[4:], 0.8
 OPENGL_AXES = np.diag([1.0, -1.0, -1.0])  # an OpenGL camera's coordinates -> OpenCV's, and back
 POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
     "camera->world": (
         "camera_to_world_poses", "camera->world",
         "these look like camera->world poses: invert them (R_wc = R^T, t_wc = -R^T t); or, where the poses are "
-        "right, like tracks whose ends are swapped, which read alike: swap track_prev and track_curr"),
+        "right, like tracks whose ends are swapped, which read alike: swap track_prev and track_curr; where the "
+        "camera barely translates, also like rotations alone transposed: then transpose R_wc and keep t_wc"),
     "opengl": (
         "opengl_poses", "world->camera of an OpenGL camera (y up, looking along -z)",
         "these look like an OpenGL camera's world->camera poses: flip its y and z axes (F = diag(1, -1, -1): "
@@ -86,6 +94,14 @@ POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
         "transforms)",
         "these look like an OpenGL camera's camera->world poses (a transforms.json): invert them and flip the "
         "camera's y and z axes (F = diag(1, -1, -1): R_wc = F R^T, t_wc = -F R^T t)"),
+    "translation as centres": (
+        "translation_as_centres", "world->camera rotations with each camera's centre c as its translation",
+        "t_wc looks like the cameras' centres (a camera->world pose's position kept when its rotation was "
+        "transposed): store t_wc = -R_wc c"),
+    "rotation transposed": (
+        "rotation_transposed", "camera->world rotations beside world->camera translations",
+        "R_wc looks transposed (a camera->world rotation, or a quaternion read in the other convention, "
+        "JPL's against Hamilton's): store R_wc = R^T and keep t_wc"),
 }
 # Tracks stored as (y, x): read so, with the poses read either way, they miss the camera's motion by at
 # most this fraction of what they miss as given or with their ends swapped (and by over
@@ -477,12 +493,14 @@ def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.nda
     """(R, t) moving camera pair-1's points into camera pair, from the stored poses read as one of
     POSE_READINGS: as given, world->camera with OpenCV's axes (docs/semantics.md §1.1); as
     camera->world (R_wc holding R_cw, t_wc the camera centre); either of OpenGL's camera (y up,
-    looking along -z), whose axes differ from OpenCV's by OPENGL_AXES."""
+    looking along -z), whose axes differ from OpenCV's by OPENGL_AXES; world->camera rotations with
+    each camera's centre as its translation; each rotation transposed, its translation as given."""
     if reading not in POSE_READINGS:
         raise ValueError(f"unknown pose reading {reading!r}; one of {POSE_READINGS}")
     R, t = clip.R_wc[[pair - 1, pair]], clip.t_wc[[pair - 1, pair]]
-    if reading.endswith("camera->world"):
+    if reading.endswith("camera->world") or reading == "rotation transposed":
         R = np.swapaxes(R, 1, 2)
+    if reading.endswith("camera->world") or reading == "translation as centres":
         t = -np.einsum("fij,fj->fi", R, t)
     R_rel = R[1] @ R[0].T
     t_rel = t[1] - R_rel @ t[0]
@@ -593,12 +611,14 @@ def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] 
 def check_track_axes(residuals: dict[str, dict[str, float]]) -> list[Problem]:
     """From ``track_reading_residuals``: a warning where the tracks fit the camera's motion far
     better read as (y, x) than as given or with their ends swapped (TRACK_READING_RATIO of the
-    better, each reading under its better pose reading, so a pose file of either convention does
-    not decide it): positions stored row first, on a frame where both readings fall inside the
+    better; the two under their better of world->camera and camera->world, the tracks as given
+    under the best of every pose reading, so a pose file's convention or slip does not decide it):
+    positions stored row first, on a frame where both readings fall inside the
     image. (Swapped ends get no line of their own: they read like camera->world poses, and like
     cameras that do not translate.)"""
     misfit = {name: min(by_pose[reading] for reading in POSE_READINGS[:2]) for name, by_pose in residuals.items()}
-    given, yx = misfit["given"], misfit["yx"]
+    # the tracks as given under every pose reading fitted: a pose file's slip is not the tracks' (rule C2)
+    given, yx = float(np.min(list(residuals["given"].values()))), misfit["yx"]
     if not (np.isfinite(given) and given > POSE_MISFIT_MIN_PX and yx < TRACK_READING_RATIO * min(given, misfit["reversed"])):
         return []
     return [Problem(
@@ -615,6 +635,9 @@ def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], s
     stored = residuals["given"]
     others = {reading: residuals[reading] for reading in POSE_READINGS[1:] if reading in residuals}
     best = min(others, key=others.get)
+    commoner = [reading for reading in others if reading not in SLIP_READINGS]
+    if best in SLIP_READINGS and commoner and not others[best] < SLIP_MARGIN * min(others[r] for r in commoner):
+        best = min(commoner, key=others.get)
     if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and others[best] < POSE_CONVENTION_RATIO * stored):
         return [], "given"
     code, meaning, fix = POSE_FIXES[best]
