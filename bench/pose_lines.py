@@ -1,0 +1,118 @@
+"""The loader's pose lines (docs/semantics.md §1.6): which reading of the pose file each names, with
+the poses stored as §1.1 asks and as a conversion plausibly leaves them.
+
+    python bench/pose_lines.py --pool fit|held-out [--scenes 24]
+    python bench/pose_lines.py --real [--realdata ../shared/realdata]
+
+``--pool``: each scene of a random pool (``protocol.random_scene``, 1,000 tracks) under ``iid-both``,
+``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px, its poses stored each way of ``STORED`` and its tracks as (y, x);
+per way and level, the clips a pose line fires on, those it names rightly and those it names
+wrongly (the (y, x) line read directly, as most such positions fall off the pool's frames, where
+``tracks_outside`` speaks first). ``--real``: the shared real clips stored each way, the line each
+draws and the misfit under each pose reading. A tree before rule C1 runs this script as it is (its
+readings are the first four). Nothing is chosen here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from sgc_jax import SGCConfig, clip_from_arrays
+from sgc_jax.io import validate
+from sgc_jax.research import protocol
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+
+HERE = Path(__file__).resolve().parent
+MODELS = ("iid-both", "correlated", "depth", "outliers")
+LEVELS_PX = (0.5, 2.0)
+FLIP = np.diag([1.0, -1.0, -1.0])  # OpenGL's camera axes against OpenCV's
+
+
+def inverted(R, t):
+    R = np.swapaxes(R, 1, 2)
+    return R, -np.einsum("tij,tj->ti", R, t)
+
+
+STORED = {  # how the file holds the poses -> ((R_wc, t_wc) -> stored (R, t), the code its line should give)
+    "as given": (lambda R, t: (R, t), None),
+    "camera->world": (inverted, "camera_to_world_poses"),
+    "opengl": (lambda R, t: (np.einsum("ij,tjk->tik", FLIP, R), t @ FLIP), "opengl_poses"),
+    "opengl camera->world": (lambda R, t: inverted(np.einsum("ij,tjk->tik", FLIP, R), t @ FLIP), "opengl_poses"),
+    "centres as translation": (lambda R, t: (R, inverted(R, t)[1]), "translation_as_centres"),
+    "rotation transposed": (lambda R, t: (np.swapaxes(R, 1, 2), t), "rotation_transposed"),
+}
+TRACKS_YX = "tracks (y, x)"  # the poses as given, each track position stored row first
+WAYS = {way: code for way, (_, code) in STORED.items()} | {TRACKS_YX: "tracks_yx"}
+POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed", "tracks_yx"}
+
+
+def stored(clip, way: str):
+    if way == TRACKS_YX:
+        return dataclasses.replace(clip, track_prev=clip.track_prev[..., ::-1].copy(),
+                                   track_curr=clip.track_curr[..., ::-1].copy())
+    R, t = STORED[way][0](clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64))
+    return dataclasses.replace(clip, R_wc=R.astype(np.float32), t_wc=t.astype(np.float32))
+
+
+def pose_lines(clip, config: SGCConfig, axes_alone: bool = False) -> list[str]:
+    if axes_alone:
+        readings = validate.track_reading_residuals(clip, config, ("given", "yx", "reversed"))
+        return [p.code for p in validate.check_track_axes(readings)]
+    return [p.code for p in validate.check_clip(clip, config) if p.code in POSE_CODES and p.severity == "warning"]
+
+
+def pool_counts(pool: str, scenes: int) -> None:
+    config, counts = SGCConfig(), collections.Counter()
+    for k in range(scenes):
+        scene = protocol.random_scene(k, pool=pool)
+        clean = scene.clip(1000)
+        for j, model in enumerate(MODELS):
+            for px in LEVELS_PX:
+                noisy = add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=scene.seed * 100 + j * 10 + int(2 * px))
+                for way, right in WAYS.items():
+                    codes = pose_lines(stored(noisy, way), config, axes_alone=way == TRACKS_YX)
+                    counts[way, px, "clips"] += 1
+                    counts[way, px, "fires"] += bool(codes)
+                    counts[way, px, "right"] += right in codes
+                    counts[way, px, "wrong"] += bool(set(codes) - {right})
+    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(MODELS)}; readings {validate.POSE_READINGS}")
+    print("| stored | px | clips | a pose line | named rightly | named wrongly |\n|---|---|---|---|---|---|")
+    for way in WAYS:
+        for px in LEVELS_PX:
+            print(f"| {way} | {px} | " + " | ".join(str(counts[way, px, key]) for key in ("clips", "fires", "right", "wrong"))
+                  + " |")
+
+
+def real_clips(realdata: Path) -> None:
+    config = SGCConfig()
+    for path in sorted(realdata.glob("*.npz")):
+        with np.load(path) as arrays:
+            clip = clip_from_arrays({name: arrays[name] for name in arrays.files}, clip_id=path.stem, validate=False)
+        for way in WAYS:
+            readings = validate.pose_convention_residuals(stored(clip, way), config, validate.POSE_READINGS)
+            misfits = ", ".join(f"{reading} {value:.2f}" for reading, value in readings.items())
+            print(f"{path.stem} | {way} | lines {pose_lines(stored(clip, way), config)} | misfit px: {misfits}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
+    parser.add_argument("--scenes", type=int, default=24)
+    parser.add_argument("--real", action="store_true")
+    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    args = parser.parse_args()
+    if args.pool:
+        pool_counts(args.pool, args.scenes)
+    if args.real:
+        real_clips(args.realdata)
+    if not (args.pool or args.real):
+        parser.error("give --pool or --real")
+
+
+if __name__ == "__main__":
+    main()
