@@ -74,6 +74,27 @@ def test_structural_errors_name_clip_array_and_shapes(name, change, expected):
     assert "'tiny'" in message and f"'{name}'" in message and expected in message
     assert info.value.array == name and info.value.clip_id == "tiny"
 
+def every_frames_tracks(a):
+    """A long-range tracker's positions of every frame, (T, P, 2), given as both track arrays."""
+    tracks = np.concatenate([a["track_prev"][:1], a["track_curr"]])
+    a.update(track_prev=tracks, track_curr=tracks)
+
+
+@pytest.mark.parametrize("name, change, hint", [
+    ("track_prev", every_frames_tracks, "track_prev = tracks[:-1], track_curr = tracks[1:]"),
+    ("track_prev", lambda a: a.update(track_prev=a["track_prev"].transpose(1, 0, 2)),
+     "give np.transpose(track_prev, (1, 0, 2))"),
+    ("K", lambda a: a.update(K=np.array([5.0, 5.0, 4.5, 3.5])), "K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"),
+    ("R_wc", lambda a: a.update(R_wc=np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))), "Rotation.from_quat(q).as_matrix()"),
+    ("track_vis", lambda a: a.pop("track_vis"), "track_vis = np.ones((2, 12), bool)"),
+])
+def test_a_shape_that_does_not_fit_is_read_for_what_it_most_likely_holds(name, change, hint):
+    arrays = tiny_arrays()
+    change(arrays)
+    with pytest.raises(ClipFormatError) as info:
+        clip_from_arrays(arrays)
+    assert info.value.array == name and hint in str(info.value), str(info.value)
+
 
 def test_extrinsic_dynamic_mask_and_float_visibility_are_accepted_alternatives():
     arrays = tiny_arrays()

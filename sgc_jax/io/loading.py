@@ -82,7 +82,7 @@ def _check_shape(clip_id: str, name: str, array: np.ndarray, expected: tuple) ->
     if not fits(array.shape):
         want = shape_text("*" if e is None else e for e in expected)
         raise ClipFormatError(clip_id, name, f"shape {want}", f"shape {shape_text(array.shape)}",
-                              _squeeze_hint(name, array.shape, fits))
+                              _squeeze_hint(name, array.shape, fits) or _shape_hint(name, array.shape, expected, fits))
 
 
 def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, ...]], bool]) -> str:
@@ -91,6 +91,25 @@ def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, 
     for axis, size in enumerate(shape):
         if size == 1 and fits(shape[:axis] + shape[axis + 1:]):
             return f"a singleton axis: give {name}.squeeze({axis})"
+    return ""
+
+
+def _shape_hint(name: str, shape: tuple[int, ...], expected: tuple, fits: Callable[[tuple[int, ...]], bool]) -> str:
+    """What a shape that does not fit most likely holds, and how to give it: a track array of every
+    frame (a long-range tracker's (T, P, ...)), axes in another order, K's four numbers or
+    quaternions; else ""."""
+    if name.startswith("track_") and shape and shape[0] == expected[0] + 1 and fits((shape[0] - 1,) + shape[1:]):
+        return ("every frame's positions, as a long-range tracker gives them? give track_prev = tracks[:-1], "
+                "track_curr = tracks[1:], track_vis = visible[:-1] & visible[1:] (docs/semantics.md §1.2), or "
+                "`sgc-jax import --tracks`")
+    for order in itertools.permutations(range(len(shape))):
+        if order != tuple(range(len(shape))) and fits(tuple(shape[axis] for axis in order)):
+            return f"its axes in another order: give np.transpose({name}, {order})"
+    if name == "K" and shape[-1:] == (4,):
+        return "(fx, fy, cx, cy)? give K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
+    if name == "R_wc" and shape[-1:] == (4,):
+        return ("quaternions? give rotation matrices, e.g. scipy.spatial.transform.Rotation.from_quat(q).as_matrix() "
+                "(scalar last; mind the convention: a conjugated quaternion transposes R)")
     return ""
 
 
@@ -273,7 +292,11 @@ def _checked_tracks(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any], 
                               f"shape {shape_text(track_prev.shape)}")
     track_curr = _require(typed, "track_curr", clip_id, f"shape ({T - 1}, {P}, 2)")
     _check_shape(clip_id, "track_curr", track_curr, (T - 1, P, 2))
-    track_vis = _require(typed, "track_vis", clip_id, f"shape ({T - 1}, {P})")
+    if "track_vis" not in typed:
+        raise ClipFormatError(clip_id, "track_vis", f"shape ({T - 1}, {P})", "no such array",
+                              f"present: {sorted(str(name) for name in arrays)}; where every track is visible, give "
+                              f"track_vis = np.ones(({T - 1}, {P}), bool)")
+    track_vis = typed["track_vis"]
     _check_shape(clip_id, "track_vis", track_vis, (T - 1, P))
     if "track_conf" in typed:
         track_conf = typed["track_conf"]
