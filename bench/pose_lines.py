@@ -1,16 +1,16 @@
-"""The loader's pose lines (docs/semantics.md §1.6): which reading of the pose file each names, with
-the poses stored as §1.1 asks and as a conversion plausibly leaves them.
+"""The loader's lines that read the tracks' fit to the camera's motion (docs/semantics.md §1.6): which
+reading of the pose file or of the tracks each names, with the poses stored as §1.1 asks and as a
+conversion plausibly leaves them, and the tracks as (y, x), of a smaller frame or in part of it.
 
     python bench/pose_lines.py --pool fit|held-out [--scenes 24]
     python bench/pose_lines.py --real [--realdata ../shared/realdata]
 
 ``--pool``: each scene of a random pool (``protocol.random_scene``, 1,000 tracks) under ``iid-both``,
-``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px, its poses stored each way of ``STORED`` and its tracks as (y, x);
-per way and level, the clips a pose line fires on, those it names rightly and those it names
-wrongly (the (y, x) line read directly, as most such positions fall off the pool's frames, where
-``tracks_outside`` speaks first). ``--real``: the shared real clips stored each way, the line each
-draws and the misfit under each pose reading. A tree before rule C1 runs this script as it is (its
-readings are the first four). Nothing is chosen here.
+``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px, its poses stored each way of ``STORED``
+and its tracks each way of ``TRACK_WAYS``; per way and level, the clips a line fires on, those it
+names rightly and those it names wrongly (the (y, x) line read directly, as most such positions fall
+off the pool's frames, where ``tracks_outside`` speaks first). ``--real``: the shared real clips
+stored each way, the line each draws and the misfit under each pose reading. Nothing is chosen here.
 """
 
 from __future__ import annotations
@@ -47,14 +47,26 @@ STORED = {  # how the file holds the poses -> ((R_wc, t_wc) -> stored (R, t), th
     "rotation transposed": (lambda R, t: (np.swapaxes(R, 1, 2), t), "rotation_transposed"),
 }
 TRACKS_YX = "tracks (y, x)"  # the poses as given, each track position stored row first
-WAYS = {way: code for way, (_, code) in STORED.items()} | {TRACKS_YX: "tracks_yx"}
-POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed", "tracks_yx"}
+SMALLER_FRAMES = (0.667, 0.75, 0.8, 0.9)  # tracks of a frame this much smaller, rescaled about its corner
+PART_OF_THE_FRAME = 0.8  # tracks outside the top-left 80 % x 80 % of the frame made invisible
+TRACK_WAYS = {TRACKS_YX: "tracks_yx", f"tracks in the top-left {PART_OF_THE_FRAME:.0%}": None} | {
+    f"tracks of a frame x{f}": "tracks_of_a_smaller_frame" for f in SMALLER_FRAMES}
+WAYS = {way: code for way, (_, code) in STORED.items()} | TRACK_WAYS
+POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed", "tracks_yx",
+              "tracks_of_a_smaller_frame"}
 
 
 def stored(clip, way: str):
     if way == TRACKS_YX:
         return dataclasses.replace(clip, track_prev=clip.track_prev[..., ::-1].copy(),
                                    track_curr=clip.track_curr[..., ::-1].copy())
+    if way.startswith("tracks of a frame x"):
+        return validate.scaled_tracks(clip, float(way.rsplit("x", 1)[1]))
+    if way.startswith("tracks in the top-left"):
+        H, W = clip.image_size
+        inside = [(track[..., 0] + 0.5 <= PART_OF_THE_FRAME * W) & (track[..., 1] + 0.5 <= PART_OF_THE_FRAME * H)
+                  for track in (clip.track_prev, clip.track_curr)]
+        return dataclasses.replace(clip, track_vis=clip.track_vis & inside[0] & inside[1])
     R, t = STORED[way][0](clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64))
     return dataclasses.replace(clip, R_wc=R.astype(np.float32), t_wc=t.astype(np.float32))
 

@@ -261,6 +261,10 @@ CASES = {
     "tracks at half the resolution": (lambda c: {"track_prev": c.track_prev / 2, "track_curr": c.track_curr / 2},
                                       "warning", "tracks_small_extent", "track_prev/track_curr",
                                       ["smaller grid", "--track-size"]),
+    "tracks of a smaller frame": (lambda c: {name: (getattr(c, name) + 0.5) * 2 / 3 - 0.5
+                                             for name in ("track_prev", "track_curr")},
+                                  "warning", "tracks_of_a_smaller_frame", "track_prev/track_curr",
+                                  ["visible tracks within its top-left 66%", "scaled by 1.5", "(x + 0.5) 128 / W_tracks - 0.5"]),
     "tracks in normalised coordinates": (lambda c: {"track_prev": c.track_prev / 128, "track_curr": c.track_curr / 128},
                                          "error", "tracks_normalised", "track_prev/track_curr",
                                          ["in pixels of the 96x128 image", "normalised coordinates?", "x W - 0.5"]),

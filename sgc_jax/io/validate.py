@@ -115,6 +115,11 @@ TRACK_READING_RATIO = 0.7
 # fit no camera reading, and the (y, x) reading fitted them better by chance on 5 of 8. Masks with a
 # mover in the splits and the unseen pool cover 91-100 %, the real clips 100 %.
 TRACK_READING_MIN_STATIC = 0.5
+# Tracks of a smaller frame (a tracker run at its own resolution): where the visible positions stay within
+# the top-left TRACK_SCALE_EXTENT of the frame (below TRACK_EXTENT_WARN the small-extent line speaks), they
+# are read scaled by 1 / extent and judged by the (y, x) line's ratio and floor (rule S1,
+# bench/history/issue-58.md "Tracks of a smaller frame").
+TRACK_SCALE_EXTENT = 0.9
 # Depth given as range (each pixel's distance from the camera centre; sgc_jax/io/depth_range.py): read
 # as range it warps onto the next frame with at most RANGE_READING_RATIO of the misfit it leaves read
 # as z, which is above RANGE_MISFIT_MIN (relative; below it the depth warps onto itself as well as
@@ -608,6 +613,45 @@ def track_reading_residuals(clip: Clip, config: SGCConfig, names: Sequence[str] 
             for name, read in track_readings(clip).items() if name in names}
 
 
+def visible_track_extent(clip: Clip) -> float:
+    """The share of the frame the visible, finite track positions reach from its top-left corner: the
+    larger of (x_max + 0.5) / W and (y_max + 0.5) / H over both ends of every pair; NaN without any."""
+    H, W = clip.image_size
+    visible = clip.track_vis.astype(bool) & np.isfinite(clip.track_prev).all(-1) & np.isfinite(clip.track_curr).all(-1)
+    if not visible.any():
+        return float("nan")
+    reach = [max((float(track[..., 0][visible].max()) + 0.5) / W, (float(track[..., 1][visible].max()) + 0.5) / H)
+             for track in (clip.track_prev, clip.track_curr)]
+    return max(reach)
+
+
+def scaled_tracks(clip: Clip, factor: float) -> Clip:
+    """The clip with every track position scaled by ``factor`` about the image's corner (pixel centres
+    at integers: (x + 0.5) factor - 0.5), as tracks of a frame 1 / ``factor`` the size are rescaled."""
+    scale = lambda track: ((track.astype(np.float64) + 0.5) * factor - 0.5).astype(track.dtype)  # noqa: E731
+    return dataclasses.replace(clip, track_prev=scale(clip.track_prev), track_curr=scale(clip.track_curr))
+
+
+def check_track_scale(clip: Clip, config: SGCConfig, given: dict[str, float]) -> list[Problem]:
+    """A warning where the visible tracks reach less than TRACK_SCALE_EXTENT of the frame and, scaled to
+    reach all of it, fit the camera's motion far better (``check_track_axes``' ratio and floor; the
+    tracks as given under the best of every pose reading, ``given``): tracks of a smaller frame."""
+    extent = visible_track_extent(clip)
+    if not (np.isfinite(extent) and TRACK_EXTENT_WARN <= extent < TRACK_SCALE_EXTENT):
+        return []
+    misfit = float(np.min(list(given.values())))
+    scaled = min(pose_convention_residuals(scaled_tracks(clip, 1.0 / extent), config).values())
+    if not (np.isfinite(misfit) and misfit > POSE_MISFIT_MIN_PX and scaled < TRACK_READING_RATIO * misfit):
+        return []
+    H, W = clip.image_size
+    return [Problem(
+        "warning", "tracks_of_a_smaller_frame", "track_prev/track_curr", f"positions in pixels of the {H}x{W} image",
+        f"visible tracks within its top-left {100 * extent:.0f}%, which miss the camera's motion by {misfit:.2g} px "
+        f"(median) as given and by {scaled:.2g} px scaled by {1 / extent:.3g}",
+        f"tracks computed on a smaller copy of the video? rescale them to {H}x{W}: (x + 0.5) {W} / W_tracks - 0.5 "
+        "(`sgc-jax import --track-size HxW`)")]
+
+
 def check_track_axes(residuals: dict[str, dict[str, float]]) -> list[Problem]:
     """From ``track_reading_residuals``: a warning where the tracks fit the camera's motion far
     better read as (y, x) than as given or with their ends swapped (TRACK_READING_RATIO of the
@@ -886,10 +930,12 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
             if tracks_fit and not _is_reference_compat(clip) else None)
     readings = track_reading_residuals(clip, config, read_as, fits) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
+    axes = axes or (check_track_scale(clip, config, readings["given"]) if test_axes else [])
     # a motion mask given as the static one leaves the other tests only the movers' tracks
     inverted = (check_mask_inverted(mask_side_residuals(clip, config, fits), clip.mask_source)
                 if test_poses and not axes else [])
-    # tracks read the wrong way round say nothing about the poses' convention or the depth's kind
+    # tracks read the wrong way round or at the wrong size say nothing about the poses' convention or
+    # the depth's kind
     test_convention = test_poses and not axes and not inverted
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
     intrinsics = check_intrinsics(clip)
