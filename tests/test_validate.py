@@ -252,6 +252,11 @@ CASES = {
     "tracks at twice the resolution": (lambda c: {"track_prev": 2 * c.track_prev, "track_curr": 2 * c.track_curr},
                                        "error", "tracks_outside", "track_prev/track_curr",
                                        ["74% outside", "at least 191x255", "--track-size"]),
+    "tracks of a slightly larger frame": (lambda c: {name: (getattr(c, name) + 0.5) * 1.1 - 0.5
+                                                     for name in ("track_prev", "track_curr")},
+                                          "warning", "tracks_outside", "track_prev/track_curr",
+                                          ["check the visibility threshold", "none lies left of or above it",
+                                           "--track-size"]),
     "tracks stored as (y, x)": (lambda c: {"track_prev": c.track_prev[..., ::-1], "track_curr": c.track_curr[..., ::-1]},
                                 "warning", "tracks_outside", "track_prev/track_curr",
                                 ["outside", "read as (y, x) the positions fit the image", "(x, y) = (column, row)"]),

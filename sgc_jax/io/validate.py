@@ -392,20 +392,23 @@ def check_track_positions(clip: Clip) -> list[Problem]:
         visible &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
     n_points = 2 * int(visible.sum())
     if n_points:
-        n_out, n_out_swapped, x_max, y_max = 0, 0, -np.inf, -np.inf
+        n_out, n_out_swapped, x_max, y_max, low = 0, 0, -np.inf, -np.inf, np.inf
         for track in (clip.track_prev, clip.track_curr):
             x, y = track[..., 0], track[..., 1]
             n_out += int((_outside(x, y, H, W) & visible).sum())
             n_out_swapped += int((_outside(y, x, H, W) & visible).sum())
             x_max = max(x_max, float(np.max(x, where=visible, initial=-np.inf)))
             y_max = max(y_max, float(np.max(y, where=visible, initial=-np.inf)))
+            low = min(low, float(np.min(np.minimum(x, y), where=visible, initial=np.inf)))
         frac = n_out / n_points
         if frac > TRACKS_OUTSIDE_WARN:
             severity = "error" if frac > TRACKS_OUTSIDE_ERROR else "warning"
-            fix = (f"tracks computed on a grid of at least {np.ceil(y_max + 1):.0f}x{np.ceil(x_max + 1):.0f}? rescale them to "
-                   f"{H}x{W} (`sgc-jax import --track-size HxW`)" if severity == "error" else
-                   "positions outside the image are usually tracks marked visible after leaving the frame: "
-                   "check the visibility threshold")
+            larger = (f"tracks computed on a grid of at least {np.ceil(y_max + 1):.0f}x{np.ceil(x_max + 1):.0f}? rescale "
+                      f"them to {H}x{W} (`sgc-jax import --track-size HxW`)")
+            fix = larger if severity == "error" else (
+                "positions outside the image are usually tracks marked visible after leaving the frame: check the "
+                "visibility threshold" + (f"; none lies left of or above it, so maybe {larger}" if low >= -TRACK_MARGIN_PX
+                                          else ""))
             if n_out_swapped / n_points <= TRACKS_OUTSIDE_WARN:
                 fix = ("read as (y, x) the positions fit the image: store each position as (x, y) = (column, row) "
                        "(docs/semantics.md §1.1)")
