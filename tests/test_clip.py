@@ -111,6 +111,18 @@ def test_extrinsic_dynamic_mask_and_float_visibility_are_accepted_alternatives()
     assert (clip.track_conf == 1).all() and clip.track_vis.sum() == 12
 
 
+def test_a_float_mask_is_true_above_even_odds_and_other_numbers_where_non_zero():
+    arrays = tiny_arrays()
+    static = arrays.pop("static_mask")
+    static[:, :2] = False  # a mover over the top rows
+    as_bool = clip_from_arrays(dict(arrays, static_mask=static)).static_mask
+    for stored in ({"static_mask": np.where(static, 0.98, 0.03)},  # a network's probabilities
+                   {"dynamic_mask": np.where(static, 0.02, 0.97).astype(np.float32)},
+                   {"dynamic_mask": np.where(static, -4.0, 4.0)},  # logits
+                   {"static_mask": 255 * static.astype(np.uint8)}, {"dynamic_mask": 3 * (~static).astype(np.int32)}):
+        np.testing.assert_array_equal(clip_from_arrays(dict(arrays, **stored)).static_mask, as_bool)
+
+
 def test_missing_mask_means_whole_frame_static_and_says_so():
     arrays = tiny_arrays()
     del arrays["static_mask"]

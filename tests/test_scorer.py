@@ -297,12 +297,15 @@ def test_a_wrong_shape_or_dtype_raises_clip_format_error_at_the_call(scorer, cor
         scorer({k: v for k, v in batch.items() if k != "K"})
 
 
-def test_a_float_visibility_is_read_as_the_loader_reads_it(scorer, corpus):
+def test_float_visibility_and_masks_are_read_as_the_loader_reads_them(scorer, corpus):
     batch = batch_of(corpus[:4])
     logits = np.where(batch["track_vis"], 3.0, -2.0).astype(np.float32)  # hidden below 0, as the loader reads
-    read = scorer.clip_arrays({**batch, "track_vis": logits, "static_mask": batch["static_mask"].astype(np.float32)})
+    probabilities = np.where(batch["static_mask"], 0.98, 0.03).astype(np.float32)  # static above 0.5
+    read = scorer.clip_arrays({**batch, "track_vis": logits, "static_mask": probabilities})
     assert np.array_equal(np.asarray(read.track_vis), batch["track_vis"])
-    assert np.array_equal(np.asarray(read.static_mask), batch["static_mask"])  # any non-zero value
+    assert np.array_equal(np.asarray(read.static_mask), batch["static_mask"])
+    ids = scorer.clip_arrays({**batch, "static_mask": 7 * batch["static_mask"].astype(np.uint8)})  # any non-zero
+    assert np.array_equal(np.asarray(ids.static_mask), batch["static_mask"])
 
 
 def test_batch_of_pads_to_a_shape_and_names_a_clip_that_does_not_fit(corpus):

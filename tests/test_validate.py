@@ -397,6 +397,16 @@ def test_stored_dtypes_that_suggest_a_mix_up_warn(clip, change, code, array, wor
         clip_from_arrays(arrays)
 
 
+def test_a_float_mask_of_probabilities_gets_an_info_line_naming_its_threshold_not_a_labels_warning(clip):
+    probabilities = np.where(clip.static_mask, 0.9, 0.1).astype(np.float32)
+    probabilities[:, :, :5] = np.linspace(0.2, 0.8, 96)[None, :, None]  # a network's soft edge
+    arrays = arrays_of(clip, static_mask=probabilities)
+    problems = check_clip(clip_from_arrays(arrays, validate=False), arrays=arrays)
+    found = [p for p in problems if p.array == "static_mask" and p.code != "mask_coverage"]
+    assert [(p.code, p.severity) for p in found] == [("mask_float", "info")], found
+    assert "static where above 0.5" in found[0].line()
+
+
 def test_integer_depth_at_its_largest_value_is_no_reading_and_the_warning_says_so(clip):
     millimetres = np.round(1000 * clip.depth).astype(np.uint16)
     millimetres[:, :8, :8] = np.iinfo(np.uint16).max  # 7-Scenes' and Kinect's PNGs mark no reading so

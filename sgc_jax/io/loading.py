@@ -267,14 +267,23 @@ def _checked_cameras(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any],
     return K, R_wc, t_wc
 
 
+MASK_FLOAT_TRUE_ABOVE = 0.5  # a float mask holds a network's probabilities (or logits): true above even odds
+
+
+def mask_truth(mask: np.ndarray) -> np.ndarray:
+    """A stored mask as booleans (docs/semantics.md §1.2): a float mask true where above
+    MASK_FLOAT_TRUE_ABOVE, booleans and integers where non-zero (0/255 bytes, object ids)."""
+    return mask > MASK_FLOAT_TRUE_ABOVE if mask.dtype.kind == "f" else mask.astype(bool)
+
+
 def _checked_mask(typed: Mapping[str, np.ndarray], clip_id: str, shape: tuple[int, int, int]) -> tuple[np.ndarray, str]:
     """(static mask (T, H, W) bool, its source: "static_mask", "dynamic_mask" or "none")."""
     if "static_mask" in typed:
         _check_shape(clip_id, "static_mask", typed["static_mask"], shape)
-        return typed["static_mask"].astype(bool), "static_mask"
+        return mask_truth(typed["static_mask"]), "static_mask"
     if "dynamic_mask" in typed:
         _check_shape(clip_id, "dynamic_mask", typed["dynamic_mask"], shape)
-        return ~typed["dynamic_mask"].astype(bool), "dynamic_mask"
+        return ~mask_truth(typed["dynamic_mask"]), "dynamic_mask"
     return np.ones(shape, bool), "none"
 
 

@@ -461,7 +461,17 @@ def check_dtypes(arrays: Any) -> list[Problem]:
     for name in ("static_mask", "dynamic_mask"):
         if name in arrays:
             mask = np.asarray(arrays[name])
-            if mask.dtype != bool:
+            if mask.dtype.kind == "f":  # a network's probabilities or logits, read at even odds (§1.2)
+                values = mask[:, ::4, ::4] if mask.ndim == 3 else mask
+                between = np.count_nonzero((values > 0) & (values < 1) & (values != 0.5))
+                if between or np.any(values < 0):
+                    problems.append(Problem(
+                        "info", "mask_float", name, "a boolean mask",
+                        f"floats in [{np.nanmin(values):.3g}, {np.nanmax(values):.3g}], {100 * between / values.size:.0f}% "
+                        "strictly between 0 and 1", f"read as {'static' if name == 'static_mask' else 'moving'} where "
+                        "above 0.5 (probabilities at even odds; logits at a probability of 0.62): store a boolean "
+                        "mask of your own threshold to read it otherwise"))
+            elif mask.dtype != bool:
                 values = np.unique(mask[:, ::4, ::4]) if mask.ndim == 3 else np.unique(mask)
                 if values.size > 2:
                     shown = ", ".join(str(v) for v in values[:6]) + (", ..." if values.size > 6 else "")
