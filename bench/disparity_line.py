@@ -25,11 +25,8 @@ import numpy as np
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
 from sgc_jax.research import protocol
-from sgc_jax.research.noise import NOISE_MODELS, add_noise
 
 HERE = Path(__file__).resolve().parent
-MODELS = ("iid-both", "correlated", "depth", "outliers")
-LEVELS_PX = (0.5, 2.0)
 WINDOW_FRAMES = (2, 3, 4, 8)
 
 
@@ -61,23 +58,18 @@ def misfit_ratio(clip, config: SGCConfig) -> float:
 
 def pool_counts(pool: str, scenes: int) -> None:
     config, counts, ratios = SGCConfig(), collections.Counter(), []
-    for k in range(scenes):
-        scene = protocol.random_scene(k, pool=pool)
-        clean = scene.clip(1000)
-        for j, model in enumerate(MODELS):
-            for px in LEVELS_PX:
-                noisy = add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=scene.seed * 100 + j * 10 + int(2 * px))
-                for reading, clip in (("as given", noisy), ("disparity stored", as_disparity(noisy))):
-                    rho_alone = disparity_line(clip, config, rho_alone=True)
-                    counts[reading, px, "rho alone"] += rho_alone
-                    counts[reading, px, "rule D2"] += disparity_line(clip, config)
-                    counts[reading, px, "clips"] += 1
-                    if rho_alone and reading != "as given":
-                        ratios.append(misfit_ratio(clip, config))
-    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(MODELS)}")
+    for px, noisy in protocol.check_pool_clips(pool, scenes):
+        for reading, clip in (("as given", noisy), ("disparity stored", as_disparity(noisy))):
+            rho_alone = disparity_line(clip, config, rho_alone=True)
+            counts[reading, px, "rho alone"] += rho_alone
+            counts[reading, px, "rule D2"] += disparity_line(clip, config)
+            counts[reading, px, "clips"] += 1
+            if rho_alone and reading != "as given":
+                ratios.append(misfit_ratio(clip, config))
+    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(protocol.CHECK_POOL_MODELS)}")
     print("| reading | px | clips | rho alone | rule D2 |\n|---|---|---|---|---|")
     for reading in ("as given", "disparity stored"):
-        for px in LEVELS_PX:
+        for px in protocol.CHECK_POOL_LEVELS_PX:
             print(f"| {reading} | {px} | {counts[reading, px, 'clips']} | {counts[reading, px, 'rho alone']} | "
                   f"{counts[reading, px, 'rule D2']} |")
     print("misfit ratios (1/z : z) where rho alone finds disparity stored, the largest:",

@@ -25,11 +25,8 @@ import numpy as np
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
 from sgc_jax.research import protocol
-from sgc_jax.research.noise import NOISE_MODELS, add_noise
 
 HERE = Path(__file__).resolve().parent
-MODELS = ("iid-both", "correlated", "depth", "outliers")
-LEVELS_PX = (0.5, 2.0)
 FLIP = np.diag([1.0, -1.0, -1.0])  # OpenGL's camera axes against OpenCV's
 
 
@@ -80,22 +77,18 @@ def pose_lines(clip, config: SGCConfig, axes_alone: bool = False) -> list[str]:
 
 def pool_counts(pool: str, scenes: int) -> None:
     config, counts = SGCConfig(), collections.Counter()
-    for k in range(scenes):
-        scene = protocol.random_scene(k, pool=pool)
-        clean = scene.clip(1000)
-        for j, model in enumerate(MODELS):
-            for px in LEVELS_PX:
-                noisy = add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=scene.seed * 100 + j * 10 + int(2 * px))
-                for way, right in WAYS.items():
-                    codes = pose_lines(stored(noisy, way), config, axes_alone=way == TRACKS_YX)
-                    counts[way, px, "clips"] += 1
-                    counts[way, px, "fires"] += bool(codes)
-                    counts[way, px, "right"] += right in codes
-                    counts[way, px, "wrong"] += bool(set(codes) - {right})
-    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(MODELS)}; readings {validate.POSE_READINGS}")
+    for px, noisy in protocol.check_pool_clips(pool, scenes):
+        for way, right in WAYS.items():
+            codes = pose_lines(stored(noisy, way), config, axes_alone=way == TRACKS_YX)
+            counts[way, px, "clips"] += 1
+            counts[way, px, "fires"] += bool(codes)
+            counts[way, px, "right"] += right in codes
+            counts[way, px, "wrong"] += bool(set(codes) - {right})
+    print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(protocol.CHECK_POOL_MODELS)}; "
+          f"readings {validate.POSE_READINGS}")
     print("| stored | px | clips | a pose line | named rightly | named wrongly |\n|---|---|---|---|---|---|")
     for way in WAYS:
-        for px in LEVELS_PX:
+        for px in protocol.CHECK_POOL_LEVELS_PX:
             print(f"| {way} | {px} | " + " | ".join(str(counts[way, px, key]) for key in ("clips", "fires", "right", "wrong"))
                   + " |")
 

@@ -122,6 +122,22 @@ def random_scene(k: int, fovs: Sequence[float] = (60.0,), pool: str = "unseen") 
     return ProtocolScene(f"unseen-{k}" if pool == "unseen" else f"{pool}-pool-{k}", seed, spec)
 
 
+#: The loader checks' pools (bench/disparity_line.py, bench/pose_lines.py): each random scene under these
+#: noise models at these levels, 1,000 tracks.
+CHECK_POOL_MODELS, CHECK_POOL_LEVELS_PX = ("iid-both", "correlated", "depth", "outliers"), (0.5, 2.0)
+
+
+def check_pool_clips(pool: str, scenes: int) -> Iterator[tuple[float, Clip]]:
+    """(noise level [px], clip) for scenes 0..``scenes``-1 of a random pool, 1,000 tracks, under each of
+    CHECK_POOL_MODELS at each of CHECK_POOL_LEVELS_PX; the noise seeded by scene, model and level."""
+    for k in range(scenes):
+        scene = random_scene(k, pool=pool)
+        clean = scene.clip(1000)
+        for j, model in enumerate(CHECK_POOL_MODELS):
+            for px in CHECK_POOL_LEVELS_PX:
+                yield px, add_noise(clean, NOISE_MODELS[model].replace(px=px), seed=scene.seed * 100 + j * 10 + int(2 * px))
+
+
 @dataclasses.dataclass(frozen=True)
 class Cell:
     """One scene under one noise model, level and track count; its rows share one noise seed.
