@@ -266,6 +266,11 @@ CASES = {
     "tracks at half the resolution": (lambda c: {"track_prev": c.track_prev / 2, "track_curr": c.track_curr / 2},
                                       "warning", "tracks_small_extent", "track_prev/track_curr",
                                       ["smaller grid", "--track-size"]),
+    "occlusion probabilities stored as confidence": (
+        lambda c: {"track_conf": np.where(c.track_vis & (np.arange(c.track_vis.shape[1]) % 8 > 0), 0.1, 0.9)
+                   .astype(np.float32)},  # an eighth of the visible tracks confident, so no pair is empty
+        "warning", "track_conf_low", "track_conf",
+        ["% of the visible tracks below it (median 0.1, the hidden tracks' 0.9)", "store 1 - p"]),
     "tracks of a smaller frame": (lambda c: {name: (getattr(c, name) + 0.5) * 2 / 3 - 0.5
                                              for name in ("track_prev", "track_curr")},
                                   "warning", "tracks_of_a_smaller_frame", "track_prev/track_curr",

@@ -44,6 +44,7 @@ TRACKS_NORMALISED_PX, TRACKS_NORMALISED_MIN_SIZE = 2.0, 16
 # split's scene nor real clip repeats a track.
 DUPLICATE_TRACKS_WARN = 0.05
 CONF_OUTSIDE_WARN = 0.01  # share of the visible tracks' confidences outside [0, 1]: logits or percentages
+CONF_LOW_WARN = 0.5  # share of the visible tracks below min_track_conf: the score cannot use most of them
 # share of a float track_vis strictly between 0 and 1 (all of it within [0, 1], some of it below 0.5):
 # probabilities, whose hidden tracks the reading "visible where > 0" keeps (docs/semantics.md §1.2)
 VIS_FRACTIONAL_WARN = 0.01
@@ -350,13 +351,33 @@ def check_track_conf(clip: Clip, config: SGCConfig) -> list[Problem]:
     logits or percentages, which the threshold ``min_track_conf`` does not read as meant."""
     conf = clip.track_conf[clip.track_vis]
     outside = np.count_nonzero((conf < 0) | (conf > 1))
-    if conf.size == 0 or outside <= CONF_OUTSIDE_WARN * conf.size:
+    if conf.size == 0:
         return []
+    if outside <= CONF_OUTSIDE_WARN * conf.size:
+        return check_track_conf_low(clip, config, conf)
     return [Problem("warning", "track_conf_range", "track_conf", "confidences in [0, 1]",
                     f"{100 * outside / conf.size:.0f}% of the visible tracks' confidences outside it (range "
                     f"[{conf.min():.3g}, {conf.max():.3g}]); a track is usable at confidence >= "
                     f"{config.min_track_conf:g} (docs/semantics.md §1.2)",
                     "logits: store their sigmoid, 1 / (1 + exp(-x)); percentages: divide by 100")]
+
+
+def check_track_conf_low(clip: Clip, config: SGCConfig, conf: np.ndarray) -> list[Problem]:
+    """A warning where over CONF_LOW_WARN of the visible tracks' confidences (``conf``, in [0, 1]) lie
+    below ``min_track_conf``, so that the score cannot use them; where the hidden tracks are the more
+    confident, the line names an occlusion probability stored as confidence."""
+    low = np.count_nonzero(conf < config.min_track_conf)
+    if low <= CONF_LOW_WARN * conf.size:
+        return []
+    hidden = clip.track_conf[~clip.track_vis.astype(bool)]
+    inverted = hidden.size > 0 and np.median(hidden) > np.median(conf)
+    return [Problem("warning", "track_conf_low", "track_conf",
+                    f"most visible tracks usable (confidence >= min_track_conf {config.min_track_conf:g})",
+                    f"{100 * low / conf.size:.0f}% of the visible tracks below it (median {np.median(conf):.3g}"
+                    + (f", the hidden tracks' {np.median(hidden):.3g})" if inverted else ")"),
+                    "these look like occlusion probabilities: store 1 - p" if inverted else
+                    "the score cannot use them: check what the tracker's confidence means (an occlusion "
+                    "probability? store 1 - p), or lower min_track_conf for a tracker whose confidences run low")]
 
 
 def check_track_vis_values(arrays: Any, reference_compat: bool = False) -> list[Problem]:
