@@ -69,10 +69,10 @@ def _typed_arrays(arrays: Mapping[str, Any], clip_id: str) -> dict[str, np.ndarr
     return typed
 
 
-def _require(arrays: Mapping[str, Any], name: str, clip_id: str, expected: str) -> np.ndarray:
+def _require(arrays: Mapping[str, Any], name: str, clip_id: str, expected: str, hint: str = "") -> np.ndarray:
     if name not in arrays:
         raise ClipFormatError(clip_id, name, expected, "no such array",
-                              f"present: {sorted(arrays)}")
+                              f"present: {sorted(arrays)}" + (f"; {hint}" if hint else ""))
     return np.asarray(arrays[name])
 
 
@@ -301,11 +301,8 @@ def _checked_tracks(typed: Mapping[str, np.ndarray], arrays: Mapping[str, Any], 
                               f"shape {shape_text(track_prev.shape)}")
     track_curr = _require(typed, "track_curr", clip_id, f"shape ({T - 1}, {P}, 2)")
     _check_shape(clip_id, "track_curr", track_curr, (T - 1, P, 2))
-    if "track_vis" not in typed:
-        raise ClipFormatError(clip_id, "track_vis", f"shape ({T - 1}, {P})", "no such array",
-                              f"present: {sorted(str(name) for name in arrays)}; where every track is visible, give "
-                              f"track_vis = np.ones(({T - 1}, {P}), bool)")
-    track_vis = typed["track_vis"]
+    track_vis = _require(typed, "track_vis", clip_id, f"shape ({T - 1}, {P})",
+                         f"where every track is visible, give track_vis = np.ones(({T - 1}, {P}), bool)")
     _check_shape(clip_id, "track_vis", track_vis, (T - 1, P))
     if "track_conf" in typed:
         track_conf = typed["track_conf"]

@@ -402,25 +402,35 @@ def check_track_vis_values(arrays: Any, reference_compat: bool = False) -> list[
                     "visible lifted the real clips from 0.13-0.21 to 0.48-0.65")]
 
 
+def _visible_reach(clip: Clip) -> tuple[np.ndarray, float, float, float]:
+    """(visible (T-1, P): visible with both ends finite, however far outside, x_max, y_max, the least
+    coordinate) over both ends of every pair's visible tracks; -inf, -inf, inf without any."""
+    visible = clip.track_vis.astype(bool)
+    for track in (clip.track_prev, clip.track_curr):
+        visible &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
+    x_max, y_max, low = -np.inf, -np.inf, np.inf
+    for track in (clip.track_prev, clip.track_curr):
+        x, y = track[..., 0], track[..., 1]
+        x_max = max(x_max, float(np.max(x, where=visible, initial=-np.inf)))
+        y_max = max(y_max, float(np.max(y, where=visible, initial=-np.inf)))
+        low = min(low, float(np.min(np.minimum(x, y), where=visible, initial=np.inf)))
+    return visible, x_max, y_max, low
+
+
 def check_track_positions(clip: Clip) -> list[Problem]:
     """Visible track positions against the H x W grid (``tracks_outside``: an error where over
     TRACKS_OUTSIDE_ERROR of them lie outside, tracks of another grid) and their extent."""
     H, W = clip.image_size
     problems = []
     # visible and finite, however far outside: tracks of a larger grid are what this check finds
-    visible = clip.track_vis.copy()
-    for track in (clip.track_prev, clip.track_curr):
-        visible &= np.isfinite(track[..., 0]) & np.isfinite(track[..., 1])
+    visible, x_max, y_max, low = _visible_reach(clip)
     n_points = 2 * int(visible.sum())
     if n_points:
-        n_out, n_out_swapped, x_max, y_max, low = 0, 0, -np.inf, -np.inf, np.inf
+        n_out, n_out_swapped = 0, 0
         for track in (clip.track_prev, clip.track_curr):
             x, y = track[..., 0], track[..., 1]
             n_out += int((_outside(x, y, H, W) & visible).sum())
             n_out_swapped += int((_outside(y, x, H, W) & visible).sum())
-            x_max = max(x_max, float(np.max(x, where=visible, initial=-np.inf)))
-            y_max = max(y_max, float(np.max(y, where=visible, initial=-np.inf)))
-            low = min(low, float(np.min(np.minimum(x, y), where=visible, initial=np.inf)))
         frac = n_out / n_points
         if frac > TRACKS_OUTSIDE_WARN:
             severity = "error" if frac > TRACKS_OUTSIDE_ERROR else "warning"
@@ -484,7 +494,7 @@ def check_dtypes(arrays: Any) -> list[Problem]:
             mask = np.asarray(arrays[name])
             if mask.dtype.kind == "f":  # a network's probabilities or logits, read at even odds (§1.2)
                 values = mask[:, ::4, ::4] if mask.ndim == 3 else mask
-                between = np.count_nonzero((values > 0) & (values < 1) & (values != 0.5))
+                between = np.count_nonzero((values > 0) & (values < 1))
                 if between or np.any(values < 0):
                     problems.append(Problem(
                         "info", "mask_float", name, "a boolean mask",
@@ -651,12 +661,8 @@ def visible_track_extent(clip: Clip) -> float:
     """The share of the frame the visible, finite track positions reach from its top-left corner: the
     larger of (x_max + 0.5) / W and (y_max + 0.5) / H over both ends of every pair; NaN without any."""
     H, W = clip.image_size
-    visible = clip.track_vis.astype(bool) & np.isfinite(clip.track_prev).all(-1) & np.isfinite(clip.track_curr).all(-1)
-    if not visible.any():
-        return float("nan")
-    reach = [max((float(track[..., 0][visible].max()) + 0.5) / W, (float(track[..., 1][visible].max()) + 0.5) / H)
-             for track in (clip.track_prev, clip.track_curr)]
-    return max(reach)
+    visible, x_max, y_max, _ = _visible_reach(clip)
+    return max((x_max + 0.5) / W, (y_max + 0.5) / H) if visible.any() else float("nan")
 
 
 def scaled_tracks(clip: Clip, factor: float) -> Clip:
