@@ -1,6 +1,6 @@
 """The loader's disparity line (docs/semantics.md §1.6, `depth_like_disparity`): where it fires with
 its rank test alone (Spearman rho > 0.3) and with the camera's translation asked too (the depth's
-inverse fits the tracks better, `io.validate.inverse_depth_fits_better`; rule D2).
+inverse fits the tracks better, `io.checks.depth.inverse_depth_fits_better`; rule D2).
 
     python bench/disparity_line.py --pool fit|held-out [--scenes 24]
     python bench/disparity_line.py --real-windows [--realdata ../shared/realdata]
@@ -24,6 +24,8 @@ import numpy as np
 
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
+from sgc_jax.io.checks import depth as depth_checks
+from sgc_jax.io.checks.motion_fits import track_fit, track_samples
 from sgc_jax.research import protocol
 
 HERE = Path(__file__).resolve().parent
@@ -39,20 +41,20 @@ def as_disparity(clip):
 
 def disparity_line(clip, config: SGCConfig, rho_alone: bool = False) -> bool:
     """Whether the line fires as shipped, or (``rho_alone``) with its rank test alone."""
-    shipped = validate.inverse_depth_fits_better
+    shipped = depth_checks.inverse_depth_fits_better
     if rho_alone:
-        validate.inverse_depth_fits_better = lambda *args, **kwargs: True
+        depth_checks.inverse_depth_fits_better = lambda *args, **kwargs: True
     try:
         return any(p.code == "depth_like_disparity" and p.severity == "warning"
                    for p in validate.check_clip(clip, config))
     finally:
-        validate.inverse_depth_fits_better = shipped
+        depth_checks.inverse_depth_fits_better = shipped
 
 
 def misfit_ratio(clip, config: SGCConfig) -> float:
-    misfits = np.array([(validate.track_fit(clip, pair, prev, curr, z, "given")[0],
-                         validate.track_fit(clip, pair, prev, curr, 1.0 / z, "given")[0])
-                        for pair, prev, curr, z in validate._track_samples(clip, config)])
+    misfits = np.array([(track_fit(clip, pair, prev, curr, z, "given")[0],
+                         track_fit(clip, pair, prev, curr, 1.0 / z, "given")[0])
+                        for pair, prev, curr, z in track_samples(clip, config)])
     return float(np.median(misfits[:, 1]) / np.median(misfits[:, 0]))
 
 

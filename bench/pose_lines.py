@@ -24,6 +24,13 @@ import numpy as np
 
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
+from sgc_jax.io.checks.motion_fits import (
+    POSE_READINGS,
+    pose_convention_residuals,
+    scaled_tracks,
+    track_reading_residuals,
+)
+from sgc_jax.io.checks.tracks import check_track_axes
 from sgc_jax.research import protocol
 
 HERE = Path(__file__).resolve().parent
@@ -58,7 +65,7 @@ def stored(clip, way: str):
         return dataclasses.replace(clip, track_prev=clip.track_prev[..., ::-1].copy(),
                                    track_curr=clip.track_curr[..., ::-1].copy())
     if way.startswith("tracks of a frame x"):
-        return validate.scaled_tracks(clip, float(way.rsplit("x", 1)[1]))
+        return scaled_tracks(clip, float(way.rsplit("x", 1)[1]))
     if way.startswith("tracks in the top-left"):
         H, W = clip.image_size
         inside = [(track[..., 0] + 0.5 <= PART_OF_THE_FRAME * W) & (track[..., 1] + 0.5 <= PART_OF_THE_FRAME * H)
@@ -70,8 +77,8 @@ def stored(clip, way: str):
 
 def pose_lines(clip, config: SGCConfig, axes_alone: bool = False) -> list[str]:
     if axes_alone:
-        readings = validate.track_reading_residuals(clip, config, ("given", "yx", "reversed"))
-        return [p.code for p in validate.check_track_axes(readings)]
+        readings = track_reading_residuals(clip, config, ("given", "yx", "reversed"))
+        return [p.code for p in check_track_axes(readings)]
     return [p.code for p in validate.check_clip(clip, config) if p.code in POSE_CODES and p.severity == "warning"]
 
 
@@ -85,7 +92,7 @@ def pool_counts(pool: str, scenes: int) -> None:
             counts[way, px, "right"] += right in codes
             counts[way, px, "wrong"] += bool(set(codes) - {right})
     print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(protocol.CHECK_POOL_MODELS)}; "
-          f"readings {validate.POSE_READINGS}")
+          f"readings {POSE_READINGS}")
     print("| stored | px | clips | a pose line | named rightly | named wrongly |\n|---|---|---|---|---|---|")
     for way in WAYS:
         for px in protocol.CHECK_POOL_LEVELS_PX:
@@ -99,7 +106,7 @@ def real_clips(realdata: Path) -> None:
         with np.load(path) as arrays:
             clip = clip_from_arrays({name: arrays[name] for name in arrays.files}, clip_id=path.stem, validate=False)
         for way in WAYS:
-            readings = validate.pose_convention_residuals(stored(clip, way), config, validate.POSE_READINGS)
+            readings = pose_convention_residuals(stored(clip, way), config, POSE_READINGS)
             misfits = ", ".join(f"{reading} {value:.2f}" for reading, value in readings.items())
             print(f"{path.stem} | {way} | lines {pose_lines(stored(clip, way), config)} | misfit px: {misfits}")
 

@@ -22,9 +22,9 @@ from .adapters.vggt import MODES as VGGT_MODES
 from .calibration import COMPONENTS
 from .codes import CLIP_STATUSES
 from .config import SGCConfig, cli_flag, renamed_fields
+from .io.checks.problems import clip_warnings_as_lines
 from .io.depth_edges import DEPTH_EDGE_RATIO
 from .io.extras import MissingExtraError
-from .io.validate import clip_warnings_as_lines
 from .scoring.engine_steps import ENGINES
 from .scoring.options import READ_IN
 from .version import __version__

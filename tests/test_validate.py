@@ -24,12 +24,13 @@ from sgc_jax import (
 )
 from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
 from sgc_jax.engines.jax_engine import device_prepare
-from sgc_jax.io import validate
+from sgc_jax.io.checks import cameras as camera_checks, depth as depth_checks
+from sgc_jax.io.checks.depth import inverse_depth_fits_better
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
 from sgc_jax.io.depth_range import depth_from_range, ray_lengths
 from sgc_jax.io.loading import validate_paths
-from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip, inverse_depth_fits_better
+from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.noise import enlarged_depth
 from sgc_jax.research.synth import synth_clip
 
@@ -350,7 +351,7 @@ def test_depth_is_called_disparity_only_where_its_inverse_fits_the_camera_better
     # a still camera's translation cannot tell depth from disparity: a rank correlation alone (here
     # forced) does not call the depth disparity
     still = arrays_of(clip, t_wc=np.zeros_like(clip.t_wc))
-    monkeypatch.setattr(validate, "depth_parallax_rho", lambda *args, **kwargs: 0.8)
+    monkeypatch.setattr(depth_checks, "depth_parallax_rho", lambda *args, **kwargs: 0.8)
     assert "depth_like_disparity" in [p.code for p in problems_of(arrays_of(clip, **disparity))]
     assert "depth_like_disparity" not in [p.code for p in problems_of(still)]
 
@@ -361,9 +362,9 @@ def test_a_pose_files_slip_is_named_only_where_it_fits_clearly_better_than_the_c
     # whose translation is stored as the cameras' centres")
     misfits = {"given": 5.70, "camera->world": 0.881, "opengl": 1.40, "opengl camera->world": 4.43,
                "translation as centres": 9.62, "rotation transposed": 0.878}
-    assert [p.code for p in validate.check_pose_convention(misfits)[0]] == ["camera_to_world_poses"]
+    assert [p.code for p in camera_checks.check_pose_convention(misfits)[0]] == ["camera_to_world_poses"]
     clearly = dict(misfits, **{"rotation transposed": 0.6})
-    problems, reading = validate.check_pose_convention(clearly)
+    problems, reading = camera_checks.check_pose_convention(clearly)
     assert [p.code for p in problems] == ["rotation_transposed"] and reading == "rotation transposed"
 
 

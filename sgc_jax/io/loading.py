@@ -21,18 +21,13 @@ from typing import Any, Callable, Container, Iterable, Iterator, Mapping
 import numpy as np
 
 from ..config import SGCConfig
+from .checks.cameras import check_intrinsics, check_poses
+from .checks.problems import Problem
+from .checks.tracks import check_track_positions
 from .clip import Clip, ClipFormatError, no_reading
 from .npz import NpzError, npz_headers, read_npz, shape_text
 from .remote import is_url, list_files
-from .validate import (
-    Problem,
-    check_clip,
-    check_intrinsics,
-    check_poses,
-    check_track_positions,
-    enforce,
-    raise_first_error,
-)
+from .validate import check_clip, enforce, raise_first_error
 
 # ----------------------------------------------------------------------------- validation
 

@@ -27,9 +27,9 @@ from pathlib import Path
 from typing import Any, BinaryIO, Callable, Container, NamedTuple
 
 from ..config import SGCConfig
+from ..io.checks.problems import clip_warnings_as_lines
 from ..io.clip import Clip, ClipFormatError
 from ..io.loading import ClipEntry
-from ..io.validate import clip_warnings_as_lines
 from .devices import host_cores
 from .engine_steps import prepare_step
 from .journal import FileDigests

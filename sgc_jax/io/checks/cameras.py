@@ -1,0 +1,177 @@
+"""The cameras: intrinsics against the pixel grid, focal lengths over the frames, rotations, and the
+pose file's convention as the tracks read it (docs/semantics.md §1.1, §1.6)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..clip import Clip
+from .motion_fits import POSE_MISFIT_MIN_PX, POSE_READINGS
+from .problems import Problem, frames_list, is_reference_compat
+
+# Thresholds, each with where it comes from.
+# Thresholds, each with where it comes from.
+FOCAL_RATIO_MAX = 3.0  # focal length off by more than 3x from the image size is an error
+PRINCIPAL_OFFSET_WARN = 0.25  # principal point this far from the centre (fraction of the side) is suspicious
+ROTATION_ERROR_TOL = 1e-2  # max |R R^T - I| beyond which R is not a rotation (float32 VGGT R: ~1e-7)
+ROTATION_WARN_TOL = 1e-4  # ... and beyond which it is used as is but reported
+# The poses read as camera->world leave the tracks at most this fraction of the misfit they leave as
+# given (both with the translation's scale fitted), and the misfit as given is above POSE_MISFIT_MIN_PX:
+# camera->world poses. As given, the ratio is >= 1.10 on 86 synthetic clips and >= 5.4 on the six
+# real ones, but 0.51-0.94 where the depth is disparity; the same poses inverted read 0.06-0.18 on
+# the real clips (bench/history/issue-58.md "Poses given camera to world").
+POSE_CONVENTION_RATIO = 0.4
+# ... named only where they fit below this fraction of the best of the four readings before them: where a
+# clip's translation moves its tracks too little to tell a transposed rotation from a camera->world
+# file (a real clip: 0.878 against 0.881 px), the commoner file is named (rule C2).
+SLIP_READINGS, SLIP_MARGIN = POSE_READINGS[4:], 0.8
+POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
+    "camera->world": (
+        "camera_to_world_poses", "camera->world",
+        "these look like camera->world poses: invert them (R_wc = R^T, t_wc = -R^T t); or, where the poses are "
+        "right, like tracks whose ends are swapped, which read alike: swap track_prev and track_curr; where the "
+        "camera barely translates, also like rotations alone transposed: then transpose R_wc and keep t_wc"),
+    "opengl": (
+        "opengl_poses", "world->camera of an OpenGL camera (y up, looking along -z)",
+        "these look like an OpenGL camera's world->camera poses: flip its y and z axes (F = diag(1, -1, -1): "
+        "R_wc = F R, t_wc = F t)"),
+    "opengl camera->world": (
+        "opengl_poses", "camera->world of an OpenGL camera (y up, looking along -z; Blender's and nerfstudio's "
+        "transforms)",
+        "these look like an OpenGL camera's camera->world poses (a transforms.json): invert them and flip the "
+        "camera's y and z axes (F = diag(1, -1, -1): R_wc = F R^T, t_wc = -F R^T t)"),
+    "translation as centres": (
+        "translation_as_centres", "world->camera rotations with each camera's centre c as its translation",
+        "t_wc looks like the cameras' centres (a camera->world pose's position kept when its rotation was "
+        "transposed): store t_wc = -R_wc c"),
+    "rotation transposed": (
+        "rotation_transposed", "camera->world rotations beside world->camera translations",
+        "R_wc looks transposed (a camera->world rotation, or a quaternion read in the other convention, "
+        "JPL's against Hamilton's): store R_wc = R^T and keep t_wc"),
+}
+# Focal lengths that spread more than this over the frames (RMS of their log): a camera estimator's per-frame
+# scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12
+# consistent clips above 0.10 and 1 % 5-7 (bench/history/issue-58.md "A sky read as depth").
+FOCAL_SPREAD_WARN = 0.005
+
+
+def _k_hint(cx: float, cy: float, H: int, W: int) -> str:
+    implied_w, implied_h = 2.0 * cx + 1.0, 2.0 * cy + 1.0
+    hint = (f"K looks made for a ~{implied_h:.0f}x{implied_w:.0f} image (principal point at its centre), "
+            f"not this {H}x{W} grid: rescale K to the grid")
+    if 500 <= max(implied_w, implied_h) <= 540:
+        hint += " (VGGT intrinsics are on its 518-px preprocessed grid: `sgc-jax import --cameras` rescales them)"
+    return hint
+
+
+def check_intrinsics(clip: Clip) -> list[Problem]:
+    """Focal lengths and principal points against the H x W grid."""
+    H, W = clip.image_size
+    T = clip.n_frames
+    fx, fy, cx, cy = clip.K[:, 0, 0], clip.K[:, 1, 1], clip.K[:, 0, 2], clip.K[:, 1, 2]
+    compat = is_reference_compat(clip)
+    severe = "info" if compat else "error"
+    note = " (deliberate: reference-compat keeps VGGT's 518-px intrinsics)" if compat else ""
+    problems = []
+    bad = np.flatnonzero((fx <= 0) | (fy <= 0))
+    if bad.size:
+        t = bad[0]
+        problems.append(Problem("error", "focal_not_positive", "K", "positive focal lengths fx, fy",
+                                f"fx={fx[t]:.4g}, fy={fy[t]:.4g} in frames {frames_list(bad, T)}",
+                                "K must be a pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"))
+        return problems
+    outside = np.flatnonzero((cx < -0.5) | (cx > W - 0.5) | (cy < -0.5) | (cy > H - 0.5))
+    if outside.size:
+        t = outside[0]
+        problems.append(Problem(severe, "principal_point_outside", "K", f"principal point inside the {H}x{W} image",
+                                f"cx={cx[t]:.1f}, cy={cy[t]:.1f} in frames {frames_list(outside, T)}",
+                                _k_hint(cx[t], cy[t], H, W) + note))
+    side = max(H, W)
+    ratio = np.maximum(fx, fy) / side
+    ratio_low = np.minimum(fx, fy) / side
+    off = np.flatnonzero((ratio > FOCAL_RATIO_MAX) | (ratio_low < 1.0 / FOCAL_RATIO_MAX))
+    if off.size:
+        t = off[0]
+        problems.append(Problem(
+            severe, "focal_implausible", "K",
+            f"focal lengths within {FOCAL_RATIO_MAX:g}x of the image size {side} px "
+            f"({side / FOCAL_RATIO_MAX:.0f}..{side * FOCAL_RATIO_MAX:.0f})",
+            f"fx={fx[t]:.1f}, fy={fy[t]:.1f} in frames {frames_list(off, T)}",
+            "K is probably for another resolution (or in normalised units): scale fx, cx by W'/W and fy, cy by "
+            "H'/H" + note))
+    if not outside.size:
+        offset = np.maximum(np.abs(cx - (W - 1) / 2) / W, np.abs(cy - (H - 1) / 2) / H)
+        far = np.flatnonzero(offset > PRINCIPAL_OFFSET_WARN)
+        if far.size:
+            t = far[0]
+            problems.append(Problem(
+                "info" if compat else "warning", "principal_point_off_centre", "K",
+                f"principal point near the centre ({(W - 1) / 2:.1f}, {(H - 1) / 2:.1f})",
+                f"cx={cx[t]:.1f}, cy={cy[t]:.1f} in frames {frames_list(far, T)}",
+                _k_hint(cx[t], cy[t], H, W) + note))
+    return problems
+
+
+def focal_spread(K: np.ndarray) -> float:
+    """The RMS over frames of the log focal lengths fx, fy of K (T, 3, 3) about their mean: 0.01 is a
+    1 % scatter; NaN where a focal length is not positive."""
+    focal = np.concatenate([K[:, 0, 0], K[:, 1, 1]]).astype(np.float64)
+    return float(np.std(np.log(focal))) if np.all(focal > 0) else float("nan")
+
+
+def check_focal_spread(clip: Clip) -> list[Problem]:
+    """A warning where the per-frame focal lengths scatter beyond FOCAL_SPREAD_WARN (a zoom, or an
+    estimator's per-frame K)."""
+    spread = focal_spread(clip.K)
+    if not spread > FOCAL_SPREAD_WARN:  # NaN: check_intrinsics' error
+        return []
+    return [Problem(
+        "info" if is_reference_compat(clip) else "warning", "focal_spread", "K",
+        f"one camera's focal lengths in every frame (within {100 * FOCAL_SPREAD_WARN:g} % RMS), unless the video zooms",
+        f"fx, fy spread {100 * spread:.2f} % RMS over the frames: the depth check reads a focal change between "
+        "two frames as depth disagreement (docs/semantics.md §1.5, \"One K for a clip\")",
+        "if the video does not zoom, give every frame one K, the median of the frames' (`sgc-jax import` does, "
+        "unless --per-frame-intrinsics)")]
+
+
+def check_poses(clip: Clip) -> list[Problem]:
+    """R_wc must be rotations: orthonormal with determinant +1."""
+    R = clip.R_wc
+    deviation = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((deviation > ROTATION_ERROR_TOL) | (det < 0))
+    T = clip.n_frames
+    if bad.size:
+        t = bad[0]
+        return [Problem("error", "not_rotation", "R_wc", "rotation matrices (R R^T = I, det = +1)",
+                        f"max |R R^T - I| = {deviation[t]:.3g}, det = {det[t]:.3g} in frames {frames_list(bad, T)}",
+                        "give world->camera rotations (OpenCV); a scaled or reflected matrix, or a camera->world "
+                        "pose with scale, gives this")]
+    mild = np.flatnonzero(deviation > ROTATION_WARN_TOL)
+    if mild.size:
+        t = mild[0]
+        return [Problem("warning", "rotation_not_orthonormal", "R_wc", "orthonormal rotations",
+                        f"max |R R^T - I| = {deviation[t]:.3g} in frames {frames_list(mild, T)}",
+                        "used as given; re-orthonormalise (nearest rotation by SVD) if they come from a fit")]
+    return []
+
+
+def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], str]:
+    """Whether the poses are world->camera with OpenCV's axes, as the tracks and depth see them, from
+    ``pose_convention_residuals`` over POSE_READINGS -> (problems, the reading the tests of the depth
+    use): a warning where another reading leaves the tracks POSE_CONVENTION_RATIO or less of the
+    misfit the stored reading leaves (the best such reading named)."""
+    stored = residuals["given"]
+    others = {reading: residuals[reading] for reading in POSE_READINGS[1:] if reading in residuals}
+    best = min(others, key=others.get)
+    commoner = [reading for reading in others if reading not in SLIP_READINGS]
+    if best in SLIP_READINGS and commoner and not others[best] < SLIP_MARGIN * min(others[r] for r in commoner):
+        best = min(commoner, key=others.get)
+    if not (np.isfinite(stored) and stored > POSE_MISFIT_MIN_PX and others[best] < POSE_CONVENTION_RATIO * stored):
+        return [], "given"
+    code, meaning, fix = POSE_FIXES[best]
+    return [Problem(
+        "warning", code, "R_wc/t_wc", "world->camera poses with OpenCV's axes (x_cam = R_wc x_world + t_wc, y down, "
+        "looking along +z)",
+        f"the tracks miss the camera's motion by {stored:.2g} px (median) as given and by {others[best]:.2g} px "
+        f"with the poses read as {meaning}", fix)], best
