@@ -19,9 +19,10 @@ from .engines.evidence import EvidenceLevels
 from .engines.jax_engine.compile_cache import enable_compilation_cache
 from .engines.jax_engine.device_prepare import depth_without_ramps
 from .engines.pairs import PairArrays
+from .io.arrays import clip_from_arrays
 from .io.clip import Clip, ClipFormatError, save_batch, save_clip
 from .io.depth_range import depth_from_range
-from .io.loading import clip_from_arrays, load_clip, load_clips
+from .io.loading import load_clip, load_clips
 from .io.tables import CLIP_COLUMNS, PAIR_COLUMNS, read_scores
 from .io.validate import ClipValidationError, ClipWarning, check_clip
 from .research.perturb import MASK_CORRUPTIONS, PERTURBATIONS, perturb_clip

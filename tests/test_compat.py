@@ -14,8 +14,8 @@ from scenes import SCENE, TINY
 import sgc_jax.engines.reference as reference
 from sgc_jax import score_batch
 from sgc_jax.config import SGCConfig
+from sgc_jax.io.arrays import clip_from_arrays
 from sgc_jax.io.clip import clip_to_arrays
-from sgc_jax.io.loading import clip_from_arrays
 from sgc_jax.research.synth import synth_clip
 
 SPEC, AUTHORS = SGCConfig(), SGCConfig(compat="authors")

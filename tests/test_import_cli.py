@@ -12,8 +12,8 @@ from scenes import IMPORT_SCENE
 
 from sgc_jax import load_clip, load_clips
 from sgc_jax.adapters import LINE_RATIO, leave_out_line_tracks
+from sgc_jax.io.arrays import clip_from_arrays
 from sgc_jax.io.clip import clip_to_arrays, save_clip
-from sgc_jax.io.loading import clip_from_arrays
 from sgc_jax.research.synth import synth_clip
 
 _SCRIPT = Path(sys.executable).with_name("sgc-jax")

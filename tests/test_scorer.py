@@ -21,8 +21,8 @@ from sgc_jax.adapters import leave_out_depth_ramps
 from sgc_jax.calibration import DEFAULT_CALIBRATION, Calibration
 from sgc_jax.codes import SCORER_STATUS_CODE
 from sgc_jax.engines.jax_engine import device_prepare
+from sgc_jax.io.arrays import subsample_tracks
 from sgc_jax.io.clip import repeated_tracks, without_absurd_depth
-from sgc_jax.io.loading import subsample_tracks
 from sgc_jax.io.tables import EVIDENCE_COLUMNS, FLOOR_COLUMNS, INTERVAL_COLUMNS
 from sgc_jax.research.agreement import agreement_corpus
 from sgc_jax.research.noise import enlarged_depth

@@ -10,8 +10,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scenes import SYNTH_SCENE
 
+from sgc_jax.io.arrays import clip_from_arrays
 from sgc_jax.io.clip import clip_to_arrays
-from sgc_jax.io.loading import clip_from_arrays, load_clip
+from sgc_jax.io.loading import load_clip
 from sgc_jax.research.synth import SceneSpec, demo_corpus, relative_poses, synth_clip, write_demo_corpus
 
 # float32 track storage rounds positions to ~1e-5 px at these image sizes; the SPEC check is 1e-3.

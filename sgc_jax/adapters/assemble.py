@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from ..config import SGCConfig
+from ..io.arrays import clip_from_arrays
 from ..io.checks.cameras import focal_spread
 from ..io.clip import Clip
 from ..io.depth_edges import check_edge_ratio, without_ramps
-from ..io.loading import clip_from_arrays
 from .common import parse_size, resize_frames, resize_points
 from .cotracker import holds_cotracker, read_cotracker
 from .delta import DELTA_VIS_THRESHOLD, Tracks, every_nth_frame, read_delta

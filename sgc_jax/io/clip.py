@@ -1,6 +1,6 @@
 """The clip schema (docs/semantics.md §1): :class:`Clip`, :class:`ClipFormatError`, the limits of
 valid values, and writing clips as single-clip and batch files. Reading them is
-:mod:`sgc_jax.io.loading`.
+:mod:`sgc_jax.io.loading` (files, sources) and :mod:`sgc_jax.io.arrays` (arrays -> a clip).
 
 Pixel grid: x = column, y = row, pixel centres at integer coordinates. Poses are world->camera
 (OpenCV): x_cam = R_wc @ X_world + t_wc. Pair i (i = 1..T-1) goes from frame i-1 to frame i and
@@ -154,7 +154,7 @@ def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
 
 
 def clip_to_arrays(clip: Clip) -> dict[str, np.ndarray]:
-    """The clip arrays (docs/semantics.md §1.2) of a clip (inverse of :func:`~sgc_jax.io.loading.clip_from_arrays`)."""
+    """The clip arrays (docs/semantics.md §1.2) of a clip (inverse of :func:`~sgc_jax.io.arrays.clip_from_arrays`)."""
     arrays = dict(
         depth=clip.depth, K=clip.K, R_wc=clip.R_wc, t_wc=clip.t_wc,
         track_prev=clip.track_prev, track_curr=clip.track_curr,

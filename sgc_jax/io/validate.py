@@ -1,6 +1,6 @@
 """Plausibility checks of a clip's content, shared by the loader and ``sgc-jax validate``.
 
-Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.io.loading`. The
+Structural problems (shapes, ranks, non-finite cameras) are found by :mod:`sgc_jax.io.arrays`. The
 checks (:mod:`sgc_jax.io.checks`, a module per array: cameras, tracks, depth, masks, stored dtypes)
 look for inputs whose units or resolutions do not fit together: intrinsics made for another image
 size, depth that is really disparity, poses that are not rotations, tracks on another pixel grid,

@@ -20,8 +20,8 @@ from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
 from ..engines.jax_engine.programs import pipeline, traced_pipeline
 from ..engines.jax_engine.smooth_stage import check_differentiable, frozen_choices, smooth_stage
+from ..io.arrays import MASK_FLOAT_TRUE_ABOVE, checked_in_memory
 from ..io.clip import Clip, ClipFormatError
-from ..io.loading import MASK_FLOAT_TRUE_ABOVE, checked_in_memory
 from ..io.npz import shape_text
 from ..stats import camera_dynamics
 from .api import resolve_calibration, resolve_config
@@ -48,7 +48,7 @@ def batch_of(clips: Iterable[Clip], shape: tuple[int, int, int, int] | None = No
     """Clips (any iterable, e.g. ``load_clips(dir)``'s generator) stacked into a Scorer's batch
     (NumPy), each padded with zeros to ``shape`` = (T, H, W, P) (default: the largest of each size)
     and its true sizes given. Each clip is read through the checks of a clip given in memory
-    (``loading.checked_in_memory``): a malformed one raises ClipFormatError naming its array."""
+    (``arrays.checked_in_memory``): a malformed one raises ClipFormatError naming its array."""
     clips = [checked_in_memory(clip) for clip in clips]
     if not clips:
         raise ValueError("batch_of needs at least one clip")

@@ -1,7 +1,7 @@
 """The host's clip preparation written for the device (docs/semantics.md §9.2): a network's ramps at
 depth edges left out, absurd depth made invalid, depth in units of D, usable tracks, the
 ``max_tracks`` selection and padding to the bucket, with the numbers of ``units.in_depth_units``,
-``loading.subsample_tracks`` and ``buckets.pad_clip``. Traceable: no host round-trip, so a user's
+``arrays.subsample_tracks`` and ``buckets.pad_clip``. Traceable: no host round-trip, so a user's
 ``jax.jit`` can hold it."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 
 from ...config import SGCConfig
+from ...io.arrays import evenly_spaced_ranks
 from ...io.clip import DEPTH_RATIO_LIMIT, within_reach
 from ...io.depth_edges import DEPTH_EDGE_RATIO, RAMP_MARGIN, edges_are_ramps, ramp_frames
-from ...io.loading import evenly_spaced_ranks
 from ...kernels.double_float import df_div, df_mul, df_sub, two_sum
 from ...kernels.medians import order_statistics
 from .buckets import Bucket, PaddedClips
@@ -226,7 +226,7 @@ def without_repeats(clip: ClipArrays, usable, check_repeats):
 
 
 def select_tracks(usable, limit: int):
-    """(P,) usable -> (limit,) indices of the kept tracks (``loading.subsample_tracks``): usable
+    """(P,) usable -> (limit,) indices of the kept tracks (``arrays.subsample_tracks``): usable
     ones first in their order, evenly spaced when more than ``limit``; then unusable ones."""
     order = jnp.argsort(~usable, stable=True)
     n = jnp.sum(usable, dtype=jnp.int32)
