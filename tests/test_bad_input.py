@@ -105,6 +105,7 @@ ARRAY_KINDS = {  # kind: (change, array blamed, words of the message)
     "missing_array": (changed(track_vis=None), "track_vis", "no such array"),
     "channel_axis_depth": (changed(depth=lambda a: a[:, None]), "depth", "give depth.squeeze(1)"),
     "channel_axis_mask": (changed(static_mask=lambda a: a[..., None]), "static_mask", "give static_mask.squeeze(3)"),
+    "one_K_with_a_leading_axis": (changed(K=lambda a: a[:1]), "K", "give K[0]"),
     "tracks_of_the_whole_video": (lambda arrays: changed(track_prev=None, track_curr=None)(dict(
         arrays, tracks=np.concatenate([arrays["track_prev"][:1], arrays["track_curr"]]))),
         "track_prev", "track_prev = tracks[:-1], track_curr = tracks[1:]"),

@@ -82,8 +82,8 @@ def _squeeze_hint(name: str, shape: tuple[int, ...], fits: Callable[[tuple[int, 
 
 def _shape_hint(name: str, shape: tuple[int, ...], expected: tuple, fits: Callable[[tuple[int, ...]], bool]) -> str:
     """What a shape that does not fit most likely holds, and how to give it: a track array of every
-    frame (a long-range tracker's (T, P, ...)), axes in another order, K's four numbers or
-    quaternions; else ""."""
+    frame (a long-range tracker's (T, P, ...)), axes in another order, K's four numbers, one K of a
+    leading axis, or quaternions; else ""."""
     if name.startswith("track_") and shape and shape[0] == expected[0] + 1 and fits((shape[0] - 1,) + shape[1:]):
         return ("every frame's positions, as a long-range tracker gives them? give track_prev = tracks[:-1], "
                 "track_curr = tracks[1:], track_vis = visible[:-1] & visible[1:] (docs/semantics.md §1.2), or "
@@ -93,6 +93,8 @@ def _shape_hint(name: str, shape: tuple[int, ...], expected: tuple, fits: Callab
             return f"its axes in another order: give np.transpose({name}, {order})"
     if name == "K" and shape[-1:] == (4,):
         return "(fx, fy, cx, cy)? give K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
+    if name == "K" and shape == (1, 3, 3):
+        return "one K for the clip? give K[0]: a (3, 3) K serves every frame"
     if name == "R_wc" and shape[-1:] == (4,):
         return ("quaternions? give rotation matrices, e.g. scipy.spatial.transform.Rotation.from_quat(q).as_matrix() "
                 "(scalar last; mind the convention: a conjugated quaternion transposes R)")
