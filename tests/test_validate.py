@@ -296,6 +296,10 @@ CASES = {
     "rotations transposed beside their translation": (
         lambda c: {"R_wc": np.swapaxes(c.R_wc, 1, 2)}, "warning", "rotation_transposed", "R_wc/t_wc",
         ["camera->world rotations beside world->camera translations", "R_wc = R^T and keep t_wc"]),
+    "one pose for every frame (placeholders)": (
+        lambda c: {"R_wc": np.tile(np.eye(3, dtype=np.float32), (c.n_frames, 1, 1)),
+                   "t_wc": np.zeros((c.n_frames, 3), np.float32)},
+        "warning", "cameras_frozen", "R_wc/t_wc", ["one pose in all 4 frames while the tracks move", "placeholder poses"]),
     "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
                                        "camera_to_world_poses", "R_wc/t_wc",
                                        ["read as camera->world", "swap track_prev and track_curr"]),
@@ -355,6 +359,13 @@ def test_depth_is_called_disparity_only_where_its_inverse_fits_the_camera_better
     assert "depth_like_disparity" in [p.code for p in problems_of(arrays_of(clip, **disparity))]
     assert "depth_like_disparity" not in [p.code for p in problems_of(still)]
 
+
+def test_one_pose_for_every_frame_is_named_only_where_the_tracks_move(clip):
+    frozen = {"R_wc": np.tile(clip.R_wc[:1], (clip.n_frames, 1, 1)), "t_wc": np.tile(clip.t_wc[:1], (clip.n_frames, 1))}
+    assert "cameras_frozen" in codes(problems_of(arrays_of(clip, **frozen)), "warning")
+    tripod = dict(frozen, track_curr=clip.track_prev + np.float32(0.3))  # a still camera's tracker jitter
+    assert "cameras_frozen" not in codes(problems_of(arrays_of(clip, **tripod)), "warning")
+    assert "cameras_frozen" not in codes(problems_of(arrays_of(clip)), "warning")
 
 def test_a_pose_files_slip_is_named_only_where_it_fits_clearly_better_than_the_commoner_files():
     # 7scenes_000800 with camera->world poses stored: its translation barely moves the tracks, and the

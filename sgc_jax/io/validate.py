@@ -19,7 +19,13 @@ from typing import Any
 import numpy as np
 
 from ..config import SGCConfig
-from .checks.cameras import check_focal_spread, check_intrinsics, check_pose_convention, check_poses
+from .checks.cameras import (
+    check_focal_spread,
+    check_frozen_cameras,
+    check_intrinsics,
+    check_pose_convention,
+    check_poses,
+)
 from .checks.depth import check_depth, check_depth_holes, check_depth_ramps
 from .checks.masks import check_mask, check_mask_inverted, mask_side_residuals, static_coverage
 from .checks.motion_fits import POSE_READINGS, pair_track_fits, track_reading_residuals
@@ -49,18 +55,20 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     """Every content check of one clip, errors first; ``arrays``: the stored arrays, for dtype checks."""
     config = config or SGCConfig()
     poses, tracks = check_poses(clip), check_tracks(clip, config)
+    # one pose for every frame: no camera motion for the tests that read the tracks' motion against it
+    frozen = [] if poses else check_frozen_cameras(clip, config)
     if arrays is not None:
         tracks = check_track_vis_values(arrays, is_reference_compat(clip)) + tracks
     # the pose and depth tests read the tracks' motion: not where the tracks do not fit the image or
     # hidden ones count as visible, nor for a reference-compat clip, whose K and depth are
     # deliberately off (VGGT's grid, VDA / 1000)
     tracks_fit = not any(p.code in TRACKS_NOT_OF_THE_IMAGE and p.severity != "info" for p in tracks)
-    test_poses = tracks_fit and not poses and not is_reference_compat(clip)
+    test_poses = tracks_fit and not poses and not frozen and not is_reference_compat(clip)
     test_axes = test_poses and np.median(static_coverage(clip)) >= TRACK_READING_MIN_STATIC
     read_as = ("given", "yx", "reversed") if test_axes else ("given",)  # the other readings only where tested
     # the tracks as given fitted once under every pose reading: the pose, mask and range tests read them
     fits = (pair_track_fits(clip, config, POSE_READINGS if test_poses else ("given",))
-            if tracks_fit and not is_reference_compat(clip) else None)
+            if tracks_fit and not frozen and not is_reference_compat(clip) else None)
     readings = track_reading_residuals(clip, config, read_as, fits) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
     axes = axes or (check_track_scale(clip, config, readings["given"]) if test_axes else [])
@@ -73,9 +81,9 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
     intrinsics = check_intrinsics(clip)
     k_usable = not any(p.severity == "error" for p in intrinsics)
-    problems = (intrinsics + check_focal_spread(clip) + poses + convention + tracks + axes + inverted
-                + check_depth(clip, config, reading, read_tracks=tracks_fit and not axes and not inverted, fits=fits,
-                              k_usable=k_usable)
+    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + convention + tracks + axes + inverted
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
+                              fits=fits, k_usable=k_usable)
                 + check_depth_ramps(clip, config)
                 + check_depth_holes(clip) + check_mask(clip) + check_length(clip))
     if arrays is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...config import SGCConfig
 from ..clip import Clip
 from .motion_fits import POSE_MISFIT_MIN_PX, POSE_READINGS
 from .problems import Problem, frames_list, is_reference_compat
@@ -15,6 +16,10 @@ FOCAL_RATIO_MAX = 3.0  # focal length off by more than 3x from the image size is
 PRINCIPAL_OFFSET_WARN = 0.25  # principal point this far from the centre (fraction of the side) is suspicious
 ROTATION_ERROR_TOL = 1e-2  # max |R R^T - I| beyond which R is not a rotation (float32 VGGT R: ~1e-7)
 ROTATION_WARN_TOL = 1e-4  # ... and beyond which it is used as is but reported
+# Every frame's pose the same within this (R's entries; t's relative to its largest entry): one pose for the
+# whole video, as placeholders (identity) give it; no estimator gives a moving video one pose to float32's
+# rounding, and no split's scene, battery clip or real clip holds one.
+FROZEN_POSE_TOL = 1e-6
 # The poses read as camera->world leave the tracks at most this fraction of the misfit they leave as
 # given (both with the translation's scale fitted), and the misfit as given is above POSE_MISFIT_MIN_PX:
 # camera->world poses. As given, the ratio is >= 1.10 on 86 synthetic clips and >= 5.4 on the six
@@ -154,6 +159,33 @@ def check_poses(clip: Clip) -> list[Problem]:
                         f"max |R R^T - I| = {deviation[t]:.3g} in frames {frames_list(mild, T)}",
                         "used as given; re-orthonormalise (nearest rotation by SVD) if they come from a fit")]
     return []
+
+
+def frozen_cameras(clip: Clip) -> bool:
+    """Whether every frame's pose is the first one's, within FROZEN_POSE_TOL."""
+    R, t = clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64)
+    return bool(np.abs(R - R[0]).max() <= FROZEN_POSE_TOL
+                and np.abs(t - t[0]).max() <= FROZEN_POSE_TOL * np.abs(t).max())
+
+
+def check_frozen_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """A warning where every frame has one pose while the usable tracks move by over POSE_MISFIT_MIN_PX a
+    pair (the median over pairs of each pair's median): placeholder poses, or a video that moved where
+    the cameras it was asked to follow hold still; the score reads a camera that holds still."""
+    if not frozen_cameras(clip):
+        return []
+    usable = clip.usable_tracks(config.min_track_conf)
+    motion = np.linalg.norm(clip.track_curr.astype(np.float64) - clip.track_prev, axis=-1)
+    per_pair = [np.median(m[u & np.isfinite(m)]) for m, u in zip(motion, usable) if np.any(u & np.isfinite(m))]
+    moved = float(np.median(per_pair)) if per_pair else float("nan")
+    if not moved > POSE_MISFIT_MIN_PX:
+        return []
+    return [Problem(
+        "warning", "cameras_frozen", "R_wc/t_wc", "each frame's camera pose",
+        f"one pose in all {clip.n_frames} frames while the tracks move {moved:.2g} px a pair (median)",
+        "placeholder poses (identity)? give the camera's pose in each frame, e.g. VGGT's (`sgc-jax import "
+        "--cameras`); where they are the cameras a video was asked to follow, it moved where told to hold still. "
+        "The score reads a camera that holds still, which measures nothing (no evidence, docs/semantics.md §3.11)")]
 
 
 def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], str]:
