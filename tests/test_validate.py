@@ -300,6 +300,10 @@ CASES = {
         lambda c: {"R_wc": np.tile(np.eye(3, dtype=np.float32), (c.n_frames, 1, 1)),
                    "t_wc": np.zeros((c.n_frames, 3), np.float32)},
         "warning", "cameras_frozen", "R_wc/t_wc", ["one pose in all 4 frames while the tracks move", "placeholder poses"]),
+    "visible tracks at NaN": (
+        lambda c: {"track_curr": np.where(c.track_vis[..., None] & (np.arange(c.n_tracks) % 10 == 0)[None, :, None],
+                                          np.nan, c.track_curr).astype(np.float32)},
+        "warning", "tracks_nonfinite", "track_prev/track_curr", ["of them NaN or infinite", "mark them hidden"]),
     "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
                                        "camera_to_world_poses", "R_wc/t_wc",
                                        ["read as camera->world", "swap track_prev and track_curr"]),

@@ -30,6 +30,9 @@ TRACKS_NORMALISED_PX, TRACKS_NORMALISED_MIN_SIZE = 2.0, 16
 # merged with itself, which the user may not have meant to give. The score leaves repeats out (§1.2). No
 # split's scene nor real clip repeats a track.
 DUPLICATE_TRACKS_WARN = 0.05
+# Share of the visible tracks with a non-finite position at either end, which the score cannot use (§1.2):
+# a tracker's failed points left visible. No split's scene, battery clip or real clip holds one.
+NONFINITE_TRACKS_WARN = 0.01
 CONF_OUTSIDE_WARN = 0.01  # share of the visible tracks' confidences outside [0, 1]: logits or percentages
 CONF_LOW_WARN = 0.5  # share of the visible tracks below min_track_conf: the score cannot use most of them
 # share of a float track_vis strictly between 0 and 1 (all of it within [0, 1], some of it below 0.5):
@@ -66,7 +69,7 @@ def _outside(x: np.ndarray, y: np.ndarray, H: int, W: int) -> np.ndarray:
 
 def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Visible track positions against the grid, their extent, and usable tracks per pair."""
-    problems = check_track_positions(clip)
+    problems = check_track_positions(clip) + check_track_finite(clip)
     usable_tracks = clip.usable_tracks(config.min_track_conf)
     repeated = repeated_track_share(clip, usable_tracks)
     if repeated.max(initial=0.0) > DUPLICATE_TRACKS_WARN:
@@ -89,6 +92,21 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
                             f"{clip.n_tracks} tracks per pair, usable per pair: min {usable.min()}, "
                             f"median {int(np.median(usable))}"))
     return problems
+
+
+def check_track_finite(clip: Clip) -> list[Problem]:
+    """A warning where over NONFINITE_TRACKS_WARN of the visible tracks have a non-finite position at
+    either end: the score cannot use them (docs/semantics.md §1.2)."""
+    visible = clip.track_vis.astype(bool)
+    finite = np.all(np.isfinite(clip.track_prev) & np.isfinite(clip.track_curr), axis=-1)
+    n_visible, n_bad = int(visible.sum()), int((visible & ~finite).sum())
+    if n_bad <= NONFINITE_TRACKS_WARN * n_visible:
+        return []
+    pairs = np.flatnonzero((visible & ~finite).any(axis=1)) + 1
+    return [Problem("warning", "tracks_nonfinite", "track_prev/track_curr", "finite positions of the visible tracks",
+                    f"{100 * n_bad / n_visible:.0f}% of them NaN or infinite, in pairs {frames_list(pairs, clip.n_pairs)}",
+                    "the score cannot use them (docs/semantics.md §1.2): a tracker's failed points left visible? "
+                    "mark them hidden (track_vis False), or check the tracker's visibility output")]
 
 
 def check_track_conf(clip: Clip, config: SGCConfig) -> list[Problem]:
