@@ -49,6 +49,7 @@ STORED = {  # how the file holds the poses -> ((R_wc, t_wc) -> stored (R, t), th
     "opengl camera->world": (lambda R, t: inverted(np.einsum("ij,tjk->tik", FLIP, R), t @ FLIP), "opengl_poses"),
     "centres as translation": (lambda R, t: (R, inverted(R, t)[1]), "translation_as_centres"),
     "rotation transposed": (lambda R, t: (np.swapaxes(R, 1, 2), t), "rotation_transposed"),
+    "reversed in time": (lambda R, t: (R[::-1], t[::-1]), "poses_reversed_in_time"),
 }
 TRACKS_YX = "tracks (y, x)"  # the poses as given, each track position stored row first
 SMALLER_FRAMES = (0.667, 0.75, 0.8, 0.9)  # tracks of a frame this much smaller, rescaled about its corner
@@ -56,8 +57,8 @@ PART_OF_THE_FRAME = 0.8  # tracks outside the top-left 80 % x 80 % of the frame 
 TRACK_WAYS = {TRACKS_YX: "tracks_yx", f"tracks in the top-left {PART_OF_THE_FRAME:.0%}": None} | {
     f"tracks of a frame x{f}": "tracks_of_a_smaller_frame" for f in SMALLER_FRAMES}
 WAYS = {way: code for way, (_, code) in STORED.items()} | TRACK_WAYS
-POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed", "tracks_yx",
-              "tracks_of_a_smaller_frame"}
+POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed",
+              "poses_reversed_in_time", "tracks_yx", "tracks_of_a_smaller_frame"}
 
 
 def stored(clip, way: str):

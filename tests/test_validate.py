@@ -364,6 +364,16 @@ def test_depth_is_called_disparity_only_where_its_inverse_fits_the_camera_better
     assert "depth_like_disparity" not in [p.code for p in problems_of(still)]
 
 
+def test_poses_stored_in_reverse_order_of_the_frames_are_named():
+    # six frames: on the fixture's four, the camera turns too little for the reversed poses to miss
+    # the tracks by the lines' 1 px floor
+    clip = synth_clip(seed=4, clip_id="six", **dict(SMALL, n_frames=6))
+    assert codes(check_clip(clip), "warning") == []
+    problems = problems_of(arrays_of(clip, R_wc=clip.R_wc[::-1].copy(), t_wc=clip.t_wc[::-1].copy()))
+    assert codes(problems, "warning") == ["poses_reversed_in_time"]
+    line = next(p for p in problems if p.code == "poses_reversed_in_time").line()
+    assert "with the poses read as reversed in time" in line and "R_wc[::-1], t_wc[::-1]" in line
+
 def test_one_pose_for_every_frame_is_named_only_where_the_tracks_move(clip):
     frozen = {"R_wc": np.tile(clip.R_wc[:1], (clip.n_frames, 1, 1)), "t_wc": np.tile(clip.t_wc[:1], (clip.n_frames, 1))}
     assert "cameras_frozen" in codes(problems_of(arrays_of(clip, **frozen)), "warning")

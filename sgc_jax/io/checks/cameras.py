@@ -53,6 +53,10 @@ POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
         "rotation_transposed", "camera->world rotations beside world->camera translations",
         "R_wc looks transposed (a camera->world rotation, or a quaternion read in the other convention, "
         "JPL's against Hamilton's): store R_wc = R^T and keep t_wc"),
+    "reversed in time": (
+        "poses_reversed_in_time", "reversed in time (frame j's pose stored at T - 1 - j)",
+        "the poses look stored in reverse order of the frames: store R_wc[::-1], t_wc[::-1] (or check that the "
+        "poses' frames and the video's are listed in one order)"),
 }
 # Focal lengths that spread more than this over the frames (RMS of their log): a camera estimator's per-frame
 # scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12

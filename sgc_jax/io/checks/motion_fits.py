@@ -22,9 +22,11 @@ POSE_MISFIT_MIN_PX = 1.0
 # Blender's, nerfstudio's and NeRF's transforms.json are camera->world so). The same ratio and floor
 # tell the OpenGL readings (rule G1, bench/history/issue-58.md "Poses with OpenGL's camera axes"), and
 # two conversions' slips: each camera's centre stored as its translation, and each rotation transposed
-# beside its translation (rule C1, "Poses whose translation is stored as the cameras' centres").
+# beside its translation (rule C1, "Poses whose translation is stored as the cameras' centres"), and
+# the poses stored in reverse order of the frames (rule T1, "Poses reversed in time").
+REVERSED_IN_TIME = "reversed in time"
 POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world", "translation as centres",
-                 "rotation transposed")
+                 "rotation transposed", REVERSED_IN_TIME)
 OPENGL_AXES = np.diag([1.0, -1.0, -1.0])  # an OpenGL camera's coordinates -> OpenCV's, and back
 
 
@@ -56,10 +58,12 @@ def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.nda
     POSE_READINGS: as given, world->camera with OpenCV's axes (docs/semantics.md §1.1); as
     camera->world (R_wc holding R_cw, t_wc the camera centre); either of OpenGL's camera (y up,
     looking along -z), whose axes differ from OpenCV's by OPENGL_AXES; world->camera rotations with
-    each camera's centre as its translation; each rotation transposed, its translation as given."""
+    each camera's centre as its translation; each rotation transposed, its translation as given;
+    frame j's pose stored at T - 1 - j (reversed in time)."""
     if reading not in POSE_READINGS:
         raise ValueError(f"unknown pose reading {reading!r}; one of {POSE_READINGS}")
-    R, t = clip.R_wc[[pair - 1, pair]], clip.t_wc[[pair - 1, pair]]
+    frames = [clip.n_frames - pair, clip.n_frames - 1 - pair] if reading == REVERSED_IN_TIME else [pair - 1, pair]
+    R, t = clip.R_wc[frames], clip.t_wc[frames]
     if reading.endswith("camera->world") or reading == "rotation transposed":
         R = np.swapaxes(R, 1, 2)
     if reading.endswith("camera->world") or reading == "translation as centres":

@@ -13,6 +13,7 @@ from .motion_fits import (
     MIN_POINTS_FOR_STATS,
     POSE_MISFIT_MIN_PX,
     POSE_READINGS,
+    REVERSED_IN_TIME,
     pose_convention_residuals,
     scaled_tracks,
 )
@@ -243,6 +244,14 @@ def visible_track_extent(clip: Clip) -> float:
     return max((x_max + 0.5) / W, (y_max + 0.5) / H) if visible.any() else float("nan")
 
 
+def misfit_as_given(by_reading: dict[str, float]) -> float:
+    """The tracks' misfit as given [px] for the (y, x) and smaller-frame lines, from
+    ``pose_convention_residuals``: the best of every pose reading but the poses reversed in time, whose
+    chance fit of garbled tracks hid their misfit (rule T2, bench/history/issue-58.md "Poses reversed in
+    time")."""
+    return float(np.min([value for reading, value in by_reading.items() if reading != REVERSED_IN_TIME]))
+
+
 def check_track_scale(clip: Clip, config: SGCConfig, given: dict[str, float]) -> list[Problem]:
     """A warning where the visible tracks reach less than TRACK_SCALE_EXTENT of the frame and, scaled to
     reach all of it, fit the camera's motion far better (``check_track_axes``' ratio and floor; the
@@ -250,7 +259,7 @@ def check_track_scale(clip: Clip, config: SGCConfig, given: dict[str, float]) ->
     extent = visible_track_extent(clip)
     if not (np.isfinite(extent) and TRACK_EXTENT_WARN <= extent < TRACK_SCALE_EXTENT):
         return []
-    misfit = float(np.min(list(given.values())))
+    misfit = misfit_as_given(given)
     scaled = min(pose_convention_residuals(scaled_tracks(clip, 1.0 / extent), config).values())
     if not (np.isfinite(misfit) and misfit > POSE_MISFIT_MIN_PX and scaled < TRACK_READING_RATIO * misfit):
         return []
@@ -273,7 +282,8 @@ def check_track_axes(residuals: dict[str, dict[str, float]]) -> list[Problem]:
     cameras that do not translate.)"""
     misfit = {name: min(by_pose[reading] for reading in POSE_READINGS[:2]) for name, by_pose in residuals.items()}
     # the tracks as given under every pose reading fitted: a pose file's slip is not the tracks' (rule C2)
-    given, yx = float(np.min(list(residuals["given"].values()))), misfit["yx"]
+    given = misfit_as_given(residuals["given"])
+    yx = misfit["yx"]
     if not (np.isfinite(given) and given > POSE_MISFIT_MIN_PX and yx < TRACK_READING_RATIO * min(given, misfit["reversed"])):
         return []
     return [Problem(
