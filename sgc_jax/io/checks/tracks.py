@@ -255,7 +255,7 @@ def misfit_as_given(by_reading: dict[str, float]) -> float:
 def check_track_scale(clip: Clip, config: SGCConfig, given: dict[str, float]) -> list[Problem]:
     """A warning where the visible tracks reach less than TRACK_SCALE_EXTENT of the frame and, scaled to
     reach all of it, fit the camera's motion far better (``check_track_axes``' ratio and floor; the
-    tracks as given under the best of every pose reading, ``given``): tracks of a smaller frame."""
+    tracks as given from ``given`` by ``misfit_as_given``): tracks of a smaller frame."""
     extent = visible_track_extent(clip)
     if not (np.isfinite(extent) and TRACK_EXTENT_WARN <= extent < TRACK_SCALE_EXTENT):
         return []
@@ -275,13 +275,13 @@ def check_track_scale(clip: Clip, config: SGCConfig, given: dict[str, float]) ->
 def check_track_axes(residuals: dict[str, dict[str, float]]) -> list[Problem]:
     """From ``track_reading_residuals``: a warning where the tracks fit the camera's motion far
     better read as (y, x) than as given or with their ends swapped (TRACK_READING_RATIO of the
-    better; the two under their better of world->camera and camera->world, the tracks as given
-    under the best of every pose reading, so a pose file's convention or slip does not decide it):
+    better; the two under their better of world->camera and camera->world, the tracks as given by
+    ``misfit_as_given``, so a pose file's convention or slip does not decide it):
     positions stored row first, on a frame where both readings fall inside the
     image. (Swapped ends get no line of their own: they read like camera->world poses, and like
     cameras that do not translate.)"""
     misfit = {name: min(by_pose[reading] for reading in POSE_READINGS[:2]) for name, by_pose in residuals.items()}
-    # the tracks as given under every pose reading fitted: a pose file's slip is not the tracks' (rule C2)
+    # the tracks as given under the pose readings fitted: a pose file's slip is not the tracks' (rules C2, T2)
     given = misfit_as_given(residuals["given"])
     yx = misfit["yx"]
     if not (np.isfinite(given) and given > POSE_MISFIT_MIN_PX and yx < TRACK_READING_RATIO * min(given, misfit["reversed"])):
