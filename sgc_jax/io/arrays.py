@@ -259,7 +259,7 @@ MASK_FLOAT_TRUE_ABOVE = 0.5  # a float mask holds a network's probabilities (or 
 
 
 def mask_truth(mask: np.ndarray) -> np.ndarray:
-    """A stored mask as booleans (docs/semantics.md §1.2): a float mask true where above
+    """A stored mask (NumPy or jax.numpy) as booleans (docs/semantics.md §1.2): a float mask true where above
     MASK_FLOAT_TRUE_ABOVE, booleans and integers where non-zero (0/255 bytes, object ids)."""
     return mask > MASK_FLOAT_TRUE_ABOVE if mask.dtype.kind == "f" else mask.astype(bool)
 

@@ -20,7 +20,7 @@ from ..engines.jax_engine.compile_notice import CompileNotice
 from ..engines.jax_engine.device_prepare import ClipArrays, prepare_on_device
 from ..engines.jax_engine.programs import pipeline, traced_pipeline
 from ..engines.jax_engine.smooth_stage import check_differentiable, frozen_choices, smooth_stage
-from ..io.arrays import MASK_FLOAT_TRUE_ABOVE, checked_in_memory
+from ..io.arrays import checked_in_memory, mask_truth
 from ..io.clip import Clip, ClipFormatError
 from ..io.npz import shape_text
 from ..stats import camera_dynamics
@@ -240,11 +240,10 @@ class Scorer:
             if found == "bool" and "b" not in allowed or found != "bool" and found not in allowed:
                 raise ClipFormatError("<batch>", name, {"float": "a float dtype", "mask": "bool or numbers",
                                                         "count": "an integer dtype"}[kind], f"dtype {value.dtype}")
-            if kind == "mask":  # as the loader reads them: a float track_vis is visible where > 0, a float
-                # static mask static where above MASK_FLOAT_TRUE_ABOVE, other numbers where non-zero
+            if kind == "mask":  # as the loader reads them: a float track_vis is visible where > 0, a static
+                # mask by the loader's own reading (mask_truth)
                 arrays[name] = value if found == "bool" else (
-                    jnp.asarray(value) > 0 if name == "track_vis" else
-                    jnp.asarray(value) > MASK_FLOAT_TRUE_ABOVE if found == "f" else jnp.asarray(value) != 0)
+                    jnp.asarray(value) > 0 if name == "track_vis" else mask_truth(jnp.asarray(value)))
             else:
                 arrays[name] = jnp.asarray(value, PROGRAM_DTYPES[kind])
         return ClipArrays(**arrays)

@@ -70,7 +70,7 @@ def _outside(x: np.ndarray, y: np.ndarray, H: int, W: int) -> np.ndarray:
 
 def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     """Visible track positions against the grid, their extent, and usable tracks per pair."""
-    problems = check_track_positions(clip) + check_track_finite(clip)
+    problems = check_track_positions(clip)
     usable_tracks = clip.usable_tracks(config.min_track_conf)
     repeated = repeated_track_share(clip, usable_tracks)
     if repeated.max(initial=0.0) > DUPLICATE_TRACKS_WARN:
@@ -95,15 +95,15 @@ def check_tracks(clip: Clip, config: SGCConfig) -> list[Problem]:
     return problems
 
 
-def check_track_finite(clip: Clip) -> list[Problem]:
+def check_track_finite(clip: Clip, visible_finite: np.ndarray) -> list[Problem]:
     """A warning where over NONFINITE_TRACKS_WARN of the visible tracks have a non-finite position at
-    either end: the score cannot use them (docs/semantics.md §1.2)."""
-    visible = clip.track_vis.astype(bool)
-    finite = np.all(np.isfinite(clip.track_prev) & np.isfinite(clip.track_curr), axis=-1)
-    n_visible, n_bad = int(visible.sum()), int((visible & ~finite).sum())
+    either end (those ``visible_finite`` (T-1, P), ``_visible_reach``'s, leaves out): the score cannot use
+    them (docs/semantics.md §1.2)."""
+    bad = clip.track_vis.astype(bool) & ~visible_finite
+    n_visible, n_bad = int(np.count_nonzero(clip.track_vis)), int(np.count_nonzero(bad))
     if n_bad <= NONFINITE_TRACKS_WARN * n_visible:
         return []
-    pairs = np.flatnonzero((visible & ~finite).any(axis=1)) + 1
+    pairs = np.flatnonzero(bad.any(axis=1)) + 1
     return [Problem("warning", "tracks_nonfinite", "track_prev/track_curr", "finite positions of the visible tracks",
                     f"{100 * n_bad / n_visible:.0f}% of them NaN or infinite, in pairs {frames_list(pairs, clip.n_pairs)}",
                     "the score cannot use them (docs/semantics.md §1.2): a tracker's failed points left visible? "
@@ -183,11 +183,11 @@ def _visible_reach(clip: Clip) -> tuple[np.ndarray, float, float, float]:
 
 def check_track_positions(clip: Clip) -> list[Problem]:
     """Visible track positions against the H x W grid (``tracks_outside``: an error where over
-    TRACKS_OUTSIDE_ERROR of them lie outside, tracks of another grid) and their extent."""
+    TRACKS_OUTSIDE_ERROR of them lie outside, tracks of another grid), non-finite ones, and their extent."""
     H, W = clip.image_size
-    problems = []
     # visible and finite, however far outside: tracks of a larger grid are what this check finds
     visible, x_max, y_max, low = _visible_reach(clip)
+    problems = check_track_finite(clip, visible)
     n_points = 2 * int(visible.sum())
     if n_points:
         n_out, n_out_swapped = 0, 0
