@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX
 from .camera import back_project_xyz, project_xyz, transform_xyz
 from .depth_map import pair_depth_map
+from .fence import gather_apart
 
 MIN_WARP_Z = 1e-5  # points at or behind this depth in the target camera are dropped
 
@@ -221,7 +222,7 @@ def depth_at_landing(depth_prev, valid_prev, view: PreviousView):
     (``occluded_in_previous``); where the warp put a surface LOOK_BACK_RATIO times farther, it is
     read (step 5)."""
     source = jnp.where(source_pixels(depth_prev, valid_prev), depth_prev.astype(jnp.float32), 0.0).reshape(-1)
-    return jnp.where(view.seen, source[view.landing.reshape(-1)].reshape(view.seen.shape), 0.0)
+    return jnp.where(view.seen, gather_apart(source, view.landing.reshape(-1)).reshape(view.seen.shape), 0.0)
 
 
 def occluded_in_previous(warped, depth_curr, view: PreviousView, at_landing):
