@@ -29,8 +29,8 @@ def materialise(tree):
 
 def gather_apart(values, index):
     """``values[index]`` as a gather of its own: XLA CPU fuses the producers of a gather's operand
-    and indices into it and runs them per gathered element, unvectorised (a pair's landing pixels,
-    projected and gathered in one fusion, 3x the time of the two apart). A conditional's branch is
-    a computation of its own; both branches gather."""
+    and indices into it and runs them once per gathered element, unvectorised. A conditional's
+    branch is a computation of its own, so both branches gather; under ``vmap`` the predicate is
+    batched and the two equal gathers merge into one plain gather. ``index`` must not be empty."""
     gather = lambda: values[index]  # noqa: E731
     return jax.lax.cond(index.reshape(-1)[0] < 0, gather, gather)
