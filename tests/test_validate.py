@@ -374,6 +374,7 @@ def test_poses_stored_in_reverse_order_of_the_frames_are_named():
     line = next(p for p in problems if p.code == "poses_reversed_in_time").line()
     assert "with the poses read as reversed in time" in line and "R_wc[::-1], t_wc[::-1]" in line
 
+
 def test_one_pose_for_every_frame_is_named_only_where_the_tracks_move(clip):
     frozen = {"R_wc": np.tile(clip.R_wc[:1], (clip.n_frames, 1, 1)), "t_wc": np.tile(clip.t_wc[:1], (clip.n_frames, 1))}
     assert "cameras_frozen" in codes(problems_of(arrays_of(clip, **frozen)), "warning")

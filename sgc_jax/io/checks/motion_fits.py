@@ -23,7 +23,7 @@ POSE_MISFIT_MIN_PX = 1.0
 # tell the OpenGL readings (rule G1, bench/history/issue-58.md "Poses with OpenGL's camera axes"), and
 # two conversions' slips: each camera's centre stored as its translation, and each rotation transposed
 # beside its translation (rule C1, "Poses whose translation is stored as the cameras' centres"), and
-# the poses stored in reverse order of the frames (rule T1, "Poses reversed in time").
+# the poses stored in reverse order of the frames (rules T1, T2, "Poses reversed in time").
 REVERSED_IN_TIME = "reversed in time"
 POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world", "translation as centres",
                  "rotation transposed", REVERSED_IN_TIME)
