@@ -1,6 +1,7 @@
 """Where a warm standard clip's XLA time goes, by the source that emitted each operation (issue 61).
 
     python bench/stage_profile.py [--clips 4] [--repeat 2] [--stages pixel pose finish] [--top 25]
+    python bench/stage_profile.py --shape 81 480 832 4096 --clips 1 --stages finish  # another size (T H W P)
 
 Scores --clips standard clips of bench/stream.py's corpus once (compiling or loading the stage
 programs), then traces each stage program alone over the clips --repeat times (``jax.profiler``,
@@ -128,10 +129,12 @@ def main() -> None:
     parser.add_argument("--stages", nargs="+", default=["pixel", "pose", "finish"])
     parser.add_argument("--top", type=int, default=25, help="rows of each table")
     parser.add_argument("--corpus", type=Path, default=Path("/tmp/sgc-stream-corpus"))
+    parser.add_argument("--shape", type=int, nargs=4, metavar=("T", "H", "W", "P"),
+                        help="clips of this size instead of standard ones, in a folder of --corpus's name and the size")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
-    from stream import write_corpus
+    from stream import SCENE, write_corpus
 
     from sgc_jax import SGCConfig, enable_compilation_cache
     from sgc_jax.engines.jax_engine.buckets import PaddedClips
@@ -141,15 +144,21 @@ def main() -> None:
 
     enable_compilation_cache()
     config = SGCConfig()
+    scene, corpus = SCENE, args.corpus
+    if args.shape:
+        T, H, W, P = args.shape
+        scene = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P)
+        corpus = corpus.with_name(f"{corpus.name}-{T}x{H}x{W}x{P}")
     calls: dict[str, list] = collections.defaultdict(list)  # stage -> [(program, inputs, key, values)]
-    for clip in (prepare_clip(c, config) for c in load_clips(write_corpus(args.corpus, args.clips))):
+    for clip in (prepare_clip(c, config) for c in load_clips(write_corpus(corpus, args.clips, scene))):
         score = pipeline(config, clip.bucket, clip.batch)
         batch, out = PaddedClips(*jax.device_put(tuple(clip.batch))), None
         for stage, program, values in zip(score.stages, score.programs, score.values):
             inputs = stage.inputs(batch, out)
             out = jax.block_until_ready(program(inputs, score.key, values))  # warm
             calls[stage.name].append((program, inputs, score.key, values))
-    print(f"jax {jax.__version__}, {jax.devices()[0].device_kind}; {args.clips} standard clips, "
+    size = "x".join(map(str, args.shape)) if args.shape else "standard"
+    print(f"jax {jax.__version__}, {jax.devices()[0].device_kind}; {args.clips} {size} clips, "
           f"{args.repeat} traced calls each")
     for stage in args.stages:
         stacks, containers = source_frames(calls[stage][0][0].as_text())
