@@ -134,7 +134,7 @@ def main() -> None:
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
-    from stream import SCENE, write_corpus
+    from stream import sized_corpus, write_corpus
 
     from sgc_jax import SGCConfig, enable_compilation_cache
     from sgc_jax.engines.jax_engine.buckets import PaddedClips
@@ -144,11 +144,7 @@ def main() -> None:
 
     enable_compilation_cache()
     config = SGCConfig()
-    scene, corpus = SCENE, args.corpus
-    if args.shape:
-        T, H, W, P = args.shape
-        scene = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P)
-        corpus = corpus.with_name(f"{corpus.name}-{T}x{H}x{W}x{P}")
+    scene, corpus, size = sized_corpus(args.corpus, args.shape)
     calls: dict[str, list] = collections.defaultdict(list)  # stage -> [(program, inputs, key, values)]
     for clip in (prepare_clip(c, config) for c in load_clips(write_corpus(corpus, args.clips, scene))):
         score = pipeline(config, clip.bucket, clip.batch)
@@ -157,7 +153,6 @@ def main() -> None:
             inputs = stage.inputs(batch, out)
             out = jax.block_until_ready(program(inputs, score.key, values))  # warm
             calls[stage.name].append((program, inputs, score.key, values))
-    size = "x".join(map(str, args.shape)) if args.shape else "standard"
     print(f"jax {jax.__version__}, {jax.devices()[0].device_kind}; {args.clips} {size} clips, "
           f"{args.repeat} traced calls each")
     for stage in args.stages:

@@ -36,7 +36,7 @@ def main() -> None:
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
-    from stream import SCENE, host_cpu, write_corpus
+    from stream import host_cpu, sized_corpus, write_corpus
 
     import sgc_jax
     from sgc_jax import SGCConfig, enable_compilation_cache
@@ -47,11 +47,7 @@ def main() -> None:
 
     enable_compilation_cache()
     config = SGCConfig()
-    scene, corpus = SCENE, args.corpus
-    if args.shape:
-        T, H, W, P = args.shape
-        scene = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P)
-        corpus = corpus.with_name(f"{corpus.name}-{T}x{H}x{W}x{P}")
+    scene, corpus, _ = sized_corpus(args.corpus, args.shape)
     if args.moving_objects:
         scene = dict(scene, moving_objects=args.moving_objects)
         corpus = corpus.with_name(f"{corpus.name}-movers{args.moving_objects}")

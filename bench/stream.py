@@ -82,6 +82,16 @@ def write_corpus(folder: Path, n: int, scene: dict | None = None) -> list[Path]:
     return paths
 
 
+def sized_corpus(folder: Path, shape: tuple[int, int, int, int] | None) -> tuple[dict, Path, str]:
+    """(scene, folder, name) of clips of ``shape`` (T, H, W, P): standard clips in ``folder`` where
+    None, else ``SCENE`` at that size in a folder of ``folder``'s name and the size."""
+    if not shape:
+        return SCENE, folder, "standard"
+    T, H, W, P = shape
+    kind = f"{T}x{H}x{W}x{P}"
+    return dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P), folder.with_name(f"{folder.name}-{kind}"), kind
+
+
 def memory_mib(paths: list[Path]) -> tuple[float, float]:
     """(peak, resident at the end) [MiB] of a fresh process scoring ``paths`` from disk. The peak
     is set by compiling or loading the program (~3 GB); what the stream keeps shows in the end."""
@@ -111,11 +121,7 @@ def main() -> None:
                         help="clips of this size instead of standard ones, in a folder of --dir's name and the size")
     args = parser.parse_args()
     enable_compilation_cache()  # the peak-memory processes load the program compiled here
-    folder, scene, kind = Path(args.dir), SCENE, "standard"
-    if args.shape:
-        T, H, W, P = args.shape
-        scene, kind = dict(SCENE, n_frames=T, height=H, width=W, n_tracks=P), f"{T}x{H}x{W}x{P}"
-        folder = folder.with_name(f"{folder.name}-{kind}")
+    scene, folder, kind = sized_corpus(Path(args.dir), args.shape)
     begin = time.perf_counter()
     paths = write_corpus(folder, max([args.clips, args.in_memory, *args.memory_sizes]), scene)
     print(f"corpus: {len(paths)} {kind} clips in {folder} ({time.perf_counter() - begin:.0f} s to write the missing)",
