@@ -1,0 +1,305 @@
+"""A scene family written apart from research.synth, for reports only: a camera walking down a
+corridor (docs/semantics.md §7.4, "A corridor").
+
+    python bench/corridor_scenes.py [--scenes 6] [--tracks 200 1000 4096] [--levels 0.5 2]
+                                    [--models iid-curr iid-both correlated depth outliers]
+                                    [--perturb 0.25] [--config '{"partition": "grid"}']
+                                    [--out rows.csv] [--rows rows.csv]
+
+Every layout of the protocol's splits and pools (research.synth) stands in front of the camera:
+a back wall, rectangles at set depths, spheres, at most a ground. Here every surface but the end
+wall is seen obliquely, so depth runs continuously from the camera's feet to the end of the
+corridor: two side walls, a floor and a ceiling (the corridor 3-5 units wide, 2.4-3.2 high and
+15-30 long), the end wall, and four boxes standing on the floor along the walls. The camera walks
+0.25 units a frame down the corridor (about 3 % of the median depth), swaying sideways and turning
+1° a frame. Depth is ray-cast at pixel centres, tracks are drawn uniformly over frame i−1 and
+projected through the exact geometry into frame i (visible where frame i's depth does not hide
+them), as the clip format defines (docs/semantics.md §1.1); NumPy only, every draw from the scene's
+seed (``CORRIDOR_SEEDS``, which no split or pool uses). Nothing is chosen on these scenes.
+
+Noise: the protocol's models (research.noise, named as there) at each ``--levels`` px, one draw a
+cell, the perturbed clips given their consistent twin's draw (paired, as bench/validation.py).
+Inconsistencies: the paper's three perturbations at ``--perturb`` (made on the exact clip), and an
+unmasked mover (the nearest box walks across the corridor at 0.08 units a frame) against its
+masked twin. Prints, per noise model and track count, the consistent clips' median at each level
+and its rise, the largest and how many lie above 0.10, the statuses; the share of cells where each
+inconsistency scores above its twin; and, on the exact clips, the depth error and its part that
+the depth check's rounding to the nearest pixel makes on oblique surfaces (§3.6 step 2): the mean
+relative error of frame i−1's warped points against frame i's depth at the nearest pixel, and
+against frame i's inverse depth interpolated bilinearly at the point's own position, over points
+whose four neighbours lie on one surface. ``--config``: SGCConfig fields (JSON) to score with.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+
+CORRIDOR_SEEDS = range(9100, 9200)
+MOVER_SPEED = 0.08  # units a frame, across the corridor
+MASK_MARGIN_PX = 2  # the mover's mask reaches this far past it, as a motion segmenter's does
+
+
+@dataclasses.dataclass(frozen=True)
+class CorridorSpec:
+    """One corridor clip: frames, image size [px], tracks per pair, the walk [units a frame, deg]."""
+
+    n_frames: int = 8
+    height: int = 144
+    width: int = 192
+    n_tracks: int = 1000
+    speed: float = 0.25
+    yaw_deg: float = 1.0
+    fov_deg: float = 65.0
+
+
+def _rotation(axis, deg: float) -> np.ndarray:
+    x, y, z = axis
+    cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], float)
+    a = np.deg2rad(deg)
+    return np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross
+
+
+class Corridor:
+    """The world of scene ``seed`` (camera 0's frame, OpenCV axes: y down); ``moving``: its nearest
+    box walks across the corridor."""
+
+    def __init__(self, seed: int, spec: CorridorSpec, moving: bool):
+        rng = np.random.default_rng(seed)
+        self.half_w, self.half_h, self.end_z = rng.uniform(1.5, 2.5), rng.uniform(1.2, 1.6), rng.uniform(15, 30)
+        self.boxes = []
+        for _ in range(4):
+            size = rng.uniform(0.3, 0.8, 3)
+            x = rng.choice([-1, 1]) * (self.half_w - size[0] / 2 - rng.uniform(0, 0.3))
+            centre = np.array([x, self.half_h - size[1] / 2, rng.uniform(3, self.end_z - 2)])
+            self.boxes.append((centre - size / 2, centre + size / 2))
+        nearest = int(np.argmin([lo[2] for lo, _ in self.boxes]))
+        self.boxes.insert(0, self.boxes.pop(nearest))
+        lo, hi = self.boxes[0]
+        direction = -np.sign(lo[0] + hi[0])  # from its wall across the corridor
+        self.velocity = np.array([direction * MOVER_SPEED, 0.0, 0.0]) if moving else np.zeros(3)
+        self.spec = spec
+        f = 0.5 * spec.width / np.tan(np.deg2rad(spec.fov_deg) / 2)
+        self.K = np.array([[f, 0, (spec.width - 1) / 2], [0, f, (spec.height - 1) / 2], [0, 0, 1.0]])
+        start = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), 0.0])
+        turn = spec.yaw_deg * rng.choice([-1, 1])
+        frames = np.arange(spec.n_frames)
+        self.centres = start + np.stack([0.05 * np.sin(0.6 * frames), 0.02 * np.sin(0.9 * frames),
+                                         spec.speed * frames], 1)
+        self.R_wc = np.stack([(_rotation((0, 1, 0), turn * t) @ _rotation((1, 0, 0), 0.4 * np.sin(0.5 * t))).T
+                              for t in frames])
+        self.t_wc = -np.einsum("tij,tj->ti", self.R_wc, self.centres)
+
+    def _boxes_at(self, t: int):
+        return [(lo + self.velocity * t, hi + self.velocity * t) if j == 0 else (lo, hi)
+                for j, (lo, hi) in enumerate(self.boxes)]
+
+    def cast(self, t: int, xy: np.ndarray):
+        """Pixels (N, 2) of frame t -> (depth (N,), the world points (N, 3), on the mover (N,) bool)."""
+        pixels = np.concatenate([xy, np.ones((len(xy), 1))], 1) @ np.linalg.inv(self.K).T
+        rays = pixels @ self.R_wc[t]  # world directions, camera z = 1
+        origin = self.centres[t]
+        hit = np.full(len(xy), np.inf)
+        on_mover = np.zeros(len(xy), bool)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for axis, value in ((0, -self.half_w), (0, self.half_w), (1, -self.half_h), (1, self.half_h),
+                                (2, self.end_z)):
+                along = (value - origin[axis]) / rays[:, axis]
+                hit = np.minimum(hit, np.where(along > 1e-6, along, np.inf))
+            for j, (lo, hi) in enumerate(self._boxes_at(t)):
+                near, far = (lo - origin) / rays, (hi - origin) / rays
+                enter = np.nanmax(np.minimum(near, far), axis=1)
+                leave = np.nanmin(np.maximum(near, far), axis=1)
+                closer = (leave >= enter) & (enter > 1e-6) & (enter < hit)
+                hit = np.where(closer, enter, hit)
+                on_mover = np.where(closer, j == 0, on_mover)
+        on_mover &= self.velocity.any()
+        return hit * pixels[:, 2], origin + hit[:, None] * rays, on_mover
+
+    def clip(self, seed: int, masked: bool, clip_id: str):
+        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair; ``masked``: the mover's
+        pixels (and a margin) out of the static mask."""
+        import cv2
+
+        from sgc_jax import clip_from_arrays
+
+        spec, H, W = self.spec, self.spec.height, self.spec.width
+        grid = np.stack(np.meshgrid(np.arange(W), np.arange(H)), -1).reshape(-1, 2).astype(float)
+        depth, mover = zip(*[(d.reshape(H, W), m.reshape(H, W)) for d, _, m in (self.cast(t, grid)
+                                                                                 for t in range(spec.n_frames))])
+        kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
+        dynamic = np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in mover])
+        rng = np.random.default_rng((seed, spec.n_tracks))
+        prev, curr, visible = [], [], []
+        for i in range(1, spec.n_frames):
+            xy = rng.uniform([0, 0], [W - 1, H - 1], size=(spec.n_tracks, 2))
+            _, world, on_mover = self.cast(i - 1, xy)
+            world = world + on_mover[:, None] * self.velocity
+            camera = world @ self.R_wc[i].T + self.t_wc[i]
+            z = np.where(camera[:, 2] > 1e-6, camera[:, 2], np.nan)
+            landing = (camera @ self.K.T)[:, :2] / z[:, None]
+            inside = np.isfinite(landing).all(1) & (landing >= 0).all(1) & (landing <= [W - 1, H - 1]).all(1)
+            seen_depth, _, _ = self.cast(i, np.clip(np.nan_to_num(landing), 0, [W - 1, H - 1]))
+            prev.append(xy)
+            curr.append(np.where(inside[:, None], landing, -1.0))
+            visible.append(inside & (z <= seen_depth * 1.01))
+        arrays = dict(depth=np.stack(depth).astype(np.float32), K=self.K.astype(np.float32),
+                      R_wc=self.R_wc.astype(np.float32), t_wc=self.t_wc.astype(np.float32),
+                      static_mask=~dynamic if masked else np.ones_like(dynamic),
+                      track_prev=np.stack(prev).astype(np.float32), track_curr=np.stack(curr).astype(np.float32),
+                      track_vis=np.stack(visible))
+        return clip_from_arrays(arrays, clip_id=clip_id)
+
+
+def rounding_part(clip) -> tuple[float, float]:
+    """Under the exact cameras, every valid pixel of frame i−1 warped into frame i: the mean relative
+    error [%] against frame i's depth at the nearest pixel (§3.6 step 2) and against its inverse
+    depth interpolated bilinearly at the point's own position, over points whose four neighbours lie
+    within 5 % of one another and whose nearest pixel within 5 % of the point (one surface)."""
+    depth, K = clip.depth.astype(float), np.broadcast_to(clip.K, (clip.n_frames, 3, 3)).astype(float)
+    R, t = clip.R_wc.astype(float), clip.t_wc.astype(float)
+    H, W = clip.image_size
+    rows, cols = np.mgrid[0:H, 0:W]
+    nearest, interpolated = [], []
+    for i in range(1, clip.n_frames):
+        valid = depth[i - 1] > 0
+        pixels = np.stack([cols[valid], rows[valid], np.ones(valid.sum())])
+        world = R[i - 1].T @ (np.linalg.inv(K[i - 1]) @ pixels * depth[i - 1][valid] - t[i - 1][:, None])
+        camera = R[i] @ world + t[i][:, None]
+        z = camera[2]
+        u, v = (K[i] @ camera)[:2] / np.where(z > 1e-5, z, np.nan)
+        keep = (z > 1e-5) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        u, v, z = u[keep], v[keep], z[keep]
+        at_nearest = depth[i][np.floor(v + 0.5).astype(int), np.floor(u + 0.5).astype(int)]
+        u0, v0 = np.minimum(np.floor(u).astype(int), W - 2), np.minimum(np.floor(v).astype(int), H - 2)
+        fu, fv = u - u0, v - v0
+        four = np.stack([depth[i][v0, u0], depth[i][v0, u0 + 1], depth[i][v0 + 1, u0], depth[i][v0 + 1, u0 + 1]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse = ((1 - fu) * (1 - fv) / four[0] + fu * (1 - fv) / four[1] + (1 - fu) * fv / four[2]
+                       + fu * fv / four[3])
+            surface = (four.min(0) > 0) & (four.max(0) < 1.05 * four.min(0)) & (np.abs(at_nearest / z - 1) < 0.05)
+        nearest.append(np.abs(z - at_nearest)[surface] / at_nearest[surface])
+        interpolated.append(np.abs(z * inverse - 1)[surface])
+    return 100 * float(np.concatenate(nearest).mean()), 100 * float(np.concatenate(interpolated).mean())
+
+
+def score_rows(args) -> list[dict]:
+    """One row per clip: scene, tracks, noise cell, kind ("" consistent, a perturbation, "mover",
+    "mover-masked"), severity, the score's outputs and the tracks on the mover."""
+    from sgc_jax import score_batch
+    from sgc_jax.research.noise import NOISE_MODELS, add_noise
+    from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+
+    cells = list(itertools.product(args.models, args.levels))
+    rows, clips = [], []
+    for k, n_tracks in itertools.product(range(args.scenes), args.tracks):
+        seed, spec = CORRIDOR_SEEDS[k], CorridorSpec(n_tracks=n_tracks)
+        still, moving = Corridor(seed, spec, moving=False), Corridor(seed, spec, moving=True)
+        name = f"corridor-{k}"
+        clean = still.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}")
+        exact = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, args.perturb, seed=seed), kind, args.perturb)
+                                      for kind in PERTURBATIONS]
+        exact += [(moving.clip(seed, masked=True, clip_id=f"{name}-{n_tracks}-masked"), "mover-masked", 0.0),
+                  (moving.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}-mover"), "mover", 1.0)]
+        on_mover = _tracks_on_mover(exact[-2][0])
+        for c, (model, px) in enumerate(cells):
+            noise = NOISE_MODELS[model].replace(px=px)
+            for clip, kind, severity in exact:
+                clips.append(add_noise(clip, noise, seed * 100 + c))
+                rows.append(dict(scene=name, tracks=n_tracks, model=model, noise_px=px, kind=kind, severity=severity,
+                                 tracks_on_mover=on_mover, cell=f"{name}/{n_tracks}/{model}/{px}"))
+    result = score_batch(clips, config=args.score_config)
+    rewards = result.rewards()["reward"]
+    for row, clip, reward in zip(rows, result.clips, rewards):
+        row.update(sgc=clip.sgc, status=clip.status, evidence=clip.evidence, depth_error=clip.components["depth_error"],
+                   reward=float(reward))
+    return rows
+
+
+def _tracks_on_mover(masked) -> float:
+    """Mean over pairs of the usable tracks whose frame-i−1 position lies on the mover (its mask less
+    the margin)."""
+    import cv2
+
+    kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
+    on = np.stack([cv2.erode((~static).astype(np.uint8), kernel) > 0 for static in masked.static_mask[:-1]])
+    H, W = masked.image_size
+    column, row = (np.clip(np.rint(masked.track_prev[..., a]).astype(int), 0, size - 1) for a, size in ((0, W), (1, H)))
+    hit = on[np.arange(len(on))[:, None], row, column] & masked.usable_tracks(0.0)
+    return float(hit.sum(axis=1).mean())
+
+
+def print_tables(rows: list[dict]) -> None:
+    import pandas as pd
+
+    from sgc_jax.research.protocol import detection_table
+
+    frame = pd.DataFrame(rows)
+    consistent = frame[frame.kind == ""]
+    levels = sorted(consistent.noise_px.unique())
+    print("consistent clips: median SGC by level, the rise from the first to the last, the largest, above 0.10")
+    print("| model | tracks | " + " | ".join(f"{px} px" for px in levels) + " | rise | largest | above 0.10 | statuses |")
+    print("|---|---|" + "---|" * (len(levels) + 4))
+    for (model, tracks), cell in consistent.groupby(["model", "tracks"], sort=False):
+        medians = [cell[cell.noise_px == px].sgc.median() for px in levels]
+        statuses = ", ".join(f"{s} {n}" for s, n in cell.status.value_counts().items())
+        print(f"| {model} | {tracks} | " + " | ".join(f"{m:.3f}" for m in medians)
+              + f" | {medians[-1] - medians[0]:+.3f} | {cell.sgc.max():.3f} | {(cell.sgc > 0.10).sum()} of {len(cell)}"
+              f" | {statuses} |")
+    print("\nshare of cells where each inconsistency scores above its consistent twin")
+    for model, of_model in frame.groupby("model", sort=False):
+        shares = detection_table(of_model.to_dict("records"))
+        print(f"{model}: " + ", ".join(f"{kind} {severity:g} {share:.0%}" for (kind, severity), share in shares.items()))
+    movers = frame[frame.kind == "mover"].groupby("scene").tracks_on_mover.median()
+    print("\ntracks on the mover per pair, by scene (median over track counts):",
+          ", ".join(f"{scene} {n:.0f}" for scene, n in movers.items()))
+    rewards = frame.groupby("kind").reward.median()
+    print("median reward by kind:", ", ".join(f"{kind or 'consistent'} {r:.3f}" for kind, r in rewards.items()))
+
+
+def print_rounding(scenes: int, config) -> None:
+    print("\nexact clips (1,000 tracks): the depth error as scored, and frame i−1's warp against frame i's depth "
+          "at the nearest pixel / interpolated at the point [%]")
+    from sgc_jax import score_batch
+
+    for size in ((144, 192), (72, 96)):
+        spec = CorridorSpec(height=size[0], width=size[1])
+        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"corridor-{k}")
+                 for k in range(scenes)]
+        scored = score_batch(clips, config=config).clips
+        for clip, result in zip(clips, scored):
+            nearest, interpolated = rounding_part(clip)
+            print(f"{clip.clip_id} {size[1]}x{size[0]}: depth error {result.components['depth_error']:.3f} (SGC {result.sgc:.3f}); "
+                  f"nearest {nearest:.3f}, interpolated {interpolated:.4f}")
+
+
+def main() -> None:
+    from sgc_jax import SGCConfig
+    from sgc_jax.research.noise import NOISE_MODELS
+    from sgc_jax.research.protocol import rows_scored_or_read
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=6)
+    parser.add_argument("--tracks", type=int, nargs="+", default=[200, 1000, 4096])
+    parser.add_argument("--levels", type=float, nargs="+", default=[0.5, 2.0], help="noise levels [px]")
+    parser.add_argument("--models", nargs="+", default=list(NOISE_MODELS), choices=sorted(NOISE_MODELS))
+    parser.add_argument("--perturb", type=float, default=0.25, help="the perturbations' severity")
+    parser.add_argument("--config", default="{}", help="SGCConfig fields as JSON, e.g. a partition")
+    parser.add_argument("--out", type=Path, help="write one row per clip (CSV)")
+    parser.add_argument("--rows", type=Path, help="print the tables from this CSV (an earlier --out) instead of scoring")
+    args = parser.parse_args()
+    args.score_config = SGCConfig(**json.loads(args.config))
+    rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args),
+                               text=("scene", "model", "kind", "status", "cell"), integers=("tracks",))
+    print_tables(rows)
+    if not args.rows:
+        print_rounding(args.scenes, args.score_config)
+
+
+if __name__ == "__main__":
+    main()
