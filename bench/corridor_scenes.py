@@ -4,7 +4,7 @@ corridor (docs/semantics.md §7.4, "A corridor").
     python bench/corridor_scenes.py [--scenes 6] [--tracks 200 1000 4096] [--levels 0.5 2]
                                     [--models iid-curr iid-both correlated depth outliers]
                                     [--perturb 0.25] [--config '{"partition": "grid"}']
-                                    [--out rows.csv] [--rows rows.csv]
+                                    [--out rows.csv] [--rows rows.csv] [--ladders]
 
 Every layout of the protocol's splits and pools (research.synth) stands in front of the camera:
 a back wall, rectangles at set depths, spheres, at most a ground. Here every surface but the end
@@ -28,6 +28,8 @@ the depth check's rounding to the nearest pixel makes on oblique surfaces (§3.6
 relative error of frame i−1's warped points against frame i's depth at the nearest pixel, and
 against frame i's inverse depth interpolated bilinearly at the point's own position, over points
 whose four neighbours lie on one surface. ``--config``: SGCConfig fields (JSON) to score with.
+``--ladders``: also each scene's perturbation ladders (severities 0.1, 0.25, 0.5, 1; 1,000 tracks,
+iid-both 1 px, paired): how many rise strictly in SGC and fall strictly in reward (issue 59's bar).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ import numpy as np
 CORRIDOR_SEEDS = range(9100, 9200)
 MOVER_SPEED = 0.08  # units a frame, across the corridor
 MASK_MARGIN_PX = 2  # the mover's mask reaches this far past it, as a motion segmenter's does
+LADDER_SEVERITIES = (0.1, 0.25, 0.5, 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,6 +265,35 @@ def print_tables(rows: list[dict]) -> None:
     print("median reward by kind:", ", ".join(f"{kind or 'consistent'} {r:.3f}" for kind, r in rewards.items()))
 
 
+def print_ladders(scenes: int, config) -> None:
+    from sgc_jax import score_batch
+    from sgc_jax.research.noise import NOISE_MODELS, add_noise
+    from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+
+    noise = NOISE_MODELS["iid-both"].replace(px=1.0)
+    ladders, clips = [], []
+    for k in range(scenes):
+        seed = CORRIDOR_SEEDS[k]
+        clean = Corridor(seed, CorridorSpec(), moving=False).clip(seed, False, f"corridor-{k}")
+        for kind in PERTURBATIONS:
+            ladders.append((f"corridor-{k}", kind))
+            clips += [add_noise(clean, noise, seed)] + [add_noise(perturb_clip(clean, kind, s, seed=seed), noise, seed)
+                                                        for s in LADDER_SEVERITIES]
+    result = score_batch(clips, config=config)
+    sgc = np.array([c.sgc for c in result.clips]).reshape(len(ladders), -1)
+    reward = result.rewards()["reward"].reshape(len(ladders), -1)
+    print("\nladders (iid-both 1 px, 1,000 tracks): SGC (reward) at severity 0, " + ", ".join(map(str, LADDER_SEVERITIES)))
+    for (scene, kind), scores, rewards in zip(ladders, sgc, reward):
+        print(f"{scene} {kind}: " + ", ".join(f"{a:.3f} ({b:.3f})" for a, b in zip(scores, rewards)))
+    rising, falling = (np.diff(sgc) > 0).all(1).sum(), (np.diff(reward) < 0).all(1).sum()
+    print(f"{rising} of {len(ladders)} ladders rise strictly in SGC; {falling} of {len(ladders)} fall strictly in reward")
+    for (scene, kind), scores in zip(ladders, sgc):
+        if not (np.diff(scores) > 0).all():
+            steps = [f"{a:g} -> {b:g}" for a, b, d in zip((0,) + LADDER_SEVERITIES, LADDER_SEVERITIES, np.diff(scores))
+                     if d <= 0]
+            print(f"  {scene} {kind} does not rise at {', '.join(steps)} (by {np.diff(scores).min():+.1e})")
+
+
 def print_rounding(scenes: int, config) -> None:
     print("\nexact clips (1,000 tracks): the depth error as scored, and frame i−1's warp against frame i's depth "
           "at the nearest pixel / interpolated at the point [%]")
@@ -292,6 +324,7 @@ def main() -> None:
     parser.add_argument("--config", default="{}", help="SGCConfig fields as JSON, e.g. a partition")
     parser.add_argument("--out", type=Path, help="write one row per clip (CSV)")
     parser.add_argument("--rows", type=Path, help="print the tables from this CSV (an earlier --out) instead of scoring")
+    parser.add_argument("--ladders", action="store_true", help="also each scene's perturbation ladders")
     args = parser.parse_args()
     args.score_config = SGCConfig(**json.loads(args.config))
     rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args),
@@ -299,6 +332,8 @@ def main() -> None:
     print_tables(rows)
     if not args.rows:
         print_rounding(args.scenes, args.score_config)
+    if args.ladders:
+        print_ladders(args.scenes, args.score_config)
 
 
 if __name__ == "__main__":
