@@ -4,7 +4,7 @@ corridor (docs/semantics.md §7.4, "A corridor").
     python bench/corridor_scenes.py [--scenes 6] [--tracks 200 1000 4096] [--levels 0.5 2]
                                     [--models iid-curr iid-both correlated depth outliers]
                                     [--perturb 0.25] [--config '{"partition": "grid"}']
-                                    [--out rows.csv] [--rows rows.csv] [--ladders]
+                                    [--out rows.csv] [--rows rows.csv] [--ladders] [--street]
 
 Every layout of the protocol's splits and pools (research.synth) stands in front of the camera:
 a back wall, rectangles at set depths, spheres, at most a ground. Here every surface but the end
@@ -30,6 +30,9 @@ against frame i's inverse depth interpolated bilinearly at the point's own posit
 whose four neighbours lie on one surface. ``--config``: SGCConfig fields (JSON) to score with.
 ``--ladders``: also each scene's perturbation ladders (severities 0.1, 0.25, 0.5, 1; 1,000 tracks,
 iid-both 1 px, paired): how many rise strictly in SGC and fall strictly in reward (issue 59's bar).
+``--street``: the same scenes as streets: no ceiling, the walls and the end wall ending at the same
+height, sky above them (depth 0, invalid; its tracks points at infinity, moved by the camera's
+rotation alone, as a tracker follows clouds).
 """
 
 from __future__ import annotations
@@ -59,6 +62,11 @@ class CorridorSpec:
     speed: float = 0.25
     yaw_deg: float = 1.0
     fov_deg: float = 65.0
+    sky: bool = False  # a street: no ceiling, sky above the walls (depth 0, its tracks at infinity)
+
+
+def _family(sky: bool) -> str:
+    return "street" if sky else "corridor"
 
 
 def _rotation(axis, deg: float) -> np.ndarray:
@@ -109,11 +117,13 @@ class Corridor:
         origin = self.centres[t]
         hit = np.full(len(xy), np.inf)
         on_mover = np.zeros(len(xy), bool)
+        planes = ((0, -self.half_w), (0, self.half_w), (1, self.half_h), (2, self.end_z))
+        planes += () if self.spec.sky else ((1, -self.half_h),)
         with np.errstate(divide="ignore", invalid="ignore"):
-            for axis, value in ((0, -self.half_w), (0, self.half_w), (1, -self.half_h), (1, self.half_h),
-                                (2, self.end_z)):
+            for axis, value in planes:
                 along = (value - origin[axis]) / rays[:, axis]
-                hit = np.minimum(hit, np.where(along > 1e-6, along, np.inf))
+                below_top = origin[1] + along * rays[:, 1] >= -self.half_h  # a street's walls end at the roofs
+                hit = np.minimum(hit, np.where((along > 1e-6) & (below_top | (axis == 1)), along, np.inf))
             for j, (lo, hi) in enumerate(self._boxes_at(t)):
                 near, far = (lo - origin) / rays, (hi - origin) / rays
                 enter = np.nanmax(np.minimum(near, far), axis=1)
@@ -122,7 +132,9 @@ class Corridor:
                 hit = np.where(closer, enter, hit)
                 on_mover = np.where(closer, j == 0, on_mover)
         on_mover &= self.velocity.any()
-        return hit * pixels[:, 2], origin + hit[:, None] * rays, on_mover
+        sky = ~np.isfinite(hit)  # a direction, not a point
+        world = np.where(sky[:, None], rays, origin + np.where(sky, 0.0, hit)[:, None] * rays)
+        return np.where(sky, 0.0, hit * pixels[:, 2]), world, on_mover
 
     def clip(self, seed: int, masked: bool, clip_id: str):
         """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair; ``masked``: the mover's
@@ -141,16 +153,17 @@ class Corridor:
         prev, curr, visible = [], [], []
         for i in range(1, spec.n_frames):
             xy = rng.uniform([0, 0], [W - 1, H - 1], size=(spec.n_tracks, 2))
-            _, world, on_mover = self.cast(i - 1, xy)
+            depth_prev, world, on_mover = self.cast(i - 1, xy)
             world = world + on_mover[:, None] * self.velocity
-            camera = world @ self.R_wc[i].T + self.t_wc[i]
+            sky = depth_prev == 0  # seen at infinity: the camera's rotation alone moves it
+            camera = world @ self.R_wc[i].T + np.where(sky[:, None], 0.0, self.t_wc[i])
             z = np.where(camera[:, 2] > 1e-6, camera[:, 2], np.nan)
             landing = (camera @ self.K.T)[:, :2] / z[:, None]
             inside = np.isfinite(landing).all(1) & (landing >= 0).all(1) & (landing <= [W - 1, H - 1]).all(1)
             seen_depth, _, _ = self.cast(i, np.clip(np.nan_to_num(landing), 0, [W - 1, H - 1]))
             prev.append(xy)
             curr.append(np.where(inside[:, None], landing, -1.0))
-            visible.append(inside & (z <= seen_depth * 1.01))
+            visible.append(inside & np.where(sky, seen_depth == 0, z <= seen_depth * 1.01))
         arrays = dict(depth=np.stack(depth).astype(np.float32), K=self.K.astype(np.float32),
                       R_wc=self.R_wc.astype(np.float32), t_wc=self.t_wc.astype(np.float32),
                       static_mask=~dynamic if masked else np.ones_like(dynamic),
@@ -201,9 +214,9 @@ def score_rows(args) -> list[dict]:
     cells = list(itertools.product(args.models, args.levels))
     rows, clips = [], []
     for k, n_tracks in itertools.product(range(args.scenes), args.tracks):
-        seed, spec = CORRIDOR_SEEDS[k], CorridorSpec(n_tracks=n_tracks)
+        seed, spec = CORRIDOR_SEEDS[k], CorridorSpec(n_tracks=n_tracks, sky=args.street)
         still, moving = Corridor(seed, spec, moving=False), Corridor(seed, spec, moving=True)
-        name = f"corridor-{k}"
+        name = f"{_family(args.street)}-{k}"
         clean = still.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}")
         exact = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, args.perturb, seed=seed), kind, args.perturb)
                                       for kind in PERTURBATIONS]
@@ -265,7 +278,7 @@ def print_tables(rows: list[dict]) -> None:
     print("median reward by kind:", ", ".join(f"{kind or 'consistent'} {r:.3f}" for kind, r in rewards.items()))
 
 
-def print_ladders(scenes: int, config) -> None:
+def print_ladders(scenes: int, config, sky: bool) -> None:
     from sgc_jax import score_batch
     from sgc_jax.research.noise import NOISE_MODELS, add_noise
     from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
@@ -274,9 +287,9 @@ def print_ladders(scenes: int, config) -> None:
     ladders, clips = [], []
     for k in range(scenes):
         seed = CORRIDOR_SEEDS[k]
-        clean = Corridor(seed, CorridorSpec(), moving=False).clip(seed, False, f"corridor-{k}")
+        clean = Corridor(seed, CorridorSpec(sky=sky), moving=False).clip(seed, False, f"{_family(sky)}-{k}")
         for kind in PERTURBATIONS:
-            ladders.append((f"corridor-{k}", kind))
+            ladders.append((f"{_family(sky)}-{k}", kind))
             clips += [add_noise(clean, noise, seed)] + [add_noise(perturb_clip(clean, kind, s, seed=seed), noise, seed)
                                                         for s in LADDER_SEVERITIES]
     result = score_batch(clips, config=config)
@@ -294,14 +307,14 @@ def print_ladders(scenes: int, config) -> None:
             print(f"  {scene} {kind} does not rise at {', '.join(steps)} (by {np.diff(scores).min():+.1e})")
 
 
-def print_rounding(scenes: int, config) -> None:
+def print_rounding(scenes: int, config, sky: bool) -> None:
     print("\nexact clips (1,000 tracks): the depth error as scored, and frame i−1's warp against frame i's depth "
           "at the nearest pixel / interpolated at the point [%]")
     from sgc_jax import score_batch
 
     for size in ((144, 192), (72, 96)):
-        spec = CorridorSpec(height=size[0], width=size[1])
-        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"corridor-{k}")
+        spec = CorridorSpec(height=size[0], width=size[1], sky=sky)
+        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"{_family(sky)}-{k}")
                  for k in range(scenes)]
         scored = score_batch(clips, config=config).clips
         for clip, result in zip(clips, scored):
@@ -325,15 +338,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="write one row per clip (CSV)")
     parser.add_argument("--rows", type=Path, help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--ladders", action="store_true", help="also each scene's perturbation ladders")
+    parser.add_argument("--street", action="store_true", help="a street: no ceiling, sky above the walls")
     args = parser.parse_args()
     args.score_config = SGCConfig(**json.loads(args.config))
     rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args),
                                text=("scene", "model", "kind", "status", "cell"), integers=("tracks",))
     print_tables(rows)
     if not args.rows:
-        print_rounding(args.scenes, args.score_config)
+        print_rounding(args.scenes, args.score_config, args.street)
     if args.ladders:
-        print_ladders(args.scenes, args.score_config)
+        print_ladders(args.scenes, args.score_config, args.street)
 
 
 if __name__ == "__main__":
