@@ -5,6 +5,7 @@ corridor (docs/semantics.md §7.4, "A corridor").
                                     [--models iid-curr iid-both correlated depth outliers]
                                     [--perturb 0.25] [--config '{"partition": "grid"}']
                                     [--out rows.csv] [--rows rows.csv] [--ladders] [--street]
+                                    [--tracked 6]
 
 Every layout of the protocol's splits and pools (research.synth) stands in front of the camera:
 a back wall, rectangles at set depths, spheres, at most a ground. Here every surface but the end
@@ -32,7 +33,10 @@ whose four neighbours lie on one surface. ``--config``: SGCConfig fields (JSON) 
 iid-both 1 px, paired): how many rise strictly in SGC and fall strictly in reward (issue 59's bar).
 ``--street``: the same scenes as streets: no ceiling, the walls and the end wall ending at the same
 height, sky above them (depth 0, invalid; its tracks points at infinity, moved by the camera's
-rotation alone, as a tracker follows clouds).
+rotation alone, as a tracker follows clouds). ``--tracked STRIDE``: every surface is painted with
+value noise (``TEXTURE_OCTAVES``) into RGB frames, and each scene's clean clip, warp and depth_warp
+at 0.25 and 0.5 and the mover with its masked twin are retracked on their own frames by pyramidal
+LK from a grid of STRIDE px (bench/track_density.py): a real tracker's errors on a known world.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ CORRIDOR_SEEDS = range(9100, 9200)
 MOVER_SPEED = 0.08  # units a frame, across the corridor
 MASK_MARGIN_PX = 2  # the mover's mask reaches this far past it, as a motion segmenter's does
 LADDER_SEVERITIES = (0.1, 0.25, 0.5, 1.0)
+TEXTURE_OCTAVES = ((2.4, 90.0), (0.6, 80.0), (0.15, 60.0), (0.04, 40.0))  # value noise: cell [units], grey levels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +79,23 @@ def _rotation(axis, deg: float) -> np.ndarray:
     cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], float)
     a = np.deg2rad(deg)
     return np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross
+
+
+def value_noise(points: np.ndarray, cell: float, seed: int) -> np.ndarray:
+    """Smooth random texture at world points (N, 3): values in [0, 1) on a lattice of ``cell`` units,
+    interpolated trilinearly (smoothstep weights)."""
+    scaled = points / cell
+    base = np.floor(scaled).astype(np.int64)
+    frac = scaled - base
+    weight = frac * frac * (3 - 2 * frac)
+    total = np.zeros(len(points))
+    for corner in itertools.product((0, 1), repeat=3):
+        lattice = base + np.array(corner)
+        key = (lattice[:, 0] * 73856093) ^ (lattice[:, 1] * 19349663) ^ (lattice[:, 2] * 83492791) ^ seed
+        value = (np.abs(key * 2654435761) % 1000003) / 1000003.0
+        share = np.prod(np.where(np.array(corner) == 1, weight, 1 - weight), axis=1)
+        total += share * value
+    return total
 
 
 class Corridor:
@@ -105,6 +127,7 @@ class Corridor:
         self.R_wc = np.stack([(_rotation((0, 1, 0), turn * t) @ _rotation((1, 0, 0), 0.4 * np.sin(0.5 * t))).T
                               for t in frames])
         self.t_wc = -np.einsum("tij,tj->ti", self.R_wc, self.centres)
+        self.seed = seed
 
     def _boxes_at(self, t: int):
         return [(lo + self.velocity * t, hi + self.velocity * t) if j == 0 else (lo, hi)
@@ -136,17 +159,35 @@ class Corridor:
         world = np.where(sky[:, None], rays, origin + np.where(sky, 0.0, hit)[:, None] * rays)
         return np.where(sky, 0.0, hit * pixels[:, 2]), world, on_mover
 
+    def frame(self, t: int, world: np.ndarray, depth: np.ndarray, on_mover: np.ndarray) -> np.ndarray:
+        """Frame t's grey values (H W,) at its pixels' world points (H W, 3): two octaves of value noise
+        painted on every surface (the mover's on its own body), each faded out where its cells shrink
+        below 4 px along the surface (from 2 px, none: a renderer's mipmaps, against aliasing), a flat
+        sky; uint8."""
+        H, W = self.spec.height, self.spec.width
+        on_grid = np.where((depth > 0)[:, None], world, 0.0).reshape(H, W, 3)
+        step = [np.linalg.norm(np.gradient(on_grid, axis=a), axis=-1) for a in (0, 1)]
+        footprint = np.maximum(*step).reshape(-1)  # units a pixel, along the surface
+        body = world - on_mover[:, None] * self.velocity * t
+        grey = np.full(len(depth), 120.0)
+        for offset, (cell, amplitude) in enumerate(TEXTURE_OCTAVES):
+            fade = np.clip((cell / np.maximum(footprint, 1e-9) - 2.0) / 2.0, 0.0, 1.0)
+            grey += fade * amplitude * (value_noise(body, cell, self.seed + offset) - 0.5)
+        return np.where(depth > 0, grey, 200.0).clip(0, 255).astype(np.uint8)
+
     def clip(self, seed: int, masked: bool, clip_id: str):
-        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair; ``masked``: the mover's
-        pixels (and a margin) out of the static mask."""
+        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair, RGB frames; ``masked``:
+        the mover's pixels (and a margin) out of the static mask."""
         import cv2
 
         from sgc_jax import clip_from_arrays
 
         spec, H, W = self.spec, self.spec.height, self.spec.width
         grid = np.stack(np.meshgrid(np.arange(W), np.arange(H)), -1).reshape(-1, 2).astype(float)
-        depth, mover = zip(*[(d.reshape(H, W), m.reshape(H, W)) for d, _, m in (self.cast(t, grid)
-                                                                                 for t in range(spec.n_frames))])
+        cast = [self.cast(t, grid) for t in range(spec.n_frames)]
+        depth, mover = zip(*[(d.reshape(H, W), m.reshape(H, W)) for d, _, m in cast])
+        frames = np.stack([np.repeat(self.frame(t, w, d, m).reshape(H, W, 1), 3, axis=2)
+                           for t, (d, w, m) in enumerate(cast)])
         kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
         dynamic = np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in mover])
         rng = np.random.default_rng((seed, spec.n_tracks))
@@ -168,7 +209,7 @@ class Corridor:
                       R_wc=self.R_wc.astype(np.float32), t_wc=self.t_wc.astype(np.float32),
                       static_mask=~dynamic if masked else np.ones_like(dynamic),
                       track_prev=np.stack(prev).astype(np.float32), track_curr=np.stack(curr).astype(np.float32),
-                      track_vis=np.stack(visible))
+                      track_vis=np.stack(visible), frames=frames)
         return clip_from_arrays(arrays, clip_id=clip_id)
 
 
@@ -307,6 +348,51 @@ def print_ladders(scenes: int, config, sky: bool) -> None:
             print(f"  {scene} {kind} does not rise at {', '.join(steps)} (by {np.diff(scores).min():+.1e})")
 
 
+def print_tracked(scenes: int, config, sky: bool, stride: int) -> None:
+    """Each scene's clean clip, warp and depth_warp at 0.25 and 0.5 (their frames remapped with
+    them) and the mover with its masked twin, every one retracked on its own frames by pyramidal
+    LK from a grid of ``stride`` px (bench/track_density.py: 21 px windows, the forward-backward
+    check under 0.5 px): a real tracker's errors on a known world, in place of a noise model."""
+    import sys
+
+    import pandas as pd
+
+    from sgc_jax import score_batch
+    from sgc_jax.research.ground_truth import motion_errors
+    from sgc_jax.research.perturb import perturb_clip
+    from sgc_jax.research.protocol import detection_table
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from track_density import grid_tracks
+
+    rows, clips = [], []
+    for k in range(scenes):
+        seed, name = CORRIDOR_SEEDS[k], f"{_family(sky)}-{k}"
+        still, moving = (Corridor(seed, CorridorSpec(sky=sky), moving=m) for m in (False, True))
+        clean = still.clip(seed, False, name)
+        variants = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, s, seed=seed), kind, s)
+                                         for kind in ("warp", "depth_warp") for s in (0.25, 0.5)]
+        variants += [(moving.clip(seed, True, f"{name}-masked"), "mover-masked", 0.0),
+                     (moving.clip(seed, False, f"{name}-mover"), "mover", 1.0)]
+        for clip, kind, severity in variants:
+            clips.append(grid_tracks(clip, stride))
+            rows.append(dict(cell=name, kind=kind, severity=severity))
+    result = score_batch(clips, config=config)
+    rewards = result.rewards()["reward"]
+    for row, clip, scored, reward in zip(rows, clips, result.clips, rewards):
+        row.update(sgc=scored.sgc, reward=float(reward), status=scored.status,
+                   gt_p95=np.percentile(motion_errors(clip), 95) if row["kind"] == "" else np.nan)
+    frame = pd.DataFrame(rows)
+    frame["variant"] = frame.kind.where(frame.kind != "", "consistent") + frame.severity.map(lambda s: f" {s:g}")
+    print(f"\nretracked by LK from a {stride} px grid: SGC (reward)")
+    table = frame.pivot(index="cell", columns="variant", values="sgc").round(3)
+    print(table.assign(gt_p95_px=frame.groupby("cell").gt_p95.max().round(2)).to_string())
+    print("rewards:\n" + frame.pivot(index="cell", columns="variant", values="reward").round(3).to_string())
+    print("statuses:", dict(frame.status.value_counts()))
+    print("above the consistent twin: " + ", ".join(f"{kind} {severity:g} {share:.0%}" for (kind, severity), share
+                                                    in detection_table(frame.to_dict("records")).items()))
+
+
 def print_rounding(scenes: int, config, sky: bool) -> None:
     print("\nexact clips (1,000 tracks): the depth error as scored, and frame i−1's warp against frame i's depth "
           "at the nearest pixel / interpolated at the point [%]")
@@ -339,6 +425,8 @@ def main() -> None:
     parser.add_argument("--rows", type=Path, help="print the tables from this CSV (an earlier --out) instead of scoring")
     parser.add_argument("--ladders", action="store_true", help="also each scene's perturbation ladders")
     parser.add_argument("--street", action="store_true", help="a street: no ceiling, sky above the walls")
+    parser.add_argument("--tracked", type=int, default=0, metavar="STRIDE",
+                        help="also the clips retracked by LK on their own frames from a grid of STRIDE px")
     args = parser.parse_args()
     args.score_config = SGCConfig(**json.loads(args.config))
     rows = rows_scored_or_read(args.rows, args.out, lambda: score_rows(args),
@@ -348,6 +436,8 @@ def main() -> None:
         print_rounding(args.scenes, args.score_config, args.street)
     if args.ladders:
         print_ladders(args.scenes, args.score_config, args.street)
+    if args.tracked:
+        print_tracked(args.scenes, args.score_config, args.street, args.tracked)
 
 
 if __name__ == "__main__":
