@@ -175,9 +175,9 @@ class Corridor:
             grey += fade * amplitude * (value_noise(body, cell, self.seed + offset) - 0.5)
         return np.where(depth > 0, grey, 200.0).clip(0, 255).astype(np.uint8)
 
-    def clip(self, seed: int, masked: bool, clip_id: str):
-        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair, RGB frames; ``masked``:
-        the mover's pixels (and a margin) out of the static mask."""
+    def clip(self, seed: int, masked: bool, clip_id: str, with_frames: bool = False):
+        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair, and RGB frames when
+        ``with_frames``; ``masked``: the mover's pixels (and a margin) out of the static mask."""
         import cv2
 
         from sgc_jax import clip_from_arrays
@@ -187,7 +187,7 @@ class Corridor:
         cast = [self.cast(t, grid) for t in range(spec.n_frames)]
         depth, mover = zip(*[(d.reshape(H, W), m.reshape(H, W)) for d, _, m in cast])
         frames = np.stack([np.repeat(self.frame(t, w, d, m).reshape(H, W, 1), 3, axis=2)
-                           for t, (d, w, m) in enumerate(cast)])
+                           for t, (d, w, m) in enumerate(cast)]) if with_frames else None
         kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
         dynamic = np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in mover])
         rng = np.random.default_rng((seed, spec.n_tracks))
@@ -209,7 +209,7 @@ class Corridor:
                       R_wc=self.R_wc.astype(np.float32), t_wc=self.t_wc.astype(np.float32),
                       static_mask=~dynamic if masked else np.ones_like(dynamic),
                       track_prev=np.stack(prev).astype(np.float32), track_curr=np.stack(curr).astype(np.float32),
-                      track_vis=np.stack(visible), frames=frames)
+                      track_vis=np.stack(visible), **({} if frames is None else {"frames": frames}))
         return clip_from_arrays(arrays, clip_id=clip_id)
 
 
@@ -369,11 +369,11 @@ def print_tracked(scenes: int, config, sky: bool, stride: int) -> None:
     for k in range(scenes):
         seed, name = CORRIDOR_SEEDS[k], f"{_family(sky)}-{k}"
         still, moving = (Corridor(seed, CorridorSpec(sky=sky), moving=m) for m in (False, True))
-        clean = still.clip(seed, False, name)
+        clean = still.clip(seed, False, name, with_frames=True)
         variants = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, s, seed=seed), kind, s)
                                          for kind in ("warp", "depth_warp") for s in (0.25, 0.5)]
-        variants += [(moving.clip(seed, True, f"{name}-masked"), "mover-masked", 0.0),
-                     (moving.clip(seed, False, f"{name}-mover"), "mover", 1.0)]
+        variants += [(moving.clip(seed, True, f"{name}-masked", with_frames=True), "mover-masked", 0.0),
+                     (moving.clip(seed, False, f"{name}-mover", with_frames=True), "mover", 1.0)]
         for clip, kind, severity in variants:
             clips.append(grid_tracks(clip, stride))
             rows.append(dict(cell=name, kind=kind, severity=severity))
