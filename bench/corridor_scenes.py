@@ -42,175 +42,15 @@ LK from a grid of STRIDE px (bench/track_density.py): a real tracker's errors on
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import json
 from pathlib import Path
 
 import numpy as np
 
-CORRIDOR_SEEDS = range(9100, 9200)
-MOVER_SPEED = 0.08  # units a frame, across the corridor
-MASK_MARGIN_PX = 2  # the mover's mask reaches this far past it, as a motion segmenter's does
+from sgc_jax.research.corridor import CORRIDOR_SEEDS, MASK_MARGIN_PX, Corridor, CorridorSpec, family
+
 LADDER_SEVERITIES = (0.1, 0.25, 0.5, 1.0)
-TEXTURE_OCTAVES = ((2.4, 90.0), (0.6, 80.0), (0.15, 60.0), (0.04, 40.0))  # value noise: cell [units], grey levels
-
-
-@dataclasses.dataclass(frozen=True)
-class CorridorSpec:
-    """One corridor clip: frames, image size [px], tracks per pair, the walk [units a frame, deg]."""
-
-    n_frames: int = 8
-    height: int = 144
-    width: int = 192
-    n_tracks: int = 1000
-    speed: float = 0.25
-    yaw_deg: float = 1.0
-    fov_deg: float = 65.0
-    sky: bool = False  # a street: no ceiling, sky above the walls (depth 0, its tracks at infinity)
-
-
-def _family(sky: bool) -> str:
-    return "street" if sky else "corridor"
-
-
-def _rotation(axis, deg: float) -> np.ndarray:
-    x, y, z = axis
-    cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], float)
-    a = np.deg2rad(deg)
-    return np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross
-
-
-def value_noise(points: np.ndarray, cell: float, seed: int) -> np.ndarray:
-    """Smooth random texture at world points (N, 3): values in [0, 1) on a lattice of ``cell`` units,
-    interpolated trilinearly (smoothstep weights)."""
-    scaled = points / cell
-    base = np.floor(scaled).astype(np.int64)
-    frac = scaled - base
-    weight = frac * frac * (3 - 2 * frac)
-    total = np.zeros(len(points))
-    for corner in itertools.product((0, 1), repeat=3):
-        lattice = base + np.array(corner)
-        key = (lattice[:, 0] * 73856093) ^ (lattice[:, 1] * 19349663) ^ (lattice[:, 2] * 83492791) ^ seed
-        value = (np.abs(key * 2654435761) % 1000003) / 1000003.0
-        share = np.prod(np.where(np.array(corner) == 1, weight, 1 - weight), axis=1)
-        total += share * value
-    return total
-
-
-class Corridor:
-    """The world of scene ``seed`` (camera 0's frame, OpenCV axes: y down); ``moving``: its nearest
-    box walks across the corridor."""
-
-    def __init__(self, seed: int, spec: CorridorSpec, moving: bool):
-        rng = np.random.default_rng(seed)
-        self.half_w, self.half_h, self.end_z = rng.uniform(1.5, 2.5), rng.uniform(1.2, 1.6), rng.uniform(15, 30)
-        self.boxes = []
-        for _ in range(4):
-            size = rng.uniform(0.3, 0.8, 3)
-            x = rng.choice([-1, 1]) * (self.half_w - size[0] / 2 - rng.uniform(0, 0.3))
-            centre = np.array([x, self.half_h - size[1] / 2, rng.uniform(3, self.end_z - 2)])
-            self.boxes.append((centre - size / 2, centre + size / 2))
-        nearest = int(np.argmin([lo[2] for lo, _ in self.boxes]))
-        self.boxes.insert(0, self.boxes.pop(nearest))
-        lo, hi = self.boxes[0]
-        direction = -np.sign(lo[0] + hi[0])  # from its wall across the corridor
-        self.velocity = np.array([direction * MOVER_SPEED, 0.0, 0.0]) if moving else np.zeros(3)
-        self.spec = spec
-        f = 0.5 * spec.width / np.tan(np.deg2rad(spec.fov_deg) / 2)
-        self.K = np.array([[f, 0, (spec.width - 1) / 2], [0, f, (spec.height - 1) / 2], [0, 0, 1.0]])
-        start = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), 0.0])
-        turn = spec.yaw_deg * rng.choice([-1, 1])
-        frames = np.arange(spec.n_frames)
-        self.centres = start + np.stack([0.05 * np.sin(0.6 * frames), 0.02 * np.sin(0.9 * frames),
-                                         spec.speed * frames], 1)
-        self.R_wc = np.stack([(_rotation((0, 1, 0), turn * t) @ _rotation((1, 0, 0), 0.4 * np.sin(0.5 * t))).T
-                              for t in frames])
-        self.t_wc = -np.einsum("tij,tj->ti", self.R_wc, self.centres)
-        self.seed = seed
-
-    def _boxes_at(self, t: int):
-        return [(lo + self.velocity * t, hi + self.velocity * t) if j == 0 else (lo, hi)
-                for j, (lo, hi) in enumerate(self.boxes)]
-
-    def cast(self, t: int, xy: np.ndarray):
-        """Pixels (N, 2) of frame t -> (depth (N,), the world points (N, 3), on the mover (N,) bool)."""
-        pixels = np.concatenate([xy, np.ones((len(xy), 1))], 1) @ np.linalg.inv(self.K).T
-        rays = pixels @ self.R_wc[t]  # world directions, camera z = 1
-        origin = self.centres[t]
-        hit = np.full(len(xy), np.inf)
-        on_mover = np.zeros(len(xy), bool)
-        planes = ((0, -self.half_w), (0, self.half_w), (1, self.half_h), (2, self.end_z))
-        planes += () if self.spec.sky else ((1, -self.half_h),)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for axis, value in planes:
-                along = (value - origin[axis]) / rays[:, axis]
-                below_top = origin[1] + along * rays[:, 1] >= -self.half_h  # a street's walls end at the roofs
-                hit = np.minimum(hit, np.where((along > 1e-6) & (below_top | (axis == 1)), along, np.inf))
-            for j, (lo, hi) in enumerate(self._boxes_at(t)):
-                near, far = (lo - origin) / rays, (hi - origin) / rays
-                enter = np.nanmax(np.minimum(near, far), axis=1)
-                leave = np.nanmin(np.maximum(near, far), axis=1)
-                closer = (leave >= enter) & (enter > 1e-6) & (enter < hit)
-                hit = np.where(closer, enter, hit)
-                on_mover = np.where(closer, j == 0, on_mover)
-        on_mover &= self.velocity.any()
-        sky = ~np.isfinite(hit)  # a direction, not a point
-        world = np.where(sky[:, None], rays, origin + np.where(sky, 0.0, hit)[:, None] * rays)
-        return np.where(sky, 0.0, hit * pixels[:, 2]), world, on_mover
-
-    def frame(self, t: int, world: np.ndarray, depth: np.ndarray, on_mover: np.ndarray) -> np.ndarray:
-        """Frame t's grey values (H W,) at its pixels' world points (H W, 3): two octaves of value noise
-        painted on every surface (the mover's on its own body), each faded out where its cells shrink
-        below 4 px along the surface (from 2 px, none: a renderer's mipmaps, against aliasing), a flat
-        sky; uint8."""
-        H, W = self.spec.height, self.spec.width
-        on_grid = np.where((depth > 0)[:, None], world, 0.0).reshape(H, W, 3)
-        step = [np.linalg.norm(np.gradient(on_grid, axis=a), axis=-1) for a in (0, 1)]
-        footprint = np.maximum(*step).reshape(-1)  # units a pixel, along the surface
-        body = world - on_mover[:, None] * self.velocity * t
-        grey = np.full(len(depth), 120.0)
-        for offset, (cell, amplitude) in enumerate(TEXTURE_OCTAVES):
-            fade = np.clip((cell / np.maximum(footprint, 1e-9) - 2.0) / 2.0, 0.0, 1.0)
-            grey += fade * amplitude * (value_noise(body, cell, self.seed + offset) - 0.5)
-        return np.where(depth > 0, grey, 200.0).clip(0, 255).astype(np.uint8)
-
-    def clip(self, seed: int, masked: bool, clip_id: str, with_frames: bool = False):
-        """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair, and RGB frames when
-        ``with_frames``; ``masked``: the mover's pixels (and a margin) out of the static mask."""
-        import cv2
-
-        from sgc_jax import clip_from_arrays
-
-        spec, H, W = self.spec, self.spec.height, self.spec.width
-        grid = np.stack(np.meshgrid(np.arange(W), np.arange(H)), -1).reshape(-1, 2).astype(float)
-        cast = [self.cast(t, grid) for t in range(spec.n_frames)]
-        depth, mover = zip(*[(d.reshape(H, W), m.reshape(H, W)) for d, _, m in cast])
-        frames = np.stack([np.repeat(self.frame(t, w, d, m).reshape(H, W, 1), 3, axis=2)
-                           for t, (d, w, m) in enumerate(cast)]) if with_frames else None
-        kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
-        dynamic = np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in mover])
-        rng = np.random.default_rng((seed, spec.n_tracks))
-        prev, curr, visible = [], [], []
-        for i in range(1, spec.n_frames):
-            xy = rng.uniform([0, 0], [W - 1, H - 1], size=(spec.n_tracks, 2))
-            depth_prev, world, on_mover = self.cast(i - 1, xy)
-            world = world + on_mover[:, None] * self.velocity
-            sky = depth_prev == 0  # seen at infinity: the camera's rotation alone moves it
-            camera = world @ self.R_wc[i].T + np.where(sky[:, None], 0.0, self.t_wc[i])
-            z = np.where(camera[:, 2] > 1e-6, camera[:, 2], np.nan)
-            landing = (camera @ self.K.T)[:, :2] / z[:, None]
-            inside = np.isfinite(landing).all(1) & (landing >= 0).all(1) & (landing <= [W - 1, H - 1]).all(1)
-            seen_depth, _, _ = self.cast(i, np.clip(np.nan_to_num(landing), 0, [W - 1, H - 1]))
-            prev.append(xy)
-            curr.append(np.where(inside[:, None], landing, -1.0))
-            visible.append(inside & np.where(sky, seen_depth == 0, z <= seen_depth * 1.01))
-        arrays = dict(depth=np.stack(depth).astype(np.float32), K=self.K.astype(np.float32),
-                      R_wc=self.R_wc.astype(np.float32), t_wc=self.t_wc.astype(np.float32),
-                      static_mask=~dynamic if masked else np.ones_like(dynamic),
-                      track_prev=np.stack(prev).astype(np.float32), track_curr=np.stack(curr).astype(np.float32),
-                      track_vis=np.stack(visible), **({} if frames is None else {"frames": frames}))
-        return clip_from_arrays(arrays, clip_id=clip_id)
 
 
 def rounding_part(clip) -> tuple[float, float]:
@@ -257,7 +97,7 @@ def score_rows(args) -> list[dict]:
     for k, n_tracks in itertools.product(range(args.scenes), args.tracks):
         seed, spec = CORRIDOR_SEEDS[k], CorridorSpec(n_tracks=n_tracks, sky=args.street)
         still, moving = Corridor(seed, spec, moving=False), Corridor(seed, spec, moving=True)
-        name = f"{_family(args.street)}-{k}"
+        name = f"{family(args.street)}-{k}"
         clean = still.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}")
         exact = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, args.perturb, seed=seed), kind, args.perturb)
                                       for kind in PERTURBATIONS]
@@ -328,9 +168,9 @@ def print_ladders(scenes: int, config, sky: bool) -> None:
     ladders, clips = [], []
     for k in range(scenes):
         seed = CORRIDOR_SEEDS[k]
-        clean = Corridor(seed, CorridorSpec(sky=sky), moving=False).clip(seed, False, f"{_family(sky)}-{k}")
+        clean = Corridor(seed, CorridorSpec(sky=sky), moving=False).clip(seed, False, f"{family(sky)}-{k}")
         for kind in PERTURBATIONS:
-            ladders.append((f"{_family(sky)}-{k}", kind))
+            ladders.append((f"{family(sky)}-{k}", kind))
             clips += [add_noise(clean, noise, seed)] + [add_noise(perturb_clip(clean, kind, s, seed=seed), noise, seed)
                                                         for s in LADDER_SEVERITIES]
     result = score_batch(clips, config=config)
@@ -367,7 +207,7 @@ def print_tracked(scenes: int, config, sky: bool, stride: int) -> None:
 
     rows, clips = [], []
     for k in range(scenes):
-        seed, name = CORRIDOR_SEEDS[k], f"{_family(sky)}-{k}"
+        seed, name = CORRIDOR_SEEDS[k], f"{family(sky)}-{k}"
         still, moving = (Corridor(seed, CorridorSpec(sky=sky), moving=m) for m in (False, True))
         clean = still.clip(seed, False, name, with_frames=True)
         variants = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, s, seed=seed), kind, s)
@@ -400,7 +240,7 @@ def print_rounding(scenes: int, config, sky: bool) -> None:
 
     for size in ((144, 192), (72, 96)):
         spec = CorridorSpec(height=size[0], width=size[1], sky=sky)
-        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"{_family(sky)}-{k}")
+        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"{family(sky)}-{k}")
                  for k in range(scenes)]
         scored = score_batch(clips, config=config).clips
         for clip, result in zip(clips, scored):
