@@ -98,11 +98,11 @@ def score_rows(args) -> list[dict]:
         seed, spec = CORRIDOR_SEEDS[k], CorridorSpec(n_tracks=n_tracks, sky=args.street)
         still, moving = Corridor(seed, spec, moving=False), Corridor(seed, spec, moving=True)
         name = f"{family(args.street)}-{k}"
-        clean = still.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}")
+        clean = still.clip(masked=False, clip_id=f"{name}-{n_tracks}")
         exact = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, args.perturb, seed=seed), kind, args.perturb)
                                       for kind in PERTURBATIONS]
-        exact += [(moving.clip(seed, masked=True, clip_id=f"{name}-{n_tracks}-masked"), "mover-masked", 0.0),
-                  (moving.clip(seed, masked=False, clip_id=f"{name}-{n_tracks}-mover"), "mover", 1.0)]
+        exact += [(moving.clip(masked=True, clip_id=f"{name}-{n_tracks}-masked"), "mover-masked", 0.0),
+                  (moving.clip(masked=False, clip_id=f"{name}-{n_tracks}-mover"), "mover", 1.0)]
         on_mover = _tracks_on_mover(exact[-2][0])
         for c, (model, px) in enumerate(cells):
             noise = NOISE_MODELS[model].replace(px=px)
@@ -168,7 +168,7 @@ def print_ladders(scenes: int, config, sky: bool) -> None:
     ladders, clips = [], []
     for k in range(scenes):
         seed = CORRIDOR_SEEDS[k]
-        clean = Corridor(seed, CorridorSpec(sky=sky), moving=False).clip(seed, False, f"{family(sky)}-{k}")
+        clean = Corridor(seed, CorridorSpec(sky=sky), moving=False).clip(False, f"{family(sky)}-{k}")
         for kind in PERTURBATIONS:
             ladders.append((f"{family(sky)}-{k}", kind))
             clips += [add_noise(clean, noise, seed)] + [add_noise(perturb_clip(clean, kind, s, seed=seed), noise, seed)
@@ -209,11 +209,11 @@ def print_tracked(scenes: int, config, sky: bool, stride: int) -> None:
     for k in range(scenes):
         seed, name = CORRIDOR_SEEDS[k], f"{family(sky)}-{k}"
         still, moving = (Corridor(seed, CorridorSpec(sky=sky), moving=m) for m in (False, True))
-        clean = still.clip(seed, False, name, with_frames=True)
+        clean = still.clip(False, name, with_frames=True)
         variants = [(clean, "", 0.0)] + [(perturb_clip(clean, kind, s, seed=seed), kind, s)
                                          for kind in ("warp", "depth_warp") for s in (0.25, 0.5)]
-        variants += [(moving.clip(seed, True, f"{name}-masked", with_frames=True), "mover-masked", 0.0),
-                     (moving.clip(seed, False, f"{name}-mover", with_frames=True), "mover", 1.0)]
+        variants += [(moving.clip(True, f"{name}-masked", with_frames=True), "mover-masked", 0.0),
+                     (moving.clip(False, f"{name}-mover", with_frames=True), "mover", 1.0)]
         for clip, kind, severity in variants:
             clips.append(grid_tracks(clip, stride))
             rows.append(dict(cell=name, kind=kind, severity=severity))
@@ -240,7 +240,7 @@ def print_rounding(scenes: int, config, sky: bool) -> None:
 
     for size in ((144, 192), (72, 96)):
         spec = CorridorSpec(height=size[0], width=size[1], sky=sky)
-        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(CORRIDOR_SEEDS[k], False, f"{family(sky)}-{k}")
+        clips = [Corridor(CORRIDOR_SEEDS[k], spec, moving=False).clip(False, f"{family(sky)}-{k}")
                  for k in range(scenes)]
         scored = score_batch(clips, config=config).clips
         for clip, result in zip(clips, scored):

@@ -287,7 +287,7 @@ def test_with_errors_at_both_track_ends_each_perturbation_scores_above_its_consi
 @pytest.fixture(scope="module")
 def corridor_scores():
     spec = CorridorSpec(**{key: DEMO_SCENE[key] for key in ("n_frames", "height", "width", "n_tracks")})
-    return scores_at_both_ends((seed, Corridor(seed, spec, moving=False).clip(seed, masked=False, clip_id=f"corridor-{seed}"))
+    return scores_at_both_ends((seed, Corridor(seed, spec, moving=False).clip(masked=False, clip_id=f"corridor-{seed}"))
                                for seed in CORRIDOR_SEEDS[:2])
 
 

@@ -129,7 +129,7 @@ CORRIDOR_LANDING_PX = (0.1, 0.25)  # median, 95th percentile
 @pytest.mark.parametrize("sky", [False, True])
 def test_a_corridors_tracks_land_where_its_depth_and_cameras_put_them(sky):
     seed = CORRIDOR_SEEDS[0]
-    clip = Corridor(seed, CorridorSpec(sky=sky, **SYNTH_SCENE), moving=False).clip(seed, masked=False, clip_id="c")
+    clip = Corridor(seed, CorridorSpec(sky=sky, **SYNTH_SCENE), moving=False).clip(masked=False, clip_id="c")
     distance = motion_errors(clip)
     assert distance.size > 0.6 * clip.track_vis.size, distance.size  # visible, with depth (not sky)
     assert np.median(distance) < CORRIDOR_LANDING_PX[0] and np.percentile(distance, 95) < CORRIDOR_LANDING_PX[1]

@@ -148,7 +148,7 @@ class Corridor:
             grey += fade * amplitude * (value_noise(body, cell, self.seed + offset) - 0.5)
         return np.where(depth > 0, grey, 200.0).clip(0, 255).astype(np.uint8)
 
-    def clip(self, seed: int, masked: bool, clip_id: str, with_frames: bool = False) -> Clip:
+    def clip(self, masked: bool, clip_id: str, with_frames: bool = False) -> Clip:
         """The exact clip (sgc_jax.Clip): depth, cameras, tracks per pair, and RGB frames when
         ``with_frames``; ``masked``: the mover's pixels (and a margin) out of the static mask."""
         spec, H, W = self.spec, self.spec.height, self.spec.width
@@ -159,7 +159,7 @@ class Corridor:
                            for t, (d, w, m) in enumerate(cast)]) if with_frames else None
         kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
         dynamic = np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in mover])
-        rng = np.random.default_rng((seed, spec.n_tracks))
+        rng = np.random.default_rng((self.seed, spec.n_tracks))
         prev, curr, visible = [], [], []
         for i in range(1, spec.n_frames):
             xy = rng.uniform([0, 0], [W - 1, H - 1], size=(spec.n_tracks, 2))
