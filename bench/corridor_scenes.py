@@ -91,6 +91,7 @@ def score_rows(args) -> list[dict]:
     from sgc_jax import score_batch
     from sgc_jax.research.noise import NOISE_MODELS, add_noise
     from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
+    from sgc_jax.research.protocol import tracks_on_mover
 
     cells = list(itertools.product(args.models, args.levels))
     rows, clips = [], []
@@ -103,7 +104,7 @@ def score_rows(args) -> list[dict]:
                                       for kind in PERTURBATIONS]
         exact += [(moving.clip(masked=True, clip_id=f"{name}-{n_tracks}-masked"), "mover-masked", 0.0),
                   (moving.clip(masked=False, clip_id=f"{name}-{n_tracks}-mover"), "mover", 1.0)]
-        on_mover = _tracks_on_mover(exact[-2][0])
+        on_mover = tracks_on_mover(exact[-2][0], 0.0, MASK_MARGIN_PX)
         for c, (model, px) in enumerate(cells):
             noise = NOISE_MODELS[model].replace(px=px)
             for clip, kind, severity in exact:
@@ -116,19 +117,6 @@ def score_rows(args) -> list[dict]:
         row.update(sgc=clip.sgc, status=clip.status, evidence=clip.evidence, depth_error=clip.components["depth_error"],
                    reward=float(reward))
     return rows
-
-
-def _tracks_on_mover(masked) -> float:
-    """Mean over pairs of the usable tracks whose frame-i−1 position lies on the mover (its mask less
-    the margin)."""
-    import cv2
-
-    kernel = np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8)
-    on = np.stack([cv2.erode((~static).astype(np.uint8), kernel) > 0 for static in masked.static_mask[:-1]])
-    H, W = masked.image_size
-    column, row = (np.clip(np.rint(masked.track_prev[..., a]).astype(int), 0, size - 1) for a, size in ((0, W), (1, H)))
-    hit = on[np.arange(len(on))[:, None], row, column] & masked.usable_tracks(0.0)
-    return float(hit.sum(axis=1).mean())
 
 
 def print_tables(rows: list[dict]) -> None:

@@ -59,6 +59,11 @@ def flow_retracked(clip):
     return dataclasses.replace(clip, track_curr=curr, track_vis=vis)
 
 
+def grid_label(tracker: str, stride: int) -> str:
+    """A grid's row name: "sNN" for LK's, "dis-sNN" for DIS flow's."""
+    return f"{'' if tracker == 'lk' else 'dis-'}s{stride:02d}"
+
+
 def grid_tracks(clip, stride: int, tracker: str = "lk"):
     """``clip`` with its tracks replaced by LK tracks (``track_errors.retracked``) or DIS flow
     tracks (``flow_retracked``, ``tracker`` "dis") from a grid of ``stride`` px in each frame i-1."""
@@ -69,7 +74,7 @@ def grid_tracks(clip, stride: int, tracker: str = "lk"):
     on_grid = dataclasses.replace(clip, track_prev=prev, track_curr=prev.copy(),
                                   track_vis=np.ones(prev.shape[:2], bool), track_conf=np.ones(prev.shape[:2], np.float32))
     tracked = retracked(on_grid, LK_WINDOW_PX) if tracker == "lk" else flow_retracked(on_grid)
-    return dataclasses.replace(tracked, clip_id=f"{clip.clip_id}/{'' if tracker == 'lk' else 'dis-'}s{stride:02d}")
+    return dataclasses.replace(tracked, clip_id=f"{clip.clip_id}/{grid_label(tracker, stride)}")
 
 
 def main() -> None:
@@ -96,7 +101,7 @@ def main() -> None:
     pairs = pd.DataFrame(result.pair_records())
     rows["poses_per_pair"] = rows["clip_id"].map(pairs.groupby("clip_id")["n_poses"].mean())
     rows["gt_p95_px"] = [np.percentile(motion_errors(clip), 95) for clip in clips]
-    order = ["given", *[f"{'' if t == 'lk' else 'dis-'}s{s:02d}" for t in args.trackers for s in args.strides]]
+    order = ["given", *[grid_label(t, s) for t in args.trackers for s in args.strides]]
     pd.set_option("display.width", 200)
     for column, digits in [("sgc", 3), ("reward", 3), ("pose_tracks", 0), ("poses_per_pair", 1), ("gt_p95_px", 1)]:
         table = rows.pivot(index="tracks", columns="clip", values=column).loc[order]

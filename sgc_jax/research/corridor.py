@@ -48,10 +48,8 @@ def family(sky: bool) -> str:
 
 
 def _rotation(axis, deg: float) -> np.ndarray:
-    x, y, z = axis
-    cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], float)
-    a = np.deg2rad(deg)
-    return np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross
+    """(3, 3): a turn of ``deg`` degrees about the unit ``axis``."""
+    return cv2.Rodrigues(np.deg2rad(deg) * np.asarray(axis, np.float64))[0]
 
 
 def value_noise(points: np.ndarray, cell: float, seed: int) -> np.ndarray:

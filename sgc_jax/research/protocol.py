@@ -179,11 +179,11 @@ def exact_variants(scene: ProtocolScene, n_tracks: int, inconsistencies=INCONSIS
     return out
 
 
-def tracks_on_mover(masked: Clip, min_track_conf: float) -> float:
+def tracks_on_mover(masked: Clip, min_track_conf: float, margin_px: int = SceneSpec.mask_margin_px) -> float:
     """Mean over pairs of the usable tracks whose frame-i−1 position lies on the moving object of a
-    ``mover-masked`` clip: its dynamic mask less the synthetic mask's margin (``SceneSpec.mask_margin_px``)."""
-    margin = SceneSpec.mask_margin_px
-    kernel = np.ones((2 * margin + 1,) * 2, np.uint8)
+    ``mover-masked`` clip: its dynamic mask less the mask's margin (``margin_px``, the synthesis's
+    ``SceneSpec.mask_margin_px`` by default)."""
+    kernel = np.ones((2 * margin_px + 1,) * 2, np.uint8)
     on_object = np.stack([cv2.erode((~static).astype(np.uint8), kernel) > 0 for static in masked.static_mask[:-1]])
     pairs, H, W = on_object.shape
     column, row = (np.clip(np.rint(masked.track_prev[..., a]).astype(np.int64), 0, size - 1)
