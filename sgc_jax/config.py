@@ -14,6 +14,7 @@ PARTITIONS = ("depth", "grid", "depth+spatial")
 COMPATS = ("spec", "authors")
 REGION_FRAMES = ("current", "previous")
 TRACK_PIXELS = ("floor", "nearest")
+DEPTH_CHECK_AT = ("pixel", "point")
 SMOOTH_DEPTH_EDGES = ("leave_out", "keep")
 # Depth layers per track on the background (docs/semantics.md §3.2 step 2): 2 layers from 140 tracks,
 # 7 at 1,000, k_seg from 1,400 (bench/history/issue-58.md, "Larger depth layers on two noise draws").
@@ -27,6 +28,13 @@ TRACKS_PER_LAYER = 140
 # than it, step 4 (``kernels.warp.occluded_in_previous``). Not fitted: a margin of the hole rule,
 # reused.
 HOLE_DEPTH_MARGIN = 0.05
+# A pixel whose 3 x 3 neighbourhood's valid depths span more than this (largest / smallest) is at a
+# depth edge (io.depth_edges); four pixels that span no more lie on one surface (§3.6 step 2).
+# Chosen on FIT's random pool by rule E1 (bench/history/issue-58.md, "Smooth depth edges"): the
+# largest of 1.02-1.2 whose consistent clips, with depth from half the frame's size and every edge
+# pixel left out, kept at most 1 of 48 above 0.10 (all four kept none); leaving out only the ramps
+# (rule E2) keeps that and depth_warp's detection on depth whose edges are steps.
+DEPTH_EDGE_RATIO = 1.2
 # A point magnified m times (its surface's splats lie about m px apart) covers the pixels within
 # max(m, 1) px of it (its reach, at most MAX_HOLE_REACH_PX): the gaps between its surface's splats
 # and, at an edge, the up to m px its surface extends past its last splat. Reaches fall into levels
@@ -95,7 +103,7 @@ DEPRECATED_FIELDS = {"gn_steps": "lm_steps"}
 # enter the program as traced scalars and HOST fields act before it (loading, padding), so
 # changing either reuses the program.
 STATIC_FIELDS = ("k_seg", "ransac_hypotheses", "kmeans_bins", "lm_steps", "partition", "region_frame", "compat",
-                 "global_pose", "align_scale", "borrow_region_poses")
+                 "global_pose", "align_scale", "borrow_region_poses", "depth_check_at")
 HOST_FIELDS = ("max_tracks", "min_track_conf", "use_mos", "smooth_depth_edges")
 VALUE_FIELDS = ("min_region_pixels", "tracks_per_layer", "min_points", "inlier_px", "confidence", "min_inlier_frac",
                 "seed", "track_pixel", "quality_rule", "min_region_points", "max_rot_std_deg", "max_rot_std_px",
@@ -142,6 +150,11 @@ class SGCConfig:
                                        "floor y), the paper's code) or nearest (the pixel whose centre, at integer "
                                        "coordinates, is nearest); compat='authors' always reads floor "
                                        "(docs/semantics.md §1.1)", choices=TRACK_PIXELS)
+    depth_check_at: str = _field("pixel", "where the depth check compares a warped point with frame i's depth: pixel "
+                                          "(the depth of the pixel it rounds to) or point (its own position: frame "
+                                          "i's inverse depth interpolated where the four pixels around it lie on one "
+                                          "surface); compat='authors' always reads pixel (docs/semantics.md §3.6 "
+                                          "step 2)", choices=DEPTH_CHECK_AT)
     smooth_depth_edges: str = _field("leave_out", "depth whose edges are ramps of mixed depths, as a depth network's "
                                                  "enlarged output: leave_out its ramps before scoring (they lie on no "
                                                  "surface), or keep them; compat='authors' always keeps them "
@@ -186,6 +199,8 @@ class SGCConfig:
             raise ValueError(f"region_frame must be one of {REGION_FRAMES}, got {self.region_frame!r}")
         if self.track_pixel not in TRACK_PIXELS:
             raise ValueError(f"track_pixel must be one of {TRACK_PIXELS}, got {self.track_pixel!r}")
+        if self.depth_check_at not in DEPTH_CHECK_AT:
+            raise ValueError(f"depth_check_at must be one of {DEPTH_CHECK_AT}, got {self.depth_check_at!r}")
         if self.smooth_depth_edges not in SMOOTH_DEPTH_EDGES:
             raise ValueError(f"smooth_depth_edges must be one of {SMOOTH_DEPTH_EDGES}, got {self.smooth_depth_edges!r}")
         if self.compat not in COMPATS:
@@ -225,6 +240,12 @@ class SGCConfig:
         at: 0.5 reads the nearest pixel (``track_pixel`` "nearest", not under ``compat="authors"``),
         0 the floor pixel."""
         return 0.5 if self.track_pixel == "nearest" and self.compat != "authors" else 0.0
+
+    @property
+    def depth_at_point(self) -> bool:
+        """The depth check compares each warped point at its own position (``depth_check_at`` "point",
+        not under ``compat="authors"``), not at the pixel it rounds to."""
+        return self.depth_check_at == "point" and self.compat != "authors"
 
     @property
     def reads_previous_frame(self) -> bool:

@@ -81,6 +81,15 @@ def test_sgc_smooth_components_are_the_forward_ones(scorer, batch):
                                sgc_smooth_score(forward, present, scorer.calibration, floors=floors), rtol=FORWARD_RTOL)
 
 
+def test_sgc_smooth_reads_the_depth_at_each_points_own_position_as_the_forward_does(batch):
+    from sgc_jax.config import SGCConfig
+
+    at_point = Scorer(SHAPE, SGCConfig(depth_check_at="point"), differentiable=True)
+    components, out = smooth_and_forward_components(at_point, batch)
+    np.testing.assert_allclose(np.asarray(components["depth_error"]), np.asarray(out["depth_error"]),
+                               rtol=FORWARD_RTOL)
+
+
 def test_cameras_that_run_backward_keep_the_forward_scale_of_zero(scorer):
     clean = gradient_clip(3)
     batch = batch_of([dataclasses.replace(clean, t_wc=-clean.t_wc), clean])  # every translation negated

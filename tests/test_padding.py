@@ -33,11 +33,11 @@ SMALL_NOISY = dict(n_layers=2, static_spheres=4, height=100, width=120, n_tracks
 # Each static field (docs/semantics.md §2) altered, and the stages whose programs it shapes.
 ALTERED_STATIC = {"k_seg": 8, "ransac_hypotheses": 50, "kmeans_bins": 32, "lm_steps": 5, "partition": "grid",
                   "region_frame": "current", "compat": "authors", "global_pose": False, "align_scale": False,
-                  "borrow_region_poses": False}
+                  "borrow_region_poses": False, "depth_check_at": "point"}
 READ_BY = {"k_seg": ("pixel", "pose", "finish"), "ransac_hypotheses": ("pose",), "kmeans_bins": ("pixel",),
            "lm_steps": ("pose",), "partition": ("pixel",), "region_frame": ("pixel",),
            "compat": ("pixel", "pose", "finish"), "global_pose": ("pose", "finish"), "align_scale": ("pose",),
-           "borrow_region_poses": ("pose",)}
+           "borrow_region_poses": ("pose",), "depth_check_at": ("finish",)}
 LARGER = {"frames": buckets.Bucket(T=8, H=128, W=128, P=1024),
           "tracks_and_columns": buckets.Bucket(T=4, H=128, W=192, P=2048),
           "tracks": buckets.Bucket(T=4, H=128, W=128, P=2048)}

@@ -105,6 +105,48 @@ def test_rigid_plane_scene_with_small_rotation_has_tiny_depth_error():
     assert float(err) < 1e-2 * float(depth1.mean())
 
 
+# Frame i's inverse depth interpolated bilinearly is exact on a plane; float32 leaves ~5e-6 %.
+EXACT_PLANE_PERCENT = 1e-3
+
+
+def slanting_plane_clip():
+    """A plane slanting from depth 0.9 at the top to 1.5 at the bottom of 24x32 px (1-2 % a pixel
+    row, as a floor seen from close by), seen from two exact cameras -> (two-frame Clip, R, t)."""
+    R = np.asarray(so3_exp(np.radians(np.array([0.4, -0.7, 0.2], np.float32))), np.float64)
+    t = np.array([0.07, 0.03, 0.25])
+    normal0 = np.array([0.1, 0.5, 1.0]) / np.linalg.norm([0.1, 0.5, 1.0])
+    normal1 = R @ normal0
+    depth = np.stack([plane_depth(K, normal0, 1.0), plane_depth(K, normal1, 1.0 + normal1 @ t)]).astype(np.float32)
+    no_tracks = np.zeros((1, 1, 2), np.float32)
+    clip = Clip(clip_id="plane", depth=depth, K=np.stack([K, K]).astype(np.float64), R_wc=np.stack([np.eye(3), R]),
+                t_wc=np.stack([np.zeros(3), t]), static_mask=np.ones((2, H, W), bool), track_prev=no_tracks,
+                track_curr=no_tracks, track_vis=np.ones((1, 1), bool), track_conf=np.ones((1, 1), np.float32))
+    return clip, R, t
+
+
+def slanting_plane_depth_error(engine: str, config: SGCConfig) -> float:
+    """The depth error [%] of ``slanting_plane_clip``'s pair, warped with its exact cameras."""
+    clip, R, t = slanting_plane_clip()
+    if engine == "reference":
+        return reference.pair_depth_error(clip, 1, R, t, config)[1]
+    as_pairs = (clip.depth, clip.static_mask, np.array([0], np.int32), clip.K[:1].astype(np.float32),
+                clip.K[1:].astype(np.float32), R[None].astype(np.float32), t[None].astype(np.float32),
+                np.array([clip.image_size], np.int32), np.array([True]))
+    stage = FinishStage.of(config, vectorized=False)
+    return float(jax.jit(pair_depth_errors, static_argnames="stage")(*as_pairs, stage=stage)[0])
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_slanting_plane_reads_no_depth_error_at_each_points_own_position(engine):
+    assert slanting_plane_depth_error(engine, SGCConfig(depth_check_at="point")) < EXACT_PLANE_PERCENT
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_at_the_pixel_it_rounds_to_a_slanting_plane_reads_the_rounding(engine):
+    # the rounding moves a point by up to half a pixel along a depth gradient of 1-2 % a pixel
+    assert 0.1 < slanting_plane_depth_error(engine, SGCConfig()) < 1.0
+
+
 @pytest.mark.parametrize("nearest", [True, False])
 def test_matches_a_numpy_loop_on_a_random_case(nearest):
     rng = np.random.default_rng(1)

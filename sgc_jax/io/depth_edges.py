@@ -19,12 +19,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-# A pixel whose 3 x 3 neighbourhood's valid depths span more than this (largest / smallest) is at a
-# depth edge. Chosen on FIT's random pool by rule E1 (bench/history/issue-58.md, "Smooth depth
-# edges"): the largest of 1.02-1.2 whose consistent clips, with depth from half the frame's size
-# and every edge pixel left out, kept at most 1 of 48 above 0.10 (all four kept none); leaving out
-# only the ramps (rule E2) keeps that and depth_warp's detection on depth whose edges are steps.
-DEPTH_EDGE_RATIO = 1.2
+from ..config import DEPTH_EDGE_RATIO
+
 # An edge pixel lies on a ramp where its depth is more than this share above its neighbourhood's
 # smallest and below its largest: mixed, not one surface's or the other's.
 RAMP_MARGIN = 0.05

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..config import HOLE_DEPTH_MARGIN, HOLE_LEVELS, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX
+from ..config import DEPTH_EDGE_RATIO, HOLE_DEPTH_MARGIN, HOLE_LEVELS, LOOK_BACK_RATIO, MAX_HOLE_REACH_PX
 from .camera import back_project_xyz, project_xyz, transform_xyz
 from .depth_map import pair_depth_map
 from .fence import gather_apart
@@ -74,11 +74,44 @@ def splat(depth_prev, valid_prev, K_prev, K_curr, R, t) -> Splat:
                  magnification.reshape(-1))
 
 
-def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool, magnified: bool = True):
+def at_pixel_centre(u, v, z, front, depth_curr, comparable):
+    """Each point's depth z (N,) at (u, v) (N,) in frame i carried to its rounded pixel's centre along
+    frame i's surface: z d_i(pixel) / d_i(u, v), with 1 / d_i(u, v) frame i's inverse depth
+    interpolated bilinearly over the four pixels around (u, v) (exact on a plane), where those four
+    are ``comparable`` (H, W) and lie on one surface (largest / smallest <= DEPTH_EDGE_RATIO); z
+    elsewhere. Compared at the pixel, its error is then its own position's: the rounding to the
+    nearest pixel moves no depth (docs/semantics.md §3.6 step 2)."""
+    H, W = depth_curr.shape
+    d = jnp.where(comparable, depth_curr.astype(jnp.float32), 0.0).reshape(-1)
+    u0, v0 = jnp.floor(u), jnp.floor(v)
+    inside = front & (u0 >= 0) & (u0 < W - 1) & (v0 >= 0) & (v0 < H - 1)  # False for NaN coordinates too
+    fu, fv = jnp.where(inside, u - u0, 0.0), jnp.where(inside, v - v0, 0.0)
+    first = jnp.where(inside, v0, 0.0).astype(jnp.int32) * W + jnp.where(inside, u0, 0.0).astype(jnp.int32)
+    corners = gather_apart(d, jnp.stack([first, first + 1, first + W, first + W + 1]))  # (4, N): u0 v0, u0+1, below
+    lowest, highest = jnp.min(corners, axis=0), jnp.max(corners, axis=0)
+    one_surface = inside & (lowest > 0) & (highest <= DEPTH_EDGE_RATIO * lowest)
+    d00, d10, d01, d11 = jnp.where(one_surface, corners, 1.0)
+    inverse = (1.0 - fv) * ((1.0 - fu) / d00 + fu / d10) + fv * ((1.0 - fu) / d01 + fu / d11)
+    right, below = fu >= 0.5, fv >= 0.5  # which of the four the point rounds to
+    at_pixel = jnp.where(below, jnp.where(right, d11, d01), jnp.where(right, d10, d00))
+    return jnp.where(one_surface, z * (at_pixel * inverse), z)
+
+
+def _compared_z(points: Splat, at_point):
+    """The z each point offers the z-buffer: its own, or with ``at_point`` (frame i's depth (H, W),
+    the pixels it is compared on (H, W)) read at its pixel's centre (``at_pixel_centre``)."""
+    if at_point is None:
+        return points.z
+    return at_pixel_centre(points.u, points.v, points.z, points.front, *at_point)
+
+
+def nearest_hits(points: Splat, H: int, W: int, mask_holes: bool, magnified: bool = True, z=None):
     """The z-buffer (H W,) of the nearest z landing on each pixel (inf where none) and hit (H W,);
-    ``mask_holes``: the hole rule (``_hole_cover``; ``magnified``: for points magnified 2x or more
-    too, which may be left out only where there are none, ``has_magnified``)."""
-    buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[points.target].min(points.z, mode="drop")
+    ``z``: the value each point offers (its own z by default; ``_compared_z``); ``mask_holes``: the
+    hole rule (``_hole_cover``; ``magnified``: for points magnified 2x or more too, which may be left
+    out only where there are none, ``has_magnified``)."""
+    z = points.z if z is None else z
+    buffer = jnp.full(H * W, jnp.inf, jnp.float32).at[points.target].min(z, mode="drop")
     hit = buffer < jnp.inf
     if mask_holes:
         cover = _hole_cover(points, H, W) if magnified else _ordinary_cover(points, H, W)
@@ -94,17 +127,18 @@ def has_magnified(depth_prev, valid_prev, K_prev, K_curr, R, t):
 
 
 def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = True, mask_holes: bool = False,
-               magnified: bool = True):
+               magnified: bool = True, at_point=None):
     """Depth (H, W) of frame i-1 warped into frame i -> (z (H, W) float32, 0 where nothing lands;
     hit (H, W) bool) (``splat``). Collisions keep the nearest z (``nearest``, a z-buffer) or the
     farthest (the authors' code). ``mask_holes`` (spec): no hit where a point nearer by more than
     HOLE_DEPTH_MARGIN lies within its reach (``hole_reach``, ``_hole_cover``), since what reached
     it is seen through a gap between a nearer surface's splats or past its last one;
-    ``magnified``: as in ``nearest_hits``."""
+    ``magnified``: as in ``nearest_hits``; ``at_point`` (spec, with ``nearest``): frame i's depth
+    and compared pixels (H, W), each point's z read at its pixel's centre (``at_pixel_centre``)."""
     H, W = depth_prev.shape
     points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
     if nearest:
-        buffer, hit = nearest_hits(points, H, W, mask_holes, magnified)
+        buffer, hit = nearest_hits(points, H, W, mask_holes, magnified, _compared_z(points, at_point))
     else:
         buffer = jnp.full(H * W, -jnp.inf, jnp.float32).at[points.target].max(points.z, mode="drop")
         hit = buffer > -jnp.inf
@@ -112,14 +146,17 @@ def warp_depth(depth_prev, valid_prev, K_prev, K_curr, R, t, *, nearest: bool = 
     return warped.reshape(H, W), hit.reshape(H, W)
 
 
-def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bool = True, magnified: bool = True):
-    """The nearest-z warp's choice: (source (H W,) int32, the pixel of frame i-1 whose point each
-    pixel of frame i keeps (the first of equal z), H W where none; hit (H, W) bool)."""
+def warp_sources(depth_prev, valid_prev, K_prev, K_curr, R, t, *, mask_holes: bool = True, magnified: bool = True,
+                 at_point=None):
+    """The nearest-z warp's choice (``warp_depth``'s arguments): (source (H W,) int32, the pixel of
+    frame i-1 whose point each pixel of frame i keeps (the first of equal z), H W where none; hit
+    (H, W) bool)."""
     H, W = depth_prev.shape
     points = splat(depth_prev, valid_prev, K_prev, K_curr, R, t)
-    buffer, hit = nearest_hits(points, H, W, mask_holes, magnified)
+    z = _compared_z(points, at_point)
+    buffer, hit = nearest_hits(points, H, W, mask_holes, magnified, z)
     won = points.target < H * W
-    won = won & (points.z == buffer[jnp.minimum(points.target, H * W - 1)])
+    won = won & (z == buffer[jnp.minimum(points.target, H * W - 1)])
     index = jnp.arange(H * W, dtype=jnp.int32)
     source = jnp.full(H * W, H * W, jnp.int32).at[jnp.where(won, points.target, H * W)].min(index, mode="drop")
     return jnp.where(hit, source, H * W), hit.reshape(H, W)

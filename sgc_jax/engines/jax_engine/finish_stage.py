@@ -64,6 +64,10 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
     active = jnp.ones_like(pair_valid) if active is None else active
     pairs = (previous, K_prev, K_curr, R_g, t_g, image_hw, active)
 
+    def compared_frame(previous):  # frame i's depth and the pixels it is compared on, for a read at the point
+        depth_curr, static_curr = pair_frames(depth, static, previous)[2:]
+        return (depth_curr, (depth_curr > 0) & static_curr) if stage.depth_at_point else None
+
     def only_active(compute, pair, skipped):  # each pair alone on a CPU: the inactive ones cost nothing
         return jax.lax.cond(pair[6], compute, lambda: skipped) if skips else compute()
 
@@ -71,7 +75,7 @@ def pair_depth_errors(depth, static, previous, K_prev, K_curr, R_g, t_g, image_h
         def one(pair):
             return only_active(lambda: warp_depth(*warp_source(depth, static, pair[0], authors), *pair[1:5],
                                                   nearest=not authors, mask_holes=not authors,
-                                                  magnified=magnified)[0],
+                                                  magnified=magnified, at_point=compared_frame(pair[0]))[0],
                                pair, jnp.zeros(depth.shape[1:], depth.dtype))
 
         return each(one, pairs, stage.vectorized)
@@ -161,11 +165,12 @@ class FinishStage(Stage):
     scale_free: bool = eqx.field(static=True)
     global_pose: bool = eqx.field(static=True)
     vectorized: bool = eqx.field(static=True)
+    depth_at_point: bool = eqx.field(static=True, default=False)  # SGCConfig.depth_at_point
 
     @classmethod
     def of(cls, config: SGCConfig, vectorized: bool = False) -> FinishStage:
         return cls(k_seg=config.k_seg, compat=config.compat, scale_free=config.scale_free,
-                   global_pose=config.global_pose, vectorized=vectorized)
+                   global_pose=config.global_pose, vectorized=vectorized, depth_at_point=config.depth_at_point)
 
     def sizes(self, bucket: Bucket) -> tuple[int, ...]:
         return bucket.T, bucket.H, bucket.W

@@ -18,13 +18,15 @@ from ...calibration.formula import sgc_smooth_score
 from ...codes import REGION_OK
 from ...config import SGCConfig
 from ...io.tables import FLOOR_COLUMNS
-from ...kernels.camera import back_project, back_project_xyz
+from ...kernels.camera import back_project, back_project_xyz, project_xyz, transform_xyz
 from ...kernels.depth_map import pair_depth_map
 from ...kernels.implicit_pose import least_squares_pose
 from ...kernels.pose_variances import pair_pose_components
 from ...kernels.scale import scale_equations
 from ...kernels.so3 import polar_rotation, so3_exp, so3_log
 from ...kernels.warp import (
+    MIN_WARP_Z,
+    at_pixel_centre,
     depth_at_landing,
     has_magnified,
     looked_back_depth,
@@ -145,24 +147,33 @@ def depth_check_pose(clip: PaddedClips, X, frozen: Frozen, R_g, t_scaled):
             jnp.where(by_refit[:, None], refit[:, 3:], t_scaled))
 
 
-def held_warped_depth(depth_prev, K_prev, R, t, source):
+def held_warped_depth(depth_prev, K_prev, K_curr, R, t, source, depth_curr, comparable, *, at_point: bool):
     """(H W,) each pixel's warped depth with the nearest-z warp's winners held fixed (``source``
-    (H W,) from ``warp_sources``): the z in camera i of the pixel of frame i-1 that won it."""
+    (H W,) from ``warp_sources``): the z in camera i of the pixel of frame i-1 that won it; with
+    ``at_point`` read at the pixel's centre on frame i's depth (``at_pixel_centre``; ``comparable``
+    (H, W))."""
     H, W = depth_prev.shape
     source = jnp.minimum(source, H * W - 1)
     x, y, z = back_project_xyz(K_prev, (source % W).astype(depth_prev.dtype), (source // W).astype(depth_prev.dtype),
                                depth_prev.reshape(-1)[source])
-    return R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    x, y, z = transform_xyz(R, t, x, y, z)
+    if not at_point:
+        return z
+    front = z > MIN_WARP_Z
+    u, v = project_xyz(K_curr, x, y, jnp.where(front, z, 1.0))
+    return at_pixel_centre(u, v, z, front, depth_curr, comparable)
 
 
-def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, hit, static_curr, landing, read):
+def held_warp_depth_error(depth_prev, depth_curr, K_prev, K_curr, R, t, source, hit, static_curr, landing, read, *,
+                          at_point: bool):
     """One pair's depth error [% AbsRel] with the nearest-z warp's winners held fixed (``source``
     (H W,), ``hit`` (H, W) from ``warp_sources``), and the look back into frame i-1 where the
     forward pass read it (``read`` (H, W), at the held pixel ``landing`` (H, W) of frame i-1), up to
     the pair's depth map (``pair_depth_map``, §3.6 step 7)."""
     H, W = depth_prev.shape
     both = (hit & (depth_curr > 0) & static_curr).reshape(-1)
-    warped = held_warped_depth(depth_prev, K_prev, R, t, source)
+    warped = held_warped_depth(depth_prev, K_prev, K_curr, R, t, source, depth_curr, (depth_curr > 0) & static_curr,
+                               at_point=at_point)
     target = jnp.where(both, depth_curr.reshape(-1), 1.0)
     scale, offset = pair_depth_map(warped.reshape(H, W), target.reshape(H, W), both.reshape(H, W), median=pixel_median)
     warped = scale * warped + offset
@@ -190,9 +201,15 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     R_depth, t_depth = depth_check_pose(clip, X, frozen, R_g, t_scaled)
     frames = (fixed.depth[:-1], (fixed.depth[:-1] > 0) & fixed.static[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_depth,
               frozen.t_depth)
+    compared_curr = (fixed.depth[1:], (fixed.depth[1:] > 0) & fixed.static[1:])
+    at_point = config.depth_at_point
 
     def warp_all(magnified: bool):
-        return jax.vmap(functools.partial(warp_sources, mask_holes=True, magnified=magnified))(*frames)
+        def one(*pair):
+            return warp_sources(*pair[:6], mask_holes=True, magnified=magnified,
+                                at_point=pair[6:] if at_point else None)
+
+        return jax.vmap(one)(*frames, *compared_curr)
 
     # the hole rule's larger squares only for a clip with a surface coming 2x nearer (the forward's
     # choice, padded pairs no part of it)
@@ -203,14 +220,16 @@ def clip_components(clip: PaddedClips, fixed: PaddedClips, frozen: Frozen, confi
     at_landing = jax.vmap(depth_at_landing)(*frames[:2], view)
     # where the forward pass looked frame i-1 up (``looked_back_depth``) and what it left out as
     # frame i-1's occlusions are held too
-    warped = jax.vmap(held_warped_depth)(fixed.depth[:-1], fixed.K[:-1], frozen.R_depth, frozen.t_depth,
-                                         source).reshape(hit.shape)
+    warped = jax.vmap(functools.partial(held_warped_depth, at_point=at_point))(
+        fixed.depth[:-1], fixed.K[:-1], fixed.K[1:], frozen.R_depth, frozen.t_depth, source, *compared_curr)
+    warped = warped.reshape(hit.shape)
     occluded = jax.vmap(occluded_in_previous)(warped, fixed.depth[1:], view, at_landing)
     hit = hit & (at_landing > 0) & ~occluded  # seen, on a pixel frame i-1 warped, not behind a nearer surface
     compared = hit & (fixed.depth[1:] > 0) & fixed.static[1:]
     read = jax.vmap(looked_back_depth)(warped, compared, fixed.depth[1:], at_landing) > 0
-    errors = jax.vmap(held_warp_depth_error)(clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_depth,
-                                             t_depth, source, hit, fixed.static[1:], view.landing, read)
+    errors = jax.vmap(functools.partial(held_warp_depth_error, at_point=at_point))(
+        clip.depth[:-1], clip.depth[1:], clip.K[:-1], clip.K[1:], R_depth, t_depth, source, hit, fixed.static[1:],
+        view.landing, read)
     return dict(local_rot_var=comps["local_rot_var"], local_trans_var=comps["local_trans_var"] * PERCENT**2,
                 global_rot_var=comps["global_rot_var"], global_trans_var=comps["global_trans_var"] * PERCENT**2,
                 depth_error=errors)

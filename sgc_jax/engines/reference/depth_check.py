@@ -7,6 +7,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...config import (
+    DEPTH_EDGE_RATIO,
     DEPTH_MAP_DAMPING,
     DEPTH_MAP_GATE,
     DEPTH_MAP_STEPS,
@@ -23,15 +24,39 @@ from ..units import PERCENT
 from .regions import valid_depth
 
 
+def at_pixel_centre(u: np.ndarray, v: np.ndarray, z: np.ndarray, depth_curr: np.ndarray,
+                    comparable: np.ndarray) -> np.ndarray:
+    """Each point's depth z (n,) at (u, v) (n,) in frame i carried to its rounded pixel's centre along
+    frame i's surface: z d_i(pixel) / d_i(u, v), 1 / d_i(u, v) frame i's inverse depth interpolated
+    bilinearly over the four pixels around (u, v), where those four are ``comparable`` (H, W) and
+    lie on one surface (largest / smallest <= DEPTH_EDGE_RATIO); z elsewhere (§3.6 step 2)."""
+    H, W = depth_curr.shape
+    d = np.where(comparable, depth_curr, 0.0).astype(np.float64)
+    u0, v0 = np.floor(u), np.floor(v)
+    inside = (u0 >= 0) & (u0 < W - 1) & (v0 >= 0) & (v0 < H - 1)
+    fu, fv = np.where(inside, u - u0, 0.0), np.where(inside, v - v0, 0.0)
+    r, c = np.where(inside, v0, 0).astype(np.int64), np.where(inside, u0, 0).astype(np.int64)
+    corners = np.stack([d[r, c], d[r, c + 1], d[r + 1, c], d[r + 1, c + 1]])
+    lowest, highest = corners.min(axis=0), corners.max(axis=0)
+    one_surface = inside & (lowest > 0) & (highest <= DEPTH_EDGE_RATIO * lowest)
+    d00, d10, d01, d11 = np.where(one_surface, corners, 1.0)
+    inverse = (1.0 - fv) * ((1.0 - fu) / d00 + fu / d10) + fv * ((1.0 - fu) / d01 + fu / d11)
+    right, below = fu >= 0.5, fv >= 0.5
+    at_pixel = np.where(below, np.where(right, d11, d01), np.where(right, d10, d00))
+    return np.where(one_surface, z * at_pixel * inverse, z)
+
+
 def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R: np.ndarray,
-               t: np.ndarray, nearest: bool = True, mask_holes: bool = False) -> np.ndarray:
+               t: np.ndarray, nearest: bool = True, mask_holes: bool = False,
+               at_point: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Forward-warp the valid pixels of depth_prev (H, W) into frame i; 0 where nothing lands.
 
     Rounds to the nearest pixel (half up), keeps z > 1e-5 inside the image; collisions keep the
     nearest depth (z-buffer), or the farthest with ``nearest=False`` (the authors' code).
     ``mask_holes``: 0 also where a point nearer by more than ``HOLE_DEPTH_MARGIN``, magnified m
     times, lies within max(m, 1) px (``hole_squares``): the splat is seen through a hole in that
-    surface or past its last splat.
+    surface or past its last splat. ``at_point`` (spec, with ``nearest``): frame i's depth and
+    compared pixels (H, W), each point's z read at its pixel's centre (``at_pixel_centre``).
     """
     H, W = depth_prev.shape
     rows, cols = np.nonzero(valid_depth(depth_prev))
@@ -47,6 +72,8 @@ def warp_depth(depth_prev: np.ndarray, K_prev: np.ndarray, K_curr: np.ndarray, R
     magnification = d[front] * focal_ratio / z_front
     iu, iv, z = np.floor(proj[0] + 0.5).astype(np.int64), np.floor(proj[1] + 0.5).astype(np.int64), z_front
     inside = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+    if nearest and at_point is not None:
+        z = at_pixel_centre(proj[0], proj[1], z, *at_point)
     iu, iv, z = iu[inside], iv[inside], z[inside]
     if nearest:
         buffer = np.full((H, W), np.inf)
@@ -209,8 +236,9 @@ def pair_depth_check(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, config
     frame pair -> PairDepthError."""
     spec = config.compat != "authors"
     source = warp_source(clip, pair, config)
-    warped = warp_depth(source, clip.K[pair - 1], clip.K[pair], R, t, nearest=spec, mask_holes=spec)
     static = clip.static_mask[pair] if config.use_mos else np.ones(clip.image_size, bool)
+    at_point = (clip.depth[pair], valid_depth(clip.depth[pair]) & static) if config.depth_at_point else None
+    warped = warp_depth(source, clip.K[pair - 1], clip.K[pair], R, t, nearest=spec, mask_holes=spec, at_point=at_point)
     looked_back = None
     if spec:
         seen, z, iu, iv = previous_view(clip.depth[pair], clip.K[pair - 1], clip.K[pair], R, t)
