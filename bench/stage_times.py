@@ -4,6 +4,7 @@
     PYTHONPATH=<another checkout> python bench/stage_times.py     # checkouts from c50b066 on
     python bench/stage_times.py --shape 81 480 832 4096 --clips 2  # another clip size (T H W P)
     python bench/stage_times.py --moving-objects 2  # standard clips with masked moving objects
+    python bench/stage_times.py --config '{"depth_check_at": "point"}'  # another SGCConfig
 
 Scores --clips standard clips (bench/stream.py's corpus, written where missing) --repeat times,
 each stage called on its own and waited for, and prints each stage's median over the warm calls
@@ -16,6 +17,7 @@ compilation cache is on, so a second run starts at once.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -33,6 +35,7 @@ def main() -> None:
                         help="clips of this size instead of standard ones, in a folder of --corpus's name and the size")
     parser.add_argument("--moving-objects", type=int, default=0,
                         help="this many masked moving objects in each clip (a folder of --corpus's name and -moversN)")
+    parser.add_argument("--config", default="{}", help="SGCConfig fields as JSON, e.g. '{\"depth_check_at\": \"point\"}'")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     import jax
@@ -46,7 +49,7 @@ def main() -> None:
     from sgc_jax.io.loading import load_clips
 
     enable_compilation_cache()
-    config = SGCConfig()
+    config = SGCConfig(**json.loads(args.config))
     scene, corpus, _ = sized_corpus(args.corpus, args.shape)
     if args.moving_objects:
         scene = dict(scene, moving_objects=args.moving_objects)
