@@ -87,7 +87,8 @@ def at_pixel_centre(u, v, z, front, depth_curr, comparable):
     inside = front & (u0 >= 0) & (u0 < W - 1) & (v0 >= 0) & (v0 < H - 1)  # False for NaN coordinates too
     fu, fv = jnp.where(inside, u - u0, 0.0), jnp.where(inside, v - v0, 0.0)
     first = jnp.where(inside, v0, 0.0).astype(jnp.int32) * W + jnp.where(inside, u0, 0.0).astype(jnp.int32)
-    corners = gather_apart(d, jnp.stack([first, first + 1, first + W, first + W + 1]))  # (4, N): u0 v0, u0+1, below
+    # (4, N): the pixels (u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)
+    corners = gather_apart(d, jnp.stack([first, first + 1, first + W, first + W + 1]))
     lowest, highest = jnp.min(corners, axis=0), jnp.max(corners, axis=0)
     one_surface = inside & (lowest > 0) & (highest <= DEPTH_EDGE_RATIO * lowest)
     d00, d10, d01, d11 = jnp.where(one_surface, corners, 1.0)
