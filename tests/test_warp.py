@@ -147,6 +147,36 @@ def test_at_the_pixel_it_rounds_to_a_slanting_plane_reads_the_rounding(engine):
     assert 0.1 < slanting_plane_depth_error(engine, SGCConfig()) < 1.0
 
 
+def plane_depth_at(normal, offset, u, v):
+    """The depth of the plane normal . X = offset at the (sub-pixel) positions (u, v) through K."""
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    return offset / (rays @ normal)
+
+
+@pytest.mark.parametrize("engine", ["jax", "reference"])
+def test_a_point_is_read_at_its_own_position_only_where_its_four_pixels_lie_on_one_compared_surface(engine):
+    normal = np.array([0.1, 0.5, 1.0]) / np.linalg.norm([0.1, 0.5, 1.0])
+    depth = plane_depth(K, normal, 1.0)  # 0.9-1.5, 1-2 % a pixel row
+    depth[10:14, 12:16] = 0.5  # a nearer surface: its edge spans far more than DEPTH_EDGE_RATIO
+    depth[3, 5] = 0.0  # no reading
+    comparable = depth > 0
+    comparable[18, 20] = False  # masked as moving
+    # (u, v): on the plane, across the nearer surface's edge, beside the pixel with no reading, beside
+    # the masked one, and past the last column (no four pixels around it)
+    u = np.array([25.3, 11.5, 4.6, 19.8, W - 0.7])
+    v = np.array([5.7, 11.2, 2.4, 17.9, 6.0])
+    z = np.full(5, 1.25)  # as float32 too
+    if engine == "jax":
+        read = np.asarray(warp.at_pixel_centre(*(a.astype(np.float32) for a in (u, v, z)), np.ones(5, bool),
+                                               depth.astype(np.float32), comparable), np.float64)
+    else:
+        read = reference.at_pixel_centre(u, v, z, depth, comparable)
+    on_plane = z[0] * depth[6, 25] / plane_depth_at(normal, 1.0, u[0], v[0])  # carried to pixel (25, 6)'s centre
+    np.testing.assert_allclose(read[0], on_plane, rtol=Z_RTOL)
+    assert abs(read[0] - z[0]) > 100 * Z_RTOL * z[0]  # the carry is no rounding: 0.4 px along 1-2 % a pixel
+    np.testing.assert_array_equal(read[1:], z[1:])
+
+
 @pytest.mark.parametrize("nearest", [True, False])
 def test_matches_a_numpy_loop_on_a_random_case(nearest):
     rng = np.random.default_rng(1)

@@ -24,6 +24,7 @@ from .components import geometry_weights, global_variances, local_variances, mea
 from .depth_check import (
     PairDepthError,
     affine_depth_map,
+    at_pixel_centre,
     depth_error,
     depth_error_map,
     hole_squares,
@@ -140,6 +141,7 @@ __all__ = [
     "pose_weights",
     "trimmed_mean_iqr",
     "affine_depth_map",
+    "at_pixel_centre",
     "depth_error",
     "depth_error_map",
     "hole_squares",
