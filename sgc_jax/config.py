@@ -77,10 +77,12 @@ REFIT_POINTS = 512
 # starts within a few pixels of its optimum; a local optimum's loop cost a warm clip 6 %.
 REFIT_UPDATES = 3
 # A pair's camera translation counts as 0 where |t_g| is at most this share of |t_wc[i]| + |t_wc[i-1]|
-# (docs/semantics.md §3.4): float32's resolution of the cameras (t_wc's components stored to 6e-8 of
-# their size, R_g to ~1e-7 rad) with a margin of ~100, so that a held centre's rounding is no motion
-# (bench/history/issue-59.md, "Cameras that claim no translation").
-CAMERA_TRANSLATION_RESOLUTION = 2.0**-16
+# (docs/semantics.md §3.4): float32's resolution of the cameras, so that a held centre's rounding is no
+# motion (bench/history/issue-59.md, "Cameras that claim no translation"). A held centre's t_g in
+# float32 reaches 1.7e-7 of that sum (FIT's held cameras, the real clips'); the bound is the power of
+# two at least 8x that (rule B4, "A world whose origin lies far from its cameras"), not fitted to a
+# score: 2^-16 took a 5 mm step 1,000 units from the origin for none.
+CAMERA_TRANSLATION_RESOLUTION = 2.0**-19
 # A region's noise-level cut (docs/semantics.md §3.2 step 6): NOISE_CUT x its pixel noise sigma,
 # never tighter than MIN_CUT_PX nor looser than inlier_px. 3.5 sigma keeps 99.8% of Gaussian inliers.
 NOISE_CUT = 3.5

@@ -6,6 +6,7 @@ the default config.
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scenes import SCENE
@@ -14,6 +15,7 @@ from tolerances import NUMERICAL_FLOOR, RIGID_ROT_VAR_BAR
 
 from sgc_jax import score_batch
 from sgc_jax.calibration import COMPONENTS
+from sgc_jax.engines.units import resolved_translation
 from sgc_jax.research.adversaries import held_cameras
 from sgc_jax.research.synth import synth_clip
 
@@ -141,6 +143,19 @@ def test_cameras_that_hold_their_centre_translate_by_rounding_only(tracked_clip,
         # no equation has a slope: the units taken as shared (1 / D in float32 on the JAX engine)
         assert scored.scale == pytest.approx(1.0, rel=1e-6), scored.clip_id
         assert scored.ecd_trans == 0.0, scored.clip_id
+
+
+# A hand-held camera's step (5 mm a frame, 7-Scenes') with its world's origin 1,000 units away:
+# 2.5e-6 of |t_wc[i]| + |t_wc[i-1]|, some ten times float32's rounding of a held centre.
+FAR_ORIGIN, SMALL_STEP = 1000.0, 0.005
+
+
+@pytest.mark.parametrize("xp", [np, jnp])
+def test_a_small_step_far_from_the_worlds_origin_is_a_translation(xp):
+    t_prev = xp.asarray(FAR_ORIGIN * np.array([1.0, -2.0, 0.7]) / np.linalg.norm([1.0, -2.0, 0.7]), xp.float32)
+    t_curr = t_prev + xp.asarray([SMALL_STEP, 0.0, 0.0], xp.float32)
+    t_g = resolved_translation(t_curr - t_prev, t_prev, t_curr, xp=xp)
+    assert float(xp.linalg.norm(t_g)) == pytest.approx(SMALL_STEP, rel=0.05)  # float32 keeps it to ~1 %
 
 
 # A median of ~10^4 track equations with 0.5 px noise: the fitted scale's spread across scenes and
