@@ -241,6 +241,15 @@ def yx_inside(clip):
 
 
 # (changes to the clip, severity, code, array, words the line must contain)
+def far_origin(clip):
+    """t_wc (T, 3) float32 of ``clip``'s cameras in a world whose origin lies 2^17.5 median camera steps
+    away: steps of ~2^-18.5 of the cameras' distance from it (FAR_ORIGIN_STEP_RANGE)."""
+    centres = -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)
+    step = float(np.median(np.linalg.norm(np.diff(centres, axis=0), axis=1)))
+    shift = 2.0**17.5 * step * np.array([0.6, -0.64, 0.48])
+    return (clip.t_wc + np.einsum("tij,j->ti", clip.R_wc, shift)).astype(np.float32)
+
+
 CASES = {
     "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
                                  ["inside the 96x128 image", "cx=258.5", "518-px preprocessed grid"]),
@@ -296,6 +305,9 @@ CASES = {
     "rotations transposed beside their translation": (
         lambda c: {"R_wc": np.swapaxes(c.R_wc, 1, 2)}, "warning", "rotation_transposed", "R_wc/t_wc",
         ["camera->world rotations beside world->camera translations", "R_wc = R^T and keep t_wc"]),
+    "cameras far from the world's origin": (
+        lambda c: {"t_wc": far_origin(c)}, "warning", "cameras_far_from_origin", "t_wc",
+        ["of the cameras' distance from the origin", "counts as no translation", "t_wc <- t_wc + R_wc c"]),
     "one pose for every frame (placeholders)": (
         lambda c: {"R_wc": np.tile(np.eye(3, dtype=np.float32), (c.n_frames, 1, 1)),
                    "t_wc": np.zeros((c.n_frames, 3), np.float32)},

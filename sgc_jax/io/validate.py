@@ -20,6 +20,7 @@ import numpy as np
 
 from ..config import SGCConfig
 from .checks.cameras import (
+    check_far_origin,
     check_focal_spread,
     check_frozen_cameras,
     check_intrinsics,
@@ -81,7 +82,8 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
     intrinsics = check_intrinsics(clip)
     k_usable = not any(p.severity == "error" for p in intrinsics)
-    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + convention + tracks + axes + inverted
+    far_origin = [] if poses or frozen else check_far_origin(clip)
+    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + far_origin + convention + tracks + axes + inverted
                 + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
                               fits=fits, k_usable=k_usable)
                 + check_depth_ramps(clip, config)
