@@ -241,13 +241,13 @@ def yx_inside(clip):
 
 
 # (changes to the clip, severity, code, array, words the line must contain)
-def far_origin(clip):
-    """t_wc (T, 3) float32 of ``clip``'s cameras in a world whose origin lies 2^17.5 median camera steps
-    away: steps of ~2^-18.5 of the cameras' distance from it (FAR_ORIGIN_STEP_RANGE)."""
+def far_origin(clip, steps_away=2.0**17.5, dtype=np.float32):
+    """t_wc (T, 3) of ``clip``'s cameras in a world whose origin lies ``steps_away`` median camera steps
+    away (2^17.5: steps of ~2^-18.5 of the cameras' distance from it, FAR_ORIGIN_STEP_RANGE)."""
     centres = -np.einsum("tji,tj->ti", clip.R_wc, clip.t_wc)
     step = float(np.median(np.linalg.norm(np.diff(centres, axis=0), axis=1)))
-    shift = 2.0**17.5 * step * np.array([0.6, -0.64, 0.48])
-    return (clip.t_wc + np.einsum("tij,j->ti", clip.R_wc, shift)).astype(np.float32)
+    shift = steps_away * step * np.array([0.6, -0.64, 0.48])
+    return (clip.t_wc.astype(np.float64) + np.einsum("tij,j->ti", clip.R_wc, shift)).astype(dtype)
 
 
 CASES = {
@@ -393,6 +393,14 @@ def test_one_pose_for_every_frame_is_named_only_where_the_tracks_move(clip):
     tripod = dict(frozen, track_curr=clip.track_prev + np.float32(0.3))  # a still camera's tracker jitter
     assert "cameras_frozen" not in codes(problems_of(arrays_of(clip, **tripod)), "warning")
     assert "cameras_frozen" not in codes(problems_of(arrays_of(clip)), "warning")
+
+def test_cameras_far_from_the_origin_are_named_below_float32s_rounding_only_where_stored_in_float64(clip):
+    # a geographic frame: steps of ~2^-23.5 of the distance, below a float32 held centre's rounding
+    geographic = {"t_wc": far_origin(clip, 2.0**22.5, np.float64), "R_wc": clip.R_wc.astype(np.float64)}
+    assert "cameras_far_from_origin" in codes(problems_of(arrays_of(clip, **geographic)), "warning")
+    in_float32 = {"t_wc": far_origin(clip, 2.0**22.5), "R_wc": clip.R_wc.astype(np.float32)}
+    assert "cameras_far_from_origin" not in codes(problems_of(arrays_of(clip, **in_float32)), "warning")
+
 
 def test_a_pose_files_slip_is_named_only_where_it_fits_clearly_better_than_the_commoner_files():
     # 7scenes_000800 with camera->world poses stored: its translation barely moves the tracks, and the

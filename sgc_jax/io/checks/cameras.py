@@ -72,6 +72,9 @@ FOCAL_SPREAD_WARN = 0.005
 # TEST's scenes and battery, FIT's random pool or the unseen pool does (bench/history/issue-59.md, "A world
 # whose origin lies far from its cameras").
 FAR_ORIGIN_STEP_RANGE = (2.0**-21, 4 * CAMERA_TRANSLATION_RESOLUTION)
+# ... from this instead of 2^-21 where R_wc and t_wc hold more than float32 does (a float64 SLAM or geographic
+# file): their held centres' rounding is float64's, and a metre's step 5,000 km from the origin (2e-7) is real.
+FAR_ORIGIN_STEP_MIN_FLOAT64 = 2.0**-40
 
 
 def _k_hint(cx: float, cy: float, H: int, W: int) -> str:
@@ -217,6 +220,8 @@ def check_far_origin(clip: Clip) -> list[Problem]:
     the world's origin: a moving camera whose steps the resolution bound takes, or nearly takes, for none."""
     ratios = camera_step_ratios(clip)
     low, high = FAR_ORIGIN_STEP_RANGE
+    if not all(np.array_equal(a.astype(np.float32), a) for a in (clip.R_wc, clip.t_wc)):
+        low = FAR_ORIGIN_STEP_MIN_FLOAT64
     near = np.flatnonzero((ratios > low) & (ratios <= high))
     if not near.size:
         return []
