@@ -146,7 +146,7 @@ def test_cameras_that_hold_their_centre_translate_by_rounding_only(tracked_clip,
 
 
 # A hand-held camera's step (5 mm a frame, 7-Scenes') with its world's origin 1,000 units away:
-# 2.5e-6 of |t_wc[i]| + |t_wc[i-1]|, some ten times float32's rounding of a held centre.
+# 2.5e-6 of |t_wc[i]| + |t_wc[i-1]|, some fifteen times float32's rounding of a held centre.
 FAR_ORIGIN, SMALL_STEP = 1000.0, 0.005
 
 

@@ -240,7 +240,6 @@ def yx_inside(clip):
             "track_vis": clip.track_vis & inside}
 
 
-# (changes to the clip, severity, code, array, words the line must contain)
 def far_origin(clip, steps_away=2.0**17.5, dtype=np.float32):
     """t_wc (T, 3) of ``clip``'s cameras in a world whose origin lies ``steps_away`` median camera steps
     away (2^17.5: steps of ~2^-18.5 of the cameras' distance from it, FAR_ORIGIN_STEP_RANGE)."""
@@ -250,6 +249,7 @@ def far_origin(clip, steps_away=2.0**17.5, dtype=np.float32):
     return (clip.t_wc.astype(np.float64) + np.einsum("tij,j->ti", clip.R_wc, shift)).astype(dtype)
 
 
+# (changes to the clip, severity, code, array, words the line must contain)
 CASES = {
     "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
                                  ["inside the 96x128 image", "cx=258.5", "518-px preprocessed grid"]),
@@ -393,6 +393,7 @@ def test_one_pose_for_every_frame_is_named_only_where_the_tracks_move(clip):
     tripod = dict(frozen, track_curr=clip.track_prev + np.float32(0.3))  # a still camera's tracker jitter
     assert "cameras_frozen" not in codes(problems_of(arrays_of(clip, **tripod)), "warning")
     assert "cameras_frozen" not in codes(problems_of(arrays_of(clip)), "warning")
+
 
 def test_cameras_far_from_the_origin_are_named_below_float32s_rounding_only_where_stored_in_float64(clip):
     # a geographic frame: steps of ~2^-23.5 of the distance, below a float32 held centre's rounding
