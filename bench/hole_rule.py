@@ -15,8 +15,8 @@ import numpy as np
 
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference
+from sgc_jax.io.clip import relative_poses
 from sgc_jax.research.spec_calibration import clean_scenes
-from sgc_jax.research.synth import relative_poses
 
 
 def scene_figures(clip, config: SGCConfig) -> tuple[float, float]:

@@ -22,10 +22,10 @@ from unseen_scenes import CELLS, EXTRA_LEVELS_PX, noise_seed
 
 from sgc_jax.config import SGCConfig
 from sgc_jax.engines import reference
+from sgc_jax.io.clip import relative_poses
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import perturb_clip
 from sgc_jax.research.protocol import random_scene
-from sgc_jax.research.synth import relative_poses
 
 NOISE_PX = 0.5
 

@@ -9,8 +9,8 @@ import pytest
 from sgc_jax import SGCConfig
 from sgc_jax.codes import REGION_STATUS
 from sgc_jax.engines import reference
+from sgc_jax.io.clip import relative_poses
 from sgc_jax.research import diagnostics
-from sgc_jax.research.synth import relative_poses
 
 PAIR = 2
 ACCEPTED = REGION_STATUS["ok"]

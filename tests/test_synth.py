@@ -11,11 +11,11 @@ from hypothesis import given, settings, strategies as st
 from scenes import SYNTH_SCENE
 
 from sgc_jax.io.arrays import clip_from_arrays
-from sgc_jax.io.clip import clip_to_arrays
+from sgc_jax.io.clip import clip_to_arrays, relative_poses
 from sgc_jax.io.loading import load_clip
 from sgc_jax.research.corridor import CORRIDOR_SEEDS, Corridor, CorridorSpec
 from sgc_jax.research.ground_truth import motion_errors
-from sgc_jax.research.synth import SceneSpec, demo_corpus, relative_poses, synth_clip, write_demo_corpus
+from sgc_jax.research.synth import SceneSpec, demo_corpus, synth_clip, write_demo_corpus
 
 # float32 track storage rounds positions to ~1e-5 px at these image sizes; the SPEC check is 1e-3.
 REPROJ_TOL_PX = 1e-3

@@ -150,6 +150,14 @@ def without_absurd_depth(depth: np.ndarray) -> np.ndarray:
     return np.where(absurd, np.float32(np.nan), depth).astype(depth.dtype) if absurd.any() else depth
 
 
+def relative_poses(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
+    """(T-1, 3, 3) R_rel and (T-1, 3) t_rel, float64, mapping camera i-1's coordinates to camera i's
+    from the stored poses (R_rel = R_wc[i] R_wc[i-1]^T, t_rel = t_wc[i] - R_rel t_wc[i-1])."""
+    R, t = clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64)
+    R_rel = R[1:] @ np.swapaxes(R[:-1], 1, 2)
+    return R_rel, t[1:] - np.einsum("pij,pj->pi", R_rel, t[:-1])
+
+
 # ----------------------------------------------------------------------------- files
 
 

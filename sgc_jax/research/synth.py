@@ -482,13 +482,6 @@ def _static_mask(moving: np.ndarray, margin_px: int) -> np.ndarray:
     return np.stack([cv2.dilate(m.astype(np.uint8), kernel) == 0 for m in moving])
 
 
-def relative_poses(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
-    """True (T-1, 3, 3) R_rel and (T-1, 3) t_rel mapping camera i-1 to camera i coordinates."""
-    R_rel = clip.R_wc[1:] @ np.swapaxes(clip.R_wc[:-1], 1, 2)
-    t_rel = clip.t_wc[1:] - np.einsum("pij,pj->pi", R_rel, clip.t_wc[:-1])
-    return R_rel, t_rel
-
-
 def demo_corpus(seed: int = 0) -> list[Clip]:
     """Eight 8-frame 96x128 clips with 1024 tracks (2 planar layers, 4 static spheres): rigid,
     noisy, moving (masked and unmasked) and non-rigid drift at two strengths; the group is in

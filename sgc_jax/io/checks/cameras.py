@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...config import CAMERA_TRANSLATION_RESOLUTION, SGCConfig
-from ..clip import Clip
+from ..clip import Clip, relative_poses
 from .motion_fits import POSE_MISFIT_MIN_PX, POSE_READINGS
 from .problems import Problem, frames_list, is_reference_compat
 
@@ -208,9 +208,8 @@ def check_frozen_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
 def camera_step_ratios(clip: Clip) -> np.ndarray:
     """(T-1,) each pair's camera step |t_g| (t_g = t_wc[i] - R_g t_wc[i-1]) over |t_wc[i]| + |t_wc[i-1]|,
     in float64; 0 where both are 0."""
-    R, t = clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64)
-    R_g = R[1:] @ np.swapaxes(R[:-1], 1, 2)
-    step = np.linalg.norm(t[1:] - np.einsum("pij,pj->pi", R_g, t[:-1]), axis=1)
+    step = np.linalg.norm(relative_poses(clip)[1], axis=1)
+    t = clip.t_wc.astype(np.float64)
     size = np.linalg.norm(t[1:], axis=1) + np.linalg.norm(t[:-1], axis=1)
     return np.where(size > 0, step / np.where(size > 0, size, 1.0), 0.0)
 
