@@ -86,13 +86,17 @@ class Clip:
     def group(self) -> str:
         return str(self.meta.get("group", ""))
 
-    def usable_tracks(self, min_track_conf: float, *, repeats: bool = True) -> np.ndarray:
+    def usable_tracks(self, min_track_conf: float, *, repeats: bool = True, pairs: np.ndarray | None = None
+                      ) -> np.ndarray:
         """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2);
-        ``repeats=False``: and not a repeat of an earlier such track (``repeated_tracks``)."""
+        ``repeats=False``: and not a repeat of an earlier such track (``repeated_tracks``); ``pairs``
+        (1-based): those pairs' rows alone, (len(pairs), P)."""
         H, W = self.image_size
-        usable = (self.track_vis & (self.track_conf >= min_track_conf)
-                  & within_reach(self.track_prev, H, W) & within_reach(self.track_curr, H, W))
-        return usable if repeats else usable & ~repeated_tracks(self.track_prev, self.track_curr, usable)
+        rows = slice(None) if pairs is None else np.asarray(pairs) - 1
+        prev, curr = self.track_prev[rows], self.track_curr[rows]
+        usable = (self.track_vis[rows] & (self.track_conf[rows] >= min_track_conf)
+                  & within_reach(prev, H, W) & within_reach(curr, H, W))
+        return usable if repeats else usable & ~repeated_tracks(prev, curr, usable)
 
 
 def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:

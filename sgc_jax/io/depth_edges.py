@@ -62,9 +62,12 @@ def check_edge_ratio(ratio: float) -> None:
 def depth_span(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lowest, highest) valid depth over each pixel's 3 x 3 neighbourhood, (T, H, W) float32 each;
     inf and 0 where the neighbourhood holds no valid depth (``valid``: :func:`valid_depth`)."""
-    depth = np.where(valid, depth, 0).astype(np.float32)
-    low = np.stack([cv2.erode(np.where(v, d, np.inf).astype(np.float32), _NEIGHBOURHOOD) for d, v in zip(depth, valid)])
-    high = np.stack([cv2.dilate(d, _NEIGHBOURHOOD) for d in depth])
+    depth = np.where(valid, depth, 0).astype(np.float32, copy=False)
+    hidden = np.where(valid, depth, np.float32(np.inf))
+    low, high = np.empty(depth.shape, np.float32), np.empty(depth.shape, np.float32)  # C order, as dst= needs
+    for frame in range(len(depth)):  # OpenCV's filters take one image; each writes into its frame's slice
+        cv2.erode(hidden[frame], _NEIGHBOURHOOD, dst=low[frame])
+        cv2.dilate(depth[frame], _NEIGHBOURHOOD, dst=high[frame])
     return low, high
 
 
@@ -74,11 +77,15 @@ def edges_and_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple
     neighbourhood's least and below its greatest (on a ramp between two surfaces, on neither); and the
     number of valid pixels."""
     valid = valid_depth(depth)
-    low, high = depth_span(depth, valid)
+    edges, ramps = _edges_and_ramps(depth, valid, *depth_span(depth, valid), ratio)
+    return edges, ramps, int(valid.sum())
+
+
+def _edges_and_ramps(depth, valid, low, high, ratio: float) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(over="ignore"):  # float32 depth near its largest value (an absurd depth) is no edge's
         edges = valid & (high > ratio * low)
         ramps = edges & (depth > (1 + RAMP_MARGIN) * low) & ((1 + RAMP_MARGIN) * depth < high)
-    return edges, ramps, int(valid.sum())
+    return edges, ramps
 
 
 def without_ramps(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> tuple[np.ndarray, float]:
@@ -108,7 +115,7 @@ def edges_are_ramps(n_valid, n_edges, n_ramps, xp=np):
 
 def ramp_counts(depth: np.ndarray) -> tuple[int, int, int]:
     """(valid, edge, ramp) pixel counts of a clip's depth (T, H, W), read on :func:`ramp_frames`."""
-    edges, ramps, valid = edges_and_ramps(depth[np.unique(ramp_frames(depth.shape[0]))])
+    edges, ramps, valid = edges_and_ramps(_on_ramp_frames(depth))
     return valid, int(edges.sum()), int(ramps.sum())
 
 
@@ -116,13 +123,25 @@ def hole_border_counts(depth: np.ndarray) -> tuple[int, int, int]:
     """(valid, hole-border, sunk) pixel counts of a clip's depth (T, H, W), read on :func:`ramp_frames`:
     the valid pixels, those with an invalid 3 x 3 neighbour, and those of them more than DEPTH_EDGE_RATIO
     below their neighbourhood's greatest valid depth."""
-    depth = depth[np.unique(ramp_frames(depth.shape[0]))]
+    return edge_counts(depth)[1]
+
+
+def edge_counts(depth: np.ndarray) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """(:func:`ramp_counts`, :func:`hole_border_counts`) of a clip's depth from one 3 x 3 span of its
+    ramp frames (the loader's two tests of its edges)."""
+    depth = _on_ramp_frames(depth)
     valid = valid_depth(depth)
+    low, high = depth_span(depth, valid)
+    edges, ramps = _edges_and_ramps(depth, valid, low, high, DEPTH_EDGE_RATIO)
     border = np.stack([cv2.dilate((~v).astype(np.uint8), _NEIGHBOURHOOD) for v in valid]).astype(bool) & valid
-    _, high = depth_span(depth, valid)
     with np.errstate(over="ignore"):
         sunk = border & (DEPTH_EDGE_RATIO * depth < high)
-    return int(valid.sum()), int(border.sum()), int(sunk.sum())
+    n_valid = int(valid.sum())
+    return (n_valid, int(edges.sum()), int(ramps.sum())), (n_valid, int(border.sum()), int(sunk.sum()))
+
+
+def _on_ramp_frames(depth: np.ndarray) -> np.ndarray:
+    return depth[np.unique(ramp_frames(depth.shape[0]))]
 
 
 def holes_blended(n_valid: int, n_border: int, n_sunk: int) -> bool:

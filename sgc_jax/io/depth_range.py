@@ -16,7 +16,7 @@ Depth arrays are (T, H, W) or (H, W); K (T, 3, 3) or (3, 3); pixel centres at in
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -83,52 +83,81 @@ def _block_misfits(error: np.ndarray, block: np.ndarray, trial: np.ndarray, n_tr
     return out
 
 
-def _pair_misfit(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, scale: float, as_range: bool) -> float:
-    """The least over scales around ``scale`` of ``_block_misfits`` of frame pair-1's sampled depth
-    moved by (R, s t) against frame pair's depth at the landing pixel, both read as z, or as range."""
+class _Reading(NamedTuple):
+    """One way of moving a pair's sampled points: frame i−1's points turned into camera i's axes,
+    (n, 3), the translation t (3,) whose scale the trials vary, and whether both depths are range."""
+
+    turned: np.ndarray
+    t: np.ndarray
+    as_range: bool
+
+
+def _pair_readings(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray) -> tuple[list[_Reading], np.ndarray]:
+    """(the readings as z, as range, and left in place (R = I, t = 0, as z); each sampled point's
+    block): frame pair−1's static, valid depth sampled on a regular grid of about POINTS pixels."""
     H, W = clip.image_size
     stride = max(1, int(np.sqrt(H * W / POINTS)))
     rows, cols = (a.ravel() for a in np.mgrid[stride // 2:H:stride, stride // 2:W:stride])
     depth = clip.depth[pair - 1][rows, cols].astype(np.float64)
     keep = np.isfinite(depth) & (depth > 0) & clip.static_mask[pair - 1][rows, cols]
     rows, cols, depth = rows[keep], cols[keep], depth[keep]
-    K_prev, K_curr = clip.K[pair - 1].astype(np.float64), clip.K[pair].astype(np.float64)
-    if as_range:
-        depth = depth / ray_lengths(K_prev, rows, cols)
+    K_prev = clip.K[pair - 1].astype(np.float64)
     rays = np.c_[cols, rows, np.ones(len(rows))] @ np.linalg.inv(K_prev).T
-    turned = (rays * depth[:, None]) @ R.T
+    as_range = depth / ray_lengths(K_prev, rows, cols)
     block = (rows * BLOCKS[0] // H) * BLOCKS[1] + cols * BLOCKS[1] // W
-
-    def misfits(scales: np.ndarray) -> np.ndarray:
-        moved = turned[None] + scales[:, None, None] * t  # (scales, points, 3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            landing = moved @ K_curr.T
-            u, v = landing[..., 0] / landing[..., 2] + 0.5, landing[..., 1] / landing[..., 2] + 0.5
-        # the landing pixel is the one whose centre is nearest: floor(u + 0.5)
-        trial, point = np.nonzero((moved[..., 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H))
-        col, row = u[trial, point].astype(np.int64), v[trial, point].astype(np.int64)
-        read = clip.depth[pair][row, col].astype(np.float64)
-        if as_range:
-            read = read / ray_lengths(K_curr, row, col)
-        good = np.isfinite(read) & (read > 0) & clip.static_mask[pair][row, col]
-        z = moved[trial[good], point[good], 2]
-        return _block_misfits((read[good] - z) / z, block[point[good]], trial[good], len(scales))
-
-    return _least(misfits, scale)
+    return [_Reading((rays * depth[:, None]) @ R.T, t, False), _Reading((rays * as_range[:, None]) @ R.T, t, True),
+            _Reading((rays * depth[:, None]) @ np.eye(3).T, np.zeros(3), False)], block
 
 
-def _least(misfits: Callable[[np.ndarray], np.ndarray], scale: float) -> float:
-    """The least finite misfit over a coarse then a fine log grid of scales around ``scale`` (at 0
-    alone where the tracks fit no translation: a turn, which tells the readings apart alone)."""
-    if scale == 0:
-        return float(misfits(np.zeros(1))[0])
+def _misfits(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Reading],
+             scales: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Per reading, per scale of its ``scales``: ``_block_misfits`` of its points moved by (R, s t)
+    against frame pair's depth at the landing pixel (read as range where the reading is). Every
+    reading's trials are projected at once."""
+    if not readings:
+        return []
+    H, W = clip.image_size
+    K_curr = clip.K[pair].astype(np.float64)
+    counts = [len(s) for s in scales]
+    owner = np.repeat(np.arange(len(readings)), counts)  # (trials,) the reading of each trial
+    turned = np.stack([r.turned for r in readings])[owner]
+    t = np.stack([r.t for r in readings])[owner]
+    moved = turned + np.concatenate(scales)[:, None, None] * t[:, None, :]  # (trials, points, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        landing = moved @ K_curr.T
+        u, v = landing[..., 0] / landing[..., 2] + 0.5, landing[..., 1] / landing[..., 2] + 0.5
+    # the landing pixel is the one whose centre is nearest: floor(u + 0.5)
+    trial, point = np.nonzero((moved[..., 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H))
+    col, row = u[trial, point].astype(np.int64), v[trial, point].astype(np.int64)
+    read = clip.depth[pair][row, col].astype(np.float64)
+    as_range = np.array([r.as_range for r in readings])[owner[trial]]
+    if as_range.any():
+        read = np.where(as_range, read / ray_lengths(K_curr, row, col), read)
+    good = np.isfinite(read) & (read > 0) & clip.static_mask[pair][row, col]
+    trial, point, z = trial[good], point[good], moved[trial[good], point[good], 2]
+    error = (read[good] - z) / z
+    first = np.r_[0, np.cumsum(counts)]  # each reading's first trial
+    out = []
+    for j, count in enumerate(counts):
+        mine = (trial >= first[j]) & (trial < first[j + 1])
+        out.append(_block_misfits(error[mine], block[point[mine]], trial[mine] - first[j], count))
+    return out
+
+
+def _least(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Reading],
+           fitted: Sequence[float]) -> list[float]:
+    """Per reading, the least finite misfit over a coarse then a fine log grid of scales around its
+    ``fitted`` scale (at 0 alone where the tracks fit no translation: a turn, which tells the
+    readings apart alone)."""
     factors = np.geomspace(1 / SCALE_SPAN, SCALE_SPAN, SCALE_STEPS)
-    coarse = misfits(scale * factors)
-    if not np.isfinite(coarse).any():
-        return float("nan")
     step = factors[1] / factors[0]
-    fine = misfits(scale * factors[int(np.nanargmin(coarse))] * np.geomspace(1 / step, step, SCALE_STEPS))
-    return float(np.nanmin(np.r_[coarse, fine]))
+    coarse = _misfits(clip, pair, block, readings, [np.zeros(1) if s == 0 else s * factors for s in fitted])
+    refine = [j for j, s in enumerate(fitted) if s != 0 and np.isfinite(coarse[j]).any()]
+    fine = dict(zip(refine, _misfits(clip, pair, block, [readings[j] for j in refine],
+                                     [fitted[j] * factors[int(np.nanargmin(coarse[j]))]
+                                      * np.geomspace(1 / step, step, SCALE_STEPS) for j in refine])))
+    return [float(coarse[j][0]) if s == 0 else float(np.nanmin(np.r_[coarse[j], fine[j]])) if j in fine
+            else float("nan") for j, s in enumerate(fitted)]
 
 
 def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.ndarray, float]]
@@ -143,8 +172,9 @@ def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.
     chosen = np.unique(np.linspace(0, len(usable) - 1, min(PAIRS, len(usable))).round().astype(np.int64))
     rows = []
     for i in chosen:
-        readings = [_pair_misfit(clip, *usable[i], as_range) for as_range in (False, True)]
-        left_in_place = _pair_misfit(clip, usable[i][0], np.eye(3), np.zeros(3), 0.0, False)
+        pair, R, t, scale = usable[i]
+        moves, block = _pair_readings(clip, pair, R, t)
+        *readings, left_in_place = _least(clip, pair, block, moves, [scale, scale, 0.0])
         if np.isfinite(readings).all() and not left_in_place < FOLLOWS_CAMERA * min(readings):
             rows.append(readings)
     if not rows:

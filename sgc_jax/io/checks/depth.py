@@ -8,7 +8,7 @@ import numpy as np
 from ...config import SGCConfig
 from ...stats import spearman
 from ..clip import Clip
-from ..depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edges_are_ramps, hole_border_counts, holes_blended, ramp_counts
+from ..depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edge_counts, edges_are_ramps, holes_blended
 from ..depth_range import depth_reading_misfits
 from .motion_fits import (
     MIN_POINTS_FOR_STATS,
@@ -186,10 +186,16 @@ def check_far_backdrop(values: np.ndarray) -> list[Problem]:
                     f"if it is sky, mark it invalid: depth 0 there (`sgc-jax import ... --max-depth {limit:.3g}`)")]
 
 
-def check_depth_ramps(clip: Clip, config: SGCConfig) -> list[Problem]:
+def check_depth_edges(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """The depth's edges, read once on its ramp frames (``depth_edges.edge_counts``): ramps of mixed
+    depths and holes blended with 0."""
+    ramps, holes = edge_counts(clip.depth)
+    return ramp_problems(*ramps, config) + hole_problems(*holes)
+
+
+def ramp_problems(valid: int, n_edges: int, n_ramps: int, config: SGCConfig) -> list[Problem]:
     """Where the depth's edges are ramps of mixed depths, as a network's enlarged output: a line saying
     they are left out before scoring (``config.smooth_depth_edges``), or a warning where they are kept."""
-    valid, n_edges, n_ramps = ramp_counts(clip.depth)
     if not edges_are_ramps(valid, n_edges, n_ramps):
         return []
     found = (f"{100 * n_ramps / n_edges:.0f}% of the edge pixels ({100 * n_edges / valid:.1f}% of the valid depth) lie "
@@ -206,10 +212,9 @@ def check_depth_ramps(clip: Clip, config: SGCConfig) -> list[Problem]:
                     "sgc_jax.adapters.leave_out_depth_ramps(clip)")]
 
 
-def check_depth_holes(clip: Clip) -> list[Problem]:
+def hole_problems(valid: int, n_border: int, n_sunk: int) -> list[Problem]:
     """A warning where the pixels around the depth's holes are blends of their surface and 0: depth
     resized (interpolated) with its holes read as depth 0 (:func:`~sgc_jax.io.depth_edges.holes_blended`)."""
-    valid, n_border, n_sunk = hole_border_counts(clip.depth)
     if not holes_blended(valid, n_border, n_sunk):
         return []
     return [Problem("warning", "depth_holes_blended", "depth",

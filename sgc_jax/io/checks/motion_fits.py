@@ -36,10 +36,10 @@ def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True):
     static tracks (``on_static`` False: those off the static mask) with valid depth, evenly spread;
     pairs with fewer than MIN_POINTS_FOR_STATS are left out."""
     H, W = clip.image_size
-    usable = clip.usable_tracks(config.min_track_conf)
     pairs = np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
-    for pair in pairs:
-        index = np.flatnonzero(usable[pair - 1])
+    usable = clip.usable_tracks(config.min_track_conf, pairs=pairs)
+    for pair, usable_of_pair in zip(pairs, usable):
+        index = np.flatnonzero(usable_of_pair)
         if index.size > 4 * RHO_POINTS:  # a deterministic spread-out subset keeps the cost flat
             index = index[np.linspace(0, index.size - 1, 4 * RHO_POINTS).astype(np.int64)]
         prev, curr = clip.track_prev[pair - 1][index], clip.track_curr[pair - 1][index]
@@ -98,26 +98,35 @@ def track_fit(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.n
               reading: str) -> tuple[float, float]:
     """(``pose_residual_px``'s median misfit [px], the translation's scale s it fitted); NaN, NaN
     where a point does not project."""
-    R, t = relative_pose(clip, pair, reading)
+    return track_fits(clip, pair, prev, curr, z, (reading,))[0]
+
+
+def track_fits(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, z: np.ndarray,
+               readings: Sequence[str]) -> list[tuple[float, float]]:
+    """``track_fit`` under each of ``readings``, the readings stacked on a leading axis (the loader
+    fits a pair's tracks under seven)."""
+    poses = [relative_pose(clip, pair, reading) for reading in readings]
+    R, t = np.stack([pose[0] for pose in poses]), np.stack([pose[1] for pose in poses])  # (r, 3, 3), (r, 3)
     rays = np.c_[prev, np.ones(len(prev))] @ np.linalg.inv(clip.K[pair - 1]).T
-    Y = (rays * z[:, None]) @ R.T  # camera pair's coordinates before the translation
+    Y = (rays * z[:, None]) @ np.swapaxes(R, 1, 2)  # (r, n, 3): camera pair's coordinates before the translation
     K = clip.K[pair]
     with np.errstate(divide="ignore", invalid="ignore"):
-        projected = (Y @ K.T)[:, :2] / Y[:, 2:3]
+        projected = (Y @ K.T)[..., :2] / Y[..., 2:3]
         # d projection / d Y along t: (K t)_xy / Y_z - projection * (t_z / Y_z)
-        flow = ((K @ t)[:2][None, :] - projected * t[2]) / Y[:, 2:3]
-    moved = curr - projected
-    if not (np.isfinite(flow).all() and np.isfinite(moved).all()):
-        return float("nan"), float("nan")
-    scale = max(0.0, float(np.sum(moved * flow)) / max(float(np.sum(flow * flow)), 1e-12))
-    return float(np.median(np.linalg.norm(moved - scale * flow, axis=1))), scale
+        flow = ((t @ K.T)[:, None, :2] - projected * t[:, None, 2:3]) / Y[..., 2:3]
+        moved = curr - projected
+        # a reading whose points do not all project is NaN: its sums below are computed and dropped
+        finite = np.isfinite(flow).all(axis=(1, 2)) & np.isfinite(moved).all(axis=(1, 2))
+        scale = np.maximum(0.0, np.sum(moved * flow, axis=(1, 2)) / np.maximum(np.sum(flow * flow, axis=(1, 2)), 1e-12))
+        misfit = np.median(np.linalg.norm(moved - scale[:, None, None] * flow, axis=2), axis=1)
+    return [(float(m), float(s)) if ok else (float("nan"), float("nan")) for m, s, ok in zip(misfit, scale, finite)]
 
 
 def pair_track_fits(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2]
                     ) -> dict[int, dict[str, tuple[float, float]]]:
     """Per sampled pair (``track_samples``), per pose reading: ``track_fit``'s (misfit [px], scale),
     fitted once for the pose, mask and range tests that read them."""
-    return {pair: {reading: track_fit(clip, pair, prev, curr, z, reading) for reading in readings}
+    return {pair: dict(zip(readings, track_fits(clip, pair, prev, curr, z, readings)))
             for pair, prev, curr, z in track_samples(clip, config)}
 
 
