@@ -126,15 +126,17 @@ def _misfits(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Readi
     with np.errstate(divide="ignore", invalid="ignore"):
         landing = moved @ K_curr.T
         u, v = landing[..., 0] / landing[..., 2] + 0.5, landing[..., 1] / landing[..., 2] + 0.5
-    # the landing pixel is the one whose centre is nearest: floor(u + 0.5)
-    trial, point = np.nonzero((moved[..., 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H))
-    col, row = u[trial, point].astype(np.int64), v[trial, point].astype(np.int64)
-    read = clip.depth[pair][row, col].astype(np.float64)
+    # the landing pixel is the one whose centre is nearest: floor(u + 0.5); flat indices gather fastest
+    landed = np.flatnonzero((moved[..., 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H))
+    trial, point = np.divmod(landed, moved.shape[1])
+    col, row = u.ravel()[landed].astype(np.int64), v.ravel()[landed].astype(np.int64)
+    pixel = row * W + col
+    read = clip.depth[pair].ravel()[pixel].astype(np.float64)
     as_range = np.array([r.as_range for r in readings])[owner[trial]]
     if as_range.any():
         read = np.where(as_range, read / ray_lengths(K_curr, row, col), read)
-    good = np.isfinite(read) & (read > 0) & clip.static_mask[pair][row, col]
-    trial, point, z = trial[good], point[good], moved[trial[good], point[good], 2]
+    good = np.isfinite(read) & (read > 0) & clip.static_mask[pair].ravel()[pixel]
+    trial, point, z = trial[good], point[good], moved[..., 2].ravel()[landed[good]]
     error = (read[good] - z) / z
     first = np.r_[0, np.cumsum(counts)]  # each reading's first trial
     out = []
