@@ -3,7 +3,7 @@ disk bar).
 
     python bench/reader_cost.py [--clips 16] [--repeats 3] [--dir /tmp/sgc-stream-corpus]
 
-A reader hashes a clip file, reads it, runs the loader's checks (``io.validate.check_clip``) and
+A reader hashes a clip file, reads it (the RGB frames, for plots only, from their header alone), runs the loader's checks (``io.validate.check_clip``) and
 prepares it for the device (``engines.jax_engine.dispatch.prepare_clip``). This times each of
 those and each check inside ``check_clip`` on standard clips (bench/stream.py's corpus) in this
 process, one call after another, no profiler: ms per clip, the least of --repeats passes over the
@@ -47,8 +47,9 @@ def main() -> None:
     from sgc_jax.engines.jax_engine.dispatch import prepare_clip
     from sgc_jax.engines.units import in_depth_units
     from sgc_jax.io import validate
+    from sgc_jax.io.batch_layout import PLOTS_ONLY
     from sgc_jax.io.checks import cameras, depth, masks, motion_fits, tracks
-    from sgc_jax.io.loading import load_clips
+    from sgc_jax.io.loading import entries_from_file, load_clips
     from sgc_jax.io.npz import read_npz
     from sgc_jax.scoring.journal import FileDigests
 
@@ -61,8 +62,9 @@ def main() -> None:
     readings = ("given", "yx", "reversed")
     file_steps = {
         "hash the file (SHA-256)": lambda p: FileDigests().of(p),
-        "read the file (inflate, CRC)": read_npz,
-        "load (read, make the Clip, check it)": lambda p: next(iter(load_clips([p]))),
+        "read the file as the scorer does (inflate, CRC; the frames' header alone)":
+            lambda p: read_npz(p, shape_only=PLOTS_ONLY),
+        "load (read, make the Clip, check it)": lambda p: entries_from_file(p, config)[0].read_clip(for_scoring=True),
     }
     clip_steps = {
         "check_clip, all checks": lambda c: validate.check_clip(c, config),
