@@ -105,8 +105,9 @@ def _pair_readings(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray) -> tuple
     rays = np.c_[cols, rows, np.ones(len(rows))] @ np.linalg.inv(K_prev).T
     as_range = depth / ray_lengths(K_prev, rows, cols)
     block = (rows * BLOCKS[0] // H) * BLOCKS[1] + cols * BLOCKS[1] // W
-    return [_Reading((rays * depth[:, None]) @ R.T, t, False), _Reading((rays * as_range[:, None]) @ R.T, t, True),
-            _Reading((rays * depth[:, None]) @ np.eye(3).T, np.zeros(3), False)], block
+    points, points_as_range = rays * depth[:, None], rays * as_range[:, None]
+    return [_Reading(points @ R.T, t, False), _Reading(points_as_range @ R.T, t, True),
+            _Reading(points, np.zeros(3), False)], block
 
 
 def _misfits(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Reading],
@@ -158,8 +159,13 @@ def _least(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Reading
     fine = dict(zip(refine, _misfits(clip, pair, block, [readings[j] for j in refine],
                                      [fitted[j] * factors[int(np.nanargmin(coarse[j]))]
                                       * np.geomspace(1 / step, step, SCALE_STEPS) for j in refine])))
-    return [float(coarse[j][0]) if s == 0 else float(np.nanmin(np.r_[coarse[j], fine[j]])) if j in fine
-            else float("nan") for j, s in enumerate(fitted)]
+    least = []
+    for j, scale in enumerate(fitted):
+        if scale == 0:
+            least.append(float(coarse[j][0]))
+        else:  # no finite coarse misfit: nothing refined, NaN
+            least.append(float(np.nanmin(np.r_[coarse[j], fine[j]])) if j in fine else float("nan"))
+    return least
 
 
 def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.ndarray, float]]
