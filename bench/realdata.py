@@ -4,7 +4,7 @@ default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
                              [--config FILE] [--regions N] [--line-ratio 0.05] [--depth-edge-ratio 1.2]
-                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1] [--long-range]
+                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1] [--radial-k1 -0.1] [--long-range]
                              [--noise-models iid-curr iid-both correlated depth outliers --noise-levels 0.5 1 2]
 
 Prints
@@ -30,6 +30,9 @@ and ``--camera-step-rel b`` score every clip (and its ladders) with errors on it
 estimator's: each turned about its centre by a rotation of RMS a degrees per axis and its centre
 moved by b median camera steps per axis, independently per frame (sgc_jax.research.noise, seeded by
 the clip's place); the tracks' distance to the ground-truth motion is still the exact cameras'.
+``--radial-k1 k`` scores every clip (and its ladders) as a lens with radial distortion k1 images it,
+its K still the pinhole's (sgc_jax.research.noise.radially_distorted); the tracks' distance to the
+ground-truth motion is their undistorted one's.
 
 ``--long-range`` scores every clip (and its ladders) with long-range tracks in place of its own: its
 first grid followed through the clip by the clips' own LK, each lost track queried again at that
@@ -57,7 +60,7 @@ import numpy as np
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.adapters import leave_out_depth_ramps, leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
-from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, radially_distorted
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.pose_jitter import pose_jitter
 
@@ -173,6 +176,8 @@ def main() -> None:
                         help="turn each camera by a rotation of this RMS per axis [deg] before scoring")
     parser.add_argument("--camera-step-rel", type=float, default=0.0,
                         help="move each camera centre by this RMS per axis [median camera steps] before scoring")
+    parser.add_argument("--radial-k1", type=float, default=0.0,
+                        help="see every clip through a lens of this radial distortion (its K still a pinhole's)")
     parser.add_argument("--long-range", action="store_true",
                         help="score every clip with long-range tracks from its frames in place of its own")
     parser.add_argument("--noise-models", nargs="*", default=[], choices=sorted(NOISE_MODELS),
@@ -196,6 +201,8 @@ def main() -> None:
     if args.camera_rot_deg > 0 or args.camera_step_rel > 0:
         cameras = NoiseModel(camera_rot_deg=args.camera_rot_deg, camera_step_rel=args.camera_step_rel)
         clips = [add_noise(clip, cameras, seed=k) for k, clip in enumerate(clips)]
+    if args.radial_k1:
+        clips = [radially_distorted(clip, args.radial_k1) for clip in clips]
     result = score_batch([prepare(clip) for clip in clips], engine=args.engine, config=config, progress=False)
     print_clean(clips, result, exact)
     if args.out:

@@ -21,6 +21,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
 - Depth as a network leaves it (:func:`enlarged_depth`, not part of a ``NoiseModel``): predicted at
   a fraction of the frame's size and enlarged bilinearly, so depth edges become ramps of mixed depths
   (docs/semantics.md §3.6, "Smooth depth edges").
+- A lens's radial distortion (:func:`radially_distorted`, not part of a ``NoiseModel``): every array
+  seen through a lens that bends a point at normalised radius r to r (1 + k1 r²), the clip's K still
+  a pinhole's, as real footage given without undistorting it.
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
 - A per-frame depth offset: each frame's depth plus ``depth_offset_rel`` N(0, 1) times the clip's
@@ -158,6 +161,35 @@ def enlarged_depth(depth: np.ndarray, factor: float) -> np.ndarray:
     small = (max(round(W / factor), 1), max(round(H / factor), 1))
     return np.stack([cv2.resize(cv2.resize(frame, small, interpolation=cv2.INTER_AREA), (W, H),
                                 interpolation=cv2.INTER_LINEAR) for frame in depth.astype(np.float32)])
+
+
+def radially_distorted(clip: Clip, k1: float) -> Clip:
+    """The clip as a lens with radial distortion ``k1`` images it (module docstring), each frame
+    through its own K: tracks moved to where the lens puts them, depth, static mask (nearest pixel)
+    and frames (bilinear) resampled from the undistorted pixel each distorted pixel shows, 0 beyond
+    the frame; cameras and K as given. The id gets a ``-k1<k1>`` suffix."""
+    H, W = clip.image_size
+    Ks = np.broadcast_to(clip.K, (clip.n_frames, 3, 3)).astype(np.float64)
+    coefficients = np.array([k1, 0.0, 0.0, 0.0])
+    pixels = np.stack(np.meshgrid(np.arange(W), np.arange(H)), -1).reshape(-1, 1, 2).astype(np.float64)
+
+    def seen(frame: int, image: np.ndarray, interpolation: int) -> np.ndarray:
+        shown = cv2.undistortPoints(pixels, Ks[frame], coefficients, P=Ks[frame]).reshape(H, W, 2).astype(np.float32)
+        return cv2.remap(image, shown[..., 0], shown[..., 1], interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    def bent(points: np.ndarray, K: np.ndarray) -> np.ndarray:  # (P, 2) pixels through the lens
+        normalised = (points.astype(np.float64) - K[:2, 2]) / np.diag(K)[:2]
+        bend = 1.0 + k1 * np.sum(normalised**2, axis=-1, keepdims=True)
+        return (normalised * bend * np.diag(K)[:2] + K[:2, 2]).astype(np.float32)
+
+    frames = range(clip.n_frames)
+    return dataclasses.replace(
+        clip, clip_id=f"{clip.clip_id}-k1{k1:g}",
+        depth=np.stack([seen(f, clip.depth[f].astype(np.float32), cv2.INTER_NEAREST) for f in frames]),
+        static_mask=np.stack([seen(f, clip.static_mask[f].astype(np.uint8), cv2.INTER_NEAREST) for f in frames]) > 0,
+        track_prev=np.stack([bent(clip.track_prev[i], Ks[i]) for i in range(clip.n_pairs)]),
+        track_curr=np.stack([bent(clip.track_curr[i], Ks[i + 1]) for i in range(clip.n_pairs)]),
+        frames=None if clip.frames is None else np.stack([seen(f, clip.frames[f], cv2.INTER_LINEAR) for f in frames]))
 
 
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
