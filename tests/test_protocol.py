@@ -13,7 +13,7 @@ from tolerances import FLOOR_RATIO_RANGE
 
 from sgc_jax import score_batch
 from sgc_jax.research.corridor import CORRIDOR_SEEDS, Corridor, CorridorSpec
-from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, radially_distorted, smooth_field
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, letterboxed, radially_distorted, smooth_field
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
     FIT_POOL_SEEDS,
@@ -196,6 +196,18 @@ def test_a_lens_bends_each_track_by_k1_r_squared_and_shows_the_depth_it_bent_the
     assert kept.mean() > 0.9
     np.testing.assert_array_equal(seen.R_wc, exact_clip.R_wc)
     np.testing.assert_array_equal(radially_distorted(exact_clip, 0.0).depth, exact_clip.depth)
+
+
+def test_letterbox_bars_hold_one_static_depth_and_no_visible_track(exact_clip):
+    boxed = letterboxed(exact_clip, 0.25)
+    H = exact_clip.image_size[0]
+    bars = np.r_[0:H // 4, H - H // 4:H]
+    assert np.unique(boxed.depth[:, bars]).size == 1 and boxed.static_mask[:, bars].all()
+    rows = lambda track: np.rint(track[..., 1])  # noqa: E731
+    in_bars = (rows(boxed.track_prev) < H // 4) | (rows(boxed.track_curr) >= H - H // 4)
+    assert in_bars.any() and not (boxed.track_vis & in_bars).any()
+    middle = slice(H // 4, H - H // 4)
+    np.testing.assert_array_equal(boxed.depth[:, middle], exact_clip.depth[:, middle])
 
 
 def test_test_split_shares_no_seed_with_the_fit_split():

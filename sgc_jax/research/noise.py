@@ -24,6 +24,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
 - A lens's radial distortion (:func:`radially_distorted`, not part of a ``NoiseModel``): every array
   seen through a lens that bends a point at normalised radius r to r (1 + k1 r²), the clip's K still
   a pinhole's, as real footage given without undistorting it.
+- Letterbox bars (:func:`letterboxed`, not part of a ``NoiseModel``): bands at the top and bottom of
+  every frame with no tracks, one depth for the whole band and every frame, and marked static, as a
+  depth network and a motion segmenter leave a letterboxed video's black bars.
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
 - A per-frame depth offset: each frame's depth plus ``depth_offset_rel`` N(0, 1) times the clip's
@@ -190,6 +193,24 @@ def radially_distorted(clip: Clip, k1: float) -> Clip:
         track_prev=np.stack([bent(clip.track_prev[i], Ks[i]) for i in range(clip.n_pairs)]),
         track_curr=np.stack([bent(clip.track_curr[i], Ks[i + 1]) for i in range(clip.n_pairs)]),
         frames=None if clip.frames is None else np.stack([seen(f, clip.frames[f], cv2.INTER_LINEAR) for f in frames]))
+
+
+def letterboxed(clip: Clip, share: float, depth_percentile: float = 50.0) -> Clip:
+    """The clip with letterbox bars (module docstring): the top and bottom ``share`` of every frame's
+    rows at the ``depth_percentile`` of its valid depth, static; tracks that start or land in a bar
+    made invisible. The id gets a ``-bars<share>`` suffix."""
+    H = clip.image_size[0]
+    rows = int(round(share * H))
+    depth, static = clip.depth.copy(), clip.static_mask.copy()
+    valid = np.isfinite(depth) & (depth > 0)
+    bars = np.zeros(H, bool)
+    bars[:rows], bars[H - rows:] = True, True
+    depth[:, bars] = np.percentile(depth[valid], depth_percentile) if valid.any() else 1.0
+    static[:, bars] = True
+    in_bar = lambda track: (track[..., 1] < rows - 0.5) | (track[..., 1] >= H - rows - 0.5)  # noqa: E731
+    vis = clip.track_vis & ~in_bar(clip.track_prev) & ~in_bar(clip.track_curr)
+    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}-bars{share:g}", depth=depth, static_mask=static,
+                               track_vis=vis)
 
 
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
