@@ -4,7 +4,8 @@ default config and calibration.
 
     python bench/realdata.py [--dir ../shared/realdata] [--engine jax] [--out realdata.csv] [--no-ladders]
                              [--config FILE] [--regions N] [--line-ratio 0.05] [--depth-edge-ratio 1.2]
-                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1] [--radial-k1 -0.1] [--letterbox 0.1] [--long-range]
+                             [--camera-rot-deg 0.3] [--camera-step-rel 0.1] [--radial-k1 -0.1] [--letterbox 0.1]
+                             [--overlay 0.15 0.08] [--long-range]
                              [--noise-models iid-curr iid-both correlated depth outliers --noise-levels 0.5 1 2]
 
 Prints
@@ -36,6 +37,9 @@ ground-truth motion is their undistorted one's.
 ``--letterbox s`` gives every clip (and its ladders) letterbox bars of s of its rows at the top and
 bottom, at its median depth, static and without tracks (sgc_jax.research.noise.letterboxed), as a
 depth network and a motion segmenter leave a letterboxed video's black bars.
+``--overlay w h`` gives every clip (and its ladders) an overlay of w x h of the frame in its
+bottom-right corner, as a watermark: tracks that start on it stay put, one depth, static
+(sgc_jax.research.noise.overlaid).
 
 ``--long-range`` scores every clip (and its ladders) with long-range tracks in place of its own: its
 first grid followed through the clip by the clips' own LK, each lost track queried again at that
@@ -63,7 +67,7 @@ import numpy as np
 from sgc_jax import COMPONENTS, SGCConfig, load_clip, score_batch
 from sgc_jax.adapters import leave_out_depth_ramps, leave_out_line_tracks
 from sgc_jax.research.ground_truth import motion_errors, region_motion_errors
-from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, letterboxed, radially_distorted
+from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, letterboxed, overlaid, radially_distorted
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.pose_jitter import pose_jitter
 
@@ -184,6 +188,9 @@ def main() -> None:
     parser.add_argument("--letterbox", type=float, default=0.0,
                         help="give every clip letterbox bars of this share of its rows at top and bottom (one depth, "
                              "static, no tracks)")
+    parser.add_argument("--overlay", type=float, nargs=2, default=None, metavar=("W", "H"),
+                        help="give every clip an overlay of W x H of the frame in its corner (tracks on it stay put, "
+                             "one depth, static)")
     parser.add_argument("--long-range", action="store_true",
                         help="score every clip with long-range tracks from its frames in place of its own")
     parser.add_argument("--noise-models", nargs="*", default=[], choices=sorted(NOISE_MODELS),
@@ -211,6 +218,8 @@ def main() -> None:
         clips = [radially_distorted(clip, args.radial_k1) for clip in clips]
     if args.letterbox:
         clips = [letterboxed(clip, args.letterbox) for clip in clips]
+    if args.overlay:
+        clips = [overlaid(clip, *args.overlay) for clip in clips]
     result = score_batch([prepare(clip) for clip in clips], engine=args.engine, config=config, progress=False)
     print_clean(clips, result, exact)
     if args.out:

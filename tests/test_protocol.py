@@ -13,7 +13,15 @@ from tolerances import FLOOR_RATIO_RANGE
 
 from sgc_jax import score_batch
 from sgc_jax.research.corridor import CORRIDOR_SEEDS, Corridor, CorridorSpec
-from sgc_jax.research.noise import NOISE_MODELS, NoiseModel, add_noise, letterboxed, radially_distorted, smooth_field
+from sgc_jax.research.noise import (
+    NOISE_MODELS,
+    NoiseModel,
+    add_noise,
+    letterboxed,
+    overlaid,
+    radially_distorted,
+    smooth_field,
+)
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 from sgc_jax.research.protocol import (
     FIT_POOL_SEEDS,
@@ -208,6 +216,18 @@ def test_letterbox_bars_hold_one_static_depth_and_no_visible_track(exact_clip):
     assert in_bars.any() and not (boxed.track_vis & in_bars).any()
     middle = slice(H // 4, H - H // 4)
     np.testing.assert_array_equal(boxed.depth[:, middle], exact_clip.depth[:, middle])
+
+
+def test_an_overlay_holds_its_tracks_in_place_at_one_depth_static_unless_masked(exact_clip):
+    over = overlaid(exact_clip, 0.5, 0.5)
+    moved = np.any(over.track_curr != exact_clip.track_curr, axis=-1)
+    assert moved.any() and np.array_equal(over.track_curr[moved], over.track_prev[moved])
+    assert over.track_vis[moved].all()
+    H, W = exact_clip.image_size
+    corner = (slice(None), slice(H // 2 - 4, H - 4), slice(W // 2 - 4, W - 4))
+    assert np.unique(over.depth[corner]).size == 1 and over.static_mask[corner].all()
+    assert not overlaid(exact_clip, 0.5, 0.5, masked=True).static_mask[corner].any()
+    np.testing.assert_array_equal(over.depth[:, : H // 2 - 4], exact_clip.depth[:, : H // 2 - 4])
 
 
 def test_test_split_shares_no_seed_with_the_fit_split():

@@ -27,6 +27,9 @@ A :class:`NoiseModel` describes the errors; :func:`add_noise` deals one seeded d
 - Letterbox bars (:func:`letterboxed`, not part of a ``NoiseModel``): bands at the top and bottom of
   every frame with no tracks, one depth for the whole band and every frame, and marked static, as a
   depth network and a motion segmenter leave a letterboxed video's black bars.
+- An overlay that stays put in the image (:func:`overlaid`, not part of a ``NoiseModel``): a watermark
+  or logo in the frame's corner, which a tracker follows where it stays, a depth network gives one
+  depth and a motion segmenter leaves static.
 - A per-frame depth scale error: each frame's depth times exp(``depth_scale_rel`` N(0, 1)), one
   factor a frame, as depth estimated frame by frame and aligned per clip can leave.
 - A per-frame depth offset: each frame's depth plus ``depth_offset_rel`` N(0, 1) times the clip's
@@ -211,6 +214,26 @@ def letterboxed(clip: Clip, share: float, depth_percentile: float = 50.0) -> Cli
     vis = clip.track_vis & ~in_bar(clip.track_prev) & ~in_bar(clip.track_curr)
     return dataclasses.replace(clip, clip_id=f"{clip.clip_id}-bars{share:g}", depth=depth, static_mask=static,
                                track_vis=vis)
+
+
+def overlaid(clip: Clip, width_share: float, height_share: float, *, masked: bool = False) -> Clip:
+    """The clip with an overlay (module docstring) of ``width_share`` x ``height_share`` of the frame,
+    4 px from its bottom-right corner: tracks that start on it stay where they start (visible), its
+    depth one value (the median of what lay there); static, or (``masked``) left out of the static
+    mask, as a user who masks it gives it. The id gets a ``-overlay<w>x<h>`` suffix."""
+    H, W = clip.image_size
+    x0, y0, x1, y1 = int(W * (1 - width_share)) - 4, int(H * (1 - height_share)) - 4, W - 4, H - 4
+    on = lambda track: ((track[..., 0] >= x0 - 0.5) & (track[..., 0] < x1 - 0.5)  # noqa: E731
+                        & (track[..., 1] >= y0 - 0.5) & (track[..., 1] < y1 - 0.5))
+    stuck = on(clip.track_prev)
+    curr = np.where(stuck[..., None], clip.track_prev, clip.track_curr)
+    depth, static = clip.depth.copy(), clip.static_mask.copy()
+    region = depth[:, y0:y1, x0:x1]
+    values = region[np.isfinite(region) & (region > 0)]
+    depth[:, y0:y1, x0:x1] = np.median(values) if values.size else 1.0
+    static[:, y0:y1, x0:x1] = not masked
+    return dataclasses.replace(clip, clip_id=f"{clip.clip_id}-overlay{width_share:g}x{height_share:g}", depth=depth,
+                               static_mask=static, track_curr=curr, track_vis=clip.track_vis | stuck)
 
 
 def noisy_depth(model: NoiseModel, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
