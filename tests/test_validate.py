@@ -31,7 +31,7 @@ from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges
 from sgc_jax.io.depth_range import depth_from_range, ray_lengths
 from sgc_jax.io.loading import validate_paths
 from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
-from sgc_jax.research.noise import enlarged_depth
+from sgc_jax.research.noise import enlarged_depth, letterboxed
 from sgc_jax.research.synth import synth_clip
 
 SMALL = dict(IMPORT_SCENE, with_frames=False)
@@ -145,6 +145,18 @@ def test_depth_resized_with_its_holes_read_as_zero_is_warned_of_and_nearest_neig
     [line] = warned(resized_from_half(holed.depth, cv2.INTER_LINEAR))
     assert line.severity == "warning" and "INTER_NEAREST" in line.fix
     assert not warned(resized_from_half(clip.depth, cv2.INTER_LINEAR))  # no holes: nothing blended with 0
+
+
+def test_letterbox_bars_left_out_of_the_static_mask_or_of_the_depth_get_no_line(clip):
+    boxed = letterboxed(clip, 0.1)
+    bars = np.r_[0:10, 86:96]
+    unmasked, invalid = boxed.static_mask.copy(), boxed.depth.copy()
+    unmasked[:, bars], invalid[:, bars] = False, 0.0
+    warned = lambda c: [p.code for p in check_clip(c) if p.code == "letterbox_bars"]  # noqa: E731
+    assert warned(boxed) == ["letterbox_bars"]
+    assert not warned(dataclasses.replace(boxed, static_mask=unmasked))
+    assert not warned(dataclasses.replace(boxed, depth=invalid))
+    assert not warned(letterboxed(clip, 0.01))  # one row: under 2 % of the frame's
 
 
 def test_the_devices_ramp_step_leaves_the_same_depth_as_the_hosts_inside_a_jit(clip):
@@ -319,6 +331,9 @@ CASES = {
     "tracks with their ends swapped": (lambda c: {"track_prev": c.track_curr, "track_curr": c.track_prev}, "warning",
                                        "camera_to_world_poses", "R_wc/t_wc",
                                        ["read as camera->world", "swap track_prev and track_curr"]),
+    "letterbox bars": (lambda c: {name: getattr(letterboxed(c, 0.1), name) for name in ("depth", "static_mask", "track_vis")},
+                       "warning", "letterbox_bars", "depth",
+                       ["rows 0-9 at the top and rows 86-95 at the bottom", "no track", "crop the bars away"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }

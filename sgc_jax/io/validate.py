@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..config import SGCConfig
+from .checks.bars import check_bars
 from .checks.cameras import (
     check_far_origin,
     check_focal_spread,
@@ -86,7 +87,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     problems = (intrinsics + check_focal_spread(clip) + poses + frozen + far_origin + convention + tracks + axes + inverted
                 + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
                               fits=fits, k_usable=k_usable)
-                + check_depth_edges(clip, config) + check_mask(clip) + check_length(clip))
+                + check_depth_edges(clip, config) + check_bars(clip, config) + check_mask(clip) + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))
