@@ -42,8 +42,8 @@ def bar_lines(clip: Clip, config: SGCConfig) -> dict[str, int]:
         line = k if side in ("top", "left") else (H if kind == "rows" else W) - 1 - k
         depth, static = ((clip.depth[:, line, :], clip.static_mask[:, line, :]) if kind == "rows"
                          else (clip.depth[:, :, line], clip.static_mask[:, :, line]))
-        # frame 0 first: a line of the world fails there, at a frame's cost
-        if not (one_depth(depth[:1]) and static.all() and one_depth(depth)):
+        # the first and last frames first: a line of the world fails there, at a frame's cost
+        if not (one_depth(depth[:1]) and one_depth(depth[-1:]) and static.all() and one_depth(depth)):
             return False
         medians = np.median(depth, axis=1)
         return medians.max() <= BAR_DEPTH_SPAN * medians.min() and not tracked_lines(kind)[line]
