@@ -48,7 +48,7 @@ def main() -> None:
     from sgc_jax.engines.units import in_depth_units
     from sgc_jax.io import validate
     from sgc_jax.io.batch_layout import PLOTS_ONLY
-    from sgc_jax.io.checks import cameras, depth, masks, motion_fits, tracks
+    from sgc_jax.io.checks import bars, cameras, depth, masks, motion_fits, tracks
     from sgc_jax.io.loading import entries_from_file, load_clips
     from sgc_jax.io.npz import read_npz
     from sgc_jax.scoring.journal import FileDigests
@@ -74,6 +74,7 @@ def main() -> None:
         "    the range test": lambda c: depth.depth_range_misfits(c, config, fits=fits[id(c)]),
         "    the disparity test (depth against parallax, by rank)": lambda c: depth.depth_parallax_rho(c, config),
         "  depth edges (ramps, blended holes)": lambda c: depth.check_depth_edges(c, config),
+        "  letterbox bars": lambda c: bars.check_bars(c, config),
         "  tracks": lambda c: tracks.check_tracks(c, config),
         "  the tracks' scale": lambda c: tracks.check_track_scale(c, config, given[id(c)]),
         "  the mask's side": lambda c: masks.mask_side_residuals(c, config, fits[id(c)]),
