@@ -52,6 +52,7 @@ import cv2
 import numpy as np
 
 from ..io.clip import Clip
+from ..io.depth_edges import valid_depth
 
 NOISE_SEED = 58_000  # the streams of this module, apart from research.synth's and the perturbations'
 DEPTH_CORRELATION_PX = 32.0  # correlation length of the smooth depth error field
@@ -205,7 +206,7 @@ def letterboxed(clip: Clip, share: float, depth_percentile: float = 50.0) -> Cli
     H = clip.image_size[0]
     rows = int(round(share * H))
     depth, static = clip.depth.copy(), clip.static_mask.copy()
-    valid = np.isfinite(depth) & (depth > 0)
+    valid = valid_depth(depth)
     bars = np.zeros(H, bool)
     bars[:rows], bars[H - rows:] = True, True
     depth[:, bars] = np.percentile(depth[valid], depth_percentile) if valid.any() else 1.0
@@ -229,7 +230,7 @@ def overlaid(clip: Clip, width_share: float, height_share: float, *, masked: boo
     curr = np.where(stuck[..., None], clip.track_prev, clip.track_curr)
     depth, static = clip.depth.copy(), clip.static_mask.copy()
     region = depth[:, y0:y1, x0:x1]
-    values = region[np.isfinite(region) & (region > 0)]
+    values = region[valid_depth(region)]
     depth[:, y0:y1, x0:x1] = np.median(values) if values.size else 1.0
     static[:, y0:y1, x0:x1] = not masked
     return dataclasses.replace(clip, clip_id=f"{clip.clip_id}-overlay{width_share:g}x{height_share:g}", depth=depth,
