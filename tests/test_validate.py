@@ -261,6 +261,16 @@ def far_origin(clip, steps_away=2.0**17.5, dtype=np.float32):
     return (clip.t_wc.astype(np.float64) + np.einsum("tij,j->ti", clip.R_wc, shift)).astype(dtype)
 
 
+def failed_hidden(clip, share=0.3):
+    """``clip`` with ``share`` more of its tracks hidden, and every hidden track's frame-i position drawn
+    over the image: a tracker whose hidden points failed (as LK's do)."""
+    H, W = clip.image_size
+    hidden = ~clip.track_vis | (np.arange(clip.n_tracks) % 10 < 10 * share)[None]
+    drawn = np.random.default_rng(0).uniform([0, 0], [W - 1, H - 1], clip.track_curr.shape)
+    return dataclasses.replace(clip, track_curr=np.where(hidden[..., None], drawn, clip.track_curr).astype(np.float32),
+                               track_vis=~hidden)
+
+
 # (changes to the clip, severity, code, array, words the line must contain)
 CASES = {
     "K at VGGT's 518-px scale": (lambda c: {"K": vggt_K(c)}, "error", "principal_point_outside", "K",
@@ -334,6 +344,10 @@ CASES = {
     "letterbox bars": (lambda c: {name: getattr(letterboxed(c, 0.1), name) for name in ("depth", "static_mask", "track_vis")},
                        "warning", "letterbox_bars", "depth",
                        ["rows 0-9 at the top and rows 86-95 at the bottom", "no track", "crop the bars away"]),
+    "an occlusion flag stored as visibility": (
+        lambda c: {"track_curr": failed_hidden(c).track_curr, "track_vis": ~failed_hidden(c).track_vis},
+        "warning", "track_vis_inverted", "track_vis",
+        ["35% of the tracks visible", "the hidden ones by 0.012 px", "store track_vis = ~occluded"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }
@@ -572,6 +586,17 @@ def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not
     arrays["dynamic_mask"] = arrays.pop("static_mask")  # the static mask given as the motion mask
     found = [p for p in problems_of(arrays) if p.code == "static_mask_inverted"]
     assert len(found) == 1 and found[0].array == "dynamic_mask" and "give it as static_mask" in found[0].line()
+
+
+def test_visibility_is_called_inverted_only_where_most_tracks_are_hidden_and_they_fit_far_better(clip):
+    mostly_hidden = np.random.default_rng(1).random(clip.track_vis.shape) >= 0.6  # their positions kept
+    for kept in (failed_hidden(clip), dataclasses.replace(clip, track_vis=clip.track_vis & mostly_hidden),
+                 dataclasses.replace(clip, track_vis=~clip.track_vis)):  # the synthetic hidden tracks are exact
+        assert "track_vis_inverted" not in codes(check_clip(kept), "warning")
+    flagged = check_clip(dataclasses.replace(failed_hidden(clip), track_vis=~failed_hidden(clip).track_vis))
+    assert "track_vis_inverted" in codes(flagged, "warning")
+    assert not {"camera_to_world_poses", "opengl_poses", "depth_like_disparity", "static_mask_inverted"} & {
+        p.code for p in flagged}  # the tests that read the visible tracks are not run on the failed ones
 
 
 def test_a_homogeneous_extrinsic_is_read_as_its_top_rows_and_a_wrong_last_row_is_refused(clip):

@@ -41,6 +41,7 @@ from .checks.tracks import (
     check_track_vis_values,
     check_tracks,
 )
+from .checks.visibility import check_vis_inverted
 from .clip import Clip
 
 __all__ = ["ClipValidationError", "ClipWarning", "Problem", "check_clip", "enforce", "raise_first_error"]
@@ -74,9 +75,11 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     readings = track_reading_residuals(clip, config, read_as, fits) if test_poses else None
     axes = check_track_axes(readings) if test_axes else []
     axes = axes or (check_track_scale(clip, config, readings["given"]) if test_axes else [])
-    # a motion mask given as the static one leaves the other tests only the movers' tracks
-    inverted = (check_mask_inverted(mask_side_residuals(clip, config, fits), clip.mask_source)
-                if test_poses and not axes else [])
+    # visibility stored the other way round, or a motion mask given as the static one, leaves the
+    # other tests only the failed or the movers' tracks
+    inverted = check_vis_inverted(clip, config, fits) if test_poses and not axes else []
+    inverted = inverted or (check_mask_inverted(mask_side_residuals(clip, config, fits), clip.mask_source)
+                            if test_poses and not axes else [])
     # tracks read the wrong way round or at the wrong size say nothing about the poses' convention or
     # the depth's kind
     test_convention = test_poses and not axes and not inverted

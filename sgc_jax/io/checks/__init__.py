@@ -6,5 +6,6 @@ cameras      intrinsics, focal lengths over the frames, rotations, the pose file
 tracks       positions, extent, axes and scale, confidence, visibility, repeats, the clip's length
 depth        valid depth, sign, far backdrop, ramps and blended holes, depth against disparity and range
 masks        the static mask's coverage, and an inverted mask
+visibility   visibility stored the other way round (an occlusion flag)
 stored       stored dtypes and value sets
 """

@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from ...config import SGCConfig
-from ..clip import Clip
+from ..clip import Clip, within_reach
 
 MIN_POINTS_FOR_STATS = 30
 RHO_PAIRS, RHO_POINTS = 6, 256  # pairs and points per pair the depth/disparity test looks at (cost cap)
@@ -30,14 +30,16 @@ POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world", "tr
 OPENGL_AXES = np.diag([1.0, -1.0, -1.0])  # an OpenGL camera's coordinates -> OpenCV's, and back
 
 
-def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True):
+def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True, visible: bool = True):
     """Per sampled pair (at most RHO_PAIRS, spread over the clip): (pair, frame i-1 and frame i
     positions (n, 2) float64, depth at the frame i-1 position (n,)) of at most RHO_POINTS usable
-    static tracks (``on_static`` False: those off the static mask) with valid depth, evenly spread;
-    pairs with fewer than MIN_POINTS_FOR_STATS are left out."""
+    static tracks (``on_static`` False: those off the static mask; ``visible`` False: the hidden ones
+    that would otherwise be usable) with valid depth, evenly spread; pairs with fewer than
+    MIN_POINTS_FOR_STATS are left out."""
     H, W = clip.image_size
-    pairs = np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
-    usable = clip.usable_tracks(config.min_track_conf, pairs=pairs)
+    pairs = sampled_pairs(clip)
+    usable = (clip.usable_tracks(config.min_track_conf, pairs=pairs) if visible
+              else ~clip.track_vis[pairs - 1] & candidate_tracks(clip, config.min_track_conf, pairs))
     for pair, usable_of_pair in zip(pairs, usable):
         index = np.flatnonzero(usable_of_pair)
         if index.size > 4 * RHO_POINTS:  # a deterministic spread-out subset keeps the cost flat
@@ -51,6 +53,20 @@ def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True):
             continue
         keep = keep[np.linspace(0, keep.size - 1, min(keep.size, RHO_POINTS)).astype(np.int64)]
         yield pair, prev[keep].astype(np.float64), curr[keep].astype(np.float64), z[keep].astype(np.float64)
+
+
+def sampled_pairs(clip: Clip) -> np.ndarray:
+    """The pairs (1-based) the reading tests look at: at most RHO_PAIRS, spread over the clip."""
+    return np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
+
+
+def candidate_tracks(clip: Clip, min_track_conf: float, pairs: np.ndarray | None = None) -> np.ndarray:
+    """(T-1, P) bool (``pairs``, 1-based: those rows alone): confident, both positions within reach:
+    the tracks that are usable where visible (``Clip.usable_tracks`` without the visibility)."""
+    H, W = clip.image_size
+    rows = slice(None) if pairs is None else np.asarray(pairs) - 1
+    return ((clip.track_conf[rows] >= min_track_conf) & within_reach(clip.track_prev[rows], H, W)
+            & within_reach(clip.track_curr[rows], H, W))
 
 
 def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.ndarray, np.ndarray]:
