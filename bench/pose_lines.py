@@ -1,13 +1,14 @@
 """The loader's lines that read the tracks' fit to the camera's motion (docs/semantics.md §1.6): which
 reading of the pose file or of the tracks each names, with the poses stored as §1.1 asks and as a
-conversion plausibly leaves them, and the tracks as (y, x), of a smaller frame or in part of it.
+conversion plausibly leaves them, the tracks as (y, x), of a smaller frame or in part of it, and
+their visibility inverted (an occlusion flag) or mostly hidden.
 
-    python bench/pose_lines.py --pool fit|held-out [--scenes 24]
-    python bench/pose_lines.py --real [--realdata ../shared/realdata]
+    python bench/pose_lines.py --pool fit|held-out [--scenes 24] [--ways WAY ...]
+    python bench/pose_lines.py --real [--realdata ../shared/realdata] [--ways WAY ...]
 
 ``--pool``: each scene of a random pool (``protocol.random_scene``, 1,000 tracks) under ``iid-both``,
 ``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px, its poses stored each way of ``STORED``
-and its tracks each way of ``TRACK_WAYS``; per way and level, the clips a line fires on, those it
+its tracks each way of ``TRACK_WAYS`` and its visibility each of ``VIS_WAYS``; per way and level, the clips a line fires on, those it
 names rightly and those it names wrongly (the (y, x) line read directly, as most such positions fall
 off the pool's frames, where ``tracks_outside`` speaks first). ``--real``: the shared real clips
 stored each way, the line each draws and the misfit under each pose reading. Nothing is chosen here.
@@ -56,12 +57,34 @@ SMALLER_FRAMES = (0.667, 0.75, 0.8, 0.9)  # tracks of a frame this much smaller,
 PART_OF_THE_FRAME = 0.8  # tracks outside the top-left 80 % x 80 % of the frame made invisible
 TRACK_WAYS = {TRACKS_YX: "tracks_yx", f"tracks in the top-left {PART_OF_THE_FRAME:.0%}": None} | {
     f"tracks of a frame x{f}": "tracks_of_a_smaller_frame" for f in SMALLER_FRAMES}
-WAYS = {way: code for way, (_, code) in STORED.items()} | TRACK_WAYS
+# how the visibility may be stored: as a tracker that hides much of it (HIDDEN_SHARE at random, their
+# positions kept) or whose hidden tracks failed (their frame-i positions drawn over the image), each
+# also inverted (an occlusion flag given as track_vis)
+HIDDEN_SHARE = 0.6
+VIS_INVERTED, MOSTLY_HIDDEN, HIDDEN_FAILED = "visibility inverted", "60 % hidden at random", "hidden tracks failed"
+VIS_WAYS = {VIS_INVERTED: "track_vis_inverted", MOSTLY_HIDDEN: None, f"{MOSTLY_HIDDEN}, inverted": "track_vis_inverted",
+            HIDDEN_FAILED: None, f"{HIDDEN_FAILED}, inverted": "track_vis_inverted"}
+WAYS = {way: code for way, (_, code) in STORED.items()} | TRACK_WAYS | VIS_WAYS
 POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed",
-              "poses_reversed_in_time", "tracks_yx", "tracks_of_a_smaller_frame"}
+              "poses_reversed_in_time", "tracks_yx", "tracks_of_a_smaller_frame", "track_vis_inverted"}
+
+
+def stored_visibility(clip, way: str):
+    rng = np.random.default_rng(0)
+    if way.startswith(MOSTLY_HIDDEN):
+        clip = dataclasses.replace(clip, track_vis=clip.track_vis & (rng.random(clip.track_vis.shape) >= HIDDEN_SHARE))
+    if way.startswith(HIDDEN_FAILED):
+        H, W = clip.image_size
+        drawn = rng.uniform([0.0, 0.0], [W - 1.0, H - 1.0], clip.track_curr.shape).astype(clip.track_curr.dtype)
+        clip = dataclasses.replace(clip, track_curr=np.where(clip.track_vis[..., None], clip.track_curr, drawn))
+    if way.endswith("inverted"):
+        clip = dataclasses.replace(clip, track_vis=~clip.track_vis)
+    return clip
 
 
 def stored(clip, way: str):
+    if way in VIS_WAYS:
+        return stored_visibility(clip, way)
     if way == TRACKS_YX:
         return dataclasses.replace(clip, track_prev=clip.track_prev[..., ::-1].copy(),
                                    track_curr=clip.track_curr[..., ::-1].copy())
@@ -83,10 +106,10 @@ def pose_lines(clip, config: SGCConfig, axes_alone: bool = False) -> list[str]:
     return [p.code for p in validate.check_clip(clip, config) if p.code in POSE_CODES and p.severity == "warning"]
 
 
-def pool_counts(pool: str, scenes: int) -> None:
+def pool_counts(pool: str, scenes: int, ways: dict[str, str | None]) -> None:
     config, counts = SGCConfig(), collections.Counter()
     for px, noisy in protocol.check_pool_clips(pool, scenes):
-        for way, right in WAYS.items():
+        for way, right in ways.items():
             codes = pose_lines(stored(noisy, way), config, axes_alone=way == TRACKS_YX)
             counts[way, px, "clips"] += 1
             counts[way, px, "fires"] += bool(codes)
@@ -95,18 +118,18 @@ def pool_counts(pool: str, scenes: int) -> None:
     print(f"{pool} pool, {scenes} scenes, 1,000 tracks, {', '.join(protocol.CHECK_POOL_MODELS)}; "
           f"readings {POSE_READINGS}")
     print("| stored | px | clips | a pose line | named rightly | named wrongly |\n|---|---|---|---|---|---|")
-    for way in WAYS:
+    for way in ways:
         for px in protocol.CHECK_POOL_LEVELS_PX:
             print(f"| {way} | {px} | " + " | ".join(str(counts[way, px, key]) for key in ("clips", "fires", "right", "wrong"))
                   + " |")
 
 
-def real_clips(realdata: Path) -> None:
+def real_clips(realdata: Path, ways: dict[str, str | None]) -> None:
     config = SGCConfig()
     for path in sorted(realdata.glob("*.npz")):
         with np.load(path) as arrays:
             clip = clip_from_arrays({name: arrays[name] for name in arrays.files}, clip_id=path.stem, validate=False)
-        for way in WAYS:
+        for way in ways:
             readings = pose_convention_residuals(stored(clip, way), config, POSE_READINGS)
             misfits = ", ".join(f"{reading} {value:.2f}" for reading, value in readings.items())
             print(f"{path.stem} | {way} | lines {pose_lines(stored(clip, way), config)} | misfit px: {misfits}")
@@ -118,11 +141,14 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--real", action="store_true")
     parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    parser.add_argument("--ways", nargs="+", choices=list(WAYS), default=list(WAYS), metavar="WAY",
+                        help=f"the ways to store a clip (default all): {', '.join(WAYS)}")
     args = parser.parse_args()
+    ways = {way: WAYS[way] for way in args.ways}
     if args.pool:
-        pool_counts(args.pool, args.scenes)
+        pool_counts(args.pool, args.scenes, ways)
     if args.real:
-        real_clips(args.realdata)
+        real_clips(args.realdata, ways)
     if not (args.pool or args.real):
         parser.error("give --pool or --real")
 

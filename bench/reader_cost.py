@@ -48,7 +48,7 @@ def main() -> None:
     from sgc_jax.engines.units import in_depth_units
     from sgc_jax.io import validate
     from sgc_jax.io.batch_layout import PLOTS_ONLY
-    from sgc_jax.io.checks import bars, cameras, depth, masks, motion_fits, tracks
+    from sgc_jax.io.checks import bars, cameras, depth, masks, motion_fits, tracks, visibility
     from sgc_jax.io.loading import entries_from_file, load_clips
     from sgc_jax.io.npz import read_npz
     from sgc_jax.scoring.journal import FileDigests
@@ -79,6 +79,7 @@ def main() -> None:
         "  the tracks' scale": lambda c: tracks.check_track_scale(c, config, given[id(c)]),
         "  the mask's side": lambda c: masks.mask_side_residuals(c, config, fits[id(c)]),
         "  the mask": masks.check_mask,
+        "  the visibility's direction (the visible share)": lambda c: visibility.check_vis_inverted(c, config, fits[id(c)]),
         "  poses, intrinsics, origin": lambda c: (cameras.check_poses(c), cameras.check_intrinsics(c),
                                                   cameras.check_far_origin(c)),
         "prepare_clip": lambda c: prepare_clip(c, config),
