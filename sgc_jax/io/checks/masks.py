@@ -7,7 +7,7 @@ import numpy as np
 
 from ...config import SGCConfig
 from ..clip import Clip
-from .motion_fits import POSE_MISFIT_MIN_PX, pair_track_fits, pose_residual_px, track_samples
+from .motion_fits import POSE_MISFIT_MIN_PX, side_residuals
 from .problems import Problem, frames_list
 
 STATIC_COVERAGE_WARN = 0.05  # static mask below this fraction of a frame: inverted mask?
@@ -24,18 +24,8 @@ def static_coverage(clip: Clip) -> np.ndarray:
 
 def mask_side_residuals(clip: Clip, config: SGCConfig,
                         fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> tuple[float, float]:
-    """(on the static mask, off it): the median over the sampled pairs where both sides hold tracks of
-    ``pose_residual_px`` of each side's tracks, the poses as given (the static side's from ``fits``,
-    ``pair_track_fits``, where given); NaN where no pair has both."""
-    fits = pair_track_fits(clip, config, ("given",)) if fits is None else fits
-    static = {pair: by_reading["given"][0] for pair, by_reading in fits.items()}
-    both = [(static[pair], pose_residual_px(clip, pair, prev, curr, z, "given"))
-            for pair, prev, curr, z in track_samples(clip, config, on_static=False) if pair in static]
-    both = [b for b in both if np.isfinite(b).all()]
-    if not both:
-        return float("nan"), float("nan")
-    on, off = np.median(np.array(both), axis=0)
-    return float(on), float(off)
+    """(on the static mask, off it): ``side_residuals`` of the usable tracks on either side."""
+    return side_residuals(clip, config, fits, on_static=False)
 
 
 def check_mask_inverted(residuals: tuple[float, float], mask_source: str = "static_mask") -> list[Problem]:

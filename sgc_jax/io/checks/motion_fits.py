@@ -146,6 +146,23 @@ def pair_track_fits(clip: Clip, config: SGCConfig, readings: Sequence[str] = POS
             for pair, prev, curr, z in track_samples(clip, config)}
 
 
+def side_residuals(clip: Clip, config: SGCConfig, fits: dict[int, dict[str, tuple[float, float]]] | None = None,
+                   **other_side: bool) -> tuple[float, float]:
+    """(the usable static tracks, the tracks ``track_samples(**other_side)`` gives: off the static mask,
+    or hidden): the median over the sampled pairs where both hold tracks of ``pose_residual_px`` of
+    each side's tracks, the poses as given (the first side's from ``fits``, ``pair_track_fits``,
+    where given); NaN where no pair has both."""
+    fits = pair_track_fits(clip, config, ("given",)) if fits is None else fits
+    usable = {pair: by_reading["given"][0] for pair, by_reading in fits.items()}
+    both = [(usable[pair], pose_residual_px(clip, pair, prev, curr, z, "given"))
+            for pair, prev, curr, z in track_samples(clip, config, **other_side) if pair in usable]
+    both = [b for b in both if np.isfinite(b).all()]
+    if not both:
+        return float("nan"), float("nan")
+    first, other = np.median(np.array(both), axis=0)
+    return float(first), float(other)
+
+
 def pose_convention_residuals(clip: Clip, config: SGCConfig, readings: Sequence[str] = POSE_READINGS[:2],
                               fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> dict[str, float]:
     """Per pose reading (``relative_pose``): the median over sampled pairs of ``pose_residual_px``

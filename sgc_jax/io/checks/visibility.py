@@ -8,14 +8,7 @@ import numpy as np
 from ...config import SGCConfig
 from ..clip import Clip, repeated_tracks
 from .masks import MASK_SIDE_RATIO
-from .motion_fits import (
-    POSE_MISFIT_MIN_PX,
-    candidate_tracks,
-    pair_track_fits,
-    pose_residual_px,
-    sampled_pairs,
-    track_samples,
-)
+from .motion_fits import POSE_MISFIT_MIN_PX, candidate_tracks, sampled_pairs, side_residuals
 from .problems import Problem
 
 # Visibility stored the other way round (TAPIR's and BootsTAP's `occluded`, or 1 - a visibility): most
@@ -38,31 +31,15 @@ def visible_share(clip: Clip, config: SGCConfig) -> float:
     return float(np.count_nonzero(candidates & clip.track_vis[pairs - 1]) / n) if n else float("nan")
 
 
-def vis_side_residuals(clip: Clip, config: SGCConfig,
-                       fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> tuple[float, float]:
-    """(visible, hidden): the median over the sampled pairs where both hold tracks of
-    ``pose_residual_px`` of the visible and of the hidden static tracks, the poses as given (the
-    visible side's from ``fits``, ``pair_track_fits``, where given); NaN where no pair has both."""
-    fits = pair_track_fits(clip, config, ("given",)) if fits is None else fits
-    visible = {pair: by_reading["given"][0] for pair, by_reading in fits.items()}
-    both = [(visible[pair], pose_residual_px(clip, pair, prev, curr, z, "given"))
-            for pair, prev, curr, z in track_samples(clip, config, visible=False) if pair in visible]
-    both = [b for b in both if np.isfinite(b).all()]
-    if not both:
-        return float("nan"), float("nan")
-    seen, hidden = np.median(np.array(both), axis=0)
-    return float(seen), float(hidden)
-
-
 def check_vis_inverted(clip: Clip, config: SGCConfig,
                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> list[Problem]:
     """A warning where under VISIBLE_SHARE_MAX of the candidate tracks are visible and the hidden ones
     fit the camera's motion far better (MASK_SIDE_RATIO) than the visible ones, which miss it by over
-    POSE_MISFIT_MIN_PX (rule H1)."""
+    POSE_MISFIT_MIN_PX (rule H2)."""
     share = visible_share(clip, config)
     if not share < VISIBLE_SHARE_MAX:
         return []
-    seen, hidden = vis_side_residuals(clip, config, fits)
+    seen, hidden = side_residuals(clip, config, fits, visible=False)
     if not (np.isfinite(seen) and seen > POSE_MISFIT_MIN_PX and hidden < MASK_SIDE_RATIO * seen):
         return []
     return [Problem(
