@@ -16,6 +16,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .adapters.common import DEPTH_RESIZES
 from .adapters.delta import DELTA_VIS_THRESHOLD
 from .adapters.line_tracks import LINE_RATIO
 from .adapters.vggt import MODES as VGGT_MODES
@@ -625,7 +626,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 align_depth=not args.no_align_depth, line_ratio=args.leave_out_line_tracks,
                 frame_step=args.frame_step, max_depth=args.max_depth, depth_edge_ratio=args.depth_edge_ratio,
                 per_frame_intrinsics=args.per_frame_intrinsics, mask_grow_px=args.mask_grow,
-                clip_id=args.clip_id or Path(args.out).stem, group=args.group)
+                depth_resize=args.depth_resize, clip_id=args.clip_id or Path(args.out).stem, group=args.group)
         except (OSError, ValueError) as exc:  # EstimatorFormatError and ClipFormatError are ValueErrors
             raise UsageError(str(exc)) from None
     for warning in caught:
@@ -706,6 +707,24 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_SOME_FAILED if errors or (args.strict and warned) else EXIT_OK
 
 
+def _add_depth_options(conversion) -> None:
+    """The import's options for the depth's far backdrop, edges and size (docs/semantics.md §1.5)."""
+    conversion.add_argument("--max-depth", type=float, metavar="Z",
+                            help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
+                                 "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")
+    conversion.add_argument("--depth-edge-ratio", type=float, metavar="R", nargs="?", const=DEPTH_EDGE_RATIO,
+                            help=f"depth invalid on the ramps at edges whose 3x3 neighbourhood spans more than R (largest "
+                                 f"/ smallest; R {DEPTH_EDGE_RATIO:g} when given alone): a depth network's enlarged output, "
+                                 "whose edges are ramps of points on no surface, which `sgc-jax validate` warns of "
+                                 "(smooth_depth_edges) and the depth check reads as error (docs/semantics.md §3.6)")
+    conversion.add_argument("--depth-resize", choices=DEPTH_RESIZES, default="nearest",
+                            help="how depth maps smaller than the clip grid are brought up to it (default nearest: no "
+                                 "depth mixed, but in blocks, whose steps lift consistent clips and which `sgc-jax "
+                                 "validate` warns of, depth_in_blocks); bilinear: within valid depth, calm, but it sees "
+                                 "depth inconsistencies under 2 px tracker noise less often (docs/semantics.md §1.5, "
+                                 "\"Depth maps of another size\")")
+
+
 def _register_import(sub) -> None:
     imp = sub.add_parser(
         "import", help="estimator outputs (VGGT + Video Depth Anything or Depth Anything 3, DELTA or CoTracker3, "
@@ -767,14 +786,7 @@ def _register_import(sub) -> None:
                             help="keep the cameras' K of every frame (a video that zooms). By default the clip gets "
                                  "one K, the median of the frames': an estimator's focal lengths scatter from frame to "
                                  "frame, which the depth check reads as inconsistency (docs/semantics.md §1.5)")
-    conversion.add_argument("--max-depth", type=float, metavar="Z",
-                            help="depth beyond Z (the clip's units, after conversion) is invalid: a sky or far "
-                                 "backdrop, which `sgc-jax validate` warns of (far_backdrop; docs/semantics.md §3.1)")
-    conversion.add_argument("--depth-edge-ratio", type=float, metavar="R", nargs="?", const=DEPTH_EDGE_RATIO,
-                            help=f"depth invalid on the ramps at edges whose 3x3 neighbourhood spans more than R (largest "
-                                 f"/ smallest; R {DEPTH_EDGE_RATIO:g} when given alone): a depth network's enlarged output, "
-                                 "whose edges are ramps of points on no surface, which `sgc-jax validate` warns of "
-                                 "(smooth_depth_edges) and the depth check reads as error (docs/semantics.md §3.6)")
+    _add_depth_options(conversion)
     conversion.add_argument("--mask-grow", type=int, default=0, metavar="PX",
                             help="grow each frame's moving-object mask by PX pixels (default 0): a segmenter that falls "
                                  "short of a mover's outline leaves a band of it static, which the score reads as "

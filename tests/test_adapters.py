@@ -40,6 +40,7 @@ from sgc_jax.adapters import (
     read_seganymo,
     read_vggt,
     read_video_depth,
+    resize_depth,
     vggt_grid,
 )
 from sgc_jax.calibration import COMPONENTS
@@ -178,6 +179,25 @@ def test_vda_depth_at_its_own_resolution_round_trips(tmp_path, scene_clip, kind,
     depth = read_video_depth(path, height=H, width=W, kind=kind, depth_scale=scale)
     np.testing.assert_allclose(depth.depth, scene_clip.depth, rtol=1e-6)
     assert depth.notes["depth_native_hw"] == [int(1.5 * H), int(1.5 * W)]
+
+
+def test_depth_smaller_than_the_grid_comes_up_in_blocks_by_default_and_bilinear_within_valid_depth_on_request():
+    slope = np.add.outer(np.arange(6.0), np.arange(8.0))[None] + 10.0  # a sloping surface on a 6x8 grid
+    slope[0, 0, 0] = 0.0  # a hole
+    kwargs = dict(height=12, width=16, kind="metric")
+    blocks = read_video_depth({"depths": slope}, **kwargs).depth[0]
+    assert np.all(blocks[2:, 2:][::2, ::2] == blocks[2:, 2:][1::2, 1::2])  # 2x2 blocks
+    smooth = read_video_depth({"depths": slope}, resize="bilinear", **kwargs)
+    depth = smooth.depth[0]
+    rows, cols = np.mgrid[0:12, 0:16]
+    plane = (rows + 0.5) / 2 - 0.5 + (cols + 0.5) / 2 - 0.5 + 10.0  # the surface, at each target pixel centre
+    inside = (rows >= 3) & (rows <= 10) & (cols >= 3) & (cols <= 14)  # between source centres, away from the hole
+    np.testing.assert_allclose(depth[inside], plane[inside], rtol=1e-6)
+    assert np.all(depth[:2, :2] == 0)  # beside the hole: invalid, not blended with 0
+    assert smooth.notes["depth_resize"] == "bilinear"
+    np.testing.assert_array_equal(resize_depth(np.full((1, 12, 16), 3.0), (6, 8)), 3.0)  # smaller grids: nearest
+    with pytest.raises(ValueError, match="one of"):
+        resize_depth(slope, (12, 16), "bicubic")
 
 
 def test_vda_disparity_rule_marks_zero_disparity_invalid():

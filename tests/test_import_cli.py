@@ -87,6 +87,18 @@ def test_import_reference_compat_keeps_the_authors_choices(tmp_path, outputs):
     np.testing.assert_allclose(back.depth, np.load(outputs["depth"])["depths"][:, ::2, ::2] / 1000, rtol=1e-6)
 
 
+def test_import_brings_a_smaller_depth_map_up_in_blocks_with_a_warning_or_bilinearly_on_request(tmp_path, clip):
+    H, W = clip.image_size
+    outputs = write_all(tmp_path / "small", clip, depth_size=(H // 2, W // 2), mask_size=(H, W))
+    proc = run(*import_args(outputs, tmp_path / "blocks.npz", "--depth-kind", "disparity"))
+    assert proc.returncode == 0 and "depth: expected depth that varies from pixel to pixel" in proc.stderr, proc.stderr
+    proc = run(*import_args(outputs, tmp_path / "smooth.npz", "--depth-kind", "disparity", "--depth-resize", "bilinear"))
+    assert proc.returncode == 0 and "depth_in_blocks" not in proc.stderr and "varies from pixel" not in proc.stderr
+    assert load_clip(tmp_path / "smooth.npz").meta["import"]["depth_resize"] == "bilinear"
+    proc = run(*import_args(outputs, tmp_path / "x.npz", "--reference-compat", "--depth-resize", "bilinear"))
+    assert proc.returncode == 2 and "nearest neighbour: drop --depth-resize" in proc.stderr
+
+
 def test_import_can_leave_out_the_tracks_on_lines_and_needs_the_frames_for_it(tmp_path, clip, outputs):
     out = tmp_path / "lines.npz"
     proc = run(*import_args(outputs, out, "--depth-kind", "disparity", "--leave-out-line-tracks"))

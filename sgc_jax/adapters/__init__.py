@@ -18,10 +18,12 @@
   (which a tracker can slide along) made unusable, from the clip's frames (§1.7).
 - :func:`leave_out_depth_ramps`: an opt-in step before scoring, the depth at edges made invalid,
   where a depth network's enlarged output puts ramps of points on no surface (§3.6).
+- :func:`resize_depth`: depth maps brought to another grid, those smaller than it bilinearly within
+  valid depth (§1.5, "Depth maps of another size").
 """
 
 from .assemble import ImportOptions, IntrinsicsWarning, import_clip, read_tracks
-from .common import EstimatorFormatError
+from .common import DEPTH_RESIZES, EstimatorFormatError, resize_depth
 from .cotracker import COTRACKER_VIS_THRESHOLD, read_cotracker
 from .delta import (
     DELTA_VIS_THRESHOLD,
@@ -43,10 +45,10 @@ from .video_depth_anything import KINDS as DEPTH_KINDS, Depth, read_video_depth
 
 __all__ = [
     "ImportOptions", "COTRACKER_VIS_THRESHOLD", "Cameras", "DA3Output", "DELTA_VIS_THRESHOLD", "DEPTH_EDGE_RATIO",
-    "DEPTH_KINDS", "Depth", "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames",
+    "DEPTH_KINDS", "DEPTH_RESIZES", "Depth", "DepthAlignmentWarning", "DisparityFit", "EstimatorFormatError", "Frames",
     "IntrinsicsWarning", "LINE_RATIO", "LongRangeTracks", "MaskFormatWarning", "Masks", "Tracks", "VGGTDepth",
     "VGGTGrid", "align_depth_to_vggt", "every_nth_frame", "fit_inverse_depth_affine", "grow_moving", "import_clip",
     "leave_out_depth_ramps", "leave_out_line_tracks", "line_structure", "read_cotracker", "read_da3",
     "read_delta", "read_delta_dense", "read_delta_pairs", "read_frames", "read_mask_labels", "read_seganymo",
-    "read_tracks", "read_vggt", "read_video_depth", "vggt_grid",
+    "read_tracks", "read_vggt", "read_video_depth", "resize_depth", "vggt_grid",
 ]

@@ -22,7 +22,7 @@ from ..io.arrays import clip_from_arrays
 from ..io.checks.cameras import focal_spread
 from ..io.clip import Clip
 from ..io.depth_edges import check_edge_ratio, without_ramps
-from .common import parse_size, resize_frames, resize_points
+from .common import DEPTH_RESIZES, parse_size, resize_frames, resize_points
 from .cotracker import holds_cotracker, read_cotracker
 from .delta import DELTA_VIS_THRESHOLD, Tracks, every_nth_frame, read_delta
 from .depth_alignment import align_depth_to_vggt
@@ -68,6 +68,7 @@ class ImportOptions:
     depth_edge_ratio: float | None = None  # ramps at edges whose 3x3 neighbourhood spans more: invalid (§3.6)
     per_frame_intrinsics: bool = False  # keep the estimator's K per frame (a zoom); default one K, their median (§1.5)
     mask_grow_px: int = 0  # grow each frame's moving-object mask by this many px (§1.5, "Motion masks"; needs masks)
+    depth_resize: str = "nearest"  # depth maps smaller than the grid: "nearest" or "bilinear" (§1.5, "Depth maps of another size")
 
     @property
     def fits_disparity(self) -> bool:
@@ -118,6 +119,11 @@ def _check_options(o: ImportOptions, has_masks: bool) -> None:
         raise ValueError(f"mask_grow_px must be a whole number of pixels >= 0, got {o.mask_grow_px!r}")
     if o.mask_grow_px and not has_masks:
         raise ValueError("growing the moving-object masks (--mask-grow) needs masks (--masks)")
+    if o.depth_resize not in DEPTH_RESIZES:
+        raise ValueError(f"depth_resize must be one of {DEPTH_RESIZES}, got {o.depth_resize!r}")
+    if o.depth_resize != "nearest" and o.reference_compat:
+        raise ValueError("reference-compat reproduces the authors' pipeline, which brings depth to the grid by "
+                         "nearest neighbour: drop --depth-resize or --reference-compat")
     if o.frame_step > 1 and o.reference_compat:
         raise ValueError("reference-compat reproduces the authors' pipeline, which pairs consecutive frames: "
                          "drop the frame step (--frame-step) or --reference-compat")
@@ -135,12 +141,12 @@ def _depth_and_cameras(cameras: Any, depth: Any, da3: Any, grid: tuple[int, int]
     """(Cameras, Depth) on the clip grid: both from one DA3 file, or VGGT's and VDA's."""
     H, W = grid
     if da3 is not None:
-        read = read_da3(da3, height=H, width=W, min_conf=o.da3_min_conf)
+        read = read_da3(da3, height=H, width=W, min_conf=o.da3_min_conf, resize=o.depth_resize)
         return read.cameras, read.depth
     cams = read_vggt(cameras, height=H, width=W, mode=o.vggt_mode, source_size=o.vggt_source_size,
                      reference_compat=o.reference_compat, with_depth=o.fits_disparity)
     return cams, read_video_depth(depth, height=H, width=W, kind=o.depth_kind, depth_scale=o.depth_scale,
-                                  key=o.depth_key, reference_compat=o.reference_compat)
+                                  key=o.depth_key, reference_compat=o.reference_compat, resize=o.depth_resize)
 
 
 def import_clip(*, tracks: Any, cameras: Any = None, depth: Any = None, da3: Any = None, masks: Any = None,

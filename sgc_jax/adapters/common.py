@@ -117,6 +117,35 @@ def resize_nearest(maps: np.ndarray, dst_hw: tuple[int, int]) -> np.ndarray:
     return maps[:, rows[:, None], cols[None, :]]
 
 
+# How depth maps smaller than the clip grid are brought up to it (docs/semantics.md §1.5, "Depth maps of
+# another size"): nearest neighbour (the default: no depth mixed, in blocks) or bilinear within valid depth.
+DEPTH_RESIZES = ("nearest", "bilinear")
+# Bilinear weights of valid depth at a target pixel below this leave it invalid: no hole is blended in.
+VALID_WEIGHT_MIN = 0.999
+
+
+def resize_depth(maps: np.ndarray, dst_hw: tuple[int, int], method: str = "bilinear") -> np.ndarray:
+    """(T, h, w) depth (or disparity; <= 0 or non-finite invalid) -> (T, H, W) float32. ``method``
+    "bilinear": where the map is smaller than the grid on either axis, OpenCV's INTER_LINEAR of depth x
+    valid over that of valid, 0 (invalid) where a hole would enter; nearest neighbour brings a smaller
+    map up in blocks, whose steps on every sloping surface the depth check reads as inconsistency.
+    Otherwise, and for "nearest", nearest at pixel centres (``resize_nearest``)."""
+    if method not in DEPTH_RESIZES:
+        raise ValueError(f"unknown depth resize {method!r}; one of {DEPTH_RESIZES}")
+    T, h, w = maps.shape
+    H, W = dst_hw
+    maps = maps.astype(np.float32, copy=False)
+    if method == "nearest" or (h >= H and w >= W):
+        return resize_nearest(maps, dst_hw)
+    valid = np.isfinite(maps) & (maps > 0)
+    out = np.empty((T, H, W), np.float32)
+    for t in range(T):
+        weight = cv2.resize(valid[t].astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+        total = cv2.resize(np.where(valid[t], maps[t], 0.0).astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+        out[t] = np.where(weight >= VALID_WEIGHT_MIN, total / np.maximum(weight, VALID_WEIGHT_MIN), 0.0)
+    return out
+
+
 def resize_frames(frames: np.ndarray, dst_hw: tuple[int, int]) -> np.ndarray:
     """(T, h, w, 3) uint8 -> (T, H, W, 3) with area averaging (downscale) or bilinear (upscale)."""
     T, h, w, _ = frames.shape

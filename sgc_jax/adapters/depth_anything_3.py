@@ -8,7 +8,7 @@ world->camera in OpenCV's convention and ``intrinsics`` (N, 3, 3); the ``npz`` f
   ``upper_bound_resize`` the longer side is ``process_res`` (504) and each side is rounded to a
   multiple of 14, so the aspect ratio moves slightly and the two axes scale apart. The whole frame
   is kept (no crop), so K maps to the clip grid by the resize of each axis (pixel centres, as
-  :mod:`.common`) and depth by nearest neighbour. A crop method (``*_crop``) cuts the frame and is
+  :mod:`.common`) and depth by nearest neighbour (or bilinearly, ``resize``). A crop method (``*_crop``) cuts the frame and is
   not supported.
 - **Units.** Any-view models (DA3-Giant/Large/Base/Small) give depth and camera translations in
   one shared, arbitrary scale; the nested model (DA3NESTED-GIANT-LARGE) in metres. Either way
@@ -32,8 +32,8 @@ from .common import (
     camera_arrays,
     load_arrays,
     map_intrinsics,
+    resize_depth,
     resize_factors,
-    resize_nearest,
     squeeze_batch,
 )
 from .vggt import Cameras
@@ -68,8 +68,10 @@ def _depth_maps(label: str, arrays: dict[str, np.ndarray]) -> np.ndarray:
     return maps
 
 
-def read_da3(source: Any, *, height: int, width: int, min_conf: float | None = None) -> DA3Output:
-    """A DA3 ``results.npz`` (or mapping) -> depth and cameras on the height x width clip grid."""
+def read_da3(source: Any, *, height: int, width: int, min_conf: float | None = None,
+             resize: str = "nearest") -> DA3Output:
+    """A DA3 ``results.npz`` (or mapping) -> depth and cameras on the height x width clip grid (the
+    depth brought there by ``resize_depth``'s ``resize``)."""
     label, arrays = load_arrays(source, "<da3 arrays>")
     maps = _depth_maps(label, arrays)
     N, h, w = maps.shape
@@ -97,6 +99,6 @@ def read_da3(source: Any, *, height: int, width: int, min_conf: float | None = N
     notes = {"intrinsics": f"rescaled from DA3's {h}x{w} processed grid to {height}x{width}",
              "cameras_source": "depth anything 3 extrinsics (OpenCV world->camera)"}
     cameras = Cameras(K=K, R_wc=extrinsics[:, :3, :3].copy(), t_wc=extrinsics[:, :3, 3].copy(), notes=notes)
-    depth_notes = {"depth_kind": "da3", "depth_rule": rule, "depth_native_hw": [h, w],
+    depth_notes = {"depth_kind": "da3", "depth_rule": rule, "depth_native_hw": [h, w], "depth_resize": resize,
                    "depth_alignment": "none: DA3's depth and camera translations share one scale"}
-    return DA3Output(Depth(depth=resize_nearest(depth, (height, width)), notes=depth_notes), cameras)
+    return DA3Output(Depth(depth=resize_depth(depth, (height, width), resize), notes=depth_notes), cameras)

@@ -9,7 +9,8 @@ Which model wrote the file decides what the numbers mean, so the caller must say
 - ``kind="metric"``: the metric models (``metric_video_depth_anything_*``) predict depth in metres.
   Rule: depth = depth_scale * value, invalid where value <= 0.
 VDA writes depth at its input frame size (``--max_res`` may have shrunk it); maps of another size are
-resized to the clip grid by nearest neighbour at pixel centres, so no depth is mixed across edges.
+brought to the clip grid by nearest neighbour at pixel centres (no depth mixed across edges), or
+those smaller than it bilinearly within valid depth (``resize="bilinear"``, ``resize_depth``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..io.npz import shape_text
-from .common import EstimatorFormatError, load_arrays, resize_nearest, squeeze_batch
+from .common import EstimatorFormatError, load_arrays, resize_depth, squeeze_batch
 
 KINDS = ("disparity", "metric")
 AUTHORS_DIVISOR = 1000.0  # the SGC authors' pipeline: depth = VDA output / 1000, used directly
@@ -58,8 +59,9 @@ def _read_maps(source: Any, key: str) -> tuple[str, np.ndarray]:
 
 def read_video_depth(source: Any, *, height: int, width: int, kind: str | None = None,
                      depth_scale: float | None = None, key: str = "depths",
-                     reference_compat: bool = False) -> Depth:
-    """A VDA ``*_depths.npz`` (or mapping) -> (T, height, width) depth, by the rule of ``kind``.
+                     reference_compat: bool = False, resize: str = "nearest") -> Depth:
+    """A VDA ``*_depths.npz`` (or mapping) -> (T, height, width) depth, by the rule of ``kind``, maps
+    of another size brought to the grid by ``resize_depth``'s ``resize``.
 
     ``reference_compat``: the SGC authors' rule, depth = output / 1000 used directly (no inversion),
     which the paper calibration assumes; ``kind`` may then be omitted and ``depth_scale`` must be.
@@ -89,9 +91,10 @@ def read_video_depth(source: Any, *, height: int, width: int, kind: str | None =
         else:
             depth = np.where(maps > 0, maps * scale, 0.0)
             rule = f"depth = {scale:g} * metric depth"
-    depth = resize_nearest(depth.astype(np.float32), (height, width))
+    depth = resize_depth(depth.astype(np.float32), (height, width), resize)
     disparity = None
     if kind == "disparity" and not reference_compat:
-        disparity = resize_nearest(maps.astype(np.float32), (height, width))
-    notes = {"depth_kind": "authors" if reference_compat else kind, "depth_rule": rule, "depth_native_hw": native}
+        disparity = resize_depth(maps.astype(np.float32), (height, width), resize)
+    notes = {"depth_kind": "authors" if reference_compat else kind, "depth_rule": rule, "depth_native_hw": native,
+             "depth_resize": resize}
     return Depth(depth=depth, notes=notes, disparity=disparity)
