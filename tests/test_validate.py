@@ -22,7 +22,8 @@ from sgc_jax import (
     save_clip,
     score_batch,
 )
-from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps
+from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps, resize_depth
+from sgc_jax.adapters.common import resize_nearest
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.checks import cameras as camera_checks, depth as depth_checks
 from sgc_jax.io.checks.depth import inverse_depth_fits_better
@@ -348,6 +349,10 @@ CASES = {
         lambda c: {"track_curr": failed_hidden(c).track_curr, "track_vis": ~failed_hidden(c).track_vis},
         "warning", "track_vis_inverted", "track_vis",
         ["35% of the tracks visible", "the hidden ones by 0.012 px", "store track_vis = ~occluded"]),
+    "depth brought up from half its size by nearest neighbour": (
+        lambda c: {"depth": resize_nearest(resize_nearest(c.depth, (c.image_size[0] // 2, c.image_size[1] // 2)),
+                                           c.image_size)},
+        "warning", "depth_in_blocks", "depth", ["100% (rows) and 100% (columns)", "--depth-resize bilinear"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }
@@ -597,6 +602,13 @@ def test_visibility_is_called_inverted_only_where_most_tracks_are_hidden_and_the
     assert "track_vis_inverted" in codes(flagged, "warning")
     assert not {"camera_to_world_poses", "opengl_poses", "depth_like_disparity", "static_mask_inverted"} & {
         p.code for p in flagged}  # the tests that read the visible tracks are not run on the failed ones
+
+
+def test_depth_brought_up_bilinearly_or_at_its_own_size_has_no_blocks(clip):
+    H, W = clip.image_size
+    half = resize_nearest(clip.depth, (H // 2, W // 2))
+    for depth in (clip.depth, resize_depth(half, (H, W))):
+        assert "depth_in_blocks" not in codes(problems_of(arrays_of(clip, depth=depth)), "warning")
 
 
 def test_a_homogeneous_extrinsic_is_read_as_its_top_rows_and_a_wrong_last_row_is_refused(clip):

@@ -28,7 +28,7 @@ from .checks.cameras import (
     check_pose_convention,
     check_poses,
 )
-from .checks.depth import check_depth, check_depth_edges
+from .checks.depth import check_depth, check_depth_blocks, check_depth_edges
 from .checks.masks import check_mask, check_mask_inverted, mask_side_residuals, static_coverage
 from .checks.motion_fits import POSE_READINGS, pair_track_fits, track_reading_residuals
 from .checks.problems import SEVERITIES, ClipValidationError, ClipWarning, Problem, is_reference_compat
@@ -90,7 +90,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     problems = (intrinsics + check_focal_spread(clip) + poses + frozen + far_origin + convention + tracks + axes + inverted
                 + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
                               fits=fits, k_usable=k_usable)
-                + check_depth_edges(clip, config) + check_bars(clip, config) + check_mask(clip) + check_length(clip))
+                + check_depth_edges(clip, config) + check_depth_blocks(clip) + check_bars(clip, config) + check_mask(clip) + check_length(clip))
     if arrays is not None:
         problems += check_dtypes(arrays)
     return sorted(problems, key=lambda p: SEVERITIES.index(p.severity))

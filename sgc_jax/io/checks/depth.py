@@ -51,6 +51,13 @@ RANGE_FIT_MAX = 1.35e-3
 # "A sky read as depth").
 FAR_DEPTH_RATIO = 20.0
 FAR_DEPTH_SHARE_WARN = 0.10
+# Depth in blocks (a smaller map brought up by nearest neighbour): of the pixel triples along a row, and
+# along a column, with valid depth whose ends differ, at least this share has a middle equal to an end,
+# on each of BLOCK_FRAMES frames. Blocks of 2 px or more give 1.0; float depth ~0 (FIT's random pool
+# 0.000), a sensor's millimetres up to 0.68 (7-Scenes). Rule K1 (bench/history/issue-58.md "Depth maps
+# smaller than the clip grid").
+BLOCK_SHARE_WARN = 0.9
+BLOCK_FRAMES = 4
 
 
 def depth_parallax_rho(clip: Clip, config: SGCConfig, reading: str = "given") -> float:
@@ -193,6 +200,38 @@ def check_depth_edges(clip: Clip, config: SGCConfig) -> list[Problem]:
     return ramp_problems(*ramps, config) + hole_problems(*holes)
 
 
+def block_shares(depth: np.ndarray) -> tuple[float, float]:
+    """(along rows, along columns): the least over BLOCK_FRAMES frames of the share of pixel triples
+    (a, b, c) with valid depth and a != c whose middle b equals a or c exactly; NaN without any."""
+    shares = []
+    for frame in np.unique(np.linspace(0, len(depth) - 1, BLOCK_FRAMES).round().astype(np.int64)):
+        z = depth[frame]
+        valid = np.isfinite(z) & (z > 0)
+        for a, b, c, ok in ((z[:, :-2], z[:, 1:-1], z[:, 2:], valid[:, :-2] & valid[:, 1:-1] & valid[:, 2:]),
+                            (z[:-2], z[1:-1], z[2:], valid[:-2] & valid[1:-1] & valid[2:])):
+            ok = ok & (a != c)
+            n = np.count_nonzero(ok)
+            shares.append(np.count_nonzero(ok & ((b == a) | (b == c))) / n if n else np.nan)
+    rows, columns = np.array(shares).reshape(-1, 2).T
+    least = lambda x: float(np.min(x)) if np.isfinite(x).all() else float("nan")  # noqa: E731
+    return least(rows), least(columns)
+
+
+def check_depth_blocks(clip: Clip) -> list[Problem]:
+    """A warning where the depth lies in blocks along rows and columns (``block_shares`` at least
+    BLOCK_SHARE_WARN both ways): a smaller map brought up by nearest neighbour (rule K1)."""
+    rows, columns = block_shares(clip.depth)
+    if not (rows >= BLOCK_SHARE_WARN and columns >= BLOCK_SHARE_WARN):
+        return []
+    return [Problem("warning", "depth_in_blocks", "depth", "depth that varies from pixel to pixel on sloping surfaces",
+                    f"blocks: {100 * rows:.0f}% (rows) and {100 * columns:.0f}% (columns) of the pixels between "
+                    "two different depths equal one of them: a smaller map brought up by nearest neighbour, whose "
+                    "steps on every sloping surface read as depth error (docs/semantics.md §1.5, \"Depth maps of "
+                    "another size\")",
+                    "bring it up bilinearly within valid depth (sgc_jax.adapters.resize_depth, `sgc-jax import "
+                    "... --depth-resize bilinear`), or score the clip at the depth's resolution")]
+
+
 def ramp_problems(valid: int, n_edges: int, n_ramps: int, config: SGCConfig) -> list[Problem]:
     """Where the depth's edges are ramps of mixed depths, as a network's enlarged output: a line saying
     they are left out before scoring (``config.smooth_depth_edges``), or a warning where they are kept."""
@@ -222,5 +261,6 @@ def hole_problems(valid: int, n_border: int, n_sunk: int) -> list[Problem]:
                     f"{100 * n_sunk / n_border:.0f}% of the pixels beside a hole ({100 * n_sunk / valid:.1f}% of the "
                     f"valid depth) lie over {DEPTH_EDGE_RATIO:g}x below their neighbours: depth resized with its holes "
                     "read as 0, whose blends lie on no surface and read as depth error (docs/semantics.md §1.6)",
-                    "resize depth by nearest neighbour (cv2.INTER_NEAREST), or mark the holes NaN before "
+                    "resize depth within its valid pixels (sgc_jax.adapters.resize_depth), by nearest neighbour "
+                    "(cv2.INTER_NEAREST; from a smaller map it leaves blocks), or mark the holes NaN before "
                     "interpolating and leave the NaN invalid")]
