@@ -74,6 +74,7 @@ def main() -> None:
         "    the range test": lambda c: depth.depth_range_misfits(c, config, fits=fits[id(c)]),
         "    the disparity test (depth against parallax, by rank)": lambda c: depth.depth_parallax_rho(c, config),
         "  depth edges (ramps, blended holes)": lambda c: depth.check_depth_edges(c, config),
+        "  depth in blocks": depth.check_depth_blocks,
         "  letterbox bars": lambda c: bars.check_bars(c, config),
         "  tracks": lambda c: tracks.check_tracks(c, config),
         "  the tracks' scale": lambda c: tracks.check_track_scale(c, config, given[id(c)]),

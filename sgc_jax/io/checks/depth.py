@@ -57,7 +57,7 @@ FAR_DEPTH_SHARE_WARN = 0.10
 # 0.000), a sensor's millimetres up to 0.68 (7-Scenes). Rule K1 (bench/history/issue-58.md "Depth maps
 # smaller than the clip grid").
 BLOCK_SHARE_WARN = 0.9
-BLOCK_FRAMES = 4
+BLOCK_FRAMES, BLOCK_STRIDE = 4, 4
 
 
 def depth_parallax_rho(clip: Clip, config: SGCConfig, reading: str = "given") -> float:
@@ -202,14 +202,15 @@ def check_depth_edges(clip: Clip, config: SGCConfig) -> list[Problem]:
 
 def block_shares(depth: np.ndarray) -> tuple[float, float]:
     """(along rows, along columns): the least over BLOCK_FRAMES frames of the share of pixel triples
-    (a, b, c) with valid depth and a != c whose middle b equals a or c exactly; NaN without any."""
+    (a, b, c) with valid depth and a != c whose middle b equals a or c exactly, on every BLOCK_STRIDE-th
+    row (column); NaN without any."""
     shares = []
     for frame in np.unique(np.linspace(0, len(depth) - 1, BLOCK_FRAMES).round().astype(np.int64)):
-        z = depth[frame]
-        valid = np.isfinite(z) & (z > 0)
-        for a, b, c, ok in ((z[:, :-2], z[:, 1:-1], z[:, 2:], valid[:, :-2] & valid[:, 1:-1] & valid[:, 2:]),
-                            (z[:-2], z[1:-1], z[2:], valid[:-2] & valid[1:-1] & valid[2:])):
-            ok = ok & (a != c)
+        # every BLOCK_STRIDE-th row (column) read along itself: a block spans whole rows and columns
+        for z in (depth[frame, ::BLOCK_STRIDE], np.ascontiguousarray(depth[frame, :, ::BLOCK_STRIDE].T)):
+            a, b, c = z[:, :-2], z[:, 1:-1], z[:, 2:]
+            valid = z > 0  # NaN compares false; an infinite depth counts here, and makes no block
+            ok = valid[:, :-2] & valid[:, 1:-1] & valid[:, 2:] & (a != c)
             n = np.count_nonzero(ok)
             shares.append(np.count_nonzero(ok & ((b == a) | (b == c))) / n if n else np.nan)
     rows, columns = np.array(shares).reshape(-1, 2).T
