@@ -335,6 +335,9 @@ CASES = {
         lambda c: {"R_wc": np.tile(np.eye(3, dtype=np.float32), (c.n_frames, 1, 1)),
                    "t_wc": np.zeros((c.n_frames, 3), np.float32)},
         "warning", "cameras_frozen", "R_wc/t_wc", ["one pose in all 4 frames while the tracks move", "placeholder poses"]),
+    "poses at half the frame rate given again": (
+        lambda c: {"R_wc": c.R_wc[[0, 0, 2, 2]], "t_wc": c.t_wc[[0, 0, 2, 2]]}, "warning", "cameras_held", "R_wc/t_wc",
+        ["frame i's pose equal to frame i-1's in pairs 2/3 (1, 3)", "lower frame rate"]),
     "visible tracks at NaN": (
         lambda c: {"track_curr": np.where(c.track_vis[..., None] & (np.arange(c.n_tracks) % 10 == 0)[None, :, None],
                                           np.nan, c.track_curr).astype(np.float32)},
@@ -591,6 +594,19 @@ def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not
     arrays["dynamic_mask"] = arrays.pop("static_mask")  # the static mask given as the motion mask
     found = [p for p in problems_of(arrays) if p.code == "static_mask_inverted"]
     assert len(found) == 1 and found[0].array == "dynamic_mask" and "give it as static_mask" in found[0].line()
+
+
+def test_poses_given_again_are_named_only_where_the_video_moves_in_those_pairs(clip):
+    held = dataclasses.replace(clip, R_wc=clip.R_wc[[0, 0, 2, 2]], t_wc=clip.t_wc[[0, 0, 2, 2]])
+    assert "cameras_held" in codes(check_clip(held), "warning")
+    rng = np.random.default_rng(0)  # a camera that held while its video held: tracks move by noise and outliers
+    still = held.track_prev + rng.normal(0.0, 1.5, held.track_prev.shape)
+    outliers = rng.random(held.track_vis.shape) < 0.1
+    still[outliers] = rng.uniform([0, 0], [127, 95], (np.count_nonzero(outliers), 2))
+    curr = held.track_curr.copy()
+    curr[[0, 2]] = still[[0, 2]]
+    assert "cameras_held" not in codes(check_clip(dataclasses.replace(held, track_curr=curr.astype(np.float32))),
+                                       "warning")
 
 
 def test_visibility_is_called_inverted_only_where_most_tracks_are_hidden_and_they_fit_far_better(clip):

@@ -24,9 +24,11 @@ from .checks.cameras import (
     check_far_origin,
     check_focal_spread,
     check_frozen_cameras,
+    check_held_cameras,
     check_intrinsics,
     check_pose_convention,
     check_poses,
+    frozen_cameras,
 )
 from .checks.depth import check_depth, check_depth_blocks, check_depth_edges
 from .checks.masks import check_mask, check_mask_inverted, mask_side_residuals, static_coverage
@@ -60,6 +62,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     poses, tracks = check_poses(clip), check_tracks(clip, config)
     # one pose for every frame: no camera motion for the tests that read the tracks' motion against it
     frozen = [] if poses else check_frozen_cameras(clip, config)
+    held = [] if poses or frozen or frozen_cameras(clip) else check_held_cameras(clip, config)
     if arrays is not None:
         tracks = check_track_vis_values(arrays, is_reference_compat(clip)) + tracks
     # the pose and depth tests read the tracks' motion: not where the tracks do not fit the image or
@@ -87,7 +90,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     intrinsics = check_intrinsics(clip)
     k_usable = not any(p.severity == "error" for p in intrinsics)
     far_origin = [] if poses or frozen else check_far_origin(clip)
-    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + far_origin + convention + tracks + axes + inverted
+    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + held + far_origin + convention + tracks + axes + inverted
                 + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
                               fits=fits, k_usable=k_usable)
                 + check_depth_edges(clip, config) + check_depth_blocks(clip) + check_bars(clip, config) + check_mask(clip) + check_length(clip))

@@ -20,6 +20,9 @@ ROTATION_WARN_TOL = 1e-4  # ... and beyond which it is used as is but reported
 # whole video, as placeholders (identity) give it; no estimator gives a moving video one pose to float32's
 # rounding, and no split's scene, battery clip or real clip holds one.
 FROZEN_POSE_TOL = 1e-6
+# A pair's coherent motion is read where at least this many usable tracks give it (an affine flow's 6 numbers),
+# refitted on the tracks within this multiple of the first fit's median residual (rule CH4)
+MIN_FLOW_TRACKS, FLOW_INLIER_RATIO = 30, 3.0
 # The poses read as camera->world leave the tracks at most this fraction of the misfit they leave as
 # given (both with the translation's scale fitted), and the misfit as given is above POSE_MISFIT_MIN_PX:
 # camera->world poses. As given, the ratio is >= 1.10 on 86 synthetic clips and >= 5.4 on the six
@@ -185,16 +188,75 @@ def frozen_cameras(clip: Clip) -> bool:
                 and np.abs(t - t[0]).max() <= FROZEN_POSE_TOL * np.abs(t).max())
 
 
+def held_pairs(clip: Clip) -> np.ndarray:
+    """(T-1,) bool: the pairs whose two poses are equal within FROZEN_POSE_TOL (as ``frozen_cameras``)."""
+    R, t = clip.R_wc.astype(np.float64), clip.t_wc.astype(np.float64)
+    return ((np.abs(np.diff(R, axis=0)).max(axis=(1, 2)) <= FROZEN_POSE_TOL)
+            & (np.abs(np.diff(t, axis=0)).max(axis=1) <= FROZEN_POSE_TOL * np.abs(t).max()))
+
+
+def track_motion_px(clip: Clip, config: SGCConfig, pairs: np.ndarray | None = None) -> np.ndarray:
+    """(len(pairs),) each pair's median motion of its usable tracks [px] (``pairs``, 1-based: all by
+    default); NaN for a pair without any."""
+    pairs = np.arange(1, clip.n_frames) if pairs is None else np.asarray(pairs)
+    usable = clip.usable_tracks(config.min_track_conf, pairs=pairs)
+    motion = np.linalg.norm(clip.track_curr[pairs - 1].astype(np.float64) - clip.track_prev[pairs - 1], axis=-1)
+    return np.array([np.median(m[u & np.isfinite(m)]) if np.any(u & np.isfinite(m)) else np.nan
+                     for m, u in zip(motion, usable)])
+
+
+def coherent_motion_px(clip: Clip, config: SGCConfig, pairs: np.ndarray) -> np.ndarray:
+    """(len(pairs),) [px]: the median length over a pair's usable tracks of the displacement an affine
+    flow (x, y, 1) -> (dx, dy) gives them, fitted to theirs by least squares and refitted on those
+    within FLOW_INLIER_RATIO of the median residual: a video's motion, which the flow follows to first
+    order, without the tracker's independent noise and outliers; NaN below MIN_FLOW_TRACKS tracks."""
+    usable = clip.usable_tracks(config.min_track_conf, pairs=pairs)
+    out = np.full(len(pairs), np.nan)
+    for k, (pair, use) in enumerate(zip(pairs, usable)):
+        prev = clip.track_prev[pair - 1][use].astype(np.float64)
+        moved = clip.track_curr[pair - 1][use].astype(np.float64) - prev
+        keep = np.isfinite(moved).all(axis=1)
+        if np.count_nonzero(keep) < MIN_FLOW_TRACKS:
+            continue
+        design, moved = np.c_[prev[keep], np.ones(np.count_nonzero(keep))], moved[keep]
+        for _ in range(2):  # fitted, then refitted on the tracks it fits (a tracker's outliers left out)
+            flow = design @ np.linalg.lstsq(design, moved, rcond=None)[0]
+            residual = np.linalg.norm(moved - flow, axis=1)
+            inliers = residual <= FLOW_INLIER_RATIO * np.median(residual)
+            design, moved = design[inliers], moved[inliers]
+        out[k] = np.median(np.linalg.norm(flow, axis=1))
+    return out
+
+
+def check_held_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """A warning naming the pairs whose two poses are equal (``held_pairs``) while their usable tracks
+    move coherently by over POSE_MISFIT_MIN_PX (``coherent_motion_px``), where not every frame shares
+    one pose (rule CH3; every frame: ``check_frozen_cameras``)."""
+    held = np.flatnonzero(held_pairs(clip)) + 1
+    if held.size == 0 or held.size == clip.n_pairs:
+        return []
+    motion = coherent_motion_px(clip, config, held)
+    pairs = held[motion > POSE_MISFIT_MIN_PX]
+    if pairs.size == 0:
+        return []
+    return [Problem(
+        "warning", "cameras_held", "R_wc/t_wc", "each frame's camera pose",
+        f"frame i's pose equal to frame i-1's in pairs {frames_list(pairs, clip.n_pairs)} while their tracks "
+        f"move {np.median(motion[motion > POSE_MISFIT_MIN_PX]):.2g} px (median, an affine flow fitted to them)",
+        "poses at a lower frame rate given again, or a missing pose filled with its neighbour? give each frame's "
+        "own pose; where they are the cameras a video was asked to follow, it moved where told to hold still. "
+        "Such a pair reads a camera that holds still, which measures little (docs/semantics.md §3.11)")]
+
+
 def check_frozen_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
     """A warning where every frame has one pose while the usable tracks move by over POSE_MISFIT_MIN_PX a
     pair (the median over pairs of each pair's median): placeholder poses, or a video that moved where
     the cameras it was asked to follow hold still; the score reads a camera that holds still."""
     if not frozen_cameras(clip):
         return []
-    usable = clip.usable_tracks(config.min_track_conf)
-    motion = np.linalg.norm(clip.track_curr.astype(np.float64) - clip.track_prev, axis=-1)
-    per_pair = [np.median(m[u & np.isfinite(m)]) for m, u in zip(motion, usable) if np.any(u & np.isfinite(m))]
-    moved = float(np.median(per_pair)) if per_pair else float("nan")
+    per_pair = track_motion_px(clip, config)
+    per_pair = per_pair[np.isfinite(per_pair)]
+    moved = float(np.median(per_pair)) if per_pair.size else float("nan")
     if not moved > POSE_MISFIT_MIN_PX:
         return []
     return [Problem(
