@@ -26,12 +26,12 @@ Nothing is chosen here.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import dataclasses
 from pathlib import Path
 
 import numpy as np
+from pools import need_one, pool_parser
 
 from sgc_jax import load_clip, score_batch
 from sgc_jax.adapters.common import map_intrinsics, resize_depth, resize_factors, resize_nearest, resize_points
@@ -40,7 +40,6 @@ from sgc_jax.research import protocol
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
 from sgc_jax.research.perturb import PERTURBATIONS, perturb_clip
 
-HERE = Path(__file__).resolve().parent
 FACTORS = (2.0, 2.5, 4.0)
 METHODS = {"nearest": resize_nearest, "bilinear": resize_depth}
 LEVELS_PX = (0.5, 2.0)
@@ -146,11 +145,7 @@ def real_clips(realdata: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
-    parser.add_argument("--scenes", type=int, default=24)
-    parser.add_argument("--real", action="store_true")
-    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    parser = pool_parser(__doc__)
     parser.add_argument("--line", action="store_true", help="where the loader's depth_in_blocks line fires")
     args = parser.parse_args()
     if args.line:
@@ -163,8 +158,7 @@ def main() -> None:
             pool_counts(args.pool, args.scenes)
         if args.real:
             real_clips(args.realdata)
-    if not (args.pool or args.real):
-        parser.error("give --pool or --real")
+    need_one(parser, args)
 
 
 if __name__ == "__main__":

@@ -15,12 +15,12 @@ Nothing is chosen here.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import dataclasses
 from pathlib import Path
 
 import numpy as np
+from pools import need_one, pool_parser
 
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
@@ -28,7 +28,6 @@ from sgc_jax.io.checks import depth as depth_checks
 from sgc_jax.io.checks.motion_fits import track_fit, track_samples
 from sgc_jax.research import protocol
 
-HERE = Path(__file__).resolve().parent
 WINDOW_FRAMES = (2, 3, 4, 8)
 
 
@@ -97,18 +96,13 @@ def real_windows(realdata: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
-    parser.add_argument("--scenes", type=int, default=24)
-    parser.add_argument("--real-windows", action="store_true")
-    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    parser = pool_parser(__doc__, real="--real-windows")
     args = parser.parse_args()
     if args.pool:
         pool_counts(args.pool, args.scenes)
     if args.real_windows:
         real_windows(args.realdata)
-    if not (args.pool or args.real_windows):
-        parser.error("give --pool or --real-windows")
+    need_one(parser, args, real="real_windows")
 
 
 if __name__ == "__main__":

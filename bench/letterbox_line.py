@@ -16,16 +16,16 @@ Nothing is chosen here.
 
 from __future__ import annotations
 
-import argparse
 import collections
 from pathlib import Path
+
+from pools import need_one, pool_parser
 
 from sgc_jax import SGCConfig, load_clip
 from sgc_jax.io.checks.bars import bar_lines, check_bars
 from sgc_jax.research import adversaries, protocol
 from sgc_jax.research.noise import letterboxed, overlaid, radially_distorted
 
-HERE = Path(__file__).resolve().parent
 BATTERY_SPLIT = {"fit": "fit"}  # a pool's split whose adversary battery may be read with it
 
 
@@ -72,19 +72,14 @@ def real_clips(realdata: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
-    parser.add_argument("--scenes", type=int, default=24)
+    parser = pool_parser(__doc__)
     parser.add_argument("--battery", action="store_true", help="also FIT's adversary battery (with --pool fit)")
-    parser.add_argument("--real", action="store_true")
-    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
     args = parser.parse_args()
     if args.pool:
         pool_counts(args.pool, args.scenes, args.battery)
     if args.real:
         real_clips(args.realdata)
-    if not (args.pool or args.real):
-        parser.error("give --pool or --real")
+    need_one(parser, args)
 
 
 if __name__ == "__main__":

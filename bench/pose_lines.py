@@ -16,12 +16,12 @@ stored each way, the line each draws and the misfit under each pose reading. Not
 
 from __future__ import annotations
 
-import argparse
 import collections
 import dataclasses
 from pathlib import Path
 
 import numpy as np
+from pools import need_one, pool_parser
 
 from sgc_jax import SGCConfig, clip_from_arrays
 from sgc_jax.io import validate
@@ -34,7 +34,6 @@ from sgc_jax.io.checks.motion_fits import (
 from sgc_jax.io.checks.tracks import check_track_axes
 from sgc_jax.research import protocol
 
-HERE = Path(__file__).resolve().parent
 FLIP = np.diag([1.0, -1.0, -1.0])  # OpenGL's camera axes against OpenCV's
 
 
@@ -136,11 +135,7 @@ def real_clips(realdata: Path, ways: dict[str, str | None]) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pool", choices=sorted(protocol.RANDOM_POOLS))
-    parser.add_argument("--scenes", type=int, default=24)
-    parser.add_argument("--real", action="store_true")
-    parser.add_argument("--realdata", type=Path, default=HERE.parent.parent / "shared" / "realdata")
+    parser = pool_parser(__doc__)
     parser.add_argument("--ways", nargs="+", choices=list(WAYS), default=list(WAYS), metavar="WAY",
                         help=f"the ways to store a clip (default all): {', '.join(WAYS)}")
     args = parser.parse_args()
@@ -149,8 +144,7 @@ def main() -> None:
         pool_counts(args.pool, args.scenes, ways)
     if args.real:
         real_clips(args.realdata, ways)
-    if not (args.pool or args.real):
-        parser.error("give --pool or --real")
+    need_one(parser, args)
 
 
 if __name__ == "__main__":
