@@ -596,6 +596,17 @@ def test_a_motion_mask_given_as_the_static_one_warns_and_the_right_mask_does_not
     assert len(found) == 1 and found[0].array == "dynamic_mask" and "give it as static_mask" in found[0].line()
 
 
+@pytest.mark.parametrize("first", [0, 1])
+def test_poses_listed_in_the_text_order_of_the_frames_numbers_are_named(first):
+    long_clip = synth_clip(seed=4, clip_id="long", **dict(SMALL, n_frames=12))
+    assert "poses_in_text_order" not in codes(check_clip(long_clip), "warning")
+    order = np.array(sorted(range(first, first + 12), key=str)) - first  # frame 10 before frame 2
+    stored = dataclasses.replace(long_clip, R_wc=long_clip.R_wc[order], t_wc=long_clip.t_wc[order])
+    found = [p for p in check_clip(stored) if p.code == "poses_in_text_order"]
+    assert len(found) == 1 and f"counted from {first}" in found[0].line() and "np.argsort(order)" in found[0].line()
+    assert codes(check_clip(stored), "warning") == ["poses_in_text_order"]
+
+
 def test_poses_given_again_are_named_only_where_the_video_moves_in_those_pairs(clip):
     held = dataclasses.replace(clip, R_wc=clip.R_wc[[0, 0, 2, 2]], t_wc=clip.t_wc[[0, 0, 2, 2]])
     assert "cameras_held" in codes(check_clip(held), "warning")

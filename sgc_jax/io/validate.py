@@ -28,6 +28,7 @@ from .checks.cameras import (
     check_intrinsics,
     check_pose_convention,
     check_poses,
+    check_text_order,
     frozen_cameras,
 )
 from .checks.depth import check_depth, check_depth_blocks, check_depth_edges
@@ -86,12 +87,15 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     # tracks read the wrong way round or at the wrong size say nothing about the poses' convention or
     # the depth's kind
     test_convention = test_poses and not axes and not inverted
-    convention, reading = check_pose_convention(readings["given"]) if test_convention else ([], "given")
+    # poses listed in the text order of the frames' numbers: read on the pairs where the orders differ
+    text_order = check_text_order(clip, config) if test_convention else []
+    convention, reading = (check_pose_convention(readings["given"]) if test_convention and not text_order
+                           else ([], "given"))
     intrinsics = check_intrinsics(clip)
     k_usable = not any(p.severity == "error" for p in intrinsics)
     far_origin = [] if poses or frozen else check_far_origin(clip)
-    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + held + far_origin + convention + tracks + axes + inverted
-                + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted,
+    problems = (intrinsics + check_focal_spread(clip) + poses + frozen + held + far_origin + text_order + convention + tracks + axes + inverted
+                + check_depth(clip, config, reading, read_tracks=tracks_fit and not frozen and not axes and not inverted and not text_order,
                               fits=fits, k_usable=k_usable)
                 + check_depth_edges(clip, config) + check_depth_blocks(clip) + check_bars(clip, config) + check_mask(clip) + check_length(clip))
     if arrays is not None:

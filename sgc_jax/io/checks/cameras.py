@@ -7,7 +7,15 @@ import numpy as np
 
 from ...config import CAMERA_TRANSLATION_RESOLUTION, SGCConfig
 from ..clip import Clip, relative_poses
-from .motion_fits import POSE_MISFIT_MIN_PX, POSE_READINGS
+from .motion_fits import (
+    POSE_MISFIT_MIN_PX,
+    POSE_READINGS,
+    RHO_PAIRS,
+    TEXT_ORDERS,
+    text_order_seams,
+    track_fits,
+    track_samples,
+)
 from .problems import Problem, frames_list, is_reference_compat
 
 # Thresholds, each with where it comes from.
@@ -60,7 +68,11 @@ POSE_FIXES = {  # reading -> (code, what the poses read as, the fix)
         "poses_reversed_in_time", "reversed in time (frame j's pose stored at T - 1 - j)",
         "the poses look stored in reverse order of the frames: store R_wc[::-1], t_wc[::-1] (or check that the "
         "poses' frames and the video's are listed in one order)"),
-}
+} | {reading: (
+    "poses_in_text_order", f"listed in the text order of the frames' numbers counted from {first} (10 before 2)",
+    "the pose estimator read the frames sorted as text (VGGT's demos: sorted(glob(...)) of unpadded names): "
+    f"reorder with order = sorted(range({first}, {first} + T), key=str); R_wc = R_wc[np.argsort(order)] (and "
+    "t_wc, K), or name the frames with leading zeros") for reading, first in TEXT_ORDERS.items()}
 # Focal lengths that spread more than this over the frames (RMS of their log): a camera estimator's per-frame
 # scatter, which the depth check reads as depth disagreement. On 12 unseen scenes 0.5 % RMS left 0-1 of 12
 # consistent clips above 0.10 and 1 % 5-7 (bench/history/issue-58.md "A sky read as depth").
@@ -296,6 +308,36 @@ def check_far_origin(clip: Clip) -> list[Problem]:
         "which counts as no translation (docs/semantics.md §3.4), and float32 keeps the others to a few percent",
         "give the cameras in a world whose origin lies near them: move it to the first camera's centre "
         "c = -R_wc[0]^T t_wc[0] (t_wc <- t_wc + R_wc c, in float64), as a SLAM or geographic frame needs")]
+
+
+def text_order_residuals(clip: Clip, config: SGCConfig, reading: str) -> tuple[float, float]:
+    """(as given, read in the text order ``reading`` of TEXT_ORDERS): the median over the order's seams
+    (``text_order_seams``, at most RHO_PAIRS spread over them) of the tracks' misfit [px]; NaN without
+    a seam that holds tracks."""
+    seams = text_order_seams(clip.n_frames, TEXT_ORDERS[reading])
+    if seams.size > RHO_PAIRS:
+        seams = seams[np.linspace(0, seams.size - 1, RHO_PAIRS).round().astype(np.int64)]
+    fits = [[misfit for misfit, _ in track_fits(clip, pair, prev, curr, z, ("given", reading))]
+            for pair, prev, curr, z in track_samples(clip, config, pairs=seams)]
+    fits = [f for f in fits if np.isfinite(f).all()]
+    if not fits:
+        return float("nan"), float("nan")
+    given, ordered = np.median(np.array(fits), axis=0)
+    return float(given), float(ordered)
+
+
+def check_text_order(clip: Clip, config: SGCConfig) -> list[Problem]:
+    """A warning where, on its seams, a text order of the frames' numbers leaves the tracks at most
+    POSE_CONVENTION_RATIO of the misfit as given, which is over POSE_MISFIT_MIN_PX (rule TO2)."""
+    for reading in TEXT_ORDERS:
+        given, ordered = text_order_residuals(clip, config, reading)
+        if np.isfinite(given) and given > POSE_MISFIT_MIN_PX and ordered <= POSE_CONVENTION_RATIO * given:
+            code, meaning, fix = POSE_FIXES[reading]
+            return [Problem(
+                "warning", code, "R_wc/t_wc", "each frame's pose at its frame's place",
+                f"where the two orders differ, the tracks miss the camera's motion by {given:.2g} px (median) as "
+                f"given and by {ordered:.2g} px with the poses read as {meaning}", fix)]
+    return []
 
 
 def check_pose_convention(residuals: dict[str, float]) -> tuple[list[Problem], str]:

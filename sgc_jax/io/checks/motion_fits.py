@@ -24,20 +24,25 @@ POSE_MISFIT_MIN_PX = 1.0
 # two conversions' slips: each camera's centre stored as its translation, and each rotation transposed
 # beside its translation (rule C1, "Poses whose translation is stored as the cameras' centres"), and
 # the poses stored in reverse order of the frames (rules T1, T2, "Poses reversed in time").
+# The poses stored in the text order of the frames' numbers, counted from 0 or from 1 (frame_10 before
+# frame_2: VGGT's demos read sorted(glob(...))): rule TO2 (bench/history/issue-58.md "Poses in the text
+# order of the frames' names").
 REVERSED_IN_TIME = "reversed in time"
 POSE_READINGS = ("given", "camera->world", "opengl", "opengl camera->world", "translation as centres",
                  "rotation transposed", REVERSED_IN_TIME)
+TEXT_ORDERS = {"text order from 0": 0, "text order from 1": 1}  # outside POSE_READINGS: read on their seams
 OPENGL_AXES = np.diag([1.0, -1.0, -1.0])  # an OpenGL camera's coordinates -> OpenCV's, and back
 
 
-def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True, visible: bool = True):
+def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True, visible: bool = True,
+                  pairs: np.ndarray | None = None):
     """Per sampled pair (at most RHO_PAIRS, spread over the clip): (pair, frame i-1 and frame i
     positions (n, 2) float64, depth at the frame i-1 position (n,)) of at most RHO_POINTS usable
     static tracks (``on_static`` False: those off the static mask; ``visible`` False: the hidden ones
     that would otherwise be usable) with valid depth, evenly spread; pairs with fewer than
-    MIN_POINTS_FOR_STATS are left out."""
+    MIN_POINTS_FOR_STATS are left out. ``pairs`` (1-based): those in place of the spread."""
     H, W = clip.image_size
-    pairs = sampled_pairs(clip)
+    pairs = sampled_pairs(clip) if pairs is None else np.asarray(pairs, np.int64)
     usable = (clip.usable_tracks(config.min_track_conf, pairs=pairs) if visible
               else ~clip.track_vis[pairs - 1] & candidate_tracks(clip, config.min_track_conf, pairs))
     for pair, usable_of_pair in zip(pairs, usable):
@@ -75,10 +80,15 @@ def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.nda
     camera->world (R_wc holding R_cw, t_wc the camera centre); either of OpenGL's camera (y up,
     looking along -z), whose axes differ from OpenCV's by OPENGL_AXES; world->camera rotations with
     each camera's centre as its translation; each rotation transposed, its translation as given;
-    frame j's pose stored at T - 1 - j (reversed in time)."""
-    if reading not in POSE_READINGS:
-        raise ValueError(f"unknown pose reading {reading!r}; one of {POSE_READINGS}")
-    frames = [clip.n_frames - pair, clip.n_frames - 1 - pair] if reading == REVERSED_IN_TIME else [pair - 1, pair]
+    frame j's pose stored at T - 1 - j (reversed in time), or in the text order of the frames' numbers
+    (``text_order_places``)."""
+    if reading not in POSE_READINGS and reading not in TEXT_ORDERS:
+        raise ValueError(f"unknown pose reading {reading!r}; one of {POSE_READINGS + tuple(TEXT_ORDERS)}")
+    frames = [pair - 1, pair]
+    if reading == REVERSED_IN_TIME:
+        frames = [clip.n_frames - pair, clip.n_frames - 1 - pair]
+    elif reading in TEXT_ORDERS:
+        frames = list(text_order_places(clip.n_frames, TEXT_ORDERS[reading])[frames])
     R, t = clip.R_wc[frames], clip.t_wc[frames]
     if reading.endswith("camera->world") or reading == "rotation transposed":
         R = np.swapaxes(R, 1, 2)
@@ -89,6 +99,20 @@ def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.nda
     if reading.startswith("opengl"):  # each camera's axes flipped: the relative pose conjugated
         return OPENGL_AXES @ R_rel @ OPENGL_AXES, OPENGL_AXES @ t_rel
     return R_rel, t_rel
+
+
+def text_order_places(n_frames: int, first: int) -> np.ndarray:
+    """(n_frames,) where frame j's pose lies in a file that lists the frames by their numbers (counted
+    from ``first``) sorted as text: frame 10 before frame 2."""
+    return np.argsort(sorted(range(first, first + n_frames), key=str)) if n_frames else np.zeros(0, np.int64)
+
+
+def text_order_seams(n_frames: int, first: int) -> np.ndarray:
+    """The pairs (1-based) whose two frames' poses do not lie next to each other, in that order, in a
+    file listed in the text order of the frames' numbers from ``first``: where it and the frames' order
+    tell apart."""
+    places = text_order_places(n_frames, first)
+    return np.flatnonzero(np.diff(places) != 1) + 1
 
 
 def rotation_parallax(clip: Clip, pair: int, prev: np.ndarray, curr: np.ndarray, R_rel: np.ndarray) -> np.ndarray:
