@@ -42,6 +42,11 @@ def inverted(R, t):
     return R, -np.einsum("tij,tj->ti", R, t)
 
 
+def in_text_order(R, t, first: int):
+    order = np.array(sorted(range(first, first + len(R)), key=str)) - first
+    return R[order], t[order]
+
+
 STORED = {  # how the file holds the poses -> ((R_wc, t_wc) -> stored (R, t), the code its line should give)
     "as given": (lambda R, t: (R, t), None),
     "camera->world": (inverted, "camera_to_world_poses"),
@@ -50,6 +55,9 @@ STORED = {  # how the file holds the poses -> ((R_wc, t_wc) -> stored (R, t), th
     "centres as translation": (lambda R, t: (R, inverted(R, t)[1]), "translation_as_centres"),
     "rotation transposed": (lambda R, t: (np.swapaxes(R, 1, 2), t), "rotation_transposed"),
     "reversed in time": (lambda R, t: (R[::-1], t[::-1]), "poses_reversed_in_time"),
+    # listed in the text order of the frames' numbers (from 0 or 1): the same as given below 11 (10) frames
+    "text order from 0": (lambda R, t: in_text_order(R, t, 0), "poses_in_text_order"),
+    "text order from 1": (lambda R, t: in_text_order(R, t, 1), "poses_in_text_order"),
 }
 TRACKS_YX = "tracks (y, x)"  # the poses as given, each track position stored row first
 SMALLER_FRAMES = (0.667, 0.75, 0.8, 0.9)  # tracks of a frame this much smaller, rescaled about its corner
@@ -65,7 +73,8 @@ VIS_WAYS = {VIS_INVERTED: "track_vis_inverted", MOSTLY_HIDDEN: None, f"{MOSTLY_H
             HIDDEN_FAILED: None, f"{HIDDEN_FAILED}, inverted": "track_vis_inverted"}
 WAYS = {way: code for way, (_, code) in STORED.items()} | TRACK_WAYS | VIS_WAYS
 POSE_CODES = {"camera_to_world_poses", "opengl_poses", "translation_as_centres", "rotation_transposed",
-              "poses_reversed_in_time", "tracks_yx", "tracks_of_a_smaller_frame", "track_vis_inverted"}
+              "poses_reversed_in_time", "poses_in_text_order", "tracks_yx", "tracks_of_a_smaller_frame",
+              "track_vis_inverted"}
 
 
 def stored_visibility(clip, way: str):

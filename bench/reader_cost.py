@@ -81,6 +81,7 @@ def main() -> None:
         "  the mask's side": lambda c: masks.mask_side_residuals(c, config, fits[id(c)]),
         "  the mask": masks.check_mask,
         "  the visibility's direction (the visible share)": lambda c: visibility.check_vis_inverted(c, config, fits[id(c)]),
+        "  poses in the text order of the frames' numbers (on its seams)": lambda c: cameras.check_text_order(c, config),
         "  poses, intrinsics, origin": lambda c: (cameras.check_poses(c), cameras.check_intrinsics(c),
                                                   cameras.check_far_origin(c)),
         "prepare_clip": lambda c: prepare_clip(c, config),
