@@ -91,12 +91,16 @@ class Clip:
         """(T-1, P) bool: visible, confident, both positions within reach (docs/semantics.md §1.2);
         ``repeats=False``: and not a repeat of an earlier such track (``repeated_tracks``); ``pairs``
         (1-based): those pairs' rows alone, (len(pairs), P)."""
+        rows = slice(None) if pairs is None else np.asarray(pairs) - 1
+        usable = self.track_vis[rows] & self.candidate_tracks(min_track_conf, pairs=pairs)
+        return usable if repeats else usable & ~repeated_tracks(self.track_prev[rows], self.track_curr[rows], usable)
+
+    def candidate_tracks(self, min_track_conf: float, *, pairs: np.ndarray | None = None) -> np.ndarray:
+        """``usable_tracks`` without the visibility: confident, both positions within reach."""
         H, W = self.image_size
         rows = slice(None) if pairs is None else np.asarray(pairs) - 1
-        prev, curr = self.track_prev[rows], self.track_curr[rows]
-        usable = (self.track_vis[rows] & (self.track_conf[rows] >= min_track_conf)
-                  & within_reach(prev, H, W) & within_reach(curr, H, W))
-        return usable if repeats else usable & ~repeated_tracks(prev, curr, usable)
+        return ((self.track_conf[rows] >= min_track_conf) & within_reach(self.track_prev[rows], H, W)
+                & within_reach(self.track_curr[rows], H, W))
 
 
 def within_reach(track: np.ndarray, H: int, W: int) -> np.ndarray:

@@ -29,7 +29,6 @@ from .checks.cameras import (
     check_pose_convention,
     check_poses,
     check_text_order,
-    frozen_cameras,
 )
 from .checks.depth import check_depth, check_depth_blocks, check_depth_edges
 from .checks.masks import check_mask, check_mask_inverted, mask_side_residuals, static_coverage
@@ -63,7 +62,7 @@ def check_clip(clip: Clip, config: SGCConfig | None = None, arrays: Any = None) 
     poses, tracks = check_poses(clip), check_tracks(clip, config)
     # one pose for every frame: no camera motion for the tests that read the tracks' motion against it
     frozen = [] if poses else check_frozen_cameras(clip, config)
-    held = [] if poses or frozen or frozen_cameras(clip) else check_held_cameras(clip, config)
+    held = [] if poses or frozen else check_held_cameras(clip, config)
     if arrays is not None:
         tracks = check_track_vis_values(arrays, is_reference_compat(clip)) + tracks
     # the pose and depth tests read the tracks' motion: not where the tracks do not fit the image or

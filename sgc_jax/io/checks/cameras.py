@@ -207,16 +207,6 @@ def held_pairs(clip: Clip) -> np.ndarray:
             & (np.abs(np.diff(t, axis=0)).max(axis=1) <= FROZEN_POSE_TOL * np.abs(t).max()))
 
 
-def track_motion_px(clip: Clip, config: SGCConfig, pairs: np.ndarray | None = None) -> np.ndarray:
-    """(len(pairs),) each pair's median motion of its usable tracks [px] (``pairs``, 1-based: all by
-    default); NaN for a pair without any."""
-    pairs = np.arange(1, clip.n_frames) if pairs is None else np.asarray(pairs)
-    usable = clip.usable_tracks(config.min_track_conf, pairs=pairs)
-    motion = np.linalg.norm(clip.track_curr[pairs - 1].astype(np.float64) - clip.track_prev[pairs - 1], axis=-1)
-    return np.array([np.median(m[u & np.isfinite(m)]) if np.any(u & np.isfinite(m)) else np.nan
-                     for m, u in zip(motion, usable)])
-
-
 def coherent_motion_px(clip: Clip, config: SGCConfig, pairs: np.ndarray) -> np.ndarray:
     """(len(pairs),) [px]: the median length over a pair's usable tracks of the displacement an affine
     flow (x, y, 1) -> (dx, dy) gives them, fitted to theirs by least squares and refitted on those
@@ -243,7 +233,7 @@ def coherent_motion_px(clip: Clip, config: SGCConfig, pairs: np.ndarray) -> np.n
 def check_held_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
     """A warning naming the pairs whose two poses are equal (``held_pairs``) while their usable tracks
     move coherently by over POSE_MISFIT_MIN_PX (``coherent_motion_px``), where not every frame shares
-    one pose (rule CH3; every frame: ``check_frozen_cameras``)."""
+    one pose (rule CH4; every frame: ``check_frozen_cameras``, and all pairs held: nothing)."""
     held = np.flatnonzero(held_pairs(clip)) + 1
     if held.size == 0 or held.size == clip.n_pairs:
         return []
@@ -266,9 +256,10 @@ def check_frozen_cameras(clip: Clip, config: SGCConfig) -> list[Problem]:
     the cameras it was asked to follow hold still; the score reads a camera that holds still."""
     if not frozen_cameras(clip):
         return []
-    per_pair = track_motion_px(clip, config)
-    per_pair = per_pair[np.isfinite(per_pair)]
-    moved = float(np.median(per_pair)) if per_pair.size else float("nan")
+    usable = clip.usable_tracks(config.min_track_conf)
+    motion = np.linalg.norm(clip.track_curr.astype(np.float64) - clip.track_prev, axis=-1)
+    per_pair = [np.median(m[u & np.isfinite(m)]) for m, u in zip(motion, usable) if np.any(u & np.isfinite(m))]
+    moved = float(np.median(per_pair)) if per_pair else float("nan")
     if not moved > POSE_MISFIT_MIN_PX:
         return []
     return [Problem(
@@ -310,27 +301,31 @@ def check_far_origin(clip: Clip) -> list[Problem]:
         "c = -R_wc[0]^T t_wc[0] (t_wc <- t_wc + R_wc c, in float64), as a SLAM or geographic frame needs")]
 
 
-def text_order_residuals(clip: Clip, config: SGCConfig, reading: str) -> tuple[float, float]:
-    """(as given, read in the text order ``reading`` of TEXT_ORDERS): the median over the order's seams
+def text_order_residuals(clip: Clip, config: SGCConfig) -> dict[str, tuple[float, float]]:
+    """Per text order of TEXT_ORDERS: (as given, read in that order), the median over its seams
     (``text_order_seams``, at most RHO_PAIRS spread over them) of the tracks' misfit [px]; NaN without
-    a seam that holds tracks."""
-    seams = text_order_seams(clip.n_frames, TEXT_ORDERS[reading])
-    if seams.size > RHO_PAIRS:
-        seams = seams[np.linspace(0, seams.size - 1, RHO_PAIRS).round().astype(np.int64)]
-    fits = [[misfit for misfit, _ in track_fits(clip, pair, prev, curr, z, ("given", reading))]
-            for pair, prev, curr, z in track_samples(clip, config, pairs=seams)]
-    fits = [f for f in fits if np.isfinite(f).all()]
-    if not fits:
-        return float("nan"), float("nan")
-    given, ordered = np.median(np.array(fits), axis=0)
-    return float(given), float(ordered)
+    a seam that holds tracks. The orders' seams share their samples and their fit as given."""
+    seams = {}
+    for reading, first in TEXT_ORDERS.items():
+        pairs = text_order_seams(clip.n_frames, first)
+        seams[reading] = pairs[np.linspace(0, pairs.size - 1, RHO_PAIRS).round().astype(np.int64)] \
+            if pairs.size > RHO_PAIRS else pairs
+    union = np.unique(np.concatenate(list(seams.values())))
+    readings = ("given", *TEXT_ORDERS)
+    fits = {pair: [misfit for misfit, _ in track_fits(clip, pair, prev, curr, z, readings)]
+            for pair, prev, curr, z in track_samples(clip, config, pairs=union)}
+    out = {}
+    for k, reading in enumerate(TEXT_ORDERS, start=1):
+        both = [(fits[pair][0], fits[pair][k]) for pair in seams[reading] if pair in fits]
+        both = [b for b in both if np.isfinite(b).all()]
+        out[reading] = tuple(float(v) for v in np.median(np.array(both), axis=0)) if both else (np.nan, np.nan)
+    return out
 
 
 def check_text_order(clip: Clip, config: SGCConfig) -> list[Problem]:
     """A warning where, on its seams, a text order of the frames' numbers leaves the tracks at most
     POSE_CONVENTION_RATIO of the misfit as given, which is over POSE_MISFIT_MIN_PX (rule TO2)."""
-    for reading in TEXT_ORDERS:
-        given, ordered = text_order_residuals(clip, config, reading)
+    for reading, (given, ordered) in text_order_residuals(clip, config).items():
         if np.isfinite(given) and given > POSE_MISFIT_MIN_PX and ordered <= POSE_CONVENTION_RATIO * given:
             code, meaning, fix = POSE_FIXES[reading]
             return [Problem(

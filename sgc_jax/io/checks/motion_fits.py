@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from ...config import SGCConfig
-from ..clip import Clip, within_reach
+from ..clip import Clip
 
 MIN_POINTS_FOR_STATS = 30
 RHO_PAIRS, RHO_POINTS = 6, 256  # pairs and points per pair the depth/disparity test looks at (cost cap)
@@ -44,7 +44,7 @@ def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True, visible
     H, W = clip.image_size
     pairs = sampled_pairs(clip) if pairs is None else np.asarray(pairs, np.int64)
     usable = (clip.usable_tracks(config.min_track_conf, pairs=pairs) if visible
-              else ~clip.track_vis[pairs - 1] & candidate_tracks(clip, config.min_track_conf, pairs))
+              else ~clip.track_vis[pairs - 1] & clip.candidate_tracks(config.min_track_conf, pairs=pairs))
     for pair, usable_of_pair in zip(pairs, usable):
         index = np.flatnonzero(usable_of_pair)
         if index.size > 4 * RHO_POINTS:  # a deterministic spread-out subset keeps the cost flat
@@ -63,15 +63,6 @@ def track_samples(clip: Clip, config: SGCConfig, on_static: bool = True, visible
 def sampled_pairs(clip: Clip) -> np.ndarray:
     """The pairs (1-based) the reading tests look at: at most RHO_PAIRS, spread over the clip."""
     return np.unique(np.linspace(1, clip.n_frames - 1, min(RHO_PAIRS, clip.n_pairs)).round().astype(np.int64))
-
-
-def candidate_tracks(clip: Clip, min_track_conf: float, pairs: np.ndarray | None = None) -> np.ndarray:
-    """(T-1, P) bool (``pairs``, 1-based: those rows alone): confident, both positions within reach:
-    the tracks that are usable where visible (``Clip.usable_tracks`` without the visibility)."""
-    H, W = clip.image_size
-    rows = slice(None) if pairs is None else np.asarray(pairs) - 1
-    return ((clip.track_conf[rows] >= min_track_conf) & within_reach(clip.track_prev[rows], H, W)
-            & within_reach(clip.track_curr[rows], H, W))
 
 
 def relative_pose(clip: Clip, pair: int, reading: str = "given") -> tuple[np.ndarray, np.ndarray]:

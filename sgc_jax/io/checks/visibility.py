@@ -8,7 +8,7 @@ import numpy as np
 from ...config import SGCConfig
 from ..clip import Clip, repeated_tracks
 from .masks import MASK_SIDE_RATIO
-from .motion_fits import POSE_MISFIT_MIN_PX, candidate_tracks, sampled_pairs, side_residuals
+from .motion_fits import POSE_MISFIT_MIN_PX, sampled_pairs, side_residuals
 from .problems import Problem
 
 # Visibility stored the other way round (TAPIR's and BootsTAP's `occluded`, or 1 - a visibility): most
@@ -20,12 +20,12 @@ VISIBLE_SHARE_MAX = 0.5
 
 
 def visible_share(clip: Clip, config: SGCConfig) -> float:
-    """The share of the candidate tracks (``candidate_tracks``) of the sampled pairs that are visible,
+    """The share of the candidate tracks (``Clip.candidate_tracks``) of the sampled pairs that are visible,
     a repeat of another candidate's positions counted once (a track array's padding slots); NaN
     without any."""
     pairs = sampled_pairs(clip)
     prev, curr = clip.track_prev[pairs - 1], clip.track_curr[pairs - 1]
-    candidates = candidate_tracks(clip, config.min_track_conf, pairs)
+    candidates = clip.candidate_tracks(config.min_track_conf, pairs=pairs)
     candidates &= ~repeated_tracks(prev, curr, candidates)
     n = np.count_nonzero(candidates)
     return float(np.count_nonzero(candidates & clip.track_vis[pairs - 1]) / n) if n else float("nan")
