@@ -26,7 +26,7 @@ from sgc_jax.adapters import DEPTH_EDGE_RATIO, leave_out_depth_ramps, resize_dep
 from sgc_jax.adapters.common import resize_nearest
 from sgc_jax.engines.jax_engine import device_prepare
 from sgc_jax.io.checks import cameras as camera_checks, depth as depth_checks
-from sgc_jax.io.checks.depth import inverse_depth_fits_better
+from sgc_jax.io.checks.depth import check_depth_mirrored, depth_range_misfits, inverse_depth_fits_better, mirrored_flip
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
 from sgc_jax.io.depth_range import depth_from_range, ray_lengths
@@ -356,6 +356,10 @@ CASES = {
         lambda c: {"depth": resize_nearest(resize_nearest(c.depth, (c.image_size[0] // 2, c.image_size[1] // 2)),
                                            c.image_size)},
         "warning", "depth_in_blocks", "depth", ["100% (rows) and 100% (columns)", "--depth-resize bilinear"]),
+    "depth stored bottom-up": (lambda c: {"depth": np.ascontiguousarray(c.depth[:, ::-1])}, "warning", "depth_mirrored",
+                               "depth", ["each map's rows read in reverse order", "depth[:, ::-1]"]),
+    "depth stored mirrored left to right": (lambda c: {"depth": np.ascontiguousarray(c.depth[:, :, ::-1])}, "warning",
+                                            "depth_mirrored", "depth", ["columns read in reverse order", "depth[:, :, ::-1]"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }
@@ -391,6 +395,14 @@ def test_the_loader_warns_on_warnings(clip, name):
         loaded = clip_from_arrays(arrays_of(clip, **change(clip)))
     assert any(words[-1] in str(w.message) for w in record)
     assert code in loaded.warnings
+
+
+def test_a_mirrored_depth_line_needs_the_map_read_back_to_move_like_depth(clip):
+    disparity = np.where(clip.depth > 0, 1.0 / clip.depth, 0.0).astype(np.float32)
+    mirrored_disparity = dataclasses.replace(clip, depth=np.ascontiguousarray(disparity[:, ::-1]))
+    readings = depth_range_misfits(mirrored_disparity, SGCConfig())
+    assert mirrored_flip(readings) is not None  # the warp alone would call it mirrored
+    assert check_depth_mirrored(mirrored_disparity, SGCConfig(), readings) == []
 
 
 def test_depth_from_range_gives_back_the_z_depth_of_a_range_map(clip):

@@ -8,7 +8,9 @@ clips 0.014-0.21 -> 0.034-0.42).
 :func:`depth_from_range` converts; :func:`depth_reading_misfits` tells the two readings apart from
 the clip's cameras: each sampled pixel of frame i−1 moved by the camera's motion (its translation's
 scale fitted) lands where frame i's depth should read its new z, and a range map read either way
-misses by a pattern that follows the pixel's place in the frame.
+misses by a pattern that follows the pixel's place in the frame. The same warp tells a depth map
+stored mirrored (a renderer's or OpenGL's bottom-up rows) from one stored as the frames are: read
+mirrored back, it warps far better (``FLIPS``).
 
 Depth arrays are (T, H, W) or (H, W); K (T, 3, 3) or (3, 3); pixel centres at integer coordinates
 (x = column, y = row), as everywhere in a clip (docs/semantics.md §1.1).
@@ -16,6 +18,7 @@ Depth arrays are (T, H, W) or (H, W); K (T, 3, 3) or (3, 3); pixel centres at in
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -34,6 +37,9 @@ FOLLOWS_CAMERA = 2.0
 # The translation's scale is searched around the tracks' fit: this many log-spaced factors over
 # [1 / SCALE_SPAN, SCALE_SPAN], then as many again over one step around the best.
 SCALE_SPAN, SCALE_STEPS = 1.5, 7
+# A depth map mirrored against its frame: both maps of a pair read with their rows, or their columns,
+# in reverse order ((rows, columns) reversed).
+FLIPS = {"up-down": (True, False), "left-right": (False, True)}
 
 
 def ray_lengths(K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -83,28 +89,53 @@ def _block_misfits(error: np.ndarray, block: np.ndarray, trial: np.ndarray, n_tr
     return out
 
 
+class DepthReadings(NamedTuple):
+    """``depth_reading_misfits``: the clip's depth misfit (relative) read as z and as range over the
+    pairs whose depth follows the camera; where asked, as z again and with both maps of each pair
+    mirrored (``FLIPS``), over the pairs that follow the camera under any of the three (NaN where
+    not read)."""
+
+    as_z: float
+    as_range: float
+    mirrored_as_z: float = float("nan")
+    up_down: float = float("nan")
+    left_right: float = float("nan")
+
+
 class _Reading(NamedTuple):
     """One way of moving a pair's sampled points: frame i−1's points turned into camera i's axes,
-    (n, 3), the translation t (3,) whose scale the trials vary, and whether both depths are range."""
+    (n, 3), NaN where the reading has no depth, the translation t (3,) whose scale the trials vary,
+    whether both depths are range, and whether both maps are read mirrored ((rows, columns))."""
 
     turned: np.ndarray
     t: np.ndarray
     as_range: bool
+    mirrored: tuple[bool, bool] = (False, False)
 
 
-def _pair_readings(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray) -> tuple[list[_Reading], np.ndarray]:
-    """(the readings as z, as range, and left in place (R = I, t = 0, as z); each sampled point's
-    block): frame pair−1's static, valid depth sampled on a regular grid of about POINTS pixels."""
+def _pair_readings(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, mirrored: bool = False
+                   ) -> tuple[list[_Reading], np.ndarray]:
+    """(the readings as z, as range, and left in place (R = I, t = 0, as z), or (``mirrored``) as z
+    with each of FLIPS; each sampled point's block): frame pair−1's static, valid depth sampled on a
+    regular grid of about POINTS pixels."""
     H, W = clip.image_size
     stride = max(1, int(np.sqrt(H * W / POINTS)))
     rows, cols = (a.ravel() for a in np.mgrid[stride // 2:H:stride, stride // 2:W:stride])
-    depth = clip.depth[pair - 1][rows, cols].astype(np.float64)
-    keep = np.isfinite(depth) & (depth > 0) & clip.static_mask[pair - 1][rows, cols]
-    rows, cols, depth = rows[keep], cols[keep], depth[keep]
+    if mirrored:  # the static pixels; each reading's depth NaN where its mirrored map has none
+        rows, cols = (a[clip.static_mask[pair - 1][rows, cols]] for a in (rows, cols))
+        depths = [clip.depth[pair - 1][H - 1 - rows if up_down else rows, W - 1 - cols if left_right else cols]
+                  for up_down, left_right in FLIPS.values()]
+        depths = [np.where(np.isfinite(d) & (d > 0), d, np.nan).astype(np.float64) for d in depths]
+    else:
+        depth = clip.depth[pair - 1][rows, cols].astype(np.float64)
+        keep = np.isfinite(depth) & (depth > 0) & clip.static_mask[pair - 1][rows, cols]
+        rows, cols, depth = rows[keep], cols[keep], depth[keep]
     K_prev = clip.K[pair - 1].astype(np.float64)
     rays = np.c_[cols, rows, np.ones(len(rows))] @ np.linalg.inv(K_prev).T
-    as_range = depth / ray_lengths(K_prev, rows, cols)
     block = (rows * BLOCKS[0] // H) * BLOCKS[1] + cols * BLOCKS[1] // W
+    if mirrored:
+        return [_Reading((rays * d[:, None]) @ R.T, t, False, flip) for d, flip in zip(depths, FLIPS.values())], block
+    as_range = depth / ray_lengths(K_prev, rows, cols)
     points, points_as_range = rays * depth[:, None], rays * as_range[:, None]
     return [_Reading(points @ R.T, t, False), _Reading(points_as_range @ R.T, t, True),
             _Reading(points, np.zeros(3), False)], block
@@ -132,7 +163,10 @@ def _misfits(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Readi
     trial, point = np.divmod(landed, moved.shape[1])
     col, row = u.ravel()[landed].astype(np.int64), v.ravel()[landed].astype(np.int64)
     pixel = row * W + col
-    read = clip.depth[pair].ravel()[pixel].astype(np.float64)
+    mirrored = np.array([r.mirrored for r in readings])[owner[trial]]  # (landed, 2)
+    read_pixel = (np.where(mirrored[:, 0], H - 1 - row, row) * W + np.where(mirrored[:, 1], W - 1 - col, col)
+                  if mirrored.any() else pixel)
+    read = clip.depth[pair].ravel()[read_pixel].astype(np.float64)
     as_range = np.array([r.as_range for r in readings])[owner[trial]]
     if as_range.any():
         read = np.where(as_range, read / ray_lengths(K_curr, row, col), read)
@@ -168,24 +202,48 @@ def _least(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Reading
     return least
 
 
-def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.ndarray, float]]
-                          ) -> tuple[float, float]:
-    """(as z, as range): the median over at most PAIRS of ``poses`` (pair, the camera's relative R
-    and t from frame pair−1 to pair, the translation's scale fitted to the tracks) of each reading's
-    depth misfit (relative; the median over blocks of the block's median); NaN where no pair can
-    tell. A pair whose depth, left where it is, misfits less than FOLLOWS_CAMERA times the better
-    reading moved by the camera does not follow the camera (a still video under moving cameras)
-    and tells nothing."""
+def _least_mirrored(clip: Clip, pair: int, R: np.ndarray, t: np.ndarray, scale: float) -> list[float]:
+    """Per reading of FLIPS, ``_least``'s misfit (the scale searched as for z and range)."""
+    readings, block = _pair_readings(clip, pair, R, t, mirrored=True)
+    return _least(clip, pair, block, readings, [scale] * len(readings))
+
+
+def _following(rows: list[list[float]]) -> np.ndarray:
+    """The rows (per pair: its moving readings' misfits, then left in place's) of pairs whose depth
+    follows the camera: as z and as range finite, and left in place missing by at least
+    FOLLOWS_CAMERA times the least moving reading; (pairs, readings), without left in place."""
+    kept = [row[:-1] for row in rows
+            if np.isfinite(row[:2]).all() and not row[-1] < FOLLOWS_CAMERA * np.nanmin(row[:-1])]
+    return np.array(kept).reshape(len(kept), len(rows[0]) - 1 if rows else 0)
+
+
+def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.ndarray, float]],
+                          mirrored_above: float | None = None) -> DepthReadings:
+    """``DepthReadings``: the median over at most PAIRS of ``poses`` (pair, the camera's relative R
+    and t from frame pair−1 to pair, the translation's scale fitted to the tracks) of each reading's depth misfit (relative; the median over blocks of
+    the block's median); NaN where no pair can tell. A pair whose depth, left where it is, misfits
+    less than FOLLOWS_CAMERA times the best reading moved by the camera does not follow the camera (a
+    still video under moving cameras) and tells nothing. ``mirrored_above``: where the as-z misfit is
+    NaN or above it, each map is read mirrored too (FLIPS), a pair then following the camera where
+    left in place misfits FOLLOWS_CAMERA times the least of all four readings."""
     usable = [p for p in poses if np.isfinite(p[3]) and p[3] >= 0]
     chosen = np.unique(np.linspace(0, len(usable) - 1, min(PAIRS, len(usable))).round().astype(np.int64))
     rows = []
     for i in chosen:
         pair, R, t, scale = usable[i]
         moves, block = _pair_readings(clip, pair, R, t)
-        *readings, left_in_place = _least(clip, pair, block, moves, [scale, scale, 0.0])
-        if np.isfinite(readings).all() and not left_in_place < FOLLOWS_CAMERA * min(readings):
-            rows.append(readings)
-    if not rows:
-        return float("nan"), float("nan")
-    as_z, as_range = np.median(np.array(rows), axis=0)
-    return float(as_z), float(as_range)
+        as_z, as_range, left_in_place = _least(clip, pair, block, moves, [scale, scale, 0.0])
+        rows.append([as_z, as_range, left_in_place])
+    kept = _following(rows)
+    as_z, as_range = np.median(kept, axis=0) if len(kept) else (float("nan"), float("nan"))
+    if mirrored_above is None or as_z <= mirrored_above or not rows:
+        return DepthReadings(float(as_z), float(as_range))
+    for i, row in zip(chosen, rows):
+        row[2:2] = _least_mirrored(clip, *usable[i])
+    kept = _following(rows)[:, [0, 2, 3]]
+    if not len(kept):
+        return DepthReadings(float(as_z), float(as_range))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a mirrored reading NaN in every pair: NaN
+        mirrored = np.nanmedian(kept, axis=0)
+    return DepthReadings(float(as_z), float(as_range), *(float(m) for m in mirrored))

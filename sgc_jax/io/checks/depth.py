@@ -3,13 +3,15 @@ moves like depth, disparity or range (docs/semantics.md §1.1, §1.6)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ...config import SGCConfig
 from ...stats import spearman
 from ..clip import Clip
 from ..depth_edges import DEPTH_EDGE_RATIO, RAMP_SHARE, edge_counts, edges_are_ramps, holes_blended
-from ..depth_range import depth_reading_misfits
+from ..depth_range import FLIPS, DepthReadings, depth_reading_misfits
 from .motion_fits import (
     MIN_POINTS_FOR_STATS,
     pair_track_fits,
@@ -42,6 +44,12 @@ PARALLAX_OUTLIER = 4.0  # parallax above this multiple of the pair's median: a w
 RANGE_READING_RATIO = 0.5
 RANGE_MISFIT_MIN = 5e-4
 RANGE_FIT_MAX = 1.35e-3
+# A depth map stored mirrored against its frame (rows bottom-up, as OpenGL and Blender's image buffers
+# hold them, or columns reversed): read mirrored back it warps onto the next frame's with under this
+# share of its misfit as given (the pose readings' ratio, cameras.POSE_CONVENTION_RATIO), where that is
+# above RANGE_MISFIT_MIN, and so read its nearer points move more (rho below -DISPARITY_RHO_WARN).
+# Rule FL7 on FIT's random pool and battery (bench/history/issue-58.md "Depth stored mirrored").
+MIRRORED_READING_RATIO = 0.4
 # A far backdrop read as depth (a sky at VGGT's or a metric model's far depth): at least this share of the
 # valid depth lies beyond this multiple of its 10th percentile. It sets the depth unit D (§3.1) once it is
 # half the frame, and a pose's error at its edge reads as a depth error without bound (docs/semantics.md
@@ -116,8 +124,12 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
             + (", and the tracks fit the camera's motion better with its inverse" if k_usable else ""),
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
-    elif read_tracks and not moves_like_disparity and not is_reference_compat(clip):  # disparity read as range says nothing
-        problems += check_depth_range(depth_range_misfits(clip, config, reading, fits))
+    elif read_tracks and not is_reference_compat(clip):
+        readings = depth_range_misfits(clip, config, reading, fits)
+        # a mirrored map read as range says nothing, nor disparity read as range; without parallax
+        # (rho NaN) every depth reading warps alike, and a mirrored one tells nothing
+        mirrored = check_depth_mirrored(clip, config, readings, reading) if np.isfinite(rho) else []
+        problems += mirrored or ([] if moves_like_disparity else check_depth_range(readings))
     return problems
 
 
@@ -137,20 +149,51 @@ def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "giv
 
 
 def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",
-                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> tuple[float, float]:
-    """``depth_range.depth_reading_misfits`` (as z, as range) with the camera's poses read as
-    ``relative_pose`` reads them and each pair's translation scale fitted to its tracks (``fits``,
-    ``pair_track_fits`` holding ``reading``, where given)."""
+                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> DepthReadings:
+    """``depth_range.depth_reading_misfits`` (as z, as range, and mirrored where the as-z misfit is
+    above RANGE_MISFIT_MIN or NaN) with the camera's poses read as ``relative_pose`` reads them and
+    each pair's translation scale fitted to its tracks (``fits``, ``pair_track_fits`` holding
+    ``reading``, where given)."""
     fits = pair_track_fits(clip, config, (reading,)) if fits is None else fits
     return depth_reading_misfits(clip, [(pair, *relative_pose(clip, pair, reading), by_reading[reading][1])
-                                        for pair, by_reading in fits.items()])
+                                        for pair, by_reading in fits.items()], mirrored_above=RANGE_MISFIT_MIN)
 
 
-def check_depth_range(misfits: tuple[float, float]) -> list[Problem]:
+def mirrored_flip(readings: DepthReadings) -> str | None:
+    """From ``depth_range_misfits``: the flip of FLIPS under which the depth warps onto the next
+    frame's far better than as given (MIRRORED_READING_RATIO), or None."""
+    flip, misfit = min((("up-down", readings.up_down), ("left-right", readings.left_right)),
+                       key=lambda item: item[1] if np.isfinite(item[1]) else np.inf)
+    as_z = readings.mirrored_as_z
+    return flip if np.isfinite(as_z) and as_z > RANGE_MISFIT_MIN and misfit < MIRRORED_READING_RATIO * as_z else None
+
+
+def check_depth_mirrored(clip: Clip, config: SGCConfig, readings: DepthReadings, reading: str = "given") -> list[Problem]:
+    """A warning where the depth, each map read mirrored (``mirrored_flip``), warps far better than as
+    given, and so read, nearer points move more (``depth_parallax_rho`` below -DISPARITY_RHO_WARN):
+    a map stored mirrored, not one whose every reading warps alike (no parallax, disparity)."""
+    flip = mirrored_flip(readings)
+    if flip is None:
+        return []
+    rows = FLIPS[flip][0]
+    flipped = np.flip(clip.depth, axis=1 if rows else 2)
+    if not depth_parallax_rho(dataclasses.replace(clip, depth=flipped), config, reading) < -DISPARITY_RHO_WARN:
+        return []
+    misfit = readings.up_down if rows else readings.left_right
+    axis, undo = ("rows", "depth[:, ::-1]") if rows else ("columns", "depth[:, :, ::-1]")
+    return [Problem(
+        "warning", "depth_mirrored", "depth", "depth maps stored as the frames are (row 0 at the top, column 0 at the left)",
+        f"the depth misses the camera's motion by {100 * readings.mirrored_as_z:.2g} % (median) as given and by "
+        f"{100 * misfit:.2g} % with each map's {axis} read in reverse order, and so read nearer points move more",
+        f"the maps look mirrored {flip} against their frames (OpenGL's and Blender's image buffers run "
+        f"bottom-up): flip them, {undo}")]
+
+
+def check_depth_range(misfits: DepthReadings) -> list[Problem]:
     """From ``depth_range_misfits``: a warning where the depth, read as each pixel's distance from
     the camera centre, warps onto the next frame's far better than read as z (RANGE_READING_RATIO),
     and well (RANGE_FIT_MAX): a clean range map, as a renderer or a dataset's ground truth gives it."""
-    as_z, as_range = misfits
+    as_z, as_range = misfits[:2]
     if not (np.isfinite(as_z) and as_z > RANGE_MISFIT_MIN and as_range < min(RANGE_READING_RATIO * as_z,
                                                                             RANGE_FIT_MAX)):
         return []

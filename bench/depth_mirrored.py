@@ -1,0 +1,94 @@
+"""The loader's mirrored-depth line (`depth_mirrored`, docs/semantics.md §1.6; rule FL7 in
+bench/history/issue-58.md "Depth stored mirrored"): where it and the other depth lines fire, with
+the depth as given, mirrored and stored as disparity or range.
+
+    python bench/depth_mirrored.py --pool fit|held-out [--scenes 24] [--battery fit|test]
+    python bench/depth_mirrored.py --real [--realdata ../shared/realdata] [--scores]
+
+``--pool``: each scene of a random pool (``protocol.check_pool_clips``: 1,000 tracks, ``iid-both``,
+``correlated``, ``depth`` and ``outliers`` at 0.5 and 2 px). ``--battery``: every adversary of
+``research.adversaries`` on that split's six scenes, ``iid-both`` 1 px at both ends, two noise
+draws. ``--real``: the shared real clips; ``--scores`` also scores them as given and mirrored
+(``score_batch``, the default config). Per depth reading: how many clips each depth line names
+(``io.validate.check_clip``). Nothing is chosen here.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+
+import numpy as np
+from pools import need_one, pool_parser
+
+from sgc_jax import SGCConfig, load_clip, score_batch
+from sgc_jax.io.depth_range import ray_lengths
+from sgc_jax.io.validate import check_clip
+from sgc_jax.research import adversaries, protocol
+from sgc_jax.research.noise import NOISE_MODELS, add_noise
+
+LINES = ("depth_mirrored", "depth_like_disparity", "depth_like_range")
+
+
+def as_range(clip):
+    T, H, W = clip.depth.shape
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
+    return np.stack([clip.depth[t] * ray_lengths(clip.K[t].astype(np.float64), rows, cols)
+                     for t in range(T)]).astype(np.float32)
+
+
+READINGS = {
+    "as given": lambda c: c.depth,
+    "rows bottom-up": lambda c: np.ascontiguousarray(c.depth[:, ::-1]),
+    "columns reversed": lambda c: np.ascontiguousarray(c.depth[:, :, ::-1]),
+    "disparity": lambda c: np.where(c.depth > 0, 1.0 / np.maximum(c.depth, 1e-6), 0.0).astype(np.float32),
+    "range": as_range,
+}
+
+
+def line_counts(label: str, clips: list) -> None:
+    config, counts = SGCConfig(), collections.Counter()
+    for clip in clips:
+        for reading, depth in READINGS.items():
+            codes = {p.code for p in check_clip(dataclasses.replace(clip, depth=depth(clip)), config)}
+            counts.update((reading, line) for line in LINES if line in codes)
+    print(f"\n{label}, {len(clips)} clips\n\n| depth | " + " | ".join(f"`{line}`" for line in LINES) + " |\n|---|"
+          + "---|" * len(LINES))
+    for reading in READINGS:
+        print(f"| {reading} | " + " | ".join(str(counts[reading, line]) for line in LINES) + " |")
+
+
+def battery(split: str) -> list:
+    return [add_noise(adversaries.adversary(name, scene), NOISE_MODELS["iid-both"].replace(px=1.0), seed=draw)
+            for scene in protocol.SPLITS[split] for name in adversaries.ADVERSARIES for draw in (0, 1)]
+
+
+def real_scores(clips: list) -> None:
+    print("\n| clip | SGC as given | rows bottom-up | columns reversed |\n|---|---|---|---|")
+    scored = {reading: score_batch([dataclasses.replace(c, depth=READINGS[reading](c)) for c in clips],
+                                   progress=False).to_pandas().sgc.to_numpy()
+              for reading in ("as given", "rows bottom-up", "columns reversed")}
+    for k, clip in enumerate(clips):
+        print(f"| {clip.clip_id} | " + " | ".join(f"{scored[r][k]:.3f}" for r in scored) + " |")
+
+
+def main() -> None:
+    parser = pool_parser(__doc__)
+    parser.add_argument("--battery", choices=sorted(protocol.SPLITS), help="also this split's adversary battery")
+    parser.add_argument("--scores", action="store_true", help="with --real: score the clips as given and mirrored")
+    args = parser.parse_args()
+    need_one(parser, args)
+    if args.pool:
+        line_counts(f"{args.pool} pool, {args.scenes} scenes",
+                    [clip for _, clip in protocol.check_pool_clips(args.pool, args.scenes)])
+    if args.battery:
+        line_counts(f"{args.battery}'s adversary battery, two draws", battery(args.battery))
+    if args.real:
+        clips = [load_clip(str(path)) for path in sorted(args.realdata.glob("*.npz"))]
+        line_counts("the shared real clips", clips)
+        if args.scores:
+            real_scores(clips)
+
+
+if __name__ == "__main__":
+    main()
