@@ -126,6 +126,8 @@ ARRAY_KINDS = {  # kind: (change, array blamed, words of the message)
     "mask_wrong_size": (changed(static_mask=lambda a: a[:, :20]), "static_mask", "shape (3, 24, 32)"),
     "singular_K": (changed(K=singular_K), "K", "singular"),
     "non_finite_K": (changed(K=lambda a: a * np.nan), "K", "finite"),
+    "transposed_K": (changed(K=lambda a: np.swapaxes(a, -1, -2)), "K", "looks transposed"),
+    "K_scaled_as_a_whole": (changed(K=lambda a: 2.0 * a), "K", "K[2, 2] is not 1"),
     "wrong_rank": (changed(track_prev=lambda a: a[..., 0]), "track_prev", "shape (2, 64)"),
     "scalar_array": (changed(t_wc=np.float64(1.0)), "t_wc", "shape ()"),
 }
@@ -158,6 +160,7 @@ def _reflected(R):
     ("t_wc", lambda c: dataclasses.replace(c, t_wc=np.where(np.arange(c.n_frames)[:, None] == 1, np.nan, c.t_wc))),
     ("R_wc", lambda c: dataclasses.replace(c, R_wc=_reflected(c.R_wc))),
     ("K", lambda c: dataclasses.replace(c, K=c.K * np.array([0.0, 1.0, 1.0])[:, None])),
+    ("K", lambda c: dataclasses.replace(c, K=np.swapaxes(c.K, 1, 2))),
 ])
 def test_clips_given_in_memory_have_their_cameras_checked(array, changed):
     broken = dataclasses.replace(changed(VICTIM), clip_id="broken")

@@ -199,6 +199,11 @@ def test_focal_lengths_that_scatter_over_the_frames_get_a_warning_and_one_k_none
     assert not [p for p in check_clip(dataclasses.replace(clip, K=one_K)) if p.code == "focal_spread"]
 
 
+def test_pixels_that_are_not_square_are_no_focal_spread(clip):
+    wide = clip.K.astype(np.float64) * np.array([1.3, 1.0, 1.0])[:, None]  # fx 30 % above fy in every frame
+    assert not [p for p in check_clip(dataclasses.replace(clip, K=wide)) if p.code == "focal_spread"]
+
+
 def test_tracks_given_twice_get_a_warning_and_a_few_repeats_none(clip):
     def repeated(count):
         extra = lambda a: np.concatenate([a, a[:, :count]], axis=1)  # noqa: E731

@@ -32,6 +32,11 @@ _KINDS = {"depth": _REAL, "K": _REAL, "R_wc": _REAL, "t_wc": _REAL, "extrinsic":
 
 # K with a larger condition number cannot be inverted to back-project pixels (float64 keeps ~16 digits).
 K_CONDITION_MAX = 1e12
+# K's entries below the diagonal, and K[2, 2] - 1, each as the relative change it makes to a pixel's coordinate
+# or projective divisor (K[1, 0] W / fy, K[2, 0] W, K[2, 1] H): beyond this K is not the pinhole matrix every
+# engine reads (the reference back-projects through the whole K^-1 but projects with its first two rows).
+# Stored exactly 0 and 1 by every estimator; float32 arithmetic leaves ~1e-7.
+K_PINHOLE_TOL = 1e-5
 
 
 def as_clip_array(clip_id: str, name: str, value: Any, expected: str) -> np.ndarray:
@@ -124,6 +129,28 @@ def _check_invertible(clip_id: str, K: np.ndarray) -> None:
     if bad.size:
         raise ClipFormatError(clip_id, "K", "an invertible pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
                               f"a singular matrix (condition number {condition[bad[0]]:.3g}) in frames {_first_frames(bad)}")
+
+
+def _check_pinhole(clip_id: str, K: np.ndarray, H: int, W: int) -> None:
+    """K (T, 3, 3), finite and invertible: each frame's K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] within
+    K_PINHOLE_TOL; a transposed K (cx, cy in its last row, as a column-major or ``K.T`` copy stores it) and one
+    scaled as a whole (K[2, 2] != 1) are named."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        deviation = np.stack([np.abs(K[:, 1, 0] / K[:, 1, 1]) * W, np.abs(K[:, 2, 0]) * W, np.abs(K[:, 2, 1]) * H,
+                              np.abs(K[:, 2, 2] - 1.0)], axis=-1).max(axis=-1)
+    bad = np.flatnonzero(~(deviation <= K_PINHOLE_TOL))
+    if not bad.size:
+        return
+    t = bad[0]
+    k = K[t]
+    found = f"{np.round(k, 4).tolist()} in frames {_first_frames(bad)}"
+    if np.all(np.abs(k[:2, 2]) * (W, H) <= K_PINHOLE_TOL) and abs(k[2, 2] - 1.0) <= K_PINHOLE_TOL:
+        detail = "K looks transposed (cx, cy in its last row, as a column-major copy or K.T stores it): give np.swapaxes(K, -1, -2)"
+    elif np.all(np.abs(k[[1, 2, 2], [0, 0, 1]]) * (W / abs(k[1, 1]), W, H) <= K_PINHOLE_TOL) and k[2, 2] != 0:
+        detail = "K is scaled as a whole (K[2, 2] is not 1): give K / K[..., 2:3, 2:3]"
+    else:
+        detail = "K must be a pinhole matrix in pixels, zero below its diagonal and 1 in its corner"
+    raise ClipFormatError(clip_id, "K", "a pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]", found, detail)
 
 
 def settle_votes(votes: list[tuple[str, Any]], tie_break: Callable[[list[Any]], Any]) -> tuple[Any, list[str]]:
@@ -342,6 +369,7 @@ def structurally_checked(arrays: Mapping[str, Any], clip_id: str | None) -> Clip
     typed = _typed_arrays(arrays, clip_id)
     depth, T, H, W = _checked_depth(typed, clip_id)
     K, R_wc, t_wc = _checked_cameras(typed, arrays, clip_id, T)
+    _check_pinhole(clip_id, K, H, W)
     static_mask, mask_source = _checked_mask(typed, clip_id, (T, H, W))
     track_prev, track_curr, track_vis, track_conf = _checked_tracks(typed, arrays, clip_id, T)
     frames = typed.get("frames")
