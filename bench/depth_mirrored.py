@@ -22,7 +22,7 @@ import numpy as np
 from pools import need_one, pool_parser
 
 from sgc_jax import SGCConfig, load_clip, score_batch
-from sgc_jax.io.depth_range import ray_lengths
+from sgc_jax.io.depth_range import range_from_depth
 from sgc_jax.io.validate import check_clip
 from sgc_jax.research import adversaries, protocol
 from sgc_jax.research.noise import NOISE_MODELS, add_noise
@@ -30,19 +30,12 @@ from sgc_jax.research.noise import NOISE_MODELS, add_noise
 LINES = ("depth_mirrored", "depth_like_disparity", "depth_like_range")
 
 
-def as_range(clip):
-    T, H, W = clip.depth.shape
-    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
-    return np.stack([clip.depth[t] * ray_lengths(clip.K[t].astype(np.float64), rows, cols)
-                     for t in range(T)]).astype(np.float32)
-
-
 READINGS = {
     "as given": lambda c: c.depth,
     "rows bottom-up": lambda c: np.ascontiguousarray(c.depth[:, ::-1]),
     "columns reversed": lambda c: np.ascontiguousarray(c.depth[:, :, ::-1]),
     "disparity": lambda c: np.where(c.depth > 0, 1.0 / np.maximum(c.depth, 1e-6), 0.0).astype(np.float32),
-    "range": as_range,
+    "range": lambda c: range_from_depth(c.depth, c.K),
 }
 
 

@@ -29,7 +29,7 @@ from sgc_jax.io.checks import cameras as camera_checks, depth as depth_checks
 from sgc_jax.io.checks.depth import check_depth_mirrored, depth_range_misfits, inverse_depth_fits_better, mirrored_flip
 from sgc_jax.io.clip import clip_to_arrays
 from sgc_jax.io.depth_edges import RAMP_SHARE, edges_and_ramps, has_smooth_edges, ramp_share, ramps_left_out
-from sgc_jax.io.depth_range import depth_from_range, ray_lengths
+from sgc_jax.io.depth_range import depth_from_range, range_from_depth
 from sgc_jax.io.loading import validate_paths
 from sgc_jax.io.validate import ClipValidationError, ClipWarning, check_clip
 from sgc_jax.research.noise import enlarged_depth, letterboxed
@@ -244,9 +244,7 @@ def centres_as_translation(clip):
 
 def as_range(clip):
     """The clip's depth as a range map: each pixel's distance from the camera centre."""
-    rows, cols = np.mgrid[0:clip.image_size[0], 0:clip.image_size[1]].astype(np.float64)
-    return np.stack([d * ray_lengths(K.astype(np.float64), rows, cols) for d, K in zip(clip.depth, clip.K)]
-                    ).astype(np.float32)
+    return range_from_depth(clip.depth, clip.K)
 
 
 def yx_inside(clip):

@@ -49,19 +49,31 @@ def ray_lengths(K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
     return np.sqrt(1.0 + x * x + y * y)
 
 
+def _along_rays(maps_in: np.ndarray, K: np.ndarray, power: int) -> np.ndarray:
+    """Each pixel of the maps times its ray's length |K⁻¹ (u, v, 1)| to ``power`` (±1); shapes and dtypes as
+    :func:`depth_from_range` takes and gives them."""
+    single = maps_in.ndim == 2
+    maps = maps_in[None] if single else maps_in
+    Ks = np.broadcast_to(K, (len(maps), 3, 3)) if np.ndim(K) == 2 else np.asarray(K)
+    if Ks.shape != (len(maps), 3, 3):
+        raise ValueError(f"K must be (3, 3) per frame of the maps {maps_in.shape}; got {np.shape(K)}")
+    H, W = maps.shape[1:]
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
+    out = np.stack([m * ray_lengths(k.astype(np.float64), rows, cols) ** power for m, k in zip(maps, Ks)])
+    out = out.astype(maps_in.dtype if np.issubdtype(maps_in.dtype, np.floating) else np.float32)
+    return out[0] if single else out
+
+
 def depth_from_range(range_maps: np.ndarray, K: np.ndarray) -> np.ndarray:
     """z depth, the range maps' shape (float dtypes kept, others float32): (T, H, W) maps with a
     (T, 3, 3) K or one (3, 3) K for every frame, or one (H, W) map with a (3, 3) K."""
-    single = range_maps.ndim == 2
-    maps = range_maps[None] if single else range_maps
-    Ks = np.broadcast_to(K, (len(maps), 3, 3)) if np.ndim(K) == 2 else np.asarray(K)
-    if Ks.shape != (len(maps), 3, 3):
-        raise ValueError(f"K must be (3, 3) per frame of the range maps {range_maps.shape}; got {np.shape(K)}")
-    H, W = maps.shape[1:]
-    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
-    z = np.stack([m / ray_lengths(k.astype(np.float64), rows, cols) for m, k in zip(maps, Ks)])
-    z = z.astype(range_maps.dtype if np.issubdtype(range_maps.dtype, np.floating) else np.float32)
-    return z[0] if single else z
+    return _along_rays(range_maps, K, -1)
+
+
+def range_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Range maps (each pixel's distance from the camera centre) of z depth: :func:`depth_from_range`'s
+    inverse, with its shapes and dtypes."""
+    return _along_rays(depth, K, 1)
 
 
 def _group_medians(values: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,13 +175,15 @@ def _misfits(clip: Clip, pair: int, block: np.ndarray, readings: Sequence[_Readi
     trial, point = np.divmod(landed, moved.shape[1])
     col, row = u.ravel()[landed].astype(np.int64), v.ravel()[landed].astype(np.int64)
     pixel = row * W + col
-    mirrored = np.array([r.mirrored for r in readings])[owner[trial]]  # (landed, 2)
-    read_pixel = (np.where(mirrored[:, 0], H - 1 - row, row) * W + np.where(mirrored[:, 1], W - 1 - col, col)
-                  if mirrored.any() else pixel)
+    read_pixel = pixel
+    mirrored = np.array([r.mirrored for r in readings])  # (readings, 2): rows, columns
+    if mirrored.any():
+        mirrored = mirrored[owner[trial]]
+        read_pixel = np.where(mirrored[:, 0], H - 1 - row, row) * W + np.where(mirrored[:, 1], W - 1 - col, col)
     read = clip.depth[pair].ravel()[read_pixel].astype(np.float64)
-    as_range = np.array([r.as_range for r in readings])[owner[trial]]
+    as_range = np.array([r.as_range for r in readings])
     if as_range.any():
-        read = np.where(as_range, read / ray_lengths(K_curr, row, col), read)
+        read = np.where(as_range[owner[trial]], read / ray_lengths(K_curr, row, col), read)
     good = np.isfinite(read) & (read > 0) & clip.static_mask[pair].ravel()[pixel]
     trial, point, z = trial[good], point[good], moved[..., 2].ravel()[landed[good]]
     error = (read[good] - z) / z
