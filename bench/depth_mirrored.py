@@ -1,6 +1,6 @@
-"""The loader's mirrored-depth line (`depth_mirrored`, docs/semantics.md §1.6; rule FL7 in
-bench/history/issue-58.md "Depth stored mirrored"): where it and the other depth lines fire, with
-the depth as given, mirrored and stored as disparity or range.
+"""The loader's mirrored-depth line (`depth_mirrored`, docs/semantics.md §1.6; rules FL7 and FT2 in
+bench/history/issue-58.md "Depth stored mirrored", "Depth turned 180°"): where it and the other depth lines fire, with
+the depth as given, mirrored, turned 180° and stored as disparity or range.
 
     python bench/depth_mirrored.py --pool fit|held-out [--scenes 24] [--battery fit|test]
     python bench/depth_mirrored.py --real [--realdata ../shared/realdata] [--scores]
@@ -22,6 +22,7 @@ import numpy as np
 from pools import need_one, pool_parser
 
 from sgc_jax import SGCConfig, load_clip, score_batch
+from sgc_jax.io.checks.depth import MIRROR_WORDS
 from sgc_jax.io.depth_range import range_from_depth
 from sgc_jax.io.validate import check_clip
 from sgc_jax.research import adversaries, protocol
@@ -34,21 +35,29 @@ READINGS = {
     "as given": lambda c: c.depth,
     "rows bottom-up": lambda c: np.ascontiguousarray(c.depth[:, ::-1]),
     "columns reversed": lambda c: np.ascontiguousarray(c.depth[:, :, ::-1]),
+    "turned 180°": lambda c: np.ascontiguousarray(c.depth[:, ::-1, ::-1]),
     "disparity": lambda c: np.where(c.depth > 0, 1.0 / np.maximum(c.depth, 1e-6), 0.0).astype(np.float32),
     "range": lambda c: range_from_depth(c.depth, c.K),
 }
+FLIP_OF = {"rows bottom-up": "up-down", "columns reversed": "left-right", "turned 180°": "turned 180°"}
 
 
 def line_counts(label: str, clips: list) -> None:
+    """Per depth reading, the clips each of LINES names; for a mirrored reading also those whose
+    `depth_mirrored` line gives the right undoing slice."""
     config, counts = SGCConfig(), collections.Counter()
     for clip in clips:
         for reading, depth in READINGS.items():
-            codes = {p.code for p in check_clip(dataclasses.replace(clip, depth=depth(clip)), config)}
-            counts.update((reading, line) for line in LINES if line in codes)
-    print(f"\n{label}, {len(clips)} clips\n\n| depth | " + " | ".join(f"`{line}`" for line in LINES) + " |\n|---|"
-          + "---|" * len(LINES))
+            problems = check_clip(dataclasses.replace(clip, depth=depth(clip)), config)
+            counts.update((reading, line) for line in LINES if line in {p.code for p in problems})
+            undo = MIRROR_WORDS[FLIP_OF[reading]][1] if reading in FLIP_OF else None
+            counts[reading, "right"] += any(p.code == "depth_mirrored" and undo and p.fix.endswith(undo)
+                                            for p in problems)
+    print(f"\n{label}, {len(clips)} clips\n\n| depth | " + " | ".join(f"`{line}`" for line in LINES)
+          + " | `depth_mirrored` naming the flip |\n|---|" + "---|" * (len(LINES) + 1))
     for reading in READINGS:
-        print(f"| {reading} | " + " | ".join(str(counts[reading, line]) for line in LINES) + " |")
+        right = counts[reading, "right"] if reading in FLIP_OF else "-"
+        print(f"| {reading} | " + " | ".join(str(counts[reading, line]) for line in LINES) + f" | {right} |")
 
 
 def battery(split: str) -> list:
@@ -57,10 +66,10 @@ def battery(split: str) -> list:
 
 
 def real_scores(clips: list) -> None:
-    print("\n| clip | SGC as given | rows bottom-up | columns reversed |\n|---|---|---|---|")
+    print("\n| clip | SGC as given | rows bottom-up | columns reversed | turned 180° |\n|---|---|---|---|---|")
     scored = {reading: score_batch([dataclasses.replace(c, depth=READINGS[reading](c)) for c in clips],
                                    progress=False).to_pandas().sgc.to_numpy()
-              for reading in ("as given", "rows bottom-up", "columns reversed")}
+              for reading in ("as given", "rows bottom-up", "columns reversed", "turned 180°")}
     for k, clip in enumerate(clips):
         print(f"| {clip.clip_id} | " + " | ".join(f"{scored[r][k]:.3f}" for r in scored) + " |")
 

@@ -363,6 +363,8 @@ CASES = {
                                "depth", ["each map's rows read in reverse order", "depth[:, ::-1]"]),
     "depth stored mirrored left to right": (lambda c: {"depth": np.ascontiguousarray(c.depth[:, :, ::-1])}, "warning",
                                             "depth_mirrored", "depth", ["columns read in reverse order", "depth[:, :, ::-1]"]),
+    "depth turned 180°": (lambda c: {"depth": np.ascontiguousarray(c.depth[:, ::-1, ::-1])}, "warning", "depth_mirrored",
+                          "depth", ["rows and columns read in reverse order", "depth[:, ::-1, ::-1]", "orientation tag"]),
     "inverted static mask": (lambda c: {"static_mask": ~c.static_mask}, "warning", "static_mask_tiny",
                              "static_mask", ["0.0% static", "inverted mask"]),
 }

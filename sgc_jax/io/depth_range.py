@@ -37,9 +37,9 @@ FOLLOWS_CAMERA = 2.0
 # The translation's scale is searched around the tracks' fit: this many log-spaced factors over
 # [1 / SCALE_SPAN, SCALE_SPAN], then as many again over one step around the best.
 SCALE_SPAN, SCALE_STEPS = 1.5, 7
-# A depth map mirrored against its frame: both maps of a pair read with their rows, or their columns,
-# in reverse order ((rows, columns) reversed).
-FLIPS = {"up-down": (True, False), "left-right": (False, True)}
+# A depth map mirrored against its frame: both maps of a pair read with their rows, their columns, or both
+# (a half turn) in reverse order ((rows, columns) reversed).
+FLIPS = {"up-down": (True, False), "left-right": (False, True), "turned 180°": (True, True)}
 
 
 def ray_lengths(K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -103,15 +103,14 @@ def _block_misfits(error: np.ndarray, block: np.ndarray, trial: np.ndarray, n_tr
 
 class DepthReadings(NamedTuple):
     """``depth_reading_misfits``: the clip's depth misfit (relative) read as z and as range over the
-    pairs whose depth follows the camera; where asked, as z again and with both maps of each pair
-    mirrored (``FLIPS``), over the pairs that follow the camera under any of the three (NaN where
-    not read)."""
+    pairs whose depth follows the camera; where asked, as z again and (``flipped``, by the name of
+    each of ``FLIPS``) with both maps of each pair read so, over the pairs that follow the camera
+    under any of these readings (NaN and None where not read)."""
 
     as_z: float
     as_range: float
     mirrored_as_z: float = float("nan")
-    up_down: float = float("nan")
-    left_right: float = float("nan")
+    flipped: dict[str, float] | None = None
 
 
 class _Reading(NamedTuple):
@@ -239,7 +238,7 @@ def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.
     less than FOLLOWS_CAMERA times the best reading moved by the camera does not follow the camera (a
     still video under moving cameras) and tells nothing. ``mirrored_above``: where the as-z misfit is
     NaN or above it, each map is read mirrored too (FLIPS), a pair then following the camera where
-    left in place misfits FOLLOWS_CAMERA times the least of all four readings."""
+    left in place misfits FOLLOWS_CAMERA times the least of all its moving readings."""
     usable = [p for p in poses if np.isfinite(p[3]) and p[3] >= 0]
     chosen = np.unique(np.linspace(0, len(usable) - 1, min(PAIRS, len(usable))).round().astype(np.int64))
     rows = []
@@ -254,10 +253,11 @@ def depth_reading_misfits(clip: Clip, poses: Sequence[tuple[int, np.ndarray, np.
         return DepthReadings(float(as_z), float(as_range))
     for i, row in zip(chosen, rows):
         row[2:2] = _least_mirrored(clip, *usable[i])
-    kept = _following(rows)[:, [0, 2, 3]]
+    kept = _following(rows)[:, [0, *range(2, 2 + len(FLIPS))]]
     if not len(kept):
         return DepthReadings(float(as_z), float(as_range))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a mirrored reading NaN in every pair: NaN
-        mirrored = np.nanmedian(kept, axis=0)
-    return DepthReadings(float(as_z), float(as_range), *(float(m) for m in mirrored))
+        mirrored_as_z, *flipped = np.nanmedian(kept, axis=0)
+    return DepthReadings(float(as_z), float(as_range), float(mirrored_as_z),
+                         {name: float(m) for name, m in zip(FLIPS, flipped)})

@@ -159,13 +159,25 @@ def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",
                                         for pair, by_reading in fits.items()], mirrored_above=RANGE_MISFIT_MIN)
 
 
+# Per flip of FLIPS: how the line names the reversed axes, the undoing slice, and where such maps come from.
+MIRROR_WORDS = {
+    "up-down": ("rows", "depth[:, ::-1]", "OpenGL's and Blender's image buffers run bottom-up"),
+    "left-right": ("columns", "depth[:, :, ::-1]", "a mirrored selfie video, or depth estimated on flipped frames"),
+    "turned 180°": ("rows and columns", "depth[:, ::-1, ::-1]",
+                    "a video whose orientation tag turns it upside down, its depth estimated on the frames as stored "
+                    "and its tracks on the frames as shown, or the other way round"),
+}
+
+
 def mirrored_flip(readings: DepthReadings) -> str | None:
     """From ``depth_range_misfits``: the flip of FLIPS under which the depth warps onto the next
     frame's far better than as given (MIRRORED_READING_RATIO), or None."""
-    flip, misfit = min((("up-down", readings.up_down), ("left-right", readings.left_right)),
-                       key=lambda item: item[1] if np.isfinite(item[1]) else np.inf)
+    flipped = readings.flipped or {}
+    if not flipped:
+        return None
+    flip = min(flipped, key=lambda name: flipped[name] if np.isfinite(flipped[name]) else np.inf)
     as_z = readings.mirrored_as_z
-    return flip if np.isfinite(as_z) and as_z > RANGE_MISFIT_MIN and misfit < MIRRORED_READING_RATIO * as_z else None
+    return flip if np.isfinite(as_z) and as_z > RANGE_MISFIT_MIN and flipped[flip] < MIRRORED_READING_RATIO * as_z else None
 
 
 def check_depth_mirrored(clip: Clip, config: SGCConfig, readings: DepthReadings, reading: str = "given") -> list[Problem]:
@@ -175,18 +187,17 @@ def check_depth_mirrored(clip: Clip, config: SGCConfig, readings: DepthReadings,
     flip = mirrored_flip(readings)
     if flip is None:
         return []
-    rows = FLIPS[flip][0]
-    flipped = np.flip(clip.depth, axis=1 if rows else 2)
+    reversed_axes = tuple(axis for axis, reverse in zip((1, 2), FLIPS[flip]) if reverse)
+    flipped = np.flip(clip.depth, axis=reversed_axes)
     if not depth_parallax_rho(dataclasses.replace(clip, depth=flipped), config, reading) < -DISPARITY_RHO_WARN:
         return []
-    misfit = readings.up_down if rows else readings.left_right
-    axis, undo = ("rows", "depth[:, ::-1]") if rows else ("columns", "depth[:, :, ::-1]")
+    axes, undo, source = MIRROR_WORDS[flip]
     return [Problem(
         "warning", "depth_mirrored", "depth", "depth maps stored as the frames are (row 0 at the top, column 0 at the left)",
         f"the depth misses the camera's motion by {100 * readings.mirrored_as_z:.2g} % (median) as given and by "
-        f"{100 * misfit:.2g} % with each map's {axis} read in reverse order, and so read nearer points move more",
-        f"the maps look mirrored {flip} against their frames (OpenGL's and Blender's image buffers run "
-        f"bottom-up): flip them, {undo}")]
+        f"{100 * readings.flipped[flip]:.2g} % with each map's {axes} read in reverse order, and so read nearer points move more",
+        f"the maps look {'turned 180°' if flip == 'turned 180°' else 'mirrored ' + flip} against their frames ({source}): "
+        f"flip them, {undo}")]
 
 
 def check_depth_range(misfits: DepthReadings) -> list[Problem]:
