@@ -50,7 +50,7 @@ def line_counts(label: str, clips: list) -> None:
         for reading, depth in READINGS.items():
             problems = check_clip(dataclasses.replace(clip, depth=depth(clip)), config)
             counts.update((reading, line) for line in LINES if line in {p.code for p in problems})
-            undo = MIRROR_WORDS[FLIP_OF[reading]][1] if reading in FLIP_OF else None
+            undo = MIRROR_WORDS[FLIP_OF[reading]][2] if reading in FLIP_OF else None
             counts[reading, "right"] += any(p.code == "depth_mirrored" and undo and p.fix.endswith(undo)
                                             for p in problems)
     print(f"\n{label}, {len(clips)} clips\n\n| depth | " + " | ".join(f"`{line}`" for line in LINES)

@@ -19,7 +19,6 @@ from .motion_fits import (
 from .problems import Problem, frames_list, is_reference_compat
 
 # Thresholds, each with where it comes from.
-# Thresholds, each with where it comes from.
 FOCAL_RATIO_MAX = 3.0  # focal length off by more than 3x from the image size is an error
 # Principal point this far from the centre (fraction of the side) is suspicious: K of a grid f times the frame's
 # puts it |f - 1| / 2 off, so a half-size grid's K (0.249 on the real clips, scoring them 0.12-0.27) is named;

@@ -159,11 +159,12 @@ def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",
                                         for pair, by_reading in fits.items()], mirrored_above=RANGE_MISFIT_MIN)
 
 
-# Per flip of FLIPS: how the line names the reversed axes, the undoing slice, and where such maps come from.
+# Per flip of FLIPS: the reversed axes, how the maps look, the undoing slice, and where such maps come from.
 MIRROR_WORDS = {
-    "up-down": ("rows", "depth[:, ::-1]", "OpenGL's and Blender's image buffers run bottom-up"),
-    "left-right": ("columns", "depth[:, :, ::-1]", "a mirrored selfie video, or depth estimated on flipped frames"),
-    "turned 180°": ("rows and columns", "depth[:, ::-1, ::-1]",
+    "up-down": ("rows", "mirrored up-down", "depth[:, ::-1]", "OpenGL's and Blender's image buffers run bottom-up"),
+    "left-right": ("columns", "mirrored left-right", "depth[:, :, ::-1]",
+                   "a mirrored selfie video, or depth estimated on flipped frames"),
+    "turned 180°": ("rows and columns", "turned 180°", "depth[:, ::-1, ::-1]",
                     "a video whose orientation tag turns it upside down, its depth estimated on the frames as stored "
                     "and its tracks on the frames as shown, or the other way round"),
 }
@@ -191,12 +192,12 @@ def check_depth_mirrored(clip: Clip, config: SGCConfig, readings: DepthReadings,
     flipped = np.flip(clip.depth, axis=reversed_axes)
     if not depth_parallax_rho(dataclasses.replace(clip, depth=flipped), config, reading) < -DISPARITY_RHO_WARN:
         return []
-    axes, undo, source = MIRROR_WORDS[flip]
+    axes, look, undo, source = MIRROR_WORDS[flip]
     return [Problem(
         "warning", "depth_mirrored", "depth", "depth maps stored as the frames are (row 0 at the top, column 0 at the left)",
         f"the depth misses the camera's motion by {100 * readings.mirrored_as_z:.2g} % (median) as given and by "
         f"{100 * readings.flipped[flip]:.2g} % with each map's {axes} read in reverse order, and so read nearer points move more",
-        f"the maps look {'turned 180°' if flip == 'turned 180°' else 'mirrored ' + flip} against their frames ({source}): "
+        f"the maps look {look} against their frames ({source}): "
         f"flip them, {undo}")]
 
 
