@@ -283,6 +283,8 @@ CASES = {
                                   "error", "focal_implausible", "K", ["within 3x", "fx=20.0"]),
     "principal point off centre": (lambda c: {"K": np.array([[110.0, 0, 110.0], [0, 110.0, 47.5], [0, 0, 1]])},
                                    "warning", "principal_point_off_centre", "K", ["cx=110.0", "rescale K"]),
+    "K of a half-size grid": (lambda c: {"K": c.K * np.array([0.5, 0.5, 1.0])[:, None]}, "warning",
+                              "principal_point_off_centre", "K", ["a ~48x64 image", "rescale K"]),
     "poses that are not rotations": (lambda c: {"R_wc": 2.0 * c.R_wc}, "error", "not_rotation", "R_wc",
                                      ["det = 8", "world->camera rotations"]),
     "tracks at twice the resolution": (lambda c: {"track_prev": 2 * c.track_prev, "track_curr": 2 * c.track_curr},
