@@ -127,8 +127,10 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
     elif read_tracks and not is_reference_compat(clip):
         readings = depth_range_misfits(clip, config, reading, fits)
         # a mirrored map read as range says nothing, nor disparity read as range; without parallax
-        # (rho NaN) every depth reading warps alike, and a mirrored one tells nothing
-        mirrored = check_depth_mirrored(clip, config, readings, reading) if np.isfinite(rho) else []
+        # (rho NaN) every depth reading warps alike, and a mirrored one tells nothing; under another pose
+        # reading the tracks may be what was misread (ends swapped read as camera->world poses), and the
+        # warp then moves the depth by the wrong cameras, which a half turn can meet halfway
+        mirrored = check_depth_mirrored(clip, config, readings, reading) if np.isfinite(rho) and reading == "given" else []
         problems += mirrored or ([] if moves_like_disparity else check_depth_range(readings))
     return problems
 
