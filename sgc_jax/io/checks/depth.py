@@ -45,10 +45,11 @@ RANGE_READING_RATIO = 0.5
 RANGE_MISFIT_MIN = 5e-4
 RANGE_FIT_MAX = 1.35e-3
 # A depth map stored mirrored against its frame (rows bottom-up, as OpenGL and Blender's image buffers
-# hold them, or columns reversed): read mirrored back it warps onto the next frame's with under this
-# share of its misfit as given (the pose readings' ratio, cameras.POSE_CONVENTION_RATIO), where that is
+# hold them, columns reversed, or both: turned 180°): read so back it warps onto the next frame's with under
+# this share of its misfit as given (the pose readings' ratio, cameras.POSE_CONVENTION_RATIO), where that is
 # above RANGE_MISFIT_MIN, and so read its nearer points move more (rho below -DISPARITY_RHO_WARN).
-# Rule FL7 on FIT's random pool and battery (bench/history/issue-58.md "Depth stored mirrored").
+# Rules FL7 and FT2 on FIT's random pool and battery (bench/history/issue-58.md "Depth stored mirrored",
+# "Depth turned 180°").
 MIRRORED_READING_RATIO = 0.4
 # A far backdrop read as depth (a sky at VGGT's or a metric model's far depth): at least this share of the
 # valid depth lies beyond this multiple of its 10th percentile. It sets the depth unit D (§3.1) once it is
@@ -125,12 +126,14 @@ def check_depth(clip: Clip, config: SGCConfig, reading: str = "given", read_trac
             "deliberate: reference-compat uses VDA output / 1000 directly" if compat else
             "this looks like disparity (inverse depth): convert it, e.g. `sgc-jax import --depth-kind disparity`"))
     elif read_tracks and not is_reference_compat(clip):
-        readings = depth_range_misfits(clip, config, reading, fits)
-        # a mirrored map read as range says nothing, nor disparity read as range; without parallax
-        # (rho NaN) every depth reading warps alike, and a mirrored one tells nothing; under another pose
-        # reading the tracks may be what was misread (ends swapped read as camera->world poses), and the
-        # warp then moves the depth by the wrong cameras, which a half turn can meet halfway
-        mirrored = check_depth_mirrored(clip, config, readings, reading) if np.isfinite(rho) and reading == "given" else []
+        # without parallax (rho NaN) every depth reading warps alike, and a mirrored one tells nothing;
+        # under another pose reading the tracks may be what was misread (ends swapped read as
+        # camera->world poses), and the warp then moves the depth by the wrong cameras, which a half
+        # turn can meet halfway: the mirrored readings only where neither holds
+        read_mirrored = bool(np.isfinite(rho)) and reading == "given"
+        readings = depth_range_misfits(clip, config, reading, fits, mirrored=read_mirrored)
+        mirrored = check_depth_mirrored(clip, config, readings, reading) if read_mirrored else []
+        # a mirrored map read as range says nothing, nor disparity read as range
         problems += mirrored or ([] if moves_like_disparity else check_depth_range(readings))
     return problems
 
@@ -151,14 +154,16 @@ def inverse_depth_fits_better(clip: Clip, config: SGCConfig, reading: str = "giv
 
 
 def depth_range_misfits(clip: Clip, config: SGCConfig, reading: str = "given",
-                        fits: dict[int, dict[str, tuple[float, float]]] | None = None) -> DepthReadings:
-    """``depth_range.depth_reading_misfits`` (as z, as range, and mirrored where the as-z misfit is
-    above RANGE_MISFIT_MIN or NaN) with the camera's poses read as ``relative_pose`` reads them and
-    each pair's translation scale fitted to its tracks (``fits``, ``pair_track_fits`` holding
-    ``reading``, where given)."""
+                        fits: dict[int, dict[str, tuple[float, float]]] | None = None,
+                        mirrored: bool = True) -> DepthReadings:
+    """``depth_range.depth_reading_misfits`` (as z, as range, and, where ``mirrored``, mirrored where
+    the as-z misfit is above RANGE_MISFIT_MIN or NaN) with the camera's poses read as ``relative_pose``
+    reads them and each pair's translation scale fitted to its tracks (``fits``, ``pair_track_fits``
+    holding ``reading``, where given)."""
     fits = pair_track_fits(clip, config, (reading,)) if fits is None else fits
     return depth_reading_misfits(clip, [(pair, *relative_pose(clip, pair, reading), by_reading[reading][1])
-                                        for pair, by_reading in fits.items()], mirrored_above=RANGE_MISFIT_MIN)
+                                        for pair, by_reading in fits.items()],
+                                 mirrored_above=RANGE_MISFIT_MIN if mirrored else None)
 
 
 # Per flip of FLIPS: the reversed axes, how the maps look, the undoing slice, and where such maps come from.
